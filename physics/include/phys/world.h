@@ -1,0 +1,241 @@
+// The world: bodies, shapes, joints, and the step. In-process API; no I/O.
+// Units are SI (m, kg, s, rad). z is up; the default gravity is (0, 0, -9.81).
+// Every create/edit call validates its input and returns a Status; a rejected call changes
+// nothing. Ids are generational handles: a stale id is reported as NotFound.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "phys/ids.h"
+#include "phys/math.h"
+#include "phys/shapes.h"
+
+namespace phys {
+
+/// Result codes shared with the network protocol.
+enum class StatusCode : uint8_t {
+  Ok = 0,
+  InvalidArgument,    ///< a number out of range, a NaN, a malformed definition
+  NotFound,           ///< unknown or stale id
+  IncorrectState,     ///< valid request, wrong moment (e.g. a plane on a dynamic body)
+  ResourceExhausted,  ///< a count limit
+};
+struct Status {
+  StatusCode code = StatusCode::Ok;
+  std::string message;
+  bool ok() const { return code == StatusCode::Ok; }
+  static Status Ok() { return {}; }
+  static Status Error(StatusCode c, std::string m) { return {c, std::move(m)}; }
+};
+const char* toString(StatusCode c);
+
+/// Surface material. Mixing for a contact: friction = sqrt(fa * fb) (geometric mean, so a
+/// frictionless surface makes any contact frictionless), restitution = max(ea, eb) (so a
+/// bouncy ball bounces on any floor).
+struct Material {
+  float friction = 0.6f;     ///< Coulomb coefficient (static = dynamic), >= 0
+  float restitution = 0.0f;  ///< 0 (plastic) .. 1 (elastic)
+  float density = 1000.0f;   ///< kg/m^3, used when a body's mass comes from its shapes
+};
+
+enum class BodyType : uint8_t { Static = 0, Kinematic = 1, Dynamic = 2 };
+const char* toString(BodyType t);
+
+/// One shape on a body.
+struct ShapeDef {
+  ShapeGeom geom;
+  Transform local;  ///< shape frame relative to the body frame
+  Material material;
+};
+
+/// Everything needed to create a body. Defaults: a dynamic body at the origin, at rest.
+struct BodyDef {
+  BodyType type = BodyType::Dynamic;
+  Vec3 position;         ///< m, body frame origin in the world
+  Quat rotation;         ///< unit quaternion
+  Vec3 linearVelocity;   ///< m/s, of the centre of mass
+  Vec3 angularVelocity;  ///< rad/s, world frame
+  float linearDamping = 0;   ///< 1/s: v *= 1 / (1 + h * damping)
+  float angularDamping = 0;  ///< 1/s
+  float gravityScale = 1;
+  /// kg. 0 means: compute mass, centre of mass and inertia from the shapes' densities.
+  /// > 0 means: this mass; inertia scaled from the shapes' unless `inertia` is given.
+  float mass = 0;
+  Vec3 inertia;  ///< kg m^2, principal moments about the centre of mass in body axes; 0 = auto
+  bool gyroscopic = true;  ///< integrate the gyroscopic torque (implicitly)
+  std::string name;        ///< optional, for scenes and logs
+  std::vector<ShapeDef> shapes;
+};
+
+enum class JointType : uint8_t { Ball = 0, Hinge = 1, Fixed = 2, Distance = 3, Prismatic = 4 };
+const char* toString(JointType t);
+
+/// A joint between bodies a and b. Frames are given in each body's local frame (body origin,
+/// not centre of mass). Hinge: rotation about `axis`. Prismatic: translation along `axis`.
+struct JointDef {
+  JointType type = JointType::Ball;
+  BodyId bodyA, bodyB;  ///< bodyA may be null: the joint is then anchored to the world
+  Vec3 anchorA, anchorB;  ///< m, local to each body
+  Vec3 axisA{0, 0, 1}, axisB{0, 0, 1};  ///< hinge/prismatic axis, local to each body
+  /// Hinge: angle limits (rad). Prismatic: translation limits (m). Distance: min/max length (m).
+  bool enableLimit = false;
+  float lower = 0, upper = 0;
+  /// Hinge/prismatic motor: target speed (rad/s or m/s) up to maxForce (N m or N).
+  bool enableMotor = false;
+  float motorSpeed = 0;
+  float maxMotorForce = 0;
+  /// Distance: rest length (m; < 0 means the initial distance). With springHertz > 0 the
+  /// rest length acts as a spring of that frequency; limits still hold hard.
+  float length = -1;
+  float springHertz = 0;
+  float springDampingRatio = 0;
+  bool collideConnected = false;  ///< let the two bodies' shapes collide
+  std::string name;
+};
+
+/// The solver's settings. The baseline is projected Gauss-Seidel with warm starting; the
+/// same loop runs with `substeps` > 1 in the TGS style (positions advance per substep).
+struct SolverSettings {
+  enum class Stabilization : uint8_t { Baumgarte = 0, Soft = 1 };
+  int substeps = 4;          ///< >= 1
+  int iterations = 1;        ///< velocity iterations per substep, >= 1
+  int relaxIterations = 1;   ///< iterations without position bias after each substep, >= 0
+  Stabilization stabilization = Stabilization::Soft;
+  float baumgarte = 0.2f;       ///< Baumgarte beta, 0..1
+  float contactHertz = 30;      ///< soft contact stiffness; capped at a quarter of substep rate
+  float contactDampingRatio = 10;
+  float jointHertz = 60;        ///< soft joint stiffness; capped at a quarter of substep rate
+  float jointDampingRatio = 2;  ///< for soft joints
+  float maxPushout = 3;         ///< m/s, the fastest speed penetration recovery may add
+  float linearSlop = 0.005f;    ///< m, penetration allowed without correction
+  bool warmStart = true;
+  bool restitution = true;
+  float restitutionThreshold = 1;  ///< m/s, approach speed below which no bounce
+};
+
+struct WorldDef {
+  Vec3 gravity{0, 0, -9.81f};  ///< m/s^2
+  float timeStep = 1.0f / 60;  ///< s, the fixed step used by step()
+  float maxLinearSpeed = 1000;  ///< m/s, clamp
+  float maxAngularSpeed = 500;  ///< rad/s, clamp
+  /// m: every contact closer than this is solved (speculatively when apart); the margin also
+  /// grows with the bodies' speeds so fast bodies do not tunnel.
+  float speculativeDistance = 0.02f;
+  float aabbMargin = 0.05f;  ///< m, broad-phase fattening
+  SolverSettings solver;
+};
+
+/// Wall time of each step stage in milliseconds. Stage names are used everywhere.
+struct StepProfile {
+  double applyCommands = 0, updateBounds = 0, broadPhase = 0, narrowPhase = 0, buildIslands = 0,
+         prepare = 0, integrateVelocities = 0, warmStart = 0, solve = 0, integratePositions = 0,
+         relax = 0, restitution = 0, positionPass = 0, storeImpulses = 0, finalize = 0, total = 0;
+};
+
+/// What the last step did, for metrics and monitors (double precision).
+struct StepStats {
+  uint64_t step = 0;        ///< steps taken so far
+  int bodies = 0, awake = 0, contacts = 0, contactPoints = 0, joints = 0, pairs = 0;
+  double energyBefore = 0;  ///< J, kinetic + potential at step start
+  double energyAfter = 0;   ///< J, at step end
+  double velocityResidual = 0;  ///< norm of J v + bias over active rows after the solve
+  double maxPenetration = 0;    ///< m, deepest contact overlap at the start of the step
+  int iterationsUsed = 0;
+};
+
+/// Read-only view of a body.
+struct BodyState {
+  BodyId id;
+  BodyType type = BodyType::Dynamic;
+  Vec3 position;  ///< body frame origin
+  Quat rotation;
+  Vec3 linearVelocity, angularVelocity;
+  float mass = 0;
+};
+
+/// A joint's state after the last step.
+struct JointState {
+  JointId id;
+  Vec3 reactionForce;   ///< N, applied to body B (world frame), last step
+  Vec3 reactionTorque;  ///< N m, applied to body B (world frame), last step
+  float positionError = 0;  ///< m, distance between the two world anchors (length error for distance joints)
+  float angleError = 0;     ///< rad, hinge axis misalignment or fixed-frame relative angle
+};
+
+/// A contact for inspection (metrics, debugging).
+struct ContactInfo {
+  BodyId bodyA, bodyB;
+  ShapeId shapeA, shapeB;
+  Manifold manifold;
+  float normalImpulse[Manifold::kMaxPoints] = {};
+};
+
+class World {
+ public:
+  explicit World(const WorldDef& def = WorldDef());
+  ~World();
+  World(const World&) = delete;
+  World& operator=(const World&) = delete;
+
+  const WorldDef& def() const;
+  Status setGravity(Vec3 g);
+  Status setTimeStep(float dt);
+  Status setSolverSettings(const SolverSettings& s);
+  /// Validates solver settings without applying them.
+  static Status validate(const SolverSettings& s);
+
+  // Bodies. createBody validates the whole definition (finite numbers, unit quaternion,
+  // positive sizes and masses, planes only on static bodies) and creates nothing on error.
+  Status createBody(const BodyDef& def, BodyId* out);
+  Status destroyBody(BodyId id);  ///< also destroys the body's shapes and joints
+  Status setTransform(BodyId id, Vec3 position, Quat rotation);
+  Status setVelocity(BodyId id, Vec3 linear, Vec3 angular);
+  Status setBodyType(BodyId id, BodyType type);
+  /// mass > 0; inertia 0 means scale the current inertia with the mass.
+  Status setMass(BodyId id, float mass, Vec3 inertia = {});
+  Status setMaterial(BodyId id, const Material& m);  ///< every shape of the body
+  Status applyForce(BodyId id, Vec3 force, Vec3 worldPoint);  ///< N, for the next step
+  Status applyTorque(BodyId id, Vec3 torque);                  ///< N m, for the next step
+  Status applyImpulse(BodyId id, Vec3 impulse, Vec3 worldPoint);  ///< N s, immediately
+  Status getBody(BodyId id, BodyState* out) const;
+  bool isValid(BodyId id) const;
+  std::vector<BodyId> bodies() const;  ///< live bodies in index order
+  int bodyCount() const;
+  /// Shapes of a body (ids), and a shape's definition.
+  std::vector<ShapeId> bodyShapes(BodyId id) const;
+  Status getShape(ShapeId id, ShapeDef* out, BodyId* body) const;
+  Status addShape(BodyId body, const ShapeDef& def, ShapeId* out);  ///< mass recomputed if auto
+  Status removeShape(ShapeId id);
+
+  // Joints.
+  Status createJoint(const JointDef& def, JointId* out);
+  Status destroyJoint(JointId id);
+  Status setMotor(JointId id, bool enable, float speed, float maxForce);
+  Status getJoint(JointId id, JointDef* def, JointState* state) const;
+  std::vector<JointId> joints() const;
+  int jointCount() const;
+
+  /// Advances by one fixed step of def().timeStep.
+  void step();
+  const StepProfile& profile() const;
+  const StepStats& stats() const;
+  /// Contacts after the last step (touching or speculative).
+  std::vector<ContactInfo> contacts() const;
+
+  /// Total energy (kinetic + gravitational potential), J, in double precision.
+  double energy() const;
+  /// 64-bit hash of every body's position and rotation bits, in id order (bit exact).
+  uint64_t stateHash() const;
+  double time() const;  ///< s, simulated time
+
+  struct Impl;
+
+ private:
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace phys

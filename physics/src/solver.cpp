@@ -1,0 +1,197 @@
+#include "solver.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace phys {
+
+Softness makeSoftness(float hertz, float zeta, float h) {
+  if (hertz <= 0) return {0, 1, 0};
+  // Catto 2011: an implicit spring-damper expressed as bias rate and mass/impulse scales.
+  float omega = 2 * kPi * hertz;
+  float a1 = 2 * zeta + h * omega;
+  float a2 = h * omega * a1;
+  float a3 = 1 / (1 + a2);
+  return {omega / a1, a2 * a3, a3};
+}
+
+void Solver::finishRows(size_t first) {
+  for (size_t i = first; i < rows.size(); ++i) {
+    Row& r = rows[i];
+    const SolverBody& A = bodies[size_t(r.a)];
+    const SolverBody& B = bodies[size_t(r.b)];
+    r.mLinA = r.linA * A.invMass;
+    r.mAngA = A.invI * r.angA;
+    r.mLinB = r.linB * B.invMass;
+    r.mAngB = B.invI * r.angB;
+    float k = dot(r.linA, r.mLinA) + dot(r.angA, r.mAngA) + dot(r.linB, r.mLinB) +
+              dot(r.angB, r.mAngB);
+    r.effMass = k > 1e-12f ? 1 / k : 0;
+  }
+}
+
+void Solver::integrateVelocities(float h, float maxLinearSpeed, float maxAngularSpeed) {
+  for (size_t i = 1; i < bodies.size(); ++i) {
+    SolverBody& b = bodies[i];
+    if (!b.dynamic) continue;
+    Vec3 v = b.v + b.linearAccel * h;
+    Vec3 w = b.w;
+    if (b.gyroscopic) {
+      // Implicit gyroscopic term, one Newton step in body coordinates (SOLVER_NOTES): an
+      // explicit step gains energy and flips fast spinners unphysically.
+      Vec3 wb = invRotate(b.q, w);
+      const Mat3& Ib = b.inertiaLocal;
+      Vec3 Iw = Ib * wb;
+      Vec3 f = cross(wb, Iw) * h;
+      Mat3 J = Ib + (skew(wb) * Ib - skew(Iw)) * h;
+      wb = wb - inverse(J) * f;
+      w = rotate(b.q, wb);
+    }
+    w += b.invI * b.torque * h;
+    v *= 1 / (1 + h * b.linearDamping);
+    w *= 1 / (1 + h * b.angularDamping);
+    float vl = length(v);
+    if (vl > maxLinearSpeed) v *= maxLinearSpeed / vl;
+    float wl = length(w);
+    if (wl > maxAngularSpeed) w *= maxAngularSpeed / wl;
+    b.v = v;
+    b.w = w;
+  }
+}
+
+void Solver::warmStart() {
+  for (const Row& r : rows) {
+    if (r.lambda != 0) applyImpulse(r, r.lambda);
+  }
+}
+
+void Solver::solveIteration(const SolverSettings& s, float h, bool useBias) {
+  const float invH = 1 / h;
+  const bool soft = s.stabilization == SolverSettings::Stabilization::Soft;
+  // Stiffness is capped at a quarter of the substep rate: stiffer springs are not resolved
+  // by the integrator and only add energy.
+  const float cap = 0.25f * invH;
+  const Softness contactSoft = soft ? makeSoftness(std::min(s.contactHertz, cap),
+                                                   s.contactDampingRatio, h)
+                                    : Softness{s.baumgarte * invH, 1, 0};
+  const Softness jointSoft =
+      soft ? makeSoftness(std::min(s.jointHertz, cap), s.jointDampingRatio, h)
+           : Softness{s.baumgarte * invH, 1, 0};
+
+  for (Row& r : rows) {
+    float vn = rowVelocity(r);
+    float impulse = 0;
+    switch (r.kind) {
+      case RowKind::ContactNormal:
+      case RowKind::Limit: {
+        float C = rowError(r);
+        float bias = 0, massScale = 1, impulseScale = 0;
+        if (C > 0) {
+          bias = C * invH;  // speculative: close exactly the gap this substep, no more
+        } else if (useBias) {
+          float Cs = std::min(0.0f, C + (r.kind == RowKind::ContactNormal ? s.linearSlop : 0));
+          bias = std::max(contactSoft.biasRate * Cs, -s.maxPushout);
+          massScale = contactSoft.massScale;
+          impulseScale = contactSoft.impulseScale;
+        }
+        impulse = -r.effMass * massScale * (vn + bias) - impulseScale * r.lambda;
+        float next = std::max(r.lambda + impulse, 0.0f);
+        impulse = next - r.lambda;
+        r.lambda = next;
+        r.maxLambda = std::max(r.maxLambda, next);
+        break;
+      }
+      case RowKind::Friction: {
+        float bound = r.mu * rows[size_t(r.parent)].lambda;
+        impulse = -r.effMass * vn;
+        float next = std::clamp(r.lambda + impulse, -bound, bound);
+        impulse = next - r.lambda;
+        r.lambda = next;
+        break;
+      }
+      case RowKind::Equality: {
+        float bias = 0, massScale = 1, impulseScale = 0;
+        if (useBias) {
+          bias = jointSoft.biasRate * rowError(r);
+          massScale = jointSoft.massScale;
+          impulseScale = jointSoft.impulseScale;
+        }
+        impulse = -r.effMass * massScale * (vn + bias) - impulseScale * r.lambda;
+        r.lambda += impulse;
+        break;
+      }
+      case RowKind::Spring: {
+        // A spring is soft in both passes: it is the physics, not an error correction.
+        Softness sp = makeSoftness(r.hertz, r.dampingRatio, h);
+        impulse = -r.effMass * sp.massScale * (vn + sp.biasRate * rowError(r)) -
+                  sp.impulseScale * r.lambda;
+        r.lambda += impulse;
+        break;
+      }
+      case RowKind::Motor: {
+        impulse = -r.effMass * (vn - r.target);
+        float next = std::clamp(r.lambda + impulse, -r.maxImpulse, r.maxImpulse);
+        impulse = next - r.lambda;
+        r.lambda = next;
+        break;
+      }
+    }
+    if (impulse != 0) applyImpulse(r, impulse);
+  }
+}
+
+void Solver::integratePositions(float h) {
+  for (size_t i = 1; i < bodies.size(); ++i) {
+    SolverBody& b = bodies[i];
+    b.dp += b.v * h;
+    b.dtheta += b.w * h;
+    b.q = integrateRotation(b.q, b.w, h);
+  }
+}
+
+void Solver::applyRestitution(float threshold) {
+  for (Row& r : rows) {
+    if (r.kind != RowKind::ContactNormal || r.restitution == 0) continue;
+    if (r.relativeVelocity > -threshold || r.maxLambda == 0) continue;
+    float vn = rowVelocity(r);
+    float impulse = -r.effMass * (vn + r.restitution * r.relativeVelocity);
+    float next = std::max(r.lambda + impulse, 0.0f);
+    impulse = next - r.lambda;
+    r.lambda = next;
+    r.maxLambda = std::max(r.maxLambda, next);
+    if (impulse != 0) applyImpulse(r, impulse);
+  }
+}
+
+double Solver::velocityResidual(float h) const {
+  double sum = 0;
+  for (const Row& r : rows) {
+    double e = 0;
+    float vn = rowVelocity(r);
+    switch (r.kind) {
+      case RowKind::ContactNormal:
+      case RowKind::Limit: {
+        // Active rows should hold J v = 0; inactive ones only must not close past the gap.
+        float gap = std::max(rowError(r), 0.0f) / h;
+        e = r.lambda > 0 ? vn : std::min(0.0f, vn + gap);
+        break;
+      }
+      case RowKind::Equality:
+        e = vn;
+        break;
+      case RowKind::Friction: {
+        float bound = r.mu * rows[size_t(r.parent)].lambda;
+        e = std::fabs(r.lambda) < bound ? vn : 0;  // sliding rows are at their bound
+        break;
+      }
+      case RowKind::Motor:
+      case RowKind::Spring:
+        break;
+    }
+    sum += e * e;
+  }
+  return std::sqrt(sum);
+}
+
+}  // namespace phys

@@ -1,0 +1,112 @@
+// Constraint rows as data, and the iterative scheme that runs over them.
+//
+// Every constraint (contact normal, friction direction, joint axis, limit, motor, spring) is
+// one scalar row: a Jacobian J = (linA, angA, linB, angB), a position error C at the start of
+// the step, bounds on its accumulated impulse, and the softness class that turns C into a
+// velocity bias. Rows never change inside a step; the position error inside a substep is
+// C0 + J . (dpB, dthetaB, dpA, dthetaA) from the bodies' accumulated position deltas (the TGS
+// linearization), so no collision detection or Jacobian rebuild happens between substeps.
+// The scheme (here: projected Gauss-Seidel) is separate from the rows: a later Jacobi or LDL
+// scheme runs over the same array.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "phys/math.h"
+#include "phys/world.h"
+
+namespace phys {
+
+/// A body as the solver sees it: small and contiguous. Index 0 is the static world (zero
+/// velocity, zero inverse mass), so rows touching static bodies need no branch.
+struct SolverBody {
+  Vec3 v, w;            ///< m/s, rad/s
+  Vec3 dp;              ///< m, centre-of-mass displacement since the step began
+  Vec3 dtheta;          ///< rad, accumulated rotation vector since the step began
+  Quat q;               ///< current orientation
+  float invMass = 0;    ///< 1/kg (0 for kinematic bodies and the world)
+  Mat3 invI = Mat3::zero();  ///< world inverse inertia at the step's start
+  // Integration inputs (dynamic bodies only).
+  Vec3 linearAccel;     ///< m/s^2: gravity * scale + force / mass
+  Vec3 torque;          ///< N m
+  Mat3 inertiaLocal = Mat3::zero();
+  float linearDamping = 0, angularDamping = 0;
+  bool dynamic = false, gyroscopic = false;
+};
+
+enum class RowKind : uint8_t {
+  ContactNormal,  ///< lambda >= 0, speculative when C > 0
+  Friction,       ///< |lambda| <= mu * lambda(parent)
+  Equality,       ///< lambda free, soft joint bias
+  Limit,          ///< lambda >= 0, C >= 0 is allowed (speculative when C > 0)
+  Motor,          ///< |lambda| <= maxImpulse, drives J v to target
+  Spring,         ///< lambda free, soft with the row's own hertz and damping ratio
+};
+
+struct Row {
+  int32_t a = 0, b = 0;  ///< solver body indices (0 = world)
+  Vec3 linA, angA, linB, angB;      ///< Jacobian
+  Vec3 mLinA, mAngA, mLinB, mAngB;  ///< M^-1 J^T
+  float effMass = 0;   ///< 1 / (J M^-1 J^T)
+  float C0 = 0;        ///< position error at the step's start (m or rad)
+  float lambda = 0;    ///< accumulated impulse of the current substep, N s
+  float maxImpulse = 0;   ///< motor bound, N s per substep
+  float target = 0;       ///< motor target velocity
+  float mu = 0;           ///< friction coefficient
+  int32_t parent = -1;    ///< friction: the normal row bounding it
+  float restitution = 0;  ///< normal rows
+  float relativeVelocity = 0;  ///< normal rows: J v before the solve
+  float maxLambda = 0;         ///< normal rows: largest impulse in the step
+  float hertz = 0, dampingRatio = 0;  ///< spring rows
+  RowKind kind = RowKind::Equality;
+};
+
+struct Softness {
+  float biasRate = 0, massScale = 1, impulseScale = 0;
+};
+/// Catto's soft constraint coefficients for a spring of `hertz` and damping ratio `zeta`
+/// over a step of h seconds. hertz == 0 gives a rigid row without position correction.
+Softness makeSoftness(float hertz, float zeta, float h);
+
+class Solver {
+ public:
+  std::vector<SolverBody> bodies;  ///< [0] is the world
+  std::vector<Row> rows;
+
+  /// Sets M^-1 J^T and the effective mass of rows [first, end) from the bodies' masses.
+  void finishRows(size_t first);
+
+  /// One substep's stages. h is the substep length.
+  void integrateVelocities(float h, float maxLinearSpeed, float maxAngularSpeed);
+  void warmStart();
+  /// One iteration over every row. useBias=false is the relax pass.
+  void solveIteration(const SolverSettings& s, float h, bool useBias);
+  void integratePositions(float h);
+  void applyRestitution(float threshold);
+  /// Norm of the rows' velocity error after the solve (see SOLVER_NOTES "Residual").
+  double velocityResidual(float h) const;
+  /// J v of a row at the current velocities.
+  float rowVelocity(const Row& r) const {
+    const SolverBody& A = bodies[size_t(r.a)];
+    const SolverBody& B = bodies[size_t(r.b)];
+    return dot(r.linA, A.v) + dot(r.angA, A.w) + dot(r.linB, B.v) + dot(r.angB, B.w);
+  }
+  /// Position error of a row at the current substep, from the accumulated deltas.
+  float rowError(const Row& r) const {
+    const SolverBody& A = bodies[size_t(r.a)];
+    const SolverBody& B = bodies[size_t(r.b)];
+    return r.C0 + dot(r.linA, A.dp) + dot(r.angA, A.dtheta) + dot(r.linB, B.dp) +
+           dot(r.angB, B.dtheta);
+  }
+  void applyImpulse(const Row& r, float impulse) {
+    SolverBody& A = bodies[size_t(r.a)];
+    SolverBody& B = bodies[size_t(r.b)];
+    A.v += r.mLinA * impulse;
+    A.w += r.mAngA * impulse;
+    B.v += r.mLinB * impulse;
+    B.w += r.mAngB * impulse;
+  }
+};
+
+}  // namespace phys

@@ -1,0 +1,962 @@
+// World API (validated edits) and the step, whose stages read top to bottom in World::step.
+#include "phys/world.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+
+#include "joints.h"
+#include "world_impl.h"
+
+namespace phys {
+
+// ---------------------------------------------------------------------------------------------
+// Names
+
+const char* toString(StatusCode c) {
+  switch (c) {
+    case StatusCode::Ok: return "OK";
+    case StatusCode::InvalidArgument: return "INVALID_ARGUMENT";
+    case StatusCode::NotFound: return "NOT_FOUND";
+    case StatusCode::IncorrectState: return "INCORRECT_STATE";
+    case StatusCode::ResourceExhausted: return "RESOURCE_EXHAUSTED";
+  }
+  return "?";
+}
+const char* toString(BodyType t) {
+  switch (t) {
+    case BodyType::Static: return "static";
+    case BodyType::Kinematic: return "kinematic";
+    case BodyType::Dynamic: return "dynamic";
+  }
+  return "?";
+}
+const char* toString(JointType t) {
+  switch (t) {
+    case JointType::Ball: return "ball";
+    case JointType::Hinge: return "hinge";
+    case JointType::Fixed: return "fixed";
+    case JointType::Distance: return "distance";
+    case JointType::Prismatic: return "prismatic";
+  }
+  return "?";
+}
+
+// ---------------------------------------------------------------------------------------------
+// Validation: every public edit checks its input completely before changing anything.
+
+namespace {
+
+Status invalid(std::string m) { return Status::Error(StatusCode::InvalidArgument, std::move(m)); }
+Status notFound(const char* what) {
+  return Status::Error(StatusCode::NotFound, std::string(what) + " id is unknown or stale");
+}
+bool finite(float f) { return std::isfinite(f); }
+bool positive(float f) { return std::isfinite(f) && f > 0; }
+bool positive(Vec3 v) { return positive(v.x) && positive(v.y) && positive(v.z); }
+
+/// Accepts quaternions within 1e-3 of unit length (normalizing them); rejects others.
+Status checkRotation(Quat* q, const char* what) {
+  if (!isFinite(*q)) return invalid(std::string(what) + ": rotation is not finite");
+  if (std::fabs(lengthSquared(*q) - 1) > 2e-3f)
+    return invalid(std::string(what) + ": rotation is not a unit quaternion");
+  *q = normalize(*q);
+  return Status::Ok();
+}
+
+Status checkMaterial(const Material& m, const std::string& what) {
+  if (!finite(m.friction) || m.friction < 0) return invalid(what + ": friction must be >= 0");
+  if (!finite(m.restitution) || m.restitution < 0 || m.restitution > 1)
+    return invalid(what + ": restitution must be in [0, 1]");
+  if (!positive(m.density)) return invalid(what + ": density must be > 0");
+  return Status::Ok();
+}
+
+Status checkShape(ShapeDef* s, BodyType bodyType, const std::string& what) {
+  const ShapeGeom& g = s->geom;
+  switch (g.type) {
+    case ShapeType::Sphere:
+      if (!positive(g.radius)) return invalid(what + ": sphere radius must be > 0");
+      break;
+    case ShapeType::Box:
+      if (!positive(g.halfExtents)) return invalid(what + ": box half extents must be > 0");
+      break;
+    case ShapeType::Capsule:
+      if (!positive(g.radius)) return invalid(what + ": capsule radius must be > 0");
+      if (!finite(g.halfHeight) || g.halfHeight < 0)
+        return invalid(what + ": capsule half height must be >= 0");
+      break;
+    case ShapeType::Plane:
+      if (!isFinite(g.normal) || length(g.normal) < 1e-6f || !finite(g.offset))
+        return invalid(what + ": plane needs a finite non-zero normal and offset");
+      if (bodyType != BodyType::Static)
+        return Status::Error(StatusCode::IncorrectState,
+                             what + ": a plane is only allowed on a static body");
+      s->geom.normal = normalize(g.normal);
+      break;
+    case ShapeType::Hull:
+      if (!g.hull || g.hull->vertices.size() < 4) return invalid(what + ": hull is empty");
+      break;
+    default:
+      return invalid(what + ": unknown shape type");
+  }
+  if (!isFinite(s->local.p)) return invalid(what + ": local position is not finite");
+  Status st = checkRotation(&s->local.q, (what + " local").c_str());
+  if (!st.ok()) return st;
+  return checkMaterial(s->material, what);
+}
+
+/// Max distance of a shape's surface from point c (body frame), a bound for swept margins.
+float boundRadius(const ShapeDef& s, Vec3 c) {
+  Vec3 o = s.local.p - c;
+  float r = 0;
+  switch (s.geom.type) {
+    case ShapeType::Sphere: r = s.geom.radius; break;
+    case ShapeType::Box: r = length(s.geom.halfExtents); break;
+    case ShapeType::Capsule: r = s.geom.radius + s.geom.halfHeight; break;
+    case ShapeType::Plane: return 0;
+    case ShapeType::Hull:
+      for (Vec3 v : s.geom.hull->vertices) r = std::max(r, length(v));
+      break;
+  }
+  return length(o) + r;
+}
+
+double nowMs() {
+  return std::chrono::duration<double, std::milli>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+/// Times one stage into its profile field.
+class StageTimer {
+ public:
+  explicit StageTimer(double* field) : field_(field), start_(nowMs()) {}
+  ~StageTimer() { *field_ += nowMs() - start_; }
+
+ private:
+  double* field_;
+  double start_;
+};
+
+}  // namespace
+
+Status World::validate(const SolverSettings& s) {
+  if (s.substeps < 1 || s.substeps > 64) return invalid("solver.substeps must be in [1, 64]");
+  if (s.iterations < 1 || s.iterations > 1000)
+    return invalid("solver.iterations must be in [1, 1000]");
+  if (s.relaxIterations < 0 || s.relaxIterations > 1000)
+    return invalid("solver.relax_iterations must be in [0, 1000]");
+  if (!finite(s.baumgarte) || s.baumgarte < 0 || s.baumgarte > 1)
+    return invalid("solver.baumgarte must be in [0, 1]");
+  if (!positive(s.contactHertz) || !finite(s.contactDampingRatio) || s.contactDampingRatio < 0)
+    return invalid("solver.contact_hertz must be > 0 and contact_damping_ratio >= 0");
+  if (!positive(s.jointHertz) || !finite(s.jointDampingRatio) || s.jointDampingRatio < 0)
+    return invalid("solver.joint_hertz must be > 0 and joint_damping_ratio >= 0");
+  if (!positive(s.maxPushout)) return invalid("solver.max_pushout must be > 0");
+  if (!finite(s.linearSlop) || s.linearSlop < 0) return invalid("solver.linear_slop must be >= 0");
+  if (!finite(s.restitutionThreshold) || s.restitutionThreshold < 0)
+    return invalid("solver.restitution_threshold must be >= 0");
+  return Status::Ok();
+}
+
+// ---------------------------------------------------------------------------------------------
+// World lifetime and settings
+
+World::World(const WorldDef& def) : impl_(std::make_unique<Impl>()) {
+  impl_->def = def;
+  if (!validate(def.solver).ok()) impl_->def.solver = SolverSettings();
+  if (!(def.timeStep > 0 && def.timeStep <= 1)) impl_->def.timeStep = 1.0f / 60;
+  if (!isFinite(def.gravity)) impl_->def.gravity = WorldDef().gravity;
+}
+World::~World() = default;
+
+const WorldDef& World::def() const { return impl_->def; }
+
+Status World::setGravity(Vec3 g) {
+  if (!isFinite(g)) return invalid("gravity must be finite");
+  impl_->def.gravity = g;
+  return Status::Ok();
+}
+Status World::setTimeStep(float dt) {
+  if (!(finite(dt) && dt > 0 && dt <= 1)) return invalid("time step must be in (0, 1] s");
+  impl_->def.timeStep = dt;
+  return Status::Ok();
+}
+Status World::setSolverSettings(const SolverSettings& s) {
+  Status st = validate(s);
+  if (st.ok()) impl_->def.solver = s;
+  return st;
+}
+const StepProfile& World::profile() const { return impl_->profile; }
+const StepStats& World::stats() const { return impl_->stats; }
+double World::time() const { return impl_->time; }
+
+// ---------------------------------------------------------------------------------------------
+// Bodies
+
+void World::Impl::updateMass(BodyRec& b) {
+  if (b.type != BodyType::Dynamic) {
+    b.mass = 0;
+    b.invMass = 0;
+    b.inertiaLocal = Mat3::zero();
+    b.invInertiaLocal = Mat3::zero();
+    b.localCenter = {};
+    for (ShapeId sid : b.shapes) {
+      ShapeRec* s = shapes.get(sid);
+      s->boundRadius = boundRadius(s->def, {});
+    }
+    b.com = b.xf.p;
+    return;
+  }
+  // Combine the shapes: centre of mass, then each shape's inertia moved to it (parallel axes).
+  double m = 0;
+  Vec3 c;
+  std::vector<MassProperties> props;
+  for (ShapeId sid : b.shapes) {
+    const ShapeRec* s = shapes.get(sid);
+    MassProperties mp = computeMass(s->def.geom, s->def.material.density);
+    mp.center = apply(s->def.local, mp.center);
+    mp.inertia = toMat3(s->def.local.q) * mp.inertia * transpose(toMat3(s->def.local.q));
+    props.push_back(mp);
+    m += mp.mass;
+    c += mp.center * mp.mass;
+  }
+  if (m > 0) c = c / float(m);
+  Mat3 I = Mat3::zero();
+  for (const MassProperties& mp : props) {
+    Vec3 d = mp.center - c;
+    I = I + mp.inertia + (Mat3::diagonal({1, 1, 1}) * dot(d, d) - outer(d, d)) * mp.mass;
+  }
+  float mass = float(m);
+  if (!b.autoMass) {
+    // A given mass scales the shapes' inertia; with no volume, a unit sphere's shape.
+    if (mass > 0) I = I * (b.givenMass / mass);
+    else I = Mat3::diagonal({1, 1, 1}) * (0.4f * b.givenMass * 0.25f);
+    mass = b.givenMass;
+  }
+  if (positive(b.givenInertia)) I = Mat3::diagonal(b.givenInertia);
+  b.mass = mass;
+  b.invMass = mass > 0 ? 1 / mass : 0;
+  b.inertiaLocal = I;
+  b.invInertiaLocal = inverse(I);
+  Vec3 oldCom = b.com;
+  b.localCenter = c;
+  b.com = apply(b.xf, c);
+  (void)oldCom;
+  for (ShapeId sid : b.shapes) {
+    ShapeRec* s = shapes.get(sid);
+    s->boundRadius = boundRadius(s->def, c);
+  }
+}
+
+void World::Impl::syncProxies(BodyId id, bool moved) {
+  BodyRec* b = bodies.get(id);
+  for (ShapeId sid : b->shapes) {
+    ShapeRec* s = shapes.get(sid);
+    AABB box = computeAABB(s->def.geom, shapeTransform(*b, *s));
+    box = inflate(box, 0.5f * def.speculativeDistance);
+    if (s->proxy < 0) {
+      s->proxy = broadPhase.createProxy(box, def.aabbMargin, sid.index,
+                                        b->type == BodyType::Static);
+    } else if (moved) {
+      broadPhase.moveProxy(s->proxy, box, def.aabbMargin);
+    }
+  }
+}
+
+Status World::createBody(const BodyDef& in, BodyId* out) {
+  Impl& w = *impl_;
+  BodyDef def = in;
+  if (def.type != BodyType::Static && def.type != BodyType::Kinematic &&
+      def.type != BodyType::Dynamic)
+    return invalid("body: unknown type");
+  if (!isFinite(def.position)) return invalid("body: position is not finite");
+  Status st = checkRotation(&def.rotation, "body");
+  if (!st.ok()) return st;
+  if (!isFinite(def.linearVelocity) || !isFinite(def.angularVelocity))
+    return invalid("body: velocities must be finite");
+  if (!finite(def.linearDamping) || def.linearDamping < 0 || !finite(def.angularDamping) ||
+      def.angularDamping < 0)
+    return invalid("body: damping must be >= 0");
+  if (!finite(def.gravityScale)) return invalid("body: gravity scale must be finite");
+  if (!finite(def.mass) || def.mass < 0) return invalid("body: mass must be >= 0 (0 = from shapes)");
+  if (!isFinite(def.inertia) || def.inertia.x < 0 || def.inertia.y < 0 || def.inertia.z < 0)
+    return invalid("body: inertia must be >= 0 (0 = from shapes)");
+  bool givenInertia = def.inertia.x > 0 || def.inertia.y > 0 || def.inertia.z > 0;
+  if (givenInertia && !positive(def.inertia))
+    return invalid("body: inertia must have three positive moments, or be all 0");
+  for (size_t i = 0; i < def.shapes.size(); ++i) {
+    st = checkShape(&def.shapes[i], def.type, "body.shapes[" + std::to_string(i) + "]");
+    if (!st.ok()) return st;
+  }
+  if (def.type == BodyType::Dynamic && def.mass == 0) {
+    bool volume = false;
+    for (const ShapeDef& s : def.shapes) volume |= s.geom.type != ShapeType::Plane;
+    if (!volume) return invalid("body: a dynamic body needs a shape with volume or a mass > 0");
+  }
+
+  BodyRec rec;
+  rec.type = def.type;
+  rec.xf = {def.position, def.rotation};
+  rec.v = def.type == BodyType::Static ? Vec3{} : def.linearVelocity;
+  rec.w = def.type == BodyType::Static ? Vec3{} : def.angularVelocity;
+  rec.linearDamping = def.linearDamping;
+  rec.angularDamping = def.angularDamping;
+  rec.gravityScale = def.gravityScale;
+  rec.gyroscopic = def.gyroscopic;
+  rec.autoMass = def.mass == 0;
+  rec.givenMass = def.mass;
+  rec.givenInertia = def.inertia;
+  rec.name = def.name;
+  BodyId id = w.bodies.add(std::move(rec));
+  BodyRec& b = *w.bodies.get(id);
+  for (const ShapeDef& s : def.shapes) {
+    ShapeRec sr;
+    sr.body = id;
+    sr.def = s;
+    b.shapes.push_back(w.shapes.add(std::move(sr)));
+  }
+  w.updateMass(b);
+  w.syncProxies(id, false);
+  if (out) *out = id;
+  return Status::Ok();
+}
+
+Status World::destroyBody(BodyId id) {
+  Impl& w = *impl_;
+  BodyRec* b = w.bodies.get(id);
+  if (!b) return notFound("body");
+  std::vector<JointId> joints = b->joints;
+  for (JointId j : joints) destroyJoint(j);
+  for (ShapeId sid : b->shapes) {
+    ShapeRec* s = w.shapes.get(sid);
+    if (s->proxy >= 0) w.broadPhase.destroyProxy(s->proxy);
+    w.shapes.remove(sid);
+  }
+  w.bodies.remove(id);
+  return Status::Ok();
+}
+
+bool World::isValid(BodyId id) const { return impl_->bodies.valid(id); }
+int World::bodyCount() const { return int(impl_->bodies.size()); }
+std::vector<BodyId> World::bodies() const {
+  std::vector<BodyId> out;
+  for (uint32_t i = 0; i < impl_->bodies.capacity(); ++i)
+    if (impl_->bodies.alive(i)) out.push_back(impl_->bodies.idAt(i));
+  return out;
+}
+
+Status World::setTransform(BodyId id, Vec3 position, Quat rotation) {
+  BodyRec* b = impl_->bodies.get(id);
+  if (!b) return notFound("body");
+  if (!isFinite(position)) return invalid("set transform: position is not finite");
+  Status st = checkRotation(&rotation, "set transform");
+  if (!st.ok()) return st;
+  b->xf = {position, rotation};
+  b->com = apply(b->xf, b->localCenter);
+  impl_->syncProxies(id, true);
+  return Status::Ok();
+}
+
+Status World::setVelocity(BodyId id, Vec3 linear, Vec3 angular) {
+  BodyRec* b = impl_->bodies.get(id);
+  if (!b) return notFound("body");
+  if (!isFinite(linear) || !isFinite(angular)) return invalid("set velocity: not finite");
+  if (b->type == BodyType::Static)
+    return Status::Error(StatusCode::IncorrectState, "set velocity: the body is static");
+  b->v = linear;
+  b->w = angular;
+  return Status::Ok();
+}
+
+Status World::setBodyType(BodyId id, BodyType type) {
+  Impl& w = *impl_;
+  BodyRec* b = w.bodies.get(id);
+  if (!b) return notFound("body");
+  if (type != BodyType::Static && type != BodyType::Kinematic && type != BodyType::Dynamic)
+    return invalid("set body type: unknown type");
+  for (ShapeId sid : b->shapes) {
+    if (w.shapes.get(sid)->def.geom.type == ShapeType::Plane && type != BodyType::Static)
+      return Status::Error(StatusCode::IncorrectState,
+                           "set body type: a body with a plane must stay static");
+  }
+  if (type == BodyType::Dynamic && b->autoMass) {
+    bool volume = !b->shapes.empty();
+    if (!volume) return invalid("set body type: a dynamic body needs a shape or a mass");
+  }
+  b->type = type;
+  if (type == BodyType::Static) b->v = b->w = {};
+  w.updateMass(*b);
+  for (ShapeId sid : b->shapes) {
+    ShapeRec* s = w.shapes.get(sid);
+    w.broadPhase.setStatic(s->proxy, type == BodyType::Static);
+  }
+  return Status::Ok();
+}
+
+Status World::setMass(BodyId id, float mass, Vec3 inertia) {
+  BodyRec* b = impl_->bodies.get(id);
+  if (!b) return notFound("body");
+  if (!positive(mass)) return invalid("set mass: mass must be > 0");
+  if (!isFinite(inertia) || !(inertia == Vec3{} || positive(inertia)))
+    return invalid("set mass: inertia must be three positive moments, or all 0");
+  if (b->type != BodyType::Dynamic)
+    return Status::Error(StatusCode::IncorrectState, "set mass: the body is not dynamic");
+  b->autoMass = false;
+  b->givenMass = mass;
+  b->givenInertia = inertia;
+  impl_->updateMass(*b);
+  return Status::Ok();
+}
+
+Status World::setMaterial(BodyId id, const Material& m) {
+  BodyRec* b = impl_->bodies.get(id);
+  if (!b) return notFound("body");
+  Status st = checkMaterial(m, "set material");
+  if (!st.ok()) return st;
+  for (ShapeId sid : b->shapes) impl_->shapes.get(sid)->def.material = m;
+  impl_->updateMass(*b);
+  return Status::Ok();
+}
+
+Status World::applyForce(BodyId id, Vec3 force, Vec3 point) {
+  BodyRec* b = impl_->bodies.get(id);
+  if (!b) return notFound("body");
+  if (!isFinite(force) || !isFinite(point)) return invalid("apply force: not finite");
+  if (b->type != BodyType::Dynamic) return Status::Ok();
+  b->force += force;
+  b->torque += cross(point - b->com, force);
+  return Status::Ok();
+}
+
+Status World::applyTorque(BodyId id, Vec3 torque) {
+  BodyRec* b = impl_->bodies.get(id);
+  if (!b) return notFound("body");
+  if (!isFinite(torque)) return invalid("apply torque: not finite");
+  if (b->type == BodyType::Dynamic) b->torque += torque;
+  return Status::Ok();
+}
+
+Status World::applyImpulse(BodyId id, Vec3 impulse, Vec3 point) {
+  BodyRec* b = impl_->bodies.get(id);
+  if (!b) return notFound("body");
+  if (!isFinite(impulse) || !isFinite(point)) return invalid("apply impulse: not finite");
+  if (b->type != BodyType::Dynamic) return Status::Ok();
+  Mat3 R = toMat3(b->xf.q);
+  Mat3 invI = R * b->invInertiaLocal * transpose(R);
+  b->v += impulse * b->invMass;
+  b->w += invI * cross(point - b->com, impulse);
+  return Status::Ok();
+}
+
+Status World::getBody(BodyId id, BodyState* out) const {
+  const BodyRec* b = impl_->bodies.get(id);
+  if (!b) return notFound("body");
+  out->id = id;
+  out->type = b->type;
+  out->position = b->xf.p;
+  out->rotation = b->xf.q;
+  out->linearVelocity = b->v;
+  out->angularVelocity = b->w;
+  out->mass = b->mass;
+  return Status::Ok();
+}
+
+std::vector<ShapeId> World::bodyShapes(BodyId id) const {
+  const BodyRec* b = impl_->bodies.get(id);
+  return b ? b->shapes : std::vector<ShapeId>{};
+}
+
+Status World::getShape(ShapeId id, ShapeDef* out, BodyId* body) const {
+  const ShapeRec* s = impl_->shapes.get(id);
+  if (!s) return notFound("shape");
+  if (out) *out = s->def;
+  if (body) *body = s->body;
+  return Status::Ok();
+}
+
+Status World::addShape(BodyId id, const ShapeDef& in, ShapeId* out) {
+  Impl& w = *impl_;
+  BodyRec* b = w.bodies.get(id);
+  if (!b) return notFound("body");
+  ShapeDef def = in;
+  Status st = checkShape(&def, b->type, "add shape");
+  if (!st.ok()) return st;
+  ShapeRec sr;
+  sr.body = id;
+  sr.def = def;
+  ShapeId sid = w.shapes.add(std::move(sr));
+  b->shapes.push_back(sid);
+  w.updateMass(*b);
+  w.syncProxies(id, false);
+  if (out) *out = sid;
+  return Status::Ok();
+}
+
+Status World::removeShape(ShapeId id) {
+  Impl& w = *impl_;
+  ShapeRec* s = w.shapes.get(id);
+  if (!s) return notFound("shape");
+  BodyRec* b = w.bodies.get(s->body);
+  if (b->type == BodyType::Dynamic && b->autoMass && b->shapes.size() == 1)
+    return Status::Error(StatusCode::IncorrectState,
+                         "remove shape: the last shape of a dynamic body carries its mass");
+  if (s->proxy >= 0) w.broadPhase.destroyProxy(s->proxy);
+  b->shapes.erase(std::find(b->shapes.begin(), b->shapes.end(), id));
+  w.shapes.remove(id);
+  w.updateMass(*b);
+  return Status::Ok();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Joints
+
+void World::Impl::rebuildNoCollide() {
+  noCollide.clear();
+  for (uint32_t i = 0; i < joints.capacity(); ++i) {
+    if (!joints.alive(i)) continue;
+    const JointDef& d = joints.at(i).def;
+    if (!d.collideConnected && !d.bodyA.isNull())
+      noCollide.insert(bodyPairKey(d.bodyA.index, d.bodyB.index));
+  }
+}
+
+Status World::createJoint(const JointDef& in, JointId* out) {
+  Impl& w = *impl_;
+  JointDef def = in;
+  if (uint8_t(def.type) > uint8_t(JointType::Prismatic)) return invalid("joint: unknown type");
+  BodyRec* A = nullptr;
+  if (!def.bodyA.isNull()) {
+    A = w.bodies.get(def.bodyA);
+    if (!A) return notFound("joint body_a");
+  }
+  BodyRec* B = w.bodies.get(def.bodyB);
+  if (!B) return notFound("joint body_b");
+  if (def.bodyA == def.bodyB) return invalid("joint: body_a and body_b are the same body");
+  if (!isFinite(def.anchorA) || !isFinite(def.anchorB)) return invalid("joint: anchors not finite");
+  if (!isFinite(def.axisA) || !isFinite(def.axisB) || length(def.axisA) < 1e-6f ||
+      length(def.axisB) < 1e-6f)
+    return invalid("joint: axes must be finite and non-zero");
+  if (!finite(def.lower) || !finite(def.upper) || (def.enableLimit && def.lower > def.upper))
+    return invalid("joint: limits must be finite with lower <= upper");
+  if (!finite(def.motorSpeed) || !finite(def.maxMotorForce) || def.maxMotorForce < 0)
+    return invalid("joint: motor speed must be finite and max force >= 0");
+  if (!finite(def.length) || !finite(def.springHertz) || def.springHertz < 0 ||
+      !finite(def.springDampingRatio) || def.springDampingRatio < 0)
+    return invalid("joint: length, spring hertz and damping must be finite (hertz, damping >= 0)");
+  if (def.type == JointType::Distance && def.enableLimit && def.lower < 0)
+    return invalid("joint: distance limits must be >= 0");
+  def.axisA = normalize(def.axisA);
+  def.axisB = normalize(def.axisB);
+  JointRec rec;
+  rec.def = def;
+  initJoint(rec, A, *B);
+  JointId id = w.joints.add(std::move(rec));
+  w.joints.get(id)->state.id = id;
+  if (A) A->joints.push_back(id);
+  B->joints.push_back(id);
+  if (!def.collideConnected && A) w.noCollide.insert(Impl::bodyPairKey(def.bodyA.index, def.bodyB.index));
+  if (out) *out = id;
+  return Status::Ok();
+}
+
+Status World::destroyJoint(JointId id) {
+  Impl& w = *impl_;
+  JointRec* j = w.joints.get(id);
+  if (!j) return notFound("joint");
+  for (BodyId bid : {j->def.bodyA, j->def.bodyB}) {
+    if (BodyRec* b = w.bodies.get(bid)) {
+      auto it = std::find(b->joints.begin(), b->joints.end(), id);
+      if (it != b->joints.end()) b->joints.erase(it);
+    }
+  }
+  w.joints.remove(id);
+  w.rebuildNoCollide();
+  return Status::Ok();
+}
+
+Status World::setMotor(JointId id, bool enable, float speed, float maxForce) {
+  JointRec* j = impl_->joints.get(id);
+  if (!j) return notFound("joint");
+  if (!finite(speed) || !finite(maxForce) || maxForce < 0)
+    return invalid("set motor: speed must be finite and max force >= 0");
+  if (j->def.type != JointType::Hinge && j->def.type != JointType::Prismatic)
+    return Status::Error(StatusCode::IncorrectState, "set motor: only hinges and sliders have motors");
+  j->def.enableMotor = enable;
+  j->def.motorSpeed = speed;
+  j->def.maxMotorForce = maxForce;
+  return Status::Ok();
+}
+
+Status World::getJoint(JointId id, JointDef* def, JointState* state) const {
+  const JointRec* j = impl_->joints.get(id);
+  if (!j) return notFound("joint");
+  if (def) *def = j->def;
+  if (state) *state = j->state;
+  return Status::Ok();
+}
+
+std::vector<JointId> World::joints() const {
+  std::vector<JointId> out;
+  for (uint32_t i = 0; i < impl_->joints.capacity(); ++i)
+    if (impl_->joints.alive(i)) out.push_back(impl_->joints.idAt(i));
+  return out;
+}
+int World::jointCount() const { return int(impl_->joints.size()); }
+
+// ---------------------------------------------------------------------------------------------
+// The step
+
+void World::step() {
+  Impl& w = *impl_;
+  const float dt = w.def.timeStep;
+  const SolverSettings& s = w.def.solver;
+  const float h = dt / float(s.substeps);
+  StepProfile& p = w.profile;
+  p = StepProfile();
+  const double t0 = nowMs();
+  w.stats.energyBefore = energy();
+
+  { StageTimer t(&p.applyCommands); w.applyCommands(); }
+  { StageTimer t(&p.updateBounds); w.updateBounds(dt); }
+  { StageTimer t(&p.broadPhase); w.broadPhaseStage(); }
+  { StageTimer t(&p.narrowPhase); w.narrowPhase(dt); }
+  { StageTimer t(&p.buildIslands); /* islands and colors: not needed by the serial solver */ }
+  { StageTimer t(&p.prepare); w.buildSolverBodies(); }
+  Solver& solver = w.solver;
+  for (int sub = 0; sub < s.substeps; ++sub) {
+    { StageTimer t(&p.integrateVelocities);
+      solver.integrateVelocities(h, w.def.maxLinearSpeed, w.def.maxAngularSpeed); }
+    { StageTimer t(&p.warmStart); solver.warmStart(); }
+    { StageTimer t(&p.solve);
+      for (int it = 0; it < s.iterations; ++it) solver.solveIteration(s, h, true); }
+    { StageTimer t(&p.integratePositions); solver.integratePositions(h); }
+    { StageTimer t(&p.relax);
+      for (int it = 0; it < s.relaxIterations; ++it) solver.solveIteration(s, h, false); }
+  }
+  { StageTimer t(&p.restitution);
+    if (s.restitution) solver.applyRestitution(s.restitutionThreshold); }
+  { StageTimer t(&p.positionPass); /* none in the baseline solver */ }
+  { StageTimer t(&p.storeImpulses);
+    w.stats.velocityResidual = solver.velocityResidual(h);
+    // Hand each row's impulse back to its contact point or joint for the next warm start.
+    for (Contact& c : w.contacts) {
+      if (c.firstRow < 0) continue;
+      const int n = c.manifold.count;
+      for (int i = 0; i < n; ++i) {
+        c.normalImpulse[i] = solver.rows[size_t(c.firstRow + i)].lambda;
+        c.tangentImpulse[i][0] = solver.rows[size_t(c.firstRow + n + 2 * i)].lambda;
+        c.tangentImpulse[i][1] = solver.rows[size_t(c.firstRow + n + 2 * i + 1)].lambda;
+      }
+    }
+    for (uint32_t i = 0; i < w.joints.capacity(); ++i) {
+      if (!w.joints.alive(i)) continue;
+      JointRec& j = w.joints.at(i);
+      j.impulseCount = std::min(j.rowCount, int32_t(JointRec::kMaxRows));
+      for (int32_t k = 0; k < j.impulseCount; ++k)
+        j.impulses[k] = solver.rows[size_t(j.firstRow + k)].lambda;
+    }
+  }
+  { StageTimer t(&p.finalize); w.finalize(); }
+
+  w.time += dt;
+  w.stats.step++;
+  w.stats.energyAfter = energy();
+  p.total = nowMs() - t0;
+}
+
+void World::Impl::applyCommands() {
+  // In-process edits are applied immediately (the world is single-threaded between steps);
+  // the server queues network commands and drains them here.
+}
+
+void World::Impl::updateBounds(float dt) {
+  // Tight boxes are swept by this step's motion and padded by half the speculative distance,
+  // so every pair that can touch during the step is found.
+  for (uint32_t i = 0; i < shapes.capacity(); ++i) {
+    if (!shapes.alive(i)) continue;
+    ShapeRec& s = shapes.at(i);
+    const BodyRec& b = *bodies.get(s.body);
+    if (b.type == BodyType::Static) continue;
+    AABB box = computeAABB(s.def.geom, shapeTransform(b, s));
+    Vec3 sweep = b.v * dt;
+    box.lo += vmin(sweep, {});
+    box.hi += vmax(sweep, {});
+    float pad = 0.5f * def.speculativeDistance + length(b.w) * dt * s.boundRadius;
+    box = inflate(box, pad);
+    broadPhase.moveProxy(s.proxy, box, def.aabbMargin);
+  }
+}
+
+void World::Impl::broadPhaseStage() {
+  broadPhase.computePairs(&pairs);
+  // Merge the sorted pair list with the sorted contact list: surviving contacts keep their
+  // impulses for warm starting, new pairs start cold, vanished pairs are dropped.
+  contactScratch.clear();
+  size_t ci = 0;
+  for (const ProxyPair& pr : pairs) {
+    const ShapeRec& sa = shapes.at(pr.a);
+    const ShapeRec& sb = shapes.at(pr.b);
+    if (sa.body == sb.body) continue;
+    const BodyRec& A = *bodies.get(sa.body);
+    const BodyRec& B = *bodies.get(sb.body);
+    if (A.type != BodyType::Dynamic && B.type != BodyType::Dynamic) continue;
+    if (!noCollide.empty() && noCollide.count(bodyPairKey(sa.body.index, sb.body.index))) continue;
+    while (ci < contacts.size() && (contacts[ci].shapeA < pr.a ||
+                                    (contacts[ci].shapeA == pr.a && contacts[ci].shapeB < pr.b)))
+      ++ci;
+    if (ci < contacts.size() && contacts[ci].shapeA == pr.a && contacts[ci].shapeB == pr.b &&
+        contacts[ci].bodyA == sa.body && contacts[ci].bodyB == sb.body) {
+      contactScratch.push_back(contacts[ci]);
+    } else {
+      Contact c;
+      c.shapeA = pr.a;
+      c.shapeB = pr.b;
+      c.bodyA = sa.body;
+      c.bodyB = sb.body;
+      contactScratch.push_back(c);
+    }
+    Contact& c = contactScratch.back();
+    c.friction = std::sqrt(sa.def.material.friction * sb.def.material.friction);
+    c.restitution = std::max(sa.def.material.restitution, sb.def.material.restitution);
+  }
+  contacts.swap(contactScratch);
+  stats.pairs = int(pairs.size());
+}
+
+void World::Impl::narrowPhase(float dt) {
+  stats.contactPoints = 0;
+  stats.maxPenetration = 0;
+  for (Contact& c : contacts) {
+    const ShapeRec& sa = shapes.at(c.shapeA);
+    const ShapeRec& sb = shapes.at(c.shapeB);
+    const BodyRec& A = *bodies.get(c.bodyA);
+    const BodyRec& B = *bodies.get(c.bodyB);
+    // The margin grows with the speeds so a fast body meets a speculative contact before it
+    // can pass through anything (no tunnelling without a separate continuous pass).
+    float reach = (length(A.v) + length(A.w) * sa.boundRadius + length(B.v) +
+                   length(B.w) * sb.boundRadius) * dt;
+    float margin = def.speculativeDistance + reach;
+    Manifold m;
+    collide(sa.def.geom, shapeTransform(A, sa), sb.def.geom, shapeTransform(B, sb), margin, &m);
+    // Carry impulses of points whose features persist.
+    float ni[Manifold::kMaxPoints] = {}, ti[Manifold::kMaxPoints][2] = {};
+    for (int i = 0; i < m.count; ++i) {
+      for (int k = 0; k < c.manifold.count; ++k) {
+        if (c.manifold.points[k].featureId == m.points[i].featureId) {
+          ni[i] = c.normalImpulse[k];
+          ti[i][0] = c.tangentImpulse[k][0];
+          ti[i][1] = c.tangentImpulse[k][1];
+          break;
+        }
+      }
+      stats.maxPenetration = std::max(stats.maxPenetration, double(-m.points[i].separation));
+    }
+    c.manifold = m;
+    std::memcpy(c.normalImpulse, ni, sizeof ni);
+    std::memcpy(c.tangentImpulse, ti, sizeof ti);
+    stats.contactPoints += m.count;
+  }
+  stats.contacts = int(contacts.size());
+}
+
+void World::Impl::buildSolverBodies() {
+  // Prepare: the compact solver bodies (index 0 is the static world), then one row per
+  // joint axis and per contact normal and friction direction.
+  const SolverSettings& s = def.solver;
+  const float h = def.timeStep / float(s.substeps);
+  solver.bodies.clear();
+  solver.rows.clear();
+  solver.bodies.push_back(SolverBody{});
+  int awake = 0;
+  for (uint32_t i = 0; i < bodies.capacity(); ++i) {
+    if (!bodies.alive(i)) continue;
+    BodyRec& b = bodies.at(i);
+    if (b.type == BodyType::Static) {
+      b.solverIndex = 0;
+      continue;
+    }
+    b.solverIndex = int32_t(solver.bodies.size());
+    SolverBody sb;
+    sb.v = b.v;
+    sb.w = b.w;
+    sb.q = b.xf.q;
+    sb.dynamic = b.type == BodyType::Dynamic;
+    if (sb.dynamic) {
+      Mat3 R = toMat3(b.xf.q);
+      sb.invMass = b.invMass;
+      sb.invI = R * b.invInertiaLocal * transpose(R);
+      sb.inertiaLocal = b.inertiaLocal;
+      sb.linearAccel = def.gravity * b.gravityScale + b.force * b.invMass;
+      sb.torque = b.torque;
+      sb.linearDamping = b.linearDamping;
+      sb.angularDamping = b.angularDamping;
+      sb.gyroscopic = b.gyroscopic;
+    }
+    solver.bodies.push_back(sb);
+    ++awake;
+  }
+  stats.bodies = int(bodies.size());
+  stats.awake = awake;
+
+  // Joints first: the solver meets them before contacts in every iteration.
+  int jointsBuilt = 0;
+  for (uint32_t i = 0; i < joints.capacity(); ++i) {
+    if (!joints.alive(i)) continue;
+    JointRec& j = joints.at(i);
+    const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
+    const BodyRec& B = *bodies.get(j.def.bodyB);
+    buildJointRows(j, A, B, A ? A->solverIndex : 0, B.solverIndex, h, &solver);
+    // Warm start from last step's impulses when the joint still has the same rows.
+    if (s.warmStart && j.impulseCount == j.rowCount) {
+      for (int32_t k = 0; k < j.rowCount; ++k)
+        solver.rows[size_t(j.firstRow + k)].lambda = j.impulses[k];
+    }
+    ++jointsBuilt;
+  }
+  stats.joints = jointsBuilt;
+
+  for (Contact& c : contacts) {
+    c.firstRow = -1;
+    const int n = c.manifold.count;
+    if (n == 0) continue;
+    const BodyRec& A = *bodies.get(c.bodyA);
+    const BodyRec& B = *bodies.get(c.bodyB);
+    c.firstRow = int32_t(solver.rows.size());
+    const Vec3 normal = c.manifold.normal;
+    Vec3 t1, t2;
+    tangentBasis(normal, &t1, &t2);
+    const int32_t ia = A.solverIndex, ib = B.solverIndex;
+    Vec3 rA[Manifold::kMaxPoints], rB[Manifold::kMaxPoints];
+    for (int k = 0; k < n; ++k) {
+      const ContactPoint& cp = c.manifold.points[k];
+      rA[k] = cp.point - A.com;
+      rB[k] = cp.point - B.com;
+      Row r;
+      r.kind = RowKind::ContactNormal;
+      r.a = ia;
+      r.b = ib;
+      r.linA = -normal;
+      r.angA = -cross(rA[k], normal);
+      r.linB = normal;
+      r.angB = cross(rB[k], normal);
+      r.C0 = cp.separation;
+      r.lambda = s.warmStart ? c.normalImpulse[k] : 0;
+      r.restitution = c.restitution;
+      r.relativeVelocity = dot(normal, (B.v + cross(B.w, rB[k])) - (A.v + cross(A.w, rA[k])));
+      solver.rows.push_back(r);
+    }
+    for (int k = 0; k < n; ++k) {
+      for (int d = 0; d < 2; ++d) {
+        Vec3 t = d == 0 ? t1 : t2;
+        Row r;
+        r.kind = RowKind::Friction;
+        r.a = ia;
+        r.b = ib;
+        r.linA = -t;
+        r.angA = -cross(rA[k], t);
+        r.linB = t;
+        r.angB = cross(rB[k], t);
+        r.mu = c.friction;
+        r.parent = c.firstRow + k;
+        r.lambda = s.warmStart ? c.tangentImpulse[k][d] : 0;
+        solver.rows.push_back(r);
+      }
+    }
+  }
+  solver.finishRows(0);
+}
+
+void World::Impl::finalize() {
+  const float hSub = def.timeStep / float(def.solver.substeps);
+  for (uint32_t i = 0; i < bodies.capacity(); ++i) {
+    if (!bodies.alive(i)) continue;
+    BodyRec& b = bodies.at(i);
+    b.force = b.torque = {};
+    if (b.type == BodyType::Static) continue;
+    const SolverBody& sb = solver.bodies[size_t(b.solverIndex)];
+    b.v = sb.v;
+    b.w = sb.w;
+    b.com += sb.dp;
+    b.xf.q = sb.q;
+    b.xf.p = b.com - rotate(b.xf.q, b.localCenter);
+  }
+  // Joint reactions (the rows' impulses per substep as forces on B) and errors at the new poses.
+  for (uint32_t i = 0; i < joints.capacity(); ++i) {
+    if (!joints.alive(i)) continue;
+    JointRec& j = joints.at(i);
+    Vec3 f, tq;
+    for (int32_t r = j.firstRow; r < j.firstRow + j.rowCount; ++r) {
+      const Row& row = solver.rows[size_t(r)];
+      f += row.linB * (row.lambda / hSub);
+      tq += row.angB * (row.lambda / hSub);
+    }
+    j.state.reactionForce = f;
+    j.state.reactionTorque = tq;
+    const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
+    measureJoint(j, A, *bodies.get(j.def.bodyB), &j.state.positionError, &j.state.angleError);
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Queries
+
+std::vector<ContactInfo> World::contacts() const {
+  std::vector<ContactInfo> out;
+  for (const Contact& c : impl_->contacts) {
+    if (c.manifold.count == 0) continue;
+    ContactInfo ci;
+    ci.bodyA = c.bodyA;
+    ci.bodyB = c.bodyB;
+    ci.shapeA = impl_->shapes.idAt(c.shapeA);
+    ci.shapeB = impl_->shapes.idAt(c.shapeB);
+    ci.manifold = c.manifold;
+    std::memcpy(ci.normalImpulse, c.normalImpulse, sizeof ci.normalImpulse);
+    out.push_back(ci);
+  }
+  return out;
+}
+
+double World::energy() const {
+  const Impl& w = *impl_;
+  double e = 0;
+  const Vec3 g = w.def.gravity;
+  for (uint32_t i = 0; i < w.bodies.capacity(); ++i) {
+    if (!w.bodies.alive(i)) continue;
+    const BodyRec& b = w.bodies.at(i);
+    if (b.type != BodyType::Dynamic) continue;
+    Vec3 wb = invRotate(b.xf.q, b.w);
+    Vec3 Iw = b.inertiaLocal * wb;
+    double ke = 0.5 * b.mass * (double(b.v.x) * b.v.x + double(b.v.y) * b.v.y + double(b.v.z) * b.v.z) +
+                0.5 * (double(wb.x) * Iw.x + double(wb.y) * Iw.y + double(wb.z) * Iw.z);
+    double pe = -double(b.mass) * b.gravityScale *
+                (double(g.x) * b.com.x + double(g.y) * b.com.y + double(g.z) * b.com.z);
+    e += ke + pe;
+  }
+  return e;
+}
+
+uint64_t World::stateHash() const {
+  // FNV-1a over the bits of every body's position and rotation, in id order.
+  uint64_t h = 1469598103934665603ull;
+  auto mix = [&h](const void* data, size_t n) {
+    const unsigned char* p = static_cast<const unsigned char*>(data);
+    for (size_t i = 0; i < n; ++i) {
+      h ^= p[i];
+      h *= 1099511628211ull;
+    }
+  };
+  const Impl& w = *impl_;
+  for (uint32_t i = 0; i < w.bodies.capacity(); ++i) {
+    if (!w.bodies.alive(i)) continue;
+    const BodyRec& b = w.bodies.at(i);
+    float v[7] = {b.xf.p.x, b.xf.p.y, b.xf.p.z, b.xf.q.x, b.xf.q.y, b.xf.q.z, b.xf.q.w};
+    mix(&i, sizeof i);
+    mix(v, sizeof v);
+  }
+  return h;
+}
+
+}  // namespace phys

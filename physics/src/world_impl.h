@@ -1,0 +1,101 @@
+// Private state of a World, shared by world.cpp (API, step orchestration), solver.cpp
+// (constraint rows and the iterative scheme) and joints.cpp (joint rows).
+#pragma once
+
+#include <cstdint>
+#include <unordered_set>
+#include <vector>
+
+#include "phys/broadphase.h"
+#include "phys/world.h"
+#include "solver.h"
+
+namespace phys {
+
+struct ShapeRec {
+  BodyId body;
+  ShapeDef def;
+  int32_t proxy = -1;
+  float boundRadius = 0;  ///< m, max distance of the shape's surface from the body's centre of mass
+};
+
+struct BodyRec {
+  BodyType type = BodyType::Dynamic;
+  Transform xf;        ///< body frame
+  Vec3 localCenter;    ///< centre of mass in the body frame
+  Vec3 com;            ///< centre of mass in the world
+  Vec3 v, w;           ///< m/s, rad/s (world)
+  float mass = 0, invMass = 0;
+  Mat3 inertiaLocal = Mat3::zero();     ///< about the centre of mass, body axes
+  Mat3 invInertiaLocal = Mat3::zero();
+  float linearDamping = 0, angularDamping = 0, gravityScale = 1;
+  bool gyroscopic = true;
+  bool autoMass = true;   ///< mass from shapes
+  float givenMass = 0;    ///< when !autoMass
+  Vec3 givenInertia;      ///< when nonzero
+  Vec3 force, torque;     ///< accumulated for the next step
+  std::vector<ShapeId> shapes;
+  std::vector<JointId> joints;
+  std::string name;
+  int32_t solverIndex = -1;  ///< this step's index into the solver body array, -1 if static
+};
+
+struct JointRec {
+  JointDef def;
+  Quat relRot0;        ///< fixed/prismatic: conj(qA) * qB at creation
+  Vec3 refA, refB;     ///< hinge: local reference vectors perpendicular to the axis
+  float length = 0;    ///< distance: rest length
+  JointState state;
+  int32_t firstRow = 0, rowCount = 0;  ///< this step's rows
+  static constexpr int kMaxRows = 8;
+  float impulses[kMaxRows] = {};  ///< last step's row impulses, for warm starting
+  int32_t impulseCount = 0;
+};
+
+/// Persistent contact between two shapes (keyed by their shape indices, a < b).
+struct Contact {
+  uint32_t shapeA = 0, shapeB = 0;
+  BodyId bodyA, bodyB;
+  Manifold manifold;
+  float normalImpulse[Manifold::kMaxPoints] = {};
+  float tangentImpulse[Manifold::kMaxPoints][2] = {};
+  float friction = 0, restitution = 0;
+  int32_t firstRow = -1;  ///< this step's first normal row
+};
+
+struct World::Impl {
+  WorldDef def;
+  Pool<BodyRec, BodyTag> bodies;
+  Pool<ShapeRec, ShapeTag> shapes;
+  Pool<JointRec, JointTag> joints;
+  BroadPhase broadPhase;
+  std::vector<ProxyPair> pairs;
+  std::vector<Contact> contacts;  ///< sorted by (shapeA, shapeB)
+  std::vector<Contact> contactScratch;
+  std::unordered_set<uint64_t> noCollide;  ///< body index pairs joined without collideConnected
+  Solver solver;
+  StepProfile profile;
+  StepStats stats;
+  double time = 0;
+
+  // Helpers shared by the source files.
+  void updateMass(BodyRec& b);
+  void syncProxies(BodyId id, bool moved);
+  Transform shapeTransform(const BodyRec& b, const ShapeRec& s) const {
+    return b.xf * s.def.local;
+  }
+  static uint64_t bodyPairKey(uint32_t a, uint32_t b) {
+    return a < b ? (uint64_t(a) << 32 | b) : (uint64_t(b) << 32 | a);
+  }
+  void rebuildNoCollide();
+
+  // Step stages (in world.cpp), in order.
+  void applyCommands();
+  void updateBounds(float h);
+  void broadPhaseStage();
+  void narrowPhase(float h);
+  void buildSolverBodies();
+  void finalize();
+};
+
+}  // namespace phys

@@ -1,0 +1,33 @@
+# Shared by run.sh and test.sh: install missing Debian packages, configure, build.
+# Sourced, not executed.
+
+PHYS_PACKAGES=(cmake ninja-build g++ pkg-config libeigen3-dev nlohmann-json3-dev libqhull-dev
+  libgtest-dev libgmock-dev)
+
+phys_install_deps() {
+  local missing=()
+  for p in "${PHYS_PACKAGES[@]}"; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+  done
+  [ ${#missing[@]} -eq 0 ] && return 0
+  echo "Installing missing packages: ${missing[*]}"
+  local sudo=""
+  [ "$(id -u)" -ne 0 ] && sudo="sudo"
+  # Another apt-get may hold the dpkg lock (e.g. unattended upgrades): wait for it.
+  local tries=0
+  while command -v fuser >/dev/null && fuser /var/lib/dpkg/lock-frontend >/dev/null 2>&1; do
+    tries=$((tries + 1)); [ $tries -gt 120 ] && { echo "dpkg lock held for 4 minutes" >&2; return 1; }
+    sleep 2
+  done
+  $sudo apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}"
+}
+
+# phys_build DIR [extra cmake args...]: configure once, then build incrementally.
+phys_build() {
+  local dir=$1; shift
+  if [ ! -f "$dir/build.ninja" ]; then
+    cmake -S . -B "$dir" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo "$@"
+  fi
+  cmake --build "$dir" --parallel "$(nproc)"
+}
