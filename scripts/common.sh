@@ -2,7 +2,7 @@
 # Sourced, not executed.
 
 PHYS_PACKAGES=(cmake ninja-build g++ pkg-config libeigen3-dev nlohmann-json3-dev libqhull-dev
-  libgtest-dev libgmock-dev)
+  libgtest-dev libgmock-dev libcli11-dev)
 
 phys_install_deps() {
   local missing=()

@@ -79,7 +79,13 @@ void Solver::solveIteration(const SolverSettings& s, float h, bool useBias) {
       soft ? makeSoftness(std::min(s.jointHertz, cap), s.jointDampingRatio, h)
            : Softness{s.baumgarte * invH, 1, 0};
 
-  for (Row& r : rows) {
+  for (size_t i = 0; i < rows.size(); ++i) {
+    Row& r = rows[i];
+    if (r.kind == RowKind::Friction) {
+      solveFrictionPair(r, rows[i + 1]);
+      ++i;
+      continue;
+    }
     float vn = rowVelocity(r);
     float impulse = 0;
     switch (r.kind) {
@@ -102,14 +108,8 @@ void Solver::solveIteration(const SolverSettings& s, float h, bool useBias) {
         r.maxLambda = std::max(r.maxLambda, next);
         break;
       }
-      case RowKind::Friction: {
-        float bound = r.mu * rows[size_t(r.parent)].lambda;
-        impulse = -r.effMass * vn;
-        float next = std::clamp(r.lambda + impulse, -bound, bound);
-        impulse = next - r.lambda;
-        r.lambda = next;
-        break;
-      }
+      case RowKind::Friction:
+        break;  // solved in pairs above
       case RowKind::Equality: {
         float bias = 0, massScale = 1, impulseScale = 0;
         if (useBias) {
@@ -139,6 +139,25 @@ void Solver::solveIteration(const SolverSettings& s, float h, bool useBias) {
     }
     if (impulse != 0) applyImpulse(r, impulse);
   }
+}
+
+void Solver::solveFrictionPair(Row& r1, Row& r2) {
+  // Both tangent directions at once, clamped to the friction disc |lambda_t| <= mu lambda_n:
+  // isotropic Coulomb friction (clamping each axis alone would allow sqrt(2) mu diagonally).
+  float l1 = r1.lambda - r1.effMass * rowVelocity(r1);
+  float l2 = r2.lambda - r2.effMass * rowVelocity(r2);
+  float bound = r1.mu * rows[size_t(r1.parent)].lambda;
+  float len2 = l1 * l1 + l2 * l2;
+  if (len2 > bound * bound) {
+    float k = len2 > 0 ? bound / std::sqrt(len2) : 0;
+    l1 *= k;
+    l2 *= k;
+  }
+  float d1 = l1 - r1.lambda, d2 = l2 - r2.lambda;
+  r1.lambda = l1;
+  r2.lambda = l2;
+  if (d1 != 0) applyImpulse(r1, d1);
+  if (d2 != 0) applyImpulse(r2, d2);
 }
 
 void Solver::integratePositions(float h) {
@@ -180,11 +199,9 @@ double Solver::velocityResidual(float h) const {
       case RowKind::Equality:
         e = vn;
         break;
-      case RowKind::Friction: {
-        float bound = r.mu * rows[size_t(r.parent)].lambda;
-        e = std::fabs(r.lambda) < bound ? vn : 0;  // sliding rows are at their bound
+      case RowKind::Friction:
+        e = 0;  // sticking or sliding, friction has no target velocity of its own
         break;
-      }
       case RowKind::Motor:
       case RowKind::Spring:
         break;

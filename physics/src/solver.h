@@ -37,7 +37,7 @@ struct SolverBody {
 
 enum class RowKind : uint8_t {
   ContactNormal,  ///< lambda >= 0, speculative when C > 0
-  Friction,       ///< |lambda| <= mu * lambda(parent)
+  Friction,       ///< pairs of rows (t1, t2): |(lambda1, lambda2)| <= mu * lambda(parent)
   Equality,       ///< lambda free, soft joint bias
   Limit,          ///< lambda >= 0, C >= 0 is allowed (speculative when C > 0)
   Motor,          ///< |lambda| <= maxImpulse, drives J v to target
@@ -82,6 +82,7 @@ class Solver {
   void warmStart();
   /// One iteration over every row. useBias=false is the relax pass.
   void solveIteration(const SolverSettings& s, float h, bool useBias);
+  void solveFrictionPair(Row& r1, Row& r2);
   void integratePositions(float h);
   void applyRestitution(float threshold);
   /// Norm of the rows' velocity error after the solve (see SOLVER_NOTES "Residual").

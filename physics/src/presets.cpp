@@ -1,0 +1,136 @@
+#include "phys/presets.h"
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "settings_json.h"
+
+namespace phys {
+
+namespace {
+
+Status bad(const std::string& m) { return Status::Error(StatusCode::InvalidArgument, m); }
+
+template <class T>
+Status readNumber(const nlohmann::json& v, const std::string& path, T* out) {
+  if (!v.is_number()) return bad(path + ": must be a number");
+  double d = v.get<double>();
+  if (!std::isfinite(d)) return bad(path + ": must be finite");
+  if constexpr (std::is_integral_v<T>) {
+    if (!v.is_number_integer()) return bad(path + ": must be an integer");
+  }
+  *out = T(d);
+  return Status::Ok();
+}
+
+}  // namespace
+
+Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path,
+                              SolverSettings* out, std::initializer_list<const char*> ignore) {
+  if (!j.is_object()) return bad(path + ": must be an object");
+  SolverSettings s = *out;
+  for (auto it = j.begin(); it != j.end(); ++it) {
+    const std::string& k = it.key();
+    const nlohmann::json& v = it.value();
+    const std::string p = path + "." + k;
+    Status st;
+    if (k == "substeps") st = readNumber(v, p, &s.substeps);
+    else if (k == "iterations") st = readNumber(v, p, &s.iterations);
+    else if (k == "relax_iterations") st = readNumber(v, p, &s.relaxIterations);
+    else if (k == "baumgarte") st = readNumber(v, p, &s.baumgarte);
+    else if (k == "contact_hertz") st = readNumber(v, p, &s.contactHertz);
+    else if (k == "contact_damping_ratio") st = readNumber(v, p, &s.contactDampingRatio);
+    else if (k == "joint_hertz") st = readNumber(v, p, &s.jointHertz);
+    else if (k == "joint_damping_ratio") st = readNumber(v, p, &s.jointDampingRatio);
+    else if (k == "max_pushout") st = readNumber(v, p, &s.maxPushout);
+    else if (k == "linear_slop") st = readNumber(v, p, &s.linearSlop);
+    else if (k == "restitution_threshold") st = readNumber(v, p, &s.restitutionThreshold);
+    else if (k == "warm_start" || k == "restitution") {
+      if (!v.is_boolean()) return bad(p + ": must be true or false");
+      (k == "warm_start" ? s.warmStart : s.restitution) = v.get<bool>();
+    } else if (k == "stabilization") {
+      std::string name = v.is_string() ? v.get<std::string>() : "";
+      if (name == "soft") s.stabilization = SolverSettings::Stabilization::Soft;
+      else if (name == "baumgarte") s.stabilization = SolverSettings::Stabilization::Baumgarte;
+      else return bad(p + ": must be \"soft\" or \"baumgarte\"");
+    } else {
+      bool skip = false;
+      for (const char* ig : ignore) skip |= k == ig;
+      if (!skip) return bad(p + ": unknown field");
+    }
+    if (!st.ok()) return st;
+  }
+  Status st = World::validate(s);
+  if (!st.ok()) return bad(path + ": " + st.message);
+  *out = s;
+  return Status::Ok();
+}
+
+nlohmann::json solverSettingsToJson(const SolverSettings& s) {
+  return {{"substeps", s.substeps},
+          {"iterations", s.iterations},
+          {"relax_iterations", s.relaxIterations},
+          {"stabilization",
+           s.stabilization == SolverSettings::Stabilization::Soft ? "soft" : "baumgarte"},
+          {"baumgarte", s.baumgarte},
+          {"contact_hertz", s.contactHertz},
+          {"contact_damping_ratio", s.contactDampingRatio},
+          {"joint_hertz", s.jointHertz},
+          {"joint_damping_ratio", s.jointDampingRatio},
+          {"max_pushout", s.maxPushout},
+          {"linear_slop", s.linearSlop},
+          {"warm_start", s.warmStart},
+          {"restitution", s.restitution},
+          {"restitution_threshold", s.restitutionThreshold}};
+}
+
+Status parsePresets(const std::string& text, const std::string& source,
+                    std::map<std::string, Preset>* out, std::string* defaultName) {
+  nlohmann::json j = nlohmann::json::parse(text, nullptr, false);
+  if (j.is_discarded()) return bad(source + ": not valid JSON");
+  if (!j.is_object() || !j.contains("presets") || !j["presets"].is_object())
+    return bad(source + ": needs an object \"presets\"");
+  std::map<std::string, Preset> presets;
+  for (auto it = j["presets"].begin(); it != j["presets"].end(); ++it) {
+    Preset p;
+    p.name = it.key();
+    const std::string path = source + ": presets." + p.name;
+    if (it.value().contains("description")) {
+      if (!it.value()["description"].is_string()) return bad(path + ".description: must be a string");
+      p.description = it.value()["description"].get<std::string>();
+    }
+    Status st = solverSettingsFromJson(it.value(), path, &p.settings, {"description"});
+    if (!st.ok()) return st;
+    presets[p.name] = p;
+  }
+  std::string def = j.value("default", std::string());
+  if (def.empty() || !presets.count(def))
+    return bad(source + ": default: must name one of the presets");
+  *out = std::move(presets);
+  if (defaultName) *defaultName = def;
+  return Status::Ok();
+}
+
+Status loadPresetsFile(const std::string& path, std::map<std::string, Preset>* out,
+                       std::string* defaultName) {
+  std::ifstream f(path);
+  if (!f) return Status::Error(StatusCode::NotFound, path + ": cannot open presets file");
+  std::stringstream ss;
+  ss << f.rdbuf();
+  return parsePresets(ss.str(), path, out, defaultName);
+}
+
+std::string defaultPresetsPath() {
+  if (const char* env = std::getenv("PHYS_PRESETS")) return env;
+#ifdef PHYS_SOURCE_DIR
+  std::string p = std::string(PHYS_SOURCE_DIR) + "/configs/presets.json";
+  if (std::filesystem::exists(p)) return p;
+#endif
+  if (std::filesystem::exists("configs/presets.json")) return "configs/presets.json";
+  return {};
+}
+
+}  // namespace phys
