@@ -100,16 +100,23 @@ void buildJointRows(JointRec& j, const BodyRec* A, const BodyRec& B, int32_t ia,
   RowBuilder rb{solver, ia, ib, f.rA, f.rB};
   j.firstRow = int32_t(solver->rows.size());
   const Vec3 ex{1, 0, 0}, ey{0, 1, 0}, ez{0, 0, 1};
+  auto markBlock = [&](size_t first) {
+    solver->rows[first].blockSize = uint8_t(solver->rows.size() - first);
+  };
   auto pointRows = [&] {
+    size_t first = solver->rows.size();
     rb.linear(RowKind::Equality, ex, dp.x);
     rb.linear(RowKind::Equality, ey, dp.y);
     rb.linear(RowKind::Equality, ez, dp.z);
+    markBlock(first);
   };
   auto lockRotation = [&] {
     Vec3 e = relativeRotationError(j, f);
+    size_t first = solver->rows.size();
     rb.angular(RowKind::Equality, ex, e.x);
     rb.angular(RowKind::Equality, ey, e.y);
     rb.angular(RowKind::Equality, ez, e.z);
+    markBlock(first);
   };
 
   switch (d.type) {
@@ -128,8 +135,10 @@ void buildJointRows(JointRec& j, const BodyRec* A, const BodyRec& B, int32_t ia,
       tangentBasis(aA, &b1, &b2);
       // Small-angle misalignment of the axes: (aA x aB) projected on the two perpendiculars.
       Vec3 mis = cross(aA, aB);
+      size_t first = solver->rows.size();
       rb.angular(RowKind::Equality, b1, dot(b1, mis));
       rb.angular(RowKind::Equality, b2, dot(b2, mis));
+      markBlock(first);
       Vec3 rfA = rotate(f.qA, j.refA), rfB = rotate(f.qB, j.refB);
       float angle = std::atan2(dot(cross(rfA, rfB), aA), dot(rfA, rfB));
       addLimitAndMotor(
@@ -143,8 +152,10 @@ void buildJointRows(JointRec& j, const BodyRec* A, const BodyRec& B, int32_t ia,
       tangentBasis(a, &b1, &b2);
       // A's lever reaches to B's anchor, so sliding along the axis changes no perpendicular row.
       Vec3 leverA = f.rA + dp;
+      size_t first = solver->rows.size();
       rb.linear(RowKind::Equality, b1, dot(b1, dp), leverA);
       rb.linear(RowKind::Equality, b2, dot(b2, dp), leverA);
+      markBlock(first);
       lockRotation();
       addLimitAndMotor(
           d, dot(a, dp), h,

@@ -29,6 +29,43 @@ void Solver::finishRows(size_t first) {
               dot(r.angB, r.mAngB);
     r.effMass = k > 1e-12f ? 1 / k : 0;
   }
+  // Block matrices K = J M^-1 J^T of joint row groups (after every row has its M^-1 J^T).
+  for (size_t i = first; i < rows.size(); ++i) {
+    Row& r = rows[i];
+    if (r.blockSize < 2) continue;
+    Mat3 K = Mat3::diagonal({1, 1, 1});
+    for (int a = 0; a < r.blockSize; ++a) {
+      for (int b = 0; b < r.blockSize; ++b) {
+        const Row& ra = rows[i + size_t(a)];
+        const Row& rb = rows[i + size_t(b)];
+        float kab = dot(ra.linA, rb.mLinA) + dot(ra.angA, rb.mAngA) + dot(ra.linB, rb.mLinB) +
+                    dot(ra.angB, rb.mAngB);
+        (&K.c0)[b][a] = kab;
+      }
+    }
+    // A singular block (e.g. both bodies static) gets zero impulses.
+    r.blockIndex = int32_t(blockInvK.size());
+    blockInvK.push_back(inverse(K));
+  }
+}
+
+void Solver::solveBlock(size_t first, const Softness& soft, bool useBias) {
+  const Row& r0 = rows[first];
+  const int n = r0.blockSize;
+  Vec3 err, lambda;
+  for (int a = 0; a < n; ++a) {
+    const Row& r = rows[first + size_t(a)];
+    err[a] = rowVelocity(r) + (useBias ? soft.biasRate * rowError(r) : 0);
+    lambda[a] = r.lambda;
+  }
+  const float massScale = useBias ? soft.massScale : 1;
+  const float impulseScale = useBias ? soft.impulseScale : 0;
+  Vec3 d = blockInvK[size_t(r0.blockIndex)] * err * -massScale - lambda * impulseScale;
+  for (int a = 0; a < n; ++a) {
+    Row& r = rows[first + size_t(a)];
+    r.lambda += d[a];
+    if (d[a] != 0) applyImpulse(r, d[a]);
+  }
 }
 
 void Solver::integrateVelocities(float h, float maxLinearSpeed, float maxAngularSpeed) {
@@ -66,7 +103,7 @@ void Solver::warmStart() {
   }
 }
 
-void Solver::solveIteration(const SolverSettings& s, float h, bool useBias) {
+void Solver::solveIteration(const SolverSettings& s, float h, bool useBias, bool recordApproach) {
   const float invH = 1 / h;
   const bool soft = s.stabilization == SolverSettings::Stabilization::Soft;
   // Stiffness is capped at a quarter of the substep rate: stiffer springs are not resolved
@@ -82,8 +119,13 @@ void Solver::solveIteration(const SolverSettings& s, float h, bool useBias) {
   for (size_t i = 0; i < rows.size(); ++i) {
     Row& r = rows[i];
     if (r.kind == RowKind::Friction) {
-      solveFrictionPair(r, rows[i + 1]);
+      solveFrictionPair(r, rows[i + 1], useBias ? &contactSoft : nullptr);
       ++i;
+      continue;
+    }
+    if (r.blockSize > 1) {
+      solveBlock(i, jointSoft, useBias);
+      i += r.blockSize - 1;
       continue;
     }
     float vn = rowVelocity(r);
@@ -91,12 +133,18 @@ void Solver::solveIteration(const SolverSettings& s, float h, bool useBias) {
     switch (r.kind) {
       case RowKind::ContactNormal:
       case RowKind::Limit: {
+        // The approach speed for restitution: the fastest seen before any solve of a
+        // substep, so gravity gained during the step before impact counts.
+        if (recordApproach) r.relativeVelocity = std::min(r.relativeVelocity, vn);
         float C = rowError(r);
         float bias = 0, massScale = 1, impulseScale = 0;
         if (C > 0) {
           bias = C * invH;  // speculative: close exactly the gap this substep, no more
         } else if (useBias) {
-          float Cs = std::min(0.0f, C + (r.kind == RowKind::ContactNormal ? s.linearSlop : 0));
+          // Slop only with Baumgarte: a soft contact's spring has zero rest length, and a
+          // slop there only lets bodies sink into each other by that much.
+          float slop = !soft && r.kind == RowKind::ContactNormal ? s.linearSlop : 0;
+          float Cs = std::min(0.0f, C + slop);
           bias = std::max(contactSoft.biasRate * Cs, -s.maxPushout);
           massScale = contactSoft.massScale;
           impulseScale = contactSoft.impulseScale;
@@ -141,11 +189,19 @@ void Solver::solveIteration(const SolverSettings& s, float h, bool useBias) {
   }
 }
 
-void Solver::solveFrictionPair(Row& r1, Row& r2) {
+void Solver::solveFrictionPair(Row& r1, Row& r2, const Softness* anchor) {
   // Both tangent directions at once, clamped to the friction disc |lambda_t| <= mu lambda_n:
   // isotropic Coulomb friction (clamping each axis alone would allow sqrt(2) mu diagonally).
-  float l1 = r1.lambda - r1.effMass * rowVelocity(r1);
-  float l2 = r2.lambda - r2.effMass * rowVelocity(r2);
+  // With `anchor`, static friction also pulls the contact back to where it first touched.
+  float b1 = 0, b2 = 0, massScale = 1, impulseScale = 0;
+  if (anchor) {
+    b1 = anchor->biasRate * rowError(r1);
+    b2 = anchor->biasRate * rowError(r2);
+    massScale = anchor->massScale;
+    impulseScale = anchor->impulseScale;
+  }
+  float l1 = r1.lambda - r1.effMass * massScale * (rowVelocity(r1) + b1) - impulseScale * r1.lambda;
+  float l2 = r2.lambda - r2.effMass * massScale * (rowVelocity(r2) + b2) - impulseScale * r2.lambda;
   float bound = r1.mu * rows[size_t(r1.parent)].lambda;
   float len2 = l1 * l1 + l2 * l2;
   if (len2 > bound * bound) {

@@ -59,6 +59,11 @@ struct Row {
   float relativeVelocity = 0;  ///< normal rows: J v before the solve
   float maxLambda = 0;         ///< normal rows: largest impulse in the step
   float hertz = 0, dampingRatio = 0;  ///< spring rows
+  /// Equality rows of one joint part (a point: 3, a rotation lock: 3, hinge axes: 2) are
+  /// solved together as a block: on the block's first row, the row count and the index of
+  /// the block's inverse K in Solver::blockInvK.
+  uint8_t blockSize = 0;
+  int32_t blockIndex = -1;
   RowKind kind = RowKind::Equality;
 };
 
@@ -73,6 +78,7 @@ class Solver {
  public:
   std::vector<SolverBody> bodies;  ///< [0] is the world
   std::vector<Row> rows;
+  std::vector<Mat3> blockInvK;  ///< inverse of J M^-1 J^T per row block (2x2 padded to 3x3)
 
   /// Sets M^-1 J^T and the effective mass of rows [first, end) from the bodies' masses.
   void finishRows(size_t first);
@@ -80,9 +86,11 @@ class Solver {
   /// One substep's stages. h is the substep length.
   void integrateVelocities(float h, float maxLinearSpeed, float maxAngularSpeed);
   void warmStart();
-  /// One iteration over every row. useBias=false is the relax pass.
-  void solveIteration(const SolverSettings& s, float h, bool useBias);
-  void solveFrictionPair(Row& r1, Row& r2);
+  /// One iteration over every row. useBias=false is the relax pass. recordApproach keeps the
+  /// most negative normal velocity for restitution (first iteration of each substep).
+  void solveIteration(const SolverSettings& s, float h, bool useBias, bool recordApproach = false);
+  void solveFrictionPair(Row& r1, Row& r2, const Softness* anchor);
+  void solveBlock(size_t first, const Softness& soft, bool useBias);
   void integratePositions(float h);
   void applyRestitution(float threshold);
   /// Norm of the rows' velocity error after the solve (see SOLVER_NOTES "Residual").

@@ -460,7 +460,10 @@ Status World::getBody(BodyId id, BodyState* out) const {
   out->rotation = b->xf.q;
   out->linearVelocity = b->v;
   out->angularVelocity = b->w;
+  out->centerOfMass = b->com;
   out->mass = b->mass;
+  Mat3 R = toMat3(b->xf.q);
+  out->inertia = R * b->inertiaLocal * transpose(R);
   return Status::Ok();
 }
 
@@ -631,7 +634,7 @@ void World::step() {
       solver.integrateVelocities(h, w.def.maxLinearSpeed, w.def.maxAngularSpeed); }
     { StageTimer t(&p.warmStart); solver.warmStart(); }
     { StageTimer t(&p.solve);
-      for (int it = 0; it < s.iterations; ++it) solver.solveIteration(s, h, true); }
+      for (int it = 0; it < s.iterations; ++it) solver.solveIteration(s, h, true, it == 0); }
     { StageTimer t(&p.integratePositions); solver.integratePositions(h); }
     { StageTimer t(&p.relax);
       for (int it = 0; it < s.relaxIterations; ++it) solver.solveIteration(s, h, false); }
@@ -649,6 +652,11 @@ void World::step() {
         c.normalImpulse[i] = solver.rows[size_t(c.firstRow + i)].lambda;
         c.tangentImpulse[i][0] = solver.rows[size_t(c.firstRow + n + 2 * i)].lambda;
         c.tangentImpulse[i][1] = solver.rows[size_t(c.firstRow + n + 2 * i + 1)].lambda;
+        // At the friction bound the point slides: its anchors move with it next step.
+        float bound = c.friction * c.normalImpulse[i];
+        float t2 = c.tangentImpulse[i][0] * c.tangentImpulse[i][0] +
+                   c.tangentImpulse[i][1] * c.tangentImpulse[i][1];
+        c.sliding[i] = t2 >= 0.98f * bound * bound;
       }
     }
     for (uint32_t i = 0; i < w.joints.capacity(); ++i) {
@@ -741,18 +749,32 @@ void World::Impl::narrowPhase(float dt) {
     float margin = def.speculativeDistance + reach;
     Manifold m;
     collide(sa.def.geom, shapeTransform(A, sa), sb.def.geom, shapeTransform(B, sb), margin, &m);
-    // Carry impulses of points whose features persist.
+    // Carry impulses and friction anchors of points whose features persist; new points
+    // (and points that slid last step) anchor where they are now.
     float ni[Manifold::kMaxPoints] = {}, ti[Manifold::kMaxPoints][2] = {};
+    Vec3 anA[Manifold::kMaxPoints], anB[Manifold::kMaxPoints];
     for (int i = 0; i < m.count; ++i) {
+      const ContactPoint& cp = m.points[i];
+      anA[i] = applyInverse(A.xf, cp.point);
+      anB[i] = applyInverse(B.xf, cp.point);
       for (int k = 0; k < c.manifold.count; ++k) {
-        if (c.manifold.points[k].featureId == m.points[i].featureId) {
+        if (c.manifold.points[k].featureId == cp.featureId) {
           ni[i] = c.normalImpulse[k];
           ti[i][0] = c.tangentImpulse[k][0];
           ti[i][1] = c.tangentImpulse[k][1];
+          if (!c.sliding[k]) {
+            anA[i] = c.anchorA[k];
+            anB[i] = c.anchorB[k];
+          }
           break;
         }
       }
-      stats.maxPenetration = std::max(stats.maxPenetration, double(-m.points[i].separation));
+      stats.maxPenetration = std::max(stats.maxPenetration, double(-cp.separation));
+    }
+    for (int i = 0; i < m.count; ++i) {
+      c.anchorA[i] = anA[i];
+      c.anchorB[i] = anB[i];
+      c.sliding[i] = false;
     }
     c.manifold = m;
     std::memcpy(c.normalImpulse, ni, sizeof ni);
@@ -769,6 +791,7 @@ void World::Impl::buildSolverBodies() {
   const float h = def.timeStep / float(s.substeps);
   solver.bodies.clear();
   solver.rows.clear();
+  solver.blockInvK.clear();
   solver.bodies.push_back(SolverBody{});
   int awake = 0;
   for (uint32_t i = 0; i < bodies.capacity(); ++i) {
@@ -861,6 +884,8 @@ void World::Impl::buildSolverBodies() {
         r.angB = cross(rB[k], t);
         r.mu = c.friction;
         r.parent = c.firstRow + k;
+        // Tangential drift of the anchors since the point first touched.
+        r.C0 = dot(t, apply(B.xf, c.anchorB[k]) - apply(A.xf, c.anchorA[k]));
         r.lambda = s.warmStart ? c.tangentImpulse[k][d] : 0;
         solver.rows.push_back(r);
       }

@@ -33,6 +33,9 @@ struct SceneMetrics {
   bool conservesEnergy = false;  ///< energy_drift applies (free flight, pendulum)
   /// Named body indices for scene-specific metrics (e.g. "ball", "car0").
   std::map<std::string, std::vector<int>> groups;
+  /// Named numbers for scene-specific metrics (e.g. "finish_x" for the bridge), JSON
+  /// "metrics": {"params": {"finish_x": 60}}.
+  std::map<std::string, double> params;
 };
 
 struct Scene {
@@ -54,6 +57,9 @@ Status parseScene(const std::string& json, const std::string& source, Scene* out
 Status loadSceneFile(const std::string& path, Scene* out);
 /// Serializes a scene to JSON text that parseScene reads back to the same scene.
 std::string sceneToJson(const Scene& scene);
+
+/// Metric names a criterion may use (docs/SCENES.md defines each); others are rejected.
+const std::vector<std::string>& knownSceneMetrics();
 
 /// Creates every body and joint of a scene in a world (whose WorldDef should be
 /// scene.world). ids[i] is the id of scene.bodies[i]. All-or-nothing: on error the world

@@ -27,6 +27,9 @@ struct ConvexHull {
   std::vector<Face> faces;
   std::vector<std::pair<uint32_t, uint32_t>> edges;  ///< unique undirected edges
   Vec3 centroid;                                     ///< volume centroid, m
+  /// The two faces sharing each edge, parallel to `edges`; filled by buildConvexHull. The
+  /// narrow phase derives it on the fly (slower) when a hull built by hand leaves it empty.
+  std::vector<std::pair<uint32_t, uint32_t>> edgeFaces;
 };
 
 /// Builds the convex hull of a point cloud (coplanar facets merged into polygons).

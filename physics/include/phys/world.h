@@ -111,7 +111,7 @@ struct SolverSettings {
   float jointHertz = 60;        ///< soft joint stiffness; capped at a quarter of substep rate
   float jointDampingRatio = 2;  ///< for soft joints
   float maxPushout = 3;         ///< m/s, the fastest speed penetration recovery may add
-  float linearSlop = 0.005f;    ///< m, penetration allowed without correction
+  float linearSlop = 0.005f;    ///< m, penetration left uncorrected (Baumgarte only)
   bool warmStart = true;
   bool restitution = true;
   float restitutionThreshold = 1;  ///< m/s, approach speed below which no bounce
@@ -153,8 +153,10 @@ struct BodyState {
   BodyType type = BodyType::Dynamic;
   Vec3 position;  ///< body frame origin
   Quat rotation;
-  Vec3 linearVelocity, angularVelocity;
-  float mass = 0;
+  Vec3 linearVelocity, angularVelocity;  ///< of the centre of mass; rad/s world frame
+  Vec3 centerOfMass;                     ///< world
+  float mass = 0;                        ///< kg (0 for static and kinematic bodies)
+  Mat3 inertia = Mat3::zero();           ///< kg m^2, world frame, about the centre of mass
 };
 
 /// A joint's state after the last step.

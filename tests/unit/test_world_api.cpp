@@ -1,0 +1,206 @@
+// World API: generational ids, validation of every edit, all-or-nothing rejection.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+
+#include "phys/world.h"
+
+using namespace phys;
+
+namespace {
+
+BodyDef box(Vec3 p = {}) {
+  BodyDef d;
+  d.position = p;
+  ShapeDef s;
+  s.geom = ShapeGeom::box({0.5f, 0.5f, 0.5f});
+  d.shapes.push_back(s);
+  return d;
+}
+
+const float kNaN = std::numeric_limits<float>::quiet_NaN();
+const float kInf = std::numeric_limits<float>::infinity();
+
+}  // namespace
+
+TEST(WorldApi, StaleBodyIdIsRejectedAfterSlotReuse) {
+  World w;
+  BodyId a, b;
+  ASSERT_TRUE(w.createBody(box(), &a).ok());
+  ASSERT_TRUE(w.destroyBody(a).ok());
+  ASSERT_TRUE(w.createBody(box({3, 0, 0}), &b).ok());
+  EXPECT_EQ(a.index, b.index);  // the slot is reused...
+  EXPECT_NE(a.generation, b.generation);  // ...with a new generation
+  EXPECT_FALSE(w.isValid(a));
+  EXPECT_TRUE(w.isValid(b));
+  BodyState s;
+  EXPECT_EQ(w.getBody(a, &s).code, StatusCode::NotFound);
+  EXPECT_EQ(w.setVelocity(a, {1, 0, 0}, {}).code, StatusCode::NotFound);
+  EXPECT_EQ(w.destroyBody(a).code, StatusCode::NotFound);
+  EXPECT_EQ(w.applyForce(a, {1, 0, 0}, {}).code, StatusCode::NotFound);
+  // b is untouched by the attempts through the stale id.
+  ASSERT_TRUE(w.getBody(b, &s).ok());
+  EXPECT_EQ(s.position, (Vec3{3, 0, 0}));
+  EXPECT_EQ(s.linearVelocity, (Vec3{}));
+  EXPECT_FALSE(w.isValid(BodyId{}));  // null
+}
+
+TEST(WorldApi, StaleJointAndShapeIdsAreRejected) {
+  World w;
+  BodyId a, b;
+  ASSERT_TRUE(w.createBody(box(), &a).ok());
+  ASSERT_TRUE(w.createBody(box({2, 0, 0}), &b).ok());
+  JointDef jd;
+  jd.bodyA = a;
+  jd.bodyB = b;
+  JointId j;
+  ASSERT_TRUE(w.createJoint(jd, &j).ok());
+  ShapeId s = w.bodyShapes(b)[0];
+  ASSERT_TRUE(w.destroyBody(b).ok());  // takes its joint and shapes along
+  EXPECT_EQ(w.getJoint(j, nullptr, nullptr).code, StatusCode::NotFound);
+  EXPECT_EQ(w.getShape(s, nullptr, nullptr).code, StatusCode::NotFound);
+  EXPECT_EQ(w.jointCount(), 0);
+  jd.bodyB = b;
+  EXPECT_EQ(w.createJoint(jd, nullptr).code, StatusCode::NotFound);
+}
+
+TEST(WorldApi, BadBodyDefinitionsAreRejectedAndChangeNothing) {
+  World w;
+  struct Case {
+    const char* what;
+    BodyDef def;
+    StatusCode code;
+  };
+  std::vector<Case> cases;
+  {
+    BodyDef d = box();
+    d.position.x = kNaN;
+    cases.push_back({"nan position", d, StatusCode::InvalidArgument});
+  }
+  {
+    BodyDef d = box();
+    d.linearVelocity.z = kInf;
+    cases.push_back({"infinite velocity", d, StatusCode::InvalidArgument});
+  }
+  {
+    BodyDef d = box();
+    d.mass = -1;
+    cases.push_back({"negative mass", d, StatusCode::InvalidArgument});
+  }
+  {
+    BodyDef d = box();
+    d.rotation = {0, 0, 0, 2};
+    cases.push_back({"non-unit quaternion", d, StatusCode::InvalidArgument});
+  }
+  {
+    BodyDef d = box();
+    d.shapes[0].geom.halfExtents.y = 0;
+    cases.push_back({"zero box size", d, StatusCode::InvalidArgument});
+  }
+  {
+    BodyDef d = box();
+    d.shapes[0].geom = ShapeGeom::sphere(-1);
+    cases.push_back({"negative radius", d, StatusCode::InvalidArgument});
+  }
+  {
+    BodyDef d = box();
+    d.shapes[0].material.friction = -0.1f;
+    cases.push_back({"negative friction", d, StatusCode::InvalidArgument});
+  }
+  {
+    BodyDef d = box();
+    d.shapes[0].material.restitution = 1.5f;
+    cases.push_back({"restitution above 1", d, StatusCode::InvalidArgument});
+  }
+  {
+    BodyDef d = box();
+    d.shapes[0].geom = ShapeGeom::plane({0, 0, 1}, 0);
+    cases.push_back({"plane on a dynamic body", d, StatusCode::IncorrectState});
+  }
+  {
+    BodyDef d;
+    cases.push_back({"dynamic body without mass", d, StatusCode::InvalidArgument});
+  }
+  for (const Case& c : cases) {
+    BodyId id;
+    Status st = w.createBody(c.def, &id);
+    EXPECT_EQ(st.code, c.code) << c.what << ": " << st.message;
+    EXPECT_FALSE(st.message.empty()) << c.what;
+  }
+  EXPECT_EQ(w.bodyCount(), 0);
+  // Nothing leaked into the broad phase either: a step with no bodies finds no pairs.
+  w.step();
+  EXPECT_EQ(w.stats().pairs, 0);
+}
+
+TEST(WorldApi, BadEditsLeaveTheBodyAsItWas) {
+  World w;
+  BodyId b;
+  ASSERT_TRUE(w.createBody(box({1, 2, 3}), &b).ok());
+  EXPECT_EQ(w.setTransform(b, {kNaN, 0, 0}, {}).code, StatusCode::InvalidArgument);
+  EXPECT_EQ(w.setTransform(b, {0, 0, 0}, {1, 1, 1, 1}).code, StatusCode::InvalidArgument);
+  EXPECT_EQ(w.setVelocity(b, {0, kInf, 0}, {}).code, StatusCode::InvalidArgument);
+  EXPECT_EQ(w.setMass(b, -2).code, StatusCode::InvalidArgument);
+  EXPECT_EQ(w.setMass(b, 0).code, StatusCode::InvalidArgument);
+  Material m;
+  m.density = 0;
+  EXPECT_EQ(w.setMaterial(b, m).code, StatusCode::InvalidArgument);
+  EXPECT_EQ(w.applyImpulse(b, {kNaN, 0, 0}, {}).code, StatusCode::InvalidArgument);
+  BodyState s;
+  ASSERT_TRUE(w.getBody(b, &s).ok());
+  EXPECT_EQ(s.position, (Vec3{1, 2, 3}));
+  EXPECT_EQ(s.linearVelocity, (Vec3{}));
+  EXPECT_NEAR(s.mass, 1000.0f, 1e-2f);  // 1 m^3 at the default density
+}
+
+TEST(WorldApi, BadJointsAndSolverSettingsAreRejected) {
+  World w;
+  BodyId a;
+  ASSERT_TRUE(w.createBody(box(), &a).ok());
+  JointDef j;
+  j.bodyA = a;
+  j.bodyB = a;
+  EXPECT_EQ(w.createJoint(j, nullptr).code, StatusCode::InvalidArgument);  // same body
+  j.bodyA = {};
+  j.anchorA.x = kNaN;
+  EXPECT_EQ(w.createJoint(j, nullptr).code, StatusCode::InvalidArgument);
+  j.anchorA = {};
+  j.type = JointType::Hinge;
+  j.enableLimit = true;
+  j.lower = 1;
+  j.upper = -1;
+  EXPECT_EQ(w.createJoint(j, nullptr).code, StatusCode::InvalidArgument);
+  EXPECT_EQ(w.jointCount(), 0);
+
+  SolverSettings s;
+  s.substeps = 0;
+  EXPECT_EQ(w.setSolverSettings(s).code, StatusCode::InvalidArgument);
+  s = SolverSettings();
+  s.contactHertz = kNaN;
+  EXPECT_EQ(w.setSolverSettings(s).code, StatusCode::InvalidArgument);
+  EXPECT_EQ(w.def().solver.substeps, SolverSettings().substeps);
+  EXPECT_EQ(w.setTimeStep(-1).code, StatusCode::InvalidArgument);
+  EXPECT_EQ(w.setGravity({0, kNaN, 0}).code, StatusCode::InvalidArgument);
+}
+
+TEST(WorldApi, MassAndInertiaFromShapesOrGiven) {
+  World w;
+  BodyId b;
+  BodyDef d = box();
+  d.shapes[0].geom.halfExtents = {1, 0.5f, 0.25f};  // 2 x 1 x 0.5 m
+  ASSERT_TRUE(w.createBody(d, &b).ok());
+  BodyState s;
+  ASSERT_TRUE(w.getBody(b, &s).ok());
+  const float m = 1000 * 2 * 1 * 0.5f;
+  EXPECT_NEAR(s.mass, m, 1e-2f);
+  EXPECT_NEAR(s.inertia.c0.x, m / 12 * (1 + 0.25f), 1e-2f);
+  EXPECT_NEAR(s.inertia.c1.y, m / 12 * (4 + 0.25f), 1e-2f);
+  EXPECT_NEAR(s.inertia.c2.z, m / 12 * (4 + 1), 1e-2f);
+  d.mass = 10;
+  d.inertia = {1, 2, 3};
+  ASSERT_TRUE(w.createBody(d, &b).ok());
+  ASSERT_TRUE(w.getBody(b, &s).ok());
+  EXPECT_FLOAT_EQ(s.mass, 10);
+  EXPECT_FLOAT_EQ(s.inertia.c1.y, 2);
+}
