@@ -6,23 +6,23 @@
 
 namespace phys {
 
-JointFrame jointFrame(const JointRec& j, const BodyRec* A, const BodyRec& B) {
+JointFrame jointFrame(const JointRec& j, const BodyPose* A, const BodyPose& B) {
   JointFrame f;
   if (A) {
-    f.qA = A->xf.q;
+    f.qA = A->q;
     f.rA = rotate(f.qA, j.def.anchorA - A->localCenter);
     f.pA = A->com + f.rA;
   } else {
     f.rA = j.def.anchorA;
     f.pA = j.def.anchorA;
   }
-  f.qB = B.xf.q;
+  f.qB = B.q;
   f.rB = rotate(f.qB, j.def.anchorB - B.localCenter);
   f.pB = B.com + f.rB;
   return f;
 }
 
-void initJoint(JointRec& j, const BodyRec* A, const BodyRec& B) {
+void initJoint(JointRec& j, const BodyPose* A, const BodyPose& B) {
   JointFrame f = jointFrame(j, A, B);
   j.relRot0 = conjugate(f.qA) * f.qB;
   Vec3 axisA = normalize(j.def.axisA);
@@ -92,7 +92,7 @@ void addLimitAndMotor(const JointDef& d, float position, float h,
 
 }  // namespace
 
-void buildJointRows(JointRec& j, const BodyRec* A, const BodyRec& B, int32_t ia, int32_t ib,
+void buildJointRows(JointRec& j, const BodyPose* A, const BodyPose& B, int32_t ia, int32_t ib,
                     float h, Solver* solver) {
   const JointDef& d = j.def;
   JointFrame f = jointFrame(j, A, B);
@@ -182,7 +182,31 @@ void buildJointRows(JointRec& j, const BodyRec* A, const BodyRec& B, int32_t ia,
   j.rowCount = int32_t(solver->rows.size()) - j.firstRow;
 }
 
-void measureJoint(const JointRec& j, const BodyRec* A, const BodyRec& B, float* positionError,
+void refreshJointRows(JointRec& j, const BodyPose* A, const BodyPose& B, int32_t ia, int32_t ib,
+                      float h, Solver* solver) {
+  const int32_t first = j.firstRow, count = j.rowCount;
+  const size_t end = solver->rows.size();
+  buildJointRows(j, A, B, ia, ib, h, solver);
+  // Same joint, same settings: the same rows in the same order. Move them into place.
+  for (int32_t k = 0; k < count && size_t(k) + end < solver->rows.size(); ++k) {
+    Row& dst = solver->rows[size_t(first + k)];
+    Row fresh = solver->rows[end + size_t(k)];
+    fresh.lambda = dst.lambda;
+    fresh.blockIndex = dst.blockIndex;
+    // rowError adds J . delta; subtract it now so the error starts from the exact value.
+    const SolverBody& sa = solver->bodies[size_t(fresh.a)];
+    const SolverBody& sb = solver->bodies[size_t(fresh.b)];
+    fresh.C0 -= dot(fresh.linA, sa.dp) + dot(fresh.angA, sa.dtheta) + dot(fresh.linB, sb.dp) +
+                dot(fresh.angB, sb.dtheta);
+    dst = fresh;
+  }
+  solver->rows.resize(end);
+  j.firstRow = first;
+  j.rowCount = count;
+  solver->finishRows(size_t(first), size_t(first + count));
+}
+
+void measureJoint(const JointRec& j, const BodyPose* A, const BodyPose& B, float* positionError,
                   float* angleError) {
   const JointDef& d = j.def;
   JointFrame f = jointFrame(j, A, B);

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <limits>
 
 namespace phys {
@@ -16,8 +18,8 @@ Softness makeSoftness(float hertz, float zeta, float h) {
   return {omega / a1, a2 * a3, a3};
 }
 
-void Solver::finishRows(size_t first) {
-  for (size_t i = first; i < rows.size(); ++i) {
+void Solver::finishRows(size_t first, size_t last) {
+  for (size_t i = first; i < last; ++i) {
     Row& r = rows[i];
     const SolverBody& A = bodies[size_t(r.a)];
     const SolverBody& B = bodies[size_t(r.b)];
@@ -30,7 +32,7 @@ void Solver::finishRows(size_t first) {
     r.effMass = k > 1e-12f ? 1 / k : 0;
   }
   // Block matrices K = J M^-1 J^T of joint row groups (after every row has its M^-1 J^T).
-  for (size_t i = first; i < rows.size(); ++i) {
+  for (size_t i = first; i < last; ++i) {
     Row& r = rows[i];
     if (r.blockSize < 2) continue;
     Mat3 K = Mat3::diagonal({1, 1, 1});
@@ -44,8 +46,11 @@ void Solver::finishRows(size_t first) {
       }
     }
     // A singular block (e.g. both bodies static) gets zero impulses.
-    r.blockIndex = int32_t(blockInvK.size());
-    blockInvK.push_back(inverse(K));
+    if (r.blockIndex < 0) {
+      r.blockIndex = int32_t(blockInvK.size());
+      blockInvK.emplace_back();
+    }
+    blockInvK[size_t(r.blockIndex)] = inverse(K);
   }
 }
 
@@ -98,23 +103,36 @@ void Solver::integrateVelocities(float h, float maxLinearSpeed, float maxAngular
 }
 
 void Solver::warmStart() {
-  for (const Row& r : rows) {
+  for (Row& r : rows) {
+    // The approach speed for restitution: the fastest seen at the start of any substep
+    // (before impulses). While still apart (gap C > 0), the speed at the moment of contact
+    // is extrapolated ballistically, vn^2 + 2 |a_n| C, with the bodies' constant
+    // accelerations: otherwise the substep before impact, which brakes the body to land
+    // exactly on the surface, hides up to one substep of gravity from the bounce.
+    if (r.kind == RowKind::ContactNormal) {
+      float vn = rowVelocity(r);
+      float C = rowError(r);
+      float an = dot(r.linA, bodies[size_t(r.a)].linearAccel) +
+                 dot(r.linB, bodies[size_t(r.b)].linearAccel);
+      if (vn < 0 && C > 0 && an < 0) vn = -std::sqrt(vn * vn - 2 * an * C);
+      r.relativeVelocity = std::min(r.relativeVelocity, vn);
+    }
     if (r.lambda != 0) applyImpulse(r, r.lambda);
   }
 }
 
-void Solver::solveIteration(const SolverSettings& s, float h, bool useBias, bool recordApproach) {
+void Solver::solveIteration(const SolverSettings& s, float h, bool useBias) {
   const float invH = 1 / h;
   const bool soft = s.stabilization == SolverSettings::Stabilization::Soft;
   // Stiffness is capped at a quarter of the substep rate: stiffer springs are not resolved
   // by the integrator and only add energy.
   const float cap = 0.25f * invH;
-  const Softness contactSoft = soft ? makeSoftness(std::min(s.contactHertz, cap),
-                                                   s.contactDampingRatio, h)
-                                    : Softness{s.baumgarte * invH, 1, 0};
-  const Softness jointSoft =
-      soft ? makeSoftness(std::min(s.jointHertz, cap), s.jointDampingRatio, h)
+  const Softness contactSoft =
+      soft ? makeSoftness(std::min(s.contactHertz, cap), s.contactDampingRatio, h)
            : Softness{s.baumgarte * invH, 1, 0};
+  const Softness jointSoft = soft
+                                 ? makeSoftness(std::min(s.jointHertz, cap), s.jointDampingRatio, h)
+                                 : Softness{s.baumgarte * invH, 1, 0};
 
   for (size_t i = 0; i < rows.size(); ++i) {
     Row& r = rows[i];
@@ -133,9 +151,6 @@ void Solver::solveIteration(const SolverSettings& s, float h, bool useBias, bool
     switch (r.kind) {
       case RowKind::ContactNormal:
       case RowKind::Limit: {
-        // The approach speed for restitution: the fastest seen before any solve of a
-        // substep, so gravity gained during the step before impact counts.
-        if (recordApproach) r.relativeVelocity = std::min(r.relativeVelocity, vn);
         float C = rowError(r);
         float bias = 0, massScale = 1, impulseScale = 0;
         if (C > 0) {

@@ -80,15 +80,16 @@ class Solver {
   std::vector<Row> rows;
   std::vector<Mat3> blockInvK;  ///< inverse of J M^-1 J^T per row block (2x2 padded to 3x3)
 
-  /// Sets M^-1 J^T and the effective mass of rows [first, end) from the bodies' masses.
-  void finishRows(size_t first);
+  /// Sets M^-1 J^T, the effective mass and block matrices of rows [first, last) from the
+  /// bodies' masses. A block keeps its blockInvK slot if it has one.
+  void finishRows(size_t first, size_t last);
 
   /// One substep's stages. h is the substep length.
   void integrateVelocities(float h, float maxLinearSpeed, float maxAngularSpeed);
+  /// Applies last impulses again; also records contacts' approach speed for restitution.
   void warmStart();
-  /// One iteration over every row. useBias=false is the relax pass. recordApproach keeps the
-  /// most negative normal velocity for restitution (first iteration of each substep).
-  void solveIteration(const SolverSettings& s, float h, bool useBias, bool recordApproach = false);
+  /// One iteration over every row. useBias=false is the relax pass.
+  void solveIteration(const SolverSettings& s, float h, bool useBias);
   void solveFrictionPair(Row& r1, Row& r2, const Softness* anchor);
   void solveBlock(size_t first, const Softness& soft, bool useBias);
   void integratePositions(float h);

@@ -555,7 +555,8 @@ Status World::createJoint(const JointDef& in, JointId* out) {
   def.axisB = normalize(def.axisB);
   JointRec rec;
   rec.def = def;
-  initJoint(rec, A, *B);
+  BodyPose pa = A ? poseOf(*A) : BodyPose{}, pb = poseOf(*B);
+  initJoint(rec, A ? &pa : nullptr, pb);
   JointId id = w.joints.add(std::move(rec));
   w.joints.get(id)->state.id = id;
   if (A) A->joints.push_back(id);
@@ -630,14 +631,30 @@ void World::step() {
   { StageTimer t(&p.prepare); w.buildSolverBodies(); }
   Solver& solver = w.solver;
   for (int sub = 0; sub < s.substeps; ++sub) {
-    { StageTimer t(&p.integrateVelocities);
-      solver.integrateVelocities(h, w.def.maxLinearSpeed, w.def.maxAngularSpeed); }
-    { StageTimer t(&p.warmStart); solver.warmStart(); }
-    { StageTimer t(&p.solve);
-      for (int it = 0; it < s.iterations; ++it) solver.solveIteration(s, h, true, it == 0); }
-    { StageTimer t(&p.integratePositions); solver.integratePositions(h); }
-    { StageTimer t(&p.relax);
-      for (int it = 0; it < s.relaxIterations; ++it) solver.solveIteration(s, h, false); }
+    {
+      StageTimer t(&p.integrateVelocities);
+      solver.integrateVelocities(h, w.def.maxLinearSpeed, w.def.maxAngularSpeed);
+    }
+    if (sub > 0) {
+      StageTimer t(&p.prepare);
+      w.refreshJoints(h);
+    }
+    {
+      StageTimer t(&p.warmStart);
+      solver.warmStart();
+    }
+    {
+      StageTimer t(&p.solve);
+      for (int it = 0; it < s.iterations; ++it) solver.solveIteration(s, h, true);
+    }
+    {
+      StageTimer t(&p.integratePositions);
+      solver.integratePositions(h);
+    }
+    {
+      StageTimer t(&p.relax);
+      for (int it = 0; it < s.relaxIterations; ++it) solver.solveIteration(s, h, false);
+    }
   }
   { StageTimer t(&p.restitution);
     if (s.restitution) solver.applyRestitution(s.restitutionThreshold); }
@@ -831,7 +848,8 @@ void World::Impl::buildSolverBodies() {
     JointRec& j = joints.at(i);
     const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
     const BodyRec& B = *bodies.get(j.def.bodyB);
-    buildJointRows(j, A, B, A ? A->solverIndex : 0, B.solverIndex, h, &solver);
+    BodyPose pa = A ? poseOf(*A) : BodyPose{}, pb = poseOf(B);
+    buildJointRows(j, A ? &pa : nullptr, pb, A ? A->solverIndex : 0, B.solverIndex, h, &solver);
     // Warm start from last step's impulses when the joint still has the same rows.
     if (s.warmStart && j.impulseCount == j.rowCount) {
       for (int32_t k = 0; k < j.rowCount; ++k)
@@ -891,7 +909,22 @@ void World::Impl::buildSolverBodies() {
       }
     }
   }
-  solver.finishRows(0);
+  solver.finishRows(0, solver.rows.size());
+}
+
+void World::Impl::refreshJoints(float h) {
+  for (uint32_t i = 0; i < joints.capacity(); ++i) {
+    if (!joints.alive(i)) continue;
+    JointRec& j = joints.at(i);
+    const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
+    const BodyRec& B = *bodies.get(j.def.bodyB);
+    auto current = [&](const BodyRec& b) {
+      const SolverBody& sb = solver.bodies[size_t(b.solverIndex)];
+      return BodyPose{sb.q, b.com + sb.dp, b.localCenter};
+    };
+    BodyPose pa = A ? current(*A) : BodyPose{}, pb = current(B);
+    refreshJointRows(j, A ? &pa : nullptr, pb, A ? A->solverIndex : 0, B.solverIndex, h, &solver);
+  }
 }
 
 void World::Impl::finalize() {
@@ -921,7 +954,8 @@ void World::Impl::finalize() {
     j.state.reactionForce = f;
     j.state.reactionTorque = tq;
     const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
-    measureJoint(j, A, *bodies.get(j.def.bodyB), &j.state.positionError, &j.state.angleError);
+    BodyPose pa = A ? poseOf(*A) : BodyPose{}, pb = poseOf(*bodies.get(j.def.bodyB));
+    measureJoint(j, A ? &pa : nullptr, pb, &j.state.positionError, &j.state.angleError);
   }
 }
 

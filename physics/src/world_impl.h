@@ -100,6 +100,7 @@ struct World::Impl {
   void broadPhaseStage();
   void narrowPhase(float h);
   void buildSolverBodies();
+  void refreshJoints(float h);  ///< joint rows at the current poses, inside the substep loop
   void finalize();
 };
 
