@@ -134,17 +134,15 @@ void Solver::solveIteration(const SolverSettings& s, float h, bool useBias) {
                                  ? makeSoftness(std::min(s.jointHertz, cap), s.jointDampingRatio, h)
                                  : Softness{s.baumgarte * invH, 1, 0};
 
-  for (size_t i = 0; i < rows.size(); ++i) {
+  auto solveUnit = [&](size_t i) {
     Row& r = rows[i];
     if (r.kind == RowKind::Friction) {
-      solveFrictionPair(r, rows[i + 1], useBias ? &contactSoft : nullptr);
-      ++i;
-      continue;
+      solveFrictionPair(r, rows[i + 1]);
+      return;
     }
     if (r.blockSize > 1) {
       solveBlock(i, jointSoft, useBias);
-      i += r.blockSize - 1;
-      continue;
+      return;
     }
     float vn = rowVelocity(r);
     float impulse = 0;
@@ -201,22 +199,25 @@ void Solver::solveIteration(const SolverSettings& s, float h, bool useBias) {
       }
     }
     if (impulse != 0) applyImpulse(r, impulse);
+  };
+  for (uint32_t u : units) solveUnit(u);
+}
+
+void Solver::indexUnits() {
+  units.clear();
+  for (size_t i = 0; i < rows.size();) {
+    units.push_back(uint32_t(i));
+    if (rows[i].kind == RowKind::Friction) i += 2;
+    else if (rows[i].blockSize > 1) i += rows[i].blockSize;
+    else i += 1;
   }
 }
 
-void Solver::solveFrictionPair(Row& r1, Row& r2, const Softness* anchor) {
+void Solver::solveFrictionPair(Row& r1, Row& r2) {
   // Both tangent directions at once, clamped to the friction disc |lambda_t| <= mu lambda_n:
   // isotropic Coulomb friction (clamping each axis alone would allow sqrt(2) mu diagonally).
-  // With `anchor`, static friction also pulls the contact back to where it first touched.
-  float b1 = 0, b2 = 0, massScale = 1, impulseScale = 0;
-  if (anchor) {
-    b1 = anchor->biasRate * rowError(r1);
-    b2 = anchor->biasRate * rowError(r2);
-    massScale = anchor->massScale;
-    impulseScale = anchor->impulseScale;
-  }
-  float l1 = r1.lambda - r1.effMass * massScale * (rowVelocity(r1) + b1) - impulseScale * r1.lambda;
-  float l2 = r2.lambda - r2.effMass * massScale * (rowVelocity(r2) + b2) - impulseScale * r2.lambda;
+  float l1 = r1.lambda - r1.effMass * rowVelocity(r1);
+  float l2 = r2.lambda - r2.effMass * rowVelocity(r2);
   float bound = r1.mu * rows[size_t(r1.parent)].lambda;
   float len2 = l1 * l1 + l2 * l2;
   if (len2 > bound * bound) {

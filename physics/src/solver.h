@@ -78,6 +78,7 @@ class Solver {
  public:
   std::vector<SolverBody> bodies;  ///< [0] is the world
   std::vector<Row> rows;
+  std::vector<uint32_t> units;   ///< first row of each solve unit, in row order
   std::vector<Mat3> blockInvK;  ///< inverse of J M^-1 J^T per row block (2x2 padded to 3x3)
 
   /// Sets M^-1 J^T, the effective mass and block matrices of rows [first, last) from the
@@ -88,9 +89,11 @@ class Solver {
   void integrateVelocities(float h, float maxLinearSpeed, float maxAngularSpeed);
   /// Applies last impulses again; also records contacts' approach speed for restitution.
   void warmStart();
-  /// One iteration over every row. useBias=false is the relax pass.
+  /// One iteration over every solve unit. useBias=false is the relax pass.
   void solveIteration(const SolverSettings& s, float h, bool useBias);
-  void solveFrictionPair(Row& r1, Row& r2, const Softness* anchor);
+  /// Records where each solve unit (a row, a friction pair, a joint block) starts.
+  void indexUnits();
+  void solveFrictionPair(Row& r1, Row& r2);
   void solveBlock(size_t first, const Softness& soft, bool useBias);
   void integratePositions(float h);
   void applyRestitution(float threshold);

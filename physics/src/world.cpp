@@ -669,11 +669,6 @@ void World::step() {
         c.normalImpulse[i] = solver.rows[size_t(c.firstRow + i)].lambda;
         c.tangentImpulse[i][0] = solver.rows[size_t(c.firstRow + n + 2 * i)].lambda;
         c.tangentImpulse[i][1] = solver.rows[size_t(c.firstRow + n + 2 * i + 1)].lambda;
-        // At the friction bound the point slides: its anchors move with it next step.
-        float bound = c.friction * c.normalImpulse[i];
-        float t2 = c.tangentImpulse[i][0] * c.tangentImpulse[i][0] +
-                   c.tangentImpulse[i][1] * c.tangentImpulse[i][1];
-        c.sliding[i] = t2 >= 0.98f * bound * bound;
       }
     }
     for (uint32_t i = 0; i < w.joints.capacity(); ++i) {
@@ -766,32 +761,19 @@ void World::Impl::narrowPhase(float dt) {
     float margin = def.speculativeDistance + reach;
     Manifold m;
     collide(sa.def.geom, shapeTransform(A, sa), sb.def.geom, shapeTransform(B, sb), margin, &m);
-    // Carry impulses and friction anchors of points whose features persist; new points
-    // (and points that slid last step) anchor where they are now.
+    // Carry impulses of points whose features persist (warm starting).
     float ni[Manifold::kMaxPoints] = {}, ti[Manifold::kMaxPoints][2] = {};
-    Vec3 anA[Manifold::kMaxPoints], anB[Manifold::kMaxPoints];
     for (int i = 0; i < m.count; ++i) {
       const ContactPoint& cp = m.points[i];
-      anA[i] = applyInverse(A.xf, cp.point);
-      anB[i] = applyInverse(B.xf, cp.point);
       for (int k = 0; k < c.manifold.count; ++k) {
         if (c.manifold.points[k].featureId == cp.featureId) {
           ni[i] = c.normalImpulse[k];
           ti[i][0] = c.tangentImpulse[k][0];
           ti[i][1] = c.tangentImpulse[k][1];
-          if (!c.sliding[k]) {
-            anA[i] = c.anchorA[k];
-            anB[i] = c.anchorB[k];
-          }
           break;
         }
       }
       stats.maxPenetration = std::max(stats.maxPenetration, double(-cp.separation));
-    }
-    for (int i = 0; i < m.count; ++i) {
-      c.anchorA[i] = anA[i];
-      c.anchorB[i] = anB[i];
-      c.sliding[i] = false;
     }
     c.manifold = m;
     std::memcpy(c.normalImpulse, ni, sizeof ni);
@@ -902,14 +884,13 @@ void World::Impl::buildSolverBodies() {
         r.angB = cross(rB[k], t);
         r.mu = c.friction;
         r.parent = c.firstRow + k;
-        // Tangential drift of the anchors since the point first touched.
-        r.C0 = dot(t, apply(B.xf, c.anchorB[k]) - apply(A.xf, c.anchorA[k]));
         r.lambda = s.warmStart ? c.tangentImpulse[k][d] : 0;
         solver.rows.push_back(r);
       }
     }
   }
   solver.finishRows(0, solver.rows.size());
+  solver.indexUnits();
 }
 
 void World::Impl::refreshJoints(float h) {

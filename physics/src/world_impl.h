@@ -59,11 +59,6 @@ struct Contact {
   Manifold manifold;
   float normalImpulse[Manifold::kMaxPoints] = {};
   float tangentImpulse[Manifold::kMaxPoints][2] = {};
-  /// Friction anchors: where each point first touched, in A's and B's body frames. Static
-  /// friction holds the two together (a soft position error on the friction rows), so a
-  /// box on a slope does not creep; a sliding point's anchors follow it.
-  Vec3 anchorA[Manifold::kMaxPoints], anchorB[Manifold::kMaxPoints];
-  bool sliding[Manifold::kMaxPoints] = {};
   float friction = 0, restitution = 0;
   int32_t firstRow = -1;  ///< this step's first normal row
 };
