@@ -50,6 +50,7 @@ struct MetricsRecorder::Impl {
   std::vector<double> stepMs;
   std::map<std::string, double> stageSum;
   double energyStart = 0, energyEnd = 0;
+  std::optional<double> energySettled;  ///< energy at the first step past the settle time
   double jointErrMax = 0, jointErrSq = 0, jointAngMax = 0;
   long long jointSamples = 0;
   double penMax = 0, penSettledMax = 0;
@@ -84,6 +85,13 @@ void MetricsRecorder::afterStep(const World& world) {
   s.energySolveDeltaMax = std::max(s.energySolveDeltaMax, st.energyAfter - st.energyBefore);
   s.velocityResidualMax = std::max(s.velocityResidualMax, st.velocityResidual);
   m.energyEnd = st.energyAfter;
+  const double E = st.energyAfter;
+  s.energyRiseMax = std::max(s.energyRiseMax, (E - m.energyStart) / std::max(std::fabs(m.energyStart), 1e-9));
+  if (world.time() >= m.scene->metrics.settleTime) {
+    if (!m.energySettled) m.energySettled = E;
+    double gain = (E - *m.energySettled) / std::max(std::fabs(*m.energySettled), 1e-9);
+    s.energyGainSettledMax = std::max(s.energyGainSettledMax.value_or(gain), gain);
+  }
   if (st.contactPoints > 0) m.sawContacts = true;
   m.penMax = std::max(m.penMax, st.maxPenetration);
   if (world.time() > m.scene->metrics.settleTime)
@@ -144,7 +152,8 @@ const std::vector<std::string>& metricNames() {
   static const std::vector<std::string> names = {
       "ms_per_step_median",   "ms_per_step_p99",         "joint_error_max",
       "joint_error_rms",      "joint_angle_error_max",   "penetration_max",
-      "penetration_settled_max", "energy_solve_delta_max", "energy_drift",
+      "penetration_settled_max", "energy_solve_delta_max", "energy_drift", "energy_rise_max",
+      "energy_gain_settled_max",
       "top_drift",            "velocity_residual_max",   "max_speed",
       "nan"};
   return names;
@@ -160,6 +169,8 @@ std::optional<double> MetricsSummary::value(const std::string& name) const {
   if (name == "penetration_settled_max") return penetrationSettledMax;
   if (name == "energy_solve_delta_max") return energySolveDeltaMax;
   if (name == "energy_drift") return energyDrift;
+  if (name == "energy_rise_max") return energyRiseMax;
+  if (name == "energy_gain_settled_max") return energyGainSettledMax;
   if (name == "top_drift") return topDrift;
   if (name == "velocity_residual_max") return velocityResidualMax;
   if (name == "max_speed") return maxSpeed;

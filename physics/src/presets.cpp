@@ -4,6 +4,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <sstream>
 
 #include "settings_json.h"
@@ -21,6 +22,9 @@ Status readNumber(const nlohmann::json& v, const std::string& path, T* out) {
   if (!std::isfinite(d)) return bad(path + ": must be finite");
   if constexpr (std::is_integral_v<T>) {
     if (!v.is_number_integer()) return bad(path + ": must be an integer");
+    // Range check before the cast: converting an out-of-range double is undefined.
+    if (d < double(std::numeric_limits<T>::min()) || d > double(std::numeric_limits<T>::max()))
+      return bad(path + ": out of range");
   }
   *out = T(d);
   return Status::Ok();

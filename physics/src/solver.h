@@ -31,6 +31,8 @@ struct SolverBody {
   Vec3 linearAccel;     ///< m/s^2: gravity * scale + force / mass
   Vec3 torque;          ///< N m
   Mat3 inertiaLocal = Mat3::zero();
+  Quat principal;           ///< principal axes frame -> body frame
+  Vec3 principalMoments{1, 1, 1};  ///< kg m^2
   float linearDamping = 0, angularDamping = 0;
   bool dynamic = false, gyroscopic = false;
 };

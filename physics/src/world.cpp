@@ -6,6 +6,8 @@
 #include <cmath>
 #include <cstring>
 
+#include <Eigen/Eigenvalues>
+
 #include "joints.h"
 #include "world_impl.h"
 
@@ -241,6 +243,18 @@ void World::Impl::updateMass(BodyRec& b) {
   b.invMass = mass > 0 ? 1 / mass : 0;
   b.inertiaLocal = I;
   b.invInertiaLocal = inverse(I);
+  // Principal axes for the free-rotation integrator.
+  Eigen::Matrix3d Id;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) Id(r, c) = (&I.c0)[c][r];
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(Id);
+  Eigen::Matrix3d V = eig.eigenvectors();
+  if (V.determinant() < 0) V.col(2) *= -1;  // a rotation, not a reflection
+  Eigen::Quaterniond pq(V);
+  b.principal = normalize(Quat{float(pq.x()), float(pq.y()), float(pq.z()), float(pq.w())});
+  Eigen::Vector3d ev = eig.eigenvalues();
+  b.principalMoments = {float(std::max(ev(0), 1e-12)), float(std::max(ev(1), 1e-12)),
+                        float(std::max(ev(2), 1e-12))};
   Vec3 oldCom = b.com;
   b.localCenter = c;
   b.com = apply(b.xf, c);
@@ -816,6 +830,8 @@ void World::Impl::buildSolverBodies() {
       sb.linearDamping = b.linearDamping;
       sb.angularDamping = b.angularDamping;
       sb.gyroscopic = b.gyroscopic;
+      sb.principal = b.principal;
+      sb.principalMoments = b.principalMoments;
     }
     solver.bodies.push_back(sb);
     ++awake;

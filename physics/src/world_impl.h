@@ -28,6 +28,8 @@ struct BodyRec {
   float mass = 0, invMass = 0;
   Mat3 inertiaLocal = Mat3::zero();     ///< about the centre of mass, body axes
   Mat3 invInertiaLocal = Mat3::zero();
+  Quat principal;                  ///< principal axes frame -> body frame
+  Vec3 principalMoments{1, 1, 1};  ///< kg m^2, eigenvalues of inertiaLocal
   float linearDamping = 0, angularDamping = 0, gravityScale = 1;
   bool gyroscopic = true;
   bool autoMass = true;   ///< mass from shapes

@@ -101,10 +101,12 @@ inline Quat operator*(Quat a, Quat b) {
 inline Quat conjugate(Quat q) { return {-q.x, -q.y, -q.z, q.w}; }
 inline float lengthSquared(Quat q) { return q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w; }
 inline Quat normalize(Quat q) {
-  float l2 = lengthSquared(q);
-  if (l2 < 1e-30f) return {};
-  float inv = 1.0f / std::sqrt(l2);
-  return {q.x * inv, q.y * inv, q.z * inv, q.w * inv};
+  // In double: float normalization lands on the long side of 1 more often than not, and
+  // rotate() scales by |q|^2, so a float version makes spinning bodies gain momentum.
+  double l2 = double(q.x) * q.x + double(q.y) * q.y + double(q.z) * q.z + double(q.w) * q.w;
+  if (l2 < 1e-30) return {};
+  double inv = 1.0 / std::sqrt(l2);
+  return {float(q.x * inv), float(q.y * inv), float(q.z * inv), float(q.w * inv)};
 }
 inline bool isFinite(Quat q) {
   return std::isfinite(q.x) && std::isfinite(q.y) && std::isfinite(q.z) && std::isfinite(q.w);

@@ -102,11 +102,13 @@ struct JointDef {
 struct SolverSettings {
   enum class Stabilization : uint8_t { Baumgarte = 0, Soft = 1 };
   int substeps = 4;          ///< >= 1
-  int iterations = 1;        ///< velocity iterations per substep, >= 1
+  int iterations = 3;        ///< velocity iterations per substep, >= 1
   int relaxIterations = 1;   ///< iterations without position bias after each substep, >= 0
   Stabilization stabilization = Stabilization::Soft;
   float baumgarte = 0.2f;       ///< Baumgarte beta, 0..1
-  float contactHertz = 30;      ///< soft contact stiffness; capped at a quarter of substep rate
+  /// Soft contact stiffness, capped at a quarter of the substep rate. A soft contact's static
+  /// sag is about (load / own mass) g / (2 pi hertz)^2: 60 Hz keeps a 20-box column to ~3 mm.
+  float contactHertz = 60;
   float contactDampingRatio = 10;
   float jointHertz = 60;        ///< soft joint stiffness; capped at a quarter of substep rate
   float jointDampingRatio = 2;  ///< for soft joints

@@ -1,0 +1,60 @@
+// Solver presets file and criterion evaluation.
+#include <gtest/gtest.h>
+
+#include "phys/metrics.h"
+#include "phys/presets.h"
+
+using namespace phys;
+
+TEST(Presets, ShippedFileLoadsAndItsDefaultExists) {
+  std::map<std::string, Preset> presets;
+  std::string def;
+  Status st = loadPresetsFile(std::string(PHYS_SOURCE_DIR) + "/configs/presets.json", &presets, &def);
+  ASSERT_TRUE(st.ok()) << st.message;
+  ASSERT_TRUE(presets.count(def));
+  // The default preset is the engine's default solver, so scenes without a solver block and
+  // physbench --preset default run the same thing.
+  const SolverSettings& s = presets[def].settings;
+  SolverSettings d;
+  EXPECT_EQ(s.substeps, d.substeps);
+  EXPECT_EQ(s.iterations, d.iterations);
+  EXPECT_EQ(s.relaxIterations, d.relaxIterations);
+  EXPECT_EQ(s.contactHertz, d.contactHertz);
+  EXPECT_EQ(s.stabilization, d.stabilization);
+}
+
+TEST(Presets, BadFieldsAreRejectedWithTheirPath) {
+  std::map<std::string, Preset> presets;
+  auto parse = [&](const std::string& body) {
+    return parsePresets(R"({"default": "a", "presets": {"a": )" + body + "}}", "p.json", &presets,
+                        nullptr);
+  };
+  EXPECT_TRUE(parse(R"({"substeps": 2})").ok());
+  Status st = parse(R"({"substeps": 9999999999})");
+  EXPECT_EQ(st.code, StatusCode::InvalidArgument);
+  EXPECT_NE(st.message.find("presets.a.substeps"), std::string::npos) << st.message;
+  EXPECT_FALSE(parse(R"({"substeps": 0})").ok());
+  EXPECT_FALSE(parse(R"({"substeps": 2.5})").ok());
+  EXPECT_FALSE(parse(R"({"substepz": 2})").ok());
+  EXPECT_FALSE(parse(R"({"stabilization": "stiff"})").ok());
+  EXPECT_FALSE(parse(R"({"warm_start": 1})").ok());
+  EXPECT_FALSE(parsePresets("{", "p.json", &presets, nullptr).ok());
+  EXPECT_FALSE(parsePresets(R"({"default": "zz", "presets": {"a": {}}})", "p.json", &presets,
+                            nullptr).ok());
+}
+
+TEST(Criteria, MissingOrNonFiniteMetricFailsItsCriterion) {
+  MetricsSummary m;
+  m.topDrift = 0.004;
+  m.nan = 0;
+  std::vector<Criterion> c = {{"top_drift", std::nullopt, 0.01},
+                              {"top_drift", 0.005, std::nullopt},
+                              {"joint_error_max", std::nullopt, 1.0},
+                              {"nan", std::nullopt, 0.0}};
+  std::vector<CriterionResult> r = evaluate(m, c);
+  ASSERT_EQ(r.size(), 4u);
+  EXPECT_TRUE(r[0].passed);
+  EXPECT_FALSE(r[1].passed);  // below its min
+  EXPECT_FALSE(r[2].passed);  // no joints: the metric does not apply, so it cannot pass
+  EXPECT_TRUE(r[3].passed);
+}
