@@ -946,7 +946,8 @@ void World::Impl::finalize() {
     for (int32_t r = j.firstRow; r < j.firstRow + j.rowCount; ++r) {
       const Row& row = solver.rows[size_t(r)];
       f += row.linB * (row.lambda / hSub);
-      tq += row.angB * (row.lambda / hSub);
+      // Only rows that are pure rotation: the moment of the force above is not included.
+      if (row.linB == Vec3{}) tq += row.angB * (row.lambda / hSub);
     }
     j.state.reactionForce = f;
     j.state.reactionTorque = tq;

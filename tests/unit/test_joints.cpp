@@ -1,0 +1,229 @@
+// Joints against analytic answers: motors reach their speed, limits hold, sliders slide with
+// the right acceleration, welds carry the right reaction, ropes stop, springs ring at their
+// frequency.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "phys/world.h"
+
+using namespace phys;
+
+namespace {
+
+BodyId addBox(World& w, Vec3 p, Vec3 he, float density = 1000) {
+  BodyDef d;
+  d.position = p;
+  ShapeDef s;
+  s.geom = ShapeGeom::box(he);
+  s.material.density = density;
+  d.shapes.push_back(s);
+  BodyId id;
+  EXPECT_TRUE(w.createBody(d, &id).ok());
+  return id;
+}
+
+BodyState stateOf(const World& w, BodyId id) {
+  BodyState s;
+  EXPECT_TRUE(w.getBody(id, &s).ok());
+  return s;
+}
+
+JointState jointState(const World& w, JointId id) {
+  JointState s;
+  EXPECT_TRUE(w.getJoint(id, nullptr, &s).ok());
+  return s;
+}
+
+}  // namespace
+
+TEST(Joints, HingeMotorReachesItsSpeedAndHoldsTheAxis) {
+  WorldDef def;
+  def.gravity = {0, 0, 0};
+  World w(def);
+  BodyId wheel = addBox(w, {0, 0, 1}, {0.5f, 0.5f, 0.1f});
+  JointDef j;
+  j.type = JointType::Hinge;
+  j.bodyB = wheel;
+  j.anchorA = {0, 0, 1};
+  j.axisA = {0, 0, 1};
+  j.axisB = {0, 0, 1};
+  j.enableMotor = true;
+  j.motorSpeed = 5;
+  j.maxMotorForce = 1000;
+  JointId id;
+  ASSERT_TRUE(w.createJoint(j, &id).ok());
+  for (int i = 0; i < 60; ++i) w.step();
+  BodyState s = stateOf(w, wheel);
+  EXPECT_NEAR(s.angularVelocity.z, 5, 0.05);
+  EXPECT_NEAR(s.angularVelocity.x, 0, 1e-3);
+  EXPECT_NEAR(s.angularVelocity.y, 0, 1e-3);
+  EXPECT_LT(jointState(w, id).positionError, 1e-3f);
+  EXPECT_LT(jointState(w, id).angleError, 1e-3f);
+}
+
+TEST(Joints, HingeMotorTorqueIsLimited) {
+  // A motor of maximum torque T spins up a wheel of moment I at T / I, not faster.
+  WorldDef def;
+  def.gravity = {0, 0, 0};
+  World w(def);
+  BodyId wheel = addBox(w, {0, 0, 1}, {0.5f, 0.5f, 0.1f});
+  const float T = 10;
+  JointDef j;
+  j.type = JointType::Hinge;
+  j.bodyB = wheel;
+  j.anchorA = {0, 0, 1};
+  j.enableMotor = true;
+  j.motorSpeed = 100;
+  j.maxMotorForce = T;
+  ASSERT_TRUE(w.createJoint(j, nullptr).ok());
+  for (int i = 0; i < 30; ++i) w.step();
+  BodyState s = stateOf(w, wheel);
+  double Izz = s.inertia.c2.z;
+  EXPECT_NEAR(s.angularVelocity.z, T / Izz * 0.5, 0.01 * T / Izz * 0.5);
+}
+
+TEST(Joints, HingeLimitStopsAFallingBar) {
+  World w;
+  // A 2 m bar hinged at its left end about the y axis; gravity swings it down until the
+  // limit (0.5 rad) stops it.
+  BodyId bar = addBox(w, {1, 0, 5}, {1, 0.1f, 0.1f});
+  JointDef j;
+  j.type = JointType::Hinge;
+  j.bodyB = bar;
+  j.anchorA = {0, 0, 5};
+  j.anchorB = {-1, 0, 0};
+  j.axisA = {0, 1, 0};
+  j.axisB = {0, 1, 0};
+  j.enableLimit = true;
+  j.lower = -0.5f;
+  j.upper = 0.5f;
+  JointId id;
+  ASSERT_TRUE(w.createJoint(j, &id).ok());
+  for (int i = 0; i < 180; ++i) w.step();
+  BodyState s = stateOf(w, bar);
+  // Rotation about +y by +angle tips +x down, so the bar rests at +0.5 rad.
+  Vec3 dir = rotate(s.rotation, {1, 0, 0});
+  float angle = std::atan2(-dir.z, dir.x);
+  EXPECT_NEAR(angle, 0.5f, 0.02f);
+  EXPECT_LT(jointState(w, id).positionError, 2e-3f);
+}
+
+TEST(Joints, PrismaticSlidesAlongItsAxisWithGravityComponentAndStopsAtLimit) {
+  World w;
+  const float theta = 0.5f;  // axis tilted down from +x
+  Vec3 axis{std::cos(theta), 0, -std::sin(theta)};
+  BodyId box = addBox(w, {0, 0, 10}, {0.2f, 0.2f, 0.2f});
+  JointDef j;
+  j.type = JointType::Prismatic;
+  j.bodyB = box;
+  j.anchorA = {0, 0, 10};
+  j.axisA = axis;
+  j.axisB = axis;
+  j.enableLimit = true;
+  j.lower = -1;
+  j.upper = 2;
+  JointId id;
+  ASSERT_TRUE(w.createJoint(j, &id).ok());
+  for (int i = 0; i < 24; ++i) w.step();  // 0.4 s: slides 0.5 g sin(theta) t^2 = 0.38 m
+  BodyState s = stateOf(w, box);
+  const double t = 0.4, a = 9.81 * std::sin(theta);
+  EXPECT_NEAR(dot(s.linearVelocity, axis), a * t, 0.01 * a * t);
+  EXPECT_LT(jointState(w, id).positionError, 1e-3f);
+  EXPECT_LT(length(s.angularVelocity), 1e-3f);
+  for (int i = 0; i < 120; ++i) w.step();
+  s = stateOf(w, box);
+  EXPECT_NEAR(dot(s.position - Vec3{0, 0, 10}, axis), 2.0f, 5e-3f);  // at the upper limit
+}
+
+TEST(Joints, FixedJointHoldsACantileverWithTheStaticReaction) {
+  World w;
+  BodyId beam = addBox(w, {1, 0, 5}, {1, 0.1f, 0.1f});
+  JointDef j;
+  j.type = JointType::Fixed;
+  j.bodyB = beam;
+  j.anchorA = {0, 0, 5};
+  j.anchorB = {-1, 0, 0};
+  JointId id;
+  ASSERT_TRUE(w.createJoint(j, &id).ok());
+  for (int i = 0; i < 120; ++i) w.step();
+  BodyState s = stateOf(w, beam);
+  JointState js = jointState(w, id);
+  EXPECT_LT(js.positionError, 1e-3f);
+  EXPECT_LT(js.angleError, 2e-3f);
+  EXPECT_LT(length(s.linearVelocity), 1e-2f);
+  const float mg = s.mass * 9.81f;
+  // The weld carries the weight (force up on B, acting 1 m left of B's centre) and the
+  // torque that cancels that force's moment: r x F = (-1, 0, 0) x (0, 0, mg) = (0, mg, 0),
+  // so the lock's torque on B is (0, -mg * 1 m, 0).
+  EXPECT_NEAR(js.reactionForce.z, mg, 0.02f * mg);
+  EXPECT_NEAR(js.reactionForce.x, 0, 0.02f * mg);
+  EXPECT_NEAR(js.reactionTorque.y, -mg * 1.0f, 0.05f * mg);
+}
+
+TEST(Joints, RopeStopsAFallingBallAtItsLength) {
+  World w;
+  BodyDef d;
+  d.position = {0, 0, 9.5f};
+  ShapeDef s;
+  s.geom = ShapeGeom::sphere(0.1f);
+  d.shapes.push_back(s);
+  BodyId ball;
+  ASSERT_TRUE(w.createBody(d, &ball).ok());
+  JointDef j;
+  j.type = JointType::Distance;
+  j.bodyB = ball;
+  j.anchorA = {0, 0, 10};
+  j.enableLimit = true;
+  j.lower = 0;
+  j.upper = 1;
+  JointId id;
+  ASSERT_TRUE(w.createJoint(j, &id).ok());
+  double maxLen = 0;
+  for (int i = 0; i < 120; ++i) {
+    w.step();
+    maxLen = std::max(maxLen, double(10 - stateOf(w, ball).position.z));
+    if (i == 11) {
+      // 0.2 s in, 0.2 m fallen of the 0.5 m of slack: the rope is slack, the fall is free.
+      EXPECT_NEAR(stateOf(w, ball).linearVelocity.z, -9.81f * 0.2f, 1e-4f);
+      EXPECT_EQ(jointState(w, id).positionError, 0.0f);
+    }
+  }
+  EXPECT_LT(maxLen, 1.0 + 2e-3);  // the rope never stretches
+  EXPECT_NEAR(10 - stateOf(w, ball).position.z, 1.0f, 2e-3f);
+  EXPECT_LT(jointState(w, id).positionError, 2e-3f);
+}
+
+TEST(Joints, SpringRingsAtItsFrequency) {
+  WorldDef def;
+  def.gravity = {0, 0, 0};
+  World w(def);
+  BodyDef d;
+  d.position = {1.2f, 0, 0};
+  ShapeDef s;
+  s.geom = ShapeGeom::sphere(0.1f);
+  d.shapes.push_back(s);
+  BodyId ball;
+  ASSERT_TRUE(w.createBody(d, &ball).ok());
+  const float hertz = 2;
+  JointDef j;
+  j.type = JointType::Distance;
+  j.bodyB = ball;
+  j.anchorA = {0, 0, 0};
+  j.length = 1;  // stretched by 0.2 m at the start
+  j.springHertz = hertz;
+  j.springDampingRatio = 0;
+  ASSERT_TRUE(w.createJoint(j, nullptr).ok());
+  // Period from the downward crossings of the rest length.
+  std::vector<double> crossings;
+  double prev = 0.2;
+  for (int i = 0; i < 180; ++i) {
+    w.step();
+    double x = stateOf(w, ball).position.x - 1.0;
+    if (prev > 0 && x <= 0) crossings.push_back(w.time() - (x / (x - prev)) / 60.0);
+    prev = x;
+  }
+  ASSERT_GE(crossings.size(), 3u);
+  double period = (crossings.back() - crossings.front()) / double(crossings.size() - 1);
+  EXPECT_NEAR(period, 1.0 / hertz, 0.03 / hertz);
+}
