@@ -53,33 +53,6 @@ void computeEdgeFaces(const ConvexHull& h, std::vector<std::pair<uint32_t, uint3
 
 namespace {
 
-// Volume and volume centroid of a closed polyhedron with outward faces (tetrahedra from an
-// interior reference point), in double.
-double hullVolume(const ConvexHull& h, double centroid[3]) {
-  double ref[3] = {0, 0, 0};
-  for (const Vec3& v : h.vertices)
-    for (int k = 0; k < 3; ++k) ref[k] += v[k];
-  for (int k = 0; k < 3; ++k) ref[k] /= static_cast<double>(h.vertices.size());
-  double vol = 0, mom[3] = {0, 0, 0};
-  for (const auto& f : h.faces) {
-    for (size_t i = 1; i + 1 < f.indices.size(); ++i) {
-      double w[3][3];
-      const Vec3* p[3] = {&h.vertices[f.indices[0]], &h.vertices[f.indices[i]],
-                          &h.vertices[f.indices[i + 1]]};
-      for (int r = 0; r < 3; ++r)
-        for (int k = 0; k < 3; ++k) w[r][k] = (*p[r])[k] - ref[k];
-      double det = w[0][0] * (w[1][1] * w[2][2] - w[1][2] * w[2][1]) -
-                   w[0][1] * (w[1][0] * w[2][2] - w[1][2] * w[2][0]) +
-                   w[0][2] * (w[1][0] * w[2][1] - w[1][1] * w[2][0]);
-      double v = det / 6.0;
-      vol += v;
-      for (int k = 0; k < 3; ++k) mom[k] += v * (w[0][k] + w[1][k] + w[2][k]) / 4.0;
-    }
-  }
-  for (int k = 0; k < 3; ++k) centroid[k] = ref[k] + (vol != 0 ? mom[k] / vol : 0);
-  return vol;
-}
-
 // Owns qhull's state and its error stream for one run.
 class Qhull {
  public:
@@ -225,12 +198,11 @@ std::shared_ptr<const ConvexHull> buildConvexHull(const std::vector<Vec3>& point
   hull->edges.erase(std::unique(hull->edges.begin(), hull->edges.end()), hull->edges.end());
   detail::computeEdgeFaces(*hull, &hull->edgeFaces);
 
-  double centroid[3];
-  double volume = hullVolume(*hull, centroid);
-  if (hull->faces.size() < 4 || !(volume > 1e-9 * extent * extent * extent))
+  // At density 1 the mass is the volume and the centre of mass the volume centroid.
+  MassProperties mp = computeMass(ShapeGeom::convexHull(hull), 1.0f);
+  if (hull->faces.size() < 4 || !(double(mp.mass) > 1e-9 * extent * extent * extent))
     return fail("the points are coplanar or collinear (no volume)");
-  hull->centroid = {static_cast<float>(centroid[0]), static_cast<float>(centroid[1]),
-                    static_cast<float>(centroid[2])};
+  hull->centroid = mp.center;
   return hull;
 }
 

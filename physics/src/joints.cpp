@@ -142,8 +142,7 @@ void buildJointRows(JointRec& j, const BodyPose* A, const BodyPose& B, int32_t i
       Vec3 rfA = rotate(f.qA, j.refA), rfB = rotate(f.qB, j.refB);
       float angle = std::atan2(dot(cross(rfA, rfB), aA), dot(rfA, rfB));
       addLimitAndMotor(
-          d, angle, h,
-          [&](RowKind k, Vec3 u, float C) -> Row& { return rb.angular(k, u, C); }, aA);
+          d, angle, h, [&](RowKind k, Vec3 u, float C) -> Row& { return rb.angular(k, u, C); }, aA);
       break;
     }
     case JointType::Prismatic: {

@@ -13,7 +13,9 @@ struct BodyPose {
   Vec3 com;
   Vec3 localCenter;
 };
-inline BodyPose poseOf(const BodyRec& b) { return {b.xf.q, b.com, b.localCenter}; }
+inline BodyPose poseOf(const BodyRec& b) {
+  return {b.xf.q, b.com, b.localCenter};
+}
 
 /// World-space geometry of a joint at the bodies' current poses. A null body A is the world.
 struct JointFrame {

@@ -32,7 +32,8 @@ const std::pair<const char*, StageField> kStages[] = {
 double percentile(std::vector<double> v, double p) {
   if (v.empty()) return 0;
   std::sort(v.begin(), v.end());
-  size_t i = size_t(std::min<double>(double(v.size() - 1), std::floor(p * double(v.size() - 1) + 0.5)));
+  size_t i =
+      size_t(std::min<double>(double(v.size() - 1), std::floor(p * double(v.size() - 1) + 0.5)));
   return v[i];
 }
 
@@ -86,7 +87,8 @@ void MetricsRecorder::afterStep(const World& world) {
   s.velocityResidualMax = std::max(s.velocityResidualMax, st.velocityResidual);
   m.energyEnd = st.energyAfter;
   const double E = st.energyAfter;
-  s.energyRiseMax = std::max(s.energyRiseMax, (E - m.energyStart) / std::max(std::fabs(m.energyStart), 1e-9));
+  s.energyRiseMax =
+      std::max(s.energyRiseMax, (E - m.energyStart) / std::max(std::fabs(m.energyStart), 1e-9));
   if (world.time() >= m.scene->metrics.settleTime) {
     if (!m.energySettled) m.energySettled = E;
     double gain = (E - *m.energySettled) / std::max(std::fabs(*m.energySettled), 1e-9);
@@ -149,13 +151,21 @@ MetricsSummary MetricsRecorder::summary() const {
 }
 
 const std::vector<std::string>& metricNames() {
-  static const std::vector<std::string> names = {
-      "ms_per_step_median",   "ms_per_step_p99",         "joint_error_max",
-      "joint_error_rms",      "joint_angle_error_max",   "penetration_max",
-      "penetration_settled_max", "energy_solve_delta_max", "energy_drift", "energy_rise_max",
-      "energy_gain_settled_max",
-      "top_drift",            "velocity_residual_max",   "max_speed",
-      "nan"};
+  static const std::vector<std::string> names = {"ms_per_step_median",
+                                                 "ms_per_step_p99",
+                                                 "joint_error_max",
+                                                 "joint_error_rms",
+                                                 "joint_angle_error_max",
+                                                 "penetration_max",
+                                                 "penetration_settled_max",
+                                                 "energy_solve_delta_max",
+                                                 "energy_drift",
+                                                 "energy_rise_max",
+                                                 "energy_gain_settled_max",
+                                                 "top_drift",
+                                                 "velocity_residual_max",
+                                                 "max_speed",
+                                                 "nan"};
   return names;
 }
 

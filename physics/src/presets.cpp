@@ -13,7 +13,9 @@ namespace phys {
 
 namespace {
 
-Status bad(const std::string& m) { return Status::Error(StatusCode::InvalidArgument, m); }
+Status bad(const std::string& m) {
+  return Status::Error(StatusCode::InvalidArgument, m);
+}
 
 template <class T>
 Status readNumber(const nlohmann::json& v, const std::string& path, T* out) {
@@ -32,8 +34,8 @@ Status readNumber(const nlohmann::json& v, const std::string& path, T* out) {
 
 }  // namespace
 
-Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path,
-                              SolverSettings* out, std::initializer_list<const char*> ignore) {
+Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path, SolverSettings* out,
+                              std::initializer_list<const char*> ignore) {
   if (!j.is_object()) return bad(path + ": must be an object");
   SolverSettings s = *out;
   for (auto it = j.begin(); it != j.end(); ++it) {
@@ -41,25 +43,39 @@ Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path,
     const nlohmann::json& v = it.value();
     const std::string p = path + "." + k;
     Status st;
-    if (k == "substeps") st = readNumber(v, p, &s.substeps);
-    else if (k == "iterations") st = readNumber(v, p, &s.iterations);
-    else if (k == "relax_iterations") st = readNumber(v, p, &s.relaxIterations);
-    else if (k == "baumgarte") st = readNumber(v, p, &s.baumgarte);
-    else if (k == "contact_hertz") st = readNumber(v, p, &s.contactHertz);
-    else if (k == "contact_damping_ratio") st = readNumber(v, p, &s.contactDampingRatio);
-    else if (k == "joint_hertz") st = readNumber(v, p, &s.jointHertz);
-    else if (k == "joint_damping_ratio") st = readNumber(v, p, &s.jointDampingRatio);
-    else if (k == "max_pushout") st = readNumber(v, p, &s.maxPushout);
-    else if (k == "linear_slop") st = readNumber(v, p, &s.linearSlop);
-    else if (k == "restitution_threshold") st = readNumber(v, p, &s.restitutionThreshold);
+    if (k == "substeps")
+      st = readNumber(v, p, &s.substeps);
+    else if (k == "iterations")
+      st = readNumber(v, p, &s.iterations);
+    else if (k == "relax_iterations")
+      st = readNumber(v, p, &s.relaxIterations);
+    else if (k == "baumgarte")
+      st = readNumber(v, p, &s.baumgarte);
+    else if (k == "contact_hertz")
+      st = readNumber(v, p, &s.contactHertz);
+    else if (k == "contact_damping_ratio")
+      st = readNumber(v, p, &s.contactDampingRatio);
+    else if (k == "joint_hertz")
+      st = readNumber(v, p, &s.jointHertz);
+    else if (k == "joint_damping_ratio")
+      st = readNumber(v, p, &s.jointDampingRatio);
+    else if (k == "max_pushout")
+      st = readNumber(v, p, &s.maxPushout);
+    else if (k == "linear_slop")
+      st = readNumber(v, p, &s.linearSlop);
+    else if (k == "restitution_threshold")
+      st = readNumber(v, p, &s.restitutionThreshold);
     else if (k == "warm_start" || k == "restitution") {
       if (!v.is_boolean()) return bad(p + ": must be true or false");
       (k == "warm_start" ? s.warmStart : s.restitution) = v.get<bool>();
     } else if (k == "stabilization") {
       std::string name = v.is_string() ? v.get<std::string>() : "";
-      if (name == "soft") s.stabilization = SolverSettings::Stabilization::Soft;
-      else if (name == "baumgarte") s.stabilization = SolverSettings::Stabilization::Baumgarte;
-      else return bad(p + ": must be \"soft\" or \"baumgarte\"");
+      if (name == "soft")
+        s.stabilization = SolverSettings::Stabilization::Soft;
+      else if (name == "baumgarte")
+        s.stabilization = SolverSettings::Stabilization::Baumgarte;
+      else
+        return bad(p + ": must be \"soft\" or \"baumgarte\"");
     } else {
       bool skip = false;
       for (const char* ig : ignore) skip |= k == ig;
@@ -103,7 +119,8 @@ Status parsePresets(const std::string& text, const std::string& source,
     p.name = it.key();
     const std::string path = source + ": presets." + p.name;
     if (it.value().contains("description")) {
-      if (!it.value()["description"].is_string()) return bad(path + ".description: must be a string");
+      if (!it.value()["description"].is_string())
+        return bad(path + ".description: must be a string");
       p.description = it.value()["description"].get<std::string>();
     }
     Status st = solverSettingsFromJson(it.value(), path, &p.settings, {"description"});

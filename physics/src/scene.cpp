@@ -1078,38 +1078,6 @@ OJson jsonBodyList(const Scene& s, const std::vector<int>& list) {
   return a;
 }
 
-const char* shapeTypeName(ShapeType t) {
-  switch (t) {
-    case ShapeType::Sphere:
-      return "sphere";
-    case ShapeType::Box:
-      return "box";
-    case ShapeType::Capsule:
-      return "capsule";
-    case ShapeType::Plane:
-      return "plane";
-    case ShapeType::Hull:
-      return "hull";
-  }
-  return "sphere";
-}
-
-const char* jointTypeName(JointType t) {
-  switch (t) {
-    case JointType::Ball:
-      return "ball";
-    case JointType::Hinge:
-      return "hinge";
-    case JointType::Fixed:
-      return "fixed";
-    case JointType::Distance:
-      return "distance";
-    case JointType::Prismatic:
-      return "prismatic";
-  }
-  return "ball";
-}
-
 // Compact form of a value, with spaces after ',' and ':' (used for short containers).
 void writeInline(const OJson& j, std::string* out) {
   if (j.is_array()) {
@@ -1280,7 +1248,7 @@ std::string sceneToJson(const Scene& s) {
     for (const ShapeDef& sd : d.shapes) {
       OJson sh;
       const ShapeGeom& g = sd.geom;
-      sh["type"] = shapeTypeName(g.type);
+      sh["type"] = toString(g.type);
       switch (g.type) {
         case ShapeType::Sphere:
           sh["radius"] = jsonNumber(g.radius);
@@ -1326,7 +1294,7 @@ std::string sceneToJson(const Scene& s) {
   for (const SceneJoint& sj : s.joints) {
     const JointDef& d = sj.def;
     OJson j;
-    j["type"] = jointTypeName(d.type);
+    j["type"] = toString(d.type);
     if (!d.name.empty()) j["name"] = d.name;
     if (sj.bodyA >= 0) j["body_a"] = jsonBodyRef(s, sj.bodyA);
     j["body_b"] = jsonBodyRef(s, sj.bodyB);

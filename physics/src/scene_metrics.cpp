@@ -18,9 +18,15 @@ namespace {
 struct DVec {
   double x = 0, y = 0, z = 0;
 };
-DVec d(Vec3 v) { return {v.x, v.y, v.z}; }
-double norm(DVec v) { return std::sqrt(v.x * v.x + v.y * v.y + v.z * v.z); }
-DVec sub(DVec a, DVec b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
+DVec d(Vec3 v) {
+  return {v.x, v.y, v.z};
+}
+double norm(DVec v) {
+  return std::sqrt(v.x * v.x + v.y * v.y + v.z * v.z);
+}
+DVec sub(DVec a, DVec b) {
+  return {a.x - b.x, a.y - b.y, a.z - b.z};
+}
 
 BodyState state(const World& w, BodyId id) {
   BodyState s;
@@ -237,7 +243,8 @@ class WindmillHook : public SceneMetricHook {
 
 class BridgeHook : public SceneMetricHook {
  public:
-  BridgeHook(std::vector<BodyId> cars, double finishX) : cars_(std::move(cars)), finishX_(finishX) {}
+  BridgeHook(std::vector<BodyId> cars, double finishX)
+      : cars_(std::move(cars)), finishX_(finishX) {}
   void afterStep(const World& w) override {
     arrived_ = 0;
     for (BodyId c : cars_) arrived_ += state(w, c).position.x >= finishX_ ? 1 : 0;
@@ -279,7 +286,8 @@ std::unique_ptr<SceneMetricHook> makeSceneMetricHook(const Scene& scene, const W
   std::vector<BodyId> ramp = group("ramp"), rampBoxes = group("ramp_box");
   if (!ramp.empty() && !rampBoxes.empty())
     all->hooks.push_back(std::make_unique<RampHook>(world, ramp[0], rampBoxes));
-  for (BodyId b : group("bounce_ball")) all->hooks.push_back(std::make_unique<BounceHook>(world, b));
+  for (BodyId b : group("bounce_ball"))
+    all->hooks.push_back(std::make_unique<BounceHook>(world, b));
   std::vector<BodyId> wall = group("tunnel_wall"), shots = group("tunnel_projectile");
   if (!wall.empty() && !shots.empty())
     all->hooks.push_back(std::make_unique<TunnelHook>(world, wall[0], shots));

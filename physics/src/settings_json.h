@@ -10,8 +10,8 @@ namespace phys {
 
 /// Reads the SolverSettings fields present in `j` (snake_case) over *out; unknown keys other
 /// than those in `ignore` are errors. `path` prefixes error messages (e.g. "file: solver").
-Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path,
-                              SolverSettings* out, std::initializer_list<const char*> ignore = {});
+Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path, SolverSettings* out,
+                              std::initializer_list<const char*> ignore = {});
 nlohmann::json solverSettingsToJson(const SolverSettings& s);
 
 }  // namespace phys

@@ -27,8 +27,8 @@ void Solver::finishRows(size_t first, size_t last) {
     r.mAngA = A.invI * r.angA;
     r.mLinB = r.linB * B.invMass;
     r.mAngB = B.invI * r.angB;
-    float k = dot(r.linA, r.mLinA) + dot(r.angA, r.mAngA) + dot(r.linB, r.mLinB) +
-              dot(r.angB, r.mAngB);
+    float k =
+        dot(r.linA, r.mLinA) + dot(r.angA, r.mAngA) + dot(r.linB, r.mLinB) + dot(r.angB, r.mAngB);
     r.effMass = k > 1e-12f ? 1 / k : 0;
   }
   // Block matrices K = J M^-1 J^T of joint row groups (after every row has its M^-1 J^T).
@@ -196,9 +196,12 @@ void Solver::indexUnits() {
   units.clear();
   for (size_t i = 0; i < rows.size();) {
     units.push_back(uint32_t(i));
-    if (rows[i].kind == RowKind::Friction) i += 2;
-    else if (rows[i].blockSize > 1) i += rows[i].blockSize;
-    else i += 1;
+    if (rows[i].kind == RowKind::Friction)
+      i += 2;
+    else if (rows[i].blockSize > 1)
+      i += rows[i].blockSize;
+    else
+      i += 1;
   }
 }
 

@@ -21,17 +21,17 @@ namespace phys {
 /// A body as the solver sees it: small and contiguous. Index 0 is the static world (zero
 /// velocity, zero inverse mass), so rows touching static bodies need no branch.
 struct SolverBody {
-  Vec3 v, w;            ///< m/s, rad/s
-  Vec3 dp;              ///< m, centre-of-mass displacement since the step began
-  Vec3 dtheta;          ///< rad, accumulated rotation vector since the step began
-  Quat q;               ///< current orientation
-  float invMass = 0;    ///< 1/kg (0 for kinematic bodies and the world)
+  Vec3 v, w;                 ///< m/s, rad/s
+  Vec3 dp;                   ///< m, centre-of-mass displacement since the step began
+  Vec3 dtheta;               ///< rad, accumulated rotation vector since the step began
+  Quat q;                    ///< current orientation
+  float invMass = 0;         ///< 1/kg (0 for kinematic bodies and the world)
   Mat3 invI = Mat3::zero();  ///< world inverse inertia at the step's start
   // Integration inputs (dynamic bodies only).
-  Vec3 linearAccel;     ///< m/s^2: gravity * scale + force / mass
-  Vec3 torque;          ///< N m
+  Vec3 linearAccel;  ///< m/s^2: gravity * scale + force / mass
+  Vec3 torque;       ///< N m
   Mat3 inertiaLocal = Mat3::zero();
-  Quat principal;           ///< principal axes frame -> body frame
+  Quat principal;                  ///< principal axes frame -> body frame
   Vec3 principalMoments{1, 1, 1};  ///< kg m^2
   float linearDamping = 0, angularDamping = 0;
   bool dynamic = false, gyroscopic = false;
@@ -47,19 +47,19 @@ enum class RowKind : uint8_t {
 };
 
 struct Row {
-  int32_t a = 0, b = 0;  ///< solver body indices (0 = world)
-  Vec3 linA, angA, linB, angB;      ///< Jacobian
-  Vec3 mLinA, mAngA, mLinB, mAngB;  ///< M^-1 J^T
-  float effMass = 0;   ///< 1 / (J M^-1 J^T)
-  float C0 = 0;        ///< position error at the step's start (m or rad)
-  float lambda = 0;    ///< accumulated impulse of the current substep, N s
-  float maxImpulse = 0;   ///< motor bound, N s per substep
-  float target = 0;       ///< motor target velocity
-  float mu = 0;           ///< friction coefficient
-  int32_t parent = -1;    ///< friction: the normal row bounding it
-  float restitution = 0;  ///< normal rows
-  float relativeVelocity = 0;  ///< normal rows: J v before the solve
-  float maxLambda = 0;         ///< normal rows: largest impulse in the step
+  int32_t a = 0, b = 0;               ///< solver body indices (0 = world)
+  Vec3 linA, angA, linB, angB;        ///< Jacobian
+  Vec3 mLinA, mAngA, mLinB, mAngB;    ///< M^-1 J^T
+  float effMass = 0;                  ///< 1 / (J M^-1 J^T)
+  float C0 = 0;                       ///< position error at the step's start (m or rad)
+  float lambda = 0;                   ///< accumulated impulse of the current substep, N s
+  float maxImpulse = 0;               ///< motor bound, N s per substep
+  float target = 0;                   ///< motor target velocity
+  float mu = 0;                       ///< friction coefficient
+  int32_t parent = -1;                ///< friction: the normal row bounding it
+  float restitution = 0;              ///< normal rows
+  float relativeVelocity = 0;         ///< normal rows: J v before the solve
+  float maxLambda = 0;                ///< normal rows: largest impulse in the step
   float hertz = 0, dampingRatio = 0;  ///< spring rows
   /// Equality rows of one joint part (a point: 3, a rotation lock: 3, hinge axes: 2) are
   /// solved together as a block: on the block's first row, the row count and the index of
@@ -80,7 +80,7 @@ class Solver {
  public:
   std::vector<SolverBody> bodies;  ///< [0] is the world
   std::vector<Row> rows;
-  std::vector<uint32_t> units;   ///< first row of each solve unit, in row order
+  std::vector<uint32_t> units;  ///< first row of each solve unit, in row order
   std::vector<Mat3> blockInvK;  ///< inverse of J M^-1 J^T per row block (2x2 padded to 3x3)
 
   /// Sets M^-1 J^T, the effective mass and block matrices of rows [first, last) from the

@@ -1,12 +1,11 @@
 // World API (validated edits) and the step, whose stages read top to bottom in World::step.
 #include "phys/world.h"
 
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstring>
-
-#include <Eigen/Eigenvalues>
 
 #include "joints.h"
 #include "world_impl.h"
@@ -18,29 +17,42 @@ namespace phys {
 
 const char* toString(StatusCode c) {
   switch (c) {
-    case StatusCode::Ok: return "OK";
-    case StatusCode::InvalidArgument: return "INVALID_ARGUMENT";
-    case StatusCode::NotFound: return "NOT_FOUND";
-    case StatusCode::IncorrectState: return "INCORRECT_STATE";
-    case StatusCode::ResourceExhausted: return "RESOURCE_EXHAUSTED";
+    case StatusCode::Ok:
+      return "OK";
+    case StatusCode::InvalidArgument:
+      return "INVALID_ARGUMENT";
+    case StatusCode::NotFound:
+      return "NOT_FOUND";
+    case StatusCode::IncorrectState:
+      return "INCORRECT_STATE";
+    case StatusCode::ResourceExhausted:
+      return "RESOURCE_EXHAUSTED";
   }
   return "?";
 }
 const char* toString(BodyType t) {
   switch (t) {
-    case BodyType::Static: return "static";
-    case BodyType::Kinematic: return "kinematic";
-    case BodyType::Dynamic: return "dynamic";
+    case BodyType::Static:
+      return "static";
+    case BodyType::Kinematic:
+      return "kinematic";
+    case BodyType::Dynamic:
+      return "dynamic";
   }
   return "?";
 }
 const char* toString(JointType t) {
   switch (t) {
-    case JointType::Ball: return "ball";
-    case JointType::Hinge: return "hinge";
-    case JointType::Fixed: return "fixed";
-    case JointType::Distance: return "distance";
-    case JointType::Prismatic: return "prismatic";
+    case JointType::Ball:
+      return "ball";
+    case JointType::Hinge:
+      return "hinge";
+    case JointType::Fixed:
+      return "fixed";
+    case JointType::Distance:
+      return "distance";
+    case JointType::Prismatic:
+      return "prismatic";
   }
   return "?";
 }
@@ -50,13 +62,21 @@ const char* toString(JointType t) {
 
 namespace {
 
-Status invalid(std::string m) { return Status::Error(StatusCode::InvalidArgument, std::move(m)); }
+Status invalid(std::string m) {
+  return Status::Error(StatusCode::InvalidArgument, std::move(m));
+}
 Status notFound(const char* what) {
   return Status::Error(StatusCode::NotFound, std::string(what) + " id is unknown or stale");
 }
-bool finite(float f) { return std::isfinite(f); }
-bool positive(float f) { return std::isfinite(f) && f > 0; }
-bool positive(Vec3 v) { return positive(v.x) && positive(v.y) && positive(v.z); }
+bool finite(float f) {
+  return std::isfinite(f);
+}
+bool positive(float f) {
+  return std::isfinite(f) && f > 0;
+}
+bool positive(Vec3 v) {
+  return positive(v.x) && positive(v.y) && positive(v.z);
+}
 
 /// Accepts quaternions within 1e-3 of unit length (normalizing them); rejects others.
 Status checkRotation(Quat* q, const char* what) {
@@ -114,10 +134,17 @@ float boundRadius(const ShapeDef& s, Vec3 c) {
   Vec3 o = s.local.p - c;
   float r = 0;
   switch (s.geom.type) {
-    case ShapeType::Sphere: r = s.geom.radius; break;
-    case ShapeType::Box: r = length(s.geom.halfExtents); break;
-    case ShapeType::Capsule: r = s.geom.radius + s.geom.halfHeight; break;
-    case ShapeType::Plane: return 0;
+    case ShapeType::Sphere:
+      r = s.geom.radius;
+      break;
+    case ShapeType::Box:
+      r = length(s.geom.halfExtents);
+      break;
+    case ShapeType::Capsule:
+      r = s.geom.radius + s.geom.halfHeight;
+      break;
+    case ShapeType::Plane:
+      return 0;
     case ShapeType::Hull:
       for (Vec3 v : s.geom.hull->vertices) r = std::max(r, length(v));
       break;
@@ -174,7 +201,9 @@ World::World(const WorldDef& def) : impl_(std::make_unique<Impl>()) {
 }
 World::~World() = default;
 
-const WorldDef& World::def() const { return impl_->def; }
+const WorldDef& World::def() const {
+  return impl_->def;
+}
 
 Status World::setGravity(Vec3 g) {
   if (!isFinite(g)) return invalid("gravity must be finite");
@@ -191,9 +220,15 @@ Status World::setSolverSettings(const SolverSettings& s) {
   if (st.ok()) impl_->def.solver = s;
   return st;
 }
-const StepProfile& World::profile() const { return impl_->profile; }
-const StepStats& World::stats() const { return impl_->stats; }
-double World::time() const { return impl_->time; }
+const StepProfile& World::profile() const {
+  return impl_->profile;
+}
+const StepStats& World::stats() const {
+  return impl_->stats;
+}
+double World::time() const {
+  return impl_->time;
+}
 
 // ---------------------------------------------------------------------------------------------
 // Bodies
@@ -234,8 +269,10 @@ void World::Impl::updateMass(BodyRec& b) {
   float mass = float(m);
   if (!b.autoMass) {
     // A given mass scales the shapes' inertia; with no volume, a unit sphere's shape.
-    if (mass > 0) I = I * (b.givenMass / mass);
-    else I = Mat3::diagonal({1, 1, 1}) * (0.4f * b.givenMass * 0.25f);
+    if (mass > 0)
+      I = I * (b.givenMass / mass);
+    else
+      I = Mat3::diagonal({1, 1, 1}) * (0.4f * b.givenMass * 0.25f);
     mass = b.givenMass;
   }
   if (positive(b.givenInertia)) I = Mat3::diagonal(b.givenInertia);
@@ -272,8 +309,8 @@ void World::Impl::syncProxies(BodyId id, bool moved) {
     AABB box = computeAABB(s->def.geom, shapeTransform(*b, *s));
     box = inflate(box, 0.5f * def.speculativeDistance);
     if (s->proxy < 0) {
-      s->proxy = broadPhase.createProxy(box, def.aabbMargin, sid.index,
-                                        b->type == BodyType::Static);
+      s->proxy =
+          broadPhase.createProxy(box, def.aabbMargin, sid.index, b->type == BodyType::Static);
     } else if (moved) {
       broadPhase.moveProxy(s->proxy, box, def.aabbMargin);
     }
@@ -295,7 +332,8 @@ Status World::createBody(const BodyDef& in, BodyId* out) {
       def.angularDamping < 0)
     return invalid("body: damping must be >= 0");
   if (!finite(def.gravityScale)) return invalid("body: gravity scale must be finite");
-  if (!finite(def.mass) || def.mass < 0) return invalid("body: mass must be >= 0 (0 = from shapes)");
+  if (!finite(def.mass) || def.mass < 0)
+    return invalid("body: mass must be >= 0 (0 = from shapes)");
   if (!isFinite(def.inertia) || def.inertia.x < 0 || def.inertia.y < 0 || def.inertia.z < 0)
     return invalid("body: inertia must be >= 0 (0 = from shapes)");
   bool givenInertia = def.inertia.x > 0 || def.inertia.y > 0 || def.inertia.z > 0;
@@ -353,8 +391,12 @@ Status World::destroyBody(BodyId id) {
   return Status::Ok();
 }
 
-bool World::isValid(BodyId id) const { return impl_->bodies.valid(id); }
-int World::bodyCount() const { return int(impl_->bodies.size()); }
+bool World::isValid(BodyId id) const {
+  return impl_->bodies.valid(id);
+}
+int World::bodyCount() const {
+  return int(impl_->bodies.size());
+}
 std::vector<BodyId> World::bodies() const {
   std::vector<BodyId> out;
   for (uint32_t i = 0; i < impl_->bodies.capacity(); ++i)
@@ -575,7 +617,8 @@ Status World::createJoint(const JointDef& in, JointId* out) {
   w.joints.get(id)->state.id = id;
   if (A) A->joints.push_back(id);
   B->joints.push_back(id);
-  if (!def.collideConnected && A) w.noCollide.insert(Impl::bodyPairKey(def.bodyA.index, def.bodyB.index));
+  if (!def.collideConnected && A)
+    w.noCollide.insert(Impl::bodyPairKey(def.bodyA.index, def.bodyB.index));
   if (out) *out = id;
   return Status::Ok();
 }
@@ -601,7 +644,8 @@ Status World::setMotor(JointId id, bool enable, float speed, float maxForce) {
   if (!finite(speed) || !finite(maxForce) || maxForce < 0)
     return invalid("set motor: speed must be finite and max force >= 0");
   if (j->def.type != JointType::Hinge && j->def.type != JointType::Prismatic)
-    return Status::Error(StatusCode::IncorrectState, "set motor: only hinges and sliders have motors");
+    return Status::Error(StatusCode::IncorrectState,
+                         "set motor: only hinges and sliders have motors");
   j->def.enableMotor = enable;
   j->def.motorSpeed = speed;
   j->def.maxMotorForce = maxForce;
@@ -622,7 +666,9 @@ std::vector<JointId> World::joints() const {
     if (impl_->joints.alive(i)) out.push_back(impl_->joints.idAt(i));
   return out;
 }
-int World::jointCount() const { return int(impl_->joints.size()); }
+int World::jointCount() const {
+  return int(impl_->joints.size());
+}
 
 // ---------------------------------------------------------------------------------------------
 // The step
@@ -637,12 +683,27 @@ void World::step() {
   const double t0 = nowMs();
   w.stats.energyBefore = energy();
 
-  { StageTimer t(&p.applyCommands); w.applyCommands(); }
-  { StageTimer t(&p.updateBounds); w.updateBounds(dt); }
-  { StageTimer t(&p.broadPhase); w.broadPhaseStage(); }
-  { StageTimer t(&p.narrowPhase); w.narrowPhase(dt); }
+  {
+    StageTimer t(&p.applyCommands);
+    w.applyCommands();
+  }
+  {
+    StageTimer t(&p.updateBounds);
+    w.updateBounds(dt);
+  }
+  {
+    StageTimer t(&p.broadPhase);
+    w.broadPhaseStage();
+  }
+  {
+    StageTimer t(&p.narrowPhase);
+    w.narrowPhase(dt);
+  }
   { StageTimer t(&p.buildIslands); /* islands and colors: not needed by the serial solver */ }
-  { StageTimer t(&p.prepare); w.buildSolverBodies(); }
+  {
+    StageTimer t(&p.prepare);
+    w.buildSolverBodies();
+  }
   Solver& solver = w.solver;
   for (int sub = 0; sub < s.substeps; ++sub) {
     {
@@ -670,10 +731,13 @@ void World::step() {
       for (int it = 0; it < s.relaxIterations; ++it) solver.solveIteration(s, h, false);
     }
   }
-  { StageTimer t(&p.restitution);
-    if (s.restitution) solver.applyRestitution(s.restitutionThreshold); }
+  {
+    StageTimer t(&p.restitution);
+    if (s.restitution) solver.applyRestitution(s.restitutionThreshold);
+  }
   { StageTimer t(&p.positionPass); /* none in the baseline solver */ }
-  { StageTimer t(&p.storeImpulses);
+  {
+    StageTimer t(&p.storeImpulses);
     w.stats.velocityResidual = solver.velocityResidual(h);
     // Hand each row's impulse back to its contact point or joint for the next warm start.
     for (Contact& c : w.contacts) {
@@ -693,7 +757,10 @@ void World::step() {
         j.impulses[k] = solver.rows[size_t(j.firstRow + k)].lambda;
     }
   }
-  { StageTimer t(&p.finalize); w.finalize(); }
+  {
+    StageTimer t(&p.finalize);
+    w.finalize();
+  }
 
   w.time += dt;
   w.stats.step++;
@@ -770,8 +837,9 @@ void World::Impl::narrowPhase(float dt) {
     const BodyRec& B = *bodies.get(c.bodyB);
     // The margin grows with the speeds so a fast body meets a speculative contact before it
     // can pass through anything (no tunnelling without a separate continuous pass).
-    float reach = (length(A.v) + length(A.w) * sa.boundRadius + length(B.v) +
-                   length(B.w) * sb.boundRadius) * dt;
+    float reach =
+        (length(A.v) + length(A.w) * sa.boundRadius + length(B.v) + length(B.w) * sb.boundRadius) *
+        dt;
     float margin = def.speculativeDistance + reach;
     Manifold m;
     collide(sa.def.geom, shapeTransform(A, sa), sb.def.geom, shapeTransform(B, sb), margin, &m);
@@ -986,8 +1054,9 @@ double World::energy() const {
     if (b.type != BodyType::Dynamic) continue;
     Vec3 wb = invRotate(b.xf.q, b.w);
     Vec3 Iw = b.inertiaLocal * wb;
-    double ke = 0.5 * b.mass * (double(b.v.x) * b.v.x + double(b.v.y) * b.v.y + double(b.v.z) * b.v.z) +
-                0.5 * (double(wb.x) * Iw.x + double(wb.y) * Iw.y + double(wb.z) * Iw.z);
+    double ke =
+        0.5 * b.mass * (double(b.v.x) * b.v.x + double(b.v.y) * b.v.y + double(b.v.z) * b.v.z) +
+        0.5 * (double(wb.x) * Iw.x + double(wb.y) * Iw.y + double(wb.z) * Iw.z);
     double pe = -double(b.mass) * b.gravityScale *
                 (double(g.x) * b.com.x + double(g.y) * b.com.y + double(g.z) * b.com.z);
     e += ke + pe;

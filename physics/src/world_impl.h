@@ -21,21 +21,21 @@ struct ShapeRec {
 
 struct BodyRec {
   BodyType type = BodyType::Dynamic;
-  Transform xf;        ///< body frame
-  Vec3 localCenter;    ///< centre of mass in the body frame
-  Vec3 com;            ///< centre of mass in the world
-  Vec3 v, w;           ///< m/s, rad/s (world)
+  Transform xf;      ///< body frame
+  Vec3 localCenter;  ///< centre of mass in the body frame
+  Vec3 com;          ///< centre of mass in the world
+  Vec3 v, w;         ///< m/s, rad/s (world)
   float mass = 0, invMass = 0;
-  Mat3 inertiaLocal = Mat3::zero();     ///< about the centre of mass, body axes
+  Mat3 inertiaLocal = Mat3::zero();  ///< about the centre of mass, body axes
   Mat3 invInertiaLocal = Mat3::zero();
   Quat principal;                  ///< principal axes frame -> body frame
   Vec3 principalMoments{1, 1, 1};  ///< kg m^2, eigenvalues of inertiaLocal
   float linearDamping = 0, angularDamping = 0, gravityScale = 1;
   bool gyroscopic = true;
-  bool autoMass = true;   ///< mass from shapes
-  float givenMass = 0;    ///< when !autoMass
-  Vec3 givenInertia;      ///< when nonzero
-  Vec3 force, torque;     ///< accumulated for the next step
+  bool autoMass = true;  ///< mass from shapes
+  float givenMass = 0;   ///< when !autoMass
+  Vec3 givenInertia;     ///< when nonzero
+  Vec3 force, torque;    ///< accumulated for the next step
   std::vector<ShapeId> shapes;
   std::vector<JointId> joints;
   std::string name;
@@ -44,9 +44,9 @@ struct BodyRec {
 
 struct JointRec {
   JointDef def;
-  Quat relRot0;        ///< fixed/prismatic: conj(qA) * qB at creation
-  Vec3 refA, refB;     ///< hinge: local reference vectors perpendicular to the axis
-  float length = 0;    ///< distance: rest length
+  Quat relRot0;      ///< fixed/prismatic: conj(qA) * qB at creation
+  Vec3 refA, refB;   ///< hinge: local reference vectors perpendicular to the axis
+  float length = 0;  ///< distance: rest length
   JointState state;
   int32_t firstRow = 0, rowCount = 0;  ///< this step's rows
   static constexpr int kMaxRows = 8;
@@ -83,9 +83,7 @@ struct World::Impl {
   // Helpers shared by the source files.
   void updateMass(BodyRec& b);
   void syncProxies(BodyId id, bool moved);
-  Transform shapeTransform(const BodyRec& b, const ShapeRec& s) const {
-    return b.xf * s.def.local;
-  }
+  Transform shapeTransform(const BodyRec& b, const ShapeRec& s) const { return b.xf * s.def.local; }
   static uint64_t bodyPairKey(uint32_t a, uint32_t b) {
     return a < b ? (uint64_t(a) << 32 | b) : (uint64_t(b) << 32 | a);
   }

@@ -4,31 +4,13 @@
 #include <cmath>
 
 #include "phys/world.h"
+#include "test_util.h"
 
 using namespace phys;
 
+using namespace phys::test;
+
 namespace {
-
-BodyDef sphereBody(Vec3 p, float r, float density = 1000) {
-  BodyDef d;
-  d.position = p;
-  ShapeDef s;
-  s.geom = ShapeGeom::sphere(r);
-  s.material.density = density;
-  d.shapes.push_back(s);
-  return d;
-}
-
-BodyDef boxBody(Vec3 p, Vec3 he, BodyType type = BodyType::Dynamic, Quat q = {}) {
-  BodyDef d;
-  d.type = type;
-  d.position = p;
-  d.rotation = q;
-  ShapeDef s;
-  s.geom = ShapeGeom::box(he);
-  d.shapes.push_back(s);
-  return d;
-}
 
 BodyId groundPlane(World& w, float friction = 0.6f, float restitution = 0) {
   BodyDef g;
@@ -41,12 +23,6 @@ BodyId groundPlane(World& w, float friction = 0.6f, float restitution = 0) {
   BodyId id;
   EXPECT_TRUE(w.createBody(g, &id).ok());
   return id;
-}
-
-BodyState stateOf(const World& w, BodyId id) {
-  BodyState s;
-  EXPECT_TRUE(w.getBody(id, &s).ok());
-  return s;
 }
 
 }  // namespace

@@ -6,27 +6,16 @@
 #include <cmath>
 
 #include "phys/world.h"
+#include "test_util.h"
 
 using namespace phys;
 
+using namespace phys::test;
+
 namespace {
 
-BodyId addBox(World& w, Vec3 p, Vec3 he, float density = 1000) {
-  BodyDef d;
-  d.position = p;
-  ShapeDef s;
-  s.geom = ShapeGeom::box(he);
-  s.material.density = density;
-  d.shapes.push_back(s);
-  BodyId id;
-  EXPECT_TRUE(w.createBody(d, &id).ok());
-  return id;
-}
-
-BodyState stateOf(const World& w, BodyId id) {
-  BodyState s;
-  EXPECT_TRUE(w.getBody(id, &s).ok());
-  return s;
+BodyId addBox(World& w, Vec3 p, Vec3 he) {
+  return addBody(w, boxBody(p, he));
 }
 
 JointState jointState(const World& w, JointId id) {
@@ -163,13 +152,7 @@ TEST(Joints, FixedJointHoldsACantileverWithTheStaticReaction) {
 
 TEST(Joints, RopeStopsAFallingBallAtItsLength) {
   World w;
-  BodyDef d;
-  d.position = {0, 0, 9.5f};
-  ShapeDef s;
-  s.geom = ShapeGeom::sphere(0.1f);
-  d.shapes.push_back(s);
-  BodyId ball;
-  ASSERT_TRUE(w.createBody(d, &ball).ok());
+  BodyId ball = addBody(w, sphereBody({0, 0, 9.5f}, 0.1f));
   JointDef j;
   j.type = JointType::Distance;
   j.bodyB = ball;
@@ -198,13 +181,7 @@ TEST(Joints, SpringRingsAtItsFrequency) {
   WorldDef def;
   def.gravity = {0, 0, 0};
   World w(def);
-  BodyDef d;
-  d.position = {1.2f, 0, 0};
-  ShapeDef s;
-  s.geom = ShapeGeom::sphere(0.1f);
-  d.shapes.push_back(s);
-  BodyId ball;
-  ASSERT_TRUE(w.createBody(d, &ball).ok());
+  BodyId ball = addBody(w, sphereBody({1.2f, 0, 0}, 0.1f));
   const float hertz = 2;
   JointDef j;
   j.type = JointType::Distance;

@@ -9,7 +9,8 @@ using namespace phys;
 TEST(Presets, ShippedFileLoadsAndItsDefaultExists) {
   std::map<std::string, Preset> presets;
   std::string def;
-  Status st = loadPresetsFile(std::string(PHYS_SOURCE_DIR) + "/configs/presets.json", &presets, &def);
+  Status st =
+      loadPresetsFile(std::string(PHYS_SOURCE_DIR) + "/configs/presets.json", &presets, &def);
   ASSERT_TRUE(st.ok()) << st.message;
   ASSERT_TRUE(presets.count(def));
   // The default preset is the engine's default solver, so scenes without a solver block and
@@ -39,8 +40,8 @@ TEST(Presets, BadFieldsAreRejectedWithTheirPath) {
   EXPECT_FALSE(parse(R"({"stabilization": "stiff"})").ok());
   EXPECT_FALSE(parse(R"({"warm_start": 1})").ok());
   EXPECT_FALSE(parsePresets("{", "p.json", &presets, nullptr).ok());
-  EXPECT_FALSE(parsePresets(R"({"default": "zz", "presets": {"a": {}}})", "p.json", &presets,
-                            nullptr).ok());
+  EXPECT_FALSE(
+      parsePresets(R"({"default": "zz", "presets": {"a": {}}})", "p.json", &presets, nullptr).ok());
 }
 
 TEST(Criteria, MissingOrNonFiniteMetricFailsItsCriterion) {

@@ -18,7 +18,8 @@ TEST(WarmStart, PyramidContactPointsKeepTheirFeatureIds) {
     "name": "pyramid_8",
     "bodies": [{"name": "ground", "type": "static", "shapes": [{"type": "plane"}]}],
     "generators": [{"type": "pyramid", "name": "p", "base": 8, "half_extent": 0.5}]
-  })", "inline", &scene);
+  })",
+                         "inline", &scene);
   ASSERT_TRUE(st.ok()) << st.message;
   World world(scene.world);
   std::vector<BodyId> ids;

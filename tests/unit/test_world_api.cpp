@@ -30,7 +30,7 @@ TEST(WorldApi, StaleBodyIdIsRejectedAfterSlotReuse) {
   ASSERT_TRUE(w.createBody(box(), &a).ok());
   ASSERT_TRUE(w.destroyBody(a).ok());
   ASSERT_TRUE(w.createBody(box({3, 0, 0}), &b).ok());
-  EXPECT_EQ(a.index, b.index);  // the slot is reused...
+  EXPECT_EQ(a.index, b.index);            // the slot is reused...
   EXPECT_NE(a.generation, b.generation);  // ...with a new generation
   EXPECT_FALSE(w.isValid(a));
   EXPECT_TRUE(w.isValid(b));

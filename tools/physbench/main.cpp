@@ -45,7 +45,8 @@ int main(int argc, char** argv) {
   std::string scenePath, presetName, jsonOut, presetsPath = defaultPresetsPath();
   double seconds = -1;
   app.add_option("--scene", scenePath, "scene file (JSON)")->required();
-  app.add_option("--preset", presetName, "solver preset (configs/presets.json); default: the scene's solver");
+  app.add_option("--preset", presetName,
+                 "solver preset (configs/presets.json); default: the scene's solver");
   app.add_option("--presets-file", presetsPath, "presets file");
   app.add_option("--seconds", seconds, "simulated seconds (default: the scene's duration)");
   app.add_option("--json", jsonOut, "write the result as JSON to this file");

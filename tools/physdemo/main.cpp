@@ -17,7 +17,9 @@ using namespace phys;
 
 namespace {
 volatile std::sig_atomic_t gStop = 0;
-void onSignal(int) { gStop = 1; }
+void onSignal(int) {
+  gStop = 1;
+}
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -75,13 +77,14 @@ int main(int argc, char** argv) {
         world.getJoint(j, nullptr, &js);
         jointErr = std::max(jointErr, double(js.positionError));
       }
-      std::printf("%stick %6llu  t %7.2f s  bodies %5d  contacts %5d  E %+.4e J (%+.2f%%)  "
-                  "step %.2f ms [bp %.2f np %.2f solve %.2f]  joint err %.1f mm  pen %.1f mm%s",
-                  tty ? "\r" : "", static_cast<unsigned long long>(s.step), world.time(),
-                  s.bodies, s.contactPoints, s.energyAfter,
-                  e0 != 0 ? 100 * (s.energyAfter - e0) / std::fabs(e0) : 0.0, p.total,
-                  p.broadPhase, p.narrowPhase, p.warmStart + p.solve + p.relax, 1000 * jointErr,
-                  1000 * s.maxPenetration, tty ? "" : "\n");
+      std::printf(
+          "%stick %6llu  t %7.2f s  bodies %5d  contacts %5d  E %+.4e J (%+.2f%%)  "
+          "step %.2f ms [bp %.2f np %.2f solve %.2f]  joint err %.1f mm  pen %.1f mm%s",
+          tty ? "\r" : "", static_cast<unsigned long long>(s.step), world.time(), s.bodies,
+          s.contactPoints, s.energyAfter,
+          e0 != 0 ? 100 * (s.energyAfter - e0) / std::fabs(e0) : 0.0, p.total, p.broadPhase,
+          p.narrowPhase, p.warmStart + p.solve + p.relax, 1000 * jointErr, 1000 * s.maxPenetration,
+          tty ? "" : "\n");
       std::fflush(stdout);
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(2));

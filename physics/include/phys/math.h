@@ -15,24 +15,52 @@ struct Vec3 {
   float operator[](int i) const { return (&x)[i]; }
 };
 
-inline constexpr Vec3 operator+(Vec3 a, Vec3 b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
-inline constexpr Vec3 operator-(Vec3 a, Vec3 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
-inline constexpr Vec3 operator-(Vec3 a) { return {-a.x, -a.y, -a.z}; }
-inline constexpr Vec3 operator*(Vec3 a, float s) { return {a.x * s, a.y * s, a.z * s}; }
-inline constexpr Vec3 operator*(float s, Vec3 a) { return {a.x * s, a.y * s, a.z * s}; }
-inline constexpr Vec3 operator/(Vec3 a, float s) { return {a.x / s, a.y / s, a.z / s}; }
-inline Vec3& operator+=(Vec3& a, Vec3 b) { return a = a + b; }
-inline Vec3& operator-=(Vec3& a, Vec3 b) { return a = a - b; }
-inline Vec3& operator*=(Vec3& a, float s) { return a = a * s; }
-inline constexpr bool operator==(Vec3 a, Vec3 b) { return a.x == b.x && a.y == b.y && a.z == b.z; }
+inline constexpr Vec3 operator+(Vec3 a, Vec3 b) {
+  return {a.x + b.x, a.y + b.y, a.z + b.z};
+}
+inline constexpr Vec3 operator-(Vec3 a, Vec3 b) {
+  return {a.x - b.x, a.y - b.y, a.z - b.z};
+}
+inline constexpr Vec3 operator-(Vec3 a) {
+  return {-a.x, -a.y, -a.z};
+}
+inline constexpr Vec3 operator*(Vec3 a, float s) {
+  return {a.x * s, a.y * s, a.z * s};
+}
+inline constexpr Vec3 operator*(float s, Vec3 a) {
+  return {a.x * s, a.y * s, a.z * s};
+}
+inline constexpr Vec3 operator/(Vec3 a, float s) {
+  return {a.x / s, a.y / s, a.z / s};
+}
+inline Vec3& operator+=(Vec3& a, Vec3 b) {
+  return a = a + b;
+}
+inline Vec3& operator-=(Vec3& a, Vec3 b) {
+  return a = a - b;
+}
+inline Vec3& operator*=(Vec3& a, float s) {
+  return a = a * s;
+}
+inline constexpr bool operator==(Vec3 a, Vec3 b) {
+  return a.x == b.x && a.y == b.y && a.z == b.z;
+}
 
-inline constexpr float dot(Vec3 a, Vec3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+inline constexpr float dot(Vec3 a, Vec3 b) {
+  return a.x * b.x + a.y * b.y + a.z * b.z;
+}
 inline constexpr Vec3 cross(Vec3 a, Vec3 b) {
   return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
 }
-inline constexpr Vec3 mulComponents(Vec3 a, Vec3 b) { return {a.x * b.x, a.y * b.y, a.z * b.z}; }
-inline float lengthSquared(Vec3 a) { return dot(a, a); }
-inline float length(Vec3 a) { return std::sqrt(dot(a, a)); }
+inline constexpr Vec3 mulComponents(Vec3 a, Vec3 b) {
+  return {a.x * b.x, a.y * b.y, a.z * b.z};
+}
+inline float lengthSquared(Vec3 a) {
+  return dot(a, a);
+}
+inline float length(Vec3 a) {
+  return std::sqrt(dot(a, a));
+}
 inline Vec3 normalize(Vec3 a) {
   float l = length(a);
   return l > 1e-20f ? a * (1.0f / l) : Vec3{0, 0, 0};
@@ -43,7 +71,9 @@ inline Vec3 vmin(Vec3 a, Vec3 b) {
 inline Vec3 vmax(Vec3 a, Vec3 b) {
   return {std::fmax(a.x, b.x), std::fmax(a.y, b.y), std::fmax(a.z, b.z)};
 }
-inline Vec3 vabs(Vec3 a) { return {std::fabs(a.x), std::fabs(a.y), std::fabs(a.z)}; }
+inline Vec3 vabs(Vec3 a) {
+  return {std::fabs(a.x), std::fabs(a.y), std::fabs(a.z)};
+}
 inline bool isFinite(Vec3 a) {
   return std::isfinite(a.x) && std::isfinite(a.y) && std::isfinite(a.z);
 }
@@ -65,15 +95,33 @@ struct Mat3 {
   static constexpr Mat3 diagonal(Vec3 d) { return {{d.x, 0, 0}, {0, d.y, 0}, {0, 0, d.z}}; }
   Vec3 row(int i) const { return {c0[i], c1[i], c2[i]}; }
 };
-inline Vec3 operator*(const Mat3& m, Vec3 v) { return m.c0 * v.x + m.c1 * v.y + m.c2 * v.z; }
-inline Mat3 operator*(const Mat3& a, const Mat3& b) { return {a * b.c0, a * b.c1, a * b.c2}; }
-inline Mat3 operator+(const Mat3& a, const Mat3& b) { return {a.c0 + b.c0, a.c1 + b.c1, a.c2 + b.c2}; }
-inline Mat3 operator-(const Mat3& a, const Mat3& b) { return {a.c0 - b.c0, a.c1 - b.c1, a.c2 - b.c2}; }
-inline Mat3 operator*(const Mat3& a, float s) { return {a.c0 * s, a.c1 * s, a.c2 * s}; }
-inline Mat3 transpose(const Mat3& m) { return {m.row(0), m.row(1), m.row(2)}; }
-inline Mat3 skew(Vec3 v) { return {{0, v.z, -v.y}, {-v.z, 0, v.x}, {v.y, -v.x, 0}}; }
-inline Mat3 outer(Vec3 a, Vec3 b) { return {a * b.x, a * b.y, a * b.z}; }
-inline float determinant(const Mat3& m) { return dot(m.c0, cross(m.c1, m.c2)); }
+inline Vec3 operator*(const Mat3& m, Vec3 v) {
+  return m.c0 * v.x + m.c1 * v.y + m.c2 * v.z;
+}
+inline Mat3 operator*(const Mat3& a, const Mat3& b) {
+  return {a * b.c0, a * b.c1, a * b.c2};
+}
+inline Mat3 operator+(const Mat3& a, const Mat3& b) {
+  return {a.c0 + b.c0, a.c1 + b.c1, a.c2 + b.c2};
+}
+inline Mat3 operator-(const Mat3& a, const Mat3& b) {
+  return {a.c0 - b.c0, a.c1 - b.c1, a.c2 - b.c2};
+}
+inline Mat3 operator*(const Mat3& a, float s) {
+  return {a.c0 * s, a.c1 * s, a.c2 * s};
+}
+inline Mat3 transpose(const Mat3& m) {
+  return {m.row(0), m.row(1), m.row(2)};
+}
+inline Mat3 skew(Vec3 v) {
+  return {{0, v.z, -v.y}, {-v.z, 0, v.x}, {v.y, -v.x, 0}};
+}
+inline Mat3 outer(Vec3 a, Vec3 b) {
+  return {a * b.x, a * b.y, a * b.z};
+}
+inline float determinant(const Mat3& m) {
+  return dot(m.c0, cross(m.c1, m.c2));
+}
 /// Inverse; returns zero for a singular matrix (a static body's inverse inertia).
 inline Mat3 inverse(const Mat3& m) {
   float det = determinant(m);
@@ -95,11 +143,16 @@ inline constexpr bool operator==(Quat a, Quat b) {
   return a.x == b.x && a.y == b.y && a.z == b.z && a.w == b.w;
 }
 inline Quat operator*(Quat a, Quat b) {
-  return {a.w * b.x + a.x * b.w + a.y * b.z - a.z * b.y, a.w * b.y - a.x * b.z + a.y * b.w + a.z * b.x,
-          a.w * b.z + a.x * b.y - a.y * b.x + a.z * b.w, a.w * b.w - a.x * b.x - a.y * b.y - a.z * b.z};
+  return {
+      a.w * b.x + a.x * b.w + a.y * b.z - a.z * b.y, a.w * b.y - a.x * b.z + a.y * b.w + a.z * b.x,
+      a.w * b.z + a.x * b.y - a.y * b.x + a.z * b.w, a.w * b.w - a.x * b.x - a.y * b.y - a.z * b.z};
 }
-inline Quat conjugate(Quat q) { return {-q.x, -q.y, -q.z, q.w}; }
-inline float lengthSquared(Quat q) { return q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w; }
+inline Quat conjugate(Quat q) {
+  return {-q.x, -q.y, -q.z, q.w};
+}
+inline float lengthSquared(Quat q) {
+  return q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w;
+}
 inline Quat normalize(Quat q) {
   // In double: float normalization lands on the long side of 1 more often than not, and
   // rotate() scales by |q|^2, so a float version makes spinning bodies gain momentum.
@@ -116,7 +169,9 @@ inline Vec3 rotate(Quat q, Vec3 v) {
   Vec3 t = 2.0f * cross(u, v);
   return v + q.w * t + cross(u, t);
 }
-inline Vec3 invRotate(Quat q, Vec3 v) { return rotate(conjugate(q), v); }
+inline Vec3 invRotate(Quat q, Vec3 v) {
+  return rotate(conjugate(q), v);
+}
 inline Mat3 toMat3(Quat q) {
   return {rotate(q, {1, 0, 0}), rotate(q, {0, 1, 0}), rotate(q, {0, 0, 1})};
 }
@@ -141,8 +196,12 @@ struct Transform {
   Vec3 p;
   Quat q;
 };
-inline Vec3 apply(const Transform& t, Vec3 v) { return t.p + rotate(t.q, v); }
-inline Vec3 applyInverse(const Transform& t, Vec3 v) { return invRotate(t.q, v - t.p); }
+inline Vec3 apply(const Transform& t, Vec3 v) {
+  return t.p + rotate(t.q, v);
+}
+inline Vec3 applyInverse(const Transform& t, Vec3 v) {
+  return invRotate(t.q, v - t.p);
+}
 inline Transform operator*(const Transform& a, const Transform& b) {
   return {apply(a, b.p), normalize(a.q * b.q)};
 }
@@ -159,8 +218,12 @@ inline bool contains(const AABB& outer, const AABB& inner) {
   return outer.lo.x <= inner.lo.x && outer.lo.y <= inner.lo.y && outer.lo.z <= inner.lo.z &&
          inner.hi.x <= outer.hi.x && inner.hi.y <= outer.hi.y && inner.hi.z <= outer.hi.z;
 }
-inline AABB merge(const AABB& a, const AABB& b) { return {vmin(a.lo, b.lo), vmax(a.hi, b.hi)}; }
-inline AABB inflate(const AABB& a, float m) { return {a.lo - Vec3{m, m, m}, a.hi + Vec3{m, m, m}}; }
+inline AABB merge(const AABB& a, const AABB& b) {
+  return {vmin(a.lo, b.lo), vmax(a.hi, b.hi)};
+}
+inline AABB inflate(const AABB& a, float m) {
+  return {a.lo - Vec3{m, m, m}, a.hi + Vec3{m, m, m}};
+}
 
 constexpr float kPi = 3.14159265358979323846f;
 

@@ -19,12 +19,12 @@ struct MetricsSummary {
   double msPerStepMedian = 0, msPerStepP99 = 0;
   std::optional<double> jointErrorMax, jointErrorRms, jointAngleErrorMax;
   std::optional<double> penetrationMax, penetrationSettledMax;
-  double energySolveDeltaMax = 0;  ///< J, largest energy increase across one step
+  double energySolveDeltaMax = 0;     ///< J, largest energy increase across one step
   std::optional<double> energyDrift;  ///< (E_end - E_start) / |E_start|
-  double energyRiseMax = 0;  ///< max over the run of (E(t) - E_start) / |E_start|
+  double energyRiseMax = 0;           ///< max over the run of (E(t) - E_start) / |E_start|
   /// max over t >= settle time of (E(t) - E(settle)) / |E(settle)|; empty if never settled
   std::optional<double> energyGainSettledMax;
-  std::optional<double> topDrift;     ///< m, largest horizontal displacement of a top body
+  std::optional<double> topDrift;  ///< m, largest horizontal displacement of a top body
   double velocityResidualMax = 0;
   double maxSpeed = 0;  ///< m/s
   long long nan = 0;    ///< non-finite numbers seen in body states

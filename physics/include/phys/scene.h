@@ -28,8 +28,8 @@ struct Criterion {
 
 /// What a scene asks the metrics to look at.
 struct SceneMetrics {
-  std::vector<int> topBodies;  ///< body indices whose horizontal drift is top_drift
-  double settleTime = 1.0;     ///< s, after which penetration counts as "settled"
+  std::vector<int> topBodies;    ///< body indices whose horizontal drift is top_drift
+  double settleTime = 1.0;       ///< s, after which penetration counts as "settled"
   bool conservesEnergy = false;  ///< energy_drift applies (free flight, pendulum)
   /// Named body indices for scene-specific metrics (e.g. "ball", "car0").
   std::map<std::string, std::vector<int>> groups;

@@ -40,11 +40,11 @@ std::shared_ptr<const ConvexHull> buildConvexHull(const std::vector<Vec3>& point
 /// Geometry of one shape in its local frame.
 struct ShapeGeom {
   ShapeType type = ShapeType::Sphere;
-  float radius = 0.5f;                ///< sphere, capsule: m
-  Vec3 halfExtents{0.5f, 0.5f, 0.5f};  ///< box: m
-  float halfHeight = 0.5f;            ///< capsule: half the segment length along local z, m
-  Vec3 normal{0, 0, 1};               ///< plane: unit normal
-  float offset = 0;                   ///< plane: dot(normal, x) = offset
+  float radius = 0.5f;                     ///< sphere, capsule: m
+  Vec3 halfExtents{0.5f, 0.5f, 0.5f};      ///< box: m
+  float halfHeight = 0.5f;                 ///< capsule: half the segment length along local z, m
+  Vec3 normal{0, 0, 1};                    ///< plane: unit normal
+  float offset = 0;                        ///< plane: dot(normal, x) = offset
   std::shared_ptr<const ConvexHull> hull;  ///< hull only
 
   static ShapeGeom sphere(float r) {
@@ -83,9 +83,9 @@ struct ShapeGeom {
 
 /// Mass properties of a shape of uniform density, in the shape's local frame.
 struct MassProperties {
-  float mass = 0;   ///< kg
-  Vec3 center;      ///< centre of mass, m (local)
-  Mat3 inertia;     ///< about the centre of mass, kg m^2 (local axes)
+  float mass = 0;  ///< kg
+  Vec3 center;     ///< centre of mass, m (local)
+  Mat3 inertia;    ///< about the centre of mass, kg m^2 (local axes)
 };
 /// Mass properties for a density in kg/m^3. A plane has none (mass 0).
 MassProperties computeMass(const ShapeGeom& g, float density);
@@ -95,8 +95,8 @@ AABB computeAABB(const ShapeGeom& g, const Transform& xf);
 
 /// One contact point. The point lies midway between the two surfaces.
 struct ContactPoint {
-  Vec3 point;            ///< world, m
-  float separation = 0;  ///< m, negative when penetrating
+  Vec3 point;              ///< world, m
+  float separation = 0;    ///< m, negative when penetrating
   uint32_t featureId = 0;  ///< stable across steps while the same features touch
 };
 

@@ -55,10 +55,10 @@ struct ShapeDef {
 /// Everything needed to create a body. Defaults: a dynamic body at the origin, at rest.
 struct BodyDef {
   BodyType type = BodyType::Dynamic;
-  Vec3 position;         ///< m, body frame origin in the world
-  Quat rotation;         ///< unit quaternion
-  Vec3 linearVelocity;   ///< m/s, of the centre of mass
-  Vec3 angularVelocity;  ///< rad/s, world frame
+  Vec3 position;             ///< m, body frame origin in the world
+  Quat rotation;             ///< unit quaternion
+  Vec3 linearVelocity;       ///< m/s, of the centre of mass
+  Vec3 angularVelocity;      ///< rad/s, world frame
   float linearDamping = 0;   ///< 1/s: v *= 1 / (1 + h * damping)
   float angularDamping = 0;  ///< 1/s
   float gravityScale = 1;
@@ -78,7 +78,7 @@ const char* toString(JointType t);
 /// not centre of mass). Hinge: rotation about `axis`. Prismatic: translation along `axis`.
 struct JointDef {
   JointType type = JointType::Ball;
-  BodyId bodyA, bodyB;  ///< bodyA may be null: the joint is then anchored to the world
+  BodyId bodyA, bodyB;    ///< bodyA may be null: the joint is then anchored to the world
   Vec3 anchorA, anchorB;  ///< m, local to each body
   Vec3 axisA{0, 0, 1}, axisB{0, 0, 1};  ///< hinge/prismatic axis, local to each body
   /// Hinge: angle limits (rad). Prismatic: translation limits (m). Distance: min/max length (m).
@@ -101,11 +101,11 @@ struct JointDef {
 /// same loop runs with `substeps` > 1 in the TGS style (positions advance per substep).
 struct SolverSettings {
   enum class Stabilization : uint8_t { Baumgarte = 0, Soft = 1 };
-  int substeps = 4;          ///< >= 1
-  int iterations = 3;        ///< velocity iterations per substep, >= 1
-  int relaxIterations = 1;   ///< iterations without position bias after each substep, >= 0
+  int substeps = 4;         ///< >= 1
+  int iterations = 3;       ///< velocity iterations per substep, >= 1
+  int relaxIterations = 1;  ///< iterations without position bias after each substep, >= 0
   Stabilization stabilization = Stabilization::Soft;
-  float baumgarte = 0.2f;       ///< Baumgarte beta, 0..1
+  float baumgarte = 0.2f;  ///< Baumgarte beta, 0..1
   /// Soft contact stiffness, capped at a quarter of the substep rate. A soft contact's static
   /// sag is about (load / own mass) g / (2 pi hertz)^2: 60 Hz keeps a 20-box column to ~3 mm.
   float contactHertz = 60;
@@ -120,8 +120,8 @@ struct SolverSettings {
 };
 
 struct WorldDef {
-  Vec3 gravity{0, 0, -9.81f};  ///< m/s^2
-  float timeStep = 1.0f / 60;  ///< s, the fixed step used by step()
+  Vec3 gravity{0, 0, -9.81f};   ///< m/s^2
+  float timeStep = 1.0f / 60;   ///< s, the fixed step used by step()
   float maxLinearSpeed = 1000;  ///< m/s, clamp
   float maxAngularSpeed = 500;  ///< rad/s, clamp
   /// m: every contact closer than this is solved (speculatively when apart); the margin also
@@ -140,10 +140,10 @@ struct StepProfile {
 
 /// What the last step did, for metrics and monitors (double precision).
 struct StepStats {
-  uint64_t step = 0;        ///< steps taken so far
+  uint64_t step = 0;  ///< steps taken so far
   int bodies = 0, awake = 0, contacts = 0, contactPoints = 0, joints = 0, pairs = 0;
-  double energyBefore = 0;  ///< J, kinetic + potential at step start
-  double energyAfter = 0;   ///< J, at step end
+  double energyBefore = 0;      ///< J, kinetic + potential at step start
+  double energyAfter = 0;       ///< J, at step end
   double velocityResidual = 0;  ///< norm of J v + bias over active rows after the solve
   double maxPenetration = 0;    ///< m, deepest contact overlap at the start of the step
   int iterationsUsed = 0;
@@ -164,13 +164,14 @@ struct BodyState {
 /// A joint's state after the last step.
 struct JointState {
   JointId id;
-  Vec3 reactionForce;   ///< N, applied to body B (world frame), last step
+  Vec3 reactionForce;  ///< N, applied to body B (world frame), last step
   /// N m, applied to body B (world frame) by the joint's angular constraints (locks, hinge
   /// axes, angular limits and motors), last step; the moment of reactionForce about B's
   /// centre is not included (as Box2D's constraint torque).
   Vec3 reactionTorque;
-  float positionError = 0;  ///< m, distance between the two world anchors (length error for distance joints)
-  float angleError = 0;     ///< rad, hinge axis misalignment or fixed-frame relative angle
+  float positionError =
+      0;  ///< m, distance between the two world anchors (length error for distance joints)
+  float angleError = 0;  ///< rad, hinge axis misalignment or fixed-frame relative angle
 };
 
 /// A contact for inspection (metrics, debugging).
@@ -204,9 +205,9 @@ class World {
   Status setBodyType(BodyId id, BodyType type);
   /// mass > 0; inertia 0 means scale the current inertia with the mass.
   Status setMass(BodyId id, float mass, Vec3 inertia = {});
-  Status setMaterial(BodyId id, const Material& m);  ///< every shape of the body
-  Status applyForce(BodyId id, Vec3 force, Vec3 worldPoint);  ///< N, for the next step
-  Status applyTorque(BodyId id, Vec3 torque);                  ///< N m, for the next step
+  Status setMaterial(BodyId id, const Material& m);               ///< every shape of the body
+  Status applyForce(BodyId id, Vec3 force, Vec3 worldPoint);      ///< N, for the next step
+  Status applyTorque(BodyId id, Vec3 torque);                     ///< N m, for the next step
   Status applyImpulse(BodyId id, Vec3 impulse, Vec3 worldPoint);  ///< N s, immediately
   Status getBody(BodyId id, BodyState* out) const;
   bool isValid(BodyId id) const;
