@@ -68,6 +68,14 @@ Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path, 
     else if (k == "warm_start" || k == "restitution") {
       if (!v.is_boolean()) return bad(p + ": must be true or false");
       (k == "warm_start" ? s.warmStart : s.restitution) = v.get<bool>();
+    } else if (k == "equality") {
+      std::string name = v.is_string() ? v.get<std::string>() : "";
+      if (name == "iterative")
+        s.equalitySolve = SolverSettings::EqualitySolve::Iterative;
+      else if (name == "direct_ldl")
+        s.equalitySolve = SolverSettings::EqualitySolve::DirectLdl;
+      else
+        return bad(p + ": must be \"iterative\" or \"direct_ldl\"");
     } else if (k == "stabilization") {
       std::string name = v.is_string() ? v.get<std::string>() : "";
       if (name == "soft")
@@ -104,7 +112,9 @@ nlohmann::json solverSettingsToJson(const SolverSettings& s) {
           {"linear_slop", s.linearSlop},
           {"warm_start", s.warmStart},
           {"restitution", s.restitution},
-          {"restitution_threshold", s.restitutionThreshold}};
+          {"restitution_threshold", s.restitutionThreshold},
+          {"equality", s.equalitySolve == SolverSettings::EqualitySolve::DirectLdl ? "direct_ldl"
+                                                                                   : "iterative"}};
 }
 
 Status parsePresets(const std::string& text, const std::string& source,

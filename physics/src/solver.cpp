@@ -110,7 +110,7 @@ void Solver::warmStart() {
   }
 }
 
-void Solver::solveIteration(const SolverSettings& s, float h, bool useBias) {
+void Solver::solveIteration(const SolverSettings& s, float h, bool useBias, bool skipEquality) {
   const float invH = 1 / h;
   const bool soft = s.stabilization == SolverSettings::Stabilization::Soft;
   // Stiffness is capped at a quarter of the substep rate: stiffer springs are not resolved
@@ -125,6 +125,7 @@ void Solver::solveIteration(const SolverSettings& s, float h, bool useBias) {
 
   auto solveUnit = [&](size_t i) {
     Row& r = rows[i];
+    if (skipEquality && r.kind == RowKind::Equality) return;
     if (r.kind == RowKind::Friction) {
       solveFrictionPair(r, rows[i + 1]);
       return;
@@ -190,6 +191,11 @@ void Solver::solveIteration(const SolverSettings& s, float h, bool useBias) {
     if (impulse != 0) applyImpulse(r, impulse);
   };
   for (uint32_t u : units) solveUnit(u);
+}
+
+float Solver::equalityBiasRate(const SolverSettings& s, float h) {
+  if (s.stabilization == SolverSettings::Stabilization::Baumgarte) return s.baumgarte / h;
+  return makeSoftness(std::min(s.jointHertz, 0.25f / h), s.jointDampingRatio, h).biasRate;
 }
 
 void Solver::indexUnits() {

@@ -91,8 +91,11 @@ class Solver {
   void integrateVelocities(float h, float maxLinearSpeed, float maxAngularSpeed);
   /// Applies last impulses again; also records contacts' approach speed for restitution.
   void warmStart();
-  /// One iteration over every solve unit. useBias=false is the relax pass.
-  void solveIteration(const SolverSettings& s, float h, bool useBias);
+  /// One iteration over every solve unit. useBias=false is the relax pass. skipEquality
+  /// leaves the joints' equality rows to a direct solve (EqualityLdl).
+  void solveIteration(const SolverSettings& s, float h, bool useBias, bool skipEquality = false);
+  /// The bias rate (1/s) at which equality rows correct position error over a substep h.
+  static float equalityBiasRate(const SolverSettings& s, float h);
   /// Records where each solve unit (a row, a friction pair, a joint block) starts.
   void indexUnits();
   void solveFrictionPair(Row& r1, Row& r2);

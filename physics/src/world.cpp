@@ -705,6 +705,18 @@ void World::step() {
     w.buildSolverBodies();
   }
   Solver& solver = w.solver;
+  // Joints solved directly (LDL hybrid) or iterated with everything else.
+  bool direct = false;
+  if (s.equalitySolve == SolverSettings::EqualitySolve::DirectLdl) {
+    StageTimer t(&p.prepare);
+    w.ldl.analyze(solver);
+    direct = w.ldl.factor(solver);
+  }
+  const float equalityBias = Solver::equalityBiasRate(s, h);
+  auto iterate = [&](bool useBias) {
+    solver.solveIteration(s, h, useBias, direct);
+    if (direct) w.ldl.solve(solver, equalityBias, useBias);
+  };
   for (int sub = 0; sub < s.substeps; ++sub) {
     {
       StageTimer t(&p.integrateVelocities);
@@ -713,6 +725,7 @@ void World::step() {
     if (sub > 0) {
       StageTimer t(&p.prepare);
       w.refreshJoints(h);
+      if (direct) direct = w.ldl.factor(solver);
     }
     {
       StageTimer t(&p.warmStart);
@@ -720,7 +733,7 @@ void World::step() {
     }
     {
       StageTimer t(&p.solve);
-      for (int it = 0; it < s.iterations; ++it) solver.solveIteration(s, h, true);
+      for (int it = 0; it < s.iterations; ++it) iterate(true);
     }
     {
       StageTimer t(&p.integratePositions);
@@ -728,7 +741,7 @@ void World::step() {
     }
     {
       StageTimer t(&p.relax);
-      for (int it = 0; it < s.relaxIterations; ++it) solver.solveIteration(s, h, false);
+      for (int it = 0; it < s.relaxIterations; ++it) iterate(false);
     }
   }
   {

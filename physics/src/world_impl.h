@@ -9,6 +9,7 @@
 #include "phys/broadphase.h"
 #include "phys/world.h"
 #include "solver.h"
+#include "solver_ldl.h"
 
 namespace phys {
 
@@ -76,6 +77,7 @@ struct World::Impl {
   std::vector<Contact> contactScratch;
   std::unordered_set<uint64_t> noCollide;  ///< body index pairs joined without collideConnected
   Solver solver;
+  EqualityLdl ldl;  ///< the joints' direct solve (equality = direct_ldl)
   StepProfile profile;
   StepStats stats;
   double time = 0;

@@ -101,6 +101,9 @@ struct JointDef {
 /// same loop runs with `substeps` > 1 in the TGS style (positions advance per substep).
 struct SolverSettings {
   enum class Stabilization : uint8_t { Baumgarte = 0, Soft = 1 };
+  /// How joints' equality rows are solved: iterated with everything else, or all together
+  /// by a sparse LDL^T factorization inside each iteration (rigid rows; for high mass ratios).
+  enum class EqualitySolve : uint8_t { Iterative = 0, DirectLdl = 1 };
   int substeps = 4;         ///< >= 1
   int iterations = 3;       ///< velocity iterations per substep, >= 1
   int relaxIterations = 1;  ///< iterations without position bias after each substep, >= 0
@@ -117,6 +120,7 @@ struct SolverSettings {
   bool warmStart = true;
   bool restitution = true;
   float restitutionThreshold = 1;  ///< m/s, approach speed below which no bounce
+  EqualitySolve equalitySolve = EqualitySolve::Iterative;
 };
 
 struct WorldDef {
