@@ -1045,6 +1045,8 @@ std::vector<ContactInfo> World::contacts() const {
   std::vector<ContactInfo> out;
   for (const Contact& c : impl_->contacts) {
     if (c.manifold.count == 0) continue;
+    // Bodies destroyed since the last step leave their contacts until the next broad phase.
+    if (!impl_->bodies.valid(c.bodyA) || !impl_->bodies.valid(c.bodyB)) continue;
     ContactInfo ci;
     ci.bodyA = c.bodyA;
     ci.bodyB = c.bodyB;
