@@ -179,6 +179,7 @@ void buildJointRows(JointRec& j, const BodyPose* A, const BodyPose& B, int32_t i
     }
   }
   j.rowCount = int32_t(solver->rows.size()) - j.firstRow;
+  if (j.rowCount > 0) solver->rows[size_t(j.firstRow)].groupStart = true;
 }
 
 void refreshJointRows(JointRec& j, const BodyPose* A, const BodyPose& B, int32_t ia, int32_t ib,

@@ -47,7 +47,7 @@ bool finiteState(const BodyState& s) {
 struct MetricsRecorder::Impl {
   const Scene* scene = nullptr;
   std::vector<BodyId> ids;
-  std::vector<Vec3> topStart;
+  std::vector<std::pair<BodyId, Vec3>> tops;  ///< top bodies and where they started
   std::vector<double> stepMs;
   std::map<std::string, double> stageSum;
   double energyStart = 0, energyEnd = 0;
@@ -68,7 +68,7 @@ MetricsRecorder::MetricsRecorder(const Scene& scene, const World& world, std::ve
   for (int i : scene.metrics.topBodies) {
     BodyState st;
     if (i >= 0 && size_t(i) < m.ids.size() && world.getBody(m.ids[size_t(i)], &st).ok())
-      m.topStart.push_back(st.position);
+      m.tops.push_back({m.ids[size_t(i)], st.position});
   }
   m.energyStart = m.energyEnd = world.energy();
   m.hook = makeSceneMetricHook(scene, world, m.ids);
@@ -108,11 +108,10 @@ void MetricsRecorder::afterStep(const World& world) {
     }
     s.maxSpeed = std::max(s.maxSpeed, double(length(b.linearVelocity)));
   }
-  for (size_t k = 0; k < m.topStart.size(); ++k) {
+  for (const auto& [id, start] : m.tops) {
     BodyState b;
-    int i = m.scene->metrics.topBodies[k];
-    if (!world.getBody(m.ids[size_t(i)], &b).ok()) continue;
-    double dx = double(b.position.x) - m.topStart[k].x, dy = double(b.position.y) - m.topStart[k].y;
+    if (!world.getBody(id, &b).ok()) continue;
+    double dx = double(b.position.x) - start.x, dy = double(b.position.y) - start.y;
     double d = std::sqrt(dx * dx + dy * dy);
     if (!std::isfinite(d)) d = 1e30;
     s.topDrift = std::max(s.topDrift.value_or(0), d);

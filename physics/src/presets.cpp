@@ -68,6 +68,30 @@ Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path, 
     else if (k == "warm_start" || k == "restitution") {
       if (!v.is_boolean()) return bad(p + ": must be true or false");
       (k == "warm_start" ? s.warmStart : s.restitution) = v.get<bool>();
+    } else if (k == "position_iterations") {
+      st = readNumber(v, p, &s.positionIterations);
+    } else if (k == "position_baumgarte") {
+      st = readNumber(v, p, &s.positionBaumgarte);
+    } else if (k == "max_position_correction") {
+      st = readNumber(v, p, &s.maxPositionCorrection);
+    } else if (k == "scheme") {
+      std::string name = v.is_string() ? v.get<std::string>() : "";
+      if (name == "gauss_seidel")
+        s.scheme = SolverSettings::Scheme::GaussSeidel;
+      else if (name == "jacobi")
+        s.scheme = SolverSettings::Scheme::Jacobi;
+      else
+        return bad(p + ": must be \"gauss_seidel\" or \"jacobi\"");
+    } else if (k == "position_pass") {
+      std::string name = v.is_string() ? v.get<std::string>() : "";
+      if (name == "none")
+        s.positionPass = SolverSettings::PositionPass::None;
+      else if (name == "nonlinear_gauss_seidel")
+        s.positionPass = SolverSettings::PositionPass::NonlinearGaussSeidel;
+      else if (name == "nonlinear_jacobi")
+        s.positionPass = SolverSettings::PositionPass::NonlinearJacobi;
+      else
+        return bad(p + ": must be \"none\", \"nonlinear_gauss_seidel\" or \"nonlinear_jacobi\"");
     } else if (k == "equality") {
       std::string name = v.is_string() ? v.get<std::string>() : "";
       if (name == "iterative")
@@ -114,7 +138,15 @@ nlohmann::json solverSettingsToJson(const SolverSettings& s) {
           {"restitution", s.restitution},
           {"restitution_threshold", s.restitutionThreshold},
           {"equality", s.equalitySolve == SolverSettings::EqualitySolve::DirectLdl ? "direct_ldl"
-                                                                                   : "iterative"}};
+                                                                                   : "iterative"},
+          {"scheme", s.scheme == SolverSettings::Scheme::Jacobi ? "jacobi" : "gauss_seidel"},
+          {"position_pass", s.positionPass == SolverSettings::PositionPass::None ? "none"
+                            : s.positionPass == SolverSettings::PositionPass::NonlinearGaussSeidel
+                                ? "nonlinear_gauss_seidel"
+                                : "nonlinear_jacobi"},
+          {"position_iterations", s.positionIterations},
+          {"position_baumgarte", s.positionBaumgarte},
+          {"max_position_correction", s.maxPositionCorrection}};
 }
 
 Status parsePresets(const std::string& text, const std::string& source,

@@ -23,10 +23,12 @@ void Solver::finishRows(size_t first, size_t last) {
     Row& r = rows[i];
     const SolverBody& A = bodies[size_t(r.a)];
     const SolverBody& B = bodies[size_t(r.b)];
-    r.mLinA = r.linA * A.invMass;
-    r.mAngA = A.invI * r.angA;
-    r.mLinB = r.linB * B.invMass;
-    r.mAngB = B.invI * r.angB;
+    // Jacobi: each constraint sees a body with its mass divided among its constraints.
+    const float sa = jacobi ? split[size_t(r.a)] : 1, sb = jacobi ? split[size_t(r.b)] : 1;
+    r.mLinA = r.linA * (A.invMass * sa);
+    r.mAngA = A.invI * r.angA * sa;
+    r.mLinB = r.linB * (B.invMass * sb);
+    r.mAngB = B.invI * r.angB * sb;
     float k =
         dot(r.linA, r.mLinA) + dot(r.angA, r.mAngA) + dot(r.linB, r.mLinB) + dot(r.angB, r.mAngB);
     r.effMass = k > 1e-12f ? 1 / k : 0;
@@ -82,17 +84,63 @@ void Solver::integrateVelocities(float h, float maxLinearSpeed, float maxAngular
     w += b.invI * b.torque * h;
     v *= 1 / (1 + h * b.linearDamping);
     w *= 1 / (1 + h * b.angularDamping);
-    float vl = length(v);
-    if (vl > maxLinearSpeed) v *= maxLinearSpeed / vl;
-    float wl = length(w);
-    if (wl > maxAngularSpeed) w *= maxAngularSpeed / wl;
+    // Lengths in double: a huge finite speed overflows a float length to infinity, and the
+    // clamp would then zero the velocity instead of capping it.
+    double vl = std::sqrt(double(v.x) * v.x + double(v.y) * v.y + double(v.z) * v.z);
+    if (vl > maxLinearSpeed) v *= float(maxLinearSpeed / vl);
+    double wl = std::sqrt(double(w.x) * w.x + double(w.y) * w.y + double(w.z) * w.z);
+    if (wl > maxAngularSpeed) w *= float(maxAngularSpeed / wl);
     b.v = v;
     b.w = w;
   }
 }
 
+template <class F>
+void Solver::forEachGroupAveraged(F&& solveGroup) {
+  dv_.assign(bodies.size(), Vec3{});
+  dw_.assign(bodies.size(), Vec3{});
+  for (const Group& g : groups) {
+    SolverBody& A = bodies[size_t(g.a)];
+    SolverBody& B = bodies[size_t(g.b)];
+    const Vec3 va = A.v, wa = A.w, vb = B.v, wb = B.w;
+    solveGroup(g);
+    dv_[size_t(g.a)] += A.v - va;
+    dw_[size_t(g.a)] += A.w - wa;
+    A.v = va;
+    A.w = wa;
+    dv_[size_t(g.b)] += B.v - vb;
+    dw_[size_t(g.b)] += B.w - wb;
+    B.v = vb;
+    B.w = wb;
+  }
+  // Summed in group order per body: deterministic whatever the thread count later.
+  for (size_t i = 1; i < bodies.size(); ++i) {
+    bodies[i].v += dv_[i] / split[i];
+    bodies[i].w += dw_[i] / split[i];
+  }
+}
+
+/// Rows [begin, end) of a group's units.
+static inline void groupRows(const Solver& s, const Solver::Group& g, size_t* begin, size_t* end) {
+  *begin = s.units[g.unitBegin];
+  *end = g.unitEnd < s.units.size() ? s.units[g.unitEnd] : s.rows.size();
+}
+
 void Solver::warmStart() {
-  for (Row& r : rows) {
+  if (jacobi) {
+    forEachGroupAveraged([&](const Group& g) {
+      size_t begin, end;
+      groupRows(*this, g, &begin, &end);
+      warmStartRows(begin, end);
+    });
+    return;
+  }
+  warmStartRows(0, rows.size());
+}
+
+void Solver::warmStartRows(size_t begin, size_t end) {
+  for (size_t i = begin; i < end; ++i) {
+    Row& r = rows[i];
     // The approach speed for restitution: the fastest seen at the start of any substep
     // (before impulses). While still apart (gap C > 0), the speed at the moment of contact
     // is extrapolated ballistically, vn^2 + 2 |a_n| C, with the bodies' constant
@@ -190,6 +238,12 @@ void Solver::solveIteration(const SolverSettings& s, float h, bool useBias, bool
     }
     if (impulse != 0) applyImpulse(r, impulse);
   };
+  if (jacobi) {
+    forEachGroupAveraged([&](const Group& g) {
+      for (uint32_t u = g.unitBegin; u < g.unitEnd; ++u) solveUnit(units[u]);
+    });
+    return;
+  }
   for (uint32_t u : units) solveUnit(u);
 }
 
@@ -200,7 +254,12 @@ float Solver::equalityBiasRate(const SolverSettings& s, float h) {
 
 void Solver::indexUnits() {
   units.clear();
+  groups.clear();
   for (size_t i = 0; i < rows.size();) {
+    if (rows[i].groupStart || groups.empty()) {
+      if (!groups.empty()) groups.back().unitEnd = uint32_t(units.size());
+      groups.push_back({uint32_t(units.size()), 0, rows[i].a, rows[i].b});
+    }
     units.push_back(uint32_t(i));
     if (rows[i].kind == RowKind::Friction)
       i += 2;
@@ -208,6 +267,70 @@ void Solver::indexUnits() {
       i += rows[i].blockSize;
     else
       i += 1;
+  }
+  if (!groups.empty()) groups.back().unitEnd = uint32_t(units.size());
+  split.assign(bodies.size(), 0);
+  for (const Group& g : groups) {
+    split[size_t(g.a)] += 1;
+    split[size_t(g.b)] += 1;
+  }
+  for (float& n : split) n = std::max(n, 1.0f);  // the world and free bodies split nothing
+}
+
+void Solver::positionPass(const SolverSettings& s, int iterations, bool jacobiPass) {
+  // Nonlinear Gauss-Seidel / Jacobi on positions (Catto's NGS, the seed paper's NJ): each
+  // row's error at the current poses (linearized from the accumulated deltas) is removed by a
+  // fraction, as a displacement; velocities are not touched.
+  auto correction = [&](const Row& r) -> float {
+    float C = rowError(r);
+    switch (r.kind) {
+      case RowKind::ContactNormal:
+      case RowKind::Limit: {
+        float slop = r.kind == RowKind::ContactNormal ? s.linearSlop : 0;
+        float c = std::clamp(s.positionBaumgarte * (C + slop), -s.maxPositionCorrection, 0.0f);
+        return -r.effMass * c;
+      }
+      case RowKind::Equality:
+        return -r.effMass * std::clamp(s.positionBaumgarte * C, -s.maxPositionCorrection,
+                                       s.maxPositionCorrection);
+      default:
+        return 0;
+    }
+  };
+  auto move = [](SolverBody& b, Vec3 dlin, Vec3 dang) {
+    b.dp += dlin;
+    b.dtheta += dang;
+    b.q = integrateRotation(b.q, dang, 1);
+  };
+  dv_.assign(bodies.size(), Vec3{});
+  dw_.assign(bodies.size(), Vec3{});
+  for (int it = 0; it < iterations; ++it) {
+    if (!jacobiPass) {
+      for (const Row& r : rows) {
+        float d = correction(r);
+        if (d == 0) continue;
+        move(bodies[size_t(r.a)], r.mLinA * d, r.mAngA * d);
+        move(bodies[size_t(r.b)], r.mLinB * d, r.mAngB * d);
+      }
+      continue;
+    }
+    // Jacobi: every row from the same poses; each body moves by the average of its
+    // constraints' displacements (with the Jacobi scheme the rows' M^-1 J^T carry the split).
+    std::fill(dv_.begin(), dv_.end(), Vec3{});
+    std::fill(dw_.begin(), dw_.end(), Vec3{});
+    for (const Row& r : rows) {
+      float d = correction(r);
+      if (d == 0) continue;
+      dv_[size_t(r.a)] += r.mLinA * d;
+      dw_[size_t(r.a)] += r.mAngA * d;
+      dv_[size_t(r.b)] += r.mLinB * d;
+      dw_[size_t(r.b)] += r.mAngB * d;
+    }
+    for (size_t i = 1; i < bodies.size(); ++i) {
+      if (dv_[i] == Vec3{} && dw_[i] == Vec3{}) continue;
+      const float n = jacobi ? split[i] : 1;
+      move(bodies[i], dv_[i] / n, dw_[i] / n);
+    }
   }
 }
 
@@ -291,7 +414,20 @@ void Solver::integratePositions(float h) {
 }
 
 void Solver::applyRestitution(float threshold) {
-  for (Row& r : rows) {
+  if (jacobi) {
+    forEachGroupAveraged([&](const Group& g) {
+      size_t begin, end;
+      groupRows(*this, g, &begin, &end);
+      restitutionRows(begin, end, threshold);
+    });
+    return;
+  }
+  restitutionRows(0, rows.size(), threshold);
+}
+
+void Solver::restitutionRows(size_t begin, size_t end, float threshold) {
+  for (size_t i = begin; i < end; ++i) {
+    Row& r = rows[i];
     if (r.kind != RowKind::ContactNormal || r.restitution == 0) continue;
     if (r.relativeVelocity > -threshold || r.maxLambda == 0) continue;
     float vn = rowVelocity(r);

@@ -67,6 +67,9 @@ struct Row {
   uint8_t blockSize = 0;
   int32_t blockIndex = -1;
   RowKind kind = RowKind::Equality;
+  /// First row of a constraint (a joint, a contact manifold): the unit of the Jacobi scheme,
+  /// whose rows all act on the same two bodies.
+  bool groupStart = false;
 };
 
 struct Softness {
@@ -81,6 +84,14 @@ class Solver {
   std::vector<SolverBody> bodies;  ///< [0] is the world
   std::vector<Row> rows;
   std::vector<uint32_t> units;  ///< first row of each solve unit, in row order
+  /// A constraint of the Jacobi scheme: its units and its two bodies.
+  struct Group {
+    uint32_t unitBegin, unitEnd;
+    int32_t a, b;
+  };
+  std::vector<Group> groups;
+  bool jacobi = false;          ///< set before indexUnits/finishRows
+  std::vector<float> split;     ///< per body: constraints sharing its mass (Jacobi), else 1
   std::vector<Mat3> blockInvK;  ///< inverse of J M^-1 J^T per row block (2x2 padded to 3x3)
 
   /// Sets M^-1 J^T, the effective mass and block matrices of rows [first, last) from the
@@ -91,6 +102,7 @@ class Solver {
   void integrateVelocities(float h, float maxLinearSpeed, float maxAngularSpeed);
   /// Applies last impulses again; also records contacts' approach speed for restitution.
   void warmStart();
+  void warmStartRows(size_t begin, size_t end);
   /// One iteration over every solve unit. useBias=false is the relax pass. skipEquality
   /// leaves the joints' equality rows to a direct solve (EqualityLdl).
   void solveIteration(const SolverSettings& s, float h, bool useBias, bool skipEquality = false);
@@ -98,10 +110,20 @@ class Solver {
   static float equalityBiasRate(const SolverSettings& s, float h);
   /// Records where each solve unit (a row, a friction pair, a joint block) starts.
   void indexUnits();
+  /// Post-stabilization: `iterations` passes projecting positions (contacts, limits, joint
+  /// equalities) with the rows' linearized errors; Jacobi averages per body like the solve.
+  void positionPass(const SolverSettings& s, int iterations, bool jacobiPass);
   void solveFrictionPair(Row& r1, Row& r2);
+  /// Runs solveGroup on every constraint group against its own copy of its two bodies'
+  /// velocities, then moves each body by the average of its copies (Jacobi with mass
+  /// splitting; the rows' M^-1 J^T already carry the split).
+  template <class F>
+  void forEachGroupAveraged(F&& solveGroup);
+  std::vector<Vec3> dv_, dw_;
   void solveBlock(size_t first, const Softness& soft, bool useBias);
   void integratePositions(float h);
   void applyRestitution(float threshold);
+  void restitutionRows(size_t begin, size_t end, float threshold);
   /// Norm of the rows' velocity error after the solve (see SOLVER_NOTES "Residual").
   double velocityResidual(float h) const;
   /// J v of a row at the current velocities.

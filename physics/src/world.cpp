@@ -117,9 +117,19 @@ Status checkShape(ShapeDef* s, BodyType bodyType, const std::string& what) {
                              what + ": a plane is only allowed on a static body");
       s->geom.normal = normalize(g.normal);
       break;
-    case ShapeType::Hull:
+    case ShapeType::Hull: {
       if (!g.hull || g.hull->vertices.size() < 4) return invalid(what + ": hull is empty");
+      for (Vec3 v : g.hull->vertices)
+        if (!isFinite(v)) return invalid(what + ": hull vertex is not finite");
+      for (const ConvexHull::Face& f : g.hull->faces) {
+        if (f.indices.size() < 3) return invalid(what + ": hull face has fewer than 3 vertices");
+        for (uint32_t i : f.indices)
+          if (i >= g.hull->vertices.size())
+            return invalid(what + ": hull face refers to a vertex that does not exist");
+      }
+      if (!(computeMass(g, 1.0f).mass > 0)) return invalid(what + ": hull encloses no volume");
       break;
+    }
     default:
       return invalid(what + ": unknown shape type");
   }
@@ -187,6 +197,15 @@ Status World::validate(const SolverSettings& s) {
   if (!finite(s.linearSlop) || s.linearSlop < 0) return invalid("solver.linear_slop must be >= 0");
   if (!finite(s.restitutionThreshold) || s.restitutionThreshold < 0)
     return invalid("solver.restitution_threshold must be >= 0");
+  if (s.positionIterations < 0 || s.positionIterations > 1000)
+    return invalid("solver.position_iterations must be in [0, 1000]");
+  if (!finite(s.positionBaumgarte) || s.positionBaumgarte < 0 || s.positionBaumgarte > 1)
+    return invalid("solver.position_baumgarte must be in [0, 1]");
+  if (!positive(s.maxPositionCorrection))
+    return invalid("solver.max_position_correction must be > 0");
+  if (s.scheme == SolverSettings::Scheme::Jacobi &&
+      s.equalitySolve == SolverSettings::EqualitySolve::DirectLdl)
+    return invalid("solver: equality direct_ldl needs scheme gauss_seidel");
   return Status::Ok();
 }
 
@@ -605,6 +624,8 @@ Status World::createJoint(const JointDef& in, JointId* out) {
   if (!finite(def.length) || !finite(def.springHertz) || def.springHertz < 0 ||
       !finite(def.springDampingRatio) || def.springDampingRatio < 0)
     return invalid("joint: length, spring hertz and damping must be finite (hertz, damping >= 0)");
+  if (def.type == JointType::Hinge && def.enableLimit && (def.lower < -kPi || def.upper > kPi))
+    return invalid("joint: hinge limits must lie within [-pi, pi] (the angle is measured in it)");
   if (def.type == JointType::Distance && def.enableLimit && def.lower < 0)
     return invalid("joint: distance limits must be >= 0");
   def.axisA = normalize(def.axisA);
@@ -748,7 +769,11 @@ void World::step() {
     StageTimer t(&p.restitution);
     if (s.restitution) solver.applyRestitution(s.restitutionThreshold);
   }
-  { StageTimer t(&p.positionPass); /* none in the baseline solver */ }
+  if (s.positionPass != SolverSettings::PositionPass::None && s.positionIterations > 0) {
+    StageTimer t(&p.positionPass);
+    solver.positionPass(s, s.positionIterations,
+                        s.positionPass == SolverSettings::PositionPass::NonlinearJacobi);
+  }
   {
     StageTimer t(&p.storeImpulses);
     w.stats.velocityResidual = solver.velocityResidual(h);
@@ -821,8 +846,10 @@ void World::Impl::broadPhaseStage() {
     while (ci < contacts.size() && (contacts[ci].shapeA < pr.a ||
                                     (contacts[ci].shapeA == pr.a && contacts[ci].shapeB < pr.b)))
       ++ci;
+    // Same slots, same shapes (generation), so a shape removed and another added in its
+    // slot since the last step does not inherit the old one's impulses.
     if (ci < contacts.size() && contacts[ci].shapeA == pr.a && contacts[ci].shapeB == pr.b &&
-        contacts[ci].bodyA == sa.body && contacts[ci].bodyB == sb.body) {
+        contacts[ci].idA == shapes.idAt(pr.a) && contacts[ci].idB == shapes.idAt(pr.b)) {
       contactScratch.push_back(contacts[ci]);
     } else {
       Contact c;
@@ -830,6 +857,8 @@ void World::Impl::broadPhaseStage() {
       c.shapeB = pr.b;
       c.bodyA = sa.body;
       c.bodyB = sb.body;
+      c.idA = shapes.idAt(pr.a);
+      c.idB = shapes.idAt(pr.b);
       contactScratch.push_back(c);
     }
     Contact& c = contactScratch.back();
@@ -965,6 +994,7 @@ void World::Impl::buildSolverBodies() {
       r.C0 = cp.separation;
       r.lambda = s.warmStart ? c.normalImpulse[k] : 0;
       r.restitution = c.restitution;
+      r.groupStart = k == 0;
       r.relativeVelocity = dot(normal, (B.v + cross(B.w, rB[k])) - (A.v + cross(A.w, rA[k])));
       solver.rows.push_back(r);
     }
@@ -986,8 +1016,9 @@ void World::Impl::buildSolverBodies() {
       }
     }
   }
-  solver.finishRows(0, solver.rows.size());
+  solver.jacobi = s.scheme == SolverSettings::Scheme::Jacobi;
   solver.indexUnits();
+  solver.finishRows(0, solver.rows.size());
 }
 
 void World::Impl::refreshJoints(float h) {
@@ -997,6 +1028,8 @@ void World::Impl::refreshJoints(float h) {
     const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
     const BodyRec& B = *bodies.get(j.def.bodyB);
     auto current = [&](const BodyRec& b) {
+      // Static bodies all share solver body 0 (the world): their pose is their own.
+      if (b.solverIndex == 0) return poseOf(b);
       const SolverBody& sb = solver.bodies[size_t(b.solverIndex)];
       return BodyPose{sb.q, b.com + sb.dp, b.localCenter};
     };
@@ -1045,13 +1078,13 @@ std::vector<ContactInfo> World::contacts() const {
   std::vector<ContactInfo> out;
   for (const Contact& c : impl_->contacts) {
     if (c.manifold.count == 0) continue;
-    // Bodies destroyed since the last step leave their contacts until the next broad phase.
-    if (!impl_->bodies.valid(c.bodyA) || !impl_->bodies.valid(c.bodyB)) continue;
+    // Shapes removed since the last step leave their contacts until the next broad phase.
+    if (!impl_->shapes.valid(c.idA) || !impl_->shapes.valid(c.idB)) continue;
     ContactInfo ci;
     ci.bodyA = c.bodyA;
     ci.bodyB = c.bodyB;
-    ci.shapeA = impl_->shapes.idAt(c.shapeA);
-    ci.shapeB = impl_->shapes.idAt(c.shapeB);
+    ci.shapeA = c.idA;
+    ci.shapeB = c.idB;
     ci.manifold = c.manifold;
     std::memcpy(ci.normalImpulse, c.normalImpulse, sizeof ci.normalImpulse);
     out.push_back(ci);

@@ -57,7 +57,8 @@ struct JointRec {
 
 /// Persistent contact between two shapes (keyed by their shape indices, a < b).
 struct Contact {
-  uint32_t shapeA = 0, shapeB = 0;
+  uint32_t shapeA = 0, shapeB = 0;  ///< shape slots (broad-phase user values)
+  ShapeId idA, idB;                 ///< the shapes themselves, generation included
   BodyId bodyA, bodyB;
   Manifold manifold;
   float normalImpulse[Manifold::kMaxPoints] = {};

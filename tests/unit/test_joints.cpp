@@ -204,3 +204,71 @@ TEST(Joints, SpringRingsAtItsFrequency) {
   double period = (crossings.back() - crossings.front()) / double(crossings.size() - 1);
   EXPECT_NEAR(period, 1.0 / hertz, 0.03 / hertz);
 }
+
+TEST(Joints, AnchoredToARotatedStaticBodyHoldAtEverySubstep) {
+  // Static bodies share the solver's world body; their own rotation must still place the
+  // anchor when joints are rebuilt inside the substeps.
+  for (JointType type : {JointType::Ball, JointType::Fixed, JointType::Hinge}) {
+    World w;
+    BodyDef post = boxBody({0, 0, 5}, {0.2f, 0.2f, 0.2f}, BodyType::Static,
+                           Quat::fromAxisAngle({0, 0, 1}, 1.5708f));
+    BodyId postId = addBody(w, post);
+    BodyId bob = addBox(w, {1, 0, 5}, {0.1f, 0.1f, 0.1f});
+    JointDef j;
+    j.type = type;
+    j.bodyA = postId;
+    j.bodyB = bob;
+    j.anchorA = {0, -1, 0};  // the post's local -y is world +x after its 90 degree turn
+    j.anchorB = {0, 0, 0};
+    j.axisA = {1, 0, 0};  // world -y... any axis: the hinge only needs A and B to agree
+    j.axisB = {0, 1, 0};  // B's local y is world y; A's local x is world y as well
+    JointId id;
+    ASSERT_TRUE(w.createJoint(j, &id).ok());
+    double worst = 0;
+    for (int i = 0; i < 60; ++i) {
+      w.step();
+      worst = std::max(worst, double(jointState(w, id).positionError));
+    }
+    EXPECT_LT(worst, 2e-3) << toString(type);
+  }
+}
+
+TEST(Joints, TwoDynamicBodiesKeepMomentumAndTheirJoint) {
+  // Joint forces are internal: with no gravity the pair's momentum is conserved.
+  WorldDef def;
+  def.gravity = {0, 0, 0};
+  World w(def);
+  BodyId a = addBox(w, {0, 0, 0}, {0.5f, 0.2f, 0.2f});
+  BodyId b = addBox(w, {1.2f, 0, 0}, {0.5f, 0.2f, 0.2f});
+  ASSERT_TRUE(w.setVelocity(a, {0, 1, 0}, {0, 0, 2}).ok());
+  JointDef j;
+  j.type = JointType::Hinge;
+  j.bodyA = a;
+  j.bodyB = b;
+  j.anchorA = {0.6f, 0, 0};
+  j.anchorB = {-0.6f, 0, 0};
+  JointId id;
+  ASSERT_TRUE(w.createJoint(j, &id).ok());
+  BodyState a0 = stateOf(w, a), b0 = stateOf(w, b);
+  Vec3 p0 = a0.linearVelocity * a0.mass + b0.linearVelocity * b0.mass;
+  for (int i = 0; i < 120; ++i) w.step();
+  BodyState a1 = stateOf(w, a), b1 = stateOf(w, b);
+  Vec3 p1 = a1.linearVelocity * a1.mass + b1.linearVelocity * b1.mass;
+  EXPECT_LT(length(p1 - p0), 1e-3f * length(p0));
+  EXPECT_LT(jointState(w, id).positionError, 2e-3f);
+  EXPECT_LT(jointState(w, id).angleError, 2e-3f);
+}
+
+TEST(Joints, HingeLimitsOutsidePiAreRejected) {
+  World w;
+  BodyId bar = addBox(w, {1, 0, 5}, {1, 0.1f, 0.1f});
+  JointDef j;
+  j.type = JointType::Hinge;
+  j.bodyB = bar;
+  j.enableLimit = true;
+  j.lower = 0;
+  j.upper = 3.5f;
+  EXPECT_EQ(w.createJoint(j, nullptr).code, StatusCode::InvalidArgument);
+  j.upper = 3.0f;
+  EXPECT_TRUE(w.createJoint(j, nullptr).ok());
+}

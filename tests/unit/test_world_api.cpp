@@ -240,3 +240,83 @@ TEST(WorldApi, DestroyingBodiesBetweenStepsLeavesNoStaleContacts) {
   EXPECT_NEAR(s.position.z, 2.5f, 0.05f);
   EXPECT_EQ(w.bodyCount(), 6);
 }
+
+TEST(WorldApi, HandBuiltHullsAreCheckedBeforeUse) {
+  World w;
+  auto hullBody = [](ConvexHull h) {
+    BodyDef d;
+    ShapeDef s;
+    s.geom = ShapeGeom::convexHull(std::make_shared<const ConvexHull>(std::move(h)));
+    d.shapes.push_back(s);
+    return d;
+  };
+  std::string error;
+  auto cube = buildConvexHull({{-1, -1, -1},
+                               {1, -1, -1},
+                               {-1, 1, -1},
+                               {1, 1, -1},
+                               {-1, -1, 1},
+                               {1, -1, 1},
+                               {-1, 1, 1},
+                               {1, 1, 1}},
+                              &error);
+  ASSERT_TRUE(cube) << error;
+  EXPECT_TRUE(w.createBody(hullBody(*cube), nullptr).ok());
+  ConvexHull bad = *cube;
+  bad.faces[0].indices[0] = 99;  // no such vertex
+  EXPECT_EQ(w.createBody(hullBody(bad), nullptr).code, StatusCode::InvalidArgument);
+  bad = *cube;
+  bad.vertices[0].x = kNaN;
+  EXPECT_EQ(w.createBody(hullBody(bad), nullptr).code, StatusCode::InvalidArgument);
+  bad = *cube;
+  for (Vec3& v : bad.vertices) v.z = 0;  // flat: no volume, no mass
+  EXPECT_EQ(w.createBody(hullBody(bad), nullptr).code, StatusCode::InvalidArgument);
+  EXPECT_EQ(w.bodyCount(), 1);
+}
+
+TEST(WorldApi, HugeFiniteVelocityIsCappedNotZeroed) {
+  WorldDef def;
+  def.gravity = {0, 0, 0};
+  World w(def);
+  BodyId b;
+  ASSERT_TRUE(w.createBody(box(), &b).ok());
+  ASSERT_TRUE(w.setVelocity(b, {3e38f, 0, 0}, {}).ok());
+  w.step();
+  BodyState s;
+  ASSERT_TRUE(w.getBody(b, &s).ok());
+  EXPECT_NEAR(s.linearVelocity.x, def.maxLinearSpeed, 1e-3f * def.maxLinearSpeed);
+}
+
+TEST(WorldApi, ShapeSwappedInTheSameSlotStartsWithoutTheOldContact) {
+  World w;
+  BodyDef ground;
+  ground.type = BodyType::Static;
+  ShapeDef plane;
+  plane.geom = ShapeGeom::plane({0, 0, 1}, 0);
+  ground.shapes.push_back(plane);
+  ASSERT_TRUE(w.createBody(ground, nullptr).ok());
+  BodyDef d = box({0, 0, 0.5f});
+  ShapeDef extra;
+  extra.geom = ShapeGeom::sphere(0.2f);
+  extra.local.p = {0.3f, 0, -0.3f};  // touches the ground too
+  d.shapes.push_back(extra);
+  BodyId b;
+  ASSERT_TRUE(w.createBody(d, &b).ok());
+  for (int i = 0; i < 30; ++i) w.step();
+  ShapeId old = w.bodyShapes(b)[1];
+  ASSERT_TRUE(w.removeShape(old).ok());
+  for (const ContactInfo& c : w.contacts()) {
+    EXPECT_FALSE(c.shapeA == old || c.shapeB == old);
+  }
+  ShapeId fresh;
+  ASSERT_TRUE(w.addShape(b, extra, &fresh).ok());
+  EXPECT_EQ(fresh.index, old.index);  // same slot, new generation
+  EXPECT_NE(fresh.generation, old.generation);
+  for (const ContactInfo& c : w.contacts()) {
+    EXPECT_FALSE(c.shapeA == fresh || c.shapeB == fresh);  // not before it was ever collided
+  }
+  w.step();
+  bool found = false;
+  for (const ContactInfo& c : w.contacts()) found |= c.shapeA == fresh || c.shapeB == fresh;
+  EXPECT_TRUE(found);
+}

@@ -104,8 +104,19 @@ struct SolverSettings {
   /// How joints' equality rows are solved: iterated with everything else, or all together
   /// by a sparse LDL^T factorization inside each iteration (rigid rows; for high mass ratios).
   enum class EqualitySolve : uint8_t { Iterative = 0, DirectLdl = 1 };
-  int substeps = 4;         ///< >= 1
-  int iterations = 3;       ///< velocity iterations per substep, >= 1
+  /// Gauss-Seidel sweeps rows in order; Jacobi solves every constraint (a contact manifold,
+  /// a joint) from the same velocities with masses split among a body's constraints
+  /// (Tonge et al. 2012) and averages: order-free, as on a GPU.
+  enum class Scheme : uint8_t { GaussSeidel = 0, Jacobi = 1 };
+  /// Post-stabilization after the velocity solve: positions projected directly.
+  enum class PositionPass : uint8_t { None = 0, NonlinearGaussSeidel = 1, NonlinearJacobi = 2 };
+  Scheme scheme = Scheme::GaussSeidel;
+  PositionPass positionPass = PositionPass::None;
+  int positionIterations = 0;          ///< position pass iterations, >= 0
+  float positionBaumgarte = 0.2f;      ///< fraction of the position error removed per pass, 0..1
+  float maxPositionCorrection = 0.2f;  ///< m (rad) at most per pass and row
+  int substeps = 4;                    ///< >= 1
+  int iterations = 3;                  ///< velocity iterations per substep, >= 1
   int relaxIterations = 1;  ///< iterations without position bias after each substep, >= 0
   Stabilization stabilization = Stabilization::Soft;
   float baumgarte = 0.2f;  ///< Baumgarte beta, 0..1
