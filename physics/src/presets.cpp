@@ -32,6 +32,46 @@ Status readNumber(const nlohmann::json& v, const std::string& path, T* out) {
   return Status::Ok();
 }
 
+/// The JSON names of an enum's values: one table serves parsing and writing.
+template <class E>
+struct EnumName {
+  E value;
+  const char* name;
+};
+using S = SolverSettings;
+constexpr EnumName<S::Scheme> kSchemes[] = {{S::Scheme::GaussSeidel, "gauss_seidel"},
+                                            {S::Scheme::Jacobi, "jacobi"}};
+constexpr EnumName<S::PositionPass> kPositionPasses[] = {
+    {S::PositionPass::None, "none"},
+    {S::PositionPass::NonlinearGaussSeidel, "nonlinear_gauss_seidel"},
+    {S::PositionPass::NonlinearJacobi, "nonlinear_jacobi"}};
+constexpr EnumName<S::EqualitySolve> kEqualitySolves[] = {
+    {S::EqualitySolve::Iterative, "iterative"}, {S::EqualitySolve::DirectLdl, "direct_ldl"}};
+constexpr EnumName<S::Stabilization> kStabilizations[] = {
+    {S::Stabilization::Soft, "soft"}, {S::Stabilization::Baumgarte, "baumgarte"}};
+
+template <class E, size_t N>
+Status readEnum(const nlohmann::json& v, const std::string& path, const EnumName<E> (&names)[N],
+                E* out) {
+  std::string name = v.is_string() ? v.get<std::string>() : "";
+  std::string known;
+  for (const EnumName<E>& n : names) {
+    if (name == n.name) {
+      *out = n.value;
+      return Status::Ok();
+    }
+    known += std::string(known.empty() ? "" : ", ") + "\"" + n.name + "\"";
+  }
+  return bad(path + ": must be one of " + known);
+}
+
+template <class E, size_t N>
+const char* enumName(const EnumName<E> (&names)[N], E value) {
+  for (const EnumName<E>& n : names)
+    if (n.value == value) return n.name;
+  return "?";
+}
+
 }  // namespace
 
 Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path, SolverSettings* out,
@@ -75,39 +115,13 @@ Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path, 
     } else if (k == "max_position_correction") {
       st = readNumber(v, p, &s.maxPositionCorrection);
     } else if (k == "scheme") {
-      std::string name = v.is_string() ? v.get<std::string>() : "";
-      if (name == "gauss_seidel")
-        s.scheme = SolverSettings::Scheme::GaussSeidel;
-      else if (name == "jacobi")
-        s.scheme = SolverSettings::Scheme::Jacobi;
-      else
-        return bad(p + ": must be \"gauss_seidel\" or \"jacobi\"");
+      st = readEnum(v, p, kSchemes, &s.scheme);
     } else if (k == "position_pass") {
-      std::string name = v.is_string() ? v.get<std::string>() : "";
-      if (name == "none")
-        s.positionPass = SolverSettings::PositionPass::None;
-      else if (name == "nonlinear_gauss_seidel")
-        s.positionPass = SolverSettings::PositionPass::NonlinearGaussSeidel;
-      else if (name == "nonlinear_jacobi")
-        s.positionPass = SolverSettings::PositionPass::NonlinearJacobi;
-      else
-        return bad(p + ": must be \"none\", \"nonlinear_gauss_seidel\" or \"nonlinear_jacobi\"");
+      st = readEnum(v, p, kPositionPasses, &s.positionPass);
     } else if (k == "equality") {
-      std::string name = v.is_string() ? v.get<std::string>() : "";
-      if (name == "iterative")
-        s.equalitySolve = SolverSettings::EqualitySolve::Iterative;
-      else if (name == "direct_ldl")
-        s.equalitySolve = SolverSettings::EqualitySolve::DirectLdl;
-      else
-        return bad(p + ": must be \"iterative\" or \"direct_ldl\"");
+      st = readEnum(v, p, kEqualitySolves, &s.equalitySolve);
     } else if (k == "stabilization") {
-      std::string name = v.is_string() ? v.get<std::string>() : "";
-      if (name == "soft")
-        s.stabilization = SolverSettings::Stabilization::Soft;
-      else if (name == "baumgarte")
-        s.stabilization = SolverSettings::Stabilization::Baumgarte;
-      else
-        return bad(p + ": must be \"soft\" or \"baumgarte\"");
+      st = readEnum(v, p, kStabilizations, &s.stabilization);
     } else {
       bool skip = false;
       for (const char* ig : ignore) skip |= k == ig;
@@ -125,8 +139,7 @@ nlohmann::json solverSettingsToJson(const SolverSettings& s) {
   return {{"substeps", s.substeps},
           {"iterations", s.iterations},
           {"relax_iterations", s.relaxIterations},
-          {"stabilization",
-           s.stabilization == SolverSettings::Stabilization::Soft ? "soft" : "baumgarte"},
+          {"stabilization", enumName(kStabilizations, s.stabilization)},
           {"baumgarte", s.baumgarte},
           {"contact_hertz", s.contactHertz},
           {"contact_damping_ratio", s.contactDampingRatio},
@@ -137,13 +150,9 @@ nlohmann::json solverSettingsToJson(const SolverSettings& s) {
           {"warm_start", s.warmStart},
           {"restitution", s.restitution},
           {"restitution_threshold", s.restitutionThreshold},
-          {"equality", s.equalitySolve == SolverSettings::EqualitySolve::DirectLdl ? "direct_ldl"
-                                                                                   : "iterative"},
-          {"scheme", s.scheme == SolverSettings::Scheme::Jacobi ? "jacobi" : "gauss_seidel"},
-          {"position_pass", s.positionPass == SolverSettings::PositionPass::None ? "none"
-                            : s.positionPass == SolverSettings::PositionPass::NonlinearGaussSeidel
-                                ? "nonlinear_gauss_seidel"
-                                : "nonlinear_jacobi"},
+          {"equality", enumName(kEqualitySolves, s.equalitySolve)},
+          {"scheme", enumName(kSchemes, s.scheme)},
+          {"position_pass", enumName(kPositionPasses, s.positionPass)},
           {"position_iterations", s.positionIterations},
           {"position_baumgarte", s.positionBaumgarte},
           {"max_position_correction", s.maxPositionCorrection}};

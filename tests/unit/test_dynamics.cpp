@@ -10,23 +10,6 @@ using namespace phys;
 
 using namespace phys::test;
 
-namespace {
-
-BodyId groundPlane(World& w, float friction = 0.6f, float restitution = 0) {
-  BodyDef g;
-  g.type = BodyType::Static;
-  ShapeDef s;
-  s.geom = ShapeGeom::plane({0, 0, 1}, 0);
-  s.material.friction = friction;
-  s.material.restitution = restitution;
-  g.shapes.push_back(s);
-  BodyId id;
-  EXPECT_TRUE(w.createBody(g, &id).ok());
-  return id;
-}
-
-}  // namespace
-
 class FreeFall : public ::testing::TestWithParam<int> {};
 
 TEST_P(FreeFall, VelocityIsGTimesTAndPositionMatchesSymplecticEuler) {
@@ -181,7 +164,7 @@ INSTANTIATE_TEST_SUITE_P(Friction, Incline, ::testing::Values(0.5f, 0.35f, 0.2f,
 
 TEST(Dynamics, BounceHeightIsRestitutionSquaredTimesDropHeight) {
   World w;
-  groundPlane(w, 0.6f, 0.5f);
+  addGround(w, 0.6f, 0.5f);
   const float r = 0.1f, h = 1.0f;
   BodyDef d = sphereBody({0, 0, r + h}, r);
   d.shapes[0].material.restitution = 0.5f;
@@ -201,7 +184,7 @@ TEST(Dynamics, BounceHeightIsRestitutionSquaredTimesDropHeight) {
 
 TEST(Dynamics, BoxRestsOnGroundWithoutJitter) {
   World w;
-  groundPlane(w);
+  addGround(w);
   BodyId b;
   ASSERT_TRUE(w.createBody(boxBody({0, 0, 0.5f}, {0.5f, 0.5f, 0.5f}), &b).ok());
   for (int i = 0; i < 120; ++i) w.step();
@@ -214,7 +197,7 @@ TEST(Dynamics, BoxRestsOnGroundWithoutJitter) {
 TEST(Dynamics, SameSceneTwiceGivesSameStateHash) {
   auto run = [] {
     World w;
-    groundPlane(w);
+    addGround(w);
     for (int i = 0; i < 10; ++i)
       w.createBody(boxBody({0.1f * i, 0, 0.5f + 1.01f * i}, {0.5f, 0.5f, 0.5f}), nullptr);
     for (int i = 0; i < 5; ++i) w.createBody(sphereBody({2, 0.3f * i, 1.0f + i}, 0.3f), nullptr);

@@ -8,6 +8,7 @@
 #include "phys/presets.h"
 #include "phys/scene.h"
 #include "phys/world.h"
+#include "test_util.h"
 
 using namespace phys;
 
@@ -92,12 +93,7 @@ TEST(SolverSpace, ResidualFallsAsIterationsGrow) {
       def.solver.stabilization = SolverSettings::Stabilization::Baumgarte;
       def.solver.baumgarte = 0;
       World w(def);
-      BodyDef ground;
-      ground.type = BodyType::Static;
-      ShapeDef plane;
-      plane.geom = ShapeGeom::plane({0, 0, 1}, 0);
-      ground.shapes.push_back(plane);
-      ASSERT_TRUE(w.createBody(ground, nullptr).ok());
+      test::addGround(w);
       for (int i = 0; i < 10; ++i) {
         BodyDef d;
         d.position = {0, 0, 0.5f + i};

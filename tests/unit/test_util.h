@@ -35,6 +35,18 @@ inline BodyId addBody(World& w, const BodyDef& d) {
   return id;
 }
 
+/// A static ground plane z = 0.
+inline BodyId addGround(World& w, float friction = 0.6f, float restitution = 0) {
+  BodyDef g;
+  g.type = BodyType::Static;
+  ShapeDef s;
+  s.geom = ShapeGeom::plane({0, 0, 1}, 0);
+  s.material.friction = friction;
+  s.material.restitution = restitution;
+  g.shapes.push_back(s);
+  return addBody(w, g);
+}
+
 inline BodyState stateOf(const World& w, BodyId id) {
   BodyState s;
   EXPECT_TRUE(w.getBody(id, &s).ok());

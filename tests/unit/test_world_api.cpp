@@ -5,6 +5,7 @@
 #include <limits>
 
 #include "phys/world.h"
+#include "test_util.h"
 
 using namespace phys;
 
@@ -207,12 +208,7 @@ TEST(WorldApi, MassAndInertiaFromShapesOrGiven) {
 
 TEST(WorldApi, DestroyingBodiesBetweenStepsLeavesNoStaleContacts) {
   World w;
-  BodyDef ground;
-  ground.type = BodyType::Static;
-  ShapeDef plane;
-  plane.geom = ShapeGeom::plane({0, 0, 1}, 0);
-  ground.shapes.push_back(plane);
-  ASSERT_TRUE(w.createBody(ground, nullptr).ok());
+  test::addGround(w);
   std::vector<BodyId> boxes;
   for (int i = 0; i < 5; ++i) {
     BodyId b;
@@ -289,12 +285,7 @@ TEST(WorldApi, HugeFiniteVelocityIsCappedNotZeroed) {
 
 TEST(WorldApi, ShapeSwappedInTheSameSlotStartsWithoutTheOldContact) {
   World w;
-  BodyDef ground;
-  ground.type = BodyType::Static;
-  ShapeDef plane;
-  plane.geom = ShapeGeom::plane({0, 0, 1}, 0);
-  ground.shapes.push_back(plane);
-  ASSERT_TRUE(w.createBody(ground, nullptr).ok());
+  test::addGround(w);
   BodyDef d = box({0, 0, 0.5f});
   ShapeDef extra;
   extra.geom = ShapeGeom::sphere(0.2f);
