@@ -696,8 +696,33 @@ int World::jointCount() const {
 
 void World::step() {
   Impl& w = *impl_;
+  w.stats.guardRetries = 0;
+  if (!w.def.guard) {
+    stepOnce(w.def.solver.substeps);
+    return;
+  }
+  w.takeSnapshot();
+  int substeps = w.def.solver.substeps;
+  stepOnce(substeps);
+  std::string fault = w.checkHealth();
+  for (int retry = 0; !fault.empty() && retry < w.def.guardRetries; ++retry) {
+    // Roll back and redo with a safer setting: twice the substeps.
+    w.stats.guardRetries++;
+    w.stats.lastGuardEvent = "step " + std::to_string(w.stats.step) + ": " + fault;
+    w.restoreSnapshot();
+    substeps = std::min(substeps * 2, 64);
+    stepOnce(substeps);
+    fault = w.checkHealth();
+  }
+  if (w.stats.guardRetries > 0) w.stats.guardEvents++;
+  if (!fault.empty()) w.quarantine();
+}
+
+void World::stepOnce(int substeps) {
+  Impl& w = *impl_;
   const float dt = w.def.timeStep;
-  const SolverSettings& s = w.def.solver;
+  SolverSettings s = w.def.solver;
+  s.substeps = substeps;
   const float h = dt / float(s.substeps);
   StepProfile& p = w.profile;
   p = StepProfile();
@@ -723,7 +748,7 @@ void World::step() {
   { StageTimer t(&p.buildIslands); /* islands and colors: not needed by the serial solver */ }
   {
     StageTimer t(&p.prepare);
-    w.buildSolverBodies();
+    w.buildSolverBodies(s);
   }
   Solver& solver = w.solver;
   // Joints solved directly (LDL hybrid) or iterated with everything else.
@@ -797,13 +822,103 @@ void World::step() {
   }
   {
     StageTimer t(&p.finalize);
-    w.finalize();
+    w.finalize(h);
   }
 
   w.time += dt;
   w.stats.step++;
   w.stats.energyAfter = energy();
   p.total = nowMs() - t0;
+}
+
+void World::Impl::takeSnapshot() {
+  snapshot.bodies.clear();
+  for (uint32_t i = 0; i < bodies.capacity(); ++i) {
+    if (!bodies.alive(i)) continue;
+    const BodyRec& b = bodies.at(i);
+    if (b.type == BodyType::Static) continue;
+    snapshot.bodies.push_back({i, b.xf, b.com, b.v, b.w, b.force, b.torque});
+  }
+  snapshot.contacts = contacts;
+  snapshot.jointImpulses.clear();
+  for (uint32_t i = 0; i < joints.capacity(); ++i) {
+    if (!joints.alive(i)) continue;
+    const JointRec& j = joints.at(i);
+    Snapshot::JointImpulses ji{i, j.impulseCount, {}};
+    std::copy(j.impulses, j.impulses + JointRec::kMaxRows, ji.impulses);
+    snapshot.jointImpulses.push_back(ji);
+  }
+  snapshot.time = time;
+  snapshot.step = stats.step;
+  snapshot.kinetic = 0;
+  snapshot.liftEnergy = 1;
+  const double g = length(def.gravity);
+  for (const Snapshot::Body& s : snapshot.bodies) {
+    const BodyRec& b = bodies.at(s.index);
+    if (b.type != BodyType::Dynamic) continue;
+    snapshot.kinetic +=
+        0.5 * b.mass * double(lengthSquared(b.v)) +
+        0.5 * double(dot(invRotate(b.xf.q, b.w), b.inertiaLocal * invRotate(b.xf.q, b.w)));
+    snapshot.liftEnergy += 0.1 * g * b.mass;
+  }
+}
+
+void World::Impl::restoreSnapshot() {
+  for (const Snapshot::Body& s : snapshot.bodies) {
+    BodyRec& b = bodies.at(s.index);
+    b.xf = s.xf;
+    b.com = s.com;
+    b.v = s.v;
+    b.w = s.w;
+    b.force = s.force;
+    b.torque = s.torque;
+  }
+  contacts = snapshot.contacts;
+  for (const Snapshot::JointImpulses& ji : snapshot.jointImpulses) {
+    JointRec& j = joints.at(ji.index);
+    j.impulseCount = ji.count;
+    std::copy(ji.impulses, ji.impulses + JointRec::kMaxRows, j.impulses);
+  }
+  time = snapshot.time;
+  stats.step = snapshot.step;
+}
+
+std::string World::Impl::checkHealth() const {
+  for (const Snapshot::Body& s : snapshot.bodies) {
+    const BodyRec& b = bodies.at(s.index);
+    if (!isFinite(b.xf.p) || !isFinite(b.xf.q) || !isFinite(b.v) || !isFinite(b.w))
+      return "body " + std::to_string(s.index) + " has a non-finite state";
+    // The speed clamp only bites when something has blown up.
+    if (length(b.v) >= 0.999f * def.maxLinearSpeed || length(b.w) >= 0.999f * def.maxAngularSpeed)
+      return "body " + std::to_string(s.index) + " reached the speed limit";
+  }
+  double gain = stats.energyAfter - stats.energyBefore;
+  double allowed = def.guardEnergyJump * snapshot.kinetic + snapshot.liftEnergy;
+  if (!(gain <= allowed))
+    return "energy rose " + std::to_string(gain) + " J in one step (allowed " +
+           std::to_string(allowed) + " J)";
+  return {};
+}
+
+void World::Impl::quarantine() {
+  // Retries did not help: put each body at fault back where it was, at rest, and let the
+  // rest of the world keep its step. A bad body never poisons the others.
+  for (const Snapshot::Body& s : snapshot.bodies) {
+    BodyRec& b = bodies.at(s.index);
+    bool bad = !isFinite(b.xf.p) || !isFinite(b.xf.q) || !isFinite(b.v) || !isFinite(b.w) ||
+               length(b.v) >= 0.999f * def.maxLinearSpeed ||
+               length(b.w) >= 0.999f * def.maxAngularSpeed;
+    if (!bad) continue;
+    b.xf = s.xf;
+    b.com = s.com;
+    b.v = b.w = {};
+    stats.guardQuarantined++;
+    stats.lastGuardEvent += "; body " + std::to_string(s.index) + " stopped";
+  }
+  for (Contact& c : contacts) {  // impulses computed from the bad state are not reused
+    std::fill(std::begin(c.normalImpulse), std::end(c.normalImpulse), 0.0f);
+    for (auto& t : c.tangentImpulse) t[0] = t[1] = 0;
+  }
 }
 
 void World::Impl::applyCommands() {
@@ -907,10 +1022,9 @@ void World::Impl::narrowPhase(float dt) {
   stats.contacts = int(contacts.size());
 }
 
-void World::Impl::buildSolverBodies() {
+void World::Impl::buildSolverBodies(const SolverSettings& s) {
   // Prepare: the compact solver bodies (index 0 is the static world), then one row per
   // joint axis and per contact normal and friction direction.
-  const SolverSettings& s = def.solver;
   const float h = def.timeStep / float(s.substeps);
   solver.bodies.clear();
   solver.rows.clear();
@@ -1038,8 +1152,7 @@ void World::Impl::refreshJoints(float h) {
   }
 }
 
-void World::Impl::finalize() {
-  const float hSub = def.timeStep / float(def.solver.substeps);
+void World::Impl::finalize(float hSub) {
   for (uint32_t i = 0; i < bodies.capacity(); ++i) {
     if (!bodies.alive(i)) continue;
     BodyRec& b = bodies.at(i);

@@ -67,6 +67,27 @@ struct Contact {
   int32_t firstRow = -1;  ///< this step's first normal row
 };
 
+/// What a step changes, kept to roll it back (guard rails).
+struct Snapshot {
+  struct Body {
+    uint32_t index;
+    Transform xf;
+    Vec3 com, v, w, force, torque;
+  };
+  struct JointImpulses {
+    uint32_t index;
+    int32_t count;
+    float impulses[JointRec::kMaxRows];
+  };
+  std::vector<Body> bodies;  ///< non-static bodies
+  std::vector<Contact> contacts;
+  std::vector<JointImpulses> jointImpulses;
+  double time = 0;
+  uint64_t step = 0;
+  double kinetic = 0;     ///< J, kinetic energy at the step start
+  double liftEnergy = 0;  ///< J, lifting every dynamic body by 0.1 m (the jump floor)
+};
+
 struct World::Impl {
   WorldDef def;
   Pool<BodyRec, BodyTag> bodies;
@@ -79,6 +100,7 @@ struct World::Impl {
   std::unordered_set<uint64_t> noCollide;  ///< body index pairs joined without collideConnected
   Solver solver;
   EqualityLdl ldl;  ///< the joints' direct solve (equality = direct_ldl)
+  Snapshot snapshot;
   StepProfile profile;
   StepStats stats;
   double time = 0;
@@ -97,9 +119,14 @@ struct World::Impl {
   void updateBounds(float h);
   void broadPhaseStage();
   void narrowPhase(float h);
-  void buildSolverBodies();
-  void refreshJoints(float h);  ///< joint rows at the current poses, inside the substep loop
-  void finalize();
+  void buildSolverBodies(const SolverSettings& s);  ///< s: this step's (substeps may differ)
+  void refreshJoints(float h);
+  // Guard rails (world.cpp).
+  void takeSnapshot();
+  void restoreSnapshot();
+  std::string checkHealth() const;  ///< empty when the step was healthy
+  void quarantine();                ///< joint rows at the current poses, inside the substep loop
+  void finalize(float hSub);
 };
 
 }  // namespace phys

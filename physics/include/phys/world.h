@@ -144,6 +144,15 @@ struct WorldDef {
   float speculativeDistance = 0.02f;
   float aabbMargin = 0.05f;  ///< m, broad-phase fattening
   SolverSettings solver;
+  /// Guard rails: after every step, check for non-finite state, speeds at the clamp and
+  /// energy jumps; on a violation roll the step back and redo it with twice the substeps (up
+  /// to guardRetries times), then stop the bodies still at fault. Costs a copy of the
+  /// bodies' state and the contacts per step.
+  bool guard = true;
+  /// An energy gain in one step above guardEnergyJump * kinetic energy + the energy of
+  /// lifting every dynamic body by 0.1 m counts as an explosion.
+  float guardEnergyJump = 0.5f;
+  int guardRetries = 2;
 };
 
 /// Wall time of each step stage in milliseconds. Stage names are used everywhere.
@@ -162,6 +171,10 @@ struct StepStats {
   double velocityResidual = 0;  ///< norm of J v + bias over active rows after the solve
   double maxPenetration = 0;    ///< m, deepest contact overlap at the start of the step
   int iterationsUsed = 0;
+  int guardRetries = 0;           ///< times this step was rolled back and redone
+  uint64_t guardEvents = 0;       ///< steps redone so far
+  uint64_t guardQuarantined = 0;  ///< bodies stopped so far because retries did not help
+  std::string lastGuardEvent;     ///< what the last violation was, for logs
 };
 
 /// Read-only view of a body.
@@ -258,6 +271,8 @@ class World {
   struct Impl;
 
  private:
+  /// The step itself, every stage in order, with `substeps` substeps.
+  void stepOnce(int substeps);
   std::unique_ptr<Impl> impl_;
 };
 
