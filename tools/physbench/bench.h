@@ -1,0 +1,43 @@
+// physbench's two modes: one scene with one preset (what the ctest scene tests call), and the
+// suite (every preset on every scene) with its CSV, Markdown and docs/SOLVERS.md reports.
+#pragma once
+
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace phys::bench {
+
+struct SingleOptions {
+  std::string scenePath, presetName, presetsPath, jsonOut;
+  double seconds = -1;  ///< < 0: the scene's duration
+};
+
+/// Runs one scene and prints its metrics. Exit status: 0 when every criterion of the scene
+/// passed, 1 when one failed, 2 on bad input.
+int runSingle(SingleOptions opt);
+
+struct SuiteOptions {
+  std::string presetsPath;
+  std::string scenesDir;
+  std::vector<std::string> presets;  ///< empty: every preset of the presets file
+  std::vector<std::string> scenes;   ///< empty: every scene of scenesDir but the scale ones
+  double secondsScale = 1;
+  double maxSeconds = 0;  ///< simulated seconds per run at most; 0: no limit
+  bool quick = false;     ///< at most kQuickSeconds per run
+  int jobs = 1;
+  std::string csvOut, markdownOut, docPath;
+  bool failOnCriteria = false;
+  std::string commandLine;  ///< as typed, printed in the reports
+};
+
+inline constexpr double kQuickSeconds = 3;
+
+/// Runs the suite. Exit status: 2 when a run could not be executed (or a report not
+/// written), 1 when --fail-on-criteria is set and a run failed its criteria, else 0.
+int runSuite(const SuiteOptions& opt);
+
+/// "%.6g", or "-" when empty.
+std::string fmtNumber(const std::optional<double>& v);
+
+}  // namespace phys::bench

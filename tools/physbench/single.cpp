@@ -1,0 +1,140 @@
+// physbench's single-scene mode: one scene, one preset, its metrics on stdout (and as JSON).
+// The ctest scene tests rely on its output and exit status; keep both stable.
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <nlohmann/json.hpp>
+
+#include "bench.h"
+#include "phys/metrics.h"
+#include "phys/presets.h"
+#include "phys/scene.h"
+#include "phys/world.h"
+
+namespace phys::bench {
+
+namespace {
+
+nlohmann::json optional(const std::optional<double>& v) {
+  return v && std::isfinite(*v) ? nlohmann::json(*v) : nlohmann::json(nullptr);
+}
+
+nlohmann::json toJson(const MetricsSummary& m) {
+  nlohmann::json j;
+  for (const std::string& name : metricNames()) j[name] = optional(m.value(name));
+  char hash[17];
+  std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(m.stateHash));
+  j["state_hash"] = hash;
+  for (const auto& [k, v] : m.extra) j[k] = std::isfinite(v) ? nlohmann::json(v) : nullptr;
+  return j;
+}
+
+}  // namespace
+
+std::string fmtNumber(const std::optional<double>& v) {
+  if (!v) return "-";
+  char b[32];
+  std::snprintf(b, sizeof b, "%.6g", *v);
+  return b;
+}
+
+int runSingle(SingleOptions opt) {
+  Scene scene;
+  Status st = loadSceneFile(opt.scenePath, &scene);
+  if (!st.ok()) {
+    std::cerr << "physbench: " << st.message << "\n";
+    return 2;
+  }
+  std::string usedPreset = "scene";
+  if (!opt.presetName.empty()) {
+    std::map<std::string, Preset> presets;
+    std::string def;
+    st = loadPresetsFile(opt.presetsPath, &presets, &def);
+    if (!st.ok()) {
+      std::cerr << "physbench: " << st.message << "\n";
+      return 2;
+    }
+    if (opt.presetName == "default") opt.presetName = def;
+    auto it = presets.find(opt.presetName);
+    if (it == presets.end()) {
+      std::cerr << "physbench: unknown preset '" << opt.presetName << "'; known:";
+      for (const auto& [k, v] : presets) std::cerr << " " << k;
+      std::cerr << "\n";
+      return 2;
+    }
+    scene.world.solver = it->second.settings;
+    usedPreset = opt.presetName;
+  }
+  double seconds = opt.seconds < 0 ? scene.duration : opt.seconds;
+
+  World world(scene.world);
+  std::vector<BodyId> ids;
+  st = instantiateScene(scene, &world, &ids);
+  if (!st.ok()) {
+    std::cerr << "physbench: " << opt.scenePath << ": " << st.message << "\n";
+    return 2;
+  }
+  MetricsRecorder rec(scene, world, ids);
+  const int steps = int(std::lround(seconds / scene.world.timeStep));
+  for (int i = 0; i < steps; ++i) {
+    world.step();
+    rec.afterStep(world);
+  }
+  MetricsSummary m = rec.summary();
+  m.stateHash = world.stateHash();
+  std::vector<CriterionResult> results = evaluate(m, scene.criteria);
+  bool passed = true;
+  for (const CriterionResult& r : results) passed &= r.passed;
+
+  std::printf("scene %s, preset %s, backend cpu, %d bodies, %d joints, %d steps (%.2f s)\n",
+              scene.name.c_str(), usedPreset.c_str(), world.bodyCount(), world.jointCount(), steps,
+              steps * double(scene.world.timeStep));
+  std::printf("  ms/step median %.3f  p99 %.3f\n", m.msPerStepMedian, m.msPerStepP99);
+  for (const std::string& name : metricNames()) {
+    if (name.rfind("ms_per_step", 0) == 0) continue;
+    std::printf("  %-26s %s\n", name.c_str(), fmtNumber(m.value(name)).c_str());
+  }
+  for (const auto& [k, v] : m.extra) std::printf("  %-26s %.6g\n", k.c_str(), v);
+  std::printf("  %-26s %016llx\n", "state_hash", static_cast<unsigned long long>(m.stateHash));
+  std::printf("  stages (ms/step):");
+  for (const auto& [k, v] : m.stageMs)
+    if (v > 0.0005) std::printf(" %s %.3f", k.c_str(), v);
+  std::printf("\n");
+  for (const CriterionResult& r : results) {
+    std::printf("  [%s] %s = %s (%s%s%s)\n", r.passed ? "PASS" : "FAIL", r.name.c_str(),
+                fmtNumber(r.value).c_str(), r.min ? (">= " + fmtNumber(r.min)).c_str() : "",
+                r.min && r.max ? ", " : "", r.max ? ("<= " + fmtNumber(r.max)).c_str() : "");
+  }
+  std::printf("%s\n", results.empty() ? "no criteria" : passed ? "PASSED" : "FAILED");
+
+  if (!opt.jsonOut.empty()) {
+    nlohmann::json j;
+    j["scene"] = scene.name;
+    j["preset"] = usedPreset;
+    j["backend"] = "cpu";
+    j["steps"] = steps;
+    j["metrics"] = toJson(m);
+    j["criteria"] = nlohmann::json::array();
+    for (const CriterionResult& r : results) {
+      nlohmann::json c{{"name", r.name}, {"value", optional(r.value)}, {"passed", r.passed}};
+      c["limit"] = r.max ? nlohmann::json(*r.max) : optional(r.min);
+      c["kind"] = r.max ? "max" : "min";
+      if (r.min && r.max) c["min"] = *r.min;
+      j["criteria"].push_back(c);
+    }
+    j["passed"] = passed;
+    nlohmann::json stages;
+    for (const auto& [k, v] : m.stageMs) stages[k] = v;
+    j["stage_ms"] = stages;
+    std::ofstream f(opt.jsonOut);
+    f << j.dump(2) << "\n";
+    if (!f) {
+      std::cerr << "physbench: cannot write " << opt.jsonOut << "\n";
+      return 2;
+    }
+  }
+  return passed ? 0 : 1;
+}
+
+}  // namespace phys::bench

@@ -1,0 +1,68 @@
+// The suite's results and reports (suite.cpp runs, suite_report.cpp writes).
+#pragma once
+
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "bench.h"
+#include "phys/metrics.h"
+
+namespace phys::bench {
+
+/// The number a suite table shows for a scene: its main error metric.
+struct MainMetric {
+  std::string name;  ///< a metric name MetricsSummary::value() knows
+  std::string unit;  ///< for the table's row label
+};
+
+/// pyramid_*, many_pyramids, vertical_stack: top_drift; ball_and_chain, suspension_bridge:
+/// joint_error_max; box_stack, overlap: penetration_settled_max; friction_ramp, restitution,
+/// tunnelling, windmill, free_flight: their scene metric; any other: penetration_settled_max.
+MainMetric mainMetricFor(const std::string& scene);
+
+enum class RunStatus { Pass, Fail, NoCriteria, NaN, Error };
+const char* toString(RunStatus s);
+
+/// One (scene, preset) run.
+struct RunResult {
+  std::string scene, preset;
+  RunStatus status = RunStatus::Error;
+  std::string error;     ///< why the run could not be executed (status Error)
+  double seconds = 0;    ///< simulated seconds planned
+  int steps = 0;         ///< steps taken (fewer than planned when the world went NaN)
+  int plannedSteps = 0;  ///< steps planned
+  int bodies = 0, joints = 0;
+  double nanTime = -1;  ///< s, when a non-finite body state was first seen; < 0: never
+  MainMetric main;
+  std::optional<double> mainValue;
+  MetricsSummary metrics;
+  std::vector<CriterionResult> failed;
+  double wallSeconds = 0;
+};
+
+/// Everything the reports show.
+struct SuiteReport {
+  SuiteOptions options;
+  std::vector<std::string> scenes;                ///< table rows, in order
+  std::map<std::string, double> sceneSeconds;     ///< simulated seconds per run of each scene
+  std::map<std::string, double> sceneDuration;    ///< the scene file's full duration
+  std::map<std::string, double> sceneSettleTime;  ///< s, when "settled" metrics start
+  std::vector<std::string> presets;               ///< table columns, in order
+  std::string defaultPreset;
+  std::vector<RunResult> runs;  ///< rows x columns, row-major
+  double wallSeconds = 0;
+  int errors = 0;  ///< runs that could not be executed
+};
+
+/// The Markdown block: command, machine, date, the table and the failed criteria.
+std::string markdownReport(const SuiteReport& r);
+/// Writes one CSV row per run. Returns an error message, empty on success.
+std::string writeCsv(const SuiteReport& r, const std::string& path);
+/// Replaces the region between the `<!-- suite:begin -->` and `<!-- suite:end -->` lines of
+/// `path` by `block`, appending the region under "## Every preset on every scene" when the
+/// file has no markers. Returns an error message, empty on success.
+std::string updateDoc(const std::string& path, const std::string& block);
+
+}  // namespace phys::bench
