@@ -200,16 +200,21 @@ Vec3 readDirection(const Json& j, const std::string& path) {
   return normalize(v);
 }
 
-Quat readQuat(const Json& j, const std::string& path) {
-  const char* expected = "must be a unit quaternion [x, y, z, w]";
+/// Four finite numbers (a quaternion, an axis and angle); `expected` says what they are.
+void readFour(const Json& j, const std::string& path, const char* expected, float c[4]) {
   if (!j.is_array() || j.size() != 4) fail(path, expected + got(j));
-  float c[4];
   for (int i = 0; i < 4; ++i) {
     if (!j[i].is_number()) fail(path, expected + got(j));
     double d = j[i].get<double>();
     c[i] = toFloat(d);
     if (!std::isfinite(c[i])) fail(path, std::string(expected) + " (got " + formatNumber(d) + ")");
   }
+}
+
+Quat readQuat(const Json& j, const std::string& path) {
+  const char* expected = "must be a unit quaternion [x, y, z, w]";
+  float c[4];
+  readFour(j, path, expected, c);
   Quat q{c[0], c[1], c[2], c[3]};
   double l2 = double(q.x) * q.x + double(q.y) * q.y + double(q.z) * q.z + double(q.w) * q.w;
   double l = std::sqrt(l2);
@@ -223,13 +228,8 @@ Quat readQuat(const Json& j, const std::string& path) {
 
 Quat readAxisAngle(const Json& j, const std::string& path) {
   const char* expected = "must be [ax, ay, az, angle] with a non-zero axis and the angle in rad";
-  if (!j.is_array() || j.size() != 4) fail(path, expected + got(j));
   float c[4];
-  for (int i = 0; i < 4; ++i) {
-    if (!j[i].is_number()) fail(path, expected + got(j));
-    c[i] = toFloat(j[i].get<double>());
-    if (!std::isfinite(c[i])) fail(path, expected);
-  }
+  readFour(j, path, expected, c);
   Vec3 axis{c[0], c[1], c[2]};
   if (!(lengthSquared(axis) > 1e-12f)) fail(path, expected);
   return Quat::fromAxisAngle(axis, c[3]);
