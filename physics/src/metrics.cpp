@@ -56,6 +56,7 @@ struct MetricsRecorder::Impl {
   long long jointSamples = 0;
   double penMax = 0, penSettledMax = 0;
   bool sawContacts = false;
+  bool settled = false;  ///< a step past the scene's settle time was seen
   MetricsSummary s;
   std::unique_ptr<SceneMetricHook> hook;
 };
@@ -96,8 +97,10 @@ void MetricsRecorder::afterStep(const World& world) {
   }
   if (st.contactPoints > 0) m.sawContacts = true;
   m.penMax = std::max(m.penMax, st.maxPenetration);
-  if (world.time() > m.scene->metrics.settleTime)
+  if (world.time() > m.scene->metrics.settleTime) {
+    m.settled = true;
     m.penSettledMax = std::max(m.penSettledMax, st.maxPenetration);
+  }
 
   for (BodyId id : m.ids) {
     BodyState b;
@@ -140,7 +143,8 @@ MetricsSummary MetricsRecorder::summary() const {
   }
   if (m.sawContacts) {
     s.penetrationMax = m.penMax;
-    s.penetrationSettledMax = m.penSettledMax;
+    // A run that ends before the settle time measured nothing settled: missing, not 0.
+    if (m.settled) s.penetrationSettledMax = m.penSettledMax;
   }
   if (m.scene->metrics.conservesEnergy && m.energyStart != 0)
     s.energyDrift = (m.energyEnd - m.energyStart) / std::fabs(m.energyStart);

@@ -3,6 +3,7 @@
 
 #include "phys/metrics.h"
 #include "phys/presets.h"
+#include "phys/scene.h"
 
 using namespace phys;
 
@@ -58,4 +59,27 @@ TEST(Criteria, MissingOrNonFiniteMetricFailsItsCriterion) {
   EXPECT_FALSE(r[1].passed);  // below its min
   EXPECT_FALSE(r[2].passed);  // no joints: the metric does not apply, so it cannot pass
   EXPECT_TRUE(r[3].passed);
+}
+
+TEST(Criteria, SettledMetricIsMissingWhenTheRunEndsBeforeSettling) {
+  Scene scene;
+  ASSERT_TRUE(parseScene(R"({"name": "s", "duration": 1,
+      "bodies": [{"name": "ground", "type": "static", "shapes": [{"type": "plane"}]},
+                 {"name": "box", "position": [0, 0, 0.5],
+                  "shapes": [{"type": "box", "half_extents": [0.5, 0.5, 0.5]}]}],
+      "metrics": {"settle_time": 2},
+      "criteria": [{"metric": "penetration_settled_max", "max": 0.005}]})",
+                         "inline", &scene)
+                  .ok());
+  World world(scene.world);
+  std::vector<BodyId> ids;
+  ASSERT_TRUE(instantiateScene(scene, &world, &ids).ok());
+  MetricsRecorder rec(scene, world, ids);
+  for (int i = 0; i < 60; ++i) {  // 1 s, before the 2 s settle time
+    world.step();
+    rec.afterStep(world);
+  }
+  MetricsSummary m = rec.summary();
+  EXPECT_FALSE(m.penetrationSettledMax.has_value());
+  EXPECT_FALSE(evaluate(m, scene.criteria)[0].passed);
 }
