@@ -802,23 +802,8 @@ void World::stepOnce(int substeps) {
   {
     StageTimer t(&p.storeImpulses);
     w.stats.velocityResidual = solver.velocityResidual(h);
-    // Hand each row's impulse back to its contact point or joint for the next warm start.
-    for (Contact& c : w.contacts) {
-      if (c.firstRow < 0) continue;
-      const int n = c.manifold.count;
-      for (int i = 0; i < n; ++i) {
-        c.normalImpulse[i] = solver.rows[size_t(c.firstRow + i)].lambda;
-        c.tangentImpulse[i][0] = solver.rows[size_t(c.firstRow + n + 2 * i)].lambda;
-        c.tangentImpulse[i][1] = solver.rows[size_t(c.firstRow + n + 2 * i + 1)].lambda;
-      }
-    }
-    for (uint32_t i = 0; i < w.joints.capacity(); ++i) {
-      if (!w.joints.alive(i)) continue;
-      JointRec& j = w.joints.at(i);
-      j.impulseCount = std::min(j.rowCount, int32_t(JointRec::kMaxRows));
-      for (int32_t k = 0; k < j.impulseCount; ++k)
-        j.impulses[k] = solver.rows[size_t(j.firstRow + k)].lambda;
-    }
+    w.stats.iterationsUsed = s.substeps * s.iterations;
+    w.storeImpulses();
   }
   {
     StageTimer t(&p.finalize);
@@ -829,6 +814,26 @@ void World::stepOnce(int substeps) {
   w.stats.step++;
   w.stats.energyAfter = energy();
   p.total = nowMs() - t0;
+}
+
+void World::Impl::storeImpulses() {
+  // Hand each row's impulse back to its contact point or joint for the next warm start.
+  for (Contact& c : contacts) {
+    if (c.firstRow < 0) continue;
+    const int n = c.manifold.count;
+    for (int i = 0; i < n; ++i) {
+      c.normalImpulse[i] = solver.rows[size_t(c.firstRow + i)].lambda;
+      c.tangentImpulse[i][0] = solver.rows[size_t(c.firstRow + n + 2 * i)].lambda;
+      c.tangentImpulse[i][1] = solver.rows[size_t(c.firstRow + n + 2 * i + 1)].lambda;
+    }
+  }
+  for (uint32_t i = 0; i < joints.capacity(); ++i) {
+    if (!joints.alive(i)) continue;
+    JointRec& j = joints.at(i);
+    j.impulseCount = std::min(j.rowCount, int32_t(JointRec::kMaxRows));
+    for (int32_t k = 0; k < j.impulseCount; ++k)
+      j.impulses[k] = solver.rows[size_t(j.firstRow + k)].lambda;
+  }
 }
 
 void World::Impl::takeSnapshot() {

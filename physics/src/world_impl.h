@@ -121,6 +121,7 @@ struct World::Impl {
   void narrowPhase(float h);
   void buildSolverBodies(const SolverSettings& s);  ///< s: this step's (substeps may differ)
   void refreshJoints(float h);
+  void storeImpulses();  ///< rows' impulses back to contacts and joints (warm starting)
   // Guard rails (world.cpp).
   void takeSnapshot();
   void restoreSnapshot();

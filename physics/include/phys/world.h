@@ -170,7 +170,8 @@ struct StepStats {
   double energyAfter = 0;       ///< J, at step end
   double velocityResidual = 0;  ///< norm of J v + bias over active rows after the solve
   double maxPenetration = 0;    ///< m, deepest contact overlap at the start of the step
-  int iterationsUsed = 0;
+  int iterationsUsed =
+      0;  ///< velocity iterations of the step (substeps x iterations, as redone by the guard)
   int guardRetries = 0;           ///< times this step was rolled back and redone
   uint64_t guardEvents = 0;       ///< steps redone so far
   uint64_t guardQuarantined = 0;  ///< bodies stopped so far because retries did not help
