@@ -161,33 +161,29 @@ std::string readString(const Json& j, const std::string& path) {
   return j.get<std::string>();
 }
 
-Vec3 readVec3(const Json& j, const std::string& path) {
-  const char* expected = "must be an array of three finite numbers [x, y, z]";
-  if (!j.is_array() || j.size() != 3) fail(path, expected + got(j));
-  Vec3 v;
-  for (int i = 0; i < 3; ++i) {
+/// n finite numbers (positive ones if asked); `expected` says what they are for errors.
+void readFloats(const Json& j, const std::string& path, const char* expected, int n, float* out,
+                bool positive = false) {
+  if (!j.is_array() || j.size() != size_t(n)) fail(path, expected + got(j));
+  for (int i = 0; i < n; ++i) {
     if (!j[i].is_number()) fail(path, expected + got(j));
     double d = j[i].get<double>();
     float f = toFloat(d);
-    if (!std::isfinite(f)) fail(path, std::string(expected) + " (got " + formatNumber(d) + ")");
-    v[i] = f;
+    if (!std::isfinite(f) || (positive && !(f > 0)))
+      fail(path, std::string(expected) + " (got " + formatNumber(d) + ")");
+    out[i] = f;
   }
+}
+
+Vec3 readVec3(const Json& j, const std::string& path) {
+  Vec3 v;
+  readFloats(j, path, "must be an array of three finite numbers [x, y, z]", 3, &v.x);
   return v;
 }
 
 Vec3 readPositiveVec3(const Json& j, const std::string& path) {
-  const char* expected = "must be three positive finite numbers";
-  if (!j.is_array() || j.size() != 3) fail(path, expected + got(j));
   Vec3 v;
-  for (int i = 0; i < 3; ++i) {
-    if (!j[i].is_number()) fail(path, expected + got(j));
-    double d = j[i].get<double>();
-    float f = toFloat(d);
-    if (!std::isfinite(f) || !(f > 0)) {
-      fail(path, std::string(expected) + " (got " + formatNumber(d) + ")");
-    }
-    v[i] = f;
-  }
+  readFloats(j, path, "must be three positive finite numbers", 3, &v.x, true);
   return v;
 }
 
@@ -200,21 +196,10 @@ Vec3 readDirection(const Json& j, const std::string& path) {
   return normalize(v);
 }
 
-/// Four finite numbers (a quaternion, an axis and angle); `expected` says what they are.
-void readFour(const Json& j, const std::string& path, const char* expected, float c[4]) {
-  if (!j.is_array() || j.size() != 4) fail(path, expected + got(j));
-  for (int i = 0; i < 4; ++i) {
-    if (!j[i].is_number()) fail(path, expected + got(j));
-    double d = j[i].get<double>();
-    c[i] = toFloat(d);
-    if (!std::isfinite(c[i])) fail(path, std::string(expected) + " (got " + formatNumber(d) + ")");
-  }
-}
-
 Quat readQuat(const Json& j, const std::string& path) {
   const char* expected = "must be a unit quaternion [x, y, z, w]";
   float c[4];
-  readFour(j, path, expected, c);
+  readFloats(j, path, expected, 4, c);
   Quat q{c[0], c[1], c[2], c[3]};
   double l2 = double(q.x) * q.x + double(q.y) * q.y + double(q.z) * q.z + double(q.w) * q.w;
   double l = std::sqrt(l2);
@@ -229,7 +214,7 @@ Quat readQuat(const Json& j, const std::string& path) {
 Quat readAxisAngle(const Json& j, const std::string& path) {
   const char* expected = "must be [ax, ay, az, angle] with a non-zero axis and the angle in rad";
   float c[4];
-  readFour(j, path, expected, c);
+  readFloats(j, path, expected, 4, c);
   Vec3 axis{c[0], c[1], c[2]};
   if (!(lengthSquared(axis) > 1e-12f)) fail(path, expected);
   return Quat::fromAxisAngle(axis, c[3]);
