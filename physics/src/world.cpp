@@ -888,14 +888,19 @@ void World::Impl::restoreSnapshot() {
   stats.step = snapshot.step;
 }
 
+const char* World::Impl::bodyFault(const BodyRec& b) const {
+  if (!isFinite(b.xf.p) || !isFinite(b.xf.q) || !isFinite(b.v) || !isFinite(b.w))
+    return "has a non-finite state";
+  // The speed clamp only bites when something has blown up.
+  if (length(b.v) >= 0.999f * def.maxLinearSpeed || length(b.w) >= 0.999f * def.maxAngularSpeed)
+    return "reached the speed limit";
+  return nullptr;
+}
+
 std::string World::Impl::checkHealth() const {
   for (const Snapshot::Body& s : snapshot.bodies) {
-    const BodyRec& b = bodies.at(s.index);
-    if (!isFinite(b.xf.p) || !isFinite(b.xf.q) || !isFinite(b.v) || !isFinite(b.w))
-      return "body " + std::to_string(s.index) + " has a non-finite state";
-    // The speed clamp only bites when something has blown up.
-    if (length(b.v) >= 0.999f * def.maxLinearSpeed || length(b.w) >= 0.999f * def.maxAngularSpeed)
-      return "body " + std::to_string(s.index) + " reached the speed limit";
+    if (const char* fault = bodyFault(bodies.at(s.index)))
+      return "body " + std::to_string(s.index) + " " + fault;
   }
   double gain = stats.energyAfter - stats.energyBefore;
   double allowed = def.guardEnergyJump * snapshot.kinetic + snapshot.liftEnergy;
@@ -910,10 +915,7 @@ void World::Impl::quarantine() {
   // rest of the world keep its step. A bad body never poisons the others.
   for (const Snapshot::Body& s : snapshot.bodies) {
     BodyRec& b = bodies.at(s.index);
-    bool bad = !isFinite(b.xf.p) || !isFinite(b.xf.q) || !isFinite(b.v) || !isFinite(b.w) ||
-               length(b.v) >= 0.999f * def.maxLinearSpeed ||
-               length(b.w) >= 0.999f * def.maxAngularSpeed;
-    if (!bad) continue;
+    if (!bodyFault(b)) continue;
     b.xf = s.xf;
     b.com = s.com;
     b.v = b.w = {};

@@ -125,8 +125,9 @@ struct World::Impl {
   // Guard rails (world.cpp).
   void takeSnapshot();
   void restoreSnapshot();
-  std::string checkHealth() const;  ///< empty when the step was healthy
-  void quarantine();                ///< joint rows at the current poses, inside the substep loop
+  std::string checkHealth() const;                ///< empty when the step was healthy
+  const char* bodyFault(const BodyRec& b) const;  ///< what is wrong with a body, or null
+  void quarantine();  ///< joint rows at the current poses, inside the substep loop
   void finalize(float hSub);
 };
 
