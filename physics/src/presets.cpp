@@ -39,8 +39,10 @@ struct EnumName {
   const char* name;
 };
 using S = SolverSettings;
-constexpr EnumName<S::Scheme> kSchemes[] = {{S::Scheme::GaussSeidel, "gauss_seidel"},
-                                            {S::Scheme::Jacobi, "jacobi"}};
+constexpr EnumName<S::Scheme> kSchemes[] = {
+    {S::Scheme::GaussSeidel, "gauss_seidel"},
+    {S::Scheme::Jacobi, "jacobi"},
+    {S::Scheme::ColoredGaussSeidel, "colored_gauss_seidel"}};
 constexpr EnumName<S::PositionPass> kPositionPasses[] = {
     {S::PositionPass::None, "none"},
     {S::PositionPass::NonlinearGaussSeidel, "nonlinear_gauss_seidel"},
@@ -105,6 +107,8 @@ Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path, 
       st = readNumber(v, p, &s.linearSlop);
     else if (k == "restitution_threshold")
       st = readNumber(v, p, &s.restitutionThreshold);
+    else if (k == "tolerance")
+      st = readNumber(v, p, &s.tolerance);
     else if (k == "warm_start" || k == "restitution") {
       if (!v.is_boolean()) return bad(p + ": must be true or false");
       (k == "warm_start" ? s.warmStart : s.restitution) = v.get<bool>();
@@ -138,6 +142,7 @@ Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path, 
 nlohmann::json solverSettingsToJson(const SolverSettings& s) {
   return {{"substeps", s.substeps},
           {"iterations", s.iterations},
+          {"tolerance", s.tolerance},
           {"relax_iterations", s.relaxIterations},
           {"stabilization", enumName(kStabilizations, s.stabilization)},
           {"baumgarte", s.baumgarte},

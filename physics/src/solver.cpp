@@ -1,12 +1,49 @@
 #include "solver.h"
 
 #include <algorithm>
+#include <atomic>
+#include <bit>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <limits>
 
+#include "thread_pool.h"
+
 namespace phys {
+
+namespace {
+// Parallel chunk sizes: a contact group (a 4-point manifold with friction) takes a fraction
+// of a microsecond, a body's integration less; chunks of this size keep the pool's hand-off
+// (about a microsecond) small, and a color or a loop no larger than one chunk runs inline.
+constexpr size_t kGroupGrain = 32;
+constexpr size_t kBodyGrain = 256;
+/// Colors of the colored Gauss-Seidel scheme (bits of a mask per body).
+constexpr int kMaxColors = 64;
+
+/// max over threads. max is exact and order-free: the same result for any thread count.
+void atomicMax(std::atomic<float>& m, float v) {
+  float cur = m.load(std::memory_order_relaxed);
+  while (v > cur && !m.compare_exchange_weak(cur, v, std::memory_order_relaxed)) {
+  }
+}
+}  // namespace
+
+/// One iteration's constants.
+struct Solver::IterationParams {
+  Softness contactSoft, jointSoft;
+  float h = 0, invH = 0, linearSlop = 0, maxPushout = 0;
+  bool soft = true, useBias = true, skipEquality = false;
+  bool measure = false;  ///< compute the convergence measure
+};
+
+template <class F>
+void Solver::parallel(size_t count, size_t grain, F&& fn) {
+  if (pool)
+    pool->parallelFor(count, grain, fn);
+  else if (count > 0)
+    fn(size_t(0), count);
+}
 
 Softness makeSoftness(float hertz, float zeta, float h) {
   if (hertz <= 0) return {0, 1, 0};
@@ -24,7 +61,8 @@ void Solver::finishRows(size_t first, size_t last) {
     const SolverBody& A = bodies[size_t(r.a)];
     const SolverBody& B = bodies[size_t(r.b)];
     // Jacobi: each constraint sees a body with its mass divided among its constraints.
-    const float sa = jacobi ? split[size_t(r.a)] : 1, sb = jacobi ? split[size_t(r.b)] : 1;
+    const float sa = jacobi() ? split[size_t(r.a)] : 1;
+    const float sb = jacobi() ? split[size_t(r.b)] : 1;
     r.mLinA = r.linA * (A.invMass * sa);
     r.mAngA = A.invI * r.angA * sa;
     r.mLinB = r.linB * (B.invMass * sb);
@@ -56,68 +94,122 @@ void Solver::finishRows(size_t first, size_t last) {
   }
 }
 
-void Solver::solveBlock(size_t first, const Softness& soft, bool useBias) {
+float Solver::solveBlock(size_t first, const IterationParams& p, Velocity& A, Velocity& B) {
   const Row& r0 = rows[first];
   const int n = r0.blockSize;
+  const Softness& soft = p.jointSoft;
   Vec3 err, lambda;
   for (int a = 0; a < n; ++a) {
     const Row& r = rows[first + size_t(a)];
-    err[a] = rowVelocity(r) + (useBias ? soft.biasRate * rowError(r) : 0);
+    err[a] = rowVelocity(r, A, B) + (p.useBias ? soft.biasRate * rowError(r) : 0);
     lambda[a] = r.lambda;
   }
-  const float massScale = useBias ? soft.massScale : 1;
-  const float impulseScale = useBias ? soft.impulseScale : 0;
+  const float massScale = p.useBias ? soft.massScale : 1;
+  const float impulseScale = p.useBias ? soft.impulseScale : 0;
   Vec3 d = blockInvK[size_t(r0.blockIndex)] * err * -massScale - lambda * impulseScale;
+  float change = 0;
   for (int a = 0; a < n; ++a) {
     Row& r = rows[first + size_t(a)];
     r.lambda += d[a];
-    if (d[a] != 0) applyImpulse(r, d[a]);
+    if (d[a] == 0) continue;
+    applyImpulse(r, d[a], A, B);
+    if (p.measure && r.effMass > 0) change = std::max(change, std::abs(d[a]) / r.effMass);
   }
+  return change;
 }
 
+namespace {
+void integrateVelocity(SolverBody& b, float h, float maxLinearSpeed, float maxAngularSpeed) {
+  if (!b.dynamic) return;
+  Vec3 v = b.v + b.linearAccel * h;
+  Vec3 w = b.w;
+  w += b.invI * b.torque * h;
+  v *= 1 / (1 + h * b.linearDamping);
+  w *= 1 / (1 + h * b.angularDamping);
+  // Lengths in double: a huge finite speed overflows a float length to infinity, and the
+  // clamp would then zero the velocity instead of capping it.
+  double vl = std::sqrt(double(v.x) * v.x + double(v.y) * v.y + double(v.z) * v.z);
+  if (vl > maxLinearSpeed) v *= float(maxLinearSpeed / vl);
+  double wl = std::sqrt(double(w.x) * w.x + double(w.y) * w.y + double(w.z) * w.z);
+  if (wl > maxAngularSpeed) w *= float(maxAngularSpeed / wl);
+  b.v = v;
+  b.w = w;
+}
+}  // namespace
+
 void Solver::integrateVelocities(float h, float maxLinearSpeed, float maxAngularSpeed) {
-  for (size_t i = 1; i < bodies.size(); ++i) {
-    SolverBody& b = bodies[i];
-    if (!b.dynamic) continue;
-    Vec3 v = b.v + b.linearAccel * h;
-    Vec3 w = b.w;
-    w += b.invI * b.torque * h;
-    v *= 1 / (1 + h * b.linearDamping);
-    w *= 1 / (1 + h * b.angularDamping);
-    // Lengths in double: a huge finite speed overflows a float length to infinity, and the
-    // clamp would then zero the velocity instead of capping it.
-    double vl = std::sqrt(double(v.x) * v.x + double(v.y) * v.y + double(v.z) * v.z);
-    if (vl > maxLinearSpeed) v *= float(maxLinearSpeed / vl);
-    double wl = std::sqrt(double(w.x) * w.x + double(w.y) * w.y + double(w.z) * w.z);
-    if (wl > maxAngularSpeed) w *= float(maxAngularSpeed / wl);
-    b.v = v;
-    b.w = w;
-  }
+  parallel(bodies.size(), kBodyGrain, [&](size_t begin, size_t end) {
+    for (size_t i = std::max<size_t>(begin, 1); i < end; ++i)
+      integrateVelocity(bodies[i], h, maxLinearSpeed, maxAngularSpeed);
+  });
 }
 
 template <class F>
-void Solver::forEachGroupAveraged(F&& solveGroup) {
-  dv_.assign(bodies.size(), Vec3{});
-  dw_.assign(bodies.size(), Vec3{});
-  for (const Group& g : groups) {
-    SolverBody& A = bodies[size_t(g.a)];
-    SolverBody& B = bodies[size_t(g.b)];
-    const Vec3 va = A.v, wa = A.w, vb = B.v, wb = B.w;
-    solveGroup(g);
-    dv_[size_t(g.a)] += A.v - va;
-    dw_[size_t(g.a)] += A.w - wa;
-    A.v = va;
-    A.w = wa;
-    dv_[size_t(g.b)] += B.v - vb;
-    dw_[size_t(g.b)] += B.w - wb;
-    B.v = vb;
-    B.w = wb;
+float Solver::forEachGroup(F&& f) {
+  std::atomic<float> result{0};
+  if (jacobi()) {
+    // Every group from the same velocities, on its own copy of its two bodies; each body
+    // then moves by the average of its groups' changes (the rows' M^-1 J^T carry the split),
+    // summed in group order whatever the thread that solved them.
+    groupDelta.resize(groups.size());
+    parallel(groups.size(), kGroupGrain, [&](size_t begin, size_t end) {
+      float m = 0;
+      for (size_t gi = begin; gi < end; ++gi) {
+        const Group& g = groups[gi];
+        const Velocity a0 = bodies[size_t(g.a)], b0 = bodies[size_t(g.b)];
+        Velocity a = a0, b = b0;
+        m = std::max(m, f(g, a, b));
+        groupDelta[gi] = {{a.v - a0.v, a.w - a0.w}, {b.v - b0.v, b.w - b0.w}};
+      }
+      atomicMax(result, m);
+    });
+    parallel(bodies.size(), kBodyGrain, [&](size_t begin, size_t end) {
+      for (size_t i = std::max<size_t>(begin, 1); i < end; ++i) {
+        Vec3 dv, dw;
+        for (uint32_t k = bodyRefStart[i]; k < bodyRefStart[i + 1]; ++k) {
+          const GroupDelta& d = groupDelta[bodyRefs[k] >> 1];
+          const Velocity& side = (bodyRefs[k] & 1) ? d.b : d.a;
+          dv += side.v;
+          dw += side.w;
+        }
+        bodies[i].v += dv / split[i];
+        bodies[i].w += dw / split[i];
+      }
+    });
+    return result.load();
   }
-  // Summed in group order per body: deterministic whatever the thread count later.
-  for (size_t i = 1; i < bodies.size(); ++i) {
-    bodies[i].v += dv_[i] / split[i];
-    bodies[i].w += dw_[i] / split[i];
+  auto serial = [&](uint32_t gi) {
+    const Group& g = groups[gi];
+    return f(g, bodies[size_t(g.a)], bodies[size_t(g.b)]);
+  };
+  float m = 0;
+  if (scheme == SolverSettings::Scheme::GaussSeidel) {
+    for (uint32_t gi = 0; gi < groups.size(); ++gi) m = std::max(m, serial(gi));
+    return m;
   }
+  // Colored Gauss-Seidel (see indexUnits): joints in order, the colors in parallel, then
+  // the overflow in order.
+  for (size_t k = 0; k < overflowBegin; ++k) m = std::max(m, serial(serialGroups[k]));
+  for (size_t c = 0; c + 1 < colorStart.size(); ++c) {
+    const uint32_t first = colorStart[c];
+    parallel(colorStart[c + 1] - first, kGroupGrain, [&](size_t begin, size_t end) {
+      float cm = 0;
+      for (size_t k = begin; k < end; ++k) {
+        const Group& g = groups[colorGroups[first + k]];
+        // Bodies shared inside a color (the world, kinematic bodies) are never written:
+        // their constraints get a scratch copy.
+        SolverBody& A = bodies[size_t(g.a)];
+        SolverBody& B = bodies[size_t(g.b)];
+        Velocity sa = A, sb = B;
+        cm = std::max(cm, f(g, A.dynamic ? static_cast<Velocity&>(A) : sa,
+                            B.dynamic ? static_cast<Velocity&>(B) : sb));
+      }
+      atomicMax(result, cm);
+    });
+  }
+  for (size_t k = overflowBegin; k < serialGroups.size(); ++k)
+    m = std::max(m, serial(serialGroups[k]));
+  return std::max(m, result.load());
 }
 
 /// Rows [begin, end) of a group's units.
@@ -127,18 +219,15 @@ static inline void groupRows(const Solver& s, const Solver::Group& g, size_t* be
 }
 
 void Solver::warmStart() {
-  if (jacobi) {
-    forEachGroupAveraged([&](const Group& g) {
-      size_t begin, end;
-      groupRows(*this, g, &begin, &end);
-      warmStartRows(begin, end);
-    });
-    return;
-  }
-  warmStartRows(0, rows.size());
+  forEachGroup([&](const Group& g, Velocity& A, Velocity& B) {
+    warmStartGroup(g, A, B);
+    return 0.0f;
+  });
 }
 
-void Solver::warmStartRows(size_t begin, size_t end) {
+void Solver::warmStartGroup(const Group& g, Velocity& A, Velocity& B) {
+  size_t begin, end;
+  groupRows(*this, g, &begin, &end);
   for (size_t i = begin; i < end; ++i) {
     Row& r = rows[i];
     // The approach speed for restitution: the fastest seen at the start of any substep
@@ -147,42 +236,53 @@ void Solver::warmStartRows(size_t begin, size_t end) {
     // accelerations: otherwise the substep before impact, which brakes the body to land
     // exactly on the surface, hides up to one substep of gravity from the bounce.
     if (r.kind == RowKind::ContactNormal) {
-      float vn = rowVelocity(r);
+      float vn = rowVelocity(r, A, B);
       float C = rowError(r);
       float an = dot(r.linA, bodies[size_t(r.a)].linearAccel) +
                  dot(r.linB, bodies[size_t(r.b)].linearAccel);
       if (vn < 0 && C > 0 && an < 0) vn = -std::sqrt(vn * vn - 2 * an * C);
       r.relativeVelocity = std::min(r.relativeVelocity, vn);
     }
-    if (r.lambda != 0) applyImpulse(r, r.lambda);
+    if (r.lambda != 0) applyImpulse(r, r.lambda, A, B);
   }
 }
 
-void Solver::solveIteration(const SolverSettings& s, float h, bool useBias, bool skipEquality) {
-  const float invH = 1 / h;
-  const bool soft = s.stabilization == SolverSettings::Stabilization::Soft;
+float Solver::solveIteration(const SolverSettings& s, float h, bool useBias, bool skipEquality) {
+  IterationParams p;
+  p.h = h;
+  p.invH = 1 / h;
+  p.soft = s.stabilization == SolverSettings::Stabilization::Soft;
   // Stiffness is capped at a quarter of the substep rate: stiffer springs are not resolved
   // by the integrator and only add energy.
-  const float cap = 0.25f * invH;
-  const Softness contactSoft =
-      soft ? makeSoftness(std::min(s.contactHertz, cap), s.contactDampingRatio, h)
-           : Softness{s.baumgarte * invH, 1, 0};
-  const Softness jointSoft = soft
-                                 ? makeSoftness(std::min(s.jointHertz, cap), s.jointDampingRatio, h)
-                                 : Softness{s.baumgarte * invH, 1, 0};
+  const float cap = 0.25f * p.invH;
+  p.contactSoft = p.soft ? makeSoftness(std::min(s.contactHertz, cap), s.contactDampingRatio, h)
+                         : Softness{s.baumgarte * p.invH, 1, 0};
+  p.jointSoft = p.soft ? makeSoftness(std::min(s.jointHertz, cap), s.jointDampingRatio, h)
+                       : Softness{s.baumgarte * p.invH, 1, 0};
+  p.linearSlop = s.linearSlop;
+  p.maxPushout = s.maxPushout;
+  p.useBias = useBias;
+  p.skipEquality = skipEquality;
+  p.measure = s.tolerance > 0;
+  return forEachGroup(
+      [&](const Group& g, Velocity& A, Velocity& B) { return solveGroup(g, A, B, p); });
+}
 
-  auto solveUnit = [&](size_t i) {
+float Solver::solveGroup(const Group& g, Velocity& A, Velocity& B, const IterationParams& p) {
+  float change = 0;
+  for (uint32_t u = g.unitBegin; u < g.unitEnd; ++u) {
+    const size_t i = units[u];
     Row& r = rows[i];
-    if (skipEquality && r.kind == RowKind::Equality) return;
+    if (p.skipEquality && r.kind == RowKind::Equality) continue;
     if (r.kind == RowKind::Friction) {
-      solveFrictionPair(r, rows[i + 1]);
-      return;
+      change = std::max(change, solveFrictionPair(r, rows[i + 1], A, B, p.measure));
+      continue;
     }
     if (r.blockSize > 1) {
-      solveBlock(i, jointSoft, useBias);
-      return;
+      change = std::max(change, solveBlock(i, p, A, B));
+      continue;
     }
-    float vn = rowVelocity(r);
+    float vn = rowVelocity(r, A, B);
     float impulse = 0;
     switch (r.kind) {
       case RowKind::ContactNormal:
@@ -190,15 +290,15 @@ void Solver::solveIteration(const SolverSettings& s, float h, bool useBias, bool
         float C = rowError(r);
         float bias = 0, massScale = 1, impulseScale = 0;
         if (C > 0) {
-          bias = C * invH;  // speculative: close exactly the gap this substep, no more
-        } else if (useBias) {
+          bias = C * p.invH;  // speculative: close exactly the gap this substep, no more
+        } else if (p.useBias) {
           // Slop only with Baumgarte: a soft contact's spring has zero rest length, and a
           // slop there only lets bodies sink into each other by that much.
-          float slop = !soft && r.kind == RowKind::ContactNormal ? s.linearSlop : 0;
+          float slop = !p.soft && r.kind == RowKind::ContactNormal ? p.linearSlop : 0;
           float Cs = std::min(0.0f, C + slop);
-          bias = std::max(contactSoft.biasRate * Cs, -s.maxPushout);
-          massScale = contactSoft.massScale;
-          impulseScale = contactSoft.impulseScale;
+          bias = std::max(p.contactSoft.biasRate * Cs, -p.maxPushout);
+          massScale = p.contactSoft.massScale;
+          impulseScale = p.contactSoft.impulseScale;
         }
         impulse = -r.effMass * massScale * (vn + bias) - impulseScale * r.lambda;
         float next = std::max(r.lambda + impulse, 0.0f);
@@ -211,10 +311,10 @@ void Solver::solveIteration(const SolverSettings& s, float h, bool useBias, bool
         break;  // solved in pairs above
       case RowKind::Equality: {
         float bias = 0, massScale = 1, impulseScale = 0;
-        if (useBias) {
-          bias = jointSoft.biasRate * rowError(r);
-          massScale = jointSoft.massScale;
-          impulseScale = jointSoft.impulseScale;
+        if (p.useBias) {
+          bias = p.jointSoft.biasRate * rowError(r);
+          massScale = p.jointSoft.massScale;
+          impulseScale = p.jointSoft.impulseScale;
         }
         impulse = -r.effMass * massScale * (vn + bias) - impulseScale * r.lambda;
         r.lambda += impulse;
@@ -222,7 +322,7 @@ void Solver::solveIteration(const SolverSettings& s, float h, bool useBias, bool
       }
       case RowKind::Spring: {
         // A spring is soft in both passes: it is the physics, not an error correction.
-        Softness sp = makeSoftness(r.hertz, r.dampingRatio, h);
+        Softness sp = makeSoftness(r.hertz, r.dampingRatio, p.h);
         impulse = -r.effMass * sp.massScale * (vn + sp.biasRate * rowError(r)) -
                   sp.impulseScale * r.lambda;
         r.lambda += impulse;
@@ -236,15 +336,11 @@ void Solver::solveIteration(const SolverSettings& s, float h, bool useBias, bool
         break;
       }
     }
-    if (impulse != 0) applyImpulse(r, impulse);
-  };
-  if (jacobi) {
-    forEachGroupAveraged([&](const Group& g) {
-      for (uint32_t u = g.unitBegin; u < g.unitEnd; ++u) solveUnit(units[u]);
-    });
-    return;
+    if (impulse == 0) continue;
+    applyImpulse(r, impulse, A, B);
+    if (p.measure && r.effMass > 0) change = std::max(change, std::abs(impulse) / r.effMass);
   }
-  for (uint32_t u : units) solveUnit(u);
+  return change;
 }
 
 float Solver::equalityBiasRate(const SolverSettings& s, float h) {
@@ -275,6 +371,67 @@ void Solver::indexUnits() {
     split[size_t(g.b)] += 1;
   }
   for (float& n : split) n = std::max(n, 1.0f);  // the world and free bodies split nothing
+
+  // Jacobi gathers each dynamic body's changes from its groups, in group order.
+  bodyRefStart.assign(bodies.size() + 1, 0);
+  bodyRefs.clear();
+  if (jacobi()) {
+    for (const Group& g : groups) {
+      if (bodies[size_t(g.a)].dynamic) bodyRefStart[size_t(g.a) + 1]++;
+      if (bodies[size_t(g.b)].dynamic) bodyRefStart[size_t(g.b) + 1]++;
+    }
+    for (size_t i = 0; i < bodies.size(); ++i) bodyRefStart[i + 1] += bodyRefStart[i];
+    bodyRefs.resize(bodyRefStart.back());
+    std::vector<uint32_t> fill(bodyRefStart.begin(), bodyRefStart.end() - 1);
+    for (uint32_t gi = 0; gi < groups.size(); ++gi) {
+      const Group& g = groups[gi];
+      if (bodies[size_t(g.a)].dynamic) bodyRefs[fill[size_t(g.a)]++] = gi << 1;
+      if (bodies[size_t(g.b)].dynamic) bodyRefs[fill[size_t(g.b)]++] = gi << 1 | 1;
+    }
+  }
+  assignColors();
+}
+
+void Solver::assignColors() {
+  serialGroups.clear();
+  colorGroups.clear();
+  colorStart.clear();
+  overflowBegin = 0;
+  if (scheme != SolverSettings::Scheme::ColoredGaussSeidel) return;
+  // Greedy, in group order (deterministic): each contact group takes the lowest color that
+  // neither of its dynamic bodies has yet. Static and kinematic bodies do not count: the
+  // solve never writes them.
+  std::vector<uint64_t> used(bodies.size(), 0);
+  std::vector<int8_t> color(groups.size(), -1);
+  std::vector<uint32_t> count(kMaxColors + 1, 0), overflow;
+  for (uint32_t gi = 0; gi < groups.size(); ++gi) {
+    const Group& g = groups[gi];
+    if (rows[units[g.unitBegin]].kind != RowKind::ContactNormal) {
+      serialGroups.push_back(gi);  // a joint
+      continue;
+    }
+    const bool da = bodies[size_t(g.a)].dynamic, db = bodies[size_t(g.b)].dynamic;
+    const uint64_t taken = (da ? used[size_t(g.a)] : 0) | (db ? used[size_t(g.b)] : 0);
+    if ((!da && !db) || taken == ~uint64_t(0)) {
+      overflow.push_back(gi);
+      continue;
+    }
+    const int c = std::countr_one(taken);
+    color[gi] = int8_t(c);
+    count[size_t(c) + 1]++;
+    if (da) used[size_t(g.a)] |= uint64_t(1) << c;
+    if (db) used[size_t(g.b)] |= uint64_t(1) << c;
+  }
+  int colors = kMaxColors;
+  while (colors > 0 && count[size_t(colors)] == 0) --colors;
+  colorStart.assign(count.begin(), count.begin() + colors + 1);
+  for (int c = 0; c < colors; ++c) colorStart[size_t(c) + 1] += colorStart[size_t(c)];
+  colorGroups.resize(colorStart.back());
+  std::vector<uint32_t> fill(colorStart.begin(), colorStart.end());
+  for (uint32_t gi = 0; gi < groups.size(); ++gi)
+    if (color[gi] >= 0) colorGroups[fill[size_t(color[gi])]++] = gi;
+  overflowBegin = serialGroups.size();
+  serialGroups.insert(serialGroups.end(), overflow.begin(), overflow.end());
 }
 
 void Solver::positionPass(const SolverSettings& s, int iterations, bool jacobiPass) {
@@ -328,17 +485,17 @@ void Solver::positionPass(const SolverSettings& s, int iterations, bool jacobiPa
     }
     for (size_t i = 1; i < bodies.size(); ++i) {
       if (dv_[i] == Vec3{} && dw_[i] == Vec3{}) continue;
-      const float n = jacobi ? split[i] : 1;
+      const float n = jacobi() ? split[i] : 1;
       move(bodies[i], dv_[i] / n, dw_[i] / n);
     }
   }
 }
 
-void Solver::solveFrictionPair(Row& r1, Row& r2) {
+float Solver::solveFrictionPair(Row& r1, Row& r2, Velocity& A, Velocity& B, bool measure) {
   // Both tangent directions at once, clamped to the friction disc |lambda_t| <= mu lambda_n:
   // isotropic Coulomb friction (clamping each axis alone would allow sqrt(2) mu diagonally).
-  float l1 = r1.lambda - r1.effMass * rowVelocity(r1);
-  float l2 = r2.lambda - r2.effMass * rowVelocity(r2);
+  float l1 = r1.lambda - r1.effMass * rowVelocity(r1, A, B);
+  float l2 = r2.lambda - r2.effMass * rowVelocity(r2, A, B);
   float bound = r1.mu * rows[size_t(r1.parent)].lambda;
   float len2 = l1 * l1 + l2 * l2;
   if (len2 > bound * bound) {
@@ -349,8 +506,13 @@ void Solver::solveFrictionPair(Row& r1, Row& r2) {
   float d1 = l1 - r1.lambda, d2 = l2 - r2.lambda;
   r1.lambda = l1;
   r2.lambda = l2;
-  if (d1 != 0) applyImpulse(r1, d1);
-  if (d2 != 0) applyImpulse(r2, d2);
+  if (d1 != 0) applyImpulse(r1, d1, A, B);
+  if (d2 != 0) applyImpulse(r2, d2, A, B);
+  if (!measure) return 0;
+  float change = 0;
+  if (r1.effMass > 0) change = std::abs(d1) / r1.effMass;
+  if (r2.effMass > 0) change = std::max(change, std::abs(d2) / r2.effMass);
+  return change;
 }
 
 namespace {
@@ -400,43 +562,42 @@ void rotateFree(SolverBody& b, float h) {
 }  // namespace
 
 void Solver::integratePositions(float h) {
-  for (size_t i = 1; i < bodies.size(); ++i) {
-    SolverBody& b = bodies[i];
-    b.dp += b.v * h;
-    Quat q0 = b.q;
-    if (b.dynamic && b.gyroscopic) {
-      rotateFree(b, h);
-    } else {
-      b.q = integrateRotation(b.q, b.w, h);
+  parallel(bodies.size(), kBodyGrain, [&](size_t begin, size_t end) {
+    for (size_t i = std::max<size_t>(begin, 1); i < end; ++i) {
+      SolverBody& b = bodies[i];
+      b.dp += b.v * h;
+      Quat q0 = b.q;
+      if (b.dynamic && b.gyroscopic) {
+        rotateFree(b, h);
+      } else {
+        b.q = integrateRotation(b.q, b.w, h);
+      }
+      b.dtheta += rotationVector(b.q * conjugate(q0));
     }
-    b.dtheta += rotationVector(b.q * conjugate(q0));
-  }
+  });
 }
 
 void Solver::applyRestitution(float threshold) {
-  if (jacobi) {
-    forEachGroupAveraged([&](const Group& g) {
-      size_t begin, end;
-      groupRows(*this, g, &begin, &end);
-      restitutionRows(begin, end, threshold);
-    });
-    return;
-  }
-  restitutionRows(0, rows.size(), threshold);
+  forEachGroup([&](const Group& g, Velocity& A, Velocity& B) {
+    restitutionGroup(g, threshold, A, B);
+    return 0.0f;
+  });
 }
 
-void Solver::restitutionRows(size_t begin, size_t end, float threshold) {
+void Solver::restitutionGroup(const Group& g, float threshold, Velocity& A, Velocity& B) {
+  size_t begin, end;
+  groupRows(*this, g, &begin, &end);
   for (size_t i = begin; i < end; ++i) {
     Row& r = rows[i];
     if (r.kind != RowKind::ContactNormal || r.restitution == 0) continue;
     if (r.relativeVelocity > -threshold || r.maxLambda == 0) continue;
-    float vn = rowVelocity(r);
+    float vn = rowVelocity(r, A, B);
     float impulse = -r.effMass * (vn + r.restitution * r.relativeVelocity);
     float next = std::max(r.lambda + impulse, 0.0f);
     impulse = next - r.lambda;
     r.lambda = next;
     r.maxLambda = std::max(r.maxLambda, next);
-    if (impulse != 0) applyImpulse(r, impulse);
+    if (impulse != 0) applyImpulse(r, impulse, A, B);
   }
 }
 

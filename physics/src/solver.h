@@ -18,10 +18,18 @@
 
 namespace phys {
 
+class ThreadPool;
+
+/// What the iterations write: a body's velocities. Jacobi solves each constraint against its
+/// own copy, and parallel Gauss-Seidel gives a constraint a scratch copy of a body it must
+/// not write (the static world, kinematic bodies), so the kernels take velocities by reference.
+struct Velocity {
+  Vec3 v, w;  ///< m/s, rad/s
+};
+
 /// A body as the solver sees it: small and contiguous. Index 0 is the static world (zero
 /// velocity, zero inverse mass), so rows touching static bodies need no branch.
-struct SolverBody {
-  Vec3 v, w;                 ///< m/s, rad/s
+struct SolverBody : Velocity {
   Vec3 dp;                   ///< m, centre-of-mass displacement since the step began
   Vec3 dtheta;               ///< rad, accumulated rotation vector since the step began
   Quat q;                    ///< current orientation
@@ -84,15 +92,34 @@ class Solver {
   std::vector<SolverBody> bodies;  ///< [0] is the world
   std::vector<Row> rows;
   std::vector<uint32_t> units;  ///< first row of each solve unit, in row order
-  /// A constraint of the Jacobi scheme: its units and its two bodies.
+  /// A constraint (a joint, a contact manifold): its solve units and its two bodies. The
+  /// schemes differ only in how they order and batch groups (see forEachGroup).
   struct Group {
     uint32_t unitBegin, unitEnd;
     int32_t a, b;
   };
   std::vector<Group> groups;
-  bool jacobi = false;          ///< set before indexUnits/finishRows
+  /// Set before indexUnits/finishRows.
+  SolverSettings::Scheme scheme = SolverSettings::Scheme::GaussSeidel;
+  bool jacobi() const { return scheme == SolverSettings::Scheme::Jacobi; }
+  ThreadPool* pool = nullptr;   ///< parallel loops (colors, Jacobi, bodies); null: serial
   std::vector<float> split;     ///< per body: constraints sharing its mass (Jacobi), else 1
   std::vector<Mat3> blockInvK;  ///< inverse of J M^-1 J^T per row block (2x2 padded to 3x3)
+
+  // Colored Gauss-Seidel: joint groups first, serially in order (a chain converges along
+  // its length in one sweep), then the contact groups color by color: no two groups of a
+  // color share a dynamic body, so a color runs in parallel and the order inside it does not
+  // matter. Groups left when the colors run out are solved serially at the end.
+  std::vector<uint32_t> serialGroups;  ///< joints, and the overflow of the colors
+  std::vector<uint32_t> colorGroups;   ///< contact groups sorted by color
+  std::vector<uint32_t> colorStart;    ///< colorGroups range of color c: [c], [c+1])
+  size_t overflowBegin = 0;            ///< serialGroups from here run after the colors
+  // Jacobi: each group's velocity change to its two bodies, gathered per body in group order.
+  struct GroupDelta {
+    Velocity a, b;
+  };
+  std::vector<GroupDelta> groupDelta;
+  std::vector<uint32_t> bodyRefStart, bodyRefs;  ///< per body: (group << 1 | side), CSR
 
   /// Sets M^-1 J^T, the effective mass and block matrices of rows [first, last) from the
   /// bodies' masses. A block keeps its blockInvK slot if it has one.
@@ -102,35 +129,30 @@ class Solver {
   void integrateVelocities(float h, float maxLinearSpeed, float maxAngularSpeed);
   /// Applies last impulses again; also records contacts' approach speed for restitution.
   void warmStart();
-  void warmStartRows(size_t begin, size_t end);
   /// One iteration over every solve unit. useBias=false is the relax pass. skipEquality
-  /// leaves the joints' equality rows to a direct solve (EqualityLdl).
-  void solveIteration(const SolverSettings& s, float h, bool useBias, bool skipEquality = false);
+  /// leaves the joints' equality rows to a direct solve (EqualityLdl). Returns the largest
+  /// velocity change the iteration made to a row, |delta lambda| / effMass (m/s or rad/s):
+  /// the convergence measure.
+  float solveIteration(const SolverSettings& s, float h, bool useBias, bool skipEquality = false);
   /// The bias rate (1/s) at which equality rows correct position error over a substep h.
   static float equalityBiasRate(const SolverSettings& s, float h);
-  /// Records where each solve unit (a row, a friction pair, a joint block) starts.
+  /// Records where each solve unit (a row, a friction pair, a joint block) starts, the
+  /// groups, the colors and the Jacobi gather lists.
   void indexUnits();
   /// Post-stabilization: `iterations` passes projecting positions (contacts, limits, joint
   /// equalities) with the rows' linearized errors; Jacobi averages per body like the solve.
   void positionPass(const SolverSettings& s, int iterations, bool jacobiPass);
-  void solveFrictionPair(Row& r1, Row& r2);
-  /// Runs solveGroup on every constraint group against its own copy of its two bodies'
-  /// velocities, then moves each body by the average of its copies (Jacobi with mass
-  /// splitting; the rows' M^-1 J^T already carry the split).
-  template <class F>
-  void forEachGroupAveraged(F&& solveGroup);
-  std::vector<Vec3> dv_, dw_;
-  void solveBlock(size_t first, const Softness& soft, bool useBias);
   void integratePositions(float h);
   void applyRestitution(float threshold);
-  void restitutionRows(size_t begin, size_t end, float threshold);
   /// Norm of the rows' velocity error after the solve (see SOLVER_NOTES "Residual").
   double velocityResidual(float h) const;
-  /// J v of a row at the current velocities.
-  float rowVelocity(const Row& r) const {
-    const SolverBody& A = bodies[size_t(r.a)];
-    const SolverBody& B = bodies[size_t(r.b)];
+
+  /// J v of a row at the given velocities of its bodies.
+  static float rowVelocity(const Row& r, const Velocity& A, const Velocity& B) {
     return dot(r.linA, A.v) + dot(r.angA, A.w) + dot(r.linB, B.v) + dot(r.angB, B.w);
+  }
+  float rowVelocity(const Row& r) const {
+    return rowVelocity(r, bodies[size_t(r.a)], bodies[size_t(r.b)]);
   }
   /// Position error of a row at the current substep, from the accumulated deltas.
   float rowError(const Row& r) const {
@@ -139,14 +161,31 @@ class Solver {
     return r.C0 + dot(r.linA, A.dp) + dot(r.angA, A.dtheta) + dot(r.linB, B.dp) +
            dot(r.angB, B.dtheta);
   }
-  void applyImpulse(const Row& r, float impulse) {
-    SolverBody& A = bodies[size_t(r.a)];
-    SolverBody& B = bodies[size_t(r.b)];
+  static void applyImpulse(const Row& r, float impulse, Velocity& A, Velocity& B) {
     A.v += r.mLinA * impulse;
     A.w += r.mAngA * impulse;
     B.v += r.mLinB * impulse;
     B.w += r.mAngB * impulse;
   }
+  void applyImpulse(const Row& r, float impulse) {
+    applyImpulse(r, impulse, bodies[size_t(r.a)], bodies[size_t(r.b)]);
+  }
+
+ private:
+  struct IterationParams;
+  /// Runs f(group, velocityA, velocityB) -> float on every group in the scheme's order and
+  /// batching; returns the largest value f returned.
+  template <class F>
+  float forEachGroup(F&& f);
+  float solveGroup(const Group& g, Velocity& A, Velocity& B, const IterationParams& p);
+  float solveFrictionPair(Row& r1, Row& r2, Velocity& A, Velocity& B, bool measure);
+  float solveBlock(size_t first, const IterationParams& p, Velocity& A, Velocity& B);
+  void warmStartGroup(const Group& g, Velocity& A, Velocity& B);
+  void restitutionGroup(const Group& g, float threshold, Velocity& A, Velocity& B);
+  void assignColors();
+  template <class F>
+  void parallel(size_t count, size_t grain, F&& fn);
+  std::vector<Vec3> dv_, dw_;  ///< position pass (Jacobi) scratch
 };
 
 }  // namespace phys

@@ -205,7 +205,8 @@ Status World::validate(const SolverSettings& s) {
     return invalid("solver.max_position_correction must be > 0");
   if (s.scheme == SolverSettings::Scheme::Jacobi &&
       s.equalitySolve == SolverSettings::EqualitySolve::DirectLdl)
-    return invalid("solver: equality direct_ldl needs scheme gauss_seidel");
+    return invalid("solver: equality direct_ldl needs a Gauss-Seidel scheme");
+  if (!finite(s.tolerance) || s.tolerance < 0) return invalid("solver.tolerance must be >= 0");
   return Status::Ok();
 }
 
@@ -217,6 +218,9 @@ World::World(const WorldDef& def) : impl_(std::make_unique<Impl>()) {
   if (!validate(def.solver).ok()) impl_->def.solver = SolverSettings();
   if (!(def.timeStep > 0 && def.timeStep <= 1)) impl_->def.timeStep = 1.0f / 60;
   if (!isFinite(def.gravity)) impl_->def.gravity = WorldDef().gravity;
+  impl_->def.threads = resolveThreadCount(std::clamp(def.threads, 0, 64));
+  if (impl_->def.threads > 1) impl_->pool = std::make_unique<ThreadPool>(impl_->def.threads);
+  impl_->solver.pool = impl_->pool.get();
 }
 World::~World() = default;
 
@@ -760,9 +764,11 @@ void World::stepOnce(int substeps) {
   }
   const float equalityBias = Solver::equalityBiasRate(s, h);
   auto iterate = [&](bool useBias) {
-    solver.solveIteration(s, h, useBias, direct);
+    float change = solver.solveIteration(s, h, useBias, direct);
     if (direct) w.ldl.solve(solver, equalityBias, useBias);
+    return change;
   };
+  int iterationsUsed = 0;
   for (int sub = 0; sub < s.substeps; ++sub) {
     {
       StageTimer t(&p.integrateVelocities);
@@ -779,7 +785,11 @@ void World::stepOnce(int substeps) {
     }
     {
       StageTimer t(&p.solve);
-      for (int it = 0; it < s.iterations; ++it) iterate(true);
+      // Convergence control: stop once an iteration barely changes any row's velocity.
+      for (int it = 0; it < s.iterations; ++it) {
+        ++iterationsUsed;
+        if (iterate(true) <= s.tolerance && s.tolerance > 0) break;
+      }
     }
     {
       StageTimer t(&p.integratePositions);
@@ -802,7 +812,7 @@ void World::stepOnce(int substeps) {
   {
     StageTimer t(&p.storeImpulses);
     w.stats.velocityResidual = solver.velocityResidual(h);
-    w.stats.iterationsUsed = s.substeps * s.iterations;
+    w.stats.iterationsUsed = iterationsUsed;
     w.storeImpulses();
   }
   {
@@ -1137,7 +1147,7 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
       }
     }
   }
-  solver.jacobi = s.scheme == SolverSettings::Scheme::Jacobi;
+  solver.scheme = s.scheme;
   solver.indexUnits();
   solver.finishRows(0, solver.rows.size());
 }

@@ -10,6 +10,7 @@
 #include "phys/world.h"
 #include "solver.h"
 #include "solver_ldl.h"
+#include "thread_pool.h"
 
 namespace phys {
 
@@ -98,6 +99,7 @@ struct World::Impl {
   std::vector<Contact> contacts;  ///< sorted by (shapeA, shapeB)
   std::vector<Contact> contactScratch;
   std::unordered_set<uint64_t> noCollide;  ///< body index pairs joined without collideConnected
+  std::unique_ptr<ThreadPool> pool;        ///< null with one thread
   Solver solver;
   EqualityLdl ldl;  ///< the joints' direct solve (equality = direct_ldl)
   Snapshot snapshot;

@@ -11,6 +11,7 @@ namespace phys::bench {
 struct SingleOptions {
   std::string scenePath, presetName, presetsPath, jsonOut;
   double seconds = -1;  ///< < 0: the scene's duration
+  int threads = 0;      ///< the world's threads; 0: the machine's
 };
 
 /// Runs one scene and prints its metrics. Exit status: 0 when every criterion of the scene
@@ -26,6 +27,7 @@ struct SuiteOptions {
   double maxSeconds = 0;  ///< simulated seconds per run at most; 0: no limit
   bool quick = false;     ///< at most kQuickSeconds per run
   int jobs = 1;
+  int threads = 0;  ///< each world's threads; 0: the machine's divided among the jobs
   std::string csvOut, markdownOut, docPath;
   bool failOnCriteria = false;
   std::string commandLine;  ///< as typed, printed in the reports

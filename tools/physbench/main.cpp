@@ -62,6 +62,10 @@ int main(int argc, char** argv) {
                                            "simulated seconds (default: the scene's duration)");
   CLI::Option* jsonOpt =
       app.add_option("--json", single.jsonOut, "write the result as JSON to this file");
+  int threads = 0;
+  app.add_option("--threads", threads,
+                 "threads per world (default 0: the machine's; with --jobs, divided among them)")
+      ->check(CLI::Range(0, 64));
 
   // Suite mode.
   CLI::Option* suiteFlag =
@@ -101,9 +105,11 @@ int main(int argc, char** argv) {
     // --scene is required in single-scene mode, as before --suite existed.
     if (single.scenePath.empty()) return app.exit(CLI::RequiredError("--scene"));
     single.presetsPath = presetsPath;
+    single.threads = threads;
     return bench::runSingle(single);
   }
   suite.presetsPath = presetsPath;
+  suite.threads = threads;
   if (suite.scenesDir.empty()) suite.scenesDir = defaultScenesDir();
   suite.commandLine = commandLine(argc, argv);
   return bench::runSuite(suite);

@@ -68,6 +68,7 @@ int runSingle(SingleOptions opt) {
   }
   double seconds = opt.seconds < 0 ? scene.duration : opt.seconds;
 
+  scene.world.threads = opt.threads;
   World world(scene.world);
   std::vector<BodyId> ids;
   st = instantiateScene(scene, &world, &ids);
@@ -87,9 +88,10 @@ int runSingle(SingleOptions opt) {
   bool passed = true;
   for (const CriterionResult& r : results) passed &= r.passed;
 
-  std::printf("scene %s, preset %s, backend cpu, %d bodies, %d joints, %d steps (%.2f s)\n",
-              scene.name.c_str(), usedPreset.c_str(), world.bodyCount(), world.jointCount(), steps,
-              steps * double(scene.world.timeStep));
+  std::printf(
+      "scene %s, preset %s, backend cpu, %d threads, %d bodies, %d joints, %d steps (%.2f s)\n",
+      scene.name.c_str(), usedPreset.c_str(), world.def().threads, world.bodyCount(),
+      world.jointCount(), steps, steps * double(scene.world.timeStep));
   std::printf("  ms/step median %.3f  p99 %.3f\n", m.msPerStepMedian, m.msPerStepP99);
   for (const std::string& name : metricNames()) {
     if (name.rfind("ms_per_step", 0) == 0) continue;
@@ -113,6 +115,7 @@ int runSingle(SingleOptions opt) {
     j["scene"] = scene.name;
     j["preset"] = usedPreset;
     j["backend"] = "cpu";
+    j["threads"] = world.def().threads;
     j["steps"] = steps;
     j["metrics"] = toJson(m);
     j["criteria"] = nlohmann::json::array();

@@ -97,7 +97,7 @@ bool finiteWorld(const World& world, const std::vector<BodyId>& ids) {
 }
 
 /// Runs one job; every failure ends up in job.result (status Error), never thrown.
-void runJob(const SceneEntry& se, Job& job) {
+void runJob(const SceneEntry& se, Job& job, int threads) {
   RunResult& r = job.result;
   r.main = mainMetricFor(se.name);
   if (!job.error.empty()) {
@@ -108,6 +108,7 @@ void runJob(const SceneEntry& se, Job& job) {
   try {
     Scene scene = se.scene;  // a copy per run: the recorder keeps a pointer to it
     scene.world.solver = job.settings->settings;
+    scene.world.threads = threads;
     Status st = World::validate(scene.world.solver);
     if (!st.ok()) throw std::runtime_error("preset " + job.preset + ": " + st.message);
     World world(scene.world);
@@ -411,6 +412,12 @@ int runSuite(const SuiteOptions& opt) {
   Progress progress(jobs, t0);
   progress.begin();
   std::atomic<size_t> next{0};
+  const int nThreads = std::max(1, std::min<int>(opt.jobs, int(jobs.size())));
+  // Each world's threads: as asked, or the machine's shared among the runs in flight.
+  const int worldThreads =
+      opt.threads > 0
+          ? opt.threads
+          : std::max(1, int(std::thread::hardware_concurrency()) / std::max(1, nThreads));
   auto worker = [&] {
     for (size_t n; (n = next.fetch_add(1)) < order.size();) {
       Job& job = jobs[order[n]];
@@ -419,14 +426,13 @@ int runSuite(const SuiteOptions& opt) {
       job.result.plannedSteps = scenes[job.scene].steps;
       job.state.store(1);
       progress.started(job);
-      runJob(scenes[job.scene], job);
+      runJob(scenes[job.scene], job, worldThreads);
       job.result.wallSeconds = secondsSince(job.started);
       job.state.store(2);
       progress.finished(job);
     }
   };
   std::vector<std::thread> threads;
-  const int nThreads = std::max(1, std::min<int>(opt.jobs, int(jobs.size())));
   for (int i = 0; i < nThreads; ++i) threads.emplace_back(worker);
   for (std::thread& t : threads) t.join();
   progress.end();

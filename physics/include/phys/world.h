@@ -104,10 +104,13 @@ struct SolverSettings {
   /// How joints' equality rows are solved: iterated with everything else, or all together
   /// by a sparse LDL^T factorization inside each iteration (rigid rows; for high mass ratios).
   enum class EqualitySolve : uint8_t { Iterative = 0, DirectLdl = 1 };
-  /// Gauss-Seidel sweeps rows in order; Jacobi solves every constraint (a contact manifold,
-  /// a joint) from the same velocities with masses split among a body's constraints
-  /// (Tonge et al. 2012) and averages: order-free, as on a GPU.
-  enum class Scheme : uint8_t { GaussSeidel = 0, Jacobi = 1 };
+  /// Gauss-Seidel sweeps rows in order, on one thread; Jacobi solves every constraint (a
+  /// contact manifold, a joint) from the same velocities with masses split among a body's
+  /// constraints (Tonge et al. 2012) and averages: order-free, as on a GPU, and parallel.
+  /// Colored Gauss-Seidel solves joints in order, then the contacts color by color (no two
+  /// contacts of a color share a dynamic body), each color in parallel. Every scheme gives
+  /// bit-identical results for any thread count.
+  enum class Scheme : uint8_t { GaussSeidel = 0, Jacobi = 1, ColoredGaussSeidel = 2 };
   /// Post-stabilization after the velocity solve: positions projected directly.
   enum class PositionPass : uint8_t { None = 0, NonlinearGaussSeidel = 1, NonlinearJacobi = 2 };
   Scheme scheme = Scheme::GaussSeidel;
@@ -117,6 +120,10 @@ struct SolverSettings {
   float maxPositionCorrection = 0.2f;  ///< m (rad) at most per pass and row
   int substeps = 4;                    ///< >= 1
   int iterations = 3;                  ///< velocity iterations per substep, >= 1
+  /// Convergence control: a substep's velocity iterations stop early once an iteration
+  /// changes no row's velocity by more than this (m/s; rad/s for angular rows). 0: always
+  /// run all `iterations`. StepStats reports the iterations used and the final residual.
+  float tolerance = 0;
   int relaxIterations = 1;  ///< iterations without position bias after each substep, >= 0
   Stabilization stabilization = Stabilization::Soft;
   float baumgarte = 0.2f;  ///< Baumgarte beta, 0..1
@@ -144,6 +151,9 @@ struct WorldDef {
   float speculativeDistance = 0.02f;
   float aabbMargin = 0.05f;  ///< m, broad-phase fattening
   SolverSettings solver;
+  /// Threads for the step's parallel loops, the caller included; 0: the machine's hardware
+  /// threads (at most 8). Results do not depend on it.
+  int threads = 0;
   /// Guard rails: after every step, check for non-finite state, speeds at the clamp and
   /// energy jumps; on a violation roll the step back and redo it with twice the substeps (up
   /// to guardRetries times), then stop the bodies still at fault. Costs a copy of the

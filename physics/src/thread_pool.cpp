@@ -1,0 +1,113 @@
+#include "thread_pool.h"
+
+#include <algorithm>
+
+#if defined(__x86_64__) || defined(__i386__)
+#include <immintrin.h>
+#define PHYS_CPU_PAUSE() _mm_pause()
+#else
+#define PHYS_CPU_PAUSE() ((void)0)
+#endif
+
+namespace phys {
+
+namespace {
+// Spin this many pause instructions (a hundred microseconds or so) before sleeping. The loops
+// of one step are a few microseconds apart; a sleeping worker costs a wake-up at the next
+// loop. Yielding in between was tried: on this VM sched_yield is a costly exit and did not
+// help.
+constexpr int kSpins = 4000;
+}  // namespace
+
+int resolveThreadCount(int requested) {
+  if (requested > 0) return requested;
+  unsigned hw = std::thread::hardware_concurrency();
+  return int(std::clamp(hw, 1u, 8u));
+}
+
+ThreadPool::ThreadPool(int threads) {
+  for (int i = 1; i < threads; ++i) workers_.emplace_back([this] { workerLoop(); });
+}
+
+ThreadPool::~ThreadPool() {
+  {
+    std::lock_guard<std::mutex> lock(sleepMutex_);
+    stop_.store(true);
+  }
+  wake_.notify_all();
+  for (std::thread& t : workers_) t.join();
+}
+
+void ThreadPool::run(size_t count, size_t grain, void* ctx, Invoke invoke) {
+  // A few chunks per thread, so one slow thread (a shared machine) does not hold the rest.
+  const size_t threads = workers_.size() + 1;
+  size_t chunk = std::max(grain, (count + 4 * threads - 1) / (4 * threads));
+  chunk = std::max(chunk, (count + kChunkMask - 1) / kChunkMask);  // chunks fit their field
+  const uint64_t chunks = (count + chunk - 1) / chunk;
+  ctx_ = ctx;
+  invoke_ = invoke;
+  count_ = count;
+  chunk_ = chunk;
+  done_.store(0, std::memory_order_relaxed);
+  ++loop_;
+  const uint64_t work = (loop_ << (2 * kChunkBits)) | (chunks << kChunkBits);
+  // Sequentially consistent with the worker's sleepers_ increment: either the caller sees
+  // the sleeper and wakes it (under the mutex, so the wake-up cannot fall between the
+  // sleeper's check and its wait), or the sleeper sees the new loop.
+  work_.store(work);
+  if (sleepers_.load() > 0) {
+    std::lock_guard<std::mutex> lock(sleepMutex_);
+    wake_.notify_all();
+  }
+  runChunks(work);
+  for (int spin = 0; done_.load(std::memory_order_acquire) < chunks; ++spin) {
+    if (spin < kSpins)
+      PHYS_CPU_PAUSE();
+    else
+      std::this_thread::yield();
+  }
+}
+
+bool ThreadPool::runChunks(uint64_t work) {
+  const uint64_t loop = work >> (2 * kChunkBits);
+  const uint64_t chunks = (work >> kChunkBits) & kChunkMask;
+  bool ran = false;
+  uint64_t w = work_.load(std::memory_order_acquire);
+  for (;;) {
+    if ((w >> (2 * kChunkBits)) != loop || (w & kChunkMask) >= chunks) return ran;
+    if (!work_.compare_exchange_weak(w, w + 1, std::memory_order_acq_rel,
+                                     std::memory_order_acquire))
+      continue;
+    // This chunk is ours: the loop cannot finish, nor its fields change, before it is done.
+    const size_t begin = size_t(w & kChunkMask) * chunk_;
+    invoke_(ctx_, begin, std::min(begin + chunk_, count_));
+    done_.fetch_add(1, std::memory_order_release);
+    ran = true;
+    w = work_.load(std::memory_order_acquire);
+  }
+}
+
+void ThreadPool::workerLoop() {
+  uint64_t seen = 0;  // the last loop this worker looked at
+  auto newLoop = [&] { return (work_.load() >> (2 * kChunkBits)) != (seen >> (2 * kChunkBits)); };
+  for (;;) {
+    bool fresh = newLoop();
+    for (int spin = 0; !fresh && spin < kSpins; ++spin) {
+      PHYS_CPU_PAUSE();
+      fresh = newLoop();
+    }
+    if (!fresh) {
+      // A condition variable, not std::atomic::wait: libstdc++ 12's atomic wait was seen
+      // to lose wake-ups.
+      std::unique_lock<std::mutex> lock(sleepMutex_);
+      sleepers_.fetch_add(1);
+      wake_.wait(lock, [&] { return stop_.load() || newLoop(); });
+      sleepers_.fetch_sub(1);
+    }
+    if (stop_.load()) return;
+    seen = work_.load(std::memory_order_acquire);
+    runChunks(seen);
+  }
+}
+
+}  // namespace phys
