@@ -18,6 +18,7 @@ namespace {
 // (about a microsecond) small, and a color or a loop no larger than one chunk runs inline.
 constexpr size_t kGroupGrain = 32;
 constexpr size_t kBodyGrain = 256;
+constexpr size_t kRowGrain = 512;
 /// Colors of the colored Gauss-Seidel scheme (bits of a mask per body).
 constexpr int kMaxColors = 64;
 
@@ -56,8 +57,14 @@ Softness makeSoftness(float hertz, float zeta, float h) {
 }
 
 void Solver::finishRows(size_t first, size_t last) {
-  for (size_t i = first; i < last; ++i) {
-    Row& r = rows[i];
+  parallel(last - first, kRowGrain, [&](size_t begin, size_t end) {
+    for (size_t i = first + begin; i < first + end; ++i) finishRow(rows[i]);
+  });
+  finishBlocks(first, last);
+}
+
+void Solver::finishRow(Row& r) const {
+  {
     const SolverBody& A = bodies[size_t(r.a)];
     const SolverBody& B = bodies[size_t(r.b)];
     // Jacobi: each constraint sees a body with its mass divided among its constraints.
@@ -71,6 +78,9 @@ void Solver::finishRows(size_t first, size_t last) {
         dot(r.linA, r.mLinA) + dot(r.angA, r.mAngA) + dot(r.linB, r.mLinB) + dot(r.angB, r.mAngB);
     r.effMass = k > 1e-12f ? 1 / k : 0;
   }
+}
+
+void Solver::finishBlocks(size_t first, size_t last) {
   // Block matrices K = J M^-1 J^T of joint row groups (after every row has its M^-1 J^T).
   for (size_t i = first; i < last; ++i) {
     Row& r = rows[i];

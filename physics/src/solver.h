@@ -183,6 +183,8 @@ class Solver {
   void warmStartGroup(const Group& g, Velocity& A, Velocity& B);
   void restitutionGroup(const Group& g, float threshold, Velocity& A, Velocity& B);
   void assignColors();
+  void finishRow(Row& r) const;
+  void finishBlocks(size_t first, size_t last);
   template <class F>
   void parallel(size_t count, size_t grain, F&& fn);
   std::vector<Vec3> dv_, dw_;  ///< position pass (Jacobi) scratch

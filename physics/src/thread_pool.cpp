@@ -1,6 +1,7 @@
 #include "thread_pool.h"
 
 #include <algorithm>
+#include <bit>
 
 #if defined(__x86_64__) || defined(__i386__)
 #include <immintrin.h>
@@ -26,7 +27,7 @@ int resolveThreadCount(int requested) {
 }
 
 ThreadPool::ThreadPool(int threads) {
-  for (int i = 1; i < threads; ++i) workers_.emplace_back([this] { workerLoop(); });
+  for (int i = 1; i < threads; ++i) workers_.emplace_back([this, i] { workerLoop(i); });
 }
 
 ThreadPool::~ThreadPool() {
@@ -39,18 +40,22 @@ ThreadPool::~ThreadPool() {
 }
 
 void ThreadPool::run(size_t count, size_t grain, void* ctx, Invoke invoke) {
-  // A few chunks per thread, so one slow thread (a shared machine) does not hold the rest.
+  // kChunksPerThread chunks per thread: thread t first takes its own contiguous share, so a
+  // thread solves the same constraints and bodies in every pass and they stay in its cache
+  // (moving cache lines between the two cores of this VM costs more than it saves), then
+  // helps with what is left, so a slow or late thread does not hold the loop.
   const size_t threads = workers_.size() + 1;
-  size_t chunk = std::max(grain, (count + 4 * threads - 1) / (4 * threads));
-  chunk = std::max(chunk, (count + kChunkMask - 1) / kChunkMask);  // chunks fit their field
+  const size_t maxChunks = std::min<size_t>(kMaxChunks, kChunksPerThread * threads);
+  const size_t chunk = std::max(grain, (count + maxChunks - 1) / maxChunks);
   const uint64_t chunks = (count + chunk - 1) / chunk;
   ctx_ = ctx;
   invoke_ = invoke;
   count_ = count;
   chunk_ = chunk;
+  chunks_ = chunks;
   done_.store(0, std::memory_order_relaxed);
   ++loop_;
-  const uint64_t work = (loop_ << (2 * kChunkBits)) | (chunks << kChunkBits);
+  const uint64_t work = (loop_ << kLoopShift) | (chunks << kChunksShift);
   // Sequentially consistent with the worker's sleepers_ increment: either the caller sees
   // the sleeper and wakes it (under the mutex, so the wake-up cannot fall between the
   // sleeper's check and its wait), or the sleeper sees the new loop.
@@ -59,7 +64,7 @@ void ThreadPool::run(size_t count, size_t grain, void* ctx, Invoke invoke) {
     std::lock_guard<std::mutex> lock(sleepMutex_);
     wake_.notify_all();
   }
-  runChunks(work);
+  runChunks(work, 0);
   for (int spin = 0; done_.load(std::memory_order_acquire) < chunks; ++spin) {
     if (spin < kSpins)
       PHYS_CPU_PAUSE();
@@ -68,28 +73,37 @@ void ThreadPool::run(size_t count, size_t grain, void* ctx, Invoke invoke) {
   }
 }
 
-bool ThreadPool::runChunks(uint64_t work) {
-  const uint64_t loop = work >> (2 * kChunkBits);
-  const uint64_t chunks = (work >> kChunkBits) & kChunkMask;
-  bool ran = false;
-  uint64_t w = work_.load(std::memory_order_acquire);
-  for (;;) {
-    if ((w >> (2 * kChunkBits)) != loop || (w & kChunkMask) >= chunks) return ran;
-    if (!work_.compare_exchange_weak(w, w + 1, std::memory_order_acq_rel,
-                                     std::memory_order_acquire))
-      continue;
-    // This chunk is ours: the loop cannot finish, nor its fields change, before it is done.
-    const size_t begin = size_t(w & kChunkMask) * chunk_;
-    invoke_(ctx_, begin, std::min(begin + chunk_, count_));
-    done_.fetch_add(1, std::memory_order_release);
-    ran = true;
-    w = work_.load(std::memory_order_acquire);
+void ThreadPool::runChunks(uint64_t work, int self) {
+  const uint64_t loop = work >> kLoopShift;
+  const uint64_t chunks = (work >> kChunksShift) & 0xff;
+  const uint64_t all = (uint64_t(1) << chunks) - 1;
+  // Chunk c belongs to thread c * threads / chunks: contiguous shares in thread order.
+  const uint64_t threads = workers_.size() + 1;
+  uint64_t own = 0;
+  for (uint64_t c = 0; c < chunks; ++c)
+    if (c * threads / chunks == uint64_t(self)) own |= uint64_t(1) << c;
+  for (uint64_t wanted : {own, all}) {
+    uint64_t w = work_.load(std::memory_order_acquire);
+    for (;;) {
+      if ((w >> kLoopShift) != loop) return;
+      const uint64_t free = ~w & all & wanted;
+      if (free == 0) break;
+      const uint64_t bit = free & (~free + 1);  // lowest free chunk
+      if (!work_.compare_exchange_weak(w, w | bit, std::memory_order_acq_rel,
+                                       std::memory_order_acquire))
+        continue;
+      // This chunk is ours: the loop cannot finish, nor its fields change, before it is done.
+      const size_t begin = size_t(std::countr_zero(bit)) * chunk_;
+      invoke_(ctx_, begin, std::min(begin + chunk_, count_));
+      done_.fetch_add(1, std::memory_order_release);
+      w = work_.load(std::memory_order_acquire);
+    }
   }
 }
 
-void ThreadPool::workerLoop() {
+void ThreadPool::workerLoop(int self) {
   uint64_t seen = 0;  // the last loop this worker looked at
-  auto newLoop = [&] { return (work_.load() >> (2 * kChunkBits)) != (seen >> (2 * kChunkBits)); };
+  auto newLoop = [&] { return (work_.load() >> kLoopShift) != (seen >> kLoopShift); };
   for (;;) {
     bool fresh = newLoop();
     for (int spin = 0; !fresh && spin < kSpins; ++spin) {
@@ -106,7 +120,7 @@ void ThreadPool::workerLoop() {
     }
     if (stop_.load()) return;
     seen = work_.load(std::memory_order_acquire);
-    runChunks(seen);
+    runChunks(seen, self);
   }
 }
 

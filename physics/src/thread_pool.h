@@ -49,25 +49,25 @@ class ThreadPool {
  private:
   using Invoke = void (*)(void*, size_t, size_t);
   void run(size_t count, size_t grain, void* ctx, Invoke invoke);
-  /// Claims and runs chunks of the loop `work` names while any are left; false when none
-  /// could be claimed.
-  bool runChunks(uint64_t work);
-  void workerLoop();
+  /// Claims and runs chunks of the loop `work` names while any are left: first those of
+  /// thread `self` (0 is the caller), then any.
+  void runChunks(uint64_t work, int self);
+  void workerLoop(int self);
 
-  // The loop in flight, as one word: (loop number << 40 | chunks << 20 | next chunk). A chunk
-  // is claimed by a compare-and-swap on the whole word, so a worker that wakes late can only
-  // claim chunks of the loop it saw, and only while that loop has chunks left: the caller
-  // never waits for a thread that claimed nothing (on a busy machine a worker may sleep
-  // through whole loops, and the caller then runs them alone).
-  static constexpr int kChunkBits = 20;
-  static constexpr uint64_t kChunkMask = (uint64_t(1) << kChunkBits) - 1;
+  // The loop in flight, as one word: (loop number << 40 | chunks << 32 | claimed-chunk
+  // bits). A chunk is claimed by a compare-and-swap on the whole word, so a worker that wakes
+  // late can only claim chunks of the loop it saw, and only while that loop has chunks left:
+  // the caller never waits for a thread that claimed nothing (on a busy machine a worker may
+  // sleep through whole loops, and the caller then runs them alone).
+  static constexpr int kLoopShift = 40, kChunksShift = 32;
+  static constexpr size_t kMaxChunks = 32, kChunksPerThread = 2;
   alignas(64) std::atomic<uint64_t> work_{0};
   alignas(64) std::atomic<size_t> done_{0};  ///< chunks finished in the current loop
   // The current loop's fields: written before work_ names the loop, stable until its last
   // chunk is done, read only by a thread holding a claimed chunk.
   void* ctx_ = nullptr;
   Invoke invoke_ = nullptr;
-  size_t count_ = 0, chunk_ = 1;
+  size_t count_ = 0, chunk_ = 1, chunks_ = 0;
   uint64_t loop_ = 0;
 
   std::vector<std::thread> workers_;

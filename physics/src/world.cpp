@@ -1039,6 +1039,55 @@ void World::Impl::narrowPhase(float dt) {
   stats.contacts = int(contacts.size());
 }
 
+void World::Impl::contactRowsOf(const Contact& c, const SolverSettings& s) {
+  const int n = c.manifold.count;
+  if (n == 0) return;
+  const BodyRec& A = *bodies.get(c.bodyA);
+  const BodyRec& B = *bodies.get(c.bodyB);
+  const Vec3 normal = c.manifold.normal;
+  Vec3 t1, t2;
+  tangentBasis(normal, &t1, &t2);
+  const int32_t ia = A.solverIndex, ib = B.solverIndex;
+  Vec3 rA[Manifold::kMaxPoints], rB[Manifold::kMaxPoints];
+  Row* out = &solver.rows[size_t(c.firstRow)];
+  for (int k = 0; k < n; ++k) {
+    const ContactPoint& cp = c.manifold.points[k];
+    rA[k] = cp.point - A.com;
+    rB[k] = cp.point - B.com;
+    Row r;
+    r.kind = RowKind::ContactNormal;
+    r.a = ia;
+    r.b = ib;
+    r.linA = -normal;
+    r.angA = -cross(rA[k], normal);
+    r.linB = normal;
+    r.angB = cross(rB[k], normal);
+    r.C0 = cp.separation;
+    r.lambda = s.warmStart ? c.normalImpulse[k] : 0;
+    r.restitution = c.restitution;
+    r.groupStart = k == 0;
+    r.relativeVelocity = dot(normal, (B.v + cross(B.w, rB[k])) - (A.v + cross(A.w, rA[k])));
+    *out++ = r;
+  }
+  for (int k = 0; k < n; ++k) {
+    for (int d = 0; d < 2; ++d) {
+      Vec3 t = d == 0 ? t1 : t2;
+      Row r;
+      r.kind = RowKind::Friction;
+      r.a = ia;
+      r.b = ib;
+      r.linA = -t;
+      r.angA = -cross(rA[k], t);
+      r.linB = t;
+      r.angB = cross(rB[k], t);
+      r.mu = c.friction;
+      r.parent = c.firstRow + k;
+      r.lambda = s.warmStart ? c.tangentImpulse[k][d] : 0;
+      *out++ = r;
+    }
+  }
+}
+
 void World::Impl::buildSolverBodies(const SolverSettings& s) {
   // Prepare: the compact solver bodies (index 0 is the static world), then one row per
   // joint axis and per contact normal and friction direction.
@@ -1098,55 +1147,22 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   }
   stats.joints = jointsBuilt;
 
+  // Contacts: 3 rows per point (normal, two friction directions). Row offsets first, then
+  // the rows in parallel: each thread writes the rows it will solve (see ThreadPool), which
+  // keeps them in its cache.
+  size_t contactRows = solver.rows.size();
   for (Contact& c : contacts) {
-    c.firstRow = -1;
-    const int n = c.manifold.count;
-    if (n == 0) continue;
-    const BodyRec& A = *bodies.get(c.bodyA);
-    const BodyRec& B = *bodies.get(c.bodyB);
-    c.firstRow = int32_t(solver.rows.size());
-    const Vec3 normal = c.manifold.normal;
-    Vec3 t1, t2;
-    tangentBasis(normal, &t1, &t2);
-    const int32_t ia = A.solverIndex, ib = B.solverIndex;
-    Vec3 rA[Manifold::kMaxPoints], rB[Manifold::kMaxPoints];
-    for (int k = 0; k < n; ++k) {
-      const ContactPoint& cp = c.manifold.points[k];
-      rA[k] = cp.point - A.com;
-      rB[k] = cp.point - B.com;
-      Row r;
-      r.kind = RowKind::ContactNormal;
-      r.a = ia;
-      r.b = ib;
-      r.linA = -normal;
-      r.angA = -cross(rA[k], normal);
-      r.linB = normal;
-      r.angB = cross(rB[k], normal);
-      r.C0 = cp.separation;
-      r.lambda = s.warmStart ? c.normalImpulse[k] : 0;
-      r.restitution = c.restitution;
-      r.groupStart = k == 0;
-      r.relativeVelocity = dot(normal, (B.v + cross(B.w, rB[k])) - (A.v + cross(A.w, rA[k])));
-      solver.rows.push_back(r);
-    }
-    for (int k = 0; k < n; ++k) {
-      for (int d = 0; d < 2; ++d) {
-        Vec3 t = d == 0 ? t1 : t2;
-        Row r;
-        r.kind = RowKind::Friction;
-        r.a = ia;
-        r.b = ib;
-        r.linA = -t;
-        r.angA = -cross(rA[k], t);
-        r.linB = t;
-        r.angB = cross(rB[k], t);
-        r.mu = c.friction;
-        r.parent = c.firstRow + k;
-        r.lambda = s.warmStart ? c.tangentImpulse[k][d] : 0;
-        solver.rows.push_back(r);
-      }
-    }
+    c.firstRow = c.manifold.count > 0 ? int32_t(contactRows) : -1;
+    contactRows += size_t(3 * c.manifold.count);
   }
+  solver.rows.resize(contactRows);
+  auto buildContactRows = [&](size_t begin, size_t end) {
+    for (size_t ci = begin; ci < end; ++ci) contactRowsOf(contacts[ci], s);
+  };
+  if (pool)
+    pool->parallelFor(contacts.size(), 64, buildContactRows);
+  else
+    buildContactRows(0, contacts.size());
   solver.scheme = s.scheme;
   solver.indexUnits();
   solver.finishRows(0, solver.rows.size());
