@@ -109,9 +109,11 @@ Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path, 
       st = readNumber(v, p, &s.restitutionThreshold);
     else if (k == "tolerance")
       st = readNumber(v, p, &s.tolerance);
-    else if (k == "warm_start" || k == "restitution") {
+    else if (k == "warm_start" || k == "restitution" || k == "block_contacts") {
       if (!v.is_boolean()) return bad(p + ": must be true or false");
-      (k == "warm_start" ? s.warmStart : s.restitution) = v.get<bool>();
+      (k == "warm_start"    ? s.warmStart
+       : k == "restitution" ? s.restitution
+                            : s.blockContacts) = v.get<bool>();
     } else if (k == "position_iterations") {
       st = readNumber(v, p, &s.positionIterations);
     } else if (k == "position_baumgarte") {
@@ -154,6 +156,7 @@ nlohmann::json solverSettingsToJson(const SolverSettings& s) {
           {"linear_slop", s.linearSlop},
           {"warm_start", s.warmStart},
           {"restitution", s.restitution},
+          {"block_contacts", s.blockContacts},
           {"restitution_threshold", s.restitutionThreshold},
           {"equality", enumName(kEqualitySolves, s.equalitySolve)},
           {"scheme", enumName(kSchemes, s.scheme)},

@@ -81,18 +81,34 @@ void Solver::finishRow(Row& r) const {
 }
 
 void Solver::finishBlocks(size_t first, size_t last) {
-  // Block matrices K = J M^-1 J^T of joint row groups (after every row has its M^-1 J^T).
+  // Block matrices K = J M^-1 J^T of joint row groups and, with the contact block solve, of
+  // manifolds' normal rows (after every row has its M^-1 J^T).
+  auto coupling = [](const Row& ra, const Row& rb) {
+    return dot(ra.linA, rb.mLinA) + dot(ra.angA, rb.mAngA) + dot(ra.linB, rb.mLinB) +
+           dot(ra.angB, rb.mAngB);
+  };
   for (size_t i = first; i < last; ++i) {
     Row& r = rows[i];
+    if (blockContacts && r.kind == RowKind::ContactNormal && r.groupStart) {
+      int n = 1;
+      while (n < 4 && i + size_t(n) < last && rows[i + size_t(n)].kind == RowKind::ContactNormal &&
+             !rows[i + size_t(n)].groupStart)
+        ++n;
+      if (n < 2) continue;
+      std::array<float, 16> K{};
+      for (int a = 0; a < n; ++a)
+        for (int b = 0; b < n; ++b)
+          K[size_t(a * n + b)] = coupling(rows[i + size_t(a)], rows[i + size_t(b)]);
+      r.contactPoints = uint8_t(n);
+      r.blockIndex = int32_t(contactK.size());
+      contactK.push_back(K);
+      continue;
+    }
     if (r.blockSize < 2) continue;
     Mat3 K = Mat3::diagonal({1, 1, 1});
     for (int a = 0; a < r.blockSize; ++a) {
       for (int b = 0; b < r.blockSize; ++b) {
-        const Row& ra = rows[i + size_t(a)];
-        const Row& rb = rows[i + size_t(b)];
-        float kab = dot(ra.linA, rb.mLinA) + dot(ra.angA, rb.mAngA) + dot(ra.linB, rb.mLinB) +
-                    dot(ra.angB, rb.mAngB);
-        (&K.c0)[b][a] = kab;
+        (&K.c0)[b][a] = coupling(rows[i + size_t(a)], rows[i + size_t(b)]);
       }
     }
     // A singular block (e.g. both bodies static) gets zero impulses.
@@ -290,6 +306,10 @@ float Solver::solveGroup(const Group& g, Velocity& A, Velocity& B, const Iterati
     }
     if (r.blockSize > 1) {
       change = std::max(change, solveBlock(i, p, A, B));
+      continue;
+    }
+    if (r.contactPoints > 1 && p.useBias && p.soft && solveContactBlock(i, p, A, B, &change)) {
+      u += r.contactPoints - 1u;  // every normal row is a unit of its own
       continue;
     }
     float vn = rowVelocity(r, A, B);
@@ -499,6 +519,105 @@ void Solver::positionPass(const SolverSettings& s, int iterations, bool jacobiPa
       move(bodies[i], dv_[i] / n, dw_[i] / n);
     }
   }
+}
+
+namespace {
+
+/// Solves the n x n system M x = b (row-major, n <= 4) by Gaussian elimination with partial
+/// pivoting; false if singular.
+bool solveSmall(int n, float M[16], float b[4], float x[4]) {
+  for (int c = 0; c < n; ++c) {
+    int piv = c;
+    for (int r = c + 1; r < n; ++r)
+      if (std::abs(M[r * 4 + c]) > std::abs(M[piv * 4 + c])) piv = r;
+    if (!(std::abs(M[piv * 4 + c]) > 1e-20f)) return false;
+    if (piv != c) {
+      for (int k = 0; k < n; ++k) std::swap(M[c * 4 + k], M[piv * 4 + k]);
+      std::swap(b[c], b[piv]);
+    }
+    for (int r = c + 1; r < n; ++r) {
+      float f = M[r * 4 + c] / M[c * 4 + c];
+      for (int k = c; k < n; ++k) M[r * 4 + k] -= f * M[c * 4 + k];
+      b[r] -= f * b[c];
+    }
+  }
+  for (int r = n - 1; r >= 0; --r) {
+    float v = b[r];
+    for (int k = r + 1; k < n; ++k) v -= M[r * 4 + k] * x[k];
+    x[r] = v / M[r * 4 + r];
+  }
+  return true;
+}
+
+}  // namespace
+
+bool Solver::solveContactBlock(size_t first, const IterationParams& p, Velocity& A, Velocity& B,
+                               float* change) {
+  // The manifold's normal rows as one LCP (Box2D v2's block solver, generalized to 4 points
+  // by enumerating active sets). The soft update of one row, d = -s m (v + b) - i lambda,
+  // is the solution of (K + c K_ii) d = -(v + b) - c K_ii lambda with c = i / s (the
+  // spring's compliance relative to the row's own mass); the block form keeps c K_ii on the
+  // diagonal, which also keeps the 4 coplanar points of a face (rank 3) solvable, and has the
+  // same fixed point as the row-by-row iteration: every iteration reaches it for the
+  // manifold at once. Find x = lambda + d >= 0 with w = (K + cD) x + q >= 0, x . w = 0,
+  // q = v + b - K lambda.
+  const int n = rows[first].contactPoints;
+  const std::array<float, 16>& K = contactK[size_t(rows[first].blockIndex)];
+  const float c = p.contactSoft.impulseScale / p.contactSoft.massScale;
+  float q[4], lambda[4];
+  for (int k = 0; k < n; ++k) {
+    const Row& r = rows[first + size_t(k)];
+    const float C = rowError(r);
+    if (C > 0) return false;  // speculative (apart): rigid, solved row by row
+    const float bias = std::max(p.contactSoft.biasRate * C, -p.maxPushout);
+    q[k] = rowVelocity(r, A, B) + bias;
+    lambda[k] = r.lambda;
+  }
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; j < n; ++j) q[i] -= K[size_t(i * n + j)] * lambda[j];
+  // Active sets from all points down to none; the first that is consistent wins.
+  float x[4] = {0, 0, 0, 0};
+  bool found = false;
+  for (int mask = (1 << n) - 1; mask >= 0 && !found; --mask) {
+    int idx[4], m = 0;
+    for (int k = 0; k < n; ++k)
+      if (mask & (1 << k)) idx[m++] = k;
+    float M[16], rhs[4], xa[4] = {0, 0, 0, 0};
+    for (int a = 0; a < m; ++a) {
+      for (int b = 0; b < m; ++b) {
+        float kab = K[size_t(idx[a] * n + idx[b])];
+        M[a * 4 + b] = a == b ? kab * (1 + c) : kab;
+      }
+      rhs[a] = -q[idx[a]];
+    }
+    if (m > 0 && !solveSmall(m, M, rhs, xa)) continue;
+    bool ok = true;
+    float trial[4] = {0, 0, 0, 0};
+    for (int a = 0; a < m; ++a) {
+      ok &= xa[a] >= 0;
+      trial[idx[a]] = xa[a];
+    }
+    for (int i = 0; i < n && ok; ++i) {
+      if (mask & (1 << i)) continue;
+      float w = q[i];
+      for (int j = 0; j < n; ++j) w += K[size_t(i * n + j)] * trial[j];
+      ok &= w >= 0;
+    }
+    if (!ok) continue;
+    std::copy(trial, trial + 4, x);
+    found = true;
+  }
+  if (!found) return false;
+  for (int k = 0; k < n; ++k) {
+    Row& r = rows[first + size_t(k)];
+    const float d = x[k] - r.lambda;
+    r.lambda = x[k];
+    r.maxLambda = std::max(r.maxLambda, x[k]);
+    if (d == 0) continue;
+    applyImpulse(r, d, A, B);
+    if (p.measure && r.effMass > 0) *change = std::max(*change, std::abs(d) / r.effMass);
+  }
+  return true;
 }
 
 float Solver::solveFrictionPair(Row& r1, Row& r2, Velocity& A, Velocity& B, bool measure) {

@@ -10,6 +10,7 @@
 // scheme runs over the same array.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <vector>
 
@@ -73,6 +74,9 @@ struct Row {
   /// solved together as a block: on the block's first row, the row count and the index of
   /// the block's inverse K in Solver::blockInvK.
   uint8_t blockSize = 0;
+  /// On a manifold's first normal row with the contact block solve: its point count (2-4),
+  /// with blockIndex the index of its K in Solver::contactK.
+  uint8_t contactPoints = 0;
   int32_t blockIndex = -1;
   RowKind kind = RowKind::Equality;
   /// First row of a constraint (a joint, a contact manifold): the unit of the Jacobi scheme,
@@ -105,6 +109,9 @@ class Solver {
   ThreadPool* pool = nullptr;   ///< parallel loops (colors, Jacobi, bodies); null: serial
   std::vector<float> split;     ///< per body: constraints sharing its mass (Jacobi), else 1
   std::vector<Mat3> blockInvK;  ///< inverse of J M^-1 J^T per row block (2x2 padded to 3x3)
+  /// Contact block solve: the normal rows of a manifold (2-4 points) solved together.
+  bool blockContacts = false;                   ///< set before finishRows
+  std::vector<std::array<float, 16>> contactK;  ///< K = J M^-1 J^T of a manifold, row-major
 
   // Colored Gauss-Seidel: joint groups first, serially in order (a chain converges along
   // its length in one sweep), then the contact groups color by color: no two groups of a
@@ -180,6 +187,10 @@ class Solver {
   float solveGroup(const Group& g, Velocity& A, Velocity& B, const IterationParams& p);
   float solveFrictionPair(Row& r1, Row& r2, Velocity& A, Velocity& B, bool measure);
   float solveBlock(size_t first, const IterationParams& p, Velocity& A, Velocity& B);
+  /// The normal rows of a manifold at `first` as one small LCP; false when it does not apply
+  /// (a speculative point) or no active set solves it, and the rows are solved one by one.
+  bool solveContactBlock(size_t first, const IterationParams& p, Velocity& A, Velocity& B,
+                         float* change);
   void warmStartGroup(const Group& g, Velocity& A, Velocity& B);
   void restitutionGroup(const Group& g, float threshold, Velocity& A, Velocity& B);
   void assignColors();

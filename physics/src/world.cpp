@@ -1095,6 +1095,8 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   solver.bodies.clear();
   solver.rows.clear();
   solver.blockInvK.clear();
+  solver.contactK.clear();
+  solver.blockContacts = s.blockContacts;
   solver.bodies.push_back(SolverBody{});
   int awake = 0;
   for (uint32_t i = 0; i < bodies.capacity(); ++i) {

@@ -139,6 +139,9 @@ struct SolverSettings {
   bool restitution = true;
   float restitutionThreshold = 1;  ///< m/s, approach speed below which no bounce
   EqualitySolve equalitySolve = EqualitySolve::Iterative;
+  /// Contact block solve: the 2-4 normal rows of a manifold solved together as one small LCP
+  /// in every biased iteration (soft stabilization; speculative manifolds go row by row).
+  bool blockContacts = false;
 };
 
 struct WorldDef {
