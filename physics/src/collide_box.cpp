@@ -142,7 +142,29 @@ bool collideBoxBox(const ShapeGeom& a, const Transform& xa, const ShapeGeom& b, 
     return sepE < margin;
   };
   bool haveEdge = sepE > kNegInf;
-  if (haveEdge && beats(sepE, maxf(sepA, sepB), kEdgeRelTol, kEdgeAbsTol)) return edgeContact();
+  if (haveEdge && beats(sepE, maxf(sepA, sepB), kEdgeRelTol, kEdgeAbsTol)) {
+    // An edge axis close to a face normal is a face meeting a nearly parallel face across the
+    // other's rim, not two crossed edges. The single point where the rims cross cannot hold the
+    // rest of the face: a box tumbling onto another swung it through within one step (10+ cm
+    // deep in piles). Clipping that face keeps the whole contact region, each point with its
+    // own gap, the rim crossing among them.
+    Vec3 n = cross(A.ax[edgeI], B.ax[edgeJ]) * edgeSign;  // length sqrt(len2), A to B
+    int faceA = 0, faceB = 0;
+    float dotA = 0, dotB = 0;
+    for (int k = 0; k < 3; ++k) {
+      float da = dot(n, A.ax[k]), db = dot(n, B.ax[k]);
+      if (std::fabs(da) > std::fabs(dotA)) dotA = da, faceA = k;
+      if (std::fabs(db) > std::fabs(dotB)) dotB = db, faceB = k;
+    }
+    float minDot = kEdgeFaceCos * length(n);
+    if (std::fabs(dotA) >= minDot) {
+      if (boxFaceContact(A, B, faceA, dotA < 0 ? -1.0f : 1.0f, false, margin, out)) return true;
+    } else if (std::fabs(dotB) >= minDot) {
+      // B's reference normal points from B to A: against n.
+      if (boxFaceContact(B, A, faceB, dotB < 0 ? 1.0f : -1.0f, true, margin, out)) return true;
+    }
+    return edgeContact();
+  }
   // Prefer A's face unless B's is clearly better, so the reference face does not flip-flop.
   bool refB = beats(sepB, sepA, kFaceRelTol, kFaceAbsTol);
   if (refB ? boxFaceContact(B, A, axisB, signB, true, margin, out)

@@ -48,6 +48,12 @@ constexpr float kEdgeRelTol = 0.05f, kEdgeAbsTol = 0.0005f;  // an edge pair ove
 inline bool beats(float candidate, float best, float rel, float abs) {
   return candidate > best + rel * std::fabs(best) + abs;
 }
+// An edge-edge axis within this cosine (about 8 degrees) of a face normal is taken as that face's
+// contact instead: two nearly parallel faces, or an edge lying along a face, meeting over the
+// other's rim. Depths along the face normal then differ from those along the edge axis by about
+// 1 %, well inside kEdgeRelTol; much wider angles tilt the normal enough to let sliding boxes
+// wedge into each other.
+constexpr float kEdgeFaceCos = 0.99f;
 // Clipping keeps incident vertices up to this far outside the reference face (m), so a box
 // sitting flush on an equal box keeps its corner ids instead of flickering to clip points.
 constexpr float kClipSlop = 1e-3f;

@@ -294,8 +294,26 @@ bool collidePolyPoly(const ShapeGeom& a, const Transform& xa, const ShapeGeom& b
     return ee.sep < margin;
   };
   bool haveEdge = ee.ea >= 0;
-  if (haveEdge && beats(ee.sep, maxf(fa.sep, fb.sep), kEdgeRelTol, kEdgeAbsTol))
+  if (haveEdge && beats(ee.sep, maxf(fa.sep, fb.sep), kEdgeRelTol, kEdgeAbsTol)) {
+    // As in collideBoxBox: an edge axis close to a face normal is nearly parallel faces meeting
+    // over a rim; that face's clipped contact holds the whole face, one rim point does not.
+    int faceA = -1, faceB = -1;
+    float dotA = kEdgeFaceCos, dotB = kEdgeFaceCos;
+    for (int f = 0; f < A.nf; ++f) {
+      float d = dot(A.n[f], ee.n);
+      if (d >= dotA) dotA = d, faceA = f;
+    }
+    for (int f = 0; f < B.nf; ++f) {
+      float d = -dot(B.n[f], ee.n);
+      if (d >= dotB) dotB = d, faceB = f;
+    }
+    if (faceA >= 0) {
+      if (polyFaceContact(A, B, faceA, false, margin, s, out)) return true;
+    } else if (faceB >= 0) {
+      if (polyFaceContact(B, A, faceB, true, margin, s, out)) return true;
+    }
     return edgeContact();
+  }
   // Prefer A's face unless B's is clearly better, so the reference face does not flip-flop.
   bool refB = beats(fb.sep, fa.sep, kFaceRelTol, kFaceAbsTol);
   if (refB ? polyFaceContact(B, A, fb.face, true, margin, s, out)
