@@ -1049,7 +1049,6 @@ void World::Impl::contactRowsOf(const Contact& c, const SolverSettings& s) {
   tangentBasis(normal, &t1, &t2);
   const int32_t ia = A.solverIndex, ib = B.solverIndex;
   Vec3 rA[Manifold::kMaxPoints], rB[Manifold::kMaxPoints];
-  Row* out = &solver.rows[size_t(c.firstRow)];
   for (int k = 0; k < n; ++k) {
     const ContactPoint& cp = c.manifold.points[k];
     rA[k] = cp.point - A.com;
@@ -1067,7 +1066,7 @@ void World::Impl::contactRowsOf(const Contact& c, const SolverSettings& s) {
     r.restitution = c.restitution;
     r.groupStart = k == 0;
     r.relativeVelocity = dot(normal, (B.v + cross(B.w, rB[k])) - (A.v + cross(A.w, rA[k])));
-    *out++ = r;
+    solver.rows.push_back(r);
   }
   for (int k = 0; k < n; ++k) {
     for (int d = 0; d < 2; ++d) {
@@ -1083,7 +1082,7 @@ void World::Impl::contactRowsOf(const Contact& c, const SolverSettings& s) {
       r.mu = c.friction;
       r.parent = c.firstRow + k;
       r.lambda = s.warmStart ? c.tangentImpulse[k][d] : 0;
-      *out++ = r;
+      solver.rows.push_back(r);
     }
   }
 }
@@ -1121,7 +1120,11 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
       sb.torque = b.torque;
       sb.linearDamping = b.linearDamping;
       sb.angularDamping = b.angularDamping;
-      sb.gyroscopic = b.gyroscopic;
+      // Equal principal moments (a cube, a sphere) have no gyroscopic torque: w x I w = 0,
+      // and the plain rotation update is then exact.
+      const Vec3 I = b.principalMoments;
+      const float spread = std::max({I.x, I.y, I.z}) - std::min({I.x, I.y, I.z});
+      sb.gyroscopic = b.gyroscopic && spread > 1e-5f * std::max({I.x, I.y, I.z});
       sb.principal = b.principal;
       sb.principalMoments = b.principalMoments;
     }
@@ -1149,22 +1152,13 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   }
   stats.joints = jointsBuilt;
 
-  // Contacts: 3 rows per point (normal, two friction directions). Row offsets first, then
-  // the rows in parallel: each thread writes the rows it will solve (see ThreadPool), which
-  // keeps them in its cache.
-  size_t contactRows = solver.rows.size();
+  // Contacts: 3 rows per point (normal, two friction directions). Built serially: building
+  // them in parallel needs the vector sized first, and value-initializing 28,000 rows of
+  // 160 bytes (pyramid_40) cost more than the parallel build saved.
   for (Contact& c : contacts) {
-    c.firstRow = c.manifold.count > 0 ? int32_t(contactRows) : -1;
-    contactRows += size_t(3 * c.manifold.count);
+    c.firstRow = c.manifold.count > 0 ? int32_t(solver.rows.size()) : -1;
+    contactRowsOf(c, s);
   }
-  solver.rows.resize(contactRows);
-  auto buildContactRows = [&](size_t begin, size_t end) {
-    for (size_t ci = begin; ci < end; ++ci) contactRowsOf(contacts[ci], s);
-  };
-  if (pool)
-    pool->parallelFor(contacts.size(), 64, buildContactRows);
-  else
-    buildContactRows(0, contacts.size());
   solver.scheme = s.scheme;
   solver.indexUnits();
   solver.finishRows(0, solver.rows.size());

@@ -122,7 +122,7 @@ struct World::Impl {
   void broadPhaseStage();
   void narrowPhase(float h);
   void buildSolverBodies(const SolverSettings& s);  ///< s: this step's (substeps may differ)
-  void contactRowsOf(const Contact& c, const SolverSettings& s);  ///< at c.firstRow
+  void contactRowsOf(const Contact& c, const SolverSettings& s);  ///< appended
   void refreshJoints(float h);
   void storeImpulses();  ///< rows' impulses back to contacts and joints (warm starting)
   // Guard rails (world.cpp).
