@@ -418,6 +418,7 @@ int runSuite(const SuiteOptions& opt) {
       opt.threads > 0
           ? opt.threads
           : std::max(1, int(std::thread::hardware_concurrency()) / std::max(1, nThreads));
+  rep.worldThreads = worldThreads;
   auto worker = [&] {
     for (size_t n; (n = next.fetch_add(1)) < order.size();) {
       Job& job = jobs[order[n]];

@@ -53,7 +53,8 @@ struct SuiteReport {
   std::string defaultPreset;
   std::vector<RunResult> runs;  ///< rows x columns, row-major
   double wallSeconds = 0;
-  int errors = 0;  ///< runs that could not be executed
+  int errors = 0;        ///< runs that could not be executed
+  int worldThreads = 1;  ///< threads of each run's World
 };
 
 /// The Markdown block: command, machine, date, the table and the failed criteria.

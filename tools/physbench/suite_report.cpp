@@ -177,7 +177,8 @@ std::string markdownReport(const SuiteReport& r) {
      << (o.jobs == 1 ? std::string("one at a time (--jobs 1)")
                      : std::to_string(o.jobs) + " in parallel threads (--jobs " +
                            std::to_string(o.jobs) + "; timings share the cores)")
-     << ", " << durationText(r.wallSeconds) << " in all\n";
+     << ", " << r.worldThreads << (r.worldThreads == 1 ? " thread" : " threads") << " per World, "
+     << durationText(r.wallSeconds) << " in all\n";
   md << "- Presets: `" << shortPath(o.presetsPath) << "` as it was at the run (default `"
      << r.defaultPreset << "`); one World per run";
   std::vector<std::string> limits;
