@@ -592,17 +592,20 @@ bool Solver::solveContactBlock(size_t first, const IterationParams& p, Velocity&
       rhs[a] = -q[idx[a]];
     }
     if (m > 0 && !solveSmall(m, M, rhs, xa)) continue;
+    // Feasibility up to rounding: a point carrying no load (x and w both about 0, a box
+    // rocking onto an edge) must not fail every active set.
     bool ok = true;
     float trial[4] = {0, 0, 0, 0};
     for (int a = 0; a < m; ++a) {
-      ok &= xa[a] >= 0;
-      trial[idx[a]] = xa[a];
+      const float scale = std::abs(q[idx[a]]) / K[size_t(idx[a] * n + idx[a])];
+      ok &= xa[a] >= -1e-5f * scale;
+      trial[idx[a]] = std::max(xa[a], 0.0f);
     }
     for (int i = 0; i < n && ok; ++i) {
       if (mask & (1 << i)) continue;
       float w = q[i];
       for (int j = 0; j < n; ++j) w += K[size_t(i * n + j)] * trial[j];
-      ok &= w >= 0;
+      ok &= w >= -1e-5f * std::abs(q[i]);
     }
     if (!ok) continue;
     std::copy(trial, trial + 4, x);

@@ -63,8 +63,8 @@ bool EqualityLdl::factor(const Solver& s) {
   return ok_;
 }
 
-void EqualityLdl::solve(Solver& s, float biasRate, bool useBias) {
-  if (!ok_) return;
+float EqualityLdl::solve(Solver& s, float biasRate, bool useBias) {
+  if (!ok_) return 0;
   const int n = int(rows_.size());
   rhs_.resize(n);
   for (int k = 0; k < n; ++k) {
@@ -72,13 +72,16 @@ void EqualityLdl::solve(Solver& s, float biasRate, bool useBias) {
     rhs_[k] = -(double(s.rowVelocity(r)) + (useBias ? double(biasRate) * s.rowError(r) : 0.0));
   }
   x_ = ldlt_.solve(rhs_);
+  float change = 0;
   for (int k = 0; k < n; ++k) {
     Row& r = s.rows[rows_[size_t(k)]];
     float d = float(x_[k]);
     if (!std::isfinite(d) || d == 0) continue;
     r.lambda += d;
     s.applyImpulse(r, d);
+    if (r.effMass > 0) change = std::max(change, std::abs(d) / r.effMass);
   }
+  return change;
 }
 
 }  // namespace phys

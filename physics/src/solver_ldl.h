@@ -21,8 +21,9 @@ class EqualityLdl {
   /// Returns false if the factorization failed (the caller falls back to iterating).
   bool factor(const Solver& s);
   /// Solves all equality rows at once: d = -A^-1 (J v + biasRate C); rigid rows (no mass or
-  /// impulse softening), whose bias corrects position error at biasRate per second.
-  void solve(Solver& s, float biasRate, bool useBias);
+  /// impulse softening), whose bias corrects position error at biasRate per second. Returns
+  /// the largest velocity change it made to a row, |d| / effMass (the convergence measure).
+  float solve(Solver& s, float biasRate, bool useBias);
   bool empty() const { return rows_.empty(); }
   size_t rowCount() const { return rows_.size(); }
 

@@ -27,16 +27,26 @@ int resolveThreadCount(int requested) {
 }
 
 ThreadPool::ThreadPool(int threads) {
-  for (int i = 1; i < threads; ++i) workers_.emplace_back([this, i] { workerLoop(i); });
+  try {
+    for (int i = 1; i < threads; ++i) workers_.emplace_back([this, i] { workerLoop(i); });
+  } catch (...) {
+    stopWorkers();  // a thread that failed to start: join the others, then report it
+    throw;
+  }
 }
 
 ThreadPool::~ThreadPool() {
+  stopWorkers();
+}
+
+void ThreadPool::stopWorkers() {
   {
     std::lock_guard<std::mutex> lock(sleepMutex_);
     stop_.store(true);
   }
   wake_.notify_all();
   for (std::thread& t : workers_) t.join();
+  workers_.clear();
 }
 
 void ThreadPool::run(size_t count, size_t grain, void* ctx, Invoke invoke) {
@@ -74,7 +84,6 @@ void ThreadPool::run(size_t count, size_t grain, void* ctx, Invoke invoke) {
 }
 
 void ThreadPool::runChunks(uint64_t work, int self) {
-  const uint64_t loop = work >> kLoopShift;
   const uint64_t chunks = (work >> kChunksShift) & 0xff;
   const uint64_t all = (uint64_t(1) << chunks) - 1;
   // Chunk c belongs to thread c * threads / chunks: contiguous shares in thread order.
@@ -85,7 +94,9 @@ void ThreadPool::runChunks(uint64_t work, int self) {
   for (uint64_t wanted : {own, all}) {
     uint64_t w = work_.load(std::memory_order_acquire);
     for (;;) {
-      if ((w >> kLoopShift) != loop) return;
+      // Loop number and chunk count both: after 2^24 loops a number comes back, and a
+      // stalled worker must then not apply this loop's chunk count to another loop.
+      if ((w >> kChunksShift) != (work >> kChunksShift)) return;
       const uint64_t free = ~w & all & wanted;
       if (free == 0) break;
       const uint64_t bit = free & (~free + 1);  // lowest free chunk

@@ -53,6 +53,7 @@ class ThreadPool {
   /// thread `self` (0 is the caller), then any.
   void runChunks(uint64_t work, int self);
   void workerLoop(int self);
+  void stopWorkers();
 
   // The loop in flight, as one word: (loop number << 40 | chunks << 32 | claimed-chunk
   // bits). A chunk is claimed by a compare-and-swap on the whole word, so a worker that wakes
@@ -61,6 +62,7 @@ class ThreadPool {
   // sleep through whole loops, and the caller then runs them alone).
   static constexpr int kLoopShift = 40, kChunksShift = 32;
   static constexpr size_t kMaxChunks = 32, kChunksPerThread = 2;
+  static_assert(kMaxChunks <= kChunksShift, "the claimed-chunk bits end below the count");
   alignas(64) std::atomic<uint64_t> work_{0};
   alignas(64) std::atomic<size_t> done_{0};  ///< chunks finished in the current loop
   // The current loop's fields: written before work_ names the loop, stable until its last

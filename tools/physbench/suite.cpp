@@ -417,7 +417,7 @@ int runSuite(const SuiteOptions& opt) {
   const int worldThreads =
       opt.threads > 0
           ? opt.threads
-          : std::max(1, int(std::thread::hardware_concurrency()) / std::max(1, nThreads));
+          : std::clamp(int(std::thread::hardware_concurrency()) / std::max(1, nThreads), 1, 8);
   rep.worldThreads = worldThreads;
   auto worker = [&] {
     for (size_t n; (n = next.fetch_add(1)) < order.size();) {
