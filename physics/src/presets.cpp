@@ -109,11 +109,14 @@ Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path, 
       st = readNumber(v, p, &s.restitutionThreshold);
     else if (k == "tolerance")
       st = readNumber(v, p, &s.tolerance);
-    else if (k == "warm_start" || k == "restitution" || k == "block_contacts") {
+    else if (k == "warm_start" || k == "restitution" || k == "block_contacts" ||
+             k == "geometric_stiffness") {
       if (!v.is_boolean()) return bad(p + ": must be true or false");
-      (k == "warm_start"    ? s.warmStart
-       : k == "restitution" ? s.restitution
-                            : s.blockContacts) = v.get<bool>();
+      bool* field = k == "warm_start"       ? &s.warmStart
+                    : k == "restitution"    ? &s.restitution
+                    : k == "block_contacts" ? &s.blockContacts
+                                            : &s.geometricStiffness;
+      *field = v.get<bool>();
     } else if (k == "position_iterations") {
       st = readNumber(v, p, &s.positionIterations);
     } else if (k == "position_baumgarte") {
@@ -157,6 +160,7 @@ nlohmann::json solverSettingsToJson(const SolverSettings& s) {
           {"warm_start", s.warmStart},
           {"restitution", s.restitution},
           {"block_contacts", s.blockContacts},
+          {"geometric_stiffness", s.geometricStiffness},
           {"restitution_threshold", s.restitutionThreshold},
           {"equality", enumName(kEqualitySolves, s.equalitySolve)},
           {"scheme", enumName(kSchemes, s.scheme)},

@@ -122,6 +122,8 @@ struct World::Impl {
   void broadPhaseStage();
   void narrowPhase(float h);
   void buildSolverBodies(const SolverSettings& s);  ///< s: this step's (substeps may differ)
+  /// Joints' geometric stiffness added to the solver bodies' inertia (substep h).
+  void addGeometricStiffness(float h);
   void contactRowsOf(const Contact& c, const SolverSettings& s);  ///< appended
   void refreshJoints(float h);
   void storeImpulses();  ///< rows' impulses back to contacts and joints (warm starting)

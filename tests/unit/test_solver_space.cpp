@@ -84,6 +84,7 @@ TEST(SolverSpace, ResidualFallsAsIterationsGrow) {
     for (int iterations : {1, 4, 16, 64}) {
       WorldDef def;
       def.solver.scheme = scheme;
+      def.solver.equalitySolve = SolverSettings::EqualitySolve::Iterative;  // Jacobi needs it
       def.solver.substeps = 1;
       def.solver.iterations = iterations;
       def.solver.relaxIterations = 0;
@@ -93,6 +94,7 @@ TEST(SolverSpace, ResidualFallsAsIterationsGrow) {
       def.solver.stabilization = SolverSettings::Stabilization::Baumgarte;
       def.solver.baumgarte = 0;
       World w(def);
+      ASSERT_EQ(w.def().solver.scheme, scheme);  // not replaced by the defaults as invalid
       test::addGround(w);
       for (int i = 0; i < 10; ++i) {
         BodyDef d;
