@@ -3,11 +3,12 @@
 // Every constraint (contact normal, friction direction, joint axis, limit, motor, spring) is
 // one scalar row: a Jacobian J = (linA, angA, linB, angB), a position error C at the start of
 // the step, bounds on its accumulated impulse, and the softness class that turns C into a
-// velocity bias. Rows never change inside a step; the position error inside a substep is
+// velocity bias. Contact rows never change inside a step (joint rows are rebuilt per substep,
+// see joints.h); the position error inside a substep is
 // C0 + J . (dpB, dthetaB, dpA, dthetaA) from the bodies' accumulated position deltas (the TGS
 // linearization), so no collision detection or Jacobian rebuild happens between substeps.
-// The scheme (here: projected Gauss-Seidel) is separate from the rows: a later Jacobi or LDL
-// scheme runs over the same array.
+// The schemes (Gauss-Seidel, colored Gauss-Seidel, Jacobi with mass splitting; see
+// forEachGroup) and the LDL joint solve (solver_ldl.h) all run over the same array.
 #pragma once
 
 #include <array>
@@ -119,7 +120,7 @@ class Solver {
   // matter. Groups left when the colors run out are solved serially at the end.
   std::vector<uint32_t> serialGroups;  ///< joints, and the overflow of the colors
   std::vector<uint32_t> colorGroups;   ///< contact groups sorted by color
-  std::vector<uint32_t> colorStart;    ///< colorGroups range of color c: [c], [c+1])
+  std::vector<uint32_t> colorStart;    ///< color c: colorGroups[colorStart[c], colorStart[c+1])
   size_t overflowBegin = 0;            ///< serialGroups from here run after the colors
   // Jacobi: each group's velocity change to its two bodies, gathered per body in group order.
   struct GroupDelta {

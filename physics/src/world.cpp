@@ -1049,18 +1049,23 @@ void World::Impl::contactRowsOf(const Contact& c, const SolverSettings& s) {
   tangentBasis(normal, &t1, &t2);
   const int32_t ia = A.solverIndex, ib = B.solverIndex;
   Vec3 rA[Manifold::kMaxPoints], rB[Manifold::kMaxPoints];
+  // One row along `axis` (from A to B) at point k.
+  auto row = [&](RowKind kind, Vec3 axis, int k) {
+    Row r;
+    r.kind = kind;
+    r.a = ia;
+    r.b = ib;
+    r.linA = -axis;
+    r.angA = -cross(rA[k], axis);
+    r.linB = axis;
+    r.angB = cross(rB[k], axis);
+    return r;
+  };
   for (int k = 0; k < n; ++k) {
     const ContactPoint& cp = c.manifold.points[k];
     rA[k] = cp.point - A.com;
     rB[k] = cp.point - B.com;
-    Row r;
-    r.kind = RowKind::ContactNormal;
-    r.a = ia;
-    r.b = ib;
-    r.linA = -normal;
-    r.angA = -cross(rA[k], normal);
-    r.linB = normal;
-    r.angB = cross(rB[k], normal);
+    Row r = row(RowKind::ContactNormal, normal, k);
     r.C0 = cp.separation;
     r.lambda = s.warmStart ? c.normalImpulse[k] : 0;
     r.restitution = c.restitution;
@@ -1070,15 +1075,7 @@ void World::Impl::contactRowsOf(const Contact& c, const SolverSettings& s) {
   }
   for (int k = 0; k < n; ++k) {
     for (int d = 0; d < 2; ++d) {
-      Vec3 t = d == 0 ? t1 : t2;
-      Row r;
-      r.kind = RowKind::Friction;
-      r.a = ia;
-      r.b = ib;
-      r.linA = -t;
-      r.angA = -cross(rA[k], t);
-      r.linB = t;
-      r.angB = cross(rB[k], t);
+      Row r = row(RowKind::Friction, d == 0 ? t1 : t2, k);
       r.mu = c.friction;
       r.parent = c.firstRow + k;
       r.lambda = s.warmStart ? c.tangentImpulse[k][d] : 0;
