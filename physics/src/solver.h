@@ -195,7 +195,6 @@ class Solver {
   void warmStartGroup(const Group& g, Velocity& A, Velocity& B);
   void restitutionGroup(const Group& g, float threshold, Velocity& A, Velocity& B);
   void assignColors();
-  void finishRow(Row& r) const;
   void finishBlocks(size_t first, size_t last);
   template <class F>
   void parallel(size_t count, size_t grain, F&& fn);

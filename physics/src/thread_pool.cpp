@@ -62,7 +62,6 @@ void ThreadPool::run(size_t count, size_t grain, void* ctx, Invoke invoke) {
   invoke_ = invoke;
   count_ = count;
   chunk_ = chunk;
-  chunks_ = chunks;
   done_.store(0, std::memory_order_relaxed);
   ++loop_;
   const uint64_t work = (loop_ << kLoopShift) | (chunks << kChunksShift);

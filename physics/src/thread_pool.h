@@ -69,7 +69,7 @@ class ThreadPool {
   // chunk is done, read only by a thread holding a claimed chunk.
   void* ctx_ = nullptr;
   Invoke invoke_ = nullptr;
-  size_t count_ = 0, chunk_ = 1, chunks_ = 0;
+  size_t count_ = 0, chunk_ = 1;
   uint64_t loop_ = 0;
 
   std::vector<std::thread> workers_;

@@ -1108,7 +1108,8 @@ void World::Impl::addGeometricStiffness(float h) {
   for (size_t i = 1; i < solver.bodies.size(); ++i) {
     if (!(k[i] > 0)) continue;
     SolverBody& sb = solver.bodies[i];
-    Mat3 I = inverse(sb.invI);
+    const Mat3 R = toMat3(sb.q);
+    Mat3 I = R * sb.inertiaLocal * transpose(R);  // world inertia, as invI was made
     const float add = h * h * k[i];
     I.c0.x += add;
     I.c1.y += add;
