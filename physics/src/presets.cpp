@@ -110,11 +110,12 @@ Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path, 
     else if (k == "tolerance")
       st = readNumber(v, p, &s.tolerance);
     else if (k == "warm_start" || k == "restitution" || k == "block_contacts" ||
-             k == "geometric_stiffness") {
+             k == "geometric_stiffness" || k == "split_pushout") {
       if (!v.is_boolean()) return bad(p + ": must be true or false");
       bool* field = k == "warm_start"       ? &s.warmStart
                     : k == "restitution"    ? &s.restitution
                     : k == "block_contacts" ? &s.blockContacts
+                    : k == "split_pushout"  ? &s.splitPushout
                                             : &s.geometricStiffness;
       *field = v.get<bool>();
     } else if (k == "position_iterations") {
@@ -160,6 +161,7 @@ nlohmann::json solverSettingsToJson(const SolverSettings& s) {
           {"warm_start", s.warmStart},
           {"restitution", s.restitution},
           {"block_contacts", s.blockContacts},
+          {"split_pushout", s.splitPushout},
           {"geometric_stiffness", s.geometricStiffness},
           {"restitution_threshold", s.restitutionThreshold},
           {"equality", enumName(kEqualitySolves, s.equalitySolve)},

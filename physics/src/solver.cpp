@@ -13,6 +13,10 @@
 namespace phys {
 
 namespace {
+// Split push-out: the soft contact's own bias corrects penetration up to this depth (a
+// resting contact's sag, so stacks behave exactly as without the split); the pseudo
+// velocities push out the rest.
+constexpr float kSplitDepth = 0.01f;
 // Parallel chunk sizes: a contact group (a 4-point manifold with friction) takes a fraction
 // of a microsecond, a body's integration much less. A loop no larger
 // than one chunk runs inline: on this 2-core VM, waking the other core for a loop of a few
@@ -36,6 +40,7 @@ struct Solver::IterationParams {
   Softness contactSoft, jointSoft;
   float h = 0, invH = 0, linearSlop = 0, maxPushout = 0;
   bool soft = true, useBias = true, skipEquality = false;
+  bool splitPushout = false;  ///< penetration is resolved by solvePushout, not here
   bool measure = false;  ///< compute the convergence measure
 };
 
@@ -169,8 +174,11 @@ void Solver::integrateVelocities(float h, float maxLinearSpeed, float maxAngular
 }
 
 template <class F>
-float Solver::forEachGroup(F&& f) {
+float Solver::forEachGroup(F&& f, bool pushChannel) {
   std::atomic<float> result{0};
+  auto vel = [&](size_t i) -> Velocity& {
+    return pushChannel ? push[i] : static_cast<Velocity&>(bodies[i]);
+  };
   if (jacobi()) {
     // Every group from the same velocities, on its own copy of its two bodies; each body
     // then moves by the average of its groups' changes (the rows' M^-1 J^T carry the split),
@@ -180,7 +188,7 @@ float Solver::forEachGroup(F&& f) {
       float m = 0;
       for (size_t gi = begin; gi < end; ++gi) {
         const Group& g = groups[gi];
-        const Velocity a0 = bodies[size_t(g.a)], b0 = bodies[size_t(g.b)];
+        const Velocity a0 = vel(size_t(g.a)), b0 = vel(size_t(g.b));
         Velocity a = a0, b = b0;
         m = std::max(m, f(g, a, b));
         groupDelta[gi] = {{a.v - a0.v, a.w - a0.w}, {b.v - b0.v, b.w - b0.w}};
@@ -196,15 +204,15 @@ float Solver::forEachGroup(F&& f) {
           dv += side.v;
           dw += side.w;
         }
-        bodies[i].v += dv / split[i];
-        bodies[i].w += dw / split[i];
+        vel(i).v += dv / split[i];
+        vel(i).w += dw / split[i];
       }
     });
     return result.load();
   }
   auto serial = [&](uint32_t gi) {
     const Group& g = groups[gi];
-    return f(g, bodies[size_t(g.a)], bodies[size_t(g.b)]);
+    return f(g, vel(size_t(g.a)), vel(size_t(g.b)));
   };
   float m = 0;
   if (scheme == SolverSettings::Scheme::GaussSeidel) {
@@ -222,11 +230,11 @@ float Solver::forEachGroup(F&& f) {
         const Group& g = groups[colorGroups[first + k]];
         // Bodies shared inside a color (the world, kinematic bodies) are never written:
         // their constraints get a scratch copy.
-        SolverBody& A = bodies[size_t(g.a)];
-        SolverBody& B = bodies[size_t(g.b)];
+        Velocity& A = vel(size_t(g.a));
+        Velocity& B = vel(size_t(g.b));
         Velocity sa = A, sb = B;
-        cm = std::max(cm, f(g, A.dynamic ? static_cast<Velocity&>(A) : sa,
-                            B.dynamic ? static_cast<Velocity&>(B) : sb));
+        cm = std::max(cm, f(g, bodies[size_t(g.a)].dynamic ? A : sa,
+                            bodies[size_t(g.b)].dynamic ? B : sb));
       }
       atomicMax(result, cm);
     });
@@ -286,6 +294,7 @@ float Solver::solveIteration(const SolverSettings& s, float h, bool useBias, boo
   p.linearSlop = s.linearSlop;
   p.maxPushout = s.maxPushout;
   p.useBias = useBias;
+  p.splitPushout = s.splitPushout;
   p.skipEquality = skipEquality;
   p.measure = s.tolerance > 0;
   return forEachGroup(
@@ -306,7 +315,8 @@ float Solver::solveGroup(const Group& g, Velocity& A, Velocity& B, const Iterati
       change = std::max(change, solveBlock(i, p, A, B));
       continue;
     }
-    if (r.contactPoints > 1 && p.useBias && p.soft && solveContactBlock(i, p, A, B, &change)) {
+    if (r.contactPoints > 1 && p.useBias && p.soft && !p.splitPushout &&
+        solveContactBlock(i, p, A, B, &change)) {
       u += r.contactPoints - 1u;  // every normal row is a unit of its own
       continue;
     }
@@ -324,6 +334,8 @@ float Solver::solveGroup(const Group& g, Velocity& A, Velocity& B, const Iterati
           // slop there only lets bodies sink into each other by that much.
           float slop = !p.soft && r.kind == RowKind::ContactNormal ? p.linearSlop : 0;
           float Cs = std::min(0.0f, C + slop);
+          // Split push-out: deeper than a resting sag is solvePushout's.
+          if (p.splitPushout && r.kind == RowKind::ContactNormal) Cs = std::max(Cs, -kSplitDepth);
           bias = std::max(p.contactSoft.biasRate * Cs, -p.maxPushout);
           massScale = p.contactSoft.massScale;
           impulseScale = p.contactSoft.impulseScale;
@@ -695,16 +707,74 @@ void Solver::integratePositions(float h) {
   parallel(bodies.size(), kBodyGrain, [&](size_t begin, size_t end) {
     for (size_t i = std::max<size_t>(begin, 1); i < end; ++i) {
       SolverBody& b = bodies[i];
-      b.dp += b.v * h;
       Quat q0 = b.q;
-      if (b.dynamic && b.gyroscopic) {
-        rotateFree(b, h);
+      if (pushActive && (push[i].v != Vec3{} || push[i].w != Vec3{})) {
+        // Pushed out this substep: the pseudo velocity moves the body, the velocity stays
+        // (plain rotation here: a buried body's gyroscopic term is not what matters).
+        b.dp += (b.v + push[i].v) * h;
+        b.q = integrateRotation(b.q, b.w + push[i].w, h);
       } else {
-        b.q = integrateRotation(b.q, b.w, h);
+        b.dp += b.v * h;
+        if (b.dynamic && b.gyroscopic) {
+          rotateFree(b, h);
+        } else {
+          b.q = integrateRotation(b.q, b.w, h);
+        }
       }
       b.dtheta += rotationVector(b.q * conjugate(q0));
     }
   });
+  pushActive = false;
+}
+
+void Solver::solvePushout(const SolverSettings& s, float h, int iterations) {
+  push.assign(bodies.size(), Velocity{});
+  pushActive = true;
+  // Warm start from the last substep's push impulses (zero at the step's first substep).
+  forEachGroup(
+      [&](const Group& g, Velocity& A, Velocity& B) {
+        size_t begin, end;
+        groupRows(*this, g, &begin, &end);
+        for (size_t i = begin; i < end; ++i)
+          if (rows[i].pushLambda != 0) applyImpulse(rows[i], rows[i].pushLambda, A, B);
+        return 0.0f;
+      },
+      /*pushChannel=*/true);
+  IterationParams p;
+  p.h = h;
+  p.invH = 1 / h;
+  p.contactSoft = makeSoftness(std::min(s.contactHertz, 0.25f * p.invH), s.contactDampingRatio, h);
+  p.maxPushout = s.maxPushout;
+  for (int it = 0; it < iterations; ++it)
+    forEachGroup(
+        [&](const Group& g, Velocity& A, Velocity& B) { return pushoutGroup(g, A, B, p); },
+        /*pushChannel=*/true);
+}
+
+float Solver::pushoutGroup(const Group& g, Velocity& A, Velocity& B, const IterationParams& p) {
+  // The soft contact's position bias, on the pseudo velocities alone (Catto's split
+  // impulses with the soft step's spring): J v_push = -bias with a separate impulse >= 0.
+  size_t begin, end;
+  groupRows(*this, g, &begin, &end);
+  for (size_t i = begin; i < end; ++i) {
+    Row& r = rows[i];
+    if (r.kind != RowKind::ContactNormal) continue;
+    const float C = rowError(r) + kSplitDepth;
+    if (C >= 0 && r.pushLambda == 0) continue;
+    float bias = 0, massScale = 1, impulseScale = 0;
+    if (C < 0) {
+      bias = std::max(p.contactSoft.biasRate * C, -p.maxPushout);
+      massScale = p.contactSoft.massScale;
+      impulseScale = p.contactSoft.impulseScale;
+    }
+    const float vn = rowVelocity(r, A, B);
+    float impulse = -r.effMass * massScale * (vn + bias) - impulseScale * r.pushLambda;
+    const float next = std::max(r.pushLambda + impulse, 0.0f);
+    impulse = next - r.pushLambda;
+    r.pushLambda = next;
+    if (impulse != 0) applyImpulse(r, impulse, A, B);
+  }
+  return 0;
 }
 
 void Solver::applyRestitution(float threshold) {

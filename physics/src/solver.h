@@ -70,6 +70,7 @@ struct Row {
   float restitution = 0;              ///< normal rows
   float relativeVelocity = 0;         ///< normal rows: J v before the solve
   float maxLambda = 0;                ///< normal rows: largest impulse in the step
+  float pushLambda = 0;               ///< normal rows: split push-out impulse, this substep
   float hertz = 0, dampingRatio = 0;  ///< spring rows
   /// Equality rows of one joint part (a point: 3, a rotation lock: 3, hinge axes: 2) are
   /// solved together as a block: on the block's first row, the row count and the index of
@@ -95,6 +96,11 @@ Softness makeSoftness(float hertz, float zeta, float h);
 class Solver {
  public:
   std::vector<SolverBody> bodies;  ///< [0] is the world
+  /// Split push-out: per body, the pseudo velocity that resolves penetration this substep.
+  /// It moves positions (integratePositions) and is then dropped, so pushing bodies apart
+  /// never becomes kinetic energy. Used by the next integratePositions only (pushActive).
+  std::vector<Velocity> push;
+  bool pushActive = false;
   std::vector<Row> rows;
   std::vector<uint32_t> units;  ///< first row of each solve unit, in row order
   /// A constraint (a joint, a contact manifold): its solve units and its two bodies. The
@@ -150,6 +156,10 @@ class Solver {
   /// Post-stabilization: `iterations` passes projecting positions (contacts, limits, joint
   /// equalities) with the rows' linearized errors; Jacobi averages per body like the solve.
   void positionPass(const SolverSettings& s, int iterations, bool jacobiPass);
+  /// Split push-out: clears the pseudo velocities and impulses, then runs `iterations`
+  /// passes over the penetrating contact rows, on the pseudo velocities only.
+  void solvePushout(const SolverSettings& s, float h, int iterations);
+  /// Advances positions by the velocities (plus the push-out velocities when split).
   void integratePositions(float h);
   void applyRestitution(float threshold);
   /// Norm of the rows' velocity error after the solve (see SOLVER_NOTES "Residual").
@@ -182,10 +192,12 @@ class Solver {
  private:
   struct IterationParams;
   /// Runs f(group, velocityA, velocityB) -> float on every group in the scheme's order and
-  /// batching; returns the largest value f returned.
+  /// batching; returns the largest value f returned. The velocities are the bodies' own, or
+  /// with `pushChannel` their split push-out velocities.
   template <class F>
-  float forEachGroup(F&& f);
+  float forEachGroup(F&& f, bool pushChannel = false);
   float solveGroup(const Group& g, Velocity& A, Velocity& B, const IterationParams& p);
+  float pushoutGroup(const Group& g, Velocity& A, Velocity& B, const IterationParams& p);
   float solveFrictionPair(Row& r1, Row& r2, Velocity& A, Velocity& B, bool measure);
   float solveBlock(size_t first, const IterationParams& p, Velocity& A, Velocity& B);
   /// The normal rows of a manifold at `first` as one small LCP; false when it does not apply

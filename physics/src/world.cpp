@@ -793,6 +793,7 @@ void World::stepOnce(int substeps) {
     }
     {
       StageTimer t(&p.integratePositions);
+      if (s.splitPushout) solver.solvePushout(s, h, s.iterations);
       solver.integratePositions(h);
     }
     {

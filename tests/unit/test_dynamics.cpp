@@ -39,7 +39,7 @@ TEST(Dynamics, ProjectileFollowsParabola) {
   ASSERT_TRUE(w.createBody(d, &b).ok());
   const int steps = 120;
   for (int i = 0; i < steps; ++i) w.step();
-  const double t = steps / 60.0, h = 1 / 240.0, g = 9.81;
+  const double t = steps / 60.0, h = 1 / (60.0 * SolverSettings{}.substeps), g = 9.81;
   BodyState s = stateOf(w, b);
   EXPECT_NEAR(s.position.x, 10 * t, 1e-3);
   EXPECT_NEAR(s.position.y, 3 * t, 1e-3);

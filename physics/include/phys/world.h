@@ -118,8 +118,8 @@ struct SolverSettings {
   int positionIterations = 0;          ///< position pass iterations, >= 0
   float positionBaumgarte = 0.2f;      ///< fraction of the position error removed per pass, 0..1
   float maxPositionCorrection = 0.2f;  ///< m (rad) at most per pass and row
-  int substeps = 4;                    ///< >= 1
-  int iterations = 3;                  ///< velocity iterations per substep, >= 1
+  int substeps = 6;                    ///< >= 1
+  int iterations = 2;                  ///< velocity iterations per substep, >= 1
   /// Convergence control: a substep's velocity iterations stop early once an iteration
   /// changes no row's velocity by more than this (m/s; rad/s for angular rows). 0: always
   /// run all `iterations`. StepStats reports the iterations used and the final residual.
@@ -127,13 +127,18 @@ struct SolverSettings {
   int relaxIterations = 1;  ///< iterations without position bias after each substep, >= 0
   Stabilization stabilization = Stabilization::Soft;
   float baumgarte = 0.2f;  ///< Baumgarte beta, 0..1
-  /// Soft contact stiffness, capped at a quarter of the substep rate. A soft contact's static
-  /// sag is about (load / own mass) g / (2 pi hertz)^2: 60 Hz keeps a 20-box column to ~3 mm.
-  float contactHertz = 60;
+  /// Soft contact stiffness, capped at a quarter of the substep rate (stiffer contacts topple
+  /// stacks). A soft contact's static sag is about (load / effective mass) g / (2 pi hertz)^2:
+  /// a corner carrying ten boxes sinks about 5.5 mm at 60 Hz and 2.5 mm at 90 Hz.
+  float contactHertz = 90;
   float contactDampingRatio = 10;
   float jointHertz = 60;        ///< soft joint stiffness; capped at a quarter of substep rate
   float jointDampingRatio = 2;  ///< for soft joints
   float maxPushout = 3;         ///< m/s, the fastest speed penetration recovery may add
+  /// Split push-out: penetration is resolved by pseudo velocities that move positions and are
+  /// then dropped (split impulses), not by the contacts' velocity bias; contacts' velocity
+  /// rows are then rigid. Bodies buried in each other separate without keeping the push.
+  bool splitPushout = false;
   float linearSlop = 0.005f;    ///< m, penetration left uncorrected (Baumgarte only)
   bool warmStart = true;
   bool restitution = true;
