@@ -62,6 +62,8 @@ const char* toString(JointType t) {
 
 namespace {
 
+constexpr float kMinDistanceLength = 1e-3f;  ///< m, shortest rest length of a distance joint
+
 Status invalid(std::string m) {
   return Status::Error(StatusCode::InvalidArgument, std::move(m));
 }
@@ -638,6 +640,13 @@ Status World::createJoint(const JointDef& in, JointId* out) {
   rec.def = def;
   BodyPose pa = A ? poseOf(*A) : BodyPose{}, pb = poseOf(*B);
   initJoint(rec, A ? &pa : nullptr, pb);
+  // A rigid or sprung distance joint pulls along the line between its anchors; at zero
+  // length that line has no direction and the joint holds nothing.
+  if (def.type == JointType::Distance && (!def.enableLimit || def.springHertz > 0) &&
+      !(rec.length >= kMinDistanceLength))
+    return invalid("joint: a distance joint needs a rest length of at least 1 mm (got " +
+                   std::to_string(rec.length) +
+                   " m); a ball joint pins two points together");
   JointId id = w.joints.add(std::move(rec));
   w.joints.get(id)->state.id = id;
   if (A) A->joints.push_back(id);

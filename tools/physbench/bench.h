@@ -2,6 +2,7 @@
 // suite (every preset on every scene) with its CSV, Markdown and docs/SOLVERS.md reports.
 #pragma once
 
+#include <cstdint>
 #include <optional>
 #include <string>
 #include <vector>
@@ -38,6 +39,26 @@ inline constexpr double kQuickSeconds = 3;
 /// Runs the suite. Exit status: 2 when a run could not be executed (or a report not
 /// written), 1 when --fail-on-criteria is set and a run failed its criteria, else 0.
 int runSuite(const SuiteOptions& opt);
+
+struct StressOptions {
+  std::string presetsPath;
+  std::vector<std::string> presets;  ///< empty: the default preset; "all": every preset
+  int seeds = 100;                   ///< seeds seedStart, seedStart + 1, ...
+  uint64_t seedStart = 1;
+  std::optional<uint64_t> seed;  ///< replay one seed
+  double seconds = 5;            ///< simulated seconds per run
+  int jobs = 0;                  ///< runs in parallel (0: the machine's threads)
+  std::string csvOut, dumpScene;
+  bool failOnFailure = false;
+};
+
+/// A joint whose anchors drift further apart than this (m) fails a stress run.
+inline constexpr double kStressJointError = 0.1;
+
+/// Runs seeded random scenes with each preset and prints failure rates (see stress.cpp).
+/// Exit status: 2 on bad input or a scene that could not be built, 1 with failOnFailure when
+/// a run failed, else 0.
+int runStress(const StressOptions& opt);
 
 /// "%.6g", or "-" when empty.
 std::string fmtNumber(const std::optional<double>& v);

@@ -7,6 +7,10 @@
 //             [--fail-on-criteria]
 //     every preset on every scene (see suite.cpp); exit status 2 when a run could not be
 //     executed, 1 with --fail-on-criteria when a run failed its criteria, else 0.
+//   physbench --stress [--presets a,b|all] [--seeds N] [--seed-start S] [--seed S]
+//             [--stress-seconds T] [--jobs N] [--csv OUT] [--dump-scene FILE]
+//             [--fail-on-failure]
+//     seeded random scenes and each preset's failure rate (see stress.cpp).
 #include <CLI/CLI.hpp>
 #include <filesystem>
 #include <string>
@@ -98,8 +102,46 @@ int main(int argc, char** argv) {
       app.add_flag("--fail-on-criteria", suite.failOnCriteria,
                    "exit 1 when a run fails its scene's criteria"),
   };
-  for (CLI::Option* o : suiteOnly) o->needs(suiteFlag);
+  // Stress mode.
+  bench::StressOptions stress;
+  bool stressMode = false;
+  CLI::Option* stressFlag = app.add_flag(
+      "--stress", stressMode, "seeded random scenes; failure rates per preset (stress.cpp)");
+  uint64_t replaySeed = 0;
+  std::vector<CLI::Option*> stressOnly = {
+      app.add_option("--seeds", stress.seeds, "how many seeds (default 100)")
+          ->check(CLI::PositiveNumber),
+      app.add_option("--seed-start", stress.seedStart, "first seed (default 1)"),
+      app.add_option("--seed", replaySeed, "replay this one seed"),
+      app.add_option("--stress-seconds", stress.seconds, "simulated seconds per run (default 5)")
+          ->check(CLI::PositiveNumber),
+      app.add_option("--dump-scene", stress.dumpScene,
+                     "with --seed: write the seed's scene as a scene file"),
+      app.add_flag("--fail-on-failure", stress.failOnFailure, "exit 1 when a run failed"),
+  };
+  for (CLI::Option* o : stressOnly) o->needs(stressFlag);
+  for (CLI::Option* o : {sceneOpt, presetOpt, secondsOpt, jsonOpt, suiteFlag})
+    o->excludes(stressFlag);
+  // --presets, --jobs and --csv serve both the suite and the stress mode.
+  for (CLI::Option* o : suiteOnly) {
+    const std::string n = o->get_name();
+    if (n != "--presets" && n != "--jobs" && n != "--csv") o->needs(suiteFlag);
+  }
   CLI11_PARSE(app, argc, argv);
+  if (!suiteMode && !stressMode) {
+    for (const char* shared : {"--presets", "--jobs", "--csv"})
+      if (app.count(shared))
+        return app.exit(CLI::ValidationError(std::string(shared), "needs --suite or --stress"));
+  }
+
+  if (stressMode) {
+    stress.presetsPath = presetsPath;
+    stress.presets = suite.presets;
+    stress.jobs = app.count("--jobs") ? suite.jobs : 0;
+    stress.csvOut = suite.csvOut;
+    if (app.count("--seed")) stress.seed = replaySeed;
+    return bench::runStress(stress);
+  }
 
   if (!suiteMode) {
     // --scene is required in single-scene mode, as before --suite existed.
