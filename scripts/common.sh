@@ -2,7 +2,9 @@
 # Sourced, not executed.
 
 PHYS_PACKAGES=(cmake ninja-build g++ pkg-config libeigen3-dev nlohmann-json3-dev libqhull-dev
-  libgtest-dev libgmock-dev libcli11-dev)
+  libgtest-dev libgmock-dev libcli11-dev
+  cyclonedds-dev cyclonedds-tools libflatbuffers-dev flatbuffers-compiler libspdlog-dev
+  libtomlplusplus-dev)
 
 phys_install_deps() {
   local missing=()

@@ -1,0 +1,257 @@
+// Builders: every payload of the protocol from plain C++ values (phys types where the engine
+// has them, the generated wire structs for fixed-size records). Every function returns a
+// finished FlatBuffer with its root type's file identifier, ready for an Envelope.
+//
+// Builders do not validate: they write what they are given, so a client learns about a bad
+// value from the server's reply (or from decodeCommand, which a client may run locally).
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <string>
+#include <string_view>
+#include <utility>
+#include <vector>
+
+#include "flatbuffers/flatbuffers.h"
+#include "phys/protocol/limits.h"
+#include "phys/protocol/status.h"
+#include "phys/protocol/wire.h"
+#include "phys/world.h"
+
+namespace phys::protocol {
+
+using Bytes = std::vector<uint8_t>;
+
+// ---------------------------------------------------------------------------------------------
+// Commands
+
+/// Correlation and target of a command. clientId is the Envelope key on phys/cmd.
+struct CommandHeader {
+  uint64_t clientId = 0;  ///< non-zero, unique per client process
+  uint64_t seq = 0;       ///< increasing per client; echoed in the reply
+  uint32_t world = 0;     ///< target world; 0 for hello, createWorld, listWorlds
+};
+
+struct CreateWorldArgs {
+  std::string name;                   ///< required, unique per server
+  std::string preset;                 ///< solver preset; empty: the server's default
+  std::optional<phys::Vec3> gravity;  ///< m/s^2; absent: (0, 0, -9.81)
+  float timeStep = 0;                 ///< s; 0: 1/60
+};
+
+/// Solver settings to change; unset fields keep the world's current value.
+struct SolverOverrides {
+  std::optional<phys::SolverSettings::Scheme> scheme;
+  std::optional<phys::SolverSettings::PositionPass> positionPass;
+  std::optional<int> positionIterations;
+  std::optional<float> positionBaumgarte;
+  std::optional<float> maxPositionCorrection;
+  std::optional<int> substeps;
+  std::optional<int> iterations;
+  std::optional<float> tolerance;
+  std::optional<int> relaxIterations;
+  std::optional<phys::SolverSettings::Stabilization> stabilization;
+  std::optional<float> baumgarte;
+  std::optional<float> contactHertz;
+  std::optional<float> contactDampingRatio;
+  std::optional<float> jointHertz;
+  std::optional<float> jointDampingRatio;
+  std::optional<float> maxPushout;
+  std::optional<float> linearSlop;
+  std::optional<bool> warmStart;
+  std::optional<bool> restitution;
+  std::optional<float> restitutionThreshold;
+  std::optional<phys::SolverSettings::EqualitySolve> equalitySolve;
+  std::optional<bool> blockContacts;
+  std::optional<bool> geometricStiffness;
+  std::optional<bool> splitPushout;
+
+  /// Every field set from s.
+  static SolverOverrides from(const phys::SolverSettings& s);
+  /// Whether no field is set.
+  bool empty() const;
+};
+
+/// Builds one command. Each call appends a request; finish() makes a plain command of a
+/// single request and a Batch (all-or-nothing, one tick boundary) of several, which the
+/// server accepts only when every request is batchable (decoder.h: isBatchable).
+///
+///   Bytes b = CommandBuilder().step(10).finish({clientId, seq, world});
+///
+/// Ids are phys handles packed with BodyId::packed() (generation << 32 | index).
+class CommandBuilder {
+ public:
+  CommandBuilder() = default;
+
+  CommandBuilder& hello(std::string_view clientName, uint16_t version = kProtocolVersion);
+  CommandBuilder& createWorld(const CreateWorldArgs& args);
+  CommandBuilder& destroyWorld();
+  CommandBuilder& resetWorld();
+  CommandBuilder& listWorlds();
+  CommandBuilder& loadSceneJson(std::string_view json);
+  CommandBuilder& loadSceneNamed(std::string_view sceneName);
+  /// Hull shapes send their hull's vertices; the server rebuilds the hull.
+  CommandBuilder& spawnBodies(std::span<const phys::BodyDef> bodies);
+  CommandBuilder& removeBodies(std::span<const uint64_t> ids);
+  /// JointDef.bodyA/bodyB are written packed; a null bodyA anchors to the world.
+  CommandBuilder& addJoints(std::span<const phys::JointDef> joints);
+  CommandBuilder& removeJoints(std::span<const uint64_t> ids);
+  CommandBuilder& setBodyPose(std::span<const wire::BodyPose> items);
+  CommandBuilder& setBodyPose(uint64_t id, phys::Vec3 position, phys::Quat rotation);
+  CommandBuilder& setBodyVelocity(std::span<const wire::BodyVelocity> items);
+  CommandBuilder& setBodyVelocity(uint64_t id, phys::Vec3 linear, phys::Vec3 angular);
+  /// Forces act during the next step only.
+  CommandBuilder& applyForce(std::span<const wire::BodyForce> items, wire::PointFrame frame);
+  CommandBuilder& applyForce(uint64_t id, phys::Vec3 force, phys::Vec3 point = {},
+                             wire::PointFrame frame = wire::PointFrame::CenterOfMass);
+  /// Impulses change velocities when the command is applied.
+  CommandBuilder& applyImpulse(std::span<const wire::BodyForce> items, wire::PointFrame frame);
+  CommandBuilder& applyImpulse(uint64_t id, phys::Vec3 impulse, phys::Vec3 point = {},
+                               wire::PointFrame frame = wire::PointFrame::CenterOfMass);
+  CommandBuilder& applyTorque(std::span<const wire::BodyTorque> items);
+  CommandBuilder& applyTorque(uint64_t id, phys::Vec3 torque);
+  CommandBuilder& setMaterial(std::span<const uint64_t> ids, const phys::Material& material);
+  /// preset first (empty: none), then the overrides.
+  CommandBuilder& setSolver(std::string_view preset, const SolverOverrides& overrides = {});
+  CommandBuilder& step(uint32_t count = 1);
+  /// rateHz: steps per wall-clock second; 0: as fast as possible.
+  CommandBuilder& run(float rateHz);
+  CommandBuilder& pause();
+  /// ids empty: every body, paged by first / maxCount (0: as many as fit).
+  CommandBuilder& queryState(std::span<const uint64_t> ids = {}, uint32_t first = 0,
+                             uint32_t maxCount = 0);
+  /// file: also (or only, with returnBytes false) written on the server under that name.
+  CommandBuilder& saveSnapshot(std::string_view file = {}, bool returnBytes = true);
+  CommandBuilder& restoreSnapshot(std::span<const uint8_t> snapshot);
+  CommandBuilder& restoreSnapshotFile(std::string_view file);
+
+  /// Escape hatch for requests built by hand on fbb() (tests, extensions).
+  CommandBuilder& raw(wire::Request type, flatbuffers::Offset<void> table);
+  flatbuffers::FlatBufferBuilder& fbb() { return fbb_; }
+
+  size_t requestCount() const { return items_.size(); }
+  /// The finished command; the builder is empty again afterwards.
+  Bytes finish(const CommandHeader& header);
+
+ private:
+  CommandBuilder& add(wire::Request type, flatbuffers::Offset<void> table);
+  flatbuffers::FlatBufferBuilder fbb_;
+  std::vector<std::pair<wire::Request, flatbuffers::Offset<void>>> items_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Replies
+
+struct ReplyHeader {
+  uint64_t clientId = 0;
+  uint64_t seq = 0;
+  uint32_t world = 0;  ///< the target world; CreateWorld: the new world's id
+  uint64_t tick = 0;   ///< the world's tick when the command took effect
+  Status status;
+};
+/// Header echoing a command's correlation and world, with the given status.
+ReplyHeader replyTo(const wire::Command& command, Status status = {});
+
+struct HelloInfo {
+  std::string serverName;
+  std::string serverVersion;
+  std::vector<std::string> features;
+  Limits limits;  ///< announced as LimitsInfo
+};
+
+/// One world, as ListWorlds and ServerStatus report it.
+struct WorldSummary {
+  uint32_t world = 0;
+  std::string name;
+  std::string preset;
+  uint32_t bodies = 0, joints = 0;
+  uint64_t tick = 0;
+  double time = 0;  ///< s, simulated
+  bool running = false;
+  float rateHz = 0;
+  float tickMs = 0, tickMsMax = 0;
+  uint64_t overruns = 0;
+  uint32_t subscribers = 0;
+};
+
+/// A reply without a result (errors; Pause, DestroyWorld, ...).
+Bytes encodeReply(const ReplyHeader& header);
+Bytes encodeHelloReply(const ReplyHeader& header, const HelloInfo& info);
+Bytes encodeIdsReply(const ReplyHeader& header, std::span<const uint64_t> bodies,
+                     std::span<const uint64_t> joints = {});
+Bytes encodeWorldListReply(const ReplyHeader& header, std::span<const WorldSummary> worlds);
+Bytes encodeStateReply(const ReplyHeader& header, double time, uint32_t total,
+                       std::span<const wire::BodyState> bodies);
+/// snapshot: a Snapshot buffer (encodeSnapshot), may be empty; file: where it was saved.
+Bytes encodeSnapshotReply(const ReplyHeader& header, std::span<const uint8_t> snapshot,
+                          std::string_view file = {});
+
+// ---------------------------------------------------------------------------------------------
+// Published data
+
+struct FrameHeader {
+  uint32_t world = 0;
+  uint64_t tick = 0;
+  double time = 0;  ///< s, simulated
+};
+Bytes encodeStateFrame(const FrameHeader& header, uint32_t chunkIndex, uint32_t chunkCount,
+                       uint32_t totalBodies, std::span<const wire::BodyState> bodies);
+/// One tick's states split into chunks of at most bodiesPerChunk (>= 1); at least one chunk.
+std::vector<Bytes> encodeStateFrames(const FrameHeader& header,
+                                     std::span<const wire::BodyState> bodies,
+                                     uint32_t bodiesPerChunk = kDefaultBodiesPerChunk);
+
+/// A body or joint with its id, as WorldInfo and Snapshot carry them.
+struct BodyEntry {
+  uint64_t id = 0;
+  phys::BodyDef def;
+};
+struct JointEntry {
+  uint64_t id = 0;
+  phys::JointDef def;  ///< bodyA / bodyB as ids of the same world
+};
+
+struct WorldInfoHeader {
+  uint32_t world = 0;
+  std::string name;
+  uint64_t revision = 0;
+  uint64_t tick = 0;
+  phys::Vec3 gravity{0, 0, -9.81f};
+  float timeStep = 1.0f / 60;
+};
+/// The world split into chunks of at most limits.maxBodiesPerCommand bodies and about half of
+/// limits.maxMessageBytes each (bodies first, then joints); at least one chunk.
+std::vector<Bytes> encodeWorldInfo(const WorldInfoHeader& header, std::span<const BodyEntry> bodies,
+                                   std::span<const JointEntry> joints, const Limits& limits = {});
+
+struct ServerStatusInfo {
+  std::string serverName;
+  std::string serverVersion;
+  double uptimeS = 0;
+  uint64_t commands = 0;  ///< received
+  uint64_t errors = 0;    ///< rejected
+  std::vector<WorldSummary> worlds;
+};
+Bytes encodeServerStatus(const ServerStatusInfo& status);
+
+Bytes encodeEvent(uint32_t world, uint64_t tick, wire::Severity severity, std::string_view code,
+                  std::string_view message);
+
+/// A world's content for SaveSnapshot / RestoreSnapshot: engineState (exact; what physd
+/// writes), or the portable description in the other fields (physics.fbs, Snapshot).
+struct SnapshotData {
+  std::string name;
+  phys::Vec3 gravity{0, 0, -9.81f};
+  float timeStep = 1.0f / 60;
+  phys::SolverSettings solver;
+  uint64_t tick = 0;
+  double time = 0;
+  std::vector<BodyEntry> bodies;
+  std::vector<JointEntry> joints;
+  std::vector<uint8_t> engineState;  ///< phys::World::saveSnapshot bytes; then no bodies/joints
+};
+Bytes encodeSnapshot(const SnapshotData& snapshot);
+
+}  // namespace phys::protocol

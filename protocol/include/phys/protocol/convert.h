@@ -1,0 +1,57 @@
+// Conversions between wire tables and phys types. The *to phys* direction expects input that
+// passed the decoders (decoder.h); it normalizes quaternions and plane normals and rebuilds
+// convex hulls, which is the one check the decoders leave to it.
+#pragma once
+
+#include "phys/math.h"
+#include "phys/protocol/builder.h"
+#include "phys/protocol/status.h"
+#include "phys/protocol/wire.h"
+#include "phys/world.h"
+
+namespace phys::protocol {
+
+inline wire::Vec3 toWire(phys::Vec3 v) {
+  return {v.x, v.y, v.z};
+}
+inline wire::Quat toWire(phys::Quat q) {
+  return {q.x, q.y, q.z, q.w};
+}
+inline wire::Pose toWire(const phys::Transform& t) {
+  return {toWire(t.p), toWire(t.q)};
+}
+inline wire::Material toWire(const phys::Material& m) {
+  return {m.friction, m.restitution, m.density};
+}
+inline phys::Vec3 toPhys(const wire::Vec3& v) {
+  return {v.x(), v.y(), v.z()};
+}
+/// Normalized (the wire accepts up to Limits::quatTolerance off unit length).
+inline phys::Quat toPhys(const wire::Quat& q) {
+  return phys::normalize(phys::Quat{q.x(), q.y(), q.z(), q.w()});
+}
+inline phys::Transform toPhys(const wire::Pose& p) {
+  return {toPhys(p.position()), toPhys(p.rotation())};
+}
+inline phys::Material toPhys(const wire::Material& m) {
+  return {m.friction(), m.restitution(), m.density()};
+}
+
+/// A published state record of a body.
+wire::BodyState toWire(const phys::BodyState& s);
+
+/// A body definition for World::createBody. Fails (InvalidArgument, message prefixed with
+/// `path`) only when hull points span no volume.
+Status toBodyDef(const wire::BodyDef& in, phys::BodyDef* out, std::string_view path = "body");
+/// A joint definition for World::createJoint (ids unpacked; absent axes are (0, 0, 1)).
+phys::JointDef toJointDef(const wire::JointDef& in);
+/// Overwrites the fields present in `in`.
+void applySolverSettings(const wire::SolverSettings& in, phys::SolverSettings* out);
+SolverOverrides toOverrides(const wire::SolverSettings& in);
+/// Applies the overrides that are set.
+void applyOverrides(const SolverOverrides& in, phys::SolverSettings* out);
+
+/// A decoded snapshot as plain data (hulls rebuilt; fails like toBodyDef).
+Status toSnapshotData(const wire::Snapshot& in, SnapshotData* out);
+
+}  // namespace phys::protocol

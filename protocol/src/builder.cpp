@@ -1,0 +1,676 @@
+// Builders of every payload (builder.h).
+#include "phys/protocol/builder.h"
+
+#include <algorithm>
+
+#include "phys/protocol/convert.h"
+#include "write.h"
+
+namespace phys::protocol {
+
+using detail::alignedBytes;
+using detail::Fbb;
+using detail::finishBytes;
+using detail::optString;
+using flatbuffers::Offset;
+
+// The wire enums mirror phys's value for value, so conversions are casts.
+static_assert(int(wire::MotionType::Static) == int(phys::BodyType::Static) &&
+              int(wire::MotionType::Kinematic) == int(phys::BodyType::Kinematic) &&
+              int(wire::MotionType::Dynamic) == int(phys::BodyType::Dynamic));
+static_assert(int(wire::JointType::Ball) == int(phys::JointType::Ball) &&
+              int(wire::JointType::Hinge) == int(phys::JointType::Hinge) &&
+              int(wire::JointType::Fixed) == int(phys::JointType::Fixed) &&
+              int(wire::JointType::Distance) == int(phys::JointType::Distance) &&
+              int(wire::JointType::Prismatic) == int(phys::JointType::Prismatic));
+static_assert(int(wire::Scheme::GaussSeidel) == int(phys::SolverSettings::Scheme::GaussSeidel) &&
+              int(wire::Scheme::Jacobi) == int(phys::SolverSettings::Scheme::Jacobi) &&
+              int(wire::Scheme::ColoredGaussSeidel) ==
+                  int(phys::SolverSettings::Scheme::ColoredGaussSeidel));
+static_assert(int(wire::PositionPass::None) == int(phys::SolverSettings::PositionPass::None) &&
+              int(wire::PositionPass::NonlinearGaussSeidel) ==
+                  int(phys::SolverSettings::PositionPass::NonlinearGaussSeidel) &&
+              int(wire::PositionPass::NonlinearJacobi) ==
+                  int(phys::SolverSettings::PositionPass::NonlinearJacobi));
+static_assert(int(wire::Stabilization::Baumgarte) ==
+                  int(phys::SolverSettings::Stabilization::Baumgarte) &&
+              int(wire::Stabilization::Soft) == int(phys::SolverSettings::Stabilization::Soft));
+static_assert(int(wire::EqualitySolve::Iterative) ==
+                  int(phys::SolverSettings::EqualitySolve::Iterative) &&
+              int(wire::EqualitySolve::DirectLdl) ==
+                  int(phys::SolverSettings::EqualitySolve::DirectLdl));
+
+// ---------------------------------------------------------------------------------------------
+// Shared writers
+
+namespace detail {
+
+namespace {
+
+bool isZero(phys::Vec3 v) {
+  return v.x == 0 && v.y == 0 && v.z == 0;
+}
+
+Offset<wire::ShapeDef> writeShape(Fbb& fbb, const phys::ShapeDef& s) {
+  const phys::ShapeGeom& g = s.geom;
+  wire::Shape type = wire::Shape::NONE;
+  Offset<void> geom;
+  switch (g.type) {
+    case phys::ShapeType::Sphere:
+      type = wire::Shape::Sphere;
+      geom = wire::CreateSphere(fbb, g.radius).Union();
+      break;
+    case phys::ShapeType::Box: {
+      wire::Vec3 he = toWire(g.halfExtents);
+      type = wire::Shape::Box;
+      geom = wire::CreateBox(fbb, &he).Union();
+      break;
+    }
+    case phys::ShapeType::Capsule:
+      type = wire::Shape::Capsule;
+      geom = wire::CreateCapsule(fbb, g.radius, g.halfHeight).Union();
+      break;
+    case phys::ShapeType::Plane: {
+      wire::Vec3 n = toWire(g.normal);
+      type = wire::Shape::Plane;
+      geom = wire::CreatePlane(fbb, &n, g.offset).Union();
+      break;
+    }
+    case phys::ShapeType::Hull: {
+      std::vector<wire::Vec3> points;
+      if (g.hull) {
+        points.reserve(g.hull->vertices.size());
+        for (phys::Vec3 v : g.hull->vertices) points.push_back(toWire(v));
+      }
+      auto pv = fbb.CreateVectorOfStructs(points.data(), points.size());
+      type = wire::Shape::ConvexHull;
+      geom = wire::CreateConvexHull(fbb, pv).Union();
+      break;
+    }
+  }
+  // Identity frames and default materials are left out (absent means exactly these).
+  bool identity = isZero(s.local.p) && s.local.q == phys::Quat{};
+  wire::Pose local = toWire(s.local);
+  const phys::Material def;
+  bool defaultMaterial = s.material.friction == def.friction &&
+                         s.material.restitution == def.restitution &&
+                         s.material.density == def.density;
+  wire::Material material = toWire(s.material);
+  return wire::CreateShapeDef(fbb, type, geom, identity ? nullptr : &local,
+                              defaultMaterial ? nullptr : &material);
+}
+
+}  // namespace
+
+Offset<wire::BodyDef> writeBodyDef(Fbb& fbb, const phys::BodyDef& def) {
+  std::vector<Offset<wire::ShapeDef>> shapes;
+  shapes.reserve(def.shapes.size());
+  for (const phys::ShapeDef& s : def.shapes) shapes.push_back(writeShape(fbb, s));
+  auto shapesVec = fbb.CreateVector(shapes);
+  auto name = optString(fbb, def.name);
+  wire::Pose pose = toWire(phys::Transform{def.position, def.rotation});
+  wire::Vec3 v = toWire(def.linearVelocity), w = toWire(def.angularVelocity);
+  wire::Vec3 inertia = toWire(def.inertia);
+  wire::BodyDefBuilder b(fbb);
+  b.add_motion(wire::MotionType(def.type));
+  b.add_pose(&pose);
+  if (!isZero(def.linearVelocity)) b.add_linear_velocity(&v);
+  if (!isZero(def.angularVelocity)) b.add_angular_velocity(&w);
+  b.add_linear_damping(def.linearDamping);
+  b.add_angular_damping(def.angularDamping);
+  b.add_gravity_scale(def.gravityScale);
+  b.add_mass(def.mass);
+  if (!isZero(def.inertia)) b.add_inertia(&inertia);
+  b.add_gyroscopic(def.gyroscopic);
+  b.add_name(name);
+  b.add_shapes(shapesVec);
+  return b.Finish();
+}
+
+Offset<wire::JointDef> writeJointDef(Fbb& fbb, const phys::JointDef& def) {
+  auto name = optString(fbb, def.name);
+  wire::Vec3 anchorA = toWire(def.anchorA), anchorB = toWire(def.anchorB);
+  wire::Vec3 axisA = toWire(def.axisA), axisB = toWire(def.axisB);
+  wire::JointDefBuilder b(fbb);
+  b.add_type(wire::JointType(def.type));
+  b.add_body_a(def.bodyA.packed());
+  b.add_body_b(def.bodyB.packed());
+  b.add_anchor_a(&anchorA);
+  b.add_anchor_b(&anchorB);
+  b.add_axis_a(&axisA);
+  b.add_axis_b(&axisB);
+  b.add_enable_limit(def.enableLimit);
+  b.add_lower(def.lower);
+  b.add_upper(def.upper);
+  b.add_enable_motor(def.enableMotor);
+  b.add_motor_speed(def.motorSpeed);
+  b.add_max_motor_force(def.maxMotorForce);
+  b.add_length(def.length);
+  b.add_spring_hertz(def.springHertz);
+  b.add_spring_damping_ratio(def.springDampingRatio);
+  b.add_collide_connected(def.collideConnected);
+  b.add_name(name);
+  return b.Finish();
+}
+
+Offset<wire::SolverSettings> writeSolver(Fbb& fbb, const SolverOverrides& s) {
+  wire::SolverSettingsBuilder b(fbb);
+  if (s.scheme) b.add_scheme(wire::Scheme(*s.scheme));
+  if (s.positionPass) b.add_position_pass(wire::PositionPass(*s.positionPass));
+  if (s.positionIterations) b.add_position_iterations(*s.positionIterations);
+  if (s.positionBaumgarte) b.add_position_baumgarte(*s.positionBaumgarte);
+  if (s.maxPositionCorrection) b.add_max_position_correction(*s.maxPositionCorrection);
+  if (s.substeps) b.add_substeps(*s.substeps);
+  if (s.iterations) b.add_iterations(*s.iterations);
+  if (s.tolerance) b.add_tolerance(*s.tolerance);
+  if (s.relaxIterations) b.add_relax_iterations(*s.relaxIterations);
+  if (s.stabilization) b.add_stabilization(wire::Stabilization(*s.stabilization));
+  if (s.baumgarte) b.add_baumgarte(*s.baumgarte);
+  if (s.contactHertz) b.add_contact_hertz(*s.contactHertz);
+  if (s.contactDampingRatio) b.add_contact_damping_ratio(*s.contactDampingRatio);
+  if (s.jointHertz) b.add_joint_hertz(*s.jointHertz);
+  if (s.jointDampingRatio) b.add_joint_damping_ratio(*s.jointDampingRatio);
+  if (s.maxPushout) b.add_max_pushout(*s.maxPushout);
+  if (s.linearSlop) b.add_linear_slop(*s.linearSlop);
+  if (s.warmStart) b.add_warm_start(*s.warmStart);
+  if (s.restitution) b.add_restitution(*s.restitution);
+  if (s.restitutionThreshold) b.add_restitution_threshold(*s.restitutionThreshold);
+  if (s.equalitySolve) b.add_equality_solve(wire::EqualitySolve(*s.equalitySolve));
+  if (s.blockContacts) b.add_block_contacts(*s.blockContacts);
+  if (s.geometricStiffness) b.add_geometric_stiffness(*s.geometricStiffness);
+  if (s.splitPushout) b.add_split_pushout(*s.splitPushout);
+  return b.Finish();
+}
+
+Offset<wire::WorldSummary> writeWorldSummary(Fbb& fbb, const WorldSummary& w) {
+  auto name = optString(fbb, w.name);
+  auto preset = optString(fbb, w.preset);
+  return wire::CreateWorldSummary(fbb, w.world, name, preset, w.bodies, w.joints, w.tick, w.time,
+                                  w.running, w.rateHz, w.tickMs, w.tickMsMax, w.overruns,
+                                  w.subscribers);
+}
+
+Offset<wire::LimitsInfo> writeLimits(Fbb& fbb, const Limits& l) {
+  return wire::CreateLimitsInfo(fbb, l.maxMessageBytes, l.maxBodiesPerCommand, l.maxShapesPerBody,
+                                l.maxHullPoints, l.maxJointsPerCommand, l.maxIdsPerCommand,
+                                l.maxItemsPerCommand, l.maxBatchCommands, l.maxStepsPerCommand,
+                                l.maxBodiesPerFrame);
+}
+
+}  // namespace detail
+
+// ---------------------------------------------------------------------------------------------
+// SolverOverrides
+
+// A tripwire: phys::SolverSettings gained or lost a field. Mirror it in physics.fbs
+// (SolverSettings, appended at the end), SolverOverrides and its from()/empty(),
+// detail::writeSolver, convert.cpp (toOverrides, applyOverrides), the decoder's range check
+// and docs/PROTOCOL.md; then update the size here.
+static_assert(sizeof(phys::SolverSettings) == 80,
+              "phys::SolverSettings changed: mirror the change in the protocol (see comment)");
+
+SolverOverrides SolverOverrides::from(const phys::SolverSettings& s) {
+  SolverOverrides o;
+  o.scheme = s.scheme;
+  o.positionPass = s.positionPass;
+  o.positionIterations = s.positionIterations;
+  o.positionBaumgarte = s.positionBaumgarte;
+  o.maxPositionCorrection = s.maxPositionCorrection;
+  o.substeps = s.substeps;
+  o.iterations = s.iterations;
+  o.tolerance = s.tolerance;
+  o.relaxIterations = s.relaxIterations;
+  o.stabilization = s.stabilization;
+  o.baumgarte = s.baumgarte;
+  o.contactHertz = s.contactHertz;
+  o.contactDampingRatio = s.contactDampingRatio;
+  o.jointHertz = s.jointHertz;
+  o.jointDampingRatio = s.jointDampingRatio;
+  o.maxPushout = s.maxPushout;
+  o.linearSlop = s.linearSlop;
+  o.warmStart = s.warmStart;
+  o.restitution = s.restitution;
+  o.restitutionThreshold = s.restitutionThreshold;
+  o.equalitySolve = s.equalitySolve;
+  o.blockContacts = s.blockContacts;
+  o.geometricStiffness = s.geometricStiffness;
+  o.splitPushout = s.splitPushout;
+  return o;
+}
+
+bool SolverOverrides::empty() const {
+  return !scheme && !positionPass && !positionIterations && !positionBaumgarte &&
+         !maxPositionCorrection && !substeps && !iterations && !tolerance && !relaxIterations &&
+         !stabilization && !baumgarte && !contactHertz && !contactDampingRatio && !jointHertz &&
+         !jointDampingRatio && !maxPushout && !linearSlop && !warmStart && !restitution &&
+         !restitutionThreshold && !equalitySolve && !blockContacts && !geometricStiffness &&
+         !splitPushout;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Commands
+
+CommandBuilder& CommandBuilder::add(wire::Request type, Offset<void> table) {
+  items_.emplace_back(type, table);
+  return *this;
+}
+
+CommandBuilder& CommandBuilder::raw(wire::Request type, Offset<void> table) {
+  return add(type, table);
+}
+
+CommandBuilder& CommandBuilder::hello(std::string_view clientName, uint16_t version) {
+  auto name = optString(fbb_, clientName);
+  return add(wire::Request::Hello, wire::CreateHello(fbb_, version, name).Union());
+}
+
+CommandBuilder& CommandBuilder::createWorld(const CreateWorldArgs& args) {
+  auto name = optString(fbb_, args.name);
+  auto preset = optString(fbb_, args.preset);
+  wire::Vec3 g = toWire(args.gravity.value_or(phys::Vec3{}));
+  return add(wire::Request::CreateWorld,
+             wire::CreateCreateWorld(fbb_, name, preset, args.gravity ? &g : nullptr, args.timeStep)
+                 .Union());
+}
+
+CommandBuilder& CommandBuilder::destroyWorld() {
+  return add(wire::Request::DestroyWorld, wire::CreateDestroyWorld(fbb_).Union());
+}
+
+CommandBuilder& CommandBuilder::resetWorld() {
+  return add(wire::Request::ResetWorld, wire::CreateResetWorld(fbb_).Union());
+}
+
+CommandBuilder& CommandBuilder::listWorlds() {
+  return add(wire::Request::ListWorlds, wire::CreateListWorlds(fbb_).Union());
+}
+
+CommandBuilder& CommandBuilder::loadSceneJson(std::string_view json) {
+  auto s = fbb_.CreateString(json.data(), json.size());
+  return add(wire::Request::LoadScene, wire::CreateLoadScene(fbb_, s, 0).Union());
+}
+
+CommandBuilder& CommandBuilder::loadSceneNamed(std::string_view sceneName) {
+  auto s = fbb_.CreateString(sceneName.data(), sceneName.size());
+  return add(wire::Request::LoadScene, wire::CreateLoadScene(fbb_, 0, s).Union());
+}
+
+CommandBuilder& CommandBuilder::spawnBodies(std::span<const phys::BodyDef> bodies) {
+  std::vector<Offset<wire::BodyDef>> defs;
+  defs.reserve(bodies.size());
+  for (const phys::BodyDef& b : bodies) defs.push_back(detail::writeBodyDef(fbb_, b));
+  auto v = fbb_.CreateVector(defs);
+  return add(wire::Request::SpawnBodies, wire::CreateSpawnBodies(fbb_, v).Union());
+}
+
+CommandBuilder& CommandBuilder::removeBodies(std::span<const uint64_t> ids) {
+  auto v = fbb_.CreateVector(ids.data(), ids.size());
+  return add(wire::Request::RemoveBodies, wire::CreateRemoveBodies(fbb_, v).Union());
+}
+
+CommandBuilder& CommandBuilder::addJoints(std::span<const phys::JointDef> joints) {
+  std::vector<Offset<wire::JointDef>> defs;
+  defs.reserve(joints.size());
+  for (const phys::JointDef& j : joints) defs.push_back(detail::writeJointDef(fbb_, j));
+  auto v = fbb_.CreateVector(defs);
+  return add(wire::Request::AddJoints, wire::CreateAddJoints(fbb_, v).Union());
+}
+
+CommandBuilder& CommandBuilder::removeJoints(std::span<const uint64_t> ids) {
+  auto v = fbb_.CreateVector(ids.data(), ids.size());
+  return add(wire::Request::RemoveJoints, wire::CreateRemoveJoints(fbb_, v).Union());
+}
+
+CommandBuilder& CommandBuilder::setBodyPose(std::span<const wire::BodyPose> items) {
+  auto v = fbb_.CreateVectorOfStructs(items.data(), items.size());
+  return add(wire::Request::SetBodyPose, wire::CreateSetBodyPose(fbb_, v).Union());
+}
+
+CommandBuilder& CommandBuilder::setBodyPose(uint64_t id, phys::Vec3 position, phys::Quat rotation) {
+  wire::BodyPose item(id, toWire(phys::Transform{position, rotation}));
+  return setBodyPose(std::span<const wire::BodyPose>(&item, 1));
+}
+
+CommandBuilder& CommandBuilder::setBodyVelocity(std::span<const wire::BodyVelocity> items) {
+  auto v = fbb_.CreateVectorOfStructs(items.data(), items.size());
+  return add(wire::Request::SetBodyVelocity, wire::CreateSetBodyVelocity(fbb_, v).Union());
+}
+
+CommandBuilder& CommandBuilder::setBodyVelocity(uint64_t id, phys::Vec3 linear,
+                                                phys::Vec3 angular) {
+  wire::BodyVelocity item(id, toWire(linear), toWire(angular));
+  return setBodyVelocity(std::span<const wire::BodyVelocity>(&item, 1));
+}
+
+CommandBuilder& CommandBuilder::applyForce(std::span<const wire::BodyForce> items,
+                                           wire::PointFrame frame) {
+  auto v = fbb_.CreateVectorOfStructs(items.data(), items.size());
+  return add(wire::Request::ApplyForce, wire::CreateApplyForce(fbb_, v, frame).Union());
+}
+
+CommandBuilder& CommandBuilder::applyForce(uint64_t id, phys::Vec3 force, phys::Vec3 point,
+                                           wire::PointFrame frame) {
+  wire::BodyForce item(id, toWire(force), toWire(point));
+  return applyForce(std::span<const wire::BodyForce>(&item, 1), frame);
+}
+
+CommandBuilder& CommandBuilder::applyImpulse(std::span<const wire::BodyForce> items,
+                                             wire::PointFrame frame) {
+  auto v = fbb_.CreateVectorOfStructs(items.data(), items.size());
+  return add(wire::Request::ApplyImpulse, wire::CreateApplyImpulse(fbb_, v, frame).Union());
+}
+
+CommandBuilder& CommandBuilder::applyImpulse(uint64_t id, phys::Vec3 impulse, phys::Vec3 point,
+                                             wire::PointFrame frame) {
+  wire::BodyForce item(id, toWire(impulse), toWire(point));
+  return applyImpulse(std::span<const wire::BodyForce>(&item, 1), frame);
+}
+
+CommandBuilder& CommandBuilder::applyTorque(std::span<const wire::BodyTorque> items) {
+  auto v = fbb_.CreateVectorOfStructs(items.data(), items.size());
+  return add(wire::Request::ApplyTorque, wire::CreateApplyTorque(fbb_, v).Union());
+}
+
+CommandBuilder& CommandBuilder::applyTorque(uint64_t id, phys::Vec3 torque) {
+  wire::BodyTorque item(id, toWire(torque));
+  return applyTorque(std::span<const wire::BodyTorque>(&item, 1));
+}
+
+CommandBuilder& CommandBuilder::setMaterial(std::span<const uint64_t> ids,
+                                            const phys::Material& material) {
+  auto v = fbb_.CreateVector(ids.data(), ids.size());
+  wire::Material m = toWire(material);
+  return add(wire::Request::SetMaterial, wire::CreateSetMaterial(fbb_, v, &m).Union());
+}
+
+CommandBuilder& CommandBuilder::setSolver(std::string_view preset,
+                                          const SolverOverrides& overrides) {
+  auto name = optString(fbb_, preset);
+  Offset<wire::SolverSettings> settings;
+  if (!overrides.empty()) settings = detail::writeSolver(fbb_, overrides);
+  return add(wire::Request::SetSolver, wire::CreateSetSolver(fbb_, name, settings).Union());
+}
+
+CommandBuilder& CommandBuilder::step(uint32_t count) {
+  return add(wire::Request::Step, wire::CreateStep(fbb_, count).Union());
+}
+
+CommandBuilder& CommandBuilder::run(float rateHz) {
+  return add(wire::Request::Run, wire::CreateRun(fbb_, rateHz).Union());
+}
+
+CommandBuilder& CommandBuilder::pause() {
+  return add(wire::Request::Pause, wire::CreatePause(fbb_).Union());
+}
+
+CommandBuilder& CommandBuilder::queryState(std::span<const uint64_t> ids, uint32_t first,
+                                           uint32_t maxCount) {
+  Offset<flatbuffers::Vector<uint64_t>> v;
+  if (!ids.empty()) v = fbb_.CreateVector(ids.data(), ids.size());
+  return add(wire::Request::QueryState, wire::CreateQueryState(fbb_, v, first, maxCount).Union());
+}
+
+CommandBuilder& CommandBuilder::saveSnapshot(std::string_view file, bool returnBytes) {
+  auto f = optString(fbb_, file);
+  return add(wire::Request::SaveSnapshot, wire::CreateSaveSnapshot(fbb_, f, returnBytes).Union());
+}
+
+CommandBuilder& CommandBuilder::restoreSnapshot(std::span<const uint8_t> snapshot) {
+  auto v = alignedBytes(fbb_, snapshot);
+  return add(wire::Request::RestoreSnapshot, wire::CreateRestoreSnapshot(fbb_, v, 0).Union());
+}
+
+CommandBuilder& CommandBuilder::restoreSnapshotFile(std::string_view file) {
+  auto f = fbb_.CreateString(file.data(), file.size());
+  return add(wire::Request::RestoreSnapshot, wire::CreateRestoreSnapshot(fbb_, 0, f).Union());
+}
+
+Bytes CommandBuilder::finish(const CommandHeader& header) {
+  wire::Request type = wire::Request::NONE;
+  Offset<void> request;
+  if (items_.size() == 1) {
+    type = items_[0].first;
+    request = items_[0].second;
+  } else if (items_.size() > 1) {
+    std::vector<Offset<wire::CommandItem>> commands;
+    commands.reserve(items_.size());
+    for (const auto& [t, o] : items_) commands.push_back(wire::CreateCommandItem(fbb_, t, o));
+    auto v = fbb_.CreateVector(commands);
+    type = wire::Request::Batch;
+    request = wire::CreateBatch(fbb_, v).Union();
+  }
+  items_.clear();
+  auto root = wire::CreateCommand(fbb_, header.clientId, header.seq, header.world, type, request);
+  return finishBytes(fbb_, root, wire::kCommandId);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Replies
+
+ReplyHeader replyTo(const wire::Command& command, Status status) {
+  ReplyHeader h;
+  h.clientId = command.client_id();
+  h.seq = command.seq();
+  h.world = command.world();
+  h.status = std::move(status);
+  return h;
+}
+
+namespace {
+
+Bytes finishReply(Fbb& fbb, const ReplyHeader& h, wire::Result type, Offset<void> result) {
+  auto message = optString(fbb, h.status.message);
+  auto root = wire::CreateReply(fbb, h.clientId, h.seq, h.status.code, message, h.world, h.tick,
+                                type, result);
+  return finishBytes(fbb, root, wire::kReplyId);
+}
+
+}  // namespace
+
+Bytes encodeReply(const ReplyHeader& header) {
+  Fbb fbb(256);
+  return finishReply(fbb, header, wire::Result::NONE, 0);
+}
+
+Bytes encodeHelloReply(const ReplyHeader& header, const HelloInfo& info) {
+  Fbb fbb(512);
+  auto name = optString(fbb, info.serverName);
+  auto version = optString(fbb, info.serverVersion);
+  auto features = fbb.CreateVectorOfStrings(info.features);
+  auto limits = detail::writeLimits(fbb, info.limits);
+  auto r = wire::CreateHelloResult(fbb, kProtocolVersion, name, version, features, limits);
+  return finishReply(fbb, header, wire::Result::HelloResult, r.Union());
+}
+
+Bytes encodeIdsReply(const ReplyHeader& header, std::span<const uint64_t> bodies,
+                     std::span<const uint64_t> joints) {
+  Fbb fbb(256 + 8 * (bodies.size() + joints.size()));
+  auto b = fbb.CreateVector(bodies.data(), bodies.size());
+  auto j = fbb.CreateVector(joints.data(), joints.size());
+  return finishReply(fbb, header, wire::Result::Ids, wire::CreateIds(fbb, b, j).Union());
+}
+
+Bytes encodeWorldListReply(const ReplyHeader& header, std::span<const WorldSummary> worlds) {
+  Fbb fbb(256 + 128 * worlds.size());
+  std::vector<Offset<wire::WorldSummary>> v;
+  v.reserve(worlds.size());
+  for (const WorldSummary& w : worlds) v.push_back(detail::writeWorldSummary(fbb, w));
+  auto list = wire::CreateWorldList(fbb, fbb.CreateVector(v));
+  return finishReply(fbb, header, wire::Result::WorldList, list.Union());
+}
+
+Bytes encodeStateReply(const ReplyHeader& header, double time, uint32_t total,
+                       std::span<const wire::BodyState> bodies) {
+  Fbb fbb(256 + sizeof(wire::BodyState) * bodies.size());
+  auto v = fbb.CreateVectorOfStructs(bodies.data(), bodies.size());
+  auto r = wire::CreateStateResult(fbb, time, total, v);
+  return finishReply(fbb, header, wire::Result::StateResult, r.Union());
+}
+
+Bytes encodeSnapshotReply(const ReplyHeader& header, std::span<const uint8_t> snapshot,
+                          std::string_view file) {
+  Fbb fbb(256 + snapshot.size());
+  Offset<flatbuffers::Vector<uint8_t>> bytes;
+  if (!snapshot.empty()) bytes = alignedBytes(fbb, snapshot);
+  auto f = optString(fbb, file);
+  auto r = wire::CreateSnapshotResult(fbb, bytes, f);
+  return finishReply(fbb, header, wire::Result::SnapshotResult, r.Union());
+}
+
+// ---------------------------------------------------------------------------------------------
+// Published data
+
+Bytes encodeStateFrame(const FrameHeader& header, uint32_t chunkIndex, uint32_t chunkCount,
+                       uint32_t totalBodies, std::span<const wire::BodyState> bodies) {
+  Fbb fbb(128 + sizeof(wire::BodyState) * bodies.size());
+  auto v = fbb.CreateVectorOfStructs(bodies.data(), bodies.size());
+  auto root = wire::CreateStateFrame(fbb, header.world, header.tick, header.time, chunkIndex,
+                                     chunkCount, totalBodies, v);
+  return finishBytes(fbb, root, wire::kStateFrameId);
+}
+
+std::vector<Bytes> encodeStateFrames(const FrameHeader& header,
+                                     std::span<const wire::BodyState> bodies,
+                                     uint32_t bodiesPerChunk) {
+  size_t per = std::max<uint32_t>(bodiesPerChunk, 1);
+  uint32_t count = uint32_t(std::max<size_t>(1, (bodies.size() + per - 1) / per));
+  std::vector<Bytes> out;
+  out.reserve(count);
+  for (uint32_t c = 0; c < count; ++c) {
+    size_t begin = std::min(c * per, bodies.size());  // an empty world: one empty chunk
+    size_t n = std::min(per, bodies.size() - begin);
+    out.push_back(
+        encodeStateFrame(header, c, count, uint32_t(bodies.size()), bodies.subspan(begin, n)));
+  }
+  return out;
+}
+
+namespace {
+
+/// Rough encoded size of a body and a joint, to keep WorldInfo chunks under the message cap.
+size_t estimateBytes(const BodyEntry& b) {
+  size_t n = 160 + b.def.name.size();
+  for (const phys::ShapeDef& s : b.def.shapes)
+    n += 96 + (s.geom.hull ? 12 * s.geom.hull->vertices.size() : 0);
+  return n;
+}
+size_t estimateBytes(const JointEntry& j) {
+  return 192 + j.def.name.size();
+}
+
+}  // namespace
+
+std::vector<Bytes> encodeWorldInfo(const WorldInfoHeader& header, std::span<const BodyEntry> bodies,
+                                   std::span<const JointEntry> joints, const Limits& limits) {
+  // Chunk boundaries first (chunk_count goes into every chunk): bodies, then joints, each
+  // chunk under half the message cap and within the per-command counts the decoder accepts.
+  struct Range {
+    size_t bodyBegin, bodyEnd, jointBegin, jointEnd;
+  };
+  const size_t budget = std::max<size_t>(limits.maxMessageBytes / 2, 4096);
+  std::vector<Range> ranges;
+  Range r{0, 0, 0, 0};
+  size_t bytes = 0;
+  auto flush = [&] {
+    ranges.push_back(r);
+    r = {r.bodyEnd, r.bodyEnd, r.jointEnd, r.jointEnd};
+    bytes = 0;
+  };
+  for (size_t i = 0; i < bodies.size(); ++i) {
+    size_t b = estimateBytes(bodies[i]);
+    if (r.bodyEnd > r.bodyBegin &&
+        (bytes + b > budget || r.bodyEnd - r.bodyBegin >= limits.maxBodiesPerCommand))
+      flush();
+    r.bodyEnd = i + 1;
+    bytes += b;
+  }
+  for (size_t i = 0; i < joints.size(); ++i) {
+    size_t b = estimateBytes(joints[i]);
+    bool any = r.bodyEnd > r.bodyBegin || r.jointEnd > r.jointBegin;
+    if (any && (bytes + b > budget || r.jointEnd - r.jointBegin >= limits.maxJointsPerCommand))
+      flush();
+    r.jointEnd = i + 1;
+    bytes += b;
+  }
+  ranges.push_back(r);
+
+  std::vector<Bytes> out;
+  out.reserve(ranges.size());
+  Fbb fbb(std::min<size_t>(budget + 4096, 1u << 20));
+  wire::Vec3 gravity = toWire(header.gravity);
+  for (size_t c = 0; c < ranges.size(); ++c) {
+    const Range& rc = ranges[c];
+    std::vector<Offset<wire::BodyEntry>> be;
+    be.reserve(rc.bodyEnd - rc.bodyBegin);
+    for (size_t i = rc.bodyBegin; i < rc.bodyEnd; ++i)
+      be.push_back(
+          wire::CreateBodyEntry(fbb, bodies[i].id, detail::writeBodyDef(fbb, bodies[i].def)));
+    std::vector<Offset<wire::JointEntry>> je;
+    je.reserve(rc.jointEnd - rc.jointBegin);
+    for (size_t i = rc.jointBegin; i < rc.jointEnd; ++i)
+      je.push_back(
+          wire::CreateJointEntry(fbb, joints[i].id, detail::writeJointDef(fbb, joints[i].def)));
+    auto bv = fbb.CreateVector(be);
+    auto jv = fbb.CreateVector(je);
+    auto name = optString(fbb, header.name);
+    auto root =
+        wire::CreateWorldInfo(fbb, header.world, name, header.revision, header.tick, &gravity,
+                              header.timeStep, uint32_t(c), uint32_t(ranges.size()), bv, jv);
+    out.push_back(finishBytes(fbb, root, wire::kWorldInfoId));
+  }
+  return out;
+}
+
+Bytes encodeServerStatus(const ServerStatusInfo& status) {
+  Fbb fbb(512 + 128 * status.worlds.size());
+  auto name = optString(fbb, status.serverName);
+  auto version = optString(fbb, status.serverVersion);
+  std::vector<Offset<wire::WorldSummary>> v;
+  v.reserve(status.worlds.size());
+  for (const WorldSummary& w : status.worlds) v.push_back(detail::writeWorldSummary(fbb, w));
+  auto worlds = fbb.CreateVector(v);
+  auto root = wire::CreateServerStatus(fbb, name, version, status.uptimeS, status.commands,
+                                       status.errors, worlds);
+  return finishBytes(fbb, root, wire::kServerStatusId);
+}
+
+Bytes encodeEvent(uint32_t world, uint64_t tick, wire::Severity severity, std::string_view code,
+                  std::string_view message) {
+  Fbb fbb(256);
+  auto c = optString(fbb, code);
+  auto m = optString(fbb, message);
+  return finishBytes(fbb, wire::CreateEvent(fbb, world, tick, severity, c, m), wire::kEventId);
+}
+
+Bytes encodeSnapshot(const SnapshotData& s) {
+  Fbb fbb(1024);
+  std::vector<Offset<wire::BodyEntry>> be;
+  be.reserve(s.bodies.size());
+  for (const BodyEntry& b : s.bodies)
+    be.push_back(wire::CreateBodyEntry(fbb, b.id, detail::writeBodyDef(fbb, b.def)));
+  std::vector<Offset<wire::JointEntry>> je;
+  je.reserve(s.joints.size());
+  for (const JointEntry& j : s.joints)
+    je.push_back(wire::CreateJointEntry(fbb, j.id, detail::writeJointDef(fbb, j.def)));
+  auto bv = fbb.CreateVector(be);
+  auto jv = fbb.CreateVector(je);
+  flatbuffers::Offset<flatbuffers::Vector<uint8_t>> engine;
+  if (!s.engineState.empty()) engine = alignedBytes(fbb, s.engineState);
+  auto name = optString(fbb, s.name);
+  auto solver = detail::writeSolver(fbb, SolverOverrides::from(s.solver));
+  wire::Vec3 gravity = toWire(s.gravity);
+  wire::SnapshotBuilder b(fbb);
+  b.add_format_version(1);
+  b.add_name(name);
+  b.add_gravity(&gravity);
+  b.add_time_step(s.timeStep);
+  b.add_solver(solver);
+  b.add_tick(s.tick);
+  b.add_time(s.time);
+  b.add_bodies(bv);
+  b.add_joints(jv);
+  b.add_engine_state(engine);
+  return finishBytes(fbb, b.Finish(), wire::kSnapshotId);
+}
+
+}  // namespace phys::protocol

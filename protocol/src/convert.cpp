@@ -1,0 +1,209 @@
+// Conversions between wire tables and phys types (convert.h).
+#include "phys/protocol/convert.h"
+
+#include <string>
+#include <vector>
+
+namespace phys::protocol {
+
+wire::BodyState toWire(const phys::BodyState& s) {
+  return {s.id.packed(), toWire(s.position), toWire(s.rotation), toWire(s.linearVelocity),
+          toWire(s.angularVelocity)};
+}
+
+namespace {
+
+const wire::Vec3 kZ(0, 0, 1);
+
+Status toShapeDef(const wire::ShapeDef& in, phys::ShapeDef* out, const std::string& path) {
+  phys::ShapeDef s;
+  switch (in.geom_type()) {
+    case wire::Shape::Sphere:
+      s.geom = phys::ShapeGeom::sphere(in.geom_as_Sphere()->radius());
+      break;
+    case wire::Shape::Box: {
+      const wire::Vec3* he = in.geom_as_Box()->half_extents();
+      s.geom = phys::ShapeGeom::box(he ? toPhys(*he) : phys::Vec3{});
+      break;
+    }
+    case wire::Shape::Capsule: {
+      const wire::Capsule* c = in.geom_as_Capsule();
+      s.geom = phys::ShapeGeom::capsule(c->radius(), c->half_height());
+      break;
+    }
+    case wire::Shape::Plane: {
+      const wire::Plane* p = in.geom_as_Plane();
+      s.geom = phys::ShapeGeom::plane(toPhys(p->normal() ? *p->normal() : kZ), p->offset());
+      break;
+    }
+    case wire::Shape::ConvexHull: {
+      std::vector<phys::Vec3> points;
+      if (auto* pts = in.geom_as_ConvexHull()->points()) {
+        points.reserve(pts->size());
+        for (const wire::Vec3* v : *pts) points.push_back(toPhys(*v));
+      }
+      std::string error;
+      auto hull = phys::buildConvexHull(points, &error);
+      if (!hull)
+        return Status::Error(Code::InvalidArgument,
+                             path + ".convex_hull.points do not make a hull: " + error);
+      s.geom = phys::ShapeGeom::convexHull(std::move(hull));
+      break;
+    }
+    default:
+      return Status::Error(Code::InvalidArgument, path + ".geom is not a known shape");
+  }
+  if (in.local()) s.local = toPhys(*in.local());
+  if (in.material()) s.material = toPhys(*in.material());
+  *out = std::move(s);
+  return Status::Ok();
+}
+
+}  // namespace
+
+Status toBodyDef(const wire::BodyDef& in, phys::BodyDef* out, std::string_view path) {
+  phys::BodyDef d;
+  d.type = phys::BodyType(in.motion());
+  if (in.pose()) {
+    phys::Transform t = toPhys(*in.pose());
+    d.position = t.p;
+    d.rotation = t.q;
+  }
+  if (in.linear_velocity()) d.linearVelocity = toPhys(*in.linear_velocity());
+  if (in.angular_velocity()) d.angularVelocity = toPhys(*in.angular_velocity());
+  d.linearDamping = in.linear_damping();
+  d.angularDamping = in.angular_damping();
+  d.gravityScale = in.gravity_scale();
+  d.mass = in.mass();
+  if (in.inertia()) d.inertia = toPhys(*in.inertia());
+  d.gyroscopic = in.gyroscopic();
+  if (in.name()) d.name = in.name()->str();
+  if (auto* shapes = in.shapes()) {
+    d.shapes.resize(shapes->size());
+    for (uint32_t i = 0; i < shapes->size(); ++i) {
+      Status st = toShapeDef(*shapes->Get(i), &d.shapes[i],
+                             std::string(path) + ".shapes[" + std::to_string(i) + "]");
+      if (!st.ok()) return st;
+    }
+  }
+  *out = std::move(d);
+  return Status::Ok();
+}
+
+phys::JointDef toJointDef(const wire::JointDef& in) {
+  phys::JointDef d;
+  d.type = phys::JointType(in.type());
+  d.bodyA = phys::BodyId::fromPacked(in.body_a());
+  d.bodyB = phys::BodyId::fromPacked(in.body_b());
+  if (in.anchor_a()) d.anchorA = toPhys(*in.anchor_a());
+  if (in.anchor_b()) d.anchorB = toPhys(*in.anchor_b());
+  d.axisA = toPhys(in.axis_a() ? *in.axis_a() : kZ);
+  d.axisB = toPhys(in.axis_b() ? *in.axis_b() : kZ);
+  d.enableLimit = in.enable_limit();
+  d.lower = in.lower();
+  d.upper = in.upper();
+  d.enableMotor = in.enable_motor();
+  d.motorSpeed = in.motor_speed();
+  d.maxMotorForce = in.max_motor_force();
+  d.length = in.length();
+  d.springHertz = in.spring_hertz();
+  d.springDampingRatio = in.spring_damping_ratio();
+  d.collideConnected = in.collide_connected();
+  if (in.name()) d.name = in.name()->str();
+  return d;
+}
+
+SolverOverrides toOverrides(const wire::SolverSettings& in) {
+  using S = phys::SolverSettings;
+  SolverOverrides o;
+  if (auto v = in.scheme()) o.scheme = S::Scheme(*v);
+  if (auto v = in.position_pass()) o.positionPass = S::PositionPass(*v);
+  if (auto v = in.position_iterations()) o.positionIterations = *v;
+  if (auto v = in.position_baumgarte()) o.positionBaumgarte = *v;
+  if (auto v = in.max_position_correction()) o.maxPositionCorrection = *v;
+  if (auto v = in.substeps()) o.substeps = *v;
+  if (auto v = in.iterations()) o.iterations = *v;
+  if (auto v = in.tolerance()) o.tolerance = *v;
+  if (auto v = in.relax_iterations()) o.relaxIterations = *v;
+  if (auto v = in.stabilization()) o.stabilization = S::Stabilization(*v);
+  if (auto v = in.baumgarte()) o.baumgarte = *v;
+  if (auto v = in.contact_hertz()) o.contactHertz = *v;
+  if (auto v = in.contact_damping_ratio()) o.contactDampingRatio = *v;
+  if (auto v = in.joint_hertz()) o.jointHertz = *v;
+  if (auto v = in.joint_damping_ratio()) o.jointDampingRatio = *v;
+  if (auto v = in.max_pushout()) o.maxPushout = *v;
+  if (auto v = in.linear_slop()) o.linearSlop = *v;
+  if (auto v = in.warm_start()) o.warmStart = *v;
+  if (auto v = in.restitution()) o.restitution = *v;
+  if (auto v = in.restitution_threshold()) o.restitutionThreshold = *v;
+  if (auto v = in.equality_solve()) o.equalitySolve = S::EqualitySolve(*v);
+  if (auto v = in.block_contacts()) o.blockContacts = *v;
+  if (auto v = in.geometric_stiffness()) o.geometricStiffness = *v;
+  if (auto v = in.split_pushout()) o.splitPushout = *v;
+  return o;
+}
+
+void applyOverrides(const SolverOverrides& o, phys::SolverSettings* s) {
+  if (o.scheme) s->scheme = *o.scheme;
+  if (o.positionPass) s->positionPass = *o.positionPass;
+  if (o.positionIterations) s->positionIterations = *o.positionIterations;
+  if (o.positionBaumgarte) s->positionBaumgarte = *o.positionBaumgarte;
+  if (o.maxPositionCorrection) s->maxPositionCorrection = *o.maxPositionCorrection;
+  if (o.substeps) s->substeps = *o.substeps;
+  if (o.iterations) s->iterations = *o.iterations;
+  if (o.tolerance) s->tolerance = *o.tolerance;
+  if (o.relaxIterations) s->relaxIterations = *o.relaxIterations;
+  if (o.stabilization) s->stabilization = *o.stabilization;
+  if (o.baumgarte) s->baumgarte = *o.baumgarte;
+  if (o.contactHertz) s->contactHertz = *o.contactHertz;
+  if (o.contactDampingRatio) s->contactDampingRatio = *o.contactDampingRatio;
+  if (o.jointHertz) s->jointHertz = *o.jointHertz;
+  if (o.jointDampingRatio) s->jointDampingRatio = *o.jointDampingRatio;
+  if (o.maxPushout) s->maxPushout = *o.maxPushout;
+  if (o.linearSlop) s->linearSlop = *o.linearSlop;
+  if (o.warmStart) s->warmStart = *o.warmStart;
+  if (o.restitution) s->restitution = *o.restitution;
+  if (o.restitutionThreshold) s->restitutionThreshold = *o.restitutionThreshold;
+  if (o.equalitySolve) s->equalitySolve = *o.equalitySolve;
+  if (o.blockContacts) s->blockContacts = *o.blockContacts;
+  if (o.geometricStiffness) s->geometricStiffness = *o.geometricStiffness;
+  if (o.splitPushout) s->splitPushout = *o.splitPushout;
+}
+
+void applySolverSettings(const wire::SolverSettings& in, phys::SolverSettings* out) {
+  applyOverrides(toOverrides(in), out);
+}
+
+Status toSnapshotData(const wire::Snapshot& in, SnapshotData* out) {
+  SnapshotData s;
+  if (in.name()) s.name = in.name()->str();
+  if (in.gravity()) s.gravity = toPhys(*in.gravity());
+  s.timeStep = in.time_step();
+  if (in.solver()) applySolverSettings(*in.solver(), &s.solver);
+  s.tick = in.tick();
+  s.time = in.time();
+  if (auto* e = in.engine_state()) s.engineState.assign(e->begin(), e->end());
+  if (auto* bv = in.bodies()) {
+    s.bodies.resize(bv->size());
+    for (uint32_t i = 0; i < bv->size(); ++i) {
+      const wire::BodyEntry* e = bv->Get(i);
+      s.bodies[i].id = e->id();
+      if (!e->def()) continue;
+      Status st =
+          toBodyDef(*e->def(), &s.bodies[i].def, "snapshot.bodies[" + std::to_string(i) + "].def");
+      if (!st.ok()) return st;
+    }
+  }
+  if (auto* jv = in.joints()) {
+    s.joints.resize(jv->size());
+    for (uint32_t i = 0; i < jv->size(); ++i) {
+      const wire::JointEntry* e = jv->Get(i);
+      s.joints[i].id = e->id();
+      if (e->def()) s.joints[i].def = toJointDef(*e->def());
+    }
+  }
+  *out = std::move(s);
+  return Status::Ok();
+}
+
+}  // namespace phys::protocol

@@ -1,0 +1,179 @@
+// The idlc envelope, topic names, QoS presets, and one real write/read over loopback DDS.
+#include <dds/dds.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <string>
+#include <thread>
+
+#include "phys/protocol/dds_envelope.h"
+#include "phys/protocol/qos.h"
+#include "phys/protocol/topics.h"
+#include "protocol_test_util.h"
+
+namespace phys::protocol::test {
+namespace {
+
+TEST(ProtocolEnvelope, GeneratedType) {
+  EXPECT_EQ(phys_wire_Envelope_desc.m_size, sizeof(phys_wire_Envelope));
+  EXPECT_EQ(phys_wire_Envelope_desc.m_nkeys, 1u);
+  EXPECT_STREQ(phys_wire_Envelope_desc.m_typename, "phys::wire::Envelope");
+  EXPECT_EQ(phys_wire_ENVELOPE_MAX_BYTES, kMaxEnvelopeBytes);
+  EXPECT_EQ(Limits{}.maxMessageBytes, kMaxEnvelopeBytes);
+}
+
+TEST(ProtocolEnvelope, WrapAndCheck) {
+  Bytes cmd = CommandBuilder().step(2).finish(header());
+  phys_wire_Envelope env{};
+  wrapEnvelope(&env, kClient, 9, PayloadKind::Command, cmd);
+  EXPECT_EQ(env.key, kClient);
+  EXPECT_EQ(env.seq, 9u);
+  EXPECT_EQ(env.kind, 1);
+  EXPECT_EQ(env.schema_version, kProtocolVersion);
+  EXPECT_EQ(env.bytes._length, cmd.size());
+  EXPECT_FALSE(env.bytes._release);
+  EXPECT_TRUE(checkEnvelope(env, PayloadKind::Command).ok());
+  auto d = decodeCommand(envelopeBytes(env));
+  ASSERT_TRUE(d.ok());
+  EXPECT_EQ(d->request_as_Step()->count(), 2u);
+
+  Status s = checkEnvelope(env, PayloadKind::Reply);
+  EXPECT_EQ(s.code, Code::Malformed);
+  EXPECT_EQ(s.message, "envelope.kind is 1, expected 2 (Reply)");
+  env.schema_version = 2;
+  EXPECT_EQ(checkEnvelope(env, PayloadKind::Command).code, Code::Unsupported);
+  env.schema_version = kProtocolVersion;
+  Limits small;
+  small.maxMessageBytes = 16;
+  s = checkEnvelope(env, PayloadKind::Command, small);
+  EXPECT_EQ(s.code, Code::ResourceExhausted);
+  EXPECT_NE(s.message.find("(max_message_bytes)"), std::string::npos);
+}
+
+TEST(ProtocolTopics, NamesKeysAndQos) {
+  EXPECT_EQ(kCommandTopic, "phys/cmd");
+  EXPECT_EQ(kReplyTopic, "phys/reply");
+  EXPECT_EQ(stateTopic(12), "phys/state/12");
+  EXPECT_EQ(kWorldInfoTopic, "phys/world_info");
+  EXPECT_EQ(kStatusTopic, "phys/status");
+  EXPECT_EQ(kEventsTopic, "phys/events");
+  EXPECT_EQ(worldInfoKey(3, 2), (uint64_t(3) << 32) | 2);
+  EXPECT_STREQ(toString(PayloadKind::StateFrame), "StateFrame");
+
+  for (const TopicSpec& t : kTopics) {
+    QosPtr q = makeQos(t.qos);
+    ASSERT_TRUE(q);
+    dds_reliability_kind_t rel;
+    dds_duration_t blocking;
+    ASSERT_TRUE(dds_qget_reliability(q.get(), &rel, &blocking));
+    EXPECT_EQ(rel, t.qos.reliability == Reliability::Reliable ? DDS_RELIABILITY_RELIABLE
+                                                              : DDS_RELIABILITY_BEST_EFFORT);
+    dds_durability_kind_t dur;
+    ASSERT_TRUE(dds_qget_durability(q.get(), &dur));
+    EXPECT_EQ(dur, t.qos.durability == Durability::TransientLocal ? DDS_DURABILITY_TRANSIENT_LOCAL
+                                                                  : DDS_DURABILITY_VOLATILE);
+    dds_history_kind_t hist;
+    int32_t depth;
+    ASSERT_TRUE(dds_qget_history(q.get(), &hist, &depth));
+    EXPECT_EQ(hist, DDS_HISTORY_KEEP_LAST);
+    EXPECT_EQ(depth, t.qos.depth);
+  }
+  EXPECT_EQ(kStateQos.depth, 1);
+  EXPECT_EQ(kWorldInfoQos.durability, Durability::TransientLocal);
+}
+
+// Loopback-only Cyclone configuration (docs/TOOLCHAIN_FACTS), on a domain of its own.
+constexpr const char* kLoopback =
+    "<CycloneDDS><Domain><General><Interfaces><NetworkInterface name=\"lo\"/></Interfaces>"
+    "<AllowMulticast>false</AllowMulticast></General><Discovery><Peers>"
+    "<Peer address=\"127.0.0.1\"/></Peers><ParticipantIndex>auto</ParticipantIndex>"
+    "<MaxAutoParticipantIndex>64</MaxAutoParticipantIndex></Discovery></Domain></CycloneDDS>";
+
+/// Polls until pred() or the deadline; true when pred() held.
+template <class Pred>
+bool waitFor(Pred pred, std::chrono::milliseconds timeout) {
+  auto end = std::chrono::steady_clock::now() + timeout;
+  while (std::chrono::steady_clock::now() < end) {
+    if (pred()) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  return pred();
+}
+
+TEST(ProtocolEnvelope, LoopbackWriteRead) {
+  const dds_domainid_t domain = 150 + dds_domainid_t(getpid() % 80);
+  dds_entity_t dom = dds_create_domain(domain, kLoopback);
+  if (dom < 0) GTEST_SKIP() << "no DDS domain on loopback: " << dds_strretcode(dom);
+  dds_entity_t participant = dds_create_participant(domain, nullptr, nullptr);
+  ASSERT_GT(participant, 0) << dds_strretcode(participant);
+  dds_entity_t topic = dds_create_topic(participant, &phys_wire_Envelope_desc,
+                                        std::string(kCommandTopic).c_str(), nullptr, nullptr);
+  ASSERT_GT(topic, 0) << dds_strretcode(topic);
+  // A per-world state topic name is valid too.
+  dds_entity_t state = dds_create_topic(participant, &phys_wire_Envelope_desc,
+                                        stateTopic(1).c_str(), nullptr, nullptr);
+  EXPECT_GT(state, 0) << dds_strretcode(state);
+  QosPtr qos = makeQos(kCommandQos);
+  dds_entity_t writer = dds_create_writer(participant, topic, qos.get(), nullptr);
+  dds_entity_t reader = dds_create_reader(participant, topic, qos.get(), nullptr);
+  ASSERT_GT(writer, 0) << dds_strretcode(writer);
+  ASSERT_GT(reader, 0) << dds_strretcode(reader);
+  ASSERT_TRUE(waitFor(
+      [&] {
+        dds_publication_matched_status_t m;
+        return dds_get_publication_matched_status(writer, &m) == DDS_RETCODE_OK &&
+               m.current_count > 0;
+      },
+      std::chrono::seconds(5)));
+
+  // A command of about 1 MB (many bodies) and a small one.
+  std::vector<phys::BodyDef> bodies(10000, boxBody({0, 0, 1}, {0.5f, 0.5f, 0.5f}));
+  Bytes big = CommandBuilder().spawnBodies(bodies).finish(header(1));
+  Bytes small = CommandBuilder().step(5).finish(header(2));
+  ASSERT_GT(big.size(), 500000u);
+  for (const Bytes* b : {&big, &small}) {
+    phys_wire_Envelope env{};
+    wrapEnvelope(&env, kClient, b == &big ? 1 : 2, PayloadKind::Command, *b);
+    ASSERT_EQ(dds_write(writer, &env), DDS_RETCODE_OK);
+  }
+  // Past the IDL bound the write fails (and nothing is sent).
+  Bytes tooBig(kMaxEnvelopeBytes + 1, 0);
+  phys_wire_Envelope over{};
+  wrapEnvelope(&over, kClient, 3, PayloadKind::Command, tooBig);
+  EXPECT_EQ(dds_write(writer, &over), DDS_RETCODE_BAD_PARAMETER);
+
+  int received = 0;
+  bool ok = waitFor(
+      [&] {
+        void* samples[4] = {};
+        dds_sample_info_t infos[4];
+        int n = dds_take(reader, samples, infos, 4, 4);
+        for (int i = 0; i < n; ++i) {
+          if (!infos[i].valid_data) continue;
+          auto* env = static_cast<const phys_wire_Envelope*>(samples[i]);
+          EXPECT_TRUE(checkEnvelope(*env, PayloadKind::Command).ok());
+          EXPECT_EQ(env->key, kClient);
+          auto d = decodeCommand(envelopeBytes(*env));
+          EXPECT_TRUE(d.ok()) << d.status.message;
+          if (d.ok()) {
+            EXPECT_EQ(d->seq(), env->seq);
+            if (env->seq == 1) {
+              EXPECT_EQ(d->request_as_SpawnBodies()->bodies()->size(), 10000u);
+            } else {
+              EXPECT_EQ(d->request_as_Step()->count(), 5u);
+            }
+          }
+          ++received;
+        }
+        if (n > 0) dds_return_loan(reader, samples, n);
+        return received >= 2;
+      },
+      std::chrono::seconds(5));
+  EXPECT_TRUE(ok) << "received " << received << " of 2";
+  EXPECT_EQ(received, 2);
+  dds_delete(participant);
+  dds_delete(dom);
+}
+
+}  // namespace
+}  // namespace phys::protocol::test
