@@ -922,8 +922,14 @@ void BroadPhase::Impl::mergePairs(std::vector<ProxyPair>* result) {
 
 BroadPhase::BroadPhase() : impl_(std::make_unique<Impl>()) {}
 BroadPhase::~BroadPhase() = default;
+BroadPhase::BroadPhase(BroadPhase&&) noexcept = default;
+BroadPhase& BroadPhase::operator=(BroadPhase&&) noexcept = default;
 
 int32_t BroadPhase::createProxy(const AABB& tight, float fatMargin, uint32_t user, bool isStatic) {
+  return createProxyWithFatBox(inflate(tight, fatMargin), user, isStatic);
+}
+
+int32_t BroadPhase::createProxyWithFatBox(const AABB& fat, uint32_t user, bool isStatic) {
   Impl& m = *impl_;
   int32_t p;
   if (m.freeProxy != kNull) {
@@ -934,7 +940,6 @@ int32_t BroadPhase::createProxy(const AABB& tight, float fatMargin, uint32_t use
     m.proxies.push_back({});
     m.dirtyFlag.push_back(0);
   }
-  const AABB fat = inflate(tight, fatMargin);
   m.proxies[p] = {fat, fat, user, kNull, kNull, kNull, isStatic, true};
   m.maxUser = std::max(m.maxUser, user);
   m.markDirty(p);

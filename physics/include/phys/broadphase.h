@@ -25,10 +25,18 @@ class BroadPhase {
   ~BroadPhase();
   BroadPhase(const BroadPhase&) = delete;
   BroadPhase& operator=(const BroadPhase&) = delete;
+  /// Movable, so a world restored from a snapshot can build its broad phase aside and swap it
+  /// in. A moved-from broad phase may only be destroyed or assigned to.
+  BroadPhase(BroadPhase&&) noexcept;
+  BroadPhase& operator=(BroadPhase&&) noexcept;
 
   /// Adds a proxy; `user` is the caller's id (unique among live proxies, e.g. a shape index).
   /// Returns the proxy index.
   int32_t createProxy(const AABB& tight, float fatMargin, uint32_t user, bool isStatic);
+  /// Adds a proxy whose fat box is `fat` exactly (a snapshot's saved fat box). The pairs
+  /// depend only on the live proxies' fat boxes and static flags, so proxies rebuilt with
+  /// their saved fat boxes give the same pairs now and after any later sequence of calls.
+  int32_t createProxyWithFatBox(const AABB& fat, uint32_t user, bool isStatic);
   void destroyProxy(int32_t proxy);
   /// Updates a proxy's tight box; re-fattens with fatMargin only if it left the fat box.
   /// Returns true when the fat box changed.

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 namespace phys {
@@ -80,6 +81,41 @@ class Pool {
     slots_.clear();
     free_.clear();
     live_ = 0;
+  }
+
+  // Snapshot support (World::saveSnapshot / restoreSnapshot): the exact slot layout, so ids
+  // handed out after a restore are the ones the saved world would have handed out.
+  uint32_t generationAt(uint32_t i) const { return slots_[i].generation; }
+  /// Free slot indices; the next add takes the back one.
+  const std::vector<uint32_t>& freeList() const { return free_; }
+  /// Replaces the whole pool: slot i gets generations[i], alive[i] and (if alive) values[i];
+  /// dead slots hold T{}. Returns false and changes nothing unless the three sizes agree,
+  /// every generation is nonzero and freeList names every dead slot exactly once.
+  bool assign(std::vector<T> values, const std::vector<uint32_t>& generations,
+              const std::vector<uint8_t>& alive, std::vector<uint32_t> freeList) {
+    const size_t n = values.size();
+    if (generations.size() != n || alive.size() != n) return false;
+    size_t dead = 0;
+    for (size_t i = 0; i < n; ++i) {
+      if (generations[i] == 0) return false;
+      dead += alive[i] ? 0 : 1;
+    }
+    if (freeList.size() != dead) return false;
+    std::vector<uint8_t> listed(n, 0);
+    for (uint32_t i : freeList) {
+      if (i >= n || alive[i] || listed[i]) return false;
+      listed[i] = 1;
+    }
+    std::vector<Slot> slots(n);
+    for (size_t i = 0; i < n; ++i) {
+      slots[i].generation = generations[i];
+      slots[i].alive = alive[i] != 0;
+      if (slots[i].alive) slots[i].value = std::move(values[i]);
+    }
+    slots_ = std::move(slots);
+    free_ = std::move(freeList);
+    live_ = uint32_t(n - dead);
+    return true;
   }
 
  private:

@@ -291,6 +291,24 @@ class World {
   uint64_t stateHash() const;
   double time() const;  ///< s, simulated time
 
+  /// Serializes the whole world state between steps, bit for bit: the definition (gravity,
+  /// time step, solver settings, guard; not `threads`, which results do not depend on),
+  /// bodies (with pending forces and torques), shapes (convex hulls included), joints
+  /// (motors, warm-start impulses, the last step's reactions that feed geometric stiffness),
+  /// persistent contacts with their warm-start impulses, the broad phase's fat boxes, the id
+  /// pools (generations and free lists, so ids created after a restore are the same),
+  /// simulated time and the step statistics. A world restored from it and stepped M times
+  /// has the same stateHash() as this one stepped M times. Fails (out cleared) only when the
+  /// state holds a non-finite number, which restoreSnapshot would reject. Format: see
+  /// docs/ARCHITECTURE.md "Snapshots".
+  Status saveSnapshot(std::vector<uint8_t>* out) const;
+  /// Replaces this world's whole state with a snapshot (this world's thread count is kept).
+  /// On any error (truncated, corrupted, wrong magic/version, counts over limits, non-finite
+  /// numbers, dangling ids) returns an InvalidArgument status whose message says what and
+  /// where, and leaves the world unchanged: the snapshot is parsed into a fresh state, which
+  /// is swapped in only once all of it has been checked.
+  Status restoreSnapshot(const uint8_t* data, size_t size);
+
   struct Impl;
 
  private:
