@@ -1,0 +1,36 @@
+// physd's configuration (configs/physd.toml), parsed with toml++. No DDS here.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "phys/server/core.h"
+
+namespace phys::server {
+
+/// A world created at start-up.
+struct StartupWorld {
+  std::string name;
+  std::string scene;   ///< a scene of scenes_dir by name; empty: an empty world
+  std::string preset;  ///< empty: the presets file's default
+  bool run = true;     ///< start running
+  double rateHz = 0;   ///< 0: the server's default rate
+};
+
+struct DaemonConfig {
+  uint32_t domain = 0;            ///< DDS domain id
+  std::string cycloneConfig;      ///< CYCLONEDDS_URI file (absolute); empty: Cyclone's own
+  std::string logLevel = "info";  ///< spdlog level name
+  double statusPeriodS = 1.0;     ///< phys/status period
+  CoreConfig core;
+  std::vector<StartupWorld> worlds;
+};
+
+/// Reads a physd.toml. Relative paths in it are relative to the file's directory. Unknown
+/// keys are errors (a typo should not silently keep a default).
+Status loadDaemonConfig(const std::string& path, DaemonConfig* out);
+/// The same from TOML text; baseDir resolves relative paths.
+Status parseDaemonConfig(const std::string& text, const std::string& baseDir, DaemonConfig* out);
+
+}  // namespace phys::server

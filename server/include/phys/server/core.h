@@ -1,0 +1,200 @@
+// physd's core without DDS: the world registry, command application at tick boundaries,
+// time control, state frame production and status numbers. The DDS endpoint (endpoint.h)
+// feeds it decoded commands and drains its PublishQueue; tests drive it directly.
+//
+// Threading: submit() and setSubscribers() may be called from any thread. Everything else
+// (apply, processPending, advance, the accessors) belongs to the tick thread (TickThread, or
+// the test's own thread).
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <span>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "phys/presets.h"
+#include "phys/protocol/builder.h"
+#include "phys/protocol/decoder.h"
+#include "phys/protocol/limits.h"
+#include "phys/protocol/status.h"
+#include "phys/server/ring.h"
+#include "phys/world.h"
+
+namespace phys::server {
+
+using protocol::Status;
+using Code = protocol::Code;
+
+struct CoreConfig {
+  std::string serverName = "physd";
+  uint64_t serverId = 1;    ///< phys/status key
+  std::string presetsFile;  ///< empty: phys::defaultPresetsPath()
+  std::string scenesDir;    ///< LoadScene by name: <scenesDir>/<name>.json
+  std::string snapshotDir;  ///< SaveSnapshot / RestoreSnapshot files; empty: refused
+  protocol::Limits limits;  ///< codec limits, also announced in HelloResult
+  int threads = 1;          ///< WorldDef::threads of every world
+  int maxCatchUpSteps = 4;  ///< steps one tick may take to catch up with real time
+  uint32_t maxWorlds = 64;  ///< worlds per daemon
+  uint32_t bodiesPerChunk = protocol::kDefaultBodiesPerChunk;
+  size_t frameRingCapacity = 4;  ///< state frame sets queued for the publisher
+  double defaultRateHz = 60;     ///< Run without a rate
+};
+
+/// Time control of a world.
+enum class RunMode : uint8_t { Paused, RealTime, AsFastAsPossible };
+
+/// One world of the daemon: a phys::World plus what the protocol needs that the engine does
+/// not keep (the definitions its bodies were spawned from, names, time control, numbers).
+struct ServerWorld {
+  uint32_t id = 0;
+  std::string name;
+  std::string preset;
+  std::unique_ptr<phys::World> world;
+  /// Definitions of live bodies and joints by packed id (poses as spawned; world info
+  /// refreshes poses and velocities from the engine).
+  std::map<uint64_t, phys::BodyDef> bodyDefs;
+  std::map<uint64_t, phys::JointDef> jointDefs;
+  uint64_t tick = 0;      ///< steps since creation, reset or restore (restore: the saved tick)
+  uint64_t revision = 1;  ///< bumped on every structural change
+  // Time control.
+  RunMode mode = RunMode::Paused;
+  double rateHz = 60;
+  double accumulator = 0;  ///< steps owed to real time
+  // Numbers.
+  float tickMs = 0, tickMsMax = 0;  ///< last tick's step time; worst since the last status
+  uint64_t overruns = 0;
+  uint64_t framesProduced = 0;
+  bool infoDirty = true;   ///< world info to publish
+  bool frameDirty = true;  ///< a state frame to publish even without a step
+};
+
+/// A command as it arrived: the envelope's key and seq, and the decoded payload (or why it
+/// could not be decoded).
+struct Incoming {
+  uint64_t envelopeKey = 0;
+  uint64_t envelopeSeq = 0;
+  protocol::Decoded<wire::Command> command;
+};
+
+struct CoreCounters {
+  uint64_t commands = 0;  ///< received
+  uint64_t errors = 0;    ///< rejected (reply status not Ok)
+  uint64_t steps = 0;     ///< world steps, all worlds
+};
+
+class ServerCore {
+ public:
+  explicit ServerCore(CoreConfig config);
+  ~ServerCore();
+  ServerCore(const ServerCore&) = delete;
+  ServerCore& operator=(const ServerCore&) = delete;
+
+  /// Loads the presets file. Without it only the engine's defaults exist (preset "default").
+  Status init();
+
+  const CoreConfig& config() const { return config_; }
+  PublishQueue& out() { return out_; }
+
+  // --- Start-up (tick thread or before it runs) ---
+  /// A world with a preset (empty: the default) and optionally a scene by name.
+  Status createWorld(const std::string& name, const std::string& preset, const std::string& scene,
+                     uint32_t* id);
+  Status setRun(uint32_t world, RunMode mode, double rateHz);
+
+  // --- Commands ---
+  /// Applies one decoded command now and returns the reply payload. envelopeKey must equal
+  /// the command's client id.
+  Bytes apply(const wire::Command& command, uint64_t envelopeKey);
+  /// Decodes and applies a raw payload as the daemon does (an undecodable payload is
+  /// answered to client envelopeKey, seq envelopeSeq).
+  Bytes applyBytes(std::span<const uint8_t> payload, uint64_t envelopeKey, uint64_t envelopeSeq);
+  /// The reply for an Incoming (decoded or not).
+  Bytes apply(const Incoming& in);
+
+  /// Thread-safe: queues a command for the next tick boundary.
+  void submit(Incoming in);
+  /// Applies every queued command in arrival order, pushing the replies (and changed world
+  /// info) to out(). Returns the number applied.
+  size_t processPending();
+  /// Waits until a command is queued or the timeout passes (the tick thread's sleep).
+  void waitForCommands(std::chrono::microseconds timeout);
+
+  // --- Time ---
+  /// Advances every running world by wallSeconds of real time (RealTime: fixed steps from
+  /// the accumulator, at most maxCatchUpSteps; AsFastAsPossible: one step), then queues a
+  /// state frame for every world that stepped or changed. Returns steps taken.
+  uint64_t advance(double wallSeconds);
+  /// Steps world n times now (Step command); frames are queued by the next advance().
+  Status stepWorld(uint32_t world, uint64_t n);
+  /// Seconds until some running world owes a step (0 if one runs as fast as possible,
+  /// `idle` when none runs).
+  double secondsUntilDue(double idle) const;
+
+  /// Pushes world info for every world whose description changed.
+  void publishWorldInfo();
+  /// Pushes a ServerStatus sample (and resets tick_ms_max).
+  void publishStatus();
+
+  // --- Numbers and inspection ---
+  protocol::ServerStatusInfo status() const;
+  std::vector<protocol::WorldSummary> summaries() const;
+  const CoreCounters& counters() const { return counters_; }
+  const ServerWorld* world(uint32_t id) const;
+  ServerWorld* world(uint32_t id);
+  std::vector<uint32_t> worldIds() const;
+  /// Thread-safe: matched state readers of a world (set by the publisher).
+  void setSubscribers(uint32_t world, uint32_t n);
+
+  struct Context;  // per-command state (commands.cpp)
+
+ private:
+  friend struct Context;
+  Status queueFrame(ServerWorld& w);
+  std::unique_ptr<ServerWorld> makeWorld(const std::string& name, const std::string& preset,
+                                         const phys::WorldDef& def);
+
+  CoreConfig config_;
+  std::map<std::string, phys::Preset> presets_;
+  std::string defaultPreset_;
+  std::map<uint32_t, std::unique_ptr<ServerWorld>> worlds_;
+  uint32_t nextWorldId_ = 1;
+  CoreCounters counters_;
+  std::chrono::steady_clock::time_point started_;
+  PublishQueue out_;
+
+  std::mutex inboxMutex_;
+  std::condition_variable inboxCv_;
+  std::deque<Incoming> inbox_;
+
+  mutable std::mutex subscribersMutex_;
+  std::map<uint32_t, uint32_t> subscribers_;
+};
+
+/// The tick thread: at each boundary applies queued commands, advances time, publishes
+/// world info changes and, every statusPeriod, a status sample. Never calls DDS.
+class TickThread {
+ public:
+  TickThread(ServerCore* core, std::chrono::milliseconds statusPeriod = std::chrono::seconds(1));
+  ~TickThread();  ///< stops
+  void start();
+  void stop();
+  uint64_t ticks() const { return ticks_.load(); }
+
+ private:
+  void run();
+  ServerCore* core_;
+  std::chrono::milliseconds statusPeriod_;
+  std::atomic<bool> stop_{false};
+  std::atomic<uint64_t> ticks_{0};
+  std::thread thread_;
+};
+
+}  // namespace phys::server

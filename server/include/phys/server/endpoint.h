@@ -1,0 +1,68 @@
+// physd's DDS side: a reader thread that takes phys/cmd envelopes, checks and decodes them
+// and queues them to the core (ServerCore::submit), and a publisher thread that drains the
+// core's PublishQueue onto phys/reply, phys/state/<world>, phys/world_info and phys/status.
+// The tick thread (TickThread) never calls DDS.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <set>
+#include <string>
+#include <thread>
+
+#include "phys/server/core.h"
+#include "phys/server/dds.h"
+
+namespace phys::server {
+
+struct EndpointConfig {
+  uint32_t domain = 0;
+  std::string cycloneXml;  ///< Cyclone XML for the domain; empty: CYCLONEDDS_URI / defaults
+};
+
+struct EndpointCounters {
+  std::atomic<uint64_t> commandsTaken{0};
+  std::atomic<uint64_t> undecodable{0};  ///< envelopes or payloads that failed the codec
+  std::atomic<uint64_t> repliesWritten{0};
+  std::atomic<uint64_t> framesWritten{0};  ///< state chunks
+  std::atomic<uint64_t> writeErrors{0};
+};
+
+class DdsEndpoint {
+ public:
+  DdsEndpoint(ServerCore* core, EndpointConfig config);
+  ~DdsEndpoint();  ///< stops
+  /// Creates the participant, topics, reader and writers and starts both threads.
+  Status start();
+  /// Stops both threads (the publisher first drains what is queued, briefly).
+  void stop();
+  const EndpointCounters& counters() const { return counters_; }
+
+ private:
+  void readLoop();
+  void publishLoop();
+  void publish(ReliableMessage& m);
+  void publish(StateFrameSet& f);
+
+  ServerCore* core_;
+  EndpointConfig config_;
+  dds::Participant participant_;
+  dds::Topic cmdTopic_, replyTopic_, infoTopic_, statusTopic_;
+  dds::Reader cmdReader_;
+  dds::Writer replyWriter_, infoWriter_, statusWriter_;
+  dds::WaitSet waitset_;
+  struct StateTopic {
+    dds::Topic topic;
+    dds::Writer writer;
+  };
+  std::map<uint32_t, std::unique_ptr<StateTopic>> state_;  ///< publisher thread only
+  std::map<uint32_t, uint32_t> infoChunks_;                ///< world -> chunks last written
+  std::set<uint32_t> removed_;  ///< destroyed worlds (ids are never reused): late frames dropped
+  std::atomic<bool> stop_{false};
+  std::thread reader_, publisher_;
+  EndpointCounters counters_;
+};
+
+}  // namespace phys::server

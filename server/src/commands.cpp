@@ -1,0 +1,838 @@
+// ServerCore::apply: every command of the protocol, checked against the server's state,
+// applied all-or-nothing, answered with a reply payload.
+//
+// World edits (and Batches of them) run in two passes: a check pass (ids live, presets
+// exist, definitions convert) that changes nothing, then the apply pass. Before the apply
+// pass the world is saved with World::saveSnapshot; if an engine call still fails midway
+// (e.g. engine validation of a body definition, or a batch item that refers to a body an
+// earlier item removed) the world is restored from it, so nothing changes.
+#include <cinttypes>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <set>
+#include <string>
+
+#include "phys/protocol/convert.h"
+#include "phys/scene.h"
+#include "phys/server/core.h"
+
+namespace phys::server {
+
+namespace {
+
+using protocol::ReplyHeader;
+namespace fs = std::filesystem;
+
+std::string hex(uint64_t v) {
+  char buf[24];
+  std::snprintf(buf, sizeof buf, "0x%" PRIx64, v);
+  return buf;
+}
+
+Status err(Code c, std::string m) {
+  return Status::Error(c, std::move(m));
+}
+
+Status fromPhys(const phys::Status& s, const std::string& path) {
+  Status out = protocol::fromPhys(s);
+  if (!out.ok()) out.message = path + ": " + out.message;
+  return out;
+}
+
+/// Ids created by one command (a batch concatenates).
+struct CreatedIds {
+  std::vector<uint64_t> bodies, joints;
+};
+
+bool liveJoint(const phys::World& w, uint64_t packed) {
+  phys::JointDef d;
+  phys::JointState s;
+  return w.getJoint(phys::JointId::fromPacked(packed), &d, &s).ok();
+}
+
+/// A body definition rebuilt from the engine (after an engine snapshot restore, which
+/// carries no definitions): type, pose, velocities and shapes; damping, gravity scale,
+/// explicit masses and names are not recoverable and take their defaults.
+phys::BodyDef defFromWorld(const phys::World& w, phys::BodyId id) {
+  phys::BodyDef d;
+  phys::BodyState s;
+  if (!w.getBody(id, &s).ok()) return d;
+  d.type = s.type;
+  d.position = s.position;
+  d.rotation = s.rotation;
+  d.linearVelocity = s.linearVelocity;
+  d.angularVelocity = s.angularVelocity;
+  for (phys::ShapeId sid : w.bodyShapes(id)) {
+    phys::ShapeDef sd;
+    phys::BodyId owner;
+    if (w.getShape(sid, &sd, &owner).ok()) d.shapes.push_back(sd);
+  }
+  return d;
+}
+
+void rebuildDefs(ServerWorld& w) {
+  w.bodyDefs.clear();
+  w.jointDefs.clear();
+  for (phys::BodyId id : w.world->bodies()) w.bodyDefs[id.packed()] = defFromWorld(*w.world, id);
+  for (phys::JointId id : w.world->joints()) {
+    phys::JointDef d;
+    phys::JointState s;
+    if (w.world->getJoint(id, &d, &s).ok()) w.jointDefs[id.packed()] = d;
+  }
+}
+
+/// Names are checked by the codec to be plain ([A-Za-z0-9._-], no leading dot).
+std::string underDir(const std::string& dir, const std::string& name, const char* ext) {
+  return (fs::path(dir) / (name + ext)).string();
+}
+
+}  // namespace
+
+/// Whether a world edit carries the vectors and tables it must have.
+bool requiredPresent(wire::Request type, const void* t) {
+  switch (type) {
+    case wire::Request::SpawnBodies:
+      return static_cast<const wire::SpawnBodies*>(t)->bodies();
+    case wire::Request::RemoveBodies:
+      return static_cast<const wire::RemoveBodies*>(t)->bodies();
+    case wire::Request::AddJoints:
+      return static_cast<const wire::AddJoints*>(t)->joints();
+    case wire::Request::RemoveJoints:
+      return static_cast<const wire::RemoveJoints*>(t)->joints();
+    case wire::Request::SetBodyPose:
+      return static_cast<const wire::SetBodyPose*>(t)->items();
+    case wire::Request::SetBodyVelocity:
+      return static_cast<const wire::SetBodyVelocity*>(t)->items();
+    case wire::Request::ApplyForce:
+      return static_cast<const wire::ApplyForce*>(t)->items();
+    case wire::Request::ApplyImpulse:
+      return static_cast<const wire::ApplyImpulse*>(t)->items();
+    case wire::Request::ApplyTorque:
+      return static_cast<const wire::ApplyTorque*>(t)->items();
+    case wire::Request::SetMaterial: {
+      auto* r = static_cast<const wire::SetMaterial*>(t);
+      return r->bodies() && r->material();
+    }
+    default:
+      return true;
+  }
+}
+
+/// Engine calls a world edit makes (each either applies or changes nothing).
+size_t engineCalls(wire::Request type, const void* t) {
+  switch (type) {
+    case wire::Request::SpawnBodies:
+      return static_cast<const wire::SpawnBodies*>(t)->bodies()->size();
+    case wire::Request::RemoveBodies:
+      return static_cast<const wire::RemoveBodies*>(t)->bodies()->size();
+    case wire::Request::AddJoints:
+      return static_cast<const wire::AddJoints*>(t)->joints()->size();
+    case wire::Request::RemoveJoints:
+      return static_cast<const wire::RemoveJoints*>(t)->joints()->size();
+    case wire::Request::SetBodyPose:
+      return static_cast<const wire::SetBodyPose*>(t)->items()->size();
+    case wire::Request::SetBodyVelocity:
+      return static_cast<const wire::SetBodyVelocity*>(t)->items()->size();
+    case wire::Request::ApplyForce:
+      return static_cast<const wire::ApplyForce*>(t)->items()->size();
+    case wire::Request::ApplyImpulse:
+      return static_cast<const wire::ApplyImpulse*>(t)->items()->size();
+    case wire::Request::ApplyTorque:
+      return static_cast<const wire::ApplyTorque*>(t)->items()->size();
+    case wire::Request::SetMaterial:
+      return static_cast<const wire::SetMaterial*>(t)->bodies()->size();
+    default:
+      return 1;
+  }
+}
+
+// Per-command state: the core, the reply header and the ids created.
+struct ServerCore::Context {
+  ServerCore& core;
+  ReplyHeader header;
+  CreatedIds ids;
+
+  Status checkBodies(const phys::World& w, const flatbuffers::Vector<uint64_t>* v,
+                     const std::string& path) {
+    if (!v) return Status::Ok();
+    for (uint32_t i = 0; i < v->size(); ++i)
+      if (!w.isValid(phys::BodyId::fromPacked(v->Get(i))))
+        return err(Code::NotFound,
+                   path + "[" + std::to_string(i) + "] " + hex(v->Get(i)) + " is not a live body");
+    return Status::Ok();
+  }
+  template <class Item>
+  Status checkItems(const phys::World& w, const flatbuffers::Vector<const Item*>* v,
+                    const std::string& path) {
+    if (!v) return Status::Ok();
+    for (uint32_t i = 0; i < v->size(); ++i)
+      if (!w.isValid(phys::BodyId::fromPacked(v->Get(i)->id())))
+        return err(Code::NotFound, path + "[" + std::to_string(i) + "].id " + hex(v->Get(i)->id()) +
+                                       " is not a live body");
+    return Status::Ok();
+  }
+
+  /// The world point of a force: the centre of mass, a world point or a body-frame point.
+  static Status forcePoint(const phys::World& w, phys::BodyId id, const wire::BodyForce& f,
+                           wire::PointFrame frame, phys::Vec3* out) {
+    phys::BodyState s;
+    phys::Status st = w.getBody(id, &s);
+    if (!st.ok()) return protocol::fromPhys(st);
+    switch (frame) {
+      case wire::PointFrame::World:
+        *out = protocol::toPhys(f.point());
+        break;
+      case wire::PointFrame::Local:
+        *out = phys::apply(phys::Transform{s.position, s.rotation}, protocol::toPhys(f.point()));
+        break;
+      default:
+        *out = s.centerOfMass;
+        break;
+    }
+    return Status::Ok();
+  }
+
+  /// One world edit (a batchable request). dryRun: only the checks that need the server's
+  /// state, nothing changes. Otherwise applies it (the caller rolls back on error).
+  Status edit(ServerWorld& sw, wire::Request type, const void* table, const std::string& path,
+              bool dryRun) {
+    phys::World& w = *sw.world;
+    const std::string p = path + protocol::requestName(type);
+    // The codec requires these lists (non-empty); checked again so that a gap there can
+    // never become a null dereference here.
+    if (!table || !requiredPresent(type, table))
+      return err(Code::Malformed, p + " lacks a required field");
+    switch (type) {
+      case wire::Request::SpawnBodies: {
+        auto* r = static_cast<const wire::SpawnBodies*>(table);
+        auto* v = r->bodies();
+        std::vector<phys::BodyDef> defs(v ? v->size() : 0);
+        for (uint32_t i = 0; i < defs.size(); ++i) {
+          Status s =
+              protocol::toBodyDef(*v->Get(i), &defs[i], p + ".bodies[" + std::to_string(i) + "]");
+          if (!s.ok()) return s;
+        }
+        if (dryRun) return Status::Ok();
+        for (uint32_t i = 0; i < defs.size(); ++i) {
+          phys::BodyId id;
+          phys::Status s = w.createBody(defs[i], &id);
+          if (!s.ok()) return fromPhys(s, p + ".bodies[" + std::to_string(i) + "]");
+          sw.bodyDefs[id.packed()] = std::move(defs[i]);
+          ids.bodies.push_back(id.packed());
+        }
+        sw.infoDirty = true;
+        return Status::Ok();
+      }
+      case wire::Request::RemoveBodies: {
+        auto* v = static_cast<const wire::RemoveBodies*>(table)->bodies();
+        Status s = checkBodies(w, v, p + ".bodies");
+        if (!s.ok() || dryRun) return s;
+        for (uint32_t i = 0; i < v->size(); ++i) {
+          phys::Status st = w.destroyBody(phys::BodyId::fromPacked(v->Get(i)));
+          if (!st.ok()) return fromPhys(st, p + ".bodies[" + std::to_string(i) + "]");
+          sw.bodyDefs.erase(v->Get(i));
+        }
+        // Their joints went with them.
+        for (auto it = sw.jointDefs.begin(); it != sw.jointDefs.end();)
+          it = liveJoint(w, it->first) ? std::next(it) : sw.jointDefs.erase(it);
+        sw.infoDirty = true;
+        return Status::Ok();
+      }
+      case wire::Request::AddJoints: {
+        auto* v = static_cast<const wire::AddJoints*>(table)->joints();
+        std::vector<phys::JointDef> defs;
+        for (uint32_t i = 0; v && i < v->size(); ++i) {
+          const wire::JointDef* j = v->Get(i);
+          const std::string jp = p + ".joints[" + std::to_string(i) + "]";
+          if (j->body_a() != 0 && !w.isValid(phys::BodyId::fromPacked(j->body_a())))
+            return err(Code::NotFound, jp + ".body_a " + hex(j->body_a()) + " is not a live body");
+          if (!w.isValid(phys::BodyId::fromPacked(j->body_b())))
+            return err(Code::NotFound, jp + ".body_b " + hex(j->body_b()) + " is not a live body");
+          defs.push_back(protocol::toJointDef(*j));
+        }
+        if (dryRun) return Status::Ok();
+        for (size_t i = 0; i < defs.size(); ++i) {
+          phys::JointId id;
+          phys::Status st = w.createJoint(defs[i], &id);
+          if (!st.ok()) return fromPhys(st, p + ".joints[" + std::to_string(i) + "]");
+          sw.jointDefs[id.packed()] = defs[i];
+          ids.joints.push_back(id.packed());
+        }
+        sw.infoDirty = true;
+        return Status::Ok();
+      }
+      case wire::Request::RemoveJoints: {
+        auto* v = static_cast<const wire::RemoveJoints*>(table)->joints();
+        for (uint32_t i = 0; v && i < v->size(); ++i)
+          if (!liveJoint(w, v->Get(i)))
+            return err(Code::NotFound, p + ".joints[" + std::to_string(i) + "] " + hex(v->Get(i)) +
+                                           " is not a live joint");
+        if (dryRun || !v) return Status::Ok();
+        for (uint32_t i = 0; i < v->size(); ++i) {
+          phys::Status st = w.destroyJoint(phys::JointId::fromPacked(v->Get(i)));
+          if (!st.ok()) return fromPhys(st, p + ".joints[" + std::to_string(i) + "]");
+          sw.jointDefs.erase(v->Get(i));
+        }
+        sw.infoDirty = true;
+        return Status::Ok();
+      }
+      case wire::Request::SetBodyPose: {
+        auto* v = static_cast<const wire::SetBodyPose*>(table)->items();
+        Status s = checkItems(w, v, p + ".items");
+        if (!s.ok() || dryRun) return s;
+        for (uint32_t i = 0; i < v->size(); ++i) {
+          const wire::BodyPose* it = v->Get(i);
+          phys::Transform t = protocol::toPhys(it->pose());
+          phys::Status st = w.setTransform(phys::BodyId::fromPacked(it->id()), t.p, t.q);
+          if (!st.ok()) return fromPhys(st, p + ".items[" + std::to_string(i) + "]");
+        }
+        return Status::Ok();
+      }
+      case wire::Request::SetBodyVelocity: {
+        auto* v = static_cast<const wire::SetBodyVelocity*>(table)->items();
+        Status s = checkItems(w, v, p + ".items");
+        if (!s.ok()) return s;
+        for (uint32_t i = 0; v && i < v->size(); ++i) {
+          phys::BodyState bs;
+          w.getBody(phys::BodyId::fromPacked(v->Get(i)->id()), &bs);
+          if (bs.type == phys::BodyType::Static)
+            return err(Code::IncorrectState, p + ".items[" + std::to_string(i) + "].id " +
+                                                 hex(v->Get(i)->id()) +
+                                                 " is a static body (no velocity)");
+        }
+        if (dryRun) return Status::Ok();
+        for (uint32_t i = 0; i < v->size(); ++i) {
+          const wire::BodyVelocity* it = v->Get(i);
+          phys::Status st =
+              w.setVelocity(phys::BodyId::fromPacked(it->id()), protocol::toPhys(it->linear()),
+                            protocol::toPhys(it->angular()));
+          if (!st.ok()) return fromPhys(st, p + ".items[" + std::to_string(i) + "]");
+        }
+        return Status::Ok();
+      }
+      case wire::Request::ApplyForce:
+      case wire::Request::ApplyImpulse: {
+        const bool impulse = type == wire::Request::ApplyImpulse;
+        auto* v = impulse ? static_cast<const wire::ApplyImpulse*>(table)->items()
+                          : static_cast<const wire::ApplyForce*>(table)->items();
+        wire::PointFrame frame = impulse
+                                     ? static_cast<const wire::ApplyImpulse*>(table)->point_frame()
+                                     : static_cast<const wire::ApplyForce*>(table)->point_frame();
+        Status s = checkItems(w, v, p + ".items");
+        if (!s.ok() || dryRun) return s;
+        for (uint32_t i = 0; i < v->size(); ++i) {
+          const wire::BodyForce* it = v->Get(i);
+          const phys::BodyId id = phys::BodyId::fromPacked(it->id());
+          const std::string ip = p + ".items[" + std::to_string(i) + "]";
+          phys::Vec3 point;
+          s = forcePoint(w, id, *it, frame, &point);
+          if (!s.ok()) return err(s.code, ip + ": " + s.message);
+          phys::Vec3 vec = protocol::toPhys(it->vector());
+          phys::Status st = impulse ? w.applyImpulse(id, vec, point) : w.applyForce(id, vec, point);
+          if (!st.ok()) return fromPhys(st, ip);
+        }
+        return Status::Ok();
+      }
+      case wire::Request::ApplyTorque: {
+        auto* v = static_cast<const wire::ApplyTorque*>(table)->items();
+        Status s = checkItems(w, v, p + ".items");
+        if (!s.ok() || dryRun) return s;
+        for (uint32_t i = 0; i < v->size(); ++i) {
+          phys::Status st = w.applyTorque(phys::BodyId::fromPacked(v->Get(i)->id()),
+                                          protocol::toPhys(v->Get(i)->torque()));
+          if (!st.ok()) return fromPhys(st, p + ".items[" + std::to_string(i) + "]");
+        }
+        return Status::Ok();
+      }
+      case wire::Request::SetMaterial: {
+        auto* r = static_cast<const wire::SetMaterial*>(table);
+        Status s = checkBodies(w, r->bodies(), p + ".bodies");
+        if (!s.ok() || dryRun) return s;
+        const phys::Material m = protocol::toPhys(*r->material());
+        for (uint32_t i = 0; i < r->bodies()->size(); ++i) {
+          phys::Status st = w.setMaterial(phys::BodyId::fromPacked(r->bodies()->Get(i)), m);
+          if (!st.ok()) return fromPhys(st, p + ".bodies[" + std::to_string(i) + "]");
+          auto it = sw.bodyDefs.find(r->bodies()->Get(i));
+          if (it != sw.bodyDefs.end())
+            for (phys::ShapeDef& sd : it->second.shapes) sd.material = m;
+        }
+        sw.infoDirty = true;
+        return Status::Ok();
+      }
+      case wire::Request::SetSolver: {
+        auto* r = static_cast<const wire::SetSolver*>(table);
+        phys::SolverSettings settings = w.def().solver;
+        std::string presetName = sw.preset;
+        if (r->preset() && r->preset()->size() > 0) {
+          auto it = core.presets_.find(r->preset()->str());
+          if (it == core.presets_.end())
+            return err(Code::NotFound, p + ".preset '" + r->preset()->str() + "' is not a preset");
+          settings = it->second.settings;
+          presetName = it->first;
+        }
+        if (r->settings()) protocol::applySolverSettings(*r->settings(), &settings);
+        phys::Status st = phys::World::validate(settings);
+        if (!st.ok()) return fromPhys(st, p + ".settings");
+        if (dryRun) return Status::Ok();
+        st = w.setSolverSettings(settings);
+        if (!st.ok()) return fromPhys(st, p + ".settings");
+        sw.preset = presetName;
+        return Status::Ok();
+      }
+      default:
+        return err(Code::Internal, p + " is not a world edit");
+    }
+  }
+
+  /// Edits all-or-nothing: check every item, snapshot, apply, roll back on failure.
+  Status editAll(ServerWorld& sw, const std::vector<std::pair<wire::Request, const void*>>& items,
+                 const std::vector<std::string>& paths) {
+    for (size_t i = 0; i < items.size(); ++i) {
+      Status s = edit(sw, items[i].first, items[i].second, paths[i], true);
+      if (!s.ok()) return s;
+    }
+    // One engine call either applies or changes nothing: no snapshot needed (the common
+    // interactive case: one force, one pose). Otherwise save the world to roll back to.
+    size_t calls = 0;
+    for (auto& [type, table] : items) calls += engineCalls(type, table);
+    std::vector<uint8_t> saved;
+    phys::Status snap = calls > 1 ? sw.world->saveSnapshot(&saved) : phys::Status::Ok();
+    auto bodyDefs = sw.bodyDefs;
+    auto jointDefs = sw.jointDefs;
+    const std::string preset = sw.preset;
+    const bool infoDirty = sw.infoDirty;
+    for (size_t i = 0; i < items.size(); ++i) {
+      Status s = edit(sw, items[i].first, items[i].second, paths[i], false);
+      if (s.ok()) continue;
+      ids = {};
+      if (calls <= 1) return s;  // nothing was applied
+      if (!snap.ok())
+        return err(Code::Internal, s.message + " (and the world could not be saved before the " +
+                                       "command, so it may be partly applied: " + snap.message +
+                                       ")");
+      phys::Status back = sw.world->restoreSnapshot(saved.data(), saved.size());
+      if (!back.ok())
+        return err(Code::Internal, s.message + " (rollback failed: " + back.message + ")");
+      sw.bodyDefs = std::move(bodyDefs);
+      sw.jointDefs = std::move(jointDefs);
+      sw.preset = preset;
+      sw.infoDirty = infoDirty;
+      return s;
+    }
+    sw.frameDirty = true;
+    if (sw.infoDirty) ++sw.revision;
+    return Status::Ok();
+  }
+};
+
+Bytes ServerCore::applyBytes(std::span<const uint8_t> payload, uint64_t envelopeKey,
+                             uint64_t envelopeSeq) {
+  Incoming in;
+  in.envelopeKey = envelopeKey;
+  in.envelopeSeq = envelopeSeq;
+  in.command =
+      protocol::decodeCommand(std::vector<uint8_t>(payload.begin(), payload.end()), config_.limits);
+  return apply(in);
+}
+
+Bytes ServerCore::apply(const Incoming& in) {
+  if (in.command.ok()) return apply(*in.command, in.envelopeKey);
+  // Not decodable: answer the envelope's key and seq (the only correlation that is known).
+  ++counters_.commands;
+  ++counters_.errors;
+  ReplyHeader h;
+  h.clientId = in.envelopeKey;
+  h.seq = in.envelopeSeq;
+  h.status = in.command.status;
+  return protocol::encodeReply(h);
+}
+
+Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey) {
+  ++counters_.commands;
+  Context ctx{*this, protocol::replyTo(c), {}};
+  Status& st = ctx.header.status;
+  const wire::Request type = c.request_type();
+  ServerWorld* sw = nullptr;
+  Bytes reply;
+  auto finish = [&]() -> Bytes {
+    if (!st.ok()) ++counters_.errors;
+    if (sw && ctx.header.tick == 0) ctx.header.tick = sw->tick;
+    if (!reply.empty() && st.ok()) return std::move(reply);
+    if (st.ok() && (!ctx.ids.bodies.empty() || !ctx.ids.joints.empty() ||
+                    type == wire::Request::SpawnBodies || type == wire::Request::AddJoints ||
+                    type == wire::Request::LoadScene || type == wire::Request::Batch))
+      return protocol::encodeIdsReply(ctx.header, ctx.ids.bodies, ctx.ids.joints);
+    return protocol::encodeReply(ctx.header);
+  };
+
+  if (c.client_id() != envelopeKey) {
+    st = err(Code::Malformed, "command.client_id " + hex(c.client_id()) +
+                                  " differs from the envelope key " + hex(envelopeKey));
+    return finish();
+  }
+  if (protocol::needsWorld(type)) {
+    sw = world(c.world());
+    if (!sw) {
+      st = err(Code::NotFound, "command.world " + std::to_string(c.world()) + " does not exist");
+      return finish();
+    }
+  }
+
+  if (!c.request()) {
+    st = err(Code::Malformed, "command.request is missing");
+    return finish();
+  }
+  switch (type) {
+    case wire::Request::Hello: {
+      auto* r = c.request_as_Hello();
+      if (r->protocol_version() != protocol::kProtocolVersion) {
+        st = err(Code::Unsupported, "hello.protocol_version " +
+                                        std::to_string(r->protocol_version()) +
+                                        " is not supported; this server speaks " +
+                                        std::to_string(protocol::kProtocolVersion));
+        return finish();
+      }
+      protocol::HelloInfo info;
+      info.serverName = config_.serverName;
+      info.serverVersion = PHYSD_VERSION;
+      info.features = {"batch", "snapshot", "engine_snapshot", "load_scene", "run", "query_state"};
+      info.limits = config_.limits;
+      reply = protocol::encodeHelloReply(ctx.header, info);
+      return finish();
+    }
+    case wire::Request::CreateWorld: {
+      auto* r = c.request_as_CreateWorld();
+      if (!r->name()) {
+        st = err(Code::Malformed, "create_world.name is missing");
+        return finish();
+      }
+      const std::string name = r->name()->str();
+      for (auto& [id, w] : worlds_)
+        if (w->name == name) {
+          st = err(Code::InvalidArgument,
+                   "create_world.name '" + name + "' is taken by world " + std::to_string(id));
+          return finish();
+        }
+      if (worlds_.size() >= config_.maxWorlds) {
+        st = err(Code::ResourceExhausted,
+                 "this server holds at most " + std::to_string(config_.maxWorlds) + " worlds");
+        return finish();
+      }
+      std::string preset = r->preset() && r->preset()->size() ? r->preset()->str() : defaultPreset_;
+      auto it = presets_.find(preset);
+      if (it == presets_.end()) {
+        st = err(Code::NotFound, "create_world.preset '" + preset + "' is not a preset");
+        return finish();
+      }
+      phys::WorldDef def;
+      def.solver = it->second.settings;
+      if (r->gravity()) def.gravity = protocol::toPhys(*r->gravity());
+      if (r->time_step() > 0) def.timeStep = r->time_step();
+      auto w = makeWorld(name, preset, def);
+      w->id = nextWorldId_++;
+      ctx.header.world = w->id;
+      worlds_[w->id] = std::move(w);
+      return finish();
+    }
+    case wire::Request::DestroyWorld: {
+      ReliableMessage m;
+      m.type = ReliableMessage::Type::WorldRemoved;
+      m.world = sw->id;
+      ctx.header.tick = sw->tick;
+      worlds_.erase(sw->id);
+      sw = nullptr;
+      out_.pushReliable(std::move(m));
+      return finish();
+    }
+    case wire::Request::ResetWorld: {
+      phys::WorldDef def = sw->world->def();
+      sw->world = std::make_unique<phys::World>(def);
+      sw->bodyDefs.clear();
+      sw->jointDefs.clear();
+      sw->tick = 0;
+      sw->accumulator = 0;
+      ++sw->revision;
+      sw->infoDirty = sw->frameDirty = true;
+      return finish();
+    }
+    case wire::Request::ListWorlds: {
+      auto list = summaries();
+      reply = protocol::encodeWorldListReply(ctx.header, list);
+      return finish();
+    }
+    case wire::Request::LoadScene: {
+      auto* r = c.request_as_LoadScene();
+      phys::Scene scene;
+      phys::Status ps;
+      if (r->scene_name() && r->scene_name()->size()) {
+        const std::string path = underDir(config_.scenesDir, r->scene_name()->str(), ".json");
+        if (config_.scenesDir.empty() || !fs::exists(path)) {
+          st = err(Code::NotFound, "load_scene.scene_name '" + r->scene_name()->str() +
+                                       "' is not a scene of this server");
+          return finish();
+        }
+        ps = phys::loadSceneFile(path, &scene);
+      } else if (r->json()) {
+        ps = phys::parseScene(r->json()->str(), "load_scene.json", &scene);
+      } else {
+        st = err(Code::Malformed, "load_scene needs json or scene_name");
+        return finish();
+      }
+      if (!ps.ok()) {
+        st = fromPhys(ps, "load_scene");
+        if (st.code == Code::NotFound) st.code = Code::InvalidArgument;
+        return finish();
+      }
+      phys::WorldDef def = scene.world;
+      def.threads = config_.threads;
+      auto fresh = std::make_unique<phys::World>(def);
+      std::vector<phys::BodyId> bodyIds;
+      std::vector<phys::JointId> jointIds;
+      ps = phys::instantiateScene(scene, fresh.get(), &bodyIds, &jointIds);
+      if (!ps.ok()) {
+        st = fromPhys(ps, "load_scene");
+        return finish();
+      }
+      sw->world = std::move(fresh);
+      sw->bodyDefs.clear();
+      sw->jointDefs.clear();
+      for (size_t i = 0; i < bodyIds.size(); ++i) {
+        sw->bodyDefs[bodyIds[i].packed()] = scene.bodies[i];
+        ctx.ids.bodies.push_back(bodyIds[i].packed());
+      }
+      for (size_t i = 0; i < jointIds.size(); ++i) {
+        phys::JointDef d = scene.joints[i].def;
+        d.bodyA =
+            scene.joints[i].bodyA >= 0 ? bodyIds[size_t(scene.joints[i].bodyA)] : phys::BodyId{};
+        d.bodyB =
+            scene.joints[i].bodyB >= 0 ? bodyIds[size_t(scene.joints[i].bodyB)] : phys::BodyId{};
+        sw->jointDefs[jointIds[i].packed()] = d;
+        ctx.ids.joints.push_back(jointIds[i].packed());
+      }
+      sw->tick = 0;
+      sw->accumulator = 0;
+      ++sw->revision;
+      sw->infoDirty = sw->frameDirty = true;
+      return finish();
+    }
+    case wire::Request::Step: {
+      st = stepWorld(sw->id, c.request_as_Step()->count());
+      ctx.header.tick = sw->tick;
+      return finish();
+    }
+    case wire::Request::Run: {
+      float rate = c.request_as_Run()->rate_hz();
+      sw->mode = rate > 0 ? RunMode::RealTime : RunMode::AsFastAsPossible;
+      if (rate > 0) sw->rateHz = rate;
+      sw->accumulator = 0;
+      return finish();
+    }
+    case wire::Request::Pause: {
+      sw->mode = RunMode::Paused;
+      sw->accumulator = 0;
+      return finish();
+    }
+    case wire::Request::QueryState: {
+      auto* r = c.request_as_QueryState();
+      std::vector<wire::BodyState> out;
+      const uint32_t maxFrame = config_.limits.maxBodiesPerFrame;
+      uint32_t total = 0;
+      phys::BodyState bs;
+      if (r->bodies() && r->bodies()->size() > 0) {
+        auto* v = r->bodies();
+        Status s = ctx.checkBodies(*sw->world, v, "query_state.bodies");
+        if (!s.ok()) {
+          st = s;
+          return finish();
+        }
+        if (v->size() > maxFrame) {
+          st = err(Code::ResourceExhausted,
+                   "query_state.bodies asks for " + std::to_string(v->size()) +
+                       " bodies; one reply holds at most " + std::to_string(maxFrame) +
+                       " (max_bodies_per_frame)");
+          return finish();
+        }
+        total = v->size();
+        for (uint32_t i = 0; i < v->size(); ++i) {
+          sw->world->getBody(phys::BodyId::fromPacked(v->Get(i)), &bs);
+          out.push_back(protocol::toWire(bs));
+        }
+      } else {
+        std::vector<phys::BodyId> all = sw->world->bodies();
+        total = uint32_t(all.size());
+        uint32_t count = r->max_count() == 0 ? maxFrame : std::min(r->max_count(), maxFrame);
+        for (uint32_t i = r->first(); i < all.size() && out.size() < count; ++i) {
+          sw->world->getBody(all[i], &bs);
+          out.push_back(protocol::toWire(bs));
+        }
+      }
+      ctx.header.tick = sw->tick;
+      reply = protocol::encodeStateReply(ctx.header, sw->world->time(), total, out);
+      return finish();
+    }
+    case wire::Request::SaveSnapshot: {
+      auto* r = c.request_as_SaveSnapshot();
+      const std::string file = r->file() ? r->file()->str() : "";
+      if (!file.empty() && config_.snapshotDir.empty()) {
+        st = err(Code::Unsupported, "save_snapshot.file: this server has no snapshot directory");
+        return finish();
+      }
+      protocol::SnapshotData data;
+      phys::Status ps = sw->world->saveSnapshot(&data.engineState);
+      if (!ps.ok()) {
+        st = fromPhys(ps, "save_snapshot");
+        st.code = Code::IncorrectState;
+        return finish();
+      }
+      data.name = sw->name;
+      data.gravity = sw->world->def().gravity;
+      data.timeStep = sw->world->def().timeStep;
+      data.solver = sw->world->def().solver;
+      data.tick = sw->tick;
+      data.time = sw->world->time();
+      Bytes snap = protocol::encodeSnapshot(data);
+      // The reply adds little around the snapshot bytes; keep a margin for it.
+      if (r->return_bytes() && snap.size() + 1024 > config_.limits.maxMessageBytes) {
+        st = err(Code::ResourceExhausted,
+                 "save_snapshot: the snapshot is " + std::to_string(snap.size()) +
+                     " bytes, more than a reply holds (max_message_bytes); save it to a file");
+        return finish();
+      }
+      if (!file.empty()) {
+        std::error_code ec;
+        fs::create_directories(config_.snapshotDir, ec);
+        const std::string path = underDir(config_.snapshotDir, file, "");
+        std::ofstream f(path, std::ios::binary | std::ios::trunc);
+        f.write(reinterpret_cast<const char*>(snap.data()), std::streamsize(snap.size()));
+        if (!f) {
+          st = err(Code::Internal, "save_snapshot.file: cannot write '" + file + "'");
+          return finish();
+        }
+      }
+      ctx.header.tick = sw->tick;
+      reply = protocol::encodeSnapshotReply(
+          ctx.header,
+          r->return_bytes() ? std::span<const uint8_t>(snap) : std::span<const uint8_t>(), file);
+      return finish();
+    }
+    case wire::Request::RestoreSnapshot: {
+      auto* r = c.request_as_RestoreSnapshot();
+      protocol::Decoded<wire::Snapshot> decoded;
+      if (r->file() && r->file()->size()) {
+        const std::string path = underDir(config_.snapshotDir, r->file()->str(), "");
+        if (config_.snapshotDir.empty() || !fs::exists(path)) {
+          st = err(Code::NotFound,
+                   "restore_snapshot.file '" + r->file()->str() + "' is not a snapshot file");
+          return finish();
+        }
+        std::ifstream f(path, std::ios::binary);
+        std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(f)),
+                                   std::istreambuf_iterator<char>());
+        decoded = protocol::decodeSnapshot(std::move(bytes), config_.limits);
+        if (!decoded.ok()) {
+          st = decoded.status;
+          st.message = "restore_snapshot.file: " + st.message;
+          return finish();
+        }
+      } else if (!r->snapshot()) {
+        st = err(Code::Malformed, "restore_snapshot needs snapshot or file");
+        return finish();
+      } else {
+        decoded = protocol::decodeSnapshot(
+            std::span<const uint8_t>(r->snapshot()->data(), r->snapshot()->size()), config_.limits);
+        if (!decoded.ok()) {
+          st = decoded.status;
+          return finish();
+        }
+      }
+      protocol::SnapshotData data;
+      st = protocol::toSnapshotData(*decoded, &data);
+      if (!st.ok()) return finish();
+      if (!data.engineState.empty()) {
+        phys::Status ps =
+            sw->world->restoreSnapshot(data.engineState.data(), data.engineState.size());
+        if (!ps.ok()) {
+          st = fromPhys(ps, "restore_snapshot.snapshot.engine_state");
+          return finish();
+        }
+        rebuildDefs(*sw);
+      } else {
+        // Portable form: a fresh world from the definitions, saved ids mapped to new ones.
+        phys::WorldDef def = sw->world->def();
+        def.gravity = data.gravity;
+        def.timeStep = data.timeStep;
+        def.solver = data.solver;
+        auto fresh = std::make_unique<phys::World>(def);
+        std::map<uint64_t, phys::BodyId> map;
+        std::map<uint64_t, phys::BodyDef> bodyDefs;
+        std::map<uint64_t, phys::JointDef> jointDefs;
+        for (size_t i = 0; i < data.bodies.size(); ++i) {
+          phys::BodyId id;
+          phys::Status ps = fresh->createBody(data.bodies[i].def, &id);
+          if (!ps.ok()) {
+            st = fromPhys(ps, "restore_snapshot.snapshot.bodies[" + std::to_string(i) + "]");
+            return finish();
+          }
+          map[data.bodies[i].id] = id;
+          bodyDefs[id.packed()] = data.bodies[i].def;
+          ctx.ids.bodies.push_back(id.packed());
+        }
+        for (size_t i = 0; i < data.joints.size(); ++i) {
+          phys::JointDef d = data.joints[i].def;
+          d.bodyA = d.bodyA.isNull() ? phys::BodyId{} : map[d.bodyA.packed()];
+          d.bodyB = map[d.bodyB.packed()];
+          phys::JointId id;
+          phys::Status ps = fresh->createJoint(d, &id);
+          if (!ps.ok()) {
+            st = fromPhys(ps, "restore_snapshot.snapshot.joints[" + std::to_string(i) + "]");
+            return finish();
+          }
+          jointDefs[id.packed()] = d;
+          ctx.ids.joints.push_back(id.packed());
+        }
+        sw->world = std::move(fresh);
+        sw->bodyDefs = std::move(bodyDefs);
+        sw->jointDefs = std::move(jointDefs);
+        ctx.header.tick = data.tick;
+        sw->tick = data.tick;
+        ++sw->revision;
+        sw->infoDirty = sw->frameDirty = true;
+        reply = protocol::encodeIdsReply(ctx.header, ctx.ids.bodies, ctx.ids.joints);
+        return finish();
+      }
+      sw->tick = data.tick;
+      sw->accumulator = 0;
+      ++sw->revision;
+      sw->infoDirty = sw->frameDirty = true;
+      ctx.header.tick = sw->tick;
+      return finish();
+    }
+    case wire::Request::Batch: {
+      auto* v = c.request_as_Batch()->commands();
+      if (!v) {
+        st = err(Code::Malformed, "batch.commands is missing");
+        return finish();
+      }
+      std::vector<std::pair<wire::Request, const void*>> items;
+      std::vector<std::string> paths;
+      for (uint32_t i = 0; i < v->size(); ++i) {
+        items.emplace_back(v->Get(i)->request_type(), v->Get(i)->request());
+        paths.push_back("batch.commands[" + std::to_string(i) + "].");
+      }
+      st = ctx.editAll(*sw, items, paths);
+      return finish();
+    }
+    default:
+      if (protocol::isBatchable(type)) {
+        st = ctx.editAll(*sw, {{type, c.request()}}, {""});
+        return finish();
+      }
+      st = err(Code::Unsupported,
+               std::string("request ") + protocol::requestName(type) + " is not supported");
+      return finish();
+  }
+}
+
+}  // namespace phys::server

@@ -1,0 +1,167 @@
+// configs/physd.toml -> DaemonConfig.
+#include "phys/server/config.h"
+
+#include <toml++/toml.h>
+
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+namespace phys::server {
+
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string resolve(const std::string& baseDir, const std::string& p) {
+  if (p.empty() || fs::path(p).is_absolute()) return p;
+  return (fs::path(baseDir) / p).lexically_normal().string();
+}
+
+/// Keys of a table that are not in `known`.
+Status checkKeys(const toml::table& t, const std::set<std::string>& known,
+                 const std::string& where) {
+  for (auto&& [k, v] : t)
+    if (!known.count(std::string(k.str())))
+      return Status::Error(Code::InvalidArgument,
+                           where + ": unknown key '" + std::string(k.str()) + "'");
+  return Status::Ok();
+}
+
+template <class T>
+Status get(const toml::table& t, const char* key, const std::string& where, T* out) {
+  const toml::node* n = t.get(key);
+  if (!n) return Status::Ok();
+  if constexpr (std::is_same_v<T, std::string>) {
+    if (auto v = n->value<std::string>()) {
+      *out = *v;
+      return Status::Ok();
+    }
+  } else if constexpr (std::is_same_v<T, bool>) {
+    if (auto v = n->value<bool>()) {
+      *out = *v;
+      return Status::Ok();
+    }
+  } else if constexpr (std::is_floating_point_v<T>) {
+    if (auto v = n->value<double>()) {
+      *out = T(*v);
+      return Status::Ok();
+    }
+  } else {
+    if (auto v = n->value<int64_t>(); v && *v >= 0) {
+      *out = T(*v);
+      return Status::Ok();
+    }
+  }
+  return Status::Error(Code::InvalidArgument, where + "." + key + " has the wrong type or range");
+}
+
+#define PHYS_GET(t, key, where, out)     \
+  do {                                   \
+    Status s_ = get(t, key, where, out); \
+    if (!s_.ok()) return s_;             \
+  } while (0)
+
+}  // namespace
+
+Status parseDaemonConfig(const std::string& text, const std::string& baseDir, DaemonConfig* out) {
+  toml::table root;
+  try {
+    root = toml::parse(text);
+  } catch (const toml::parse_error& e) {
+    std::ostringstream os;
+    os << "physd config: " << e.description() << " at line " << e.source().begin.line;
+    return Status::Error(Code::InvalidArgument, os.str());
+  }
+  DaemonConfig c;
+  Status s = checkKeys(root, {"server", "dds", "paths", "limits", "worlds"}, "physd config");
+  if (!s.ok()) return s;
+  if (auto* t = root["server"].as_table()) {
+    s = checkKeys(*t,
+                  {"name", "id", "log_level", "threads", "default_rate_hz", "max_catch_up_steps",
+                   "status_period_s", "bodies_per_chunk", "frame_ring", "max_worlds"},
+                  "server");
+    if (!s.ok()) return s;
+    PHYS_GET(*t, "name", "server", &c.core.serverName);
+    PHYS_GET(*t, "id", "server", &c.core.serverId);
+    PHYS_GET(*t, "log_level", "server", &c.logLevel);
+    PHYS_GET(*t, "threads", "server", &c.core.threads);
+    PHYS_GET(*t, "default_rate_hz", "server", &c.core.defaultRateHz);
+    PHYS_GET(*t, "max_catch_up_steps", "server", &c.core.maxCatchUpSteps);
+    PHYS_GET(*t, "status_period_s", "server", &c.statusPeriodS);
+    PHYS_GET(*t, "bodies_per_chunk", "server", &c.core.bodiesPerChunk);
+    PHYS_GET(*t, "frame_ring", "server", &c.core.frameRingCapacity);
+    PHYS_GET(*t, "max_worlds", "server", &c.core.maxWorlds);
+  }
+  if (auto* t = root["dds"].as_table()) {
+    s = checkKeys(*t, {"domain", "config"}, "dds");
+    if (!s.ok()) return s;
+    PHYS_GET(*t, "domain", "dds", &c.domain);
+    PHYS_GET(*t, "config", "dds", &c.cycloneConfig);
+    c.cycloneConfig = resolve(baseDir, c.cycloneConfig);
+  }
+  if (auto* t = root["paths"].as_table()) {
+    s = checkKeys(*t, {"presets", "scenes", "snapshots"}, "paths");
+    if (!s.ok()) return s;
+    PHYS_GET(*t, "presets", "paths", &c.core.presetsFile);
+    PHYS_GET(*t, "scenes", "paths", &c.core.scenesDir);
+    PHYS_GET(*t, "snapshots", "paths", &c.core.snapshotDir);
+    c.core.presetsFile = resolve(baseDir, c.core.presetsFile);
+    c.core.scenesDir = resolve(baseDir, c.core.scenesDir);
+    c.core.snapshotDir = resolve(baseDir, c.core.snapshotDir);
+  }
+  if (auto* t = root["limits"].as_table()) {
+    protocol::Limits& l = c.core.limits;
+    s = checkKeys(*t,
+                  {"max_bodies_per_command", "max_joints_per_command", "max_ids_per_command",
+                   "max_items_per_command", "max_batch_commands", "max_steps_per_command"},
+                  "limits");
+    if (!s.ok()) return s;
+    PHYS_GET(*t, "max_bodies_per_command", "limits", &l.maxBodiesPerCommand);
+    PHYS_GET(*t, "max_joints_per_command", "limits", &l.maxJointsPerCommand);
+    PHYS_GET(*t, "max_ids_per_command", "limits", &l.maxIdsPerCommand);
+    PHYS_GET(*t, "max_items_per_command", "limits", &l.maxItemsPerCommand);
+    PHYS_GET(*t, "max_batch_commands", "limits", &l.maxBatchCommands);
+    PHYS_GET(*t, "max_steps_per_command", "limits", &l.maxStepsPerCommand);
+  }
+  if (const toml::node* wn = root.get("worlds")) {
+    const toml::array* arr = wn->as_array();
+    if (!arr) return Status::Error(Code::InvalidArgument, "worlds must be an array of tables");
+    for (size_t i = 0; i < arr->size(); ++i) {
+      const toml::table* t = arr->get(i)->as_table();
+      const std::string where = "worlds[" + std::to_string(i) + "]";
+      if (!t) return Status::Error(Code::InvalidArgument, where + " must be a table");
+      s = checkKeys(*t, {"name", "scene", "preset", "run", "rate_hz"}, where);
+      if (!s.ok()) return s;
+      StartupWorld w;
+      PHYS_GET(*t, "name", where, &w.name);
+      PHYS_GET(*t, "scene", where, &w.scene);
+      PHYS_GET(*t, "preset", where, &w.preset);
+      PHYS_GET(*t, "run", where, &w.run);
+      PHYS_GET(*t, "rate_hz", where, &w.rateHz);
+      if (w.name.empty()) return Status::Error(Code::InvalidArgument, where + ".name is required");
+      c.worlds.push_back(std::move(w));
+    }
+  }
+  if (c.core.serverId == 0)
+    return Status::Error(Code::InvalidArgument, "server.id must be non-zero");
+  if (c.statusPeriodS <= 0)
+    return Status::Error(Code::InvalidArgument, "server.status_period_s must be > 0");
+  *out = std::move(c);
+  return Status::Ok();
+}
+
+Status loadDaemonConfig(const std::string& path, DaemonConfig* out) {
+  std::ifstream f(path);
+  if (!f) return Status::Error(Code::NotFound, "cannot read " + path);
+  std::stringstream ss;
+  ss << f.rdbuf();
+  std::string base = fs::path(path).parent_path().string();
+  if (base.empty()) base = ".";
+  Status s = parseDaemonConfig(ss.str(), base, out);
+  if (!s.ok()) s.message = path + ": " + s.message;
+  return s;
+}
+
+}  // namespace phys::server

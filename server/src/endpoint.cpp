@@ -1,0 +1,164 @@
+// DdsEndpoint: phys/cmd -> ServerCore, PublishQueue -> the published topics.
+#include "phys/server/endpoint.h"
+
+#include <spdlog/spdlog.h>
+
+#include "phys/protocol/dds_envelope.h"
+#include "phys/protocol/decoder.h"
+
+namespace phys::server {
+
+using protocol::PayloadKind;
+
+DdsEndpoint::DdsEndpoint(ServerCore* core, EndpointConfig config)
+    : core_(core), config_(std::move(config)) {}
+
+DdsEndpoint::~DdsEndpoint() {
+  stop();
+}
+
+Status DdsEndpoint::start() {
+  std::string err;
+  auto fail = [&]() { return Status::Error(Code::Internal, err); };
+  if (!participant_.create(config_.domain, config_.cycloneXml, &err)) return fail();
+  if (!cmdTopic_.create(participant_, std::string(protocol::kCommandTopic), &err) ||
+      !replyTopic_.create(participant_, std::string(protocol::kReplyTopic), &err) ||
+      !infoTopic_.create(participant_, std::string(protocol::kWorldInfoTopic), &err) ||
+      !statusTopic_.create(participant_, std::string(protocol::kStatusTopic), &err))
+    return fail();
+  if (!cmdReader_.create(participant_, cmdTopic_, protocol::kCommandQos, &err) ||
+      !replyWriter_.create(participant_, replyTopic_, protocol::kReplyQos, PayloadKind::Reply,
+                           &err) ||
+      !infoWriter_.create(participant_, infoTopic_, protocol::kWorldInfoQos, PayloadKind::WorldInfo,
+                          &err) ||
+      !statusWriter_.create(participant_, statusTopic_, protocol::kStatusQos,
+                            PayloadKind::ServerStatus, &err))
+    return fail();
+  if (!waitset_.create(participant_, &err) || !waitset_.attach(cmdReader_, &err)) return fail();
+  stop_ = false;
+  reader_ = std::thread([this] { readLoop(); });
+  publisher_ = std::thread([this] { publishLoop(); });
+  spdlog::info("dds: domain {} ready ({}, {}, {}, {})", config_.domain, protocol::kCommandTopic,
+               protocol::kReplyTopic, protocol::kWorldInfoTopic, protocol::kStatusTopic);
+  return Status::Ok();
+}
+
+void DdsEndpoint::stop() {
+  if (stop_.exchange(true)) return;
+  waitset_.wake();
+  if (reader_.joinable()) reader_.join();
+  if (publisher_.joinable()) publisher_.join();
+}
+
+void DdsEndpoint::readLoop() {
+  const protocol::Limits& limits = core_->config().limits;
+  while (!stop_) {
+    waitset_.wait(DDS_MSECS(200));
+    if (stop_) break;
+    cmdReader_.take([&](const phys_wire_Envelope& env) {
+      counters_.commandsTaken.fetch_add(1);
+      Incoming in;
+      in.envelopeKey = env.key;
+      in.envelopeSeq = env.seq;
+      Status s = protocol::checkEnvelope(env, PayloadKind::Command, limits);
+      if (s.ok()) {
+        auto bytes = protocol::envelopeBytes(env);
+        in.command =
+            protocol::decodeCommand(std::vector<uint8_t>(bytes.begin(), bytes.end()), limits);
+      } else {
+        in.command.status = s;
+      }
+      if (!in.command.ok()) {
+        counters_.undecodable.fetch_add(1);
+        // Still answered (to the envelope's key and seq) by the core, in arrival order.
+        spdlog::warn("phys/cmd from client {:#x} seq {}: {} ({})", env.key, env.seq,
+                     protocol::toString(in.command.status.code), in.command.status.message);
+      }
+      core_->submit(std::move(in));
+    });
+  }
+}
+
+void DdsEndpoint::publishLoop() {
+  auto lastSubscribers = std::chrono::steady_clock::now();
+  for (;;) {
+    PublishQueue::Item item = core_->out().pop(std::chrono::milliseconds(100));
+    if (item.reliable) publish(*item.reliable);
+    if (item.frame) publish(*item.frame);
+    auto now = std::chrono::steady_clock::now();
+    if (now - lastSubscribers > std::chrono::milliseconds(250)) {
+      for (auto& [world, st] : state_) core_->setSubscribers(world, st->writer.matched());
+      lastSubscribers = now;
+    }
+    if (stop_ && !item.reliable && !item.frame) break;
+  }
+}
+
+void DdsEndpoint::publish(ReliableMessage& m) {
+  dds_return_t rc = DDS_RETCODE_OK;
+  switch (m.type) {
+    case ReliableMessage::Type::Reply:
+      rc = replyWriter_.write(m.key, m.chunks.at(0), m.seq);
+      if (rc == DDS_RETCODE_OK) counters_.repliesWritten.fetch_add(1);
+      break;
+    case ReliableMessage::Type::Status:
+      rc = statusWriter_.write(m.key, m.chunks.at(0));
+      break;
+    case ReliableMessage::Type::WorldInfo: {
+      if (removed_.count(m.world)) break;
+      for (uint32_t i = 0; i < m.chunks.size() && rc == DDS_RETCODE_OK; ++i)
+        rc = infoWriter_.write(protocol::worldInfoKey(m.world, i), m.chunks[i]);
+      // Chunks the world no longer has.
+      uint32_t& last = infoChunks_[m.world];
+      for (uint32_t i = uint32_t(m.chunks.size()); i < last; ++i)
+        infoWriter_.dispose(protocol::worldInfoKey(m.world, i));
+      last = uint32_t(m.chunks.size());
+      break;
+    }
+    case ReliableMessage::Type::WorldRemoved: {
+      auto it = infoChunks_.find(m.world);
+      if (it != infoChunks_.end()) {
+        for (uint32_t i = 0; i < it->second; ++i)
+          infoWriter_.dispose(protocol::worldInfoKey(m.world, i));
+        infoChunks_.erase(it);
+      }
+      state_.erase(m.world);
+      removed_.insert(m.world);
+      core_->setSubscribers(m.world, 0);
+      spdlog::info("world {} destroyed", m.world);
+      break;
+    }
+  }
+  if (rc != DDS_RETCODE_OK) {
+    counters_.writeErrors.fetch_add(1);
+    spdlog::error("dds write failed ({}): {}", int(m.type), dds::error(rc));
+  }
+}
+
+void DdsEndpoint::publish(StateFrameSet& f) {
+  if (removed_.count(f.world)) return;  // queued before its world was destroyed
+  auto it = state_.find(f.world);
+  if (it == state_.end()) {
+    auto st = std::make_unique<StateTopic>();
+    std::string err;
+    if (!st->topic.create(participant_, protocol::stateTopic(f.world), &err) ||
+        !st->writer.create(participant_, st->topic, protocol::kStateQos, PayloadKind::StateFrame,
+                           &err)) {
+      counters_.writeErrors.fetch_add(1);
+      spdlog::error("state topic for world {}: {}", f.world, err);
+      return;
+    }
+    it = state_.emplace(f.world, std::move(st)).first;
+  }
+  for (uint32_t i = 0; i < f.chunks.size(); ++i) {
+    dds_return_t rc = it->second->writer.write(i, f.chunks[i], f.tick);
+    if (rc == DDS_RETCODE_OK) {
+      counters_.framesWritten.fetch_add(1);
+    } else {
+      counters_.writeErrors.fetch_add(1);
+      spdlog::error("state write world {} chunk {}: {}", f.world, i, dds::error(rc));
+    }
+  }
+}
+
+}  // namespace phys::server

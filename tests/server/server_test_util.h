@@ -1,0 +1,77 @@
+// Shared helpers for the server tests.
+#pragma once
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "phys/protocol/builder.h"
+#include "phys/protocol/convert.h"
+#include "phys/protocol/decoder.h"
+#include "phys/server/core.h"
+
+namespace phys::server::test {
+
+inline constexpr uint64_t kClient = 0xC11E47;
+
+inline CoreConfig testConfig() {
+  CoreConfig c;
+  c.presetsFile = std::string(PHYS_SOURCE_DIR) + "/configs/presets.json";
+  c.scenesDir = std::string(PHYS_SOURCE_DIR) + "/configs/scenes";
+  c.snapshotDir = (std::filesystem::temp_directory_path() /
+                   ("physd_test_snapshots_" + std::to_string(getpid())))
+                      .string();
+  c.threads = 1;
+  return c;
+}
+
+inline phys::BodyDef boxBody(phys::Vec3 p, phys::Vec3 he = {0.5f, 0.5f, 0.5f}) {
+  phys::BodyDef d;
+  d.position = p;
+  phys::ShapeDef s;
+  s.geom = phys::ShapeGeom::box(he);
+  d.shapes.push_back(s);
+  return d;
+}
+
+inline phys::BodyDef groundBody() {
+  phys::BodyDef d;
+  d.type = phys::BodyType::Static;
+  phys::ShapeDef s;
+  s.geom = phys::ShapeGeom::plane({0, 0, 1}, 0);
+  d.shapes.push_back(s);
+  return d;
+}
+
+/// A decoded reply that owns its bytes.
+using Reply = protocol::Decoded<wire::Reply>;
+
+inline Reply decode(protocol::Bytes b) {
+  Reply r = protocol::decodeReply(std::move(b));
+  EXPECT_TRUE(r.ok()) << r.status.message;
+  return r;
+}
+
+inline std::string message(const Reply& r) {
+  return r.ok() && r->message() ? r->message()->str() : r.status.message;
+}
+
+inline std::vector<uint64_t> bodyIds(const Reply& r) {
+  std::vector<uint64_t> v;
+  if (auto* ids = r->result_as_Ids())
+    if (ids->bodies())
+      for (uint64_t id : *ids->bodies()) v.push_back(id);
+  return v;
+}
+inline std::vector<uint64_t> jointIds(const Reply& r) {
+  std::vector<uint64_t> v;
+  if (auto* ids = r->result_as_Ids())
+    if (ids->joints())
+      for (uint64_t id : *ids->joints()) v.push_back(id);
+  return v;
+}
+
+}  // namespace phys::server::test

@@ -1,0 +1,122 @@
+// configs/physd.toml parsing, and core behaviour that depends on configured limits.
+#include <filesystem>
+
+#include "phys/server/config.h"
+#include "server_test_util.h"
+
+namespace phys::server::test {
+namespace {
+
+using protocol::CommandBuilder;
+
+TEST(ServerConfig, ShippedConfigLoads) {
+  DaemonConfig c;
+  Status s = loadDaemonConfig(std::string(PHYS_SOURCE_DIR) + "/configs/physd.toml", &c);
+  ASSERT_TRUE(s.ok()) << s.message;
+  EXPECT_EQ(c.core.serverName, "physd");
+  EXPECT_EQ(c.domain, 0u);
+  EXPECT_TRUE(std::filesystem::exists(c.cycloneConfig)) << c.cycloneConfig;
+  EXPECT_TRUE(std::filesystem::exists(c.core.presetsFile)) << c.core.presetsFile;
+  EXPECT_TRUE(std::filesystem::is_directory(c.core.scenesDir)) << c.core.scenesDir;
+  ASSERT_EQ(c.worlds.size(), 1u);
+  EXPECT_EQ(c.worlds[0].scene, "default");
+  EXPECT_TRUE(c.worlds[0].run);
+  // The start-up world of the shipped config can be created.
+  ServerCore core(c.core);
+  ASSERT_TRUE(core.init().ok());
+  uint32_t id = 0;
+  s = core.createWorld(c.worlds[0].name, c.worlds[0].preset, c.worlds[0].scene, &id);
+  ASSERT_TRUE(s.ok()) << s.message;
+  EXPECT_GT(core.world(id)->world->bodyCount(), 0);
+  EXPECT_EQ(core.counters().commands, 0u);
+}
+
+TEST(ServerConfig, RejectsUnknownKeysAndWrongTypes) {
+  DaemonConfig c;
+  Status s = parseDaemonConfig("[server]\nnmae = \"x\"\n", "/tmp", &c);
+  EXPECT_FALSE(s.ok());
+  EXPECT_NE(s.message.find("nmae"), std::string::npos) << s.message;
+  EXPECT_FALSE(parseDaemonConfig("[dds]\ndomain = \"seven\"\n", "/tmp", &c).ok());
+  EXPECT_FALSE(parseDaemonConfig("[dds]\ndomain = -1\n", "/tmp", &c).ok());
+  EXPECT_FALSE(parseDaemonConfig("[[worlds]]\nscene = \"default\"\n", "/tmp", &c).ok());
+  EXPECT_FALSE(parseDaemonConfig("this is not toml", "/tmp", &c).ok());
+  s = parseDaemonConfig(
+      "[dds]\ndomain = 9\nconfig = \"x.xml\"\n[limits]\nmax_steps_per_command = 10\n"
+      "[[worlds]]\nname = \"a\"\nrun = false\n",
+      "/base", &c);
+  ASSERT_TRUE(s.ok()) << s.message;
+  EXPECT_EQ(c.domain, 9u);
+  EXPECT_EQ(c.cycloneConfig, "/base/x.xml");
+  EXPECT_EQ(c.core.limits.maxStepsPerCommand, 10u);
+  ASSERT_EQ(c.worlds.size(), 1u);
+  EXPECT_FALSE(c.worlds[0].run);
+}
+
+TEST(ServerConfig, BadStartupWorldFails) {
+  ServerCore core(testConfig());
+  ASSERT_TRUE(core.init().ok());
+  uint32_t id = 0;
+  EXPECT_EQ(core.createWorld("a", "", "no_such_scene", &id).code, Code::NotFound);
+  EXPECT_TRUE(core.worldIds().empty());
+  EXPECT_EQ(core.createWorld("a", "no_such_preset", "", &id).code, Code::NotFound);
+  ASSERT_TRUE(core.createWorld("a", "", "", &id).ok());
+  EXPECT_EQ(core.createWorld("a", "", "", &id).code, Code::InvalidArgument);
+}
+
+TEST(ServerLimits, SnapshotTooLargeForAReplyGoesToAFile) {
+  CoreConfig cfg = testConfig();
+  cfg.limits.maxMessageBytes = 8192;
+  ServerCore core(cfg);
+  ASSERT_TRUE(core.init().ok());
+  uint32_t world = 0;
+  ASSERT_TRUE(core.createWorld("big", "", "", &world).ok());
+  std::vector<phys::BodyDef> defs;
+  for (int i = 0; i < 40; ++i) defs.push_back(boxBody({float(i) * 2, 0, 1}));
+  Reply r = decode(
+      core.applyBytes(CommandBuilder().spawnBodies(defs).finish({kClient, 1, world}), kClient, 1));
+  ASSERT_EQ(r->status(), Code::Ok) << message(r);
+  r = decode(
+      core.applyBytes(CommandBuilder().saveSnapshot().finish({kClient, 2, world}), kClient, 2));
+  EXPECT_EQ(r->status(), Code::ResourceExhausted) << message(r);
+  r = decode(core.applyBytes(
+      CommandBuilder().saveSnapshot("big.snap", false).finish({kClient, 3, world}), kClient, 3));
+  EXPECT_EQ(r->status(), Code::Ok) << message(r);
+  std::error_code ec;
+  std::filesystem::remove_all(cfg.snapshotDir, ec);
+}
+
+TEST(ServerLimits, MaxWorlds) {
+  CoreConfig cfg = testConfig();
+  cfg.maxWorlds = 2;
+  ServerCore core(cfg);
+  ASSERT_TRUE(core.init().ok());
+  for (int i = 0; i < 3; ++i) {
+    protocol::CreateWorldArgs a;
+    a.name = "w" + std::to_string(i);
+    Reply r = decode(
+        core.applyBytes(CommandBuilder().createWorld(a).finish({kClient, 1, 0}), kClient, 1));
+    EXPECT_EQ(r->status(), i < 2 ? Code::Ok : Code::ResourceExhausted) << message(r);
+  }
+}
+
+TEST(ServerFrames, StalledPublisherKeepsTheNewestTicks) {
+  ServerCore core(testConfig());  // frame ring of 4
+  ASSERT_TRUE(core.init().ok());
+  uint32_t world = 0;
+  ASSERT_TRUE(core.createWorld("f", "", "box_stack", &world).ok());
+  ASSERT_TRUE(core.setRun(world, RunMode::AsFastAsPossible, 0).ok());
+  for (int i = 0; i < 10; ++i) EXPECT_EQ(core.advance(0), 1u);  // nobody pops
+  EXPECT_EQ(core.out().framesQueued(), 4u);
+  EXPECT_GE(core.out().framesDropped(), 6u);
+  std::vector<uint64_t> ticks;
+  for (;;) {
+    auto item = core.out().pop(std::chrono::milliseconds(0));
+    if (item.frame) ticks.push_back(item.frame->tick);
+    if (!item.frame && !item.reliable) break;
+  }
+  EXPECT_EQ(ticks, (std::vector<uint64_t>{7, 8, 9, 10}));
+  EXPECT_EQ(core.world(world)->tick, 10u);
+}
+
+}  // namespace
+}  // namespace phys::server::test
