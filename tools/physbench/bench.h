@@ -31,13 +31,15 @@ struct SuiteOptions {
   int threads = 0;  ///< each world's threads; 0: the machine's divided among the jobs
   std::string csvOut, markdownOut, docPath;
   bool failOnCriteria = false;
+  bool failOnNan = false;  ///< exit 1 when a run went NaN
   std::string commandLine;  ///< as typed, printed in the reports
 };
 
 inline constexpr double kQuickSeconds = 3;
 
 /// Runs the suite. Exit status: 2 when a run could not be executed (or a report not
-/// written), 1 when --fail-on-criteria is set and a run failed its criteria, else 0.
+/// written), 1 when --fail-on-criteria is set and a run failed its criteria or when
+/// --fail-on-nan is set and a run went NaN, else 0.
 int runSuite(const SuiteOptions& opt);
 
 struct StressOptions {

@@ -4,7 +4,7 @@
 //     2 on bad input.
 //   physbench --suite [--presets a,b] [--scenes x,y] [--seconds-scale F] [--max-seconds S]
 //             [--quick] [--jobs N] [--csv OUT] [--markdown OUT] [--update-doc FILE]
-//             [--fail-on-criteria]
+//             [--fail-on-criteria] [--fail-on-nan]
 //     every preset on every scene (see suite.cpp); exit status 2 when a run could not be
 //     executed, 1 with --fail-on-criteria when a run failed its criteria, else 0.
 //   physbench --stress [--presets a,b|all] [--seeds N] [--seed-start S] [--seed S]
@@ -101,6 +101,7 @@ int main(int argc, char** argv) {
                      "file (docs/SOLVERS.md)"),
       app.add_flag("--fail-on-criteria", suite.failOnCriteria,
                    "exit 1 when a run fails its scene's criteria"),
+      app.add_flag("--fail-on-nan", suite.failOnNan, "exit 1 when a run goes NaN"),
   };
   // Stress mode.
   bench::StressOptions stress;

@@ -469,6 +469,7 @@ int runSuite(const SuiteOptions& opt) {
                jobs.size(), clockText(rep.wallSeconds).c_str(), pass, fail, nan, rep.errors);
   if (rep.errors > 0 || reportErrors > 0) return 2;
   if (opt.failOnCriteria && fail + nan > 0) return 1;
+  if (opt.failOnNan && nan > 0) return 1;
   return 0;
 }
 
