@@ -17,6 +17,11 @@ namespace {
 // resting contact's sag, so stacks behave exactly as without the split); the pseudo
 // velocities push out the rest.
 constexpr float kSplitDepth = 0.01f;
+// Stiffness is capped at a quarter of the substep rate: stiffer springs are not resolved by
+// the integrator and only add energy (and topple stacks).
+float cappedHertz(float hertz, float invH) {
+  return std::min(hertz, 0.25f * invH);
+}
 // Parallel chunk sizes: a contact group (a 4-point manifold with friction) takes a fraction
 // of a microsecond, a body's integration much less. A loop no larger
 // than one chunk runs inline: on this 2-core VM, waking the other core for a loop of a few
@@ -41,7 +46,7 @@ struct Solver::IterationParams {
   float h = 0, invH = 0, linearSlop = 0, maxPushout = 0;
   bool soft = true, useBias = true, skipEquality = false;
   bool splitPushout = false;  ///< penetration is resolved by solvePushout, not here
-  bool measure = false;  ///< compute the convergence measure
+  bool measure = false;       ///< compute the convergence measure
 };
 
 template <class F>
@@ -233,8 +238,8 @@ float Solver::forEachGroup(F&& f, bool pushChannel) {
         Velocity& A = vel(size_t(g.a));
         Velocity& B = vel(size_t(g.b));
         Velocity sa = A, sb = B;
-        cm = std::max(cm, f(g, bodies[size_t(g.a)].dynamic ? A : sa,
-                            bodies[size_t(g.b)].dynamic ? B : sb));
+        cm = std::max(
+            cm, f(g, bodies[size_t(g.a)].dynamic ? A : sa, bodies[size_t(g.b)].dynamic ? B : sb));
       }
       atomicMax(result, cm);
     });
@@ -284,12 +289,10 @@ float Solver::solveIteration(const SolverSettings& s, float h, bool useBias, boo
   p.h = h;
   p.invH = 1 / h;
   p.soft = s.stabilization == SolverSettings::Stabilization::Soft;
-  // Stiffness is capped at a quarter of the substep rate: stiffer springs are not resolved
-  // by the integrator and only add energy.
-  const float cap = 0.25f * p.invH;
-  p.contactSoft = p.soft ? makeSoftness(std::min(s.contactHertz, cap), s.contactDampingRatio, h)
-                         : Softness{s.baumgarte * p.invH, 1, 0};
-  p.jointSoft = p.soft ? makeSoftness(std::min(s.jointHertz, cap), s.jointDampingRatio, h)
+  p.contactSoft = p.soft
+                      ? makeSoftness(cappedHertz(s.contactHertz, p.invH), s.contactDampingRatio, h)
+                      : Softness{s.baumgarte * p.invH, 1, 0};
+  p.jointSoft = p.soft ? makeSoftness(cappedHertz(s.jointHertz, p.invH), s.jointDampingRatio, h)
                        : Softness{s.baumgarte * p.invH, 1, 0};
   p.linearSlop = s.linearSlop;
   p.maxPushout = s.maxPushout;
@@ -743,12 +746,11 @@ void Solver::solvePushout(const SolverSettings& s, float h, int iterations) {
   IterationParams p;
   p.h = h;
   p.invH = 1 / h;
-  p.contactSoft = makeSoftness(std::min(s.contactHertz, 0.25f * p.invH), s.contactDampingRatio, h);
+  p.contactSoft = makeSoftness(cappedHertz(s.contactHertz, p.invH), s.contactDampingRatio, h);
   p.maxPushout = s.maxPushout;
   for (int it = 0; it < iterations; ++it)
-    forEachGroup(
-        [&](const Group& g, Velocity& A, Velocity& B) { return pushoutGroup(g, A, B, p); },
-        /*pushChannel=*/true);
+    forEachGroup([&](const Group& g, Velocity& A, Velocity& B) { return pushoutGroup(g, A, B, p); },
+                 /*pushChannel=*/true);
 }
 
 float Solver::pushoutGroup(const Group& g, Velocity& A, Velocity& B, const IterationParams& p) {

@@ -156,8 +156,9 @@ class Solver {
   /// Post-stabilization: `iterations` passes projecting positions (contacts, limits, joint
   /// equalities) with the rows' linearized errors; Jacobi averages per body like the solve.
   void positionPass(const SolverSettings& s, int iterations, bool jacobiPass);
-  /// Split push-out: clears the pseudo velocities and impulses, then runs `iterations`
-  /// passes over the penetrating contact rows, on the pseudo velocities only.
+  /// Split push-out: pseudo velocities from zero, warm-started with the rows' push impulses
+  /// of the last substep, then `iterations` passes over the contact rows deeper than a
+  /// resting sag, on the pseudo velocities only.
   void solvePushout(const SolverSettings& s, float h, int iterations);
   /// Advances positions by the velocities (plus the push-out velocities when split).
   void integratePositions(float h);
