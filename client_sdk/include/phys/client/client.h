@@ -1,0 +1,226 @@
+// The physd client SDK: a connection (Client), world handles, state subscriptions.
+//
+//   phys::client::Client c({.domain = 0});
+//   c.connect();                                    // waits for physd, Hello
+//   phys::client::WorldHandle w = c.createWorld({"demo"}).get();
+//   auto ids = w.spawn(bodies).get();               // futures; .get() throws Error
+//   auto sub = w.subscribe([](const phys::client::StateFrame& f) { ... });
+//   w.run(60).get();
+//
+// Every request returns a std::future resolved by the server's reply with the same
+// correlation (client id, seq); a failed request's future throws phys::client::Error with the
+// server's code and message, or Timeout / Disconnected. Every DDS call stays inside the SDK.
+// When the daemon restarts, pending requests fail with Disconnected and the client says
+// Hello again by itself (worlds of the old daemon are gone: their ids may be reused).
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <future>
+#include <memory>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "phys/client/error.h"
+#include "phys/protocol/builder.h"
+#include "phys/world.h"
+
+namespace phys::client {
+
+using Bytes = std::vector<uint8_t>;
+using WorldSummary = protocol::WorldSummary;
+using CreateWorldArgs = protocol::CreateWorldArgs;
+using SolverOverrides = protocol::SolverOverrides;
+using PointFrame = wire::PointFrame;
+
+struct ClientOptions {
+  uint32_t domain = 0;
+  /// Cyclone XML (the contents, not a path) for the domain; empty: CYCLONEDDS_URI / defaults.
+  std::string cycloneXml;
+  std::string name = "physclient";                  ///< sent in Hello
+  uint64_t clientId = 0;                            ///< 0: a random non-zero id
+  std::chrono::milliseconds connectTimeout{10000};  ///< connect(): server match + Hello
+  std::chrono::milliseconds requestTimeout{10000};  ///< default per-request deadline
+  bool autoReconnect = true;                        ///< say Hello again when a (new) daemon appears
+};
+
+/// What the server said in HelloResult.
+struct ServerInfo {
+  uint16_t protocolVersion = 0;
+  std::string name;
+  std::string version;
+  std::vector<std::string> features;
+};
+
+/// Reply to a request without a result: where and when it took effect.
+struct Ack {
+  uint32_t world = 0;
+  uint64_t tick = 0;
+};
+
+struct Ids {
+  std::vector<uint64_t> bodies;
+  std::vector<uint64_t> joints;
+};
+
+struct BodyState {
+  uint64_t id = 0;
+  phys::Vec3 position;
+  phys::Quat rotation;
+  phys::Vec3 linearVelocity;
+  phys::Vec3 angularVelocity;
+};
+
+/// One complete tick of a world (every chunk reassembled), or a QueryState answer.
+struct StateFrame {
+  uint32_t world = 0;
+  uint64_t tick = 0;
+  double time = 0;
+  uint32_t total = 0;  ///< bodies in the world (QueryState: matching the query)
+  std::vector<BodyState> bodies;
+};
+
+/// The latest phys/status sample.
+struct ServerStatus {
+  std::string serverName;
+  std::string serverVersion;
+  double uptimeS = 0;
+  uint64_t commands = 0, errors = 0;
+  std::vector<WorldSummary> worlds;
+};
+
+/// Per-request options.
+struct CallOptions {
+  std::chrono::milliseconds timeout{0};  ///< 0: ClientOptions::requestTimeout
+};
+
+class Client;
+
+/// A live subscription to one world's state frames; unsubscribes when destroyed.
+class Subscription {
+ public:
+  Subscription() = default;
+  ~Subscription();
+  Subscription(Subscription&&) noexcept;
+  Subscription& operator=(Subscription&&) noexcept;
+  Subscription(const Subscription&) = delete;
+  Subscription& operator=(const Subscription&) = delete;
+
+  explicit operator bool() const { return state_ != nullptr; }
+  uint32_t world() const;
+  /// The latest complete frame (every chunk of one tick), if any arrived.
+  std::optional<StateFrame> latest() const;
+  /// Waits for a complete frame with tick > afterTick.
+  std::optional<StateFrame> waitForFrame(uint64_t afterTick, std::chrono::milliseconds timeout);
+  uint64_t framesReceived() const;  ///< complete frames
+  void reset();                     ///< unsubscribes
+
+  struct State;
+
+ private:
+  friend class Client;
+  explicit Subscription(std::shared_ptr<State> s) : state_(std::move(s)) {}
+  std::shared_ptr<State> state_;
+};
+
+/// A world of the server: every request on it returns a future.
+class WorldHandle {
+ public:
+  WorldHandle() = default;
+  WorldHandle(Client* client, uint32_t id) : client_(client), id_(id) {}
+  uint32_t id() const { return id_; }
+  explicit operator bool() const { return client_ && id_; }
+
+  std::future<Ack> destroy(CallOptions o = {});
+  std::future<Ack> reset(CallOptions o = {});
+  /// A scene by server-side name (configs/scenes/<name>.json) or inline JSON.
+  std::future<Ids> loadScene(std::string_view sceneName, CallOptions o = {});
+  std::future<Ids> loadSceneJson(std::string_view json, CallOptions o = {});
+  std::future<std::vector<uint64_t>> spawn(std::span<const phys::BodyDef> bodies,
+                                           CallOptions o = {});
+  std::future<std::vector<uint64_t>> spawn(const phys::BodyDef& body, CallOptions o = {});
+  std::future<Ack> removeBodies(std::span<const uint64_t> ids, CallOptions o = {});
+  std::future<std::vector<uint64_t>> addJoints(std::span<const phys::JointDef> joints,
+                                               CallOptions o = {});
+  std::future<Ack> removeJoints(std::span<const uint64_t> ids, CallOptions o = {});
+  std::future<Ack> setPose(uint64_t body, phys::Vec3 position, phys::Quat rotation = {},
+                           CallOptions o = {});
+  std::future<Ack> setVelocity(uint64_t body, phys::Vec3 linear, phys::Vec3 angular = {},
+                               CallOptions o = {});
+  /// Acts during the next step only. point/frame: see docs/PROTOCOL.md (PointFrame).
+  std::future<Ack> applyForce(uint64_t body, phys::Vec3 force, phys::Vec3 point = {},
+                              PointFrame frame = PointFrame::CenterOfMass, CallOptions o = {});
+  std::future<Ack> applyImpulse(uint64_t body, phys::Vec3 impulse, phys::Vec3 point = {},
+                                PointFrame frame = PointFrame::CenterOfMass, CallOptions o = {});
+  std::future<Ack> applyTorque(uint64_t body, phys::Vec3 torque, CallOptions o = {});
+  std::future<Ack> setMaterial(std::span<const uint64_t> bodies, const phys::Material& m,
+                               CallOptions o = {});
+  std::future<Ack> setSolver(std::string_view preset, const SolverOverrides& overrides = {},
+                             CallOptions o = {});
+  /// Takes n steps now; Ack.tick is the tick after them.
+  std::future<Ack> step(uint32_t n = 1, CallOptions o = {});
+  /// Real time at rateHz (0: as fast as possible).
+  std::future<Ack> run(float rateHz = 60, CallOptions o = {});
+  std::future<Ack> pause(CallOptions o = {});
+  /// ids empty: every body, paged by first / maxCount.
+  std::future<StateFrame> queryState(std::span<const uint64_t> ids = {}, uint32_t first = 0,
+                                     uint32_t maxCount = 0, CallOptions o = {});
+  /// The engine's exact snapshot as bytes (a Snapshot FlatBuffer).
+  std::future<Bytes> saveSnapshot(CallOptions o = {});
+  /// Saved on the server under its snapshot directory (no bytes returned).
+  std::future<Ack> saveSnapshotFile(std::string_view file, CallOptions o = {});
+  std::future<Ack> restoreSnapshot(std::span<const uint8_t> snapshot, CallOptions o = {});
+  std::future<Ack> restoreSnapshotFile(std::string_view file, CallOptions o = {});
+
+  /// State frames of this world: fn (if any) runs on the SDK's thread for every complete
+  /// tick; Subscription::latest() holds the newest.
+  Subscription subscribe(std::function<void(const StateFrame&)> fn = {});
+
+ private:
+  Client* client_ = nullptr;
+  uint32_t id_ = 0;
+};
+
+class Client {
+ public:
+  /// Creates the DDS participant, topics, writer and readers (throws Error{Transport}); does
+  /// not wait for a server: call connect().
+  explicit Client(ClientOptions options = {});
+  ~Client();
+  Client(const Client&) = delete;
+  Client& operator=(const Client&) = delete;
+
+  /// Waits for a server on the domain and says Hello (throws Error: Timeout when none
+  /// answers within connectTimeout, Unsupported when the protocol versions differ).
+  ServerInfo connect();
+  /// Whether the last Hello was answered and the server is still matched.
+  bool connected() const;
+  /// Times a (new) server was greeted after the first connect.
+  uint64_t reconnects() const;
+  uint64_t clientId() const;
+  const ClientOptions& options() const;
+  ServerInfo server() const;
+
+  std::future<ServerInfo> hello(CallOptions o = {});
+  std::future<WorldHandle> createWorld(const CreateWorldArgs& args, CallOptions o = {});
+  std::future<std::vector<WorldSummary>> listWorlds(CallOptions o = {});
+  /// A handle to an existing world by id (no request).
+  WorldHandle world(uint32_t id) { return WorldHandle(this, id); }
+  /// The world named name (ListWorlds), or Error{NotFound}.
+  WorldHandle worldNamed(const std::string& name, CallOptions o = {});
+
+  /// The newest phys/status sample, if one arrived.
+  std::optional<ServerStatus> latestStatus() const;
+  Subscription subscribe(uint32_t world, std::function<void(const StateFrame&)> fn = {});
+
+  struct Impl;
+
+ private:
+  friend class WorldHandle;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace phys::client

@@ -1,0 +1,48 @@
+// Typed errors of the client SDK: the server's status code and message, or a client-side
+// failure (timeout, disconnect, transport).
+#pragma once
+
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+
+namespace phys::client {
+
+/// 0..7 are the server's wire codes (docs/PROTOCOL.md, Status codes); >= 100 are the SDK's.
+enum class ErrorCode : uint8_t {
+  Ok = 0,
+  Malformed = 1,
+  InvalidArgument = 2,
+  NotFound = 3,
+  IncorrectState = 4,
+  Unsupported = 5,
+  ResourceExhausted = 6,
+  Internal = 7,
+  Timeout = 100,       ///< no reply before the request's deadline
+  Disconnected = 101,  ///< the server went away (or restarted) with the request pending
+  Transport = 102,     ///< a DDS call failed
+  BadReply = 103,      ///< the reply could not be decoded or had the wrong result
+};
+
+/// "NotFound", "Timeout", ...
+const char* toString(ErrorCode c);
+
+/// What a failed request's future throws.
+class Error : public std::runtime_error {
+ public:
+  Error(ErrorCode code, std::string message)
+      : std::runtime_error(std::string(toString(code)) + ": " + message),
+        code_(code),
+        message_(std::move(message)) {}
+  ErrorCode code() const { return code_; }
+  /// The server's message (or the SDK's), without the code.
+  const std::string& message() const { return message_; }
+  /// Whether the server answered with this code (else the SDK gave up on the request).
+  bool fromServer() const { return uint8_t(code_) < 100; }
+
+ private:
+  ErrorCode code_;
+  std::string message_;
+};
+
+}  // namespace phys::client

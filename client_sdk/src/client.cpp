@@ -1,0 +1,769 @@
+// The client SDK over Cyclone DDS: one participant per Client, a command writer, readers on
+// phys/reply and phys/status, one reader per state subscription, and one SDK thread that
+// takes samples, completes futures, reassembles state frames, expires deadlines and notices
+// when the daemon goes away or a new one appears.
+#include "phys/client/client.h"
+
+#include <algorithm>
+#include <atomic>
+#include <condition_variable>
+#include <map>
+#include <mutex>
+#include <random>
+#include <set>
+#include <thread>
+
+#include "dds.h"
+#include "phys/protocol/convert.h"
+#include "phys/protocol/dds_envelope.h"
+#include "phys/protocol/decoder.h"
+
+namespace phys::client {
+
+using Clock = std::chrono::steady_clock;
+using protocol::CommandBuilder;
+
+const char* toString(ErrorCode c) {
+  switch (c) {
+    case ErrorCode::Ok:
+      return "Ok";
+    case ErrorCode::Malformed:
+      return "Malformed";
+    case ErrorCode::InvalidArgument:
+      return "InvalidArgument";
+    case ErrorCode::NotFound:
+      return "NotFound";
+    case ErrorCode::IncorrectState:
+      return "IncorrectState";
+    case ErrorCode::Unsupported:
+      return "Unsupported";
+    case ErrorCode::ResourceExhausted:
+      return "ResourceExhausted";
+    case ErrorCode::Internal:
+      return "Internal";
+    case ErrorCode::Timeout:
+      return "Timeout";
+    case ErrorCode::Disconnected:
+      return "Disconnected";
+    case ErrorCode::Transport:
+      return "Transport";
+    case ErrorCode::BadReply:
+      return "BadReply";
+  }
+  return "Unknown";
+}
+
+namespace {
+
+BodyState toState(const wire::BodyState& s) {
+  return {s.id(), protocol::toPhys(s.position()), protocol::toPhys(s.rotation()),
+          protocol::toPhys(s.linear_velocity()), protocol::toPhys(s.angular_velocity())};
+}
+
+std::string str(const flatbuffers::String* s) {
+  return s ? s->str() : std::string();
+}
+
+WorldSummary toSummary(const wire::WorldSummary& w) {
+  WorldSummary s;
+  s.world = w.world();
+  s.name = str(w.name());
+  s.preset = str(w.preset());
+  s.bodies = w.bodies();
+  s.joints = w.joints();
+  s.tick = w.tick();
+  s.time = w.time();
+  s.running = w.running();
+  s.rateHz = w.rate_hz();
+  s.tickMs = w.tick_ms();
+  s.tickMsMax = w.tick_ms_max();
+  s.overruns = w.overruns();
+  s.subscribers = w.subscribers();
+  return s;
+}
+
+uint64_t randomId() {
+  std::random_device rd;
+  std::mt19937_64 g((uint64_t(rd()) << 32) ^ rd() ^
+                    uint64_t(Clock::now().time_since_epoch().count()));
+  uint64_t id = 0;
+  while (id == 0) id = g();
+  return id;
+}
+
+Ack ack(const wire::Reply& r) {
+  return {r.world(), r.tick()};
+}
+
+Ids ids(const wire::Reply& r) {
+  Ids out;
+  if (auto* i = r.result_as_Ids()) {
+    if (i->bodies()) out.bodies.assign(i->bodies()->begin(), i->bodies()->end());
+    if (i->joints()) out.joints.assign(i->joints()->begin(), i->joints()->end());
+  }
+  return out;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+
+struct Subscription::State {
+  uint32_t world = 0;
+  dds::Topic topic;
+  dds::Reader reader;
+  std::function<void(const StateFrame&)> fn;
+
+  mutable std::mutex m;
+  std::condition_variable cv;
+  std::optional<StateFrame> latest;
+  uint64_t frames = 0;
+
+  std::mutex ownerMutex;
+  Client::Impl* owner = nullptr;
+
+  // Reassembly (SDK thread only).
+  struct Partial {
+    uint32_t chunkCount = 0;
+    std::set<uint32_t> got;
+    StateFrame frame;
+  };
+  std::map<uint64_t, Partial> partial;
+  uint64_t lastComplete = 0;
+  bool any = false;
+
+  void onChunk(const wire::StateFrame& f) {
+    const uint64_t t = f.tick();
+    if (any && t <= lastComplete) return;
+    Partial& p = partial[t];
+    if (p.got.empty()) {
+      p.chunkCount = f.chunk_count();
+      p.frame.world = f.world();
+      p.frame.tick = t;
+      p.frame.time = f.time();
+      p.frame.total = f.total_bodies();
+      p.frame.bodies.reserve(f.total_bodies());
+    }
+    if (!p.got.insert(f.chunk_index()).second) return;
+    if (f.bodies())
+      for (const wire::BodyState* s : *f.bodies()) p.frame.bodies.push_back(toState(*s));
+    if (p.got.size() < p.chunkCount) {
+      while (partial.size() > 8) partial.erase(partial.begin());  // superseded ticks
+      return;
+    }
+    StateFrame frame = std::move(p.frame);
+    any = true;
+    lastComplete = t;
+    partial.erase(partial.begin(), partial.upper_bound(t));
+    {
+      std::lock_guard<std::mutex> lk(m);
+      latest = frame;
+      ++frames;
+    }
+    cv.notify_all();
+    if (fn) fn(frame);
+  }
+};
+
+struct Client::Impl {
+  ClientOptions options;
+  uint64_t clientId = 0;
+  dds::Participant participant;
+  dds::Topic cmdTopic, replyTopic, statusTopic;
+  dds::Writer cmdWriter;
+  dds::Reader replyReader, statusReader;
+  dds::WaitSet waitset;
+
+  std::mutex writeMutex;
+  std::atomic<uint64_t> seq{0};
+
+  struct Pending {
+    Clock::time_point deadline;
+    bool sentWithServer = false;
+    std::function<void(const wire::Reply*, const Error*)> done;
+  };
+  std::mutex pendMutex;
+  std::map<uint64_t, Pending> pending;
+
+  mutable std::mutex infoMutex;
+  ServerInfo server;
+  std::optional<ServerStatus> status;
+
+  std::atomic<bool> everConnected{false}, helloOk{false}, helloInFlight{false}, needHello{false};
+  std::atomic<uint64_t> reconnects{0};
+  std::atomic<size_t> serversMatched{0};
+  std::set<dds_instance_handle_t> servers;  // SDK thread only
+
+  std::mutex subsMutex;
+  std::vector<std::shared_ptr<Subscription::State>> subs;
+
+  std::atomic<bool> stop{false};
+  std::thread thread;
+
+  void fail(const std::string& what, std::string err) {
+    throw Error(ErrorCode::Transport, what + ": " + err);
+  }
+
+  explicit Impl(ClientOptions o) : options(std::move(o)) {
+    clientId = options.clientId ? options.clientId : randomId();
+    std::string err;
+    if (!participant.create(options.domain, options.cycloneXml, &err)) fail("participant", err);
+    if (!cmdTopic.create(participant, std::string(protocol::kCommandTopic), &err) ||
+        !replyTopic.create(participant, std::string(protocol::kReplyTopic), &err) ||
+        !statusTopic.create(participant, std::string(protocol::kStatusTopic), &err))
+      fail("topic", err);
+    if (!cmdWriter.create(participant, cmdTopic, protocol::kCommandQos,
+                          protocol::PayloadKind::Command, &err))
+      fail("writer", err);
+    if (!replyReader.create(participant, replyTopic, protocol::kReplyQos, &err) ||
+        !statusReader.create(participant, statusTopic, protocol::kStatusQos, &err))
+      fail("reader", err);
+    if (!waitset.create(participant, &err) || !waitset.attach(replyReader, &err) ||
+        !waitset.attach(statusReader, &err))
+      fail("waitset", err);
+    thread = std::thread([this] { loop(); });
+  }
+
+  ~Impl() {
+    stop = true;
+    waitset.wake();
+    if (thread.joinable()) thread.join();
+    failAll(ErrorCode::Disconnected, "the client was closed", false);
+    std::vector<std::shared_ptr<Subscription::State>> copy;
+    {
+      std::lock_guard<std::mutex> lk(subsMutex);
+      copy.swap(subs);
+    }
+    for (auto& s : copy) {
+      std::lock_guard<std::mutex> lk(s->ownerMutex);
+      s->owner = nullptr;
+      waitset.detach(s->reader);
+      s->reader.reset();
+      s->topic.reset();
+    }
+  }
+
+  std::chrono::milliseconds timeoutOf(const CallOptions& o) const {
+    return o.timeout.count() > 0 ? o.timeout : options.requestTimeout;
+  }
+
+  /// Sends a command; done runs once, on the SDK thread (or here on a write failure).
+  void send(CommandBuilder& b, uint32_t world, std::chrono::milliseconds timeout,
+            std::function<void(const wire::Reply*, const Error*)> done) {
+    const uint64_t s = ++seq;
+    protocol::Bytes bytes = b.finish({clientId, s, world});
+    {
+      std::lock_guard<std::mutex> lk(pendMutex);
+      pending[s] = {Clock::now() + timeout, serversMatched.load() > 0, done};
+    }
+    dds_return_t rc;
+    {
+      std::lock_guard<std::mutex> lk(writeMutex);
+      rc = cmdWriter.write(clientId, bytes, s);
+    }
+    if (rc < 0) {
+      bool mine = false;
+      {
+        std::lock_guard<std::mutex> lk(pendMutex);
+        mine = pending.erase(s) > 0;
+      }
+      if (mine) {
+        Error e(ErrorCode::Transport, "dds_write on phys/cmd: " + dds::error(rc));
+        done(nullptr, &e);
+      }
+    }
+    waitset.wake();
+  }
+
+  template <class T>
+  std::future<T> request(CommandBuilder& b, uint32_t world, const CallOptions& o,
+                         std::function<T(const wire::Reply&)> parse) {
+    auto prom = std::make_shared<std::promise<T>>();
+    std::future<T> fut = prom->get_future();
+    send(b, world, timeoutOf(o), [prom, parse](const wire::Reply* r, const Error* e) {
+      try {
+        if (e) throw *e;
+        if (r->status() != wire::StatusCode::Ok)
+          throw Error(ErrorCode(uint8_t(r->status())), str(r->message()));
+        prom->set_value(parse(*r));
+      } catch (...) {
+        prom->set_exception(std::current_exception());
+      }
+    });
+    return fut;
+  }
+
+  std::future<Ack> ackRequest(CommandBuilder& b, uint32_t world, const CallOptions& o) {
+    return request<Ack>(b, world, o, [](const wire::Reply& r) { return ack(r); });
+  }
+
+  static ServerInfo parseHello(const wire::Reply& r) {
+    auto* h = r.result_as_HelloResult();
+    if (!h) throw Error(ErrorCode::BadReply, "hello reply without HelloResult");
+    ServerInfo i;
+    i.protocolVersion = h->protocol_version();
+    i.name = str(h->server_name());
+    i.version = str(h->server_version());
+    if (h->features())
+      for (auto* f : *h->features()) i.features.push_back(f->str());
+    return i;
+  }
+
+  std::future<ServerInfo> hello(const CallOptions& o) {
+    CommandBuilder b;
+    b.hello(options.name);
+    return request<ServerInfo>(b, 0, o, [this](const wire::Reply& r) {
+      ServerInfo i = parseHello(r);
+      {
+        std::lock_guard<std::mutex> lk(infoMutex);
+        server = i;
+      }
+      helloOk = true;
+      return i;
+    });
+  }
+
+  void failAll(ErrorCode code, const std::string& why, bool onlyUnsent) {
+    std::vector<Pending> failed;
+    {
+      std::lock_guard<std::mutex> lk(pendMutex);
+      for (auto it = pending.begin(); it != pending.end();) {
+        if (onlyUnsent && it->second.sentWithServer) {
+          ++it;
+          continue;
+        }
+        failed.push_back(std::move(it->second));
+        it = pending.erase(it);
+      }
+    }
+    Error e(code, why);
+    for (auto& p : failed) p.done(nullptr, &e);
+  }
+
+  void takeReplies() {
+    replyReader.take([&](const phys_wire_Envelope& env) {
+      if (env.key != clientId) return;
+      if (!protocol::checkEnvelope(env, protocol::PayloadKind::Reply).ok()) return;
+      auto b = protocol::envelopeBytes(env);
+      auto r = protocol::decodeReply(b);
+      Pending p;
+      {
+        std::lock_guard<std::mutex> lk(pendMutex);
+        auto it = pending.find(r.ok() ? r->seq() : env.seq);
+        if (it == pending.end()) return;
+        p = std::move(it->second);
+        pending.erase(it);
+      }
+      if (r.ok()) {
+        p.done(r.root, nullptr);
+      } else {
+        Error e(ErrorCode::BadReply, r.status.message);
+        p.done(nullptr, &e);
+      }
+    });
+  }
+
+  void takeStatus() {
+    statusReader.take([&](const phys_wire_Envelope& env) {
+      if (!protocol::checkEnvelope(env, protocol::PayloadKind::ServerStatus).ok()) return;
+      auto s = protocol::decodeServerStatus(protocol::envelopeBytes(env));
+      if (!s.ok()) return;
+      ServerStatus st;
+      st.serverName = str(s->server_name());
+      st.serverVersion = str(s->server_version());
+      st.uptimeS = s->uptime_s();
+      st.commands = s->commands();
+      st.errors = s->errors();
+      if (s->worlds())
+        for (auto* w : *s->worlds()) st.worlds.push_back(toSummary(*w));
+      std::lock_guard<std::mutex> lk(infoMutex);
+      status = std::move(st);
+    });
+  }
+
+  void takeStates() {
+    std::vector<std::shared_ptr<Subscription::State>> copy;
+    {
+      std::lock_guard<std::mutex> lk(subsMutex);
+      copy = subs;
+    }
+    for (auto& s : copy)
+      s->reader.take([&](const phys_wire_Envelope& env) {
+        if (!protocol::checkEnvelope(env, protocol::PayloadKind::StateFrame).ok()) return;
+        auto f = protocol::decodeStateFrame(protocol::envelopeBytes(env));
+        if (f.ok() && f->world() == s->world) s->onChunk(*f);
+      });
+  }
+
+  void checkServers() {
+    auto now = cmdWriter.matchedHandles();
+    std::set<dds_instance_handle_t> cur(now.begin(), now.end());
+    bool removed = false, added = false;
+    for (auto h : servers)
+      if (!cur.count(h)) removed = true;
+    for (auto h : cur)
+      if (!servers.count(h)) added = true;
+    servers = std::move(cur);
+    serversMatched = servers.size();
+    // A daemon that went away while another is still matched (a killed daemon whose lease
+    // ran out after its successor started) changes nothing: the other one answers.
+    if (removed && servers.empty()) {
+      helloOk = false;
+      failAll(ErrorCode::Disconnected, "physd went away before replying", false);
+      if (everConnected && options.autoReconnect) needHello = true;
+    }
+    if (added) {
+      failAll(ErrorCode::Disconnected, "sent while no physd was matched; not delivered", true);
+      if (everConnected && options.autoReconnect) needHello = true;
+    }
+    if (needHello && !helloInFlight && !servers.empty() && replyReader.matched() > 0) {
+      helloInFlight = true;
+      needHello = false;
+      CommandBuilder b;
+      b.hello(options.name);
+      send(b, 0, std::chrono::milliseconds(2000), [this](const wire::Reply* r, const Error* e) {
+        helloInFlight = false;
+        if (!e && r->status() == wire::StatusCode::Ok && r->result_as_HelloResult()) {
+          ServerInfo i = parseHello(*r);
+          std::lock_guard<std::mutex> lk(infoMutex);
+          server = i;
+          helloOk = true;
+          ++reconnects;
+        } else {
+          needHello = true;  // retried while a server is matched
+        }
+      });
+    }
+  }
+
+  void expire() {
+    const auto now = Clock::now();
+    std::vector<Pending> expired;
+    {
+      std::lock_guard<std::mutex> lk(pendMutex);
+      for (auto it = pending.begin(); it != pending.end();) {
+        if (it->second.deadline <= now) {
+          expired.push_back(std::move(it->second));
+          it = pending.erase(it);
+        } else {
+          ++it;
+        }
+      }
+    }
+    Error e(ErrorCode::Timeout, "no reply from physd within the request's timeout (domain " +
+                                    std::to_string(options.domain) + ")");
+    for (auto& p : expired) p.done(nullptr, &e);
+  }
+
+  void loop() {
+    while (!stop) {
+      waitset.wait(DDS_MSECS(50));
+      if (stop) break;
+      takeReplies();
+      takeStatus();
+      takeStates();
+      checkServers();
+      expire();
+    }
+  }
+
+  Subscription subscribe(uint32_t world, std::function<void(const StateFrame&)> fn) {
+    auto s = std::make_shared<Subscription::State>();
+    s->world = world;
+    s->fn = std::move(fn);
+    s->owner = this;
+    std::string err;
+    if (!s->topic.create(participant, protocol::stateTopic(world), &err) ||
+        !s->reader.create(participant, s->topic, protocol::kStateQos, &err))
+      fail("state subscription", err);
+    {
+      std::lock_guard<std::mutex> lk(subsMutex);
+      if (!waitset.attach(s->reader, &err)) fail("state subscription", err);
+      subs.push_back(s);
+    }
+    waitset.wake();
+    return Subscription(s);
+  }
+
+  void unsubscribe(const std::shared_ptr<Subscription::State>& s) {
+    std::lock_guard<std::mutex> lk(subsMutex);
+    waitset.detach(s->reader);
+    subs.erase(std::remove(subs.begin(), subs.end(), s), subs.end());
+  }
+};
+
+// ---------------------------------------------------------------------------------------------
+// Subscription
+
+Subscription::~Subscription() {
+  reset();
+}
+Subscription::Subscription(Subscription&& o) noexcept : state_(std::move(o.state_)) {}
+Subscription& Subscription::operator=(Subscription&& o) noexcept {
+  if (this != &o) {
+    reset();
+    state_ = std::move(o.state_);
+  }
+  return *this;
+}
+
+void Subscription::reset() {
+  if (!state_) return;
+  {
+    std::lock_guard<std::mutex> lk(state_->ownerMutex);
+    if (state_->owner) state_->owner->unsubscribe(state_);
+    state_->owner = nullptr;
+  }
+  state_.reset();
+}
+
+uint32_t Subscription::world() const {
+  return state_ ? state_->world : 0;
+}
+
+std::optional<StateFrame> Subscription::latest() const {
+  if (!state_) return std::nullopt;
+  std::lock_guard<std::mutex> lk(state_->m);
+  return state_->latest;
+}
+
+std::optional<StateFrame> Subscription::waitForFrame(uint64_t afterTick,
+                                                     std::chrono::milliseconds timeout) {
+  if (!state_) return std::nullopt;
+  std::unique_lock<std::mutex> lk(state_->m);
+  state_->cv.wait_for(lk, timeout,
+                      [&] { return state_->latest && state_->latest->tick > afterTick; });
+  if (state_->latest && state_->latest->tick > afterTick) return state_->latest;
+  return std::nullopt;
+}
+
+uint64_t Subscription::framesReceived() const {
+  if (!state_) return 0;
+  std::lock_guard<std::mutex> lk(state_->m);
+  return state_->frames;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Client
+
+Client::Client(ClientOptions options) : impl_(std::make_unique<Impl>(std::move(options))) {}
+Client::~Client() = default;
+
+ServerInfo Client::connect() {
+  const auto end = Clock::now() + impl_->options.connectTimeout;
+  // The daemon's command reader and reply writer matched, then Hello (retried: the daemon's
+  // reply writer may not have matched our reader yet when the first one arrives).
+  while (Clock::now() < end) {
+    if (impl_->serversMatched.load() > 0 && impl_->replyReader.matched() > 0) {
+      auto left = std::chrono::duration_cast<std::chrono::milliseconds>(end - Clock::now());
+      auto f = impl_->hello(
+          {std::clamp(left, std::chrono::milliseconds(1), std::chrono::milliseconds(1500))});
+      try {
+        ServerInfo i = f.get();
+        impl_->everConnected = true;
+        return i;
+      } catch (const Error& e) {
+        if (e.code() != ErrorCode::Timeout && e.code() != ErrorCode::Disconnected) throw;
+      }
+    } else {
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+  }
+  throw Error(ErrorCode::Timeout,
+              "no physd answered Hello on domain " + std::to_string(impl_->options.domain) +
+                  " within " + std::to_string(impl_->options.connectTimeout.count()) + " ms");
+}
+
+bool Client::connected() const {
+  return impl_->helloOk && impl_->serversMatched.load() > 0;
+}
+uint64_t Client::reconnects() const {
+  return impl_->reconnects;
+}
+uint64_t Client::clientId() const {
+  return impl_->clientId;
+}
+const ClientOptions& Client::options() const {
+  return impl_->options;
+}
+ServerInfo Client::server() const {
+  std::lock_guard<std::mutex> lk(impl_->infoMutex);
+  return impl_->server;
+}
+
+std::future<ServerInfo> Client::hello(CallOptions o) {
+  return impl_->hello(o);
+}
+
+std::future<WorldHandle> Client::createWorld(const CreateWorldArgs& args, CallOptions o) {
+  CommandBuilder b;
+  b.createWorld(args);
+  return impl_->request<WorldHandle>(
+      b, 0, o, [this](const wire::Reply& r) { return WorldHandle(this, r.world()); });
+}
+
+std::future<std::vector<WorldSummary>> Client::listWorlds(CallOptions o) {
+  CommandBuilder b;
+  b.listWorlds();
+  return impl_->request<std::vector<WorldSummary>>(b, 0, o, [](const wire::Reply& r) {
+    std::vector<WorldSummary> v;
+    auto* l = r.result_as_WorldList();
+    if (!l) throw Error(ErrorCode::BadReply, "list_worlds reply without WorldList");
+    if (l->worlds())
+      for (auto* w : *l->worlds()) v.push_back(toSummary(*w));
+    return v;
+  });
+}
+
+WorldHandle Client::worldNamed(const std::string& name, CallOptions o) {
+  for (const WorldSummary& w : listWorlds(o).get())
+    if (w.name == name) return WorldHandle(this, w.world);
+  throw Error(ErrorCode::NotFound, "no world named '" + name + "'");
+}
+
+std::optional<ServerStatus> Client::latestStatus() const {
+  std::lock_guard<std::mutex> lk(impl_->infoMutex);
+  return impl_->status;
+}
+
+Subscription Client::subscribe(uint32_t world, std::function<void(const StateFrame&)> fn) {
+  return impl_->subscribe(world, std::move(fn));
+}
+
+// ---------------------------------------------------------------------------------------------
+// WorldHandle
+
+namespace {
+std::vector<uint64_t> bodyIds(const wire::Reply& r) {
+  return ids(r).bodies;
+}
+std::vector<uint64_t> jointIds(const wire::Reply& r) {
+  return ids(r).joints;
+}
+}  // namespace
+
+#define PHYS_WORLD_ACK(builderCall) \
+  CommandBuilder b;                 \
+  b.builderCall;                    \
+  return client_->impl_->ackRequest(b, id_, o)
+
+std::future<Ack> WorldHandle::destroy(CallOptions o) {
+  PHYS_WORLD_ACK(destroyWorld());
+}
+std::future<Ack> WorldHandle::reset(CallOptions o) {
+  PHYS_WORLD_ACK(resetWorld());
+}
+
+std::future<Ids> WorldHandle::loadScene(std::string_view sceneName, CallOptions o) {
+  CommandBuilder b;
+  b.loadSceneNamed(sceneName);
+  return client_->impl_->request<Ids>(b, id_, o, ids);
+}
+std::future<Ids> WorldHandle::loadSceneJson(std::string_view json, CallOptions o) {
+  CommandBuilder b;
+  b.loadSceneJson(json);
+  return client_->impl_->request<Ids>(b, id_, o, ids);
+}
+std::future<std::vector<uint64_t>> WorldHandle::spawn(std::span<const phys::BodyDef> bodies,
+                                                      CallOptions o) {
+  CommandBuilder b;
+  b.spawnBodies(bodies);
+  return client_->impl_->request<std::vector<uint64_t>>(b, id_, o, bodyIds);
+}
+std::future<std::vector<uint64_t>> WorldHandle::spawn(const phys::BodyDef& body, CallOptions o) {
+  return spawn(std::span<const phys::BodyDef>(&body, 1), o);
+}
+std::future<Ack> WorldHandle::removeBodies(std::span<const uint64_t> ids, CallOptions o) {
+  PHYS_WORLD_ACK(removeBodies(ids));
+}
+std::future<std::vector<uint64_t>> WorldHandle::addJoints(std::span<const phys::JointDef> joints,
+                                                          CallOptions o) {
+  CommandBuilder b;
+  b.addJoints(joints);
+  return client_->impl_->request<std::vector<uint64_t>>(b, id_, o, jointIds);
+}
+std::future<Ack> WorldHandle::removeJoints(std::span<const uint64_t> ids, CallOptions o) {
+  PHYS_WORLD_ACK(removeJoints(ids));
+}
+std::future<Ack> WorldHandle::setPose(uint64_t body, phys::Vec3 position, phys::Quat rotation,
+                                      CallOptions o) {
+  PHYS_WORLD_ACK(setBodyPose(body, position, rotation));
+}
+std::future<Ack> WorldHandle::setVelocity(uint64_t body, phys::Vec3 linear, phys::Vec3 angular,
+                                          CallOptions o) {
+  PHYS_WORLD_ACK(setBodyVelocity(body, linear, angular));
+}
+std::future<Ack> WorldHandle::applyForce(uint64_t body, phys::Vec3 force, phys::Vec3 point,
+                                         PointFrame frame, CallOptions o) {
+  PHYS_WORLD_ACK(applyForce(body, force, point, frame));
+}
+std::future<Ack> WorldHandle::applyImpulse(uint64_t body, phys::Vec3 impulse, phys::Vec3 point,
+                                           PointFrame frame, CallOptions o) {
+  PHYS_WORLD_ACK(applyImpulse(body, impulse, point, frame));
+}
+std::future<Ack> WorldHandle::applyTorque(uint64_t body, phys::Vec3 torque, CallOptions o) {
+  PHYS_WORLD_ACK(applyTorque(body, torque));
+}
+std::future<Ack> WorldHandle::setMaterial(std::span<const uint64_t> bodies, const phys::Material& m,
+                                          CallOptions o) {
+  PHYS_WORLD_ACK(setMaterial(bodies, m));
+}
+std::future<Ack> WorldHandle::setSolver(std::string_view preset, const SolverOverrides& overrides,
+                                        CallOptions o) {
+  PHYS_WORLD_ACK(setSolver(preset, overrides));
+}
+std::future<Ack> WorldHandle::step(uint32_t n, CallOptions o) {
+  PHYS_WORLD_ACK(step(n));
+}
+std::future<Ack> WorldHandle::run(float rateHz, CallOptions o) {
+  PHYS_WORLD_ACK(run(rateHz));
+}
+std::future<Ack> WorldHandle::pause(CallOptions o) {
+  PHYS_WORLD_ACK(pause());
+}
+
+std::future<StateFrame> WorldHandle::queryState(std::span<const uint64_t> ids, uint32_t first,
+                                                uint32_t maxCount, CallOptions o) {
+  CommandBuilder b;
+  b.queryState(ids, first, maxCount);
+  return client_->impl_->request<StateFrame>(b, id_, o, [](const wire::Reply& r) {
+    auto* s = r.result_as_StateResult();
+    if (!s) throw Error(ErrorCode::BadReply, "query_state reply without StateResult");
+    StateFrame f;
+    f.world = r.world();
+    f.tick = r.tick();
+    f.time = s->time();
+    f.total = s->total();
+    if (s->bodies())
+      for (auto* b : *s->bodies()) f.bodies.push_back(toState(*b));
+    return f;
+  });
+}
+
+std::future<Bytes> WorldHandle::saveSnapshot(CallOptions o) {
+  CommandBuilder b;
+  b.saveSnapshot({}, true);
+  return client_->impl_->request<Bytes>(b, id_, o, [](const wire::Reply& r) {
+    auto* s = r.result_as_SnapshotResult();
+    if (!s || !s->snapshot())
+      throw Error(ErrorCode::BadReply, "save_snapshot reply without snapshot bytes");
+    return Bytes(s->snapshot()->begin(), s->snapshot()->end());
+  });
+}
+std::future<Ack> WorldHandle::saveSnapshotFile(std::string_view file, CallOptions o) {
+  PHYS_WORLD_ACK(saveSnapshot(file, false));
+}
+std::future<Ack> WorldHandle::restoreSnapshot(std::span<const uint8_t> snapshot, CallOptions o) {
+  PHYS_WORLD_ACK(restoreSnapshot(snapshot));
+}
+std::future<Ack> WorldHandle::restoreSnapshotFile(std::string_view file, CallOptions o) {
+  PHYS_WORLD_ACK(restoreSnapshotFile(file));
+}
+
+#undef PHYS_WORLD_ACK
+
+Subscription WorldHandle::subscribe(std::function<void(const StateFrame&)> fn) {
+  return client_->subscribe(id_, std::move(fn));
+}
+
+}  // namespace phys::client

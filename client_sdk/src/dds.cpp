@@ -1,0 +1,163 @@
+// RAII wrappers around the Cyclone DDS C API (dds.h).
+#include "dds.h"
+
+#include <algorithm>
+
+#include "phys/protocol/qos.h"
+
+namespace phys::client::dds {
+
+std::string error(dds_return_t rc) {
+  return rc >= 0 ? std::string() : std::string(dds_strretcode(rc));
+}
+
+namespace {
+bool check(dds_entity_t e, const std::string& what, std::string* err) {
+  if (e > 0) return true;
+  if (err) *err = what + ": " + error(e);
+  return false;
+}
+}  // namespace
+
+bool Participant::create(uint32_t domain, const std::string& configXml, std::string* err) {
+  domain_ = domain;
+  if (!configXml.empty()) {
+    dds_entity_t d = dds_create_domain(dds_domainid_t(domain), configXml.c_str());
+    // PRECONDITION_NOT_MET: the domain exists already in this process; share it.
+    if (d > 0) {
+      domainEntity_ = Entity(d);
+    } else if (d != DDS_RETCODE_PRECONDITION_NOT_MET) {
+      return check(d, "dds_create_domain " + std::to_string(domain), err);
+    }
+  }
+  dds_entity_t p = dds_create_participant(dds_domainid_t(domain), nullptr, nullptr);
+  if (!check(p, "dds_create_participant on domain " + std::to_string(domain), err)) return false;
+  e_ = p;
+  return true;
+}
+
+bool Topic::create(const Participant& p, const std::string& name, std::string* err) {
+  name_ = name;
+  dds_entity_t t =
+      dds_create_topic(p.get(), &phys_wire_Envelope_desc, name.c_str(), nullptr, nullptr);
+  if (!check(t, "dds_create_topic " + name, err)) return false;
+  e_ = t;
+  return true;
+}
+
+bool Writer::create(const Participant& p, const Topic& t, const protocol::QosPreset& qos,
+                    protocol::PayloadKind kind, std::string* err) {
+  kind_ = kind;
+  protocol::QosPtr q = protocol::makeQos(qos);
+  dds_entity_t w = dds_create_writer(p.get(), t.get(), q.get(), nullptr);
+  if (!check(w, "dds_create_writer " + t.name(), err)) return false;
+  e_ = w;
+  return true;
+}
+
+dds_return_t Writer::write(uint64_t key, std::span<const uint8_t> bytes, uint64_t seq) {
+  phys_wire_Envelope env{};
+  protocol::wrapEnvelope(&env, key, seq ? seq : ++seq_, kind_, bytes);
+  return dds_write(e_, &env);
+}
+
+dds_return_t Writer::dispose(uint64_t key) {
+  phys_wire_Envelope env{};
+  protocol::wrapEnvelope(&env, key, 0, kind_, {});
+  return dds_dispose(e_, &env);
+}
+
+uint32_t Writer::matched() const {
+  dds_publication_matched_status_t m{};
+  if (dds_get_publication_matched_status(e_, &m) != DDS_RETCODE_OK) return 0;
+  return m.current_count;
+}
+
+std::vector<dds_instance_handle_t> Writer::matchedHandles() const {
+  dds_instance_handle_t h[64];
+  dds_return_t n = dds_get_matched_subscriptions(e_, h, 64);
+  if (n <= 0) return {};
+  return std::vector<dds_instance_handle_t>(h, h + std::min<dds_return_t>(n, 64));
+}
+
+bool Reader::create(const Participant& p, const Topic& t, const protocol::QosPreset& qos,
+                    std::string* err) {
+  protocol::QosPtr q = protocol::makeQos(qos);
+  dds_entity_t r = dds_create_reader(p.get(), t.get(), q.get(), nullptr);
+  if (!check(r, "dds_create_reader " + t.name(), err)) return false;
+  e_ = r;
+  return true;
+}
+
+int Reader::take(const std::function<void(const phys_wire_Envelope&)>& fn) {
+  constexpr int kBatch = 32;
+  int total = 0;
+  for (;;) {
+    void* samples[kBatch] = {};
+    dds_sample_info_t infos[kBatch];
+    int n = dds_take(e_, samples, infos, kBatch, kBatch);
+    if (n < 0) return total > 0 ? total : n;
+    for (int i = 0; i < n; ++i)
+      if (infos[i].valid_data) {
+        fn(*static_cast<const phys_wire_Envelope*>(samples[i]));
+        ++total;
+      }
+    if (n > 0) dds_return_loan(e_, samples, n);
+    if (n < kBatch) return total;
+  }
+}
+
+uint32_t Reader::matched() const {
+  dds_subscription_matched_status_t m{};
+  if (dds_get_subscription_matched_status(e_, &m) != DDS_RETCODE_OK) return 0;
+  return m.current_count;
+}
+
+bool WaitSet::create(const Participant& p, std::string* err) {
+  dds_entity_t ws = dds_create_waitset(p.get());
+  if (!check(ws, "dds_create_waitset", err)) return false;
+  e_ = ws;
+  dds_entity_t g = dds_create_guardcondition(p.get());
+  if (!check(g, "dds_create_guardcondition", err)) return false;
+  guard_ = Entity(g);
+  dds_return_t rc = dds_waitset_attach(e_, g, 0);
+  if (rc < 0) {
+    if (err) *err = "dds_waitset_attach: " + error(rc);
+    return false;
+  }
+  return true;
+}
+
+bool WaitSet::attach(const Reader& r, std::string* err) {
+  dds_entity_t c = dds_create_readcondition(r.get(), DDS_ANY_STATE);
+  if (!check(c, "dds_create_readcondition", err)) return false;
+  dds_return_t rc = dds_waitset_attach(e_, c, r.get());
+  if (rc < 0) {
+    dds_delete(c);
+    if (err) *err = "dds_waitset_attach: " + error(rc);
+    return false;
+  }
+  conditions_.emplace_back(r.get(), Entity(c));
+  return true;
+}
+
+void WaitSet::detach(const Reader& r) {
+  for (auto it = conditions_.begin(); it != conditions_.end(); ++it)
+    if (it->first == r.get()) {
+      dds_waitset_detach(e_, it->second.get());
+      conditions_.erase(it);
+      return;
+    }
+}
+
+void WaitSet::wake() {
+  if (guard_) dds_set_guardcondition(guard_.get(), true);
+}
+
+int WaitSet::wait(dds_duration_t timeout) {
+  int n = dds_waitset_wait(e_, nullptr, 0, timeout);
+  if (guard_) dds_set_guardcondition(guard_.get(), false);
+  return n;
+}
+
+}  // namespace phys::client::dds

@@ -1,0 +1,375 @@
+// The client SDK against physd's components in-process (core, tick thread, DDS endpoint) on
+// loopback DDS. Each test process uses a domain id of its own range (230 or 231, unused by
+// tests/server and tests/protocol; 232 is avoided: its ports overflow 65535 for high participant
+// indices) and a Cyclone discovery tag made from its process id, so tests running in parallel never
+// see each other's daemons.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <set>
+#include <sstream>
+#include <thread>
+
+#include "phys/client/client.h"
+#include "phys/server/core.h"
+#include "phys/server/endpoint.h"
+
+namespace phys::client {
+namespace {
+
+using namespace std::chrono_literals;
+constexpr auto kTimeout = std::chrono::milliseconds(20000);  // a loaded 2-core machine
+
+uint32_t testDomain() {
+  return 230 + uint32_t(getpid() % 2);
+}
+
+/// configs/cyclonedds/loopback.xml with a discovery tag of this process.
+std::string loopbackXml() {
+  std::ifstream in(std::string(PHYS_SOURCE_DIR) + "/configs/cyclonedds/loopback.xml");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  std::string xml = ss.str();
+  const std::string tag =
+      "<Discovery>\n      <Tag>physclient-test-" + std::to_string(getpid()) + "</Tag>";
+  auto pos = xml.find("<Discovery>");
+  EXPECT_NE(pos, std::string::npos);
+  if (pos != std::string::npos) xml.replace(pos, std::string("<Discovery>").size(), tag);
+  return xml;
+}
+
+ClientOptions options(std::string name = "client-test") {
+  ClientOptions o;
+  o.domain = testDomain();
+  o.cycloneXml = loopbackXml();
+  o.name = std::move(name);
+  o.connectTimeout = kTimeout;
+  o.requestTimeout = kTimeout;
+  return o;
+}
+
+server::CoreConfig coreConfig() {
+  server::CoreConfig c;
+  c.presetsFile = std::string(PHYS_SOURCE_DIR) + "/configs/presets.json";
+  c.scenesDir = std::string(PHYS_SOURCE_DIR) + "/configs/scenes";
+  c.snapshotDir = (std::filesystem::temp_directory_path() /
+                   ("physclient_test_snapshots_" + std::to_string(getpid())))
+                      .string();
+  return c;
+}
+
+/// The daemon's components, as physd's main() wires them.
+struct Daemon {
+  Daemon() : core(coreConfig()), endpoint(&core, {testDomain(), loopbackXml()}) {
+    EXPECT_TRUE(core.init().ok());
+    auto s = endpoint.start();
+    EXPECT_TRUE(s.ok()) << s.message;
+    tick.start();
+  }
+  ~Daemon() {
+    tick.stop();
+    endpoint.stop();
+  }
+  server::ServerCore core;
+  server::DdsEndpoint endpoint;
+  server::TickThread tick{&core, std::chrono::milliseconds(200)};
+};
+
+phys::BodyDef box(phys::Vec3 p) {
+  phys::BodyDef d;
+  d.position = p;
+  phys::ShapeDef s;
+  s.geom = phys::ShapeGeom::box({0.5f, 0.5f, 0.5f});
+  d.shapes.push_back(s);
+  return d;
+}
+
+phys::BodyDef ground() {
+  phys::BodyDef d;
+  d.type = phys::BodyType::Static;
+  phys::ShapeDef s;
+  s.geom = phys::ShapeGeom::plane({0, 0, 1}, 0);
+  d.shapes.push_back(s);
+  return d;
+}
+
+std::vector<phys::BodyDef> grid(int n) {
+  std::vector<phys::BodyDef> v{ground()};
+  for (int i = 0; i < n; ++i) v.push_back(box({float(i % 50) * 2, float(i / 50) * 2, 1}));
+  return v;
+}
+
+template <class F>
+ErrorCode codeOf(F&& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    EXPECT_FALSE(e.message().empty());
+    return e.code();
+  }
+  return ErrorCode::Ok;
+}
+
+template <class Pred>
+bool waitFor(Pred pred, std::chrono::milliseconds timeout = kTimeout) {
+  auto end = std::chrono::steady_clock::now() + timeout;
+  while (std::chrono::steady_clock::now() < end) {
+    if (pred()) return true;
+    std::this_thread::sleep_for(5ms);
+  }
+  return pred();
+}
+
+// The client is created before the daemon: its participant then owns the process's domain,
+// so the daemon can be stopped and started under it.
+struct Env {
+  Client client{options()};
+  std::unique_ptr<Daemon> daemon = std::make_unique<Daemon>();
+};
+
+TEST(ClientSdk, RoundTripOfEveryCommand) {
+  Env env;
+  Client& c = env.client;
+  ServerInfo info = c.connect();
+  EXPECT_EQ(info.protocolVersion, protocol::kProtocolVersion);
+  EXPECT_EQ(info.name, "physd");
+  EXPECT_TRUE(c.connected());
+  EXPECT_EQ(c.hello().get().name, "physd");
+
+  WorldHandle w = c.createWorld({"rt", "", phys::Vec3{0, 0, -9.81f}, 0}).get();
+  ASSERT_TRUE(w);
+  auto worlds = c.listWorlds().get();
+  ASSERT_EQ(worlds.size(), 1u);
+  EXPECT_EQ(worlds[0].name, "rt");
+  EXPECT_EQ(c.worldNamed("rt").id(), w.id());
+
+  auto defs = grid(4);
+  std::vector<uint64_t> ids = w.spawn(defs).get();
+  ASSERT_EQ(ids.size(), defs.size());
+  const uint64_t a = ids[1], b = ids[2];
+  EXPECT_EQ(w.spawn(box({20, 20, 1})).get().size(), 1u);
+
+  phys::JointDef j;
+  j.type = phys::JointType::Ball;
+  j.bodyA = phys::BodyId::fromPacked(a);
+  j.bodyB = phys::BodyId::fromPacked(b);
+  j.anchorA = {1, 0, 0};
+  j.anchorB = {-1, 0, 0};
+  std::vector<uint64_t> joints = w.addJoints(std::span(&j, 1)).get();
+  ASSERT_EQ(joints.size(), 1u);
+
+  w.setPose(a, {0, 0, 3}, {}).get();
+  w.setVelocity(a, {1, 0, 0}, {0, 0, 1}).get();
+  w.applyForce(a, {0, 0, 100}).get();
+  w.applyImpulse(b, {1, 0, 0}, {0.5f, 0, 0}, PointFrame::Local).get();
+  w.applyTorque(b, {0, 0, 1}).get();
+  phys::Material m;
+  m.friction = 0.3f;
+  w.setMaterial(std::span(&a, 1), m).get();
+  SolverOverrides so;
+  so.iterations = 12;
+  w.setSolver("", so).get();
+
+  Ack stepped = w.step(3).get();
+  EXPECT_EQ(stepped.world, w.id());
+  StateFrame q = w.queryState().get();
+  EXPECT_EQ(q.total, ids.size() + 1);
+  EXPECT_EQ(q.bodies.size(), ids.size() + 1);
+  EXPECT_EQ(q.tick, 3u);
+  StateFrame one = w.queryState(std::span(&a, 1)).get();
+  ASSERT_EQ(one.bodies.size(), 1u);
+  EXPECT_EQ(one.bodies[0].id, a);
+
+  // Snapshot bytes: save, step on, restore -> back at the saved tick.
+  Bytes snap = w.saveSnapshot().get();
+  EXPECT_FALSE(snap.empty());
+  w.step(5).get();
+  EXPECT_EQ(w.queryState().get().tick, 8u);
+  w.restoreSnapshot(snap).get();
+  EXPECT_EQ(w.queryState().get().tick, 3u);
+  // Snapshot file on the server.
+  w.saveSnapshotFile("rt_snap").get();
+  w.step(2).get();
+  w.restoreSnapshotFile("rt_snap").get();
+  EXPECT_EQ(w.queryState().get().tick, 3u);
+
+  w.run(120).get();
+  ASSERT_TRUE(waitFor([&] { return w.queryState().get().tick > 3; }));
+  w.pause().get();
+  auto running = c.listWorlds().get();
+  ASSERT_EQ(running.size(), 1u);
+  EXPECT_FALSE(running[0].running);
+
+  w.removeJoints(joints).get();
+  w.removeBodies(std::span(&b, 1)).get();
+  EXPECT_EQ(w.queryState().get().total, ids.size());
+
+  Ids scene = w.loadScene("restitution").get();
+  EXPECT_FALSE(scene.bodies.empty());
+  EXPECT_EQ(w.queryState().get().total, scene.bodies.size());
+  Ids inline_ = w.loadSceneJson(R"({"bodies": []})").get();
+  (void)inline_;
+  w.reset().get();
+  EXPECT_EQ(w.queryState().get().total, 0u);
+  w.destroy().get();
+  EXPECT_TRUE(c.listWorlds().get().empty());
+
+  // The status topic reaches the client.
+  EXPECT_TRUE(waitFor([&] { return c.latestStatus().has_value(); }));
+}
+
+TEST(ClientSdk, ErrorRepliesAreTypedErrors) {
+  Env env;
+  Client& c = env.client;
+  c.connect();
+  EXPECT_EQ(codeOf([&] { c.world(987654).step(1).get(); }), ErrorCode::NotFound);
+  WorldHandle w = c.createWorld({"err", "", std::nullopt, 0}).get();
+  auto ids = w.spawn(grid(2)).get();
+  EXPECT_EQ(codeOf([&] { w.setPose(0xDEAD00000007ull, {0, 0, 1}).get(); }), ErrorCode::NotFound);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_EQ(codeOf([&] { w.setVelocity(ids[1], {nan, 0, 0}).get(); }), ErrorCode::InvalidArgument);
+  EXPECT_EQ(codeOf([&] {
+              c.createWorld({"err", "", std::nullopt, 0}).get();
+            }),
+            ErrorCode::InvalidArgument);
+  EXPECT_EQ(codeOf([&] { w.loadScene("no_such_scene").get(); }), ErrorCode::NotFound);
+  try {
+    w.applyForce(ids[1], {0, std::numeric_limits<float>::infinity(), 0}).get();
+    FAIL() << "no error";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.code(), ErrorCode::InvalidArgument);
+    EXPECT_TRUE(e.fromServer());
+    EXPECT_NE(e.message().find("finite"), std::string::npos) << e.message();
+  }
+  // The world is unchanged and the client keeps working.
+  EXPECT_EQ(w.queryState().get().total, ids.size());
+}
+
+TEST(ClientSdk, RequestTimesOutWithoutServer) {
+  ClientOptions o = options();
+  o.connectTimeout = 1500ms;
+  o.requestTimeout = 500ms;
+  Client c(o);
+  try {
+    c.connect();
+    FAIL() << "connected without a server";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.code(), ErrorCode::Timeout);
+    EXPECT_FALSE(e.fromServer());
+  }
+  EXPECT_FALSE(c.connected());
+  EXPECT_EQ(codeOf([&] { c.listWorlds().get(); }), ErrorCode::Timeout);
+  EXPECT_EQ(codeOf([&] { c.world(1).step(1, {200ms}).get(); }), ErrorCode::Timeout);
+}
+
+TEST(ClientSdk, SubscriptionDeliversEveryBodyOfATick) {
+  Env env;
+  Client& c = env.client;
+  c.connect();
+  WorldHandle w = c.createWorld({"sub", "", std::nullopt, 0}).get();
+  auto ids = w.spawn(grid(2400)).get();  // 2401 bodies: 3 chunks
+  std::mutex m;
+  std::map<uint64_t, size_t> seen;  // tick -> bodies, from the callback
+  Subscription sub = w.subscribe([&](const StateFrame& f) {
+    std::lock_guard<std::mutex> lk(m);
+    seen[f.tick] = f.bodies.size();
+  });
+  ASSERT_TRUE(sub);
+  w.run(30).get();
+  auto frame = sub.waitForFrame(0, kTimeout);
+  ASSERT_TRUE(frame);
+  EXPECT_EQ(frame->world, w.id());
+  EXPECT_EQ(frame->total, ids.size());
+  std::set<uint64_t> got;
+  for (const BodyState& s : frame->bodies) got.insert(s.id);
+  EXPECT_EQ(got, std::set<uint64_t>(ids.begin(), ids.end()));
+  w.pause().get();
+  std::lock_guard<std::mutex> lk(m);
+  EXPECT_FALSE(seen.empty());
+  for (auto& [tick, n] : seen) EXPECT_EQ(n, ids.size()) << "tick " << tick;
+}
+
+TEST(ClientSdk, EightSubscribersReceiveEveryBodyOfEveryTick) {
+  constexpr int kSubscribers = 8;
+  constexpr int kTicks = 4;
+  std::vector<std::unique_ptr<Client>> clients;
+  for (int i = 0; i < kSubscribers; ++i)
+    clients.push_back(std::make_unique<Client>(options("sub" + std::to_string(i))));
+  Daemon daemon;
+  Client& c = *clients[0];
+  c.connect();
+  WorldHandle w = c.createWorld({"fanout", "", std::nullopt, 0}).get();
+  auto ids = w.spawn(grid(1499)).get();  // 1500 bodies: 2 chunks
+  const std::set<uint64_t> all(ids.begin(), ids.end());
+
+  struct Seen {
+    std::mutex m;
+    std::map<uint64_t, std::set<uint64_t>> ticks;
+  };
+  std::vector<std::unique_ptr<Seen>> seen;
+  std::vector<Subscription> subs;
+  for (int i = 0; i < kSubscribers; ++i) {
+    seen.push_back(std::make_unique<Seen>());
+    Seen* s = seen.back().get();
+    subs.push_back(clients[i]->subscribe(w.id(), [s](const StateFrame& f) {
+      std::lock_guard<std::mutex> lk(s->m);
+      for (const BodyState& b : f.bodies) s->ticks[f.tick].insert(b.id);
+    }));
+  }
+  auto allHave = [&](uint64_t tick) {
+    for (auto& s : seen) {
+      std::lock_guard<std::mutex> lk(s->m);
+      if (!s->ticks.count(tick)) return false;
+    }
+    return true;
+  };
+  // Warm up until every reader is matched (a frame before that is not delivered to it).
+  uint64_t tick = 0;
+  ASSERT_TRUE(waitFor([&] {
+    tick = w.step(1).get().tick;
+    return waitFor([&] { return allHave(tick); }, 500ms);
+  }));
+  // Then every stepped tick reaches every subscriber with every body.
+  for (int t = 0; t < kTicks; ++t) {
+    tick = w.step(1).get().tick;
+    ASSERT_TRUE(waitFor([&] { return allHave(tick); })) << "tick " << tick;
+    for (int i = 0; i < kSubscribers; ++i) {
+      std::lock_guard<std::mutex> lk(seen[i]->m);
+      EXPECT_EQ(seen[i]->ticks[tick], all) << "subscriber " << i << " tick " << tick;
+    }
+  }
+  subs.clear();
+}
+
+TEST(ClientSdk, ReconnectsWhenTheDaemonRestarts) {
+  Env env;
+  Client& c = env.client;
+  c.connect();
+  WorldHandle w = c.createWorld({"before", "", std::nullopt, 0}).get();
+  w.spawn(grid(3)).get();
+
+  env.daemon.reset();  // the daemon goes away
+  ASSERT_TRUE(waitFor([&] { return !c.connected(); }));
+  // A request now cannot be answered: it fails cleanly (Timeout, or Disconnected when a new
+  // daemon appears first).
+  ErrorCode lost = codeOf([&] { w.step(1, {300ms}).get(); });
+  EXPECT_TRUE(lost == ErrorCode::Timeout || lost == ErrorCode::Disconnected) << toString(lost);
+
+  env.daemon = std::make_unique<Daemon>();  // a new daemon: the client greets it
+  ASSERT_TRUE(waitFor([&] { return c.connected() && c.reconnects() >= 1; }));
+  EXPECT_TRUE(c.listWorlds().get().empty());  // the old daemon's worlds are gone
+  WorldHandle w2 = c.createWorld({"after", "", std::nullopt, 0}).get();
+  EXPECT_EQ(w2.spawn(grid(2)).get().size(), 3u);
+  EXPECT_EQ(w2.step(2).get().tick, 2u);
+}
+
+}  // namespace
+}  // namespace phys::client

@@ -1,0 +1,265 @@
+// physctl: a command-line client of physd over the client SDK (docs/CLIENT.md).
+//
+//   physctl [--domain N] [--config XML] list
+//   physctl create NAME [--preset P]
+//   physctl load WORLD SCENE          # a server-side scene name, or a local .json file
+//   physctl step WORLD N
+//   physctl run WORLD [--rate HZ]
+//   physctl pause WORLD
+//   physctl watch [WORLD]             # live table, about twice a second; Ctrl-C exits
+//   physctl snapshot save WORLD FILE  # the world's exact snapshot into a local file
+//   physctl snapshot restore WORLD FILE
+//
+// WORLD is a world id or name. Errors print the server's code and message and exit 1.
+#include <unistd.h>
+
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <atomic>
+#include <csignal>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <sstream>
+#include <string>
+#include <thread>
+
+#include "phys/client/client.h"
+
+namespace pc = phys::client;
+
+namespace {
+
+std::atomic<bool> gStop{false};
+void onSignal(int) {
+  gStop = true;
+}
+
+bool readFile(const std::string& path, std::string* out) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return false;
+  std::stringstream ss;
+  ss << in.rdbuf();
+  *out = ss.str();
+  return true;
+}
+
+bool isNumber(const std::string& s) {
+  return !s.empty() && std::all_of(s.begin(), s.end(), [](char c) { return c >= '0' && c <= '9'; });
+}
+
+pc::WorldHandle resolve(pc::Client& c, const std::string& world) {
+  if (isNumber(world)) return c.world(uint32_t(std::stoul(world)));
+  return c.worldNamed(world);
+}
+
+void printWorlds(const std::vector<pc::WorldSummary>& worlds) {
+  std::printf("%6s  %-20s %-12s %8s %7s %10s %10s %8s %6s\n", "id", "name", "preset", "bodies",
+              "joints", "tick", "time s", "state", "rate");
+  for (const auto& w : worlds)
+    std::printf("%6u  %-20s %-12s %8u %7u %10llu %10.2f %8s %6.0f\n", w.world, w.name.c_str(),
+                w.preset.c_str(), w.bodies, w.joints, (unsigned long long)w.tick, w.time,
+                w.running ? "running" : "paused", double(w.rateHz));
+}
+
+/// Live table from phys/status and the worlds' state frames until Ctrl-C.
+int watch(pc::Client& c, const std::string& only) {
+  struct Live {
+    pc::Subscription sub;
+    uint64_t lastFrames = 0;
+    double fps = 0;
+  };
+  std::map<uint32_t, Live> live;
+  const bool tty = isatty(STDOUT_FILENO);
+  auto last = std::chrono::steady_clock::now();
+  while (!gStop) {
+    for (int i = 0; i < 10 && !gStop; ++i)
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    if (gStop) break;
+    const auto now = std::chrono::steady_clock::now();
+    const double dt = std::chrono::duration<double>(now - last).count();
+    last = now;
+    std::optional<pc::ServerStatus> status = c.latestStatus();
+    std::string out;
+    char line[256];
+    if (!status) {
+      std::snprintf(line, sizeof line, "waiting for physd on domain %u ...\n", c.options().domain);
+      out += line;
+    } else {
+      std::vector<pc::WorldSummary> worlds;
+      for (const auto& w : status->worlds)
+        if (only.empty() || w.name == only || (isNumber(only) && std::to_string(w.world) == only))
+          worlds.push_back(w);
+      // Subscribe to the worlds shown; forget the ones gone.
+      for (auto it = live.begin(); it != live.end();)
+        if (std::none_of(worlds.begin(), worlds.end(),
+                         [&](const pc::WorldSummary& w) { return w.world == it->first; }))
+          it = live.erase(it);
+        else
+          ++it;
+      for (const auto& w : worlds)
+        if (!live.count(w.world)) live[w.world].sub = c.subscribe(w.world);
+      std::snprintf(line, sizeof line, "%s %s  up %.0f s  commands %llu  errors %llu\n",
+                    status->serverName.c_str(), status->serverVersion.c_str(), status->uptimeS,
+                    (unsigned long long)status->commands, (unsigned long long)status->errors);
+      out += line;
+      std::snprintf(line, sizeof line, "%5s  %-18s %10s %10s %8s %8s %7s %8s %6s %5s\n", "id",
+                    "world", "tick", "sim time", "tick ms", "max ms", "bodies", "state", "frm/s",
+                    "subs");
+      out += line;
+      for (const auto& w : worlds) {
+        Live& l = live[w.world];
+        uint64_t tick = w.tick;
+        double time = w.time;
+        uint32_t bodies = w.bodies;
+        if (auto f = l.sub.latest()) {
+          if (f->tick >= tick) {
+            tick = f->tick;
+            time = f->time;
+            bodies = f->total;
+          }
+        }
+        const uint64_t frames = l.sub.framesReceived();
+        l.fps = dt > 0 ? double(frames - l.lastFrames) / dt : 0;
+        l.lastFrames = frames;
+        std::snprintf(line, sizeof line, "%5u  %-18s %10llu %10.2f %8.3f %8.3f %7u %8s %6.1f %5u\n",
+                      w.world, w.name.c_str(), (unsigned long long)tick, time, double(w.tickMs),
+                      double(w.tickMsMax), bodies, w.running ? "running" : "paused", l.fps,
+                      w.subscribers);
+        out += line;
+      }
+      if (worlds.empty()) out += only.empty() ? "(no worlds)\n" : "(no such world)\n";
+    }
+    if (tty) std::fputs("\033[H\033[2J", stdout);
+    std::fputs(out.c_str(), stdout);
+    if (!tty) std::fputs("\n", stdout);
+    std::fflush(stdout);
+  }
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"physctl: command-line client of physd"};
+  app.require_subcommand(1);
+  uint32_t domain = 0;
+  std::string config;
+  int timeoutMs = 10000;
+  app.add_option("--domain", domain, "DDS domain id")->check(CLI::Range(0, 232));
+  app.add_option("--config", config,
+                 "Cyclone XML file (default: $CYCLONEDDS_URI, else the source tree's "
+                 "configs/cyclonedds/loopback.xml)");
+  app.add_option("--timeout", timeoutMs, "connect and request timeout, ms")
+      ->check(CLI::PositiveNumber);
+
+  std::string world, name, preset, scene, file;
+  uint32_t steps = 1;
+  float rate = 60;
+
+  auto* list = app.add_subcommand("list", "list the worlds");
+  auto* create = app.add_subcommand("create", "create a world (paused)");
+  create->add_option("NAME", name, "world name")->required();
+  create->add_option("--preset", preset, "solver preset");
+  auto* load = app.add_subcommand("load", "load a scene into a world");
+  load->add_option("WORLD", world, "world id or name")->required();
+  load->add_option("SCENE", scene, "server-side scene name, or a local .json file")->required();
+  auto* step = app.add_subcommand("step", "take N steps now");
+  step->add_option("WORLD", world, "world id or name")->required();
+  step->add_option("N", steps, "steps")->required()->check(CLI::Range(1u, 100000u));
+  auto* run = app.add_subcommand("run", "run a world in real time");
+  run->add_option("WORLD", world, "world id or name")->required();
+  run->add_option("--rate", rate, "steps per second (0: as fast as possible)")
+      ->check(CLI::Range(0.0f, 10000.0f));
+  auto* pause = app.add_subcommand("pause", "pause a world");
+  pause->add_option("WORLD", world, "world id or name")->required();
+  auto* watchCmd = app.add_subcommand("watch", "live table of the worlds (Ctrl-C exits)");
+  watchCmd->add_option("WORLD", world, "only this world (id or name)");
+  auto* snapshot = app.add_subcommand("snapshot", "save or restore a world's snapshot");
+  snapshot->require_subcommand(1);
+  auto* save = snapshot->add_subcommand("save", "save WORLD's snapshot into a local FILE");
+  save->add_option("WORLD", world, "world id or name")->required();
+  save->add_option("FILE", file, "local file")->required();
+  auto* restore = snapshot->add_subcommand("restore", "restore WORLD from a local FILE");
+  restore->add_option("WORLD", world, "world id or name")->required();
+  restore->add_option("FILE", file, "local file")->required()->check(CLI::ExistingFile);
+
+  CLI11_PARSE(app, argc, argv);
+
+  pc::ClientOptions options;
+  options.domain = domain;
+  options.name = "physctl";
+  options.connectTimeout = options.requestTimeout = std::chrono::milliseconds(timeoutMs);
+  if (config.empty() && !std::getenv("CYCLONEDDS_URI")) {
+    const std::string loopback = std::string(PHYS_SOURCE_DIR) + "/configs/cyclonedds/loopback.xml";
+    if (std::filesystem::exists(loopback)) config = loopback;
+  }
+  if (!config.empty() && !readFile(config, &options.cycloneXml)) {
+    std::fprintf(stderr, "physctl: cannot read Cyclone config %s\n", config.c_str());
+    return 2;
+  }
+
+  try {
+    pc::Client client(options);
+    if (*watchCmd) {
+      std::signal(SIGINT, onSignal);
+      std::signal(SIGTERM, onSignal);
+      return watch(client, world);
+    }
+    client.connect();
+    if (*list) {
+      printWorlds(client.listWorlds().get());
+    } else if (*create) {
+      pc::WorldHandle w = client.createWorld({name, preset, std::nullopt, 0}).get();
+      std::printf("created world %u '%s'\n", w.id(), name.c_str());
+    } else if (*load) {
+      pc::WorldHandle w = resolve(client, world);
+      pc::Ids ids;
+      std::string json;
+      if (scene.size() > 5 && scene.ends_with(".json") && readFile(scene, &json))
+        ids = w.loadSceneJson(json).get();
+      else
+        ids = w.loadScene(scene).get();
+      std::printf("world %u: loaded %s (%zu bodies, %zu joints)\n", w.id(), scene.c_str(),
+                  ids.bodies.size(), ids.joints.size());
+    } else if (*step) {
+      pc::WorldHandle w = resolve(client, world);
+      pc::Ack a = w.step(steps).get();
+      std::printf("world %u: tick %llu\n", w.id(), (unsigned long long)a.tick);
+    } else if (*run) {
+      pc::WorldHandle w = resolve(client, world);
+      w.run(rate).get();
+      std::printf("world %u: running at %g Hz\n", w.id(), double(rate));
+    } else if (*pause) {
+      pc::WorldHandle w = resolve(client, world);
+      pc::Ack a = w.pause().get();
+      std::printf("world %u: paused at tick %llu\n", w.id(), (unsigned long long)a.tick);
+    } else if (*save) {
+      pc::WorldHandle w = resolve(client, world);
+      pc::Bytes bytes = w.saveSnapshot().get();
+      std::ofstream out(file, std::ios::binary);
+      out.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
+      if (!out) {
+        std::fprintf(stderr, "physctl: cannot write %s\n", file.c_str());
+        return 1;
+      }
+      std::printf("world %u: %zu bytes saved to %s\n", w.id(), bytes.size(), file.c_str());
+    } else if (*restore) {
+      pc::WorldHandle w = resolve(client, world);
+      std::string bytes;
+      if (!readFile(file, &bytes)) {
+        std::fprintf(stderr, "physctl: cannot read %s\n", file.c_str());
+        return 1;
+      }
+      w.restoreSnapshot({reinterpret_cast<const uint8_t*>(bytes.data()), bytes.size()}).get();
+      std::printf("world %u: restored from %s\n", w.id(), file.c_str());
+    }
+  } catch (const pc::Error& e) {
+    std::fprintf(stderr, "physctl: %s: %s\n", pc::toString(e.code()), e.message().c_str());
+    return 1;
+  }
+  return 0;
+}
