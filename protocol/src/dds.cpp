@@ -1,11 +1,11 @@
-// RAII wrappers around the Cyclone DDS C API (dds.h).
-#include "dds.h"
+// RAII wrappers around the Cyclone DDS C API (phys/protocol/dds.h).
+#include "phys/protocol/dds.h"
 
 #include <algorithm>
 
 #include "phys/protocol/qos.h"
 
-namespace phys::client::dds {
+namespace phys::protocol::dds {
 
 std::string error(dds_return_t rc) {
   return rc >= 0 ? std::string() : std::string(dds_strretcode(rc));
@@ -160,4 +160,4 @@ int WaitSet::wait(dds_duration_t timeout) {
   return n;
 }
 
-}  // namespace phys::client::dds
+}  // namespace phys::protocol::dds

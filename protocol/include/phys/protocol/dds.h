@@ -1,0 +1,122 @@
+// Thin RAII wrappers around the Cyclone DDS C API for the envelope topics: participant,
+// topic, writer, reader, waitset. Shared by physd (server/) and the client SDK
+// (client_sdk/): every DDS call of both goes through here or their endpoint code.
+#pragma once
+
+#include <dds/dds.h>
+
+#include <cstdint>
+#include <functional>
+#include <span>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "phys/protocol/dds_envelope.h"
+#include "phys/protocol/topics.h"
+
+namespace phys::protocol::dds {
+
+/// Owns one DDS entity (deleted with its children on destruction).
+class Entity {
+ public:
+  Entity() = default;
+  explicit Entity(dds_entity_t e) : e_(e) {}
+  ~Entity() { reset(); }
+  Entity(Entity&& o) noexcept : e_(std::exchange(o.e_, 0)) {}
+  Entity& operator=(Entity&& o) noexcept {
+    if (this != &o) {
+      reset();
+      e_ = std::exchange(o.e_, 0);
+    }
+    return *this;
+  }
+  Entity(const Entity&) = delete;
+  Entity& operator=(const Entity&) = delete;
+  void reset() {
+    if (e_ > 0) dds_delete(e_);
+    e_ = 0;
+  }
+  dds_entity_t get() const { return e_; }
+  explicit operator bool() const { return e_ > 0; }
+
+ protected:
+  dds_entity_t e_ = 0;
+};
+
+/// "" when rc >= 0, else Cyclone's name for the error.
+std::string error(dds_return_t rc);
+
+/// A participant on a domain. configXml: Cyclone XML for the domain (empty: CYCLONEDDS_URI or
+/// Cyclone's defaults). When the domain already exists in this process, it is shared.
+class Participant : public Entity {
+ public:
+  Participant() = default;
+  ~Participant() { reset(); }  // the participant before its domain
+  /// Returns false and sets *err on failure.
+  bool create(uint32_t domain, const std::string& configXml, std::string* err);
+  uint32_t domain() const { return domain_; }
+
+ private:
+  Entity domainEntity_;
+  uint32_t domain_ = 0;
+};
+
+/// A topic of phys_wire_Envelope.
+class Topic : public Entity {
+ public:
+  bool create(const Participant& p, const std::string& name, std::string* err);
+  const std::string& name() const { return name_; }
+
+ private:
+  std::string name_;
+};
+
+/// An envelope writer with the topic's QoS preset; counts seq per writer.
+class Writer : public Entity {
+ public:
+  bool create(const Participant& p, const Topic& t, const protocol::QosPreset& qos,
+              protocol::PayloadKind kind, std::string* err);
+  /// Writes one envelope (Cyclone serializes it before returning).
+  dds_return_t write(uint64_t key, std::span<const uint8_t> bytes, uint64_t seq = 0);
+  /// Disposes the instance of key (transient-local readers forget it).
+  dds_return_t dispose(uint64_t key);
+  /// Matched readers now.
+  uint32_t matched() const;
+  /// Instance handles of the matched readers (a new handle: a new reader, e.g. a restarted
+  /// daemon).
+  std::vector<dds_instance_handle_t> matchedHandles() const;
+
+ private:
+  protocol::PayloadKind kind_ = protocol::PayloadKind::Command;
+  uint64_t seq_ = 0;
+};
+
+/// An envelope reader with the topic's QoS preset.
+class Reader : public Entity {
+ public:
+  bool create(const Participant& p, const Topic& t, const protocol::QosPreset& qos,
+              std::string* err);
+  /// Takes every available sample, calling fn for each valid one; returns the count or a
+  /// negative retcode.
+  int take(const std::function<void(const phys_wire_Envelope&)>& fn);
+  uint32_t matched() const;
+};
+
+/// A waitset with a data-available condition per attached reader and a guard to wake it.
+class WaitSet : public Entity {
+ public:
+  bool create(const Participant& p, std::string* err);
+  bool attach(const Reader& r, std::string* err);
+  /// Detaches and deletes the condition of r.
+  void detach(const Reader& r);
+  void wake();
+  /// Waits up to timeout; returns the number of triggered conditions (0 on timeout).
+  int wait(dds_duration_t timeout);
+
+ private:
+  Entity guard_;
+  std::vector<std::pair<dds_entity_t, Entity>> conditions_;  ///< reader, condition
+};
+
+}  // namespace phys::protocol::dds
