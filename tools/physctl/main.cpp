@@ -9,6 +9,7 @@
 //   physctl watch [WORLD]             # live table, about twice a second; Ctrl-C exits
 //   physctl snapshot save WORLD FILE  # the world's exact snapshot into a local file
 //   physctl snapshot restore WORLD FILE
+//   physctl ping [--count N]           # command round trip percentiles (a benchmark)
 //
 // WORLD is a world id or name. Errors print the server's code and message and exit 1.
 #include <unistd.h>
@@ -178,6 +179,10 @@ int main(int argc, char** argv) {
   pause->add_option("WORLD", world, "world id or name")->required();
   auto* watchCmd = app.add_subcommand("watch", "live table of the worlds (Ctrl-C exits)");
   watchCmd->add_option("WORLD", world, "only this world (id or name)");
+  int pings = 1000;
+  auto* ping = app.add_subcommand(
+      "ping", "command round trip: N ListWorlds requests one after another; prints percentiles");
+  ping->add_option("--count", pings, "round trips (default 1000)")->check(CLI::Range(1, 1000000));
   auto* snapshot = app.add_subcommand("snapshot", "save or restore a world's snapshot");
   snapshot->require_subcommand(1);
   auto* save = snapshot->add_subcommand("save", "save WORLD's snapshot into a local FILE");
@@ -212,6 +217,26 @@ int main(int argc, char** argv) {
     client.connect();
     if (*list) {
       printWorlds(client.listWorlds().get());
+    } else if (*ping) {
+      // A benchmark, not a check: wall time from sending a request to its reply, through the
+      // SDK, the envelope, DDS and the server's tick boundary (ListWorlds changes nothing).
+      for (int i = 0; i < 20; ++i) client.listWorlds().get();  // warm up the path
+      std::vector<double> us;
+      us.reserve(size_t(pings));
+      for (int i = 0; i < pings; ++i) {
+        const auto t0 = std::chrono::steady_clock::now();
+        client.listWorlds().get();
+        us.push_back(
+            std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0)
+                .count());
+      }
+      std::sort(us.begin(), us.end());
+      auto pct = [&](double q) {
+        return us[std::min(us.size() - 1, size_t(q * double(us.size())))];
+      };
+      std::printf(
+          "%d round trips (ListWorlds): p50 %.0f us, p90 %.0f us, p99 %.0f us, max %.0f us\n",
+          pings, pct(0.5), pct(0.9), pct(0.99), us.back());
     } else if (*create) {
       pc::WorldHandle w = client.createWorld({name, preset, std::nullopt, 0}).get();
       std::printf("created world %u '%s'\n", w.id(), name.c_str());
