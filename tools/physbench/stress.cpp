@@ -241,12 +241,16 @@ void makeOverlap(Rng& r, Scene* sc) {
 }
 
 const char* const kKinds[] = {"stack", "pile", "chain", "joint_tree", "overlap"};
+constexpr int kOverlapKind = 4;
+int kindOf(uint64_t seed) {
+  return int(seed % 5);
+}
 
 /// The scene of a seed: its kind is seed mod 5, everything else comes from the seed's stream.
 Scene makeScene(uint64_t seed) {
   Rng r{seed * 0x2545F4914F6CDD1Dull + 1};
   Scene sc;
-  const int kind = int(seed % 5);
+  const int kind = kindOf(seed);
   sc.name = std::string("stress_") + kKinds[kind] + "_" + std::to_string(seed);
   sc.description = "physbench --stress scene for seed " + std::to_string(seed);
   sc.bodies.push_back(groundBody());
@@ -255,7 +259,7 @@ Scene makeScene(uint64_t seed) {
     case 1: makePile(r, &sc); break;
     case 2: makeChain(r, &sc); break;
     case 3: makeJointTree(r, &sc); break;
-    default: makeOverlap(r, &sc); break;
+    default: makeOverlap(r, &sc); break;  // kOverlapKind
   }
   sc.metrics.settleTime = 1;
   return sc;
@@ -284,9 +288,9 @@ RunResult runOne(uint64_t seed, const std::string& presetName, const SolverSetti
   sc.world.threads = 1;
   RunResult res;
   res.seed = seed;
-  res.kind = kKinds[seed % 5];
+  res.kind = kKinds[kindOf(seed)];
   res.preset = presetName;
-  res.checkEnergy = seed % 5 != 4;  // not the overlap scenes
+  res.checkEnergy = kindOf(seed) != kOverlapKind;
   float top = 0;
   for (const BodyDef& b : sc.bodies)
     if (b.type == BodyType::Dynamic) top = std::max(top, b.position.z);
