@@ -42,7 +42,9 @@ struct Rng {
     z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
     return z ^ (z >> 31);
   }
-  float uniform(float a, float b) { return a + (b - a) * float(next() >> 40) * (1.0f / 16777216.0f); }
+  float uniform(float a, float b) {
+    return a + (b - a) * float(next() >> 40) * (1.0f / 16777216.0f);
+  }
   int range(int lo, int hi) { return lo + int(next() % uint64_t(hi - lo + 1)); }  ///< [lo, hi]
   /// 10^U(0, decades): densities and masses spread over `decades` orders of magnitude.
   float logUniform(float decades) { return std::pow(10.0f, uniform(0, decades)); }
@@ -98,7 +100,7 @@ void makePile(Rng& r, Scene* sc) {
   const float half = 2.5f, wall = 0.2f, height = 3;
   for (int k = 0; k < 4; ++k) {
     Vec3 he = k < 2 ? Vec3{wall, half + wall, height} : Vec3{half + wall, wall, height};
-    Vec3 p = k == 0 ? Vec3{-half - wall, 0, height}
+    Vec3 p = k == 0   ? Vec3{-half - wall, 0, height}
              : k == 1 ? Vec3{half + wall, 0, height}
              : k == 2 ? Vec3{0, -half - wall, height}
                       : Vec3{0, half + wall, height};
@@ -120,9 +122,15 @@ void makePile(Rng& r, Scene* sc) {
     ShapeDef s;
     const float sz = size * r.uniform(0.6f, 1.0f);
     switch (r.range(0, 2)) {
-      case 0: s.geom = ShapeGeom::box({sz, sz * r.uniform(0.5f, 1), sz * r.uniform(0.5f, 1)}); break;
-      case 1: s.geom = ShapeGeom::sphere(sz); break;
-      default: s.geom = ShapeGeom::capsule(sz * 0.5f, sz * 0.7f); break;
+      case 0:
+        s.geom = ShapeGeom::box({sz, sz * r.uniform(0.5f, 1), sz * r.uniform(0.5f, 1)});
+        break;
+      case 1:
+        s.geom = ShapeGeom::sphere(sz);
+        break;
+      default:
+        s.geom = ShapeGeom::capsule(sz * 0.5f, sz * 0.7f);
+        break;
     }
     s.material.density = 10 * r.logUniform(3);
     b.shapes.push_back(s);
@@ -156,8 +164,8 @@ void makeChain(Rng& r, Scene* sc) {
     } else {
       s.geom = ShapeGeom::capsule(link * 0.15f, link * 0.35f);
       s.material.density = linkDensity;
-      b.rotation = normalize(Quat{0, std::sin(0.5f * (3.1415927f - angle)), 0,
-                                  std::cos(0.5f * (3.1415927f - angle))});
+      b.rotation = normalize(
+          Quat{0, std::sin(0.5f * (3.1415927f - angle)), 0, std::cos(0.5f * (3.1415927f - angle))});
     }
     b.shapes.push_back(s);
     sc->bodies.push_back(b);
@@ -202,7 +210,8 @@ void makeJointTree(Rng& r, Scene* sc) {
     const int parent = i == 0 ? -1 : first + r.range(std::max(0, i - 3), i - 1);
     j.bodyA = parent;
     j.bodyB = first + i;
-    const Vec3 pa = parent < 0 ? b.position + Vec3{-0.35f, 0, 0.3f} : sc->bodies[size_t(parent)].position;
+    const Vec3 pa =
+        parent < 0 ? b.position + Vec3{-0.35f, 0, 0.3f} : sc->bodies[size_t(parent)].position;
     const Vec3 anchor = 0.5f * (pa + b.position);
     j.def.anchorA = parent < 0 ? anchor : anchor - pa;
     j.def.anchorB = anchor - b.position;
@@ -255,11 +264,21 @@ Scene makeScene(uint64_t seed) {
   sc.description = "physbench --stress scene for seed " + std::to_string(seed);
   sc.bodies.push_back(groundBody());
   switch (kind) {
-    case 0: makeStack(r, &sc); break;
-    case 1: makePile(r, &sc); break;
-    case 2: makeChain(r, &sc); break;
-    case 3: makeJointTree(r, &sc); break;
-    default: makeOverlap(r, &sc); break;  // kOverlapKind
+    case 0:
+      makeStack(r, &sc);
+      break;
+    case 1:
+      makePile(r, &sc);
+      break;
+    case 2:
+      makeChain(r, &sc);
+      break;
+    case 3:
+      makeJointTree(r, &sc);
+      break;
+    default:
+      makeOverlap(r, &sc);
+      break;  // kOverlapKind
   }
   sc.metrics.settleTime = 1;
   return sc;
@@ -388,7 +407,8 @@ int runStress(const StressOptions& opt) {
       }
     }
   };
-  const int threads = std::max(1, opt.jobs > 0 ? opt.jobs : int(std::thread::hardware_concurrency()));
+  const int threads =
+      std::max(1, opt.jobs > 0 ? opt.jobs : int(std::thread::hardware_concurrency()));
   std::vector<std::thread> pool;
   for (int i = 0; i < threads; ++i) pool.emplace_back(worker);
   for (std::thread& t : pool) t.join();
@@ -401,8 +421,7 @@ int runStress(const StressOptions& opt) {
     for (const RunResult& r : results)
       f << r.seed << ',' << r.kind << ',' << r.preset << ',' << r.nan << ',' << r.maxSpeed << ','
         << r.speedBound << ',' << r.energyRise << ',' << r.jointError << ',' << r.guardEvents << ','
-        << r.failed()
-        << ",\"" << r.error << "\"\n";
+        << r.failed() << ",\"" << r.error << "\"\n";
     if (!f) {
       std::cerr << "physbench: cannot write " << opt.csvOut << "\n";
       return 2;
@@ -411,8 +430,9 @@ int runStress(const StressOptions& opt) {
 
   std::printf("stress: %zu seeds from %llu, %.3g s each, %zu presets\n", seeds.size(),
               static_cast<unsigned long long>(seeds.front()), opt.seconds, names.size());
-  std::printf("| preset | runs | nan | explosion | joint > 10 cm | failed | failure rate | guard "
-              "events |\n|---|---|---|---|---|---|---|---|\n");
+  std::printf(
+      "| preset | runs | nan | explosion | joint > 10 cm | failed | failure rate | guard "
+      "events |\n|---|---|---|---|---|---|---|---|\n");
   bool anyFailed = false, anyError = false;
   for (size_t p = 0; p < names.size(); ++p) {
     int runs = 0, nan = 0, exploded = 0, joint = 0, failed = 0;
@@ -434,13 +454,15 @@ int runStress(const StressOptions& opt) {
   int shown = 0;
   for (const RunResult& r : results) {
     if (!r.failed()) continue;
-    if (shown++ == 0) std::printf("\nfailures (replay: physbench --stress --seed S --presets P):\n");
+    if (shown++ == 0)
+      std::printf("\nfailures (replay: physbench --stress --seed S --presets P):\n");
     if (shown > 20) continue;
     std::printf("  seed %llu (%s) preset %s:", static_cast<unsigned long long>(r.seed),
                 r.kind.c_str(), r.preset.c_str());
     if (!r.error.empty()) std::printf(" error: %s", r.error.c_str());
     if (r.nan) std::printf(" nan %lld", r.nan);
-    if (r.maxSpeed > r.speedBound) std::printf(" max speed %.3g m/s > %.3g", r.maxSpeed, r.speedBound);
+    if (r.maxSpeed > r.speedBound)
+      std::printf(" max speed %.3g m/s > %.3g", r.maxSpeed, r.speedBound);
     if (r.checkEnergy && r.energyRise > kEnergyRise) std::printf(" energy rise %.3g", r.energyRise);
     if (r.jointFailed()) std::printf(" joint error %.3g m", r.jointError);
     std::printf("\n");
