@@ -4,7 +4,8 @@
 PHYS_PACKAGES=(cmake ninja-build g++ pkg-config libeigen3-dev nlohmann-json3-dev libqhull-dev
   libgtest-dev libgmock-dev libcli11-dev
   cyclonedds-dev cyclonedds-tools libflatbuffers-dev flatbuffers-compiler libspdlog-dev
-  libtomlplusplus-dev)
+  libtomlplusplus-dev
+  libbullet-dev libode-dev libmujoco-dev)
 
 phys_install_deps() {
   local missing=()
