@@ -79,6 +79,7 @@ WorldSummary toSummary(const wire::WorldSummary& w) {
   s.tickMsMax = w.tick_ms_max();
   s.overruns = w.overruns();
   s.subscribers = w.subscribers();
+  s.frames = w.frames();
   return s;
 }
 
@@ -142,6 +143,7 @@ struct Subscription::State {
       p.frame.tick = t;
       p.frame.time = f.time();
       p.frame.total = f.total_bodies();
+      p.frame.stampNs = f.stamp_ns();
       p.frame.bodies.reserve(f.total_bodies());
     }
     if (!p.got.insert(f.chunk_index()).second) return;
@@ -374,6 +376,7 @@ struct Client::Impl {
       st.uptimeS = s->uptime_s();
       st.commands = s->commands();
       st.errors = s->errors();
+      st.framesDropped = s->frames_dropped();
       if (s->worlds())
         for (auto* w : *s->worlds()) st.worlds.push_back(toSummary(*w));
       std::lock_guard<std::mutex> lk(infoMutex);

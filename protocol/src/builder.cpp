@@ -187,7 +187,7 @@ Offset<wire::WorldSummary> writeWorldSummary(Fbb& fbb, const WorldSummary& w) {
   auto preset = optString(fbb, w.preset);
   return wire::CreateWorldSummary(fbb, w.world, name, preset, w.bodies, w.joints, w.tick, w.time,
                                   w.running, w.rateHz, w.tickMs, w.tickMsMax, w.overruns,
-                                  w.subscribers);
+                                  w.subscribers, w.frames);
 }
 
 Offset<wire::LimitsInfo> writeLimits(Fbb& fbb, const Limits& l) {
@@ -525,7 +525,7 @@ Bytes encodeStateFrame(const FrameHeader& header, uint32_t chunkIndex, uint32_t 
   Fbb fbb(128 + sizeof(wire::BodyState) * bodies.size());
   auto v = fbb.CreateVectorOfStructs(bodies.data(), bodies.size());
   auto root = wire::CreateStateFrame(fbb, header.world, header.tick, header.time, chunkIndex,
-                                     chunkCount, totalBodies, v);
+                                     chunkCount, totalBodies, v, header.stampNs);
   return finishBytes(fbb, root, wire::kStateFrameId);
 }
 
@@ -630,7 +630,7 @@ Bytes encodeServerStatus(const ServerStatusInfo& status) {
   for (const WorldSummary& w : status.worlds) v.push_back(detail::writeWorldSummary(fbb, w));
   auto worlds = fbb.CreateVector(v);
   auto root = wire::CreateServerStatus(fbb, name, version, status.uptimeS, status.commands,
-                                       status.errors, worlds);
+                                       status.errors, worlds, status.framesDropped);
   return finishBytes(fbb, root, wire::kServerStatusId);
 }
 

@@ -224,8 +224,11 @@ Status ServerCore::queueFrame(ServerWorld& w) {
   StateFrameSet f;
   f.world = w.id;
   f.tick = w.tick;
-  f.chunks = protocol::encodeStateFrames({w.id, w.tick, w.world->time()}, states,
-                                         std::max<uint32_t>(1, config_.bodiesPerChunk));
+  const auto stamp = std::chrono::system_clock::now().time_since_epoch();
+  f.chunks = protocol::encodeStateFrames(
+      {w.id, w.tick, w.world->time(),
+       uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(stamp).count())},
+      states, std::max<uint32_t>(1, config_.bodiesPerChunk));
   ++w.framesProduced;
   out_.pushFrame(std::move(f));
   return Status::Ok();
@@ -286,6 +289,7 @@ std::vector<protocol::WorldSummary> ServerCore::summaries() const {
     s.tickMs = w->tickMs;
     s.tickMsMax = w->tickMsMax;
     s.overruns = w->overruns;
+    s.frames = w->framesProduced;
     auto it = subscribers_.find(id);
     s.subscribers = it == subscribers_.end() ? 0 : it->second;
     out.push_back(std::move(s));
@@ -301,6 +305,7 @@ protocol::ServerStatusInfo ServerCore::status() const {
   s.commands = counters_.commands;
   s.errors = counters_.errors;
   s.worlds = summaries();
+  s.framesDropped = out_.framesDropped();
   return s;
 }
 

@@ -291,6 +291,11 @@ TEST(ClientSdk, SubscriptionDeliversEveryBodyOfATick) {
   std::set<uint64_t> got;
   for (const BodyState& s : frame->bodies) got.insert(s.id);
   EXPECT_EQ(got, std::set<uint64_t>(ids.begin(), ids.end()));
+  // Stamped by the server's wall clock when it read the states: in the past, and recent.
+  const auto now = std::chrono::duration_cast<std::chrono::nanoseconds>(
+      std::chrono::system_clock::now().time_since_epoch());
+  EXPECT_LE(frame->stampNs, uint64_t(now.count()));
+  EXPECT_GT(frame->stampNs, uint64_t((now - std::chrono::seconds(30)).count()));
   w.pause().get();
   std::lock_guard<std::mutex> lk(m);
   EXPECT_FALSE(seen.empty());

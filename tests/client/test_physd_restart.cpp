@@ -1,20 +1,11 @@
 // The SDK against the physd binary: the daemon killed (SIGKILL) and started again under a
 // running client; the client greets the new daemon by itself and keeps working.
 #include <gtest/gtest.h>
-#include <signal.h>
-#include <spawn.h>
-#include <sys/wait.h>
-#include <unistd.h>
 
 #include <chrono>
-#include <filesystem>
-#include <fstream>
-#include <sstream>
 #include <thread>
 
-#include "phys/client/client.h"
-
-extern char** environ;
+#include "physd_process.h"
 
 namespace phys::client {
 namespace {
@@ -22,48 +13,13 @@ namespace {
 using namespace std::chrono_literals;
 
 TEST(ClientPhysdProcess, ReconnectsAfterTheDaemonIsKilledAndRestarted) {
-  const std::string src = PHYS_SOURCE_DIR;
-  const uint32_t domain = 230 + uint32_t(getpid() % 2);
-  const auto dir =
-      std::filesystem::temp_directory_path() / ("physclient_proc_" + std::to_string(getpid()));
-  std::filesystem::create_directories(dir);
-  // loopback.xml with a discovery tag of this process (isolation from parallel tests).
-  std::string xml;
-  {
-    std::ifstream in(src + "/configs/cyclonedds/loopback.xml");
-    std::stringstream ss;
-    ss << in.rdbuf();
-    xml = ss.str();
-    const std::string tag =
-        "<Discovery><Tag>physclient-test-" + std::to_string(getpid()) + "</Tag>";
-    xml.replace(xml.find("<Discovery>"), std::string("<Discovery>").size(), tag);
-    std::ofstream out(dir / "cyclone.xml");
-    out << xml;
-  }
-  const std::string config = (dir / "physd.toml").string();
-  {
-    std::ofstream f(config);
-    f << "[server]\nname = \"physd-restart\"\nlog_level = \"warn\"\nstatus_period_s = 0.2\n"
-      << "[dds]\ndomain = " << domain << "\nconfig = \"" << (dir / "cyclone.xml").string()
-      << "\"\n[paths]\npresets = \"" << src << "/configs/presets.json\"\nscenes = \"" << src
-      << "/configs/scenes\"\n"
-      << "[[worlds]]\nname = \"proc\"\nscene = \"box_stack\"\nrun = true\nrate_hz = 60\n";
-  }
-  std::string bin = PHYSD_BINARY;
-  std::string arg1 = "--config";
-  char* argv[] = {bin.data(), arg1.data(), const_cast<char*>(config.c_str()), nullptr};
-  auto spawn = [&] {
-    pid_t pid = 0;
-    EXPECT_EQ(posix_spawn(&pid, bin.c_str(), nullptr, nullptr, argv, environ), 0);
-    return pid;
-  };
+  testing::ScratchDir dir("physclient_proc");
+  testing::PhysdConfig cfg(dir.path, "physd-restart", 230 + uint32_t(getpid() % 2),
+                           "[[worlds]]\nname = \"proc\"\nscene = \"box_stack\"\nrun = true\n"
+                           "rate_hz = 60\n");
+  auto spawn = [&] { return testing::spawnProcess(PHYSD_BINARY, {"--config", cfg.toml}); };
 
-  ClientOptions o;
-  o.domain = domain;
-  o.cycloneXml = xml;
-  o.connectTimeout = 20s;
-  o.requestTimeout = 20s;
-  Client c(o);
+  Client c(cfg.clientOptions(20s));
   pid_t pid = spawn();
   ASSERT_GT(pid, 0);
   EXPECT_EQ(c.connect().name, "physd-restart");
@@ -99,7 +55,6 @@ TEST(ClientPhysdProcess, ReconnectsAfterTheDaemonIsKilledAndRestarted) {
   ASSERT_EQ(kill(pid, SIGTERM), 0);
   ASSERT_EQ(waitpid(pid, &st, 0), pid);
   EXPECT_TRUE(WIFEXITED(st) && WEXITSTATUS(st) == 0);
-  std::filesystem::remove_all(dir);
 }
 
 }  // namespace

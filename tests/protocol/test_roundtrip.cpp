@@ -440,6 +440,7 @@ TEST(ProtocolRoundTrip, Replies) {
   w.running = true;
   w.rateHz = 60;
   w.overruns = 2;
+  w.frames = 48;
   auto list = decodeReply(encodeWorldListReply(h, {&w, 1}));
   ASSERT_TRUE(list.ok());
   auto* ws = list->result_as_WorldList()->worlds()->Get(0);
@@ -448,6 +449,7 @@ TEST(ProtocolRoundTrip, Replies) {
   EXPECT_EQ(ws->bodies(), 100u);
   EXPECT_TRUE(ws->running());
   EXPECT_EQ(ws->overruns(), 2u);
+  EXPECT_EQ(ws->frames(), 48u);
 
   phys::BodyState s;
   s.id = phys::BodyId{4, 2};
@@ -480,7 +482,7 @@ TEST(ProtocolRoundTrip, StateFramesChunk) {
     s.position = {float(i), 0, 0};
     states.push_back(toWire(s));
   }
-  FrameHeader h{3, 600, 10.0};
+  FrameHeader h{3, 600, 10.0, 1795000000123456789ull};
   std::vector<Bytes> frames = encodeStateFrames(h, states, 1000);
   ASSERT_EQ(frames.size(), 3u);
   uint32_t seen = 0;
@@ -493,6 +495,7 @@ TEST(ProtocolRoundTrip, StateFramesChunk) {
     EXPECT_EQ(f->chunk_index(), c);
     EXPECT_EQ(f->chunk_count(), 3u);
     EXPECT_EQ(f->total_bodies(), 2500u);
+    EXPECT_EQ(f->stamp_ns(), 1795000000123456789ull);
     for (const wire::BodyState* b : *f->bodies()) {
       EXPECT_EQ(b->id(), (phys::BodyId{seen, 1}.packed()));
       EXPECT_EQ(b->position().x(), float(seen));
@@ -566,6 +569,7 @@ TEST(ProtocolRoundTrip, StatusAndEvents) {
   w.tickMsMax = 2.5f;
   w.subscribers = 8;
   s.worlds.push_back(w);
+  s.framesDropped = 5;
   auto d = decodeServerStatus(encodeServerStatus(s));
   ASSERT_TRUE(d.ok()) << d.status.message;
   EXPECT_EQ(d->server_name()->str(), "physd@host");
@@ -573,6 +577,7 @@ TEST(ProtocolRoundTrip, StatusAndEvents) {
   EXPECT_EQ(d->errors(), 3u);
   EXPECT_EQ(d->worlds()->Get(0)->tick_ms(), 0.8f);
   EXPECT_EQ(d->worlds()->Get(0)->subscribers(), 8u);
+  EXPECT_EQ(d->frames_dropped(), 5u);
 
   auto e = decodeEvent(
       encodeEvent(1, 42, wire::Severity::Warning, "guard_rollback", "step redone at 8 substeps"));

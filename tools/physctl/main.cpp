@@ -10,6 +10,8 @@
 //   physctl snapshot save WORLD FILE  # the world's exact snapshot into a local file
 //   physctl snapshot restore WORLD FILE
 //   physctl ping [--count N]           # command round trip percentiles (a benchmark)
+//   physctl subscribe WORLD [--seconds S] [--warmup W]
+//                                      # receive state frames; print delivery and latency
 //
 // WORLD is a world id or name. Errors print the server's code and message and exit 1.
 #include <unistd.h>
@@ -58,12 +60,13 @@ pc::WorldHandle resolve(pc::Client& c, const std::string& world) {
 }
 
 void printWorlds(const std::vector<pc::WorldSummary>& worlds) {
-  std::printf("%6s  %-20s %-12s %8s %7s %10s %10s %8s %6s\n", "id", "name", "preset", "bodies",
-              "joints", "tick", "time s", "state", "rate");
+  std::printf("%6s  %-20s %-12s %8s %7s %10s %10s %8s %6s %8s %10s\n", "id", "name", "preset",
+              "bodies", "joints", "tick", "time s", "state", "rate", "overruns", "frames");
   for (const auto& w : worlds)
-    std::printf("%6u  %-20s %-12s %8u %7u %10llu %10.2f %8s %6.0f\n", w.world, w.name.c_str(),
-                w.preset.c_str(), w.bodies, w.joints, (unsigned long long)w.tick, w.time,
-                w.running ? "running" : "paused", double(w.rateHz));
+    std::printf("%6u  %-20s %-12s %8u %7u %10llu %10.2f %8s %6.0f %8llu %10llu\n", w.world,
+                w.name.c_str(), w.preset.c_str(), w.bodies, w.joints, (unsigned long long)w.tick,
+                w.time, w.running ? "running" : "paused", double(w.rateHz),
+                (unsigned long long)w.overruns, (unsigned long long)w.frames);
 }
 
 /// Live table from phys/status and the worlds' state frames until Ctrl-C.
@@ -142,6 +145,66 @@ int watch(pc::Client& c, const std::string& only) {
   return 0;
 }
 
+/// Receives WORLD's state frames for `seconds` after `warmup` seconds and prints one line:
+/// complete ticks received against the ticks between the first and the last one seen, and the
+/// tick-to-subscriber latency (this host's wall clock minus the frame's stamp_ns, taken when
+/// the SDK has reassembled the tick). A benchmark (tools/fanout_bench.sh runs eight).
+int subscribe(pc::Client& c, const std::string& world, double warmup, double seconds) {
+  pc::WorldHandle w = resolve(c, world);
+  struct Record {
+    uint64_t tick;
+    double latencyMs;
+    uint32_t bodies;
+  };
+  std::mutex m;
+  std::vector<Record> records;
+  records.reserve(size_t(seconds * 240) + 16);
+  std::atomic<bool> measuring{false};
+  pc::Subscription sub = w.subscribe([&](const pc::StateFrame& f) {
+    const auto now = std::chrono::system_clock::now().time_since_epoch();
+    const double ms = double(std::chrono::duration_cast<std::chrono::nanoseconds>(now).count() -
+                             int64_t(f.stampNs)) /
+                      1e6;
+    if (!measuring.load()) return;
+    std::lock_guard<std::mutex> lk(m);
+    records.push_back({f.tick, ms, uint32_t(f.bodies.size())});
+  });
+  auto sleepFor = [](double s) {
+    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(s);
+    while (!gStop && std::chrono::steady_clock::now() < end)
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  };
+  sleepFor(warmup);
+  measuring = true;
+  sleepFor(seconds);
+  measuring = false;
+  sub.reset();
+  std::lock_guard<std::mutex> lk(m);
+  if (records.empty()) {
+    std::printf("subscriber %d: world %u: no frames in %.1f s\n", int(getpid()), w.id(), seconds);
+    return 1;
+  }
+  const uint64_t first = records.front().tick, last = records.back().tick;
+  const uint64_t expected = last - first + 1;
+  std::vector<double> lat;
+  uint32_t minBodies = UINT32_MAX;
+  for (const Record& r : records) {
+    lat.push_back(r.latencyMs);
+    minBodies = std::min(minBodies, r.bodies);
+  }
+  std::sort(lat.begin(), lat.end());
+  auto pct = [&](double q) {
+    return lat[std::min(lat.size() - 1, size_t(q * double(lat.size())))];
+  };
+  std::printf(
+      "subscriber %d: world %u ticks %llu..%llu received %zu expected %llu delivered %.3f%% "
+      "bodies_min %u latency_ms p50 %.3f p99 %.3f max %.3f\n",
+      int(getpid()), w.id(), (unsigned long long)first, (unsigned long long)last, records.size(),
+      (unsigned long long)expected, 100.0 * double(records.size()) / double(expected), minBodies,
+      pct(0.5), pct(0.99), lat.back());
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -183,6 +246,14 @@ int main(int argc, char** argv) {
   auto* ping = app.add_subcommand(
       "ping", "command round trip: N ListWorlds requests one after another; prints percentiles");
   ping->add_option("--count", pings, "round trips (default 1000)")->check(CLI::Range(1, 1000000));
+  double subSeconds = 10, subWarmup = 2;
+  auto* subscribeCmd = app.add_subcommand(
+      "subscribe", "receive WORLD's state frames; print delivered ticks and latency percentiles");
+  subscribeCmd->add_option("WORLD", world, "world id or name")->required();
+  subscribeCmd->add_option("--seconds", subSeconds, "measuring time, s (default 10)")
+      ->check(CLI::PositiveNumber);
+  subscribeCmd->add_option("--warmup", subWarmup, "seconds ignored first (default 2)")
+      ->check(CLI::NonNegativeNumber);
   auto* snapshot = app.add_subcommand("snapshot", "save or restore a world's snapshot");
   snapshot->require_subcommand(1);
   auto* save = snapshot->add_subcommand("save", "save WORLD's snapshot into a local FILE");
@@ -215,6 +286,11 @@ int main(int argc, char** argv) {
       return watch(client, world);
     }
     client.connect();
+    if (*subscribeCmd) {
+      std::signal(SIGINT, onSignal);
+      std::signal(SIGTERM, onSignal);
+      return subscribe(client, world, subWarmup, subSeconds);
+    }
     if (*list) {
       printWorlds(client.listWorlds().get());
     } else if (*ping) {

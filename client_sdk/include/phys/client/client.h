@@ -81,6 +81,9 @@ struct StateFrame {
   double time = 0;
   uint32_t total = 0;  ///< bodies in the world (QueryState: matching the query)
   std::vector<BodyState> bodies;
+  /// The server's wall clock (ns since the Unix epoch) when it read these states; 0 for
+  /// QueryState. Now minus this is the tick-to-subscriber latency (same host or synced clocks).
+  uint64_t stampNs = 0;
 };
 
 /// The latest phys/status sample.
@@ -90,6 +93,7 @@ struct ServerStatus {
   double uptimeS = 0;
   uint64_t commands = 0, errors = 0;
   std::vector<WorldSummary> worlds;
+  uint64_t framesDropped = 0;  ///< state frames the daemon's publisher dropped, total
 };
 
 /// Per-request options.

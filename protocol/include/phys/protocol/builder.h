@@ -174,6 +174,7 @@ struct WorldSummary {
   float tickMs = 0, tickMsMax = 0;
   uint64_t overruns = 0;
   uint32_t subscribers = 0;
+  uint64_t frames = 0;  ///< state frames handed to the publisher
 };
 
 /// A reply without a result (errors; Pause, DestroyWorld, ...).
@@ -194,7 +195,8 @@ Bytes encodeSnapshotReply(const ReplyHeader& header, std::span<const uint8_t> sn
 struct FrameHeader {
   uint32_t world = 0;
   uint64_t tick = 0;
-  double time = 0;  ///< s, simulated
+  double time = 0;       ///< s, simulated
+  uint64_t stampNs = 0;  ///< wall clock (ns since the Unix epoch) when the states were read
 };
 Bytes encodeStateFrame(const FrameHeader& header, uint32_t chunkIndex, uint32_t chunkCount,
                        uint32_t totalBodies, std::span<const wire::BodyState> bodies);
@@ -233,6 +235,7 @@ struct ServerStatusInfo {
   uint64_t commands = 0;  ///< received
   uint64_t errors = 0;    ///< rejected
   std::vector<WorldSummary> worlds;
+  uint64_t framesDropped = 0;  ///< state frames dropped by the publisher's ring
 };
 Bytes encodeServerStatus(const ServerStatusInfo& status);
 

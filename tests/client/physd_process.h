@@ -1,0 +1,105 @@
+// The physd binary run as a child process for the SDK's process tests: a config of its own
+// (domain, Cyclone loopback with a discovery tag of this test process, the source tree's presets
+// and scenes, extra TOML appended), spawned with posix_spawn, stopped with SIGTERM.
+#pragma once
+
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "phys/client/client.h"
+
+extern char** environ;
+
+namespace phys::client::testing {
+
+/// A scratch directory for one test process, removed on destruction.
+struct ScratchDir {
+  std::filesystem::path path;
+  explicit ScratchDir(const std::string& what)
+      : path(std::filesystem::temp_directory_path() / (what + "_" + std::to_string(getpid()))) {
+    std::filesystem::create_directories(path);
+  }
+  ~ScratchDir() {
+    std::error_code ec;
+    std::filesystem::remove_all(path, ec);
+  }
+};
+
+/// configs/cyclonedds/loopback.xml with a discovery tag of this process, so tests running in
+/// parallel never see each other's daemons.
+inline std::string taggedLoopbackXml() {
+  std::ifstream in(std::string(PHYS_SOURCE_DIR) + "/configs/cyclonedds/loopback.xml");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  std::string xml = ss.str();
+  const std::string tag = "<Discovery><Tag>physclient-test-" + std::to_string(getpid()) + "</Tag>";
+  const auto pos = xml.find("<Discovery>");
+  EXPECT_NE(pos, std::string::npos);
+  if (pos != std::string::npos) xml.replace(pos, std::string("<Discovery>").size(), tag);
+  return xml;
+}
+
+/// Spawns `binary` with `args`; returns its pid (0 on failure).
+inline pid_t spawnProcess(const std::string& binary, const std::vector<std::string>& args) {
+  std::vector<std::string> all{binary};
+  all.insert(all.end(), args.begin(), args.end());
+  std::vector<char*> argv;
+  for (std::string& a : all) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  pid_t pid = 0;
+  if (posix_spawn(&pid, binary.c_str(), nullptr, nullptr, argv.data(), environ) != 0) return 0;
+  return pid;
+}
+
+/// Sends `sig` and waits for the process; returns its wait status.
+inline int stopProcess(pid_t pid, int sig) {
+  int st = 0;
+  kill(pid, sig);
+  waitpid(pid, &st, 0);
+  return st;
+}
+
+/// A physd configuration in `dir`: physd.toml (server name, domain, start-up worlds as TOML
+/// text) and cyclone.xml.
+struct PhysdConfig {
+  std::string toml, xml;
+  uint32_t domain = 0;
+
+  PhysdConfig(const std::filesystem::path& dir, const std::string& name, uint32_t domainId,
+              const std::string& worldsToml) {
+    const std::string src = PHYS_SOURCE_DIR;
+    domain = domainId;
+    xml = (dir / "cyclone.xml").string();
+    {
+      std::ofstream out(xml);
+      out << taggedLoopbackXml();
+    }
+    toml = (dir / "physd.toml").string();
+    std::ofstream f(toml);
+    f << "[server]\nname = \"" << name << "\"\nlog_level = \"warn\"\nstatus_period_s = 0.2\n"
+      << "[dds]\ndomain = " << domain << "\nconfig = \"" << xml << "\"\n[paths]\npresets = \""
+      << src << "/configs/presets.json\"\nscenes = \"" << src << "/configs/scenes\"\n"
+      << worldsToml;
+  }
+  ClientOptions clientOptions(std::chrono::milliseconds timeout) const {
+    ClientOptions o;
+    o.domain = domain;
+    std::ifstream in(xml);
+    std::stringstream ss;
+    ss << in.rdbuf();
+    o.cycloneXml = ss.str();
+    o.connectTimeout = o.requestTimeout = timeout;
+    return o;
+  }
+};
+
+}  // namespace phys::client::testing

@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# Fan-out benchmark (issue 4; a benchmark, not a test): physd runs a 10,000-body world at
+# 60 Hz (configs/bench/fanout_10k.toml) and N subscriber processes (physctl subscribe) each
+# report how many complete ticks they received and the tick-to-subscriber latency. The
+# daemon's own counters (tick overruns, frames handed to the publisher, frames its ring
+# dropped) are read before and after the measuring window.
+#
+#   tools/fanout_bench.sh [--subscribers N] [--seconds S] [--build DIR] [--config TOML]
+set -euo pipefail
+root="$(cd "$(dirname "$0")/.." && pwd)"
+subs=8 seconds=30 build="$root/build" config="$root/configs/bench/fanout_10k.toml"
+while [[ $# -gt 0 ]]; do
+  case "$1" in
+    --subscribers) subs="$2"; shift 2 ;;
+    --seconds) seconds="$2"; shift 2 ;;
+    --build) build="$2"; shift 2 ;;
+    --config) config="$2"; shift 2 ;;
+    *) echo "usage: $0 [--subscribers N] [--seconds S] [--build DIR] [--config TOML]" >&2; exit 2 ;;
+  esac
+done
+physd="$build/server/physd" physctl="$build/tools/physctl"
+domain="$(sed -n 's/^domain *= *\([0-9]*\).*/\1/p' "$config" | head -1)"
+ctl() { "$physctl" --domain "$domain" "$@"; }
+out="$(mktemp -d)"
+cleanup() { [[ -n "${daemon:-}" ]] && kill "$daemon" 2>/dev/null; wait 2>/dev/null || true; rm -rf "$out"; }
+trap cleanup EXIT
+
+"$physd" --config "$config" > "$out/physd.log" 2>&1 &
+daemon=$!
+for _ in $(seq 100); do ctl --timeout 500 list > /dev/null 2>&1 && break; sleep 0.2; done
+warmup=5
+for i in $(seq "$subs"); do
+  ctl subscribe fanout --warmup "$warmup" --seconds "$seconds" > "$out/sub$i.txt" 2>&1 &
+done
+sleep "$warmup"
+ctl list > "$out/before.txt"
+sleep "$seconds"
+ctl list > "$out/after.txt"
+wait $(jobs -p | grep -v "^$daemon$") 2>/dev/null || true
+
+echo "fanout: $subs subscribers, $seconds s measured after ${warmup} s warm-up, $(nproc) cores, $(date -u +%F)"
+# Columns of physctl list: id name preset bodies joints tick time state rate overruns frames.
+read -r _ _ _ bodies _ tick0 _ _ _ over0 frames0 < <(grep ' fanout ' "$out/before.txt")
+read -r _ _ _ _ _ tick1 _ _ _ over1 frames1 < <(grep ' fanout ' "$out/after.txt")
+echo "physd: $bodies bodies, $((tick1 - tick0)) ticks, $((over1 - over0)) overruns, $((frames1 - frames0)) frames published in the window"
+cat "$out"/sub*.txt
+awk '/delivered/ {
+       for (i = 1; i <= NF; i++) { if ($i == "delivered") d = $(i + 1); if ($i == "p99") p = $(i + 1) }
+       sub("%", "", d); n++; if (n == 1 || d < dmin) dmin = d; if (p > pmax) pmax = p }
+     END { if (n) printf "all %d subscribers: worst delivered %.3f%%, worst p99 latency %.3f ms\n", n, dmin, pmax
+           else print "no subscriber reported" }' "$out"/sub*.txt
