@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <atomic>
 #include <condition_variable>
+#include <deque>
 #include <map>
 #include <mutex>
 #include <random>
@@ -171,9 +172,9 @@ struct Client::Impl {
   ClientOptions options;
   uint64_t clientId = 0;
   dds::Participant participant;
-  dds::Topic cmdTopic, replyTopic, statusTopic;
+  dds::Topic cmdTopic, replyTopic, statusTopic, eventsTopic;
   dds::Writer cmdWriter;
-  dds::Reader replyReader, statusReader;
+  dds::Reader replyReader, statusReader, eventsReader;
   dds::WaitSet waitset;
 
   std::mutex writeMutex;
@@ -190,6 +191,9 @@ struct Client::Impl {
   mutable std::mutex infoMutex;
   ServerInfo server;
   std::optional<ServerStatus> status;
+  std::function<void(const Event&)> eventFn;  // under infoMutex
+  std::deque<Event> events;                   // under infoMutex, the last kKeptEvents
+  static constexpr size_t kKeptEvents = 64;
 
   std::atomic<bool> everConnected{false}, helloOk{false}, helloInFlight{false}, needHello{false};
   std::atomic<uint64_t> reconnects{0};
@@ -212,16 +216,18 @@ struct Client::Impl {
     if (!participant.create(options.domain, options.cycloneXml, &err)) fail("participant", err);
     if (!cmdTopic.create(participant, std::string(protocol::kCommandTopic), &err) ||
         !replyTopic.create(participant, std::string(protocol::kReplyTopic), &err) ||
-        !statusTopic.create(participant, std::string(protocol::kStatusTopic), &err))
+        !statusTopic.create(participant, std::string(protocol::kStatusTopic), &err) ||
+        !eventsTopic.create(participant, std::string(protocol::kEventsTopic), &err))
       fail("topic", err);
     if (!cmdWriter.create(participant, cmdTopic, protocol::kCommandQos,
                           protocol::PayloadKind::Command, &err))
       fail("writer", err);
     if (!replyReader.create(participant, replyTopic, protocol::kReplyQos, &err) ||
-        !statusReader.create(participant, statusTopic, protocol::kStatusQos, &err))
+        !statusReader.create(participant, statusTopic, protocol::kStatusQos, &err) ||
+        !eventsReader.create(participant, eventsTopic, protocol::kEventsQos, &err))
       fail("reader", err);
     if (!waitset.create(participant, &err) || !waitset.attach(replyReader, &err) ||
-        !waitset.attach(statusReader, &err))
+        !waitset.attach(statusReader, &err) || !waitset.attach(eventsReader, &err))
       fail("waitset", err);
     thread = std::thread([this] { loop(); });
   }
@@ -384,6 +390,28 @@ struct Client::Impl {
     });
   }
 
+  void takeEvents() {
+    eventsReader.take([&](const phys_wire_Envelope& env) {
+      if (!protocol::checkEnvelope(env, protocol::PayloadKind::Event).ok()) return;
+      auto d = protocol::decodeEvent(protocol::envelopeBytes(env));
+      if (!d.ok()) return;
+      Event e;
+      e.world = d->world();
+      e.tick = d->tick();
+      e.severity = Event::Severity(uint8_t(d->severity()));
+      e.code = str(d->code());
+      e.message = str(d->message());
+      std::function<void(const Event&)> fn;
+      {
+        std::lock_guard<std::mutex> lk(infoMutex);
+        events.push_back(e);
+        if (events.size() > kKeptEvents) events.pop_front();
+        fn = eventFn;
+      }
+      if (fn) fn(e);
+    });
+  }
+
   void takeStates() {
     std::vector<std::shared_ptr<Subscription::State>> copy;
     {
@@ -464,6 +492,7 @@ struct Client::Impl {
       if (stop) break;
       takeReplies();
       takeStatus();
+      takeEvents();
       takeStates();
       checkServers();
       expire();
@@ -631,6 +660,16 @@ std::optional<ServerStatus> Client::latestStatus() const {
 
 Subscription Client::subscribe(uint32_t world, std::function<void(const StateFrame&)> fn) {
   return impl_->subscribe(world, std::move(fn));
+}
+
+void Client::onEvent(std::function<void(const Event&)> fn) {
+  std::lock_guard<std::mutex> lk(impl_->infoMutex);
+  impl_->eventFn = std::move(fn);
+}
+
+std::vector<Event> Client::recentEvents() const {
+  std::lock_guard<std::mutex> lk(impl_->infoMutex);
+  return {impl_->events.begin(), impl_->events.end()};
 }
 
 // ---------------------------------------------------------------------------------------------

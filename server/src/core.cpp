@@ -145,15 +145,44 @@ size_t ServerCore::processPending() {
 // ---------------------------------------------------------------------------------------------
 // Time
 
+double ServerCore::stepTimed(ServerWorld& w, uint64_t n) {
+  const uint64_t redone = w.world->stats().guardEvents;
+  const uint64_t stopped = w.world->stats().guardQuarantined;
+  auto t0 = std::chrono::steady_clock::now();
+  for (uint64_t i = 0; i < n; ++i) w.world->step();
+  double ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  w.tick += n;
+  counters_.steps += n;
+  // The engine's guard rails acted: every client hears of it (phys/events).
+  const phys::StepStats& st = w.world->stats();
+  if (st.guardEvents > redone)
+    queueEvent(
+        w, wire::Severity::Warning, "guard_rollback",
+        std::to_string(st.guardEvents - redone) +
+            " step(s) rolled back and redone with a safer setting; last: " + st.lastGuardEvent);
+  if (st.guardQuarantined > stopped)
+    queueEvent(
+        w, wire::Severity::Error, "guard_quarantine",
+        std::to_string(st.guardQuarantined - stopped) +
+            " body(ies) stopped because redoing the step did not help; last: " + st.lastGuardEvent);
+  return ms;
+}
+
+void ServerCore::queueEvent(const ServerWorld& w, wire::Severity severity, std::string_view code,
+                            std::string_view message) {
+  ReliableMessage m;
+  m.type = ReliableMessage::Type::Event;
+  m.key = w.id;
+  m.world = w.id;
+  m.chunks.push_back(protocol::encodeEvent(w.id, w.tick, severity, code, message));
+  out_.pushReliable(std::move(m));
+}
+
 Status ServerCore::stepWorld(uint32_t id, uint64_t n) {
   ServerWorld* w = world(id);
   if (!w) return Status::Error(Code::NotFound, "no world " + std::to_string(id));
-  auto t0 = std::chrono::steady_clock::now();
-  for (uint64_t i = 0; i < n; ++i) w->world->step();
-  double ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-  w->tick += n;
-  counters_.steps += n;
+  const double ms = stepTimed(*w, n);
   if (n > 0) {
     w->tickMs = float(ms / double(n));
     w->tickMsMax = std::max(w->tickMsMax, w->tickMs);
@@ -183,12 +212,7 @@ uint64_t ServerCore::advance(double wallSeconds) {
       n = 1;
     }
     if (n > 0) {
-      auto t0 = std::chrono::steady_clock::now();
-      for (uint64_t i = 0; i < n; ++i) w.world->step();
-      double ms =
-          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-      w.tick += n;
-      counters_.steps += n;
+      const double ms = stepTimed(w, n);
       total += n;
       w.tickMs = float(ms);
       w.tickMsMax = std::max(w.tickMsMax, w.tickMs);

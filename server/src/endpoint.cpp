@@ -24,7 +24,8 @@ Status DdsEndpoint::start() {
   if (!cmdTopic_.create(participant_, std::string(protocol::kCommandTopic), &err) ||
       !replyTopic_.create(participant_, std::string(protocol::kReplyTopic), &err) ||
       !infoTopic_.create(participant_, std::string(protocol::kWorldInfoTopic), &err) ||
-      !statusTopic_.create(participant_, std::string(protocol::kStatusTopic), &err))
+      !statusTopic_.create(participant_, std::string(protocol::kStatusTopic), &err) ||
+      !eventsTopic_.create(participant_, std::string(protocol::kEventsTopic), &err))
     return fail();
   if (!cmdReader_.create(participant_, cmdTopic_, protocol::kCommandQos, &err) ||
       !replyWriter_.create(participant_, replyTopic_, protocol::kReplyQos, PayloadKind::Reply,
@@ -32,14 +33,17 @@ Status DdsEndpoint::start() {
       !infoWriter_.create(participant_, infoTopic_, protocol::kWorldInfoQos, PayloadKind::WorldInfo,
                           &err) ||
       !statusWriter_.create(participant_, statusTopic_, protocol::kStatusQos,
-                            PayloadKind::ServerStatus, &err))
+                            PayloadKind::ServerStatus, &err) ||
+      !eventsWriter_.create(participant_, eventsTopic_, protocol::kEventsQos, PayloadKind::Event,
+                            &err))
     return fail();
   if (!waitset_.create(participant_, &err) || !waitset_.attach(cmdReader_, &err)) return fail();
   stop_ = false;
   reader_ = std::thread([this] { readLoop(); });
   publisher_ = std::thread([this] { publishLoop(); });
-  spdlog::info("dds: domain {} ready ({}, {}, {}, {})", config_.domain, protocol::kCommandTopic,
-               protocol::kReplyTopic, protocol::kWorldInfoTopic, protocol::kStatusTopic);
+  spdlog::info("dds: domain {} ready ({}, {}, {}, {}, {})", config_.domain, protocol::kCommandTopic,
+               protocol::kReplyTopic, protocol::kWorldInfoTopic, protocol::kStatusTopic,
+               protocol::kEventsTopic);
   return Status::Ok();
 }
 
@@ -103,6 +107,9 @@ void DdsEndpoint::publish(ReliableMessage& m) {
       break;
     case ReliableMessage::Type::Status:
       rc = statusWriter_.write(m.key, m.chunks.at(0));
+      break;
+    case ReliableMessage::Type::Event:
+      rc = eventsWriter_.write(m.key, m.chunks.at(0));
       break;
     case ReliableMessage::Type::WorldInfo: {
       if (removed_.count(m.world)) break;

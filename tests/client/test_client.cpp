@@ -354,6 +354,47 @@ TEST(ClientSdk, EightSubscribersReceiveEveryBodyOfEveryTick) {
   subs.clear();
 }
 
+TEST(ClientSdk, GuardRailsAreAnnouncedOnTheEventsTopic) {
+  Env env;
+  Client& c = env.client;
+  c.connect();
+  std::mutex m;
+  std::vector<Event> seen;
+  c.onEvent([&](const Event& e) {
+    std::lock_guard<std::mutex> lk(m);
+    seen.push_back(e);
+  });
+  WorldHandle w = c.createWorld({"guarded", "", std::nullopt, 0}).get();
+  const std::vector<phys::BodyDef> bodies{ground(), box({0, 0, 5})};
+  auto ids = w.spawn(bodies).get();
+  // The largest force the protocol accepts, on a 1000 kg box: it would leave at an absurd
+  // speed in one step, so the engine redoes the step, then stops the body.
+  w.applyForce(ids[1], {1e12f, 0, 0}, {0, 0, 5}).get();
+  const uint64_t tick = w.step(2).get().tick;
+  ASSERT_TRUE(waitFor([&] {
+    std::lock_guard<std::mutex> lk(m);
+    return seen.size() >= 2;
+  })) << "events seen: "
+      << seen.size();
+  std::lock_guard<std::mutex> lk(m);
+  EXPECT_EQ(seen[0].code, "guard_rollback");
+  EXPECT_EQ(seen[0].severity, Event::Severity::Warning);
+  EXPECT_EQ(seen[1].code, "guard_quarantine");
+  EXPECT_EQ(seen[1].severity, Event::Severity::Error);
+  for (const Event& e : seen) {
+    EXPECT_EQ(e.world, w.id());
+    EXPECT_EQ(e.tick, tick);
+    EXPECT_FALSE(e.message.empty());
+  }
+  EXPECT_EQ(c.recentEvents().size(), seen.size());
+  // The world is still healthy: the box was stopped, not lost to infinity.
+  const uint64_t boxId = ids[1];
+  StateFrame f = w.queryState(std::span<const uint64_t>(&boxId, 1)).get();
+  ASSERT_EQ(f.bodies.size(), 1u);
+  EXPECT_TRUE(std::isfinite(f.bodies[0].position.x));
+  EXPECT_LT(std::fabs(f.bodies[0].position.x), 1.0f);
+}
+
 TEST(ClientSdk, ReconnectsWhenTheDaemonRestarts) {
   Env env;
   Client& c = env.client;

@@ -136,6 +136,14 @@ int watch(pc::Client& c, const std::string& only) {
         out += line;
       }
       if (worlds.empty()) out += only.empty() ? "(no worlds)\n" : "(no such world)\n";
+      // The last few phys/events since watch started (guard rails).
+      const std::vector<pc::Event> events = c.recentEvents();
+      for (size_t i = events.size() > 3 ? events.size() - 3 : 0; i < events.size(); ++i) {
+        const pc::Event& e = events[i];
+        std::snprintf(line, sizeof line, "event world %u tick %llu %s: ", e.world,
+                      (unsigned long long)e.tick, e.code.c_str());
+        out += line + e.message + "\n";
+      }
     }
     if (tty) std::fputs("\033[H\033[2J", stdout);
     std::fputs(out.c_str(), stdout);

@@ -96,6 +96,16 @@ struct ServerStatus {
   uint64_t framesDropped = 0;  ///< state frames the daemon's publisher dropped, total
 };
 
+/// A notice from the daemon (phys/events), e.g. the engine's guard rails redoing a step.
+struct Event {
+  enum class Severity : uint8_t { Info = 0, Warning = 1, Error = 2 };
+  uint32_t world = 0;
+  uint64_t tick = 0;
+  Severity severity = Severity::Info;
+  std::string code;  ///< short, machine readable: "guard_rollback", "guard_quarantine"
+  std::string message;
+};
+
 /// Per-request options.
 struct CallOptions {
   std::chrono::milliseconds timeout{0};  ///< 0: ClientOptions::requestTimeout
@@ -218,6 +228,11 @@ class Client {
 
   /// The newest phys/status sample, if one arrived.
   std::optional<ServerStatus> latestStatus() const;
+  /// fn runs on the SDK's thread for every event from now on (replaces an earlier fn; empty
+  /// to stop). Events are volatile: those published before the client matched are not seen.
+  void onEvent(std::function<void(const Event&)> fn);
+  /// The last (up to 64) events received, oldest first.
+  std::vector<Event> recentEvents() const;
   Subscription subscribe(uint32_t world, std::function<void(const StateFrame&)> fn = {});
 
   struct Impl;

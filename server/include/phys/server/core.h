@@ -158,6 +158,11 @@ class ServerCore {
  private:
   friend struct Context;
   Status queueFrame(ServerWorld& w);
+  /// Steps a world n times (tick, counters); returns the wall time in ms. What the engine's
+  /// guard rails did in those steps goes out as events.
+  double stepTimed(ServerWorld& w, uint64_t n);
+  void queueEvent(const ServerWorld& w, wire::Severity severity, std::string_view code,
+                  std::string_view message);
   std::unique_ptr<ServerWorld> makeWorld(const std::string& name, const std::string& preset,
                                          const phys::WorldDef& def);
 

@@ -49,9 +49,9 @@ class DdsEndpoint {
   ServerCore* core_;
   EndpointConfig config_;
   dds::Participant participant_;
-  dds::Topic cmdTopic_, replyTopic_, infoTopic_, statusTopic_;
+  dds::Topic cmdTopic_, replyTopic_, infoTopic_, statusTopic_, eventsTopic_;
   dds::Reader cmdReader_;
-  dds::Writer replyWriter_, infoWriter_, statusWriter_;
+  dds::Writer replyWriter_, infoWriter_, statusWriter_, eventsWriter_;
   dds::WaitSet waitset_;
   struct StateTopic {
     dds::Topic topic;

@@ -62,9 +62,10 @@ struct ReliableMessage {
     WorldInfo,     ///< phys/world_info, one sample per chunk (chunks), key worldInfoKey
     WorldRemoved,  ///< dispose the world's world_info instances, drop its state writer
     Status,        ///< phys/status, key = server id
+    Event,         ///< phys/events, key = world id
   };
   Type type = Type::Reply;
-  uint64_t key = 0;  ///< Reply: client id; Status: server id
+  uint64_t key = 0;  ///< Reply: client id; Status: server id; Event: world id
   uint64_t seq = 0;  ///< Reply: the command's seq
   uint32_t world = 0;
   std::vector<Bytes> chunks;  ///< one payload (Reply, Status) or the world info chunks
