@@ -481,6 +481,7 @@ struct Client::Impl {
         }
       }
     }
+    if (expired.empty()) return;  // the usual case: runs after every wake-up
     Error e(ErrorCode::Timeout, "no reply from physd within the request's timeout (domain " +
                                     std::to_string(options.domain) + ")");
     for (auto& p : expired) p.done(nullptr, &e);
