@@ -2,10 +2,13 @@
 // publishes replies, state frames, world info and status over Cyclone DDS.
 //
 //   physd --config configs/physd.toml [--domain N]
+#include <sched.h>
 #include <signal.h>
 #include <spdlog/spdlog.h>
 
 #include <CLI/CLI.hpp>
+#include <cerrno>
+#include <cstring>
 #include <fstream>
 #include <sstream>
 
@@ -43,6 +46,19 @@ int main(int argc, char** argv) {
     std::stringstream ss;
     ss << f.rdbuf();
     cycloneXml = ss.str();
+  }
+
+  // Real-time scheduling, set before any thread starts so that every thread inherits it.
+  if (cfg.realtimePriority > 0) {
+    sched_param sp{};
+    sp.sched_priority = cfg.realtimePriority;
+    if (sched_setscheduler(0, SCHED_FIFO, &sp) == 0)
+      spdlog::info("SCHED_FIFO priority {}", cfg.realtimePriority);
+    else
+      spdlog::warn(
+          "server.realtime_priority {}: {} (needs CAP_SYS_NICE, root or an rtprio ulimit); "
+          "running with the normal scheduler",
+          cfg.realtimePriority, std::strerror(errno));
   }
 
   // SIGINT and SIGTERM are taken by sigwait below; every thread started after this inherits

@@ -78,10 +78,11 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
   Status s = checkKeys(root, {"server", "dds", "paths", "limits", "worlds"}, "physd config");
   if (!s.ok()) return s;
   if (auto* t = root["server"].as_table()) {
-    s = checkKeys(*t,
-                  {"name", "id", "log_level", "threads", "default_rate_hz", "max_catch_up_steps",
-                   "status_period_s", "bodies_per_chunk", "frame_ring", "max_worlds"},
-                  "server");
+    s = checkKeys(
+        *t,
+        {"name", "id", "log_level", "threads", "default_rate_hz", "max_catch_up_steps",
+         "status_period_s", "bodies_per_chunk", "frame_ring", "max_worlds", "realtime_priority"},
+        "server");
     if (!s.ok()) return s;
     PHYS_GET(*t, "name", "server", &c.core.serverName);
     PHYS_GET(*t, "id", "server", &c.core.serverId);
@@ -93,6 +94,7 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     PHYS_GET(*t, "bodies_per_chunk", "server", &c.core.bodiesPerChunk);
     PHYS_GET(*t, "frame_ring", "server", &c.core.frameRingCapacity);
     PHYS_GET(*t, "max_worlds", "server", &c.core.maxWorlds);
+    PHYS_GET(*t, "realtime_priority", "server", &c.realtimePriority);
   }
   if (auto* t = root["dds"].as_table()) {
     s = checkKeys(*t, {"domain", "config"}, "dds");
@@ -148,6 +150,10 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     return Status::Error(Code::InvalidArgument, "server.id must be non-zero");
   if (c.statusPeriodS <= 0)
     return Status::Error(Code::InvalidArgument, "server.status_period_s must be > 0");
+  if (c.realtimePriority < 0 || c.realtimePriority > 99)
+    return Status::Error(Code::InvalidArgument,
+                         "server.realtime_priority must be 0 (off) or 1..99, got " +
+                             std::to_string(c.realtimePriority));
   *out = std::move(c);
   return Status::Ok();
 }

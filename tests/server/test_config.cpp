@@ -40,12 +40,18 @@ TEST(ServerConfig, RejectsUnknownKeysAndWrongTypes) {
   EXPECT_FALSE(parseDaemonConfig("[dds]\ndomain = -1\n", "/tmp", &c).ok());
   EXPECT_FALSE(parseDaemonConfig("[[worlds]]\nscene = \"default\"\n", "/tmp", &c).ok());
   EXPECT_FALSE(parseDaemonConfig("this is not toml", "/tmp", &c).ok());
+  s = parseDaemonConfig("[server]\nrealtime_priority = 100\n", "/tmp", &c);
+  EXPECT_FALSE(s.ok());
+  EXPECT_NE(s.message.find("realtime_priority"), std::string::npos) << s.message;
+  EXPECT_FALSE(parseDaemonConfig("[server]\nrealtime_priority = -1\n", "/tmp", &c).ok());
   s = parseDaemonConfig(
-      "[dds]\ndomain = 9\nconfig = \"x.xml\"\n[limits]\nmax_steps_per_command = 10\n"
+      "[server]\nrealtime_priority = 10\n[dds]\ndomain = 9\nconfig = "
+      "\"x.xml\"\n[limits]\nmax_steps_per_command = 10\n"
       "[[worlds]]\nname = \"a\"\nrun = false\n",
       "/base", &c);
   ASSERT_TRUE(s.ok()) << s.message;
   EXPECT_EQ(c.domain, 9u);
+  EXPECT_EQ(c.realtimePriority, 10);
   EXPECT_EQ(c.cycloneConfig, "/base/x.xml");
   EXPECT_EQ(c.core.limits.maxStepsPerCommand, 10u);
   ASSERT_EQ(c.worlds.size(), 1u);

@@ -23,6 +23,10 @@ struct DaemonConfig {
   std::string cycloneConfig;      ///< CYCLONEDDS_URI file (absolute); empty: Cyclone's own
   std::string logLevel = "info";  ///< spdlog level name
   double statusPeriodS = 1.0;     ///< phys/status period
+  /// 1..99: run the daemon's threads (tick, publisher, Cyclone's) under SCHED_FIFO at this
+  /// priority, so subscribers and other processes on a busy host cannot delay a tick; 0: the
+  /// normal scheduler. Needs CAP_SYS_NICE (or root, or an rtprio ulimit); else a warning.
+  int realtimePriority = 0;
   CoreConfig core;
   std::vector<StartupWorld> worlds;
 };
