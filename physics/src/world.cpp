@@ -1250,10 +1250,74 @@ void World::Impl::finalize(float hSub) {
     }
     j.state.reactionForce = f;
     j.state.reactionTorque = tq;
+  }
+  measureJoints();
+}
+
+void World::Impl::measureJoints() {
+  for (uint32_t i = 0; i < joints.capacity(); ++i) {
+    if (!joints.alive(i)) continue;
+    JointRec& j = joints.at(i);
     const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
     BodyPose pa = A ? poseOf(*A) : BodyPose{}, pb = poseOf(*bodies.get(j.def.bodyB));
     measureJoint(j, A ? &pa : nullptr, pb, &j.state.positionError, &j.state.angleError);
   }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Observing states computed elsewhere (peer engines): the step's collision stages only
+
+Status World::observe(const std::vector<BodyId>& ids, const std::vector<ObservedBody>& states,
+                      double stepMs) {
+  Impl& w = *impl_;
+  if (ids.size() != states.size()) return invalid("observe: ids and states differ in size");
+  std::vector<ObservedBody> checked = states;
+  for (size_t i = 0; i < ids.size(); ++i) {
+    if (!w.bodies.get(ids[i])) return notFound("body");
+    ObservedBody& s = checked[i];
+    if (!isFinite(s.position) || !isFinite(s.linearVelocity) || !isFinite(s.angularVelocity))
+      return invalid("observe: state " + std::to_string(i) + " is not finite");
+    Status st = checkRotation(&s.rotation, "observe");
+    if (!st.ok()) return st;
+  }
+
+  w.stats.energyBefore = energy();
+  for (size_t i = 0; i < ids.size(); ++i) {
+    BodyRec& b = *w.bodies.get(ids[i]);
+    const ObservedBody& s = checked[i];
+    bool moved = !(b.xf.p == s.position && b.xf.q == s.rotation);
+    b.xf = {s.position, s.rotation};
+    b.com = apply(b.xf, b.localCenter);
+    if (b.type != BodyType::Static) {
+      b.v = s.linearVelocity;
+      b.w = s.angularVelocity;
+    } else if (moved) {
+      w.syncProxies(ids[i], true);  // updateBounds moves only non-static proxies
+    }
+  }
+  const float dt = w.def.timeStep;
+  w.updateBounds(dt);
+  w.broadPhaseStage();
+  w.narrowPhase(dt);
+  for (uint32_t i = 0; i < w.joints.capacity(); ++i)
+    if (w.joints.alive(i))
+      w.joints.at(i).state.reactionForce = w.joints.at(i).state.reactionTorque = {};
+  w.measureJoints();
+
+  w.time += dt;
+  w.stats.step++;
+  w.stats.bodies = int(w.bodies.size());
+  w.stats.awake = 0;
+  for (uint32_t i = 0; i < w.bodies.capacity(); ++i)
+    if (w.bodies.alive(i) && w.bodies.at(i).type != BodyType::Static) w.stats.awake++;
+  w.stats.joints = jointCount();
+  w.stats.velocityResidual = 0;
+  w.stats.iterationsUsed = 0;
+  w.stats.guardRetries = 0;
+  w.stats.energyAfter = energy();
+  w.profile = StepProfile();
+  w.profile.total = stepMs;
+  return Status::Ok();
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -134,6 +134,7 @@ struct World::Impl {
   const char* bodyFault(const BodyRec& b) const;  ///< what is wrong with a body, or null
   void quarantine();  ///< joint rows at the current poses, inside the substep loop
   void finalize(float hSub);
+  void measureJoints();  ///< joints' position and angle errors at the bodies' poses
 };
 
 }  // namespace phys

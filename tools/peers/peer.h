@@ -39,9 +39,10 @@ class PeerEngine {
   virtual std::string name() const = 0;
   /// The library's version as the engine reports it (or as the package pins it).
   virtual std::string version() const = 0;
-  /// Builds every body and joint of `scene`. Returns Unsupported naming the feature a scene
-  /// uses that this engine cannot express, or Internal with the engine's own error text (for
-  /// example MuJoCo's allocation failure on pyramid_40). Call once.
+  /// Builds every body and joint of `scene`. Returns unsupported() (peer_common.h) naming the
+  /// feature a scene uses that this engine cannot express, or engineError() with the engine's
+  /// own error text (for example MuJoCo's allocation failure on pyramid_40). phys's StatusCode
+  /// has no Unsupported or Internal: those helpers say which codes stand for them. Call once.
   virtual Status build(const Scene& scene, const PeerBudget& budget) = 0;
   /// Advances by scene.world.timeStep.
   virtual void step() = 0;

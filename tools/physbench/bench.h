@@ -1,5 +1,6 @@
-// physbench's two modes: one scene with one preset (what the ctest scene tests call), and the
-// suite (every preset on every scene) with its CSV, Markdown and docs/SOLVERS.md reports.
+// physbench's modes: one scene with one preset (what the ctest scene tests call), the suite
+// (every preset on every scene) with its CSV, Markdown and docs/SOLVERS.md reports, the
+// stress runs; the suite and single runs can also run peer engines (docs/PEERS.md).
 #pragma once
 
 #include <cstdint>
@@ -7,17 +8,46 @@
 #include <string>
 #include <vector>
 
+#include "phys/metrics.h"
+#include "phys/scene.h"
+
 namespace phys::bench {
 
 struct SingleOptions {
   std::string scenePath, presetName, presetsPath, jsonOut;
-  double seconds = -1;  ///< < 0: the scene's duration
-  int threads = 0;      ///< the world's threads; 0: the machine's
+  double seconds = -1;     ///< < 0: the scene's duration
+  int threads = 0;         ///< the world's threads; 0: the machine's
+  std::string peer;        ///< run the scene in this peer engine instead (--peer)
+  int peerIterations = 0;  ///< the peer's solver iterations; 0: the engine's default
 };
 
 /// Runs one scene and prints its metrics. Exit status: 0 when every criterion of the scene
 /// passed, 1 when one failed, 2 on bad input.
 int runSingle(SingleOptions opt);
+
+/// What runSingle prints (and writes as JSON) about one finished run.
+struct SingleResult {
+  std::string preset;   ///< "scene", a preset name or a peer's label
+  std::string backend;  ///< "cpu" or the peer engine and its version
+  int threads = 0, bodies = 0, joints = 0, steps = 0;
+  MetricsSummary metrics;
+};
+/// Prints a run's metrics and criteria and writes opt.jsonOut; returns runSingle's status.
+int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResult& r);
+
+// Peer engines (peers.cpp; Bullet, ODE and MuJoCo through tools/peers when the build has them).
+/// The peers this build can run, in peers::peerNames() order (empty without PHYS_WITH_PEERS).
+std::vector<std::string> compiledPeers();
+/// Expands "all" and checks every name; returns an error message naming the unknown or not
+/// compiled-in peers, empty when all can run.
+std::string resolvePeers(std::vector<std::string>* names);
+/// "bullet 3.24" for each of these compiled-in peers (the engines' own version reports).
+std::vector<std::string> peerVersions(const std::vector<std::string>& peers);
+/// A suite column / single-run label: "bullet" (the engine's default iterations) or
+/// "bullet (10 it)".
+std::string peerLabel(const std::string& peer, int iterations);
+/// --scene with --peer: runs the scene in the peer and reports as runSingle does.
+int runSinglePeer(const SingleOptions& opt);
 
 struct SuiteOptions {
   std::string presetsPath;
@@ -31,8 +61,12 @@ struct SuiteOptions {
   int threads = 0;  ///< each world's threads; 0: the machine's divided among the jobs
   std::string csvOut, markdownOut, docPath;
   bool failOnCriteria = false;
-  bool failOnNan = false;  ///< exit 1 when a run went NaN
+  bool failOnNan = false;   ///< exit 1 when a run went NaN
   std::string commandLine;  ///< as typed, printed in the reports
+  /// Peer engines run as extra columns beside the presets (--peers), each at every budget of
+  /// peerIterations (empty: the engine's default).
+  std::vector<std::string> peers;
+  std::vector<int> peerIterations;
 };
 
 inline constexpr double kQuickSeconds = 3;

@@ -7,6 +7,10 @@
 //             [--fail-on-criteria] [--fail-on-nan]
 //     every preset on every scene (see suite.cpp); exit status 2 when a run could not be
 //     executed, 1 with --fail-on-criteria when a run failed its criteria, else 0.
+//   physbench --scene FILE --peer NAME [--peer-iterations N] [--seconds S] [--json OUT]
+//   physbench --suite ... --peers bullet,ode,mujoco|all [--peer-iterations 10,100]
+//     the same scenes in peer engines, measured by the same metrics code (docs/PEERS.md);
+//     an unknown or not compiled-in peer exits 2.
 //   physbench --stress [--presets a,b|all] [--seeds N] [--seed-start S] [--seed S]
 //             [--stress-seconds T] [--jobs N] [--csv OUT] [--dump-scene FILE]
 //             [--fail-on-failure]
@@ -71,10 +75,22 @@ int main(int argc, char** argv) {
                  "threads per world (default 0: the machine's; with --jobs, divided among them)")
       ->check(CLI::Range(0, 64));
 
+  // Peer engines (docs/PEERS.md): --peer in single-scene mode, --peers in the suite.
+  CLI::Option* peerOpt = app.add_option(
+      "--peer", single.peer, "run the scene in this peer engine (bullet, ode, mujoco) instead");
+  std::vector<int> peerIterations;
+  CLI::Option* peerItOpt =
+      app.add_option("--peer-iterations", peerIterations,
+                     "the peers' solver iterations, comma-separated in the suite (default: each "
+                     "engine's own)")
+          ->delimiter(',')
+          ->check(CLI::Range(1, 100000));
+  peerOpt->excludes(presetOpt);
+
   // Suite mode.
   CLI::Option* suiteFlag =
       app.add_flag("--suite", suiteMode, "run every preset on every scene and tabulate");
-  for (CLI::Option* o : {sceneOpt, presetOpt, secondsOpt, jsonOpt}) o->excludes(suiteFlag);
+  for (CLI::Option* o : {sceneOpt, presetOpt, secondsOpt, jsonOpt, peerOpt}) o->excludes(suiteFlag);
   std::vector<CLI::Option*> suiteOnly = {
       app.add_option("--presets", suite.presets,
                      "presets to run, comma-separated (default: every preset of the file)")
@@ -102,6 +118,9 @@ int main(int argc, char** argv) {
       app.add_flag("--fail-on-criteria", suite.failOnCriteria,
                    "exit 1 when a run fails its scene's criteria"),
       app.add_flag("--fail-on-nan", suite.failOnNan, "exit 1 when a run goes NaN"),
+      app.add_option("--peers", suite.peers,
+                     "peer engines to run beside the presets, comma-separated, or all")
+          ->delimiter(','),
   };
   // Stress mode.
   bench::StressOptions stress;
@@ -121,7 +140,7 @@ int main(int argc, char** argv) {
       app.add_flag("--fail-on-failure", stress.failOnFailure, "exit 1 when a run failed"),
   };
   for (CLI::Option* o : stressOnly) o->needs(stressFlag);
-  for (CLI::Option* o : {sceneOpt, presetOpt, secondsOpt, jsonOpt, suiteFlag})
+  for (CLI::Option* o : {sceneOpt, presetOpt, secondsOpt, jsonOpt, suiteFlag, peerOpt, peerItOpt})
     o->excludes(stressFlag);
   // --presets, --jobs and --csv serve both the suite and the stress mode.
   for (CLI::Option* o : suiteOnly) {
@@ -147,10 +166,20 @@ int main(int argc, char** argv) {
   if (!suiteMode) {
     // --scene is required in single-scene mode, as before --suite existed.
     if (single.scenePath.empty()) return app.exit(CLI::RequiredError("--scene"));
+    if (app.count("--peer-iterations")) {
+      if (single.peer.empty())
+        return app.exit(CLI::ValidationError("--peer-iterations", "needs --peer or --peers"));
+      if (peerIterations.size() != 1)
+        return app.exit(CLI::ValidationError("--peer-iterations", "takes one number with --peer"));
+      single.peerIterations = peerIterations[0];
+    }
     single.presetsPath = presetsPath;
     single.threads = threads;
     return bench::runSingle(single);
   }
+  if (app.count("--peer-iterations") && suite.peers.empty())
+    return app.exit(CLI::ValidationError("--peer-iterations", "needs --peer or --peers"));
+  suite.peerIterations = peerIterations;
   suite.presetsPath = presetsPath;
   suite.threads = threads;
   if (suite.scenesDir.empty()) suite.scenesDir = defaultScenesDir();

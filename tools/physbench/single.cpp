@@ -40,6 +40,7 @@ std::string fmtNumber(const std::optional<double>& v) {
 }
 
 int runSingle(SingleOptions opt) {
+  if (!opt.peer.empty()) return runSinglePeer(opt);
   Scene scene;
   Status st = loadSceneFile(opt.scenePath, &scene);
   if (!st.ok()) {
@@ -82,16 +83,23 @@ int runSingle(SingleOptions opt) {
     world.step();
     rec.afterStep(world);
   }
-  MetricsSummary m = rec.summary();
-  m.stateHash = world.stateHash();
+  SingleResult result{usedPreset,         "cpu", world.def().threads, world.bodyCount(),
+                      world.jointCount(), steps, rec.summary()};
+  result.metrics.stateHash = world.stateHash();
+  return reportSingle(opt, scene, result);
+}
+
+int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResult& r) {
+  const MetricsSummary& m = r.metrics;
+  const int steps = r.steps;
   std::vector<CriterionResult> results = evaluate(m, scene.criteria);
   bool passed = true;
-  for (const CriterionResult& r : results) passed &= r.passed;
+  for (const CriterionResult& c : results) passed &= c.passed;
 
   std::printf(
-      "scene %s, preset %s, backend cpu, %d threads, %d bodies, %d joints, %d steps (%.2f s)\n",
-      scene.name.c_str(), usedPreset.c_str(), world.def().threads, world.bodyCount(),
-      world.jointCount(), steps, steps * double(scene.world.timeStep));
+      "scene %s, preset %s, backend %s, %d threads, %d bodies, %d joints, %d steps (%.2f s)\n",
+      scene.name.c_str(), r.preset.c_str(), r.backend.c_str(), r.threads, r.bodies, r.joints, steps,
+      steps * double(scene.world.timeStep));
   std::printf("  ms/step median %.3f  p99 %.3f\n", m.msPerStepMedian, m.msPerStepP99);
   for (const std::string& name : metricNames()) {
     if (name.rfind("ms_per_step", 0) == 0) continue;
@@ -103,27 +111,27 @@ int runSingle(SingleOptions opt) {
   for (const auto& [k, v] : m.stageMs)
     if (v > 0.0005) std::printf(" %s %.3f", k.c_str(), v);
   std::printf("\n");
-  for (const CriterionResult& r : results) {
-    std::printf("  [%s] %s = %s (%s%s%s)\n", r.passed ? "PASS" : "FAIL", r.name.c_str(),
-                fmtNumber(r.value).c_str(), r.min ? (">= " + fmtNumber(r.min)).c_str() : "",
-                r.min && r.max ? ", " : "", r.max ? ("<= " + fmtNumber(r.max)).c_str() : "");
+  for (const CriterionResult& c : results) {
+    std::printf("  [%s] %s = %s (%s%s%s)\n", c.passed ? "PASS" : "FAIL", c.name.c_str(),
+                fmtNumber(c.value).c_str(), c.min ? (">= " + fmtNumber(c.min)).c_str() : "",
+                c.min && c.max ? ", " : "", c.max ? ("<= " + fmtNumber(c.max)).c_str() : "");
   }
   std::printf("%s\n", results.empty() ? "no criteria" : passed ? "PASSED" : "FAILED");
 
   if (!opt.jsonOut.empty()) {
     nlohmann::json j;
     j["scene"] = scene.name;
-    j["preset"] = usedPreset;
-    j["backend"] = "cpu";
-    j["threads"] = world.def().threads;
+    j["preset"] = r.preset;
+    j["backend"] = r.backend;
+    j["threads"] = r.threads;
     j["steps"] = steps;
     j["metrics"] = toJson(m);
     j["criteria"] = nlohmann::json::array();
-    for (const CriterionResult& r : results) {
-      nlohmann::json c{{"name", r.name}, {"value", optional(r.value)}, {"passed", r.passed}};
-      c["limit"] = r.max ? nlohmann::json(*r.max) : optional(r.min);
-      c["kind"] = r.max ? "max" : "min";
-      if (r.min && r.max) c["min"] = *r.min;
+    for (const CriterionResult& cr : results) {
+      nlohmann::json c{{"name", cr.name}, {"value", optional(cr.value)}, {"passed", cr.passed}};
+      c["limit"] = cr.max ? nlohmann::json(*cr.max) : optional(cr.min);
+      c["kind"] = cr.max ? "max" : "min";
+      if (cr.min && cr.max) c["min"] = *cr.min;
       j["criteria"].push_back(c);
     }
     j["passed"] = passed;

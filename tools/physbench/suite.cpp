@@ -74,9 +74,11 @@ struct SceneEntry {
 };
 
 struct Job {
-  size_t scene = 0;  ///< index into the scene list
-  std::string preset;
+  size_t scene = 0;    ///< index into the scene list
+  std::string preset;  ///< the column: a preset's name or a peer's label
   const Preset* settings = nullptr;
+  std::string peer;  ///< a peer column: the engine (settings is null)
+  int peerIterations = 0;
   std::string error;  ///< known before running: the scene did not load, the preset is unknown
   double cost = 0;    ///< for ordering parallel runs, steps x (bodies + joints)
   std::atomic<int> stepsDone{0};
@@ -106,6 +108,10 @@ void runJob(const SceneEntry& se, Job& job, int threads) {
     return;
   }
   try {
+    if (!job.peer.empty()) {
+      runPeerJob(se.scene, job.peer, job.peerIterations, se.steps, &r, &job.stepsDone);
+      return;
+    }
     Scene scene = se.scene;  // a copy per run: the recorder keeps a pointer to it
     scene.world.solver = job.settings->settings;
     scene.world.threads = threads;
@@ -162,6 +168,7 @@ std::string runLine(const RunResult& r) {
   std::string out = r.scene + " / " + r.preset + ": " + toString(r.status);
   switch (r.status) {
     case RunStatus::Error:
+    case RunStatus::CannotRun:
       return out + ": " + r.error;
     case RunStatus::NaN:
       std::snprintf(b, sizeof b, " at %.3g s", r.nanTime);
@@ -334,6 +341,30 @@ int runSuite(const SuiteOptions& opt) {
     }
   }
 
+  // Peer engines: one column per engine and iteration budget, after the presets.
+  struct PeerColumn {
+    std::string label, peer;
+    int iterations = 0;
+  };
+  std::vector<PeerColumn> peerColumns;
+  if (!opt.peers.empty()) {
+    std::vector<std::string> names = opt.peers;
+    std::string err = resolvePeers(&names);
+    if (!err.empty()) {
+      std::cerr << "physbench: " << err << "\n";
+      return 2;
+    }
+    std::vector<int> budgets =
+        opt.peerIterations.empty() ? std::vector<int>{0} : opt.peerIterations;
+    for (const std::string& n : names) {
+      for (int it : budgets) {
+        peerColumns.push_back({peerLabel(n, it), n, it});
+        rep.presets.push_back(peerColumns.back().label);
+      }
+    }
+    rep.peerVersions = peerVersions(names);
+  }
+
   // Scenes: every file of the directory but the scale ones, or the named ones.
   std::vector<SceneEntry> scenes;
   auto addScene = [&](const std::string& name, const std::string& path) {
@@ -389,11 +420,17 @@ int runSuite(const SuiteOptions& opt) {
       j.preset = rep.presets[k];
       j.result.scene = scenes[i].name;
       j.result.preset = j.preset;
+      auto peer = std::find_if(peerColumns.begin(), peerColumns.end(),
+                               [&](const PeerColumn& c) { return c.label == j.preset; });
+      if (peer != peerColumns.end()) {
+        j.peer = peer->peer;
+        j.peerIterations = peer->iterations;
+      }
       auto it = presets.find(j.preset);
-      if (it != presets.end()) j.settings = &it->second;
+      if (it != presets.end() && j.peer.empty()) j.settings = &it->second;
       if (!scenes[i].error.empty())
         j.error = scenes[i].error;
-      else if (unknownPresets.count(j.preset))
+      else if (j.peer.empty() && unknownPresets.count(j.preset))
         j.error = "unknown preset '" + j.preset + "'";
       const Scene& sc = scenes[i].scene;
       j.cost = double(scenes[i].steps) * double(sc.bodies.size() + sc.joints.size() + 1);
@@ -439,12 +476,13 @@ int runSuite(const SuiteOptions& opt) {
   progress.end();
   rep.wallSeconds = secondsSince(t0);
 
-  int pass = 0, fail = 0, nan = 0;
+  int pass = 0, fail = 0, nan = 0, cannot = 0;
   for (Job& j : jobs) {
     RunResult& r = j.result;
     pass += r.status == RunStatus::Pass || r.status == RunStatus::NoCriteria;
     fail += r.status == RunStatus::Fail;
     nan += r.status == RunStatus::NaN;
+    cannot += r.status == RunStatus::CannotRun;
     rep.errors += r.status == RunStatus::Error;
     rep.runs.push_back(std::move(r));
   }
@@ -465,8 +503,11 @@ int runSuite(const SuiteOptions& opt) {
 
   std::fprintf(stderr,
                "physbench: %zu runs in %s: %d passed, %d failed their criteria, %d went NaN, "
-               "%d could not be executed\n",
+               "%d could not be executed",
                jobs.size(), clockText(rep.wallSeconds).c_str(), pass, fail, nan, rep.errors);
+  if (!peerColumns.empty())
+    std::fprintf(stderr, ", %d peer runs could not build their scene", cannot);
+  std::fprintf(stderr, "\n");
   if (rep.errors > 0 || reportErrors > 0) return 2;
   if (opt.failOnCriteria && fail + nan > 0) return 1;
   if (opt.failOnNan && nan > 0) return 1;

@@ -1,6 +1,7 @@
 // The suite's results and reports (suite.cpp runs, suite_report.cpp writes).
 #pragma once
 
+#include <atomic>
 #include <map>
 #include <optional>
 #include <string>
@@ -22,14 +23,16 @@ struct MainMetric {
 /// tunnelling, windmill, free_flight: their scene metric; any other: penetration_settled_max.
 MainMetric mainMetricFor(const std::string& scene);
 
-enum class RunStatus { Pass, Fail, NoCriteria, NaN, Error };
+/// CannotRun: a peer engine could not build the scene (its own error); not an error of the
+/// suite.
+enum class RunStatus { Pass, Fail, NoCriteria, NaN, Error, CannotRun };
 const char* toString(RunStatus s);
 
 /// One (scene, preset) run.
 struct RunResult {
   std::string scene, preset;
   RunStatus status = RunStatus::Error;
-  std::string error;     ///< why the run could not be executed (status Error)
+  std::string error;     ///< why the run could not be executed (status Error, CannotRun)
   double seconds = 0;    ///< simulated seconds planned
   int steps = 0;         ///< steps taken (fewer than planned when the world went NaN)
   int plannedSteps = 0;  ///< steps planned
@@ -49,13 +52,19 @@ struct SuiteReport {
   std::map<std::string, double> sceneSeconds;     ///< simulated seconds per run of each scene
   std::map<std::string, double> sceneDuration;    ///< the scene file's full duration
   std::map<std::string, double> sceneSettleTime;  ///< s, when "settled" metrics start
-  std::vector<std::string> presets;               ///< table columns, in order
+  std::vector<std::string> presets;               ///< table columns, in order (peers last)
+  std::vector<std::string> peerVersions;          ///< "bullet 3.24", ... of the peer columns
   std::string defaultPreset;
   std::vector<RunResult> runs;  ///< rows x columns, row-major
   double wallSeconds = 0;
   int errors = 0;        ///< runs that could not be executed
   int worldThreads = 1;  ///< threads of each run's World
 };
+
+/// Runs `scene` in a peer engine for `steps` steps (peers.cpp) into *r (whose main metric is
+/// set); a peer that cannot build the scene gives CannotRun with its error.
+void runPeerJob(const Scene& scene, const std::string& peer, int iterations, int steps,
+                RunResult* r, std::atomic<int>* stepsDone);
 
 /// The Markdown block: command, machine, date, the table and the failed criteria.
 std::string markdownReport(const SuiteReport& r);

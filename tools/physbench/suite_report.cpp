@@ -92,6 +92,8 @@ std::string cell(const RunResult& r) {
   switch (r.status) {
     case RunStatus::Error:
       return "ERROR";
+    case RunStatus::CannotRun:
+      return "cannot run";
     case RunStatus::NaN:
       return "NaN at " + fmt3(r.nanTime) + " s / " + ms;
     default:
@@ -163,6 +165,8 @@ const char* toString(RunStatus s) {
       return "NaN";
     case RunStatus::Error:
       return "ERROR";
+    case RunStatus::CannotRun:
+      return "cannot run";
   }
   return "?";
 }
@@ -192,10 +196,19 @@ std::string markdownReport(const SuiteReport& r) {
     for (size_t i = 0; i < limits.size(); ++i) md << (i ? "," : "") << " " << limits[i];
     md << " (criteria are still the full run's)\n";
   }
+  if (!r.peerVersions.empty()) {
+    md << "- Peers: ";
+    for (size_t i = 0; i < r.peerVersions.size(); ++i) md << (i ? ", " : "") << r.peerVersions[i];
+    md << "; their columns read \"engine (N it)\" for N solver iterations (no N: the engine's "
+          "default), one thread; the same scene files and the same metrics code "
+          "(docs/PEERS.md)\n";
+  }
   md << "\nCell: PASS or FAIL over the scene's criteria, then the scene's main error metric "
         "(named in the row), then the median wall time per step. \"NaN at t s\": a body "
         "state became non-finite at t and the run stopped there. ERROR: the run could not "
         "be executed (listed below).";
+  if (!r.peerVersions.empty())
+    md << " \"cannot run\": the peer engine could not build the scene (its error below).";
   if (!o.csvOut.empty()) md << " Every metric of every run: `" << o.csvOut << "`.";
   md << "\n\n";
 
@@ -220,10 +233,14 @@ std::string markdownReport(const SuiteReport& r) {
     md << "\n";
   }
 
-  std::ostringstream failed, errors;
+  std::ostringstream failed, errors, cannot;
   for (const RunResult& run : r.runs) {
     if (run.status == RunStatus::Error) {
       errors << "- " << run.scene << " / " << run.preset << ": " << run.error << "\n";
+      continue;
+    }
+    if (run.status == RunStatus::CannotRun) {
+      cannot << "- " << run.scene << " / " << run.preset << ": cannot run: " << run.error << "\n";
       continue;
     }
     if (run.failed.empty() && run.status != RunStatus::NaN) continue;
@@ -247,6 +264,8 @@ std::string markdownReport(const SuiteReport& r) {
   if (!notes.str().empty()) md << "\nNotes:\n\n" << notes.str();
   if (!failed.str().empty()) md << "\nFailed criteria (value, limit):\n\n" << failed.str();
   if (!errors.str().empty()) md << "\nRuns that could not be executed:\n\n" << errors.str();
+  if (!cannot.str().empty())
+    md << "\nPeers that cannot run a scene (the engine's own error):\n\n" << cannot.str();
   return md.str();
 }
 
@@ -265,7 +284,7 @@ std::string writeCsv(const SuiteReport& r, const std::string& path) {
   for (const std::string& m : stages) out << ",stage_" << m << "_ms";
   out << "\n";
   for (const RunResult& run : r.runs) {
-    const bool ran = run.status != RunStatus::Error;
+    const bool ran = run.status != RunStatus::Error && run.status != RunStatus::CannotRun;
     std::string failed;
     for (const CriterionResult& c : run.failed) failed += (failed.empty() ? "" : ";") + c.name;
     out << csvField(run.scene) << "," << csvField(run.preset) << "," << toString(run.status) << ","

@@ -225,6 +225,14 @@ struct JointState {
   float angleError = 0;  ///< rad, hinge axis misalignment or fixed-frame relative angle
 };
 
+/// A body's state computed elsewhere (a peer engine's step), for World::observe. Conventions
+/// as BodyState: body frame origin and rotation; centre-of-mass and angular velocity, world.
+struct ObservedBody {
+  Vec3 position;
+  Quat rotation;
+  Vec3 linearVelocity, angularVelocity;
+};
+
 /// A contact for inspection (metrics, debugging).
 struct ContactInfo {
   BodyId bodyA, bodyB;
@@ -280,6 +288,18 @@ class World {
 
   /// Advances by one fixed step of def().timeStep.
   void step();
+  /// Measures states computed by someone else (a peer engine) as if this world had stepped to
+  /// them, so MetricsRecorder::afterStep reads them exactly as it reads a step: sets body
+  /// ids[i] to states[i] (velocities of static bodies are ignored), advances time() by one
+  /// time step and runs the collision stages only (bounds, broad phase, narrow phase: the
+  /// contacts and maxPenetration are those of the given states, as a step's are of its start
+  /// state). Nothing is solved or integrated. stats() gets energyBefore (the energy before the
+  /// update), energyAfter, the contact counts, velocityResidual 0 and the step count; the
+  /// joints' positionError and angleError are measured at the given poses (reactions 0);
+  /// profile() is all zero but total = stepMs (the other engine's wall time). All-or-nothing:
+  /// a size mismatch, a stale id or a non-finite or non-unit state changes nothing.
+  Status observe(const std::vector<BodyId>& ids, const std::vector<ObservedBody>& states,
+                 double stepMs);
   const StepProfile& profile() const;
   const StepStats& stats() const;
   /// Contacts after the last step (touching or speculative).
