@@ -46,6 +46,6 @@ echo "physd: $bodies bodies, $((tick1 - tick0)) ticks, $((over1 - over0)) overru
 cat "$out"/sub*.txt
 awk '/delivered/ {
        for (i = 1; i <= NF; i++) { if ($i == "delivered") d = $(i + 1); if ($i == "p99") p = $(i + 1) }
-       sub("%", "", d); n++; if (n == 1 || d < dmin) dmin = d; if (p > pmax) pmax = p }
+       sub("%", "", d); d += 0; p += 0; n++; if (n == 1 || d < dmin) dmin = d; if (p > pmax) pmax = p }
      END { if (n) printf "all %d subscribers: worst delivered %.3f%%, worst p99 latency %.3f ms\n", n, dmin, pmax
            else print "no subscriber reported" }' "$out"/sub*.txt
