@@ -15,7 +15,7 @@ double msSince(std::chrono::steady_clock::time_point t0) {
 }  // namespace
 
 PeerRun runPeer(const Scene& scene, PeerEngine& peer, const PeerBudget& budget, double seconds,
-                const std::function<void(int)>& onStep) {
+                const std::function<bool(int)>& onStep) {
   PeerRun run;
   run.engine = peer.name();
   run.version = peer.version();
@@ -71,7 +71,10 @@ PeerRun runPeer(const Scene& scene, PeerEngine& peer, const PeerBudget& budget, 
       break;
     }
     recorder.afterStep(world);
-    if (onStep) onStep(i + 1);
+    if (onStep && !onStep(i + 1)) {
+      run.stopped = "stopped by the caller after step " + std::to_string(i + 1);
+      break;
+    }
   }
   run.summary = recorder.summary();
   run.summary.nan += nonFinite;

@@ -32,8 +32,9 @@ struct PeerRun {
 /// Builds `scene` in `peer` with `budget` and runs it for `seconds` of simulated time (<= 0:
 /// the scene's duration), one peer step per scene time step; ms_per_step is the wall time of
 /// each peer.step() (steady_clock).
-/// `onStep(n)`, when given, is called after each measured step n = 1, 2, ... (progress displays).
+/// `onStep(n)`, when given, is called after each measured step n = 1, 2, ... (progress displays);
+/// returning false stops the run there (run.stopped says so; a wall-time limit, say).
 PeerRun runPeer(const Scene& scene, PeerEngine& peer, const PeerBudget& budget, double seconds,
-                const std::function<void(int)>& onStep = {});
+                const std::function<bool(int)>& onStep = {});
 
 }  // namespace phys::peers

@@ -67,6 +67,17 @@ struct SuiteOptions {
   /// peerIterations (empty: the engine's default).
   std::vector<std::string> peers;
   std::vector<int> peerIterations;
+  /// Budgets (--sweep): every preset also runs at each substeps x iterations pair, as columns
+  /// "<preset> <substeps>x<iterations>"; empty: the presets' own budgets only.
+  std::vector<int> substeps, iterations;
+  /// A run still going after this many wall seconds is stopped and reported as CannotRun
+  /// (0: no limit). For sweeps, where one slow engine would hold up the rest.
+  double maxRunWallSeconds = 0;
+  /// --sweep: the output directory (sweep.csv, sweep.md, plots/); empty: not a sweep.
+  std::string sweepDir;
+  /// How sweep.md's text links the plots directory (default "plots", i.e. beside it).
+  std::string sweepPlotLink = "plots";
+  std::string* sweepMarkdownOut = nullptr;  ///< when set, also gets sweep.md's text
 };
 
 inline constexpr double kQuickSeconds = 3;
@@ -86,6 +97,7 @@ struct StressOptions {
   int jobs = 0;                  ///< runs in parallel (0: the machine's threads)
   std::string csvOut, dumpScene;
   bool failOnFailure = false;
+  std::string* reportOut = nullptr;  ///< when set, also gets the printed report (--report)
 };
 
 /// A joint whose anchors drift further apart than this (m) fails a stress run.

@@ -11,16 +11,31 @@
 //   physbench --suite ... --peers bullet,ode,mujoco|all [--peer-iterations 10,100]
 //     the same scenes in peer engines, measured by the same metrics code (docs/PEERS.md);
 //     an unknown or not compiled-in peer exits 2.
+//   physbench --sweep [--sweep-dir DIR] [--substeps 1,2,4,8] [--iterations 1,2,4]
+//             [--max-run-seconds W] [any --suite option]
+//     the suite over budgets (each preset at every substeps x iterations pair, each peer at
+//     every --peer-iterations): DIR/sweep.csv, DIR/sweep.md (tables, Pareto fronts, reading)
+//     and DIR/plots/<scene>.{svg,png} (gnuplot). Defaults: pyramid_20, pyramid_40,
+//     ball_and_chain, box_stack; presets default, pgs, tjsoft; every peer at 5..100
+//     iterations; 10 s per run. --quick: a CI-sized sweep (sweep.cpp: sweepDefaults).
+//   physbench --report [--report-doc FILE] [--quick]
+//     regenerates the <!-- report:begin --> .. <!-- report:end --> region of
+//     docs/BENCHMARKS.md: the default sweep (with the peers; tables, fronts, plots in
+//     docs/benchmarks/) and the stress run (1000 seeds, every preset). --quick: CI-sized.
 //   physbench --stress [--presets a,b|all] [--seeds N] [--seed-start S] [--seed S]
 //             [--stress-seconds T] [--jobs N] [--csv OUT] [--dump-scene FILE]
 //             [--fail-on-failure]
 //     seeded random scenes and each preset's failure rate (see stress.cpp).
 #include <CLI/CLI.hpp>
+#include <chrono>
+#include <ctime>
 #include <filesystem>
+#include <iostream>
 #include <string>
 
 #include "bench.h"
 #include "phys/presets.h"
+#include "suite.h"
 
 using namespace phys;
 
@@ -122,6 +137,38 @@ int main(int argc, char** argv) {
                      "peer engines to run beside the presets, comma-separated, or all")
           ->delimiter(','),
   };
+  // Sweep mode: the suite over budgets.
+  bool sweepMode = false;
+  CLI::Option* sweepFlag = app.add_flag(
+      "--sweep", sweepMode, "the suite over solver budgets: time against error, Pareto fronts");
+  for (CLI::Option* o : {sceneOpt, presetOpt, secondsOpt, jsonOpt, peerOpt, suiteFlag})
+    o->excludes(sweepFlag);
+  std::vector<CLI::Option*> sweepOnly = {
+      app.add_option("--sweep-dir", suite.sweepDir, "output directory (default: sweep)"),
+      app.add_option("--substeps", suite.substeps, "substeps of each budget, comma-separated")
+          ->delimiter(',')
+          ->check(CLI::Range(1, 64)),
+      app.add_option("--iterations", suite.iterations,
+                     "iterations per substep of each budget, comma-separated")
+          ->delimiter(',')
+          ->check(CLI::Range(1, 1000)),
+      app.add_option("--max-run-seconds", suite.maxRunWallSeconds,
+                     "stop a run after this many wall seconds (reported as cannot run)")
+          ->check(CLI::PositiveNumber),
+  };
+  // Report mode: the sweep and the stress run into docs/BENCHMARKS.md.
+  bool reportMode = false;
+  std::string reportDoc;
+  CLI::Option* reportFlag = app.add_flag(
+      "--report", reportMode,
+      "rerun the sweep and the stress run and rewrite docs/BENCHMARKS.md's generated region");
+  CLI::Option* reportDocOpt =
+      app.add_option("--report-doc", reportDoc, "the file to update (default docs/BENCHMARKS.md)")
+          ->needs(reportFlag);
+  (void)reportDocOpt;
+  for (CLI::Option* o : {sceneOpt, presetOpt, secondsOpt, jsonOpt, peerOpt, suiteFlag, sweepFlag})
+    o->excludes(reportFlag);
+  for (CLI::Option* o : sweepOnly) o->needs(sweepFlag);
   // Stress mode.
   bench::StressOptions stress;
   bool stressMode = false;
@@ -140,18 +187,38 @@ int main(int argc, char** argv) {
       app.add_flag("--fail-on-failure", stress.failOnFailure, "exit 1 when a run failed"),
   };
   for (CLI::Option* o : stressOnly) o->needs(stressFlag);
-  for (CLI::Option* o : {sceneOpt, presetOpt, secondsOpt, jsonOpt, suiteFlag, peerOpt, peerItOpt})
+  for (CLI::Option* o :
+       {sceneOpt, presetOpt, secondsOpt, jsonOpt, suiteFlag, sweepFlag, peerOpt, peerItOpt})
     o->excludes(stressFlag);
-  // --presets, --jobs and --csv serve both the suite and the stress mode.
+  CLI11_PARSE(app, argc, argv);
+  if (reportMode) sweepMode = true;  // the report's first half is the sweep
+  // The suite's options serve the sweep too; --presets, --jobs and --csv also the stress mode.
   for (CLI::Option* o : suiteOnly) {
     const std::string n = o->get_name();
-    if (n != "--presets" && n != "--jobs" && n != "--csv") o->needs(suiteFlag);
+    const bool shared = n == "--presets" || n == "--jobs" || n == "--csv";
+    if (o->count() && !suiteMode && !sweepMode && !(shared && stressMode))
+      return app.exit(CLI::ValidationError(
+          n, shared ? "needs --suite, --sweep or --stress" : "needs --suite or --sweep"));
   }
-  CLI11_PARSE(app, argc, argv);
-  if (!suiteMode && !stressMode) {
-    for (const char* shared : {"--presets", "--jobs", "--csv"})
-      if (app.count(shared))
-        return app.exit(CLI::ValidationError(std::string(shared), "needs --suite or --stress"));
+  if (sweepMode) {
+    // What a sweep runs unless told otherwise (docs/BENCHMARKS.md's sweep uses these); --quick
+    // is the CI-sized form.
+    const bool q = suite.quick;
+    using Names = std::vector<std::string>;
+    using Ints = std::vector<int>;
+    if (!app.count("--scenes"))
+      suite.scenes = q ? Names{"pyramid_20", "ball_and_chain"}
+                       : Names{"pyramid_20", "pyramid_40", "ball_and_chain", "box_stack"};
+    if (!app.count("--presets"))
+      suite.presets = q ? Names{"default"} : Names{"default", "pgs", "tjsoft"};
+    if (!app.count("--substeps")) suite.substeps = q ? Ints{1, 4} : Ints{1, 2, 4, 8};
+    if (!app.count("--iterations")) suite.iterations = q ? Ints{1, 2} : Ints{1, 2, 4};
+    if (!app.count("--peers") && !bench::compiledPeers().empty()) suite.peers = {"all"};
+    if (!app.count("--peer-iterations")) peerIterations = q ? Ints{10} : Ints{5, 10, 20, 50, 100};
+    if (!app.count("--max-seconds")) suite.maxSeconds = q ? 1 : 10;
+    if (!app.count("--max-run-seconds")) suite.maxRunWallSeconds = q ? 20 : 120;
+    if (suite.sweepDir.empty()) suite.sweepDir = "sweep";
+    suiteMode = true;
   }
 
   if (stressMode) {
@@ -177,12 +244,55 @@ int main(int argc, char** argv) {
     single.threads = threads;
     return bench::runSingle(single);
   }
-  if (app.count("--peer-iterations") && suite.peers.empty())
+  if (app.count("--peer-iterations") && suite.peers.empty() && !sweepMode)
     return app.exit(CLI::ValidationError("--peer-iterations", "needs --peer or --peers"));
   suite.peerIterations = peerIterations;
   suite.presetsPath = presetsPath;
   suite.threads = threads;
   if (suite.scenesDir.empty()) suite.scenesDir = defaultScenesDir();
   suite.commandLine = commandLine(argc, argv);
-  return bench::runSuite(suite);
+  if (!reportMode) return bench::runSuite(suite);
+
+  // --report: the sweep's outputs beside the document (its plots are linked from it), then
+  // the stress run, then the generated region.
+  const auto started = std::chrono::steady_clock::now();
+  if (reportDoc.empty()) reportDoc = std::string(PHYS_SOURCE_DIR) + "/docs/BENCHMARKS.md";
+  const std::filesystem::path docDir = std::filesystem::path(reportDoc).parent_path();
+  suite.sweepDir = (docDir / "benchmarks").string();
+  suite.sweepPlotLink = "benchmarks/plots";
+  std::string sweepText, stressText;
+  suite.sweepMarkdownOut = &sweepText;
+  const int sweepStatus = bench::runSuite(suite);
+  if (sweepStatus == 2) return 2;
+  stress.presetsPath = presetsPath;
+  stress.presets = {"all"};
+  stress.seeds = suite.quick ? 50 : 1000;
+  stress.csvOut = (docDir / "benchmarks" / "stress.csv").string();
+  stress.reportOut = &stressText;
+  if (bench::runStress(stress) == 2) return 2;
+  const double minutes =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count() / 60;
+  char took[64];
+  std::snprintf(took, sizeof took, "%.1f", minutes);
+  std::string block =
+      "Generated by `" + suite.commandLine + "` in " + took +
+      " minutes; do not edit by hand, rerun the command (about 20 minutes on the 2-core "
+      "machine). Raw data: `docs/benchmarks/sweep.csv`, `docs/benchmarks/stress.csv`.\n\n"
+      "### Time against error\n\n" +
+      sweepText +
+      "\n### Stress: failure rates over random scenes\n\n"
+      "Seeded random stacks, piles, chains (mass ratios up to 1000:1), joint trees and initial "
+      "overlaps, " +
+      std::to_string(stress.seeds) +
+      " seeds per preset (`physbench --stress`, stress.cpp). A run fails on a NaN, a speed "
+      "beyond the scene's bound (explosion) or a joint torn more than 10 cm apart.\n\n```\n" +
+      stressText + "```\n";
+  const std::string err = bench::updateDocRegion(reportDoc, "report",
+                                                 "## Generated report (physbench --report)", block);
+  if (!err.empty()) {
+    std::cerr << "physbench: " << err << "\n";
+    return 2;
+  }
+  std::cerr << "physbench: " << reportDoc << " updated in " << took << " minutes\n";
+  return 0;
 }

@@ -2,6 +2,7 @@
 // --peer in single-scene mode. The scene files are the same, and so is the metrics code:
 // tools/peers/runner.h mirrors each peer step into a phys::World (docs/PEERS.md).
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <iostream>
 
@@ -74,7 +75,7 @@ std::vector<std::string> peerVersions(const std::vector<std::string>& names) {
 }
 
 void runPeerJob(const Scene& scene, const std::string& peerName, int iterations, int steps,
-                RunResult* r, std::atomic<int>* stepsDone) {
+                double maxWallSeconds, RunResult* r, std::atomic<int>* stepsDone) {
   r->bodies = int(scene.bodies.size());
   r->joints = int(scene.joints.size());
   std::unique_ptr<peers::PeerEngine> peer = peers::makePeer(peerName);
@@ -84,12 +85,26 @@ void runPeerJob(const Scene& scene, const std::string& peerName, int iterations,
     return;
   }
   const double seconds = steps * double(scene.world.timeStep);
+  const auto start = std::chrono::steady_clock::now();
+  bool overTime = false;
   peers::PeerRun run = peers::runPeer(scene, *peer, {iterations, 1}, seconds, [&](int n) {
     stepsDone->store(n, std::memory_order_relaxed);
+    overTime = maxWallSeconds > 0 &&
+               std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() >
+                   maxWallSeconds;
+    return !overTime;
   });
   if (!run.status.ok()) {
     r->status = RunStatus::CannotRun;
     r->error = run.engine + " " + run.version + ": " + run.status.message;
+    return;
+  }
+  if (overTime) {
+    r->status = RunStatus::CannotRun;
+    r->error = run.engine + " " + run.version + ": " +
+               wallLimitMessage(maxWallSeconds, run.summary.steps, steps);
+    r->metrics = run.summary;
+    r->steps = run.summary.steps;
     return;
   }
   r->metrics = run.summary;
@@ -149,7 +164,7 @@ std::vector<std::string> peerVersions(const std::vector<std::string>&) {
   return {};
 }
 
-void runPeerJob(const Scene&, const std::string& peerName, int, int, RunResult* r,
+void runPeerJob(const Scene&, const std::string& peerName, int, int, double, RunResult* r,
                 std::atomic<int>*) {
   r->status = RunStatus::Error;
   r->error = "peer '" + peerName + "' is not compiled in (built without PHYS_WITH_PEERS)";

@@ -428,10 +428,16 @@ int runStress(const StressOptions& opt) {
     }
   }
 
-  std::printf("stress: %zu seeds from %llu, %.3g s each, %zu presets\n", seeds.size(),
-              static_cast<unsigned long long>(seeds.front()), opt.seconds, names.size());
-  std::printf(
-      "| preset | runs | nan | explosion | joint > 10 cm | failed | failure rate | guard "
+  // The report, printed and kept for --report (opt.reportOut).
+  std::string out;
+  auto say = [&out](const char* format, auto... args) {
+    char buf[512];
+    std::snprintf(buf, sizeof buf, format, args...);
+    out += buf;
+  };
+  say("stress: %zu seeds from %llu, %.3g s each, %zu presets\n", seeds.size(),
+      static_cast<unsigned long long>(seeds.front()), opt.seconds, names.size());
+  say("| preset | runs | nan | explosion | joint > 10 cm | failed | failure rate | guard "
       "events |\n|---|---|---|---|---|---|---|---|\n");
   bool anyFailed = false, anyError = false;
   for (size_t p = 0; p < names.size(); ++p) {
@@ -448,26 +454,26 @@ int runStress(const StressOptions& opt) {
       anyError |= !r.error.empty();
     }
     anyFailed |= failed > 0;
-    std::printf("| %s | %d | %d | %d | %d | %d | %.1f %% | %llu |\n", names[p].c_str(), runs, nan,
-                exploded, joint, failed, runs ? 100.0 * failed / runs : 0.0, guard);
+    say("| %s | %d | %d | %d | %d | %d | %.1f %% | %llu |\n", names[p].c_str(), runs, nan, exploded,
+        joint, failed, runs ? 100.0 * failed / runs : 0.0, guard);
   }
   int shown = 0;
   for (const RunResult& r : results) {
     if (!r.failed()) continue;
-    if (shown++ == 0)
-      std::printf("\nfailures (replay: physbench --stress --seed S --presets P):\n");
+    if (shown++ == 0) say("\nfailures (replay: physbench --stress --seed S --presets P):\n");
     if (shown > 20) continue;
-    std::printf("  seed %llu (%s) preset %s:", static_cast<unsigned long long>(r.seed),
-                r.kind.c_str(), r.preset.c_str());
-    if (!r.error.empty()) std::printf(" error: %s", r.error.c_str());
-    if (r.nan) std::printf(" nan %lld", r.nan);
-    if (r.maxSpeed > r.speedBound)
-      std::printf(" max speed %.3g m/s > %.3g", r.maxSpeed, r.speedBound);
-    if (r.checkEnergy && r.energyRise > kEnergyRise) std::printf(" energy rise %.3g", r.energyRise);
-    if (r.jointFailed()) std::printf(" joint error %.3g m", r.jointError);
-    std::printf("\n");
+    say("  seed %llu (%s) preset %s:", static_cast<unsigned long long>(r.seed), r.kind.c_str(),
+        r.preset.c_str());
+    if (!r.error.empty()) say(" error: %s", r.error.c_str());
+    if (r.nan) say(" nan %lld", r.nan);
+    if (r.maxSpeed > r.speedBound) say(" max speed %.3g m/s > %.3g", r.maxSpeed, r.speedBound);
+    if (r.checkEnergy && r.energyRise > kEnergyRise) say(" energy rise %.3g", r.energyRise);
+    if (r.jointFailed()) say(" joint error %.3g m", r.jointError);
+    say("\n");
   }
-  if (shown > 20) std::printf("  ... and %d more (see --csv)\n", shown - 20);
+  if (shown > 20) say("  ... and %d more (see --csv)\n", shown - 20);
+  std::fputs(out.c_str(), stdout);
+  if (opt.reportOut) *opt.reportOut = out;
   if (anyError) return 2;
   return opt.failOnFailure && anyFailed ? 1 : 0;
 }

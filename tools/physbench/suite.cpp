@@ -27,6 +27,7 @@
 #include "phys/presets.h"
 #include "phys/scene.h"
 #include "phys/world.h"
+#include "sweep.h"
 
 namespace phys::bench {
 
@@ -99,7 +100,7 @@ bool finiteWorld(const World& world, const std::vector<BodyId>& ids) {
 }
 
 /// Runs one job; every failure ends up in job.result (status Error), never thrown.
-void runJob(const SceneEntry& se, Job& job, int threads) {
+void runJob(const SceneEntry& se, Job& job, int threads, double maxWallSeconds) {
   RunResult& r = job.result;
   r.main = mainMetricFor(se.name);
   if (!job.error.empty()) {
@@ -109,7 +110,8 @@ void runJob(const SceneEntry& se, Job& job, int threads) {
   }
   try {
     if (!job.peer.empty()) {
-      runPeerJob(se.scene, job.peer, job.peerIterations, se.steps, &r, &job.stepsDone);
+      runPeerJob(se.scene, job.peer, job.peerIterations, se.steps, maxWallSeconds, &r,
+                 &job.stepsDone);
       return;
     }
     Scene scene = se.scene;  // a copy per run: the recorder keeps a pointer to it
@@ -124,10 +126,18 @@ void runJob(const SceneEntry& se, Job& job, int threads) {
     r.bodies = world.bodyCount();
     r.joints = world.jointCount();
     MetricsRecorder rec(scene, world, ids);
+    const Clock::time_point start = Clock::now();
     for (int i = 0; i < se.steps; ++i) {
       world.step();
       rec.afterStep(world);
       job.stepsDone.store(i + 1, std::memory_order_relaxed);
+      if (maxWallSeconds > 0 && secondsSince(start) > maxWallSeconds) {
+        r.status = RunStatus::CannotRun;
+        r.error = wallLimitMessage(maxWallSeconds, i + 1, se.steps);
+        r.metrics = rec.summary();
+        r.steps = r.metrics.steps;
+        return;
+      }
       // The energy sums every body's state: a cheap check each step, the full one sometimes.
       const bool full = (i + 1) % kNanCheckSteps == 0 || i + 1 == se.steps;
       if (!std::isfinite(world.stats().energyAfter) || (full && !finiteWorld(world, ids))) {
@@ -160,6 +170,11 @@ void runJob(const SceneEntry& se, Job& job, int threads) {
     r.status = RunStatus::Error;
     r.error = "unknown exception";
   }
+}
+
+/// "soft_step 6x2": a preset's column at a sweep budget.
+std::string budgetLabel(const std::string& preset, int substeps, int iterations) {
+  return preset + " " + std::to_string(substeps) + "x" + std::to_string(iterations);
 }
 
 /// One line for a finished run, for the progress log.
@@ -306,6 +321,15 @@ bool writeText(const std::string& path, const std::string& text, std::string* er
 
 }  // namespace
 
+std::string wallLimitMessage(double limitSeconds, int stepsDone, int stepsPlanned) {
+  char buf[160];
+  std::snprintf(buf, sizeof buf,
+                "stopped after %d of %d steps: over the %.0f s wall-time limit per run "
+                "(--max-run-seconds)",
+                stepsDone, stepsPlanned, limitSeconds);
+  return buf;
+}
+
 int runSuite(const SuiteOptions& opt) {
   const Clock::time_point t0 = Clock::now();
   SuiteReport rep;
@@ -338,6 +362,36 @@ int runSuite(const SuiteOptions& opt) {
       unknownPresets.insert(name);
       std::cerr << "physbench: unknown preset '" << name << "'; known: " << joinNames(known)
                 << "\n";
+    }
+  }
+
+  // Sweep budgets: every preset again at each substeps x iterations pair, as its own column
+  // (a derived preset), after the presets' own columns.
+  struct Budgeted {
+    std::string preset;
+    int substeps = 0, iterations = 0;
+  };
+  std::map<std::string, Budgeted> budgetColumns;
+  if (!opt.substeps.empty() || !opt.iterations.empty()) {
+    const std::vector<std::string> base = rep.presets;
+    for (const std::string& name : base) {
+      auto p = presets.find(name);
+      if (p == presets.end()) continue;
+      const std::vector<int> subs =
+          opt.substeps.empty() ? std::vector<int>{p->second.settings.substeps} : opt.substeps;
+      const std::vector<int> its =
+          opt.iterations.empty() ? std::vector<int>{p->second.settings.iterations} : opt.iterations;
+      for (int s : subs) {
+        for (int it : its) {
+          Preset derived = p->second;
+          derived.name = budgetLabel(name, s, it);
+          derived.settings.substeps = s;
+          derived.settings.iterations = it;
+          budgetColumns[derived.name] = {name, s, it};
+          presets[derived.name] = derived;
+          rep.presets.push_back(derived.name);
+        }
+      }
     }
   }
 
@@ -420,11 +474,23 @@ int runSuite(const SuiteOptions& opt) {
       j.preset = rep.presets[k];
       j.result.scene = scenes[i].name;
       j.result.preset = j.preset;
+      j.result.config = j.preset;
+      if (auto b = budgetColumns.find(j.preset); b != budgetColumns.end()) {
+        j.result.config = b->second.preset;
+        j.result.substeps = b->second.substeps;
+        j.result.iterations = b->second.iterations;
+      } else if (auto p = presets.find(j.preset); p != presets.end()) {
+        j.result.substeps = p->second.settings.substeps;
+        j.result.iterations = p->second.settings.iterations;
+      }
       auto peer = std::find_if(peerColumns.begin(), peerColumns.end(),
                                [&](const PeerColumn& c) { return c.label == j.preset; });
       if (peer != peerColumns.end()) {
         j.peer = peer->peer;
         j.peerIterations = peer->iterations;
+        j.result.engine = j.result.config = peer->peer;
+        j.result.substeps = 0;
+        j.result.iterations = peer->iterations;
       }
       auto it = presets.find(j.preset);
       if (it != presets.end() && j.peer.empty()) j.settings = &it->second;
@@ -464,7 +530,7 @@ int runSuite(const SuiteOptions& opt) {
       job.result.plannedSteps = scenes[job.scene].steps;
       job.state.store(1);
       progress.started(job);
-      runJob(scenes[job.scene], job, worldThreads);
+      runJob(scenes[job.scene], job, worldThreads, opt.maxRunWallSeconds);
       job.result.wallSeconds = secondsSince(job.started);
       job.state.store(2);
       progress.finished(job);
@@ -500,6 +566,24 @@ int runSuite(const SuiteOptions& opt) {
   if (!opt.markdownOut.empty() && !writeText(opt.markdownOut, block, &err)) report(err);
   if (!opt.csvOut.empty()) report(writeCsv(rep, opt.csvOut));
   if (!opt.docPath.empty()) report(updateDoc(opt.docPath, block));
+  if (!opt.sweepDir.empty()) {
+    // The sweep's own outputs: the points, their fronts, plots and the reading.
+    std::error_code ec;
+    std::filesystem::create_directories(opt.sweepDir + "/plots", ec);
+    if (ec) report("cannot create " + opt.sweepDir + "/plots: " + ec.message());
+    const std::vector<SweepPoint> points = sweepPoints(rep);
+    report(writeSweepCsv(points, opt.sweepDir + "/sweep.csv"));
+    std::vector<std::string> files;
+    report(writeSweepPlots(points, opt.sweepDir + "/plots", &files));
+    if (gnuplotVersion().empty())
+      std::cerr << "physbench: gnuplot is not installed: plot scripts written, not rendered\n";
+    const std::string md =
+        markdownReport(rep, false) + "\n" + sweepMarkdown(rep, points, opt.sweepPlotLink);
+    if (!writeText(opt.sweepDir + "/sweep.md", md, &err)) report(err);
+    if (opt.sweepMarkdownOut) *opt.sweepMarkdownOut = md;
+    std::cerr << "physbench: sweep written to " << opt.sweepDir << " (sweep.csv, sweep.md, "
+              << files.size() << " plot files)\n";
+  }
 
   std::fprintf(stderr,
                "physbench: %zu runs in %s: %d passed, %d failed their criteria, %d went NaN, "

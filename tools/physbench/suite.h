@@ -30,7 +30,11 @@ const char* toString(RunStatus s);
 
 /// One (scene, preset) run.
 struct RunResult {
-  std::string scene, preset;
+  std::string scene, preset;    ///< preset: the column label
+  std::string engine = "phys";  ///< "phys" or the peer engine
+  std::string config;           ///< the preset's or the peer engine's name (without budget)
+  int substeps = 0;             ///< phys: the run's substeps; peers: 0
+  int iterations = 0;  ///< phys: iterations per substep; peers: solver iterations (0: default)
   RunStatus status = RunStatus::Error;
   std::string error;     ///< why the run could not be executed (status Error, CannotRun)
   double seconds = 0;    ///< simulated seconds planned
@@ -63,16 +67,25 @@ struct SuiteReport {
 
 /// Runs `scene` in a peer engine for `steps` steps (peers.cpp) into *r (whose main metric is
 /// set); a peer that cannot build the scene gives CannotRun with its error.
+/// Stops at maxWallSeconds of wall time (0: never) with CannotRun.
 void runPeerJob(const Scene& scene, const std::string& peer, int iterations, int steps,
-                RunResult* r, std::atomic<int>* stepsDone);
+                double maxWallSeconds, RunResult* r, std::atomic<int>* stepsDone);
 
-/// The Markdown block: command, machine, date, the table and the failed criteria.
-std::string markdownReport(const SuiteReport& r);
+/// The CannotRun message of a run stopped by SuiteOptions::maxRunWallSeconds.
+std::string wallLimitMessage(double limitSeconds, int stepsDone, int stepsPlanned);
+
+/// The Markdown block: command, machine, date, the table and the failed criteria; without
+/// `table`, only the command, machine and date lines (and runs that could not be executed).
+std::string markdownReport(const SuiteReport& r, bool table = true);
 /// Writes one CSV row per run. Returns an error message, empty on success.
 std::string writeCsv(const SuiteReport& r, const std::string& path);
 /// Replaces the region between the `<!-- suite:begin -->` and `<!-- suite:end -->` lines of
 /// `path` by `block`, appending the region under "## Every preset on every scene" when the
 /// file has no markers. Returns an error message, empty on success.
 std::string updateDoc(const std::string& path, const std::string& block);
+/// The same for the region `<!-- NAME:begin -->` .. `<!-- NAME:end -->`, appended under
+/// `heading` when missing.
+std::string updateDocRegion(const std::string& path, const std::string& name,
+                            const std::string& heading, const std::string& block);
 
 }  // namespace phys::bench
