@@ -455,6 +455,11 @@ int runSuite(const SuiteOptions& opt) {
     double seconds = s.scene.duration * opt.secondsScale;
     if (opt.maxSeconds > 0) seconds = std::min(seconds, opt.maxSeconds);
     if (opt.quick) seconds = std::min(seconds, kQuickSeconds);
+    // A sweep plots the main metric: one measured after the settle time needs the run to
+    // get there (box_stack settles at 15 s), or every point would be empty.
+    if (!opt.sweepDir.empty() && !opt.quick &&
+        mainMetricFor(s.name).name.find("settled") != std::string::npos)
+      seconds = std::max(seconds, std::min(s.scene.duration, s.scene.metrics.settleTime + 2));
     s.steps = std::max(1, int(std::lround(seconds / s.scene.world.timeStep)));
     s.seconds = s.steps * double(s.scene.world.timeStep);
     rep.sceneDuration[s.name] = s.scene.duration;
@@ -573,6 +578,7 @@ int runSuite(const SuiteOptions& opt) {
     if (ec) report("cannot create " + opt.sweepDir + "/plots: " + ec.message());
     const std::vector<SweepPoint> points = sweepPoints(rep);
     report(writeSweepCsv(points, opt.sweepDir + "/sweep.csv"));
+    report(writeCsv(rep, opt.sweepDir + "/runs.csv"));  // every metric of every run
     std::vector<std::string> files;
     report(writeSweepPlots(points, opt.sweepDir + "/plots", &files));
     if (gnuplotVersion().empty())
@@ -581,8 +587,8 @@ int runSuite(const SuiteOptions& opt) {
         markdownReport(rep, false) + "\n" + sweepMarkdown(rep, points, opt.sweepPlotLink);
     if (!writeText(opt.sweepDir + "/sweep.md", md, &err)) report(err);
     if (opt.sweepMarkdownOut) *opt.sweepMarkdownOut = md;
-    std::cerr << "physbench: sweep written to " << opt.sweepDir << " (sweep.csv, sweep.md, "
-              << files.size() << " plot files)\n";
+    std::cerr << "physbench: sweep written to " << opt.sweepDir
+              << " (sweep.csv, runs.csv, sweep.md, " << files.size() << " plot files)\n";
   }
 
   std::fprintf(stderr,

@@ -74,6 +74,16 @@ void runPeerJob(const Scene& scene, const std::string& peer, int iterations, int
 /// The CannotRun message of a run stopped by SuiteOptions::maxRunWallSeconds.
 std::string wallLimitMessage(double limitSeconds, int stepsDone, int stepsPlanned);
 
+// Shared by the suite's and the sweep's reports (suite_report.cpp).
+/// "%.3g"; for an optional, "-" when empty.
+std::string fmt3(double v);
+std::string fmt3(const std::optional<double>& v);
+/// A CSV field, quoted when it holds a comma, a quote or a line break.
+std::string csvField(const std::string& s);
+/// Writes `text` to a temporary file beside `path`, then renames it over `path`. Returns an
+/// error message, empty on success.
+std::string writeAtomically(const std::string& path, const std::string& text);
+
 /// The Markdown block: command, machine, date, the table and the failed criteria; without
 /// `table`, only the command, machine and date lines (and runs that could not be executed).
 std::string markdownReport(const SuiteReport& r, bool table = true);

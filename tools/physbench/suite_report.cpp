@@ -16,16 +16,6 @@ namespace {
 
 const char* kHeading = "## Every preset on every scene";
 
-std::string fmt3(double v) {
-  char b[32];
-  std::snprintf(b, sizeof b, "%.3g", v);
-  return b;
-}
-
-std::string fmt3(const std::optional<double>& v) {
-  return v ? fmt3(*v) : std::string("-");
-}
-
 /// "AMD EPYC, 2 cores" from /proc/cpuinfo.
 std::string machineText() {
   std::ifstream f("/proc/cpuinfo");
@@ -107,19 +97,32 @@ std::string limitText(const CriterionResult& c) {
   return out;
 }
 
-std::string csvField(const std::string& s) {
-  if (s.find_first_of(",\"\n\r") == std::string::npos) return s;
-  std::string q = "\"";
-  for (char c : s) q += c == '"' ? std::string("\"\"") : std::string(1, c);
-  return q + "\"";
-}
-
 std::string csvNumber(const std::optional<double>& v) {
   if (!v) return "";
   if (std::isnan(*v)) return "nan";
   char b[32];
   std::snprintf(b, sizeof b, "%.9g", *v);
   return b;
+}
+
+}  // namespace
+
+std::string fmt3(double v) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.3g", v);
+  return b;
+}
+
+/// "%.3g", or "-" when empty.
+std::string fmt3(const std::optional<double>& v) {
+  return v ? fmt3(*v) : std::string("-");
+}
+
+std::string csvField(const std::string& s) {
+  if (s.find_first_of(",\"\n\r") == std::string::npos) return s;
+  std::string q = "\"";
+  for (char c : s) q += c == '"' ? std::string("\"\"") : std::string(1, c);
+  return q + "\"";
 }
 
 std::string writeAtomically(const std::string& path, const std::string& text) {
@@ -135,8 +138,6 @@ std::string writeAtomically(const std::string& path, const std::string& text) {
   if (ec) return "cannot replace " + path + ": " + ec.message();
   return {};
 }
-
-}  // namespace
 
 MainMetric mainMetricFor(const std::string& scene) {
   if (scene.starts_with("pyramid_") || scene == "many_pyramids" || scene == "vertical_stack")
