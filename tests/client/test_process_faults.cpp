@@ -37,13 +37,37 @@ WorldSummary summaryOf(Client& c, uint32_t world) {
   return {};
 }
 
+/// The physd binary from a config of its own (no start-up worlds) and a client connected to it.
+struct RunningDaemon {
+  ScratchDir dir;
+  PhysdConfig cfg;
+  pid_t pid;
+  Client client;
+  explicit RunningDaemon(const std::string& name)
+      : dir(name),
+        cfg(dir.path, name, testDomain(), ""),
+        pid(spawnProcess(PHYSD_BINARY, {"--config", cfg.toml})),
+        client(cfg.clientOptions(kTimeout)) {
+    if (pid > 0) client.connect();
+  }
+  /// A test that failed half-way leaves no daemon behind.
+  ~RunningDaemon() {
+    if (pid > 0 && !stopped) stopProcess(pid, SIGKILL);
+  }
+  /// SIGTERM; true when the daemon exited with status 0.
+  bool stop() {
+    stopped = true;
+    const int st = stopProcess(pid, SIGTERM);
+    return WIFEXITED(st) && WEXITSTATUS(st) == 0;
+  }
+  bool stopped = false;
+};
+
 TEST(ClientProcessFaults, SubscriberStoppedWithSigstopDoesNotSlowTheTickNorTheOthers) {
-  ScratchDir dir("physclient_sigstop");
-  PhysdConfig cfg(dir.path, "physd-sigstop", testDomain(), "");
-  const pid_t daemon = spawnProcess(PHYSD_BINARY, {"--config", cfg.toml});
-  ASSERT_GT(daemon, 0);
-  Client c(cfg.clientOptions(kTimeout));
-  c.connect();
+  RunningDaemon d("physd-sigstop");
+  ASSERT_GT(d.pid, 0);
+  Client& c = d.client;
+  const PhysdConfig& cfg = d.cfg;
   WorldHandle w = c.createWorld({"fan", "", std::nullopt, 0}).get();
   // 3000 bodies: three state chunks of 1000 per tick.
   ASSERT_EQ(w.loadSceneJson(floatingGrid(60, 50)).get().bodies.size(), 3000u);
@@ -93,17 +117,14 @@ TEST(ClientProcessFaults, SubscriberStoppedWithSigstopDoesNotSlowTheTickNorTheOt
   // The thawed subscriber resumes and exits cleanly on SIGTERM.
   const int st = stopProcess(frozen, SIGTERM);
   EXPECT_TRUE(WIFEXITED(st) && WEXITSTATUS(st) == 0) << "physctl subscribe status " << st;
-  const int dst = stopProcess(daemon, SIGTERM);
-  EXPECT_TRUE(WIFEXITED(dst) && WEXITSTATUS(dst) == 0);
+  EXPECT_TRUE(d.stop());
 }
 
 TEST(ClientProcessFaults, ClientKilledMidCommandLeavesTheDaemonHealthy) {
-  ScratchDir dir("physclient_killed");
-  PhysdConfig cfg(dir.path, "physd-killed", testDomain(), "");
-  const pid_t daemon = spawnProcess(PHYSD_BINARY, {"--config", cfg.toml});
-  ASSERT_GT(daemon, 0);
-  Client c(cfg.clientOptions(kTimeout));
-  c.connect();
+  RunningDaemon d("physd-killed");
+  ASSERT_GT(d.pid, 0);
+  Client& c = d.client;
+  const PhysdConfig& cfg = d.cfg;
   WorldHandle w = c.createWorld({"victim", "", std::nullopt, 0}).get();
   ASSERT_EQ(w.loadScene("pyramid_20").get().bodies.size(), 211u);
 
@@ -116,7 +137,7 @@ TEST(ClientProcessFaults, ClientKilledMidCommandLeavesTheDaemonHealthy) {
            R"(, 5], "shapes": [{"type": "box", "half_extents": [0.2, 0.2, 0.2]}]})";
   }
   big += "]}";
-  const std::string bigFile = (dir.path / "big.json").string();
+  const std::string bigFile = (d.dir.path / "big.json").string();
   { std::ofstream(bigFile) << big; }
   const std::vector<std::string> common = {"--domain", std::to_string(cfg.domain), "--config",
                                            cfg.xml};
@@ -139,14 +160,13 @@ TEST(ClientProcessFaults, ClientKilledMidCommandLeavesTheDaemonHealthy) {
         << "after " << delayMs << " ms: " << s.bodies << " bodies";
   }
   int st = 0;
-  EXPECT_EQ(waitpid(daemon, &st, WNOHANG), 0) << "physd exited";
+  EXPECT_EQ(waitpid(d.pid, &st, WNOHANG), 0) << "physd exited";
   // Still fully working: a load, steps, a query.
   ASSERT_EQ(w.loadScene("pyramid_20").get().bodies.size(), 211u);
   const uint64_t tick = w.step(5).get().tick;
   EXPECT_EQ(w.step(5).get().tick, tick + 5);
   EXPECT_EQ(summaryOf(c, w.id()).bodies, 211u);
-  const int dst = stopProcess(daemon, SIGTERM);
-  EXPECT_TRUE(WIFEXITED(dst) && WEXITSTATUS(dst) == 0);
+  EXPECT_TRUE(d.stop());
 }
 
 }  // namespace

@@ -5,6 +5,7 @@
 
 #include <cmath>
 
+#include "peer_test_util.h"
 #include "peers/peer.h"
 #include "peers/runner.h"
 #include "phys/scene.h"
@@ -41,12 +42,7 @@ std::unique_ptr<PeerEngine> bulletOrSkip() {
 #define REQUIRE_BULLET(peer) \
   if (!(peer)) GTEST_SKIP() << "Bullet is not compiled in"
 
-std::vector<PeerBodyState> stepAndRead(PeerEngine& peer, int steps) {
-  for (int i = 0; i < steps; ++i) peer.step();
-  std::vector<PeerBodyState> out;
-  peer.read(&out);
-  return out;
-}
+using testutil::stepAndRead;
 
 }  // namespace
 
