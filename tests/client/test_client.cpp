@@ -18,6 +18,7 @@
 #include <sstream>
 #include <thread>
 
+#include "../common/bodies.h"
 #include "phys/client/client.h"
 #include "phys/server/core.h"
 #include "phys/server/endpoint.h"
@@ -83,27 +84,12 @@ struct Daemon {
   server::TickThread tick{&core, std::chrono::milliseconds(200)};
 };
 
-phys::BodyDef box(phys::Vec3 p) {
-  phys::BodyDef d;
-  d.position = p;
-  phys::ShapeDef s;
-  s.geom = phys::ShapeGeom::box({0.5f, 0.5f, 0.5f});
-  d.shapes.push_back(s);
-  return d;
-}
-
-phys::BodyDef ground() {
-  phys::BodyDef d;
-  d.type = phys::BodyType::Static;
-  phys::ShapeDef s;
-  s.geom = phys::ShapeGeom::plane({0, 0, 1}, 0);
-  d.shapes.push_back(s);
-  return d;
-}
+using phys::test::boxBody;
+using phys::test::groundBody;
 
 std::vector<phys::BodyDef> grid(int n) {
-  std::vector<phys::BodyDef> v{ground()};
-  for (int i = 0; i < n; ++i) v.push_back(box({float(i % 50) * 2, float(i / 50) * 2, 1}));
+  std::vector<phys::BodyDef> v{groundBody()};
+  for (int i = 0; i < n; ++i) v.push_back(boxBody({float(i % 50) * 2, float(i / 50) * 2, 1}));
   return v;
 }
 
@@ -155,7 +141,7 @@ TEST(ClientSdk, RoundTripOfEveryCommand) {
   std::vector<uint64_t> ids = w.spawn(defs).get();
   ASSERT_EQ(ids.size(), defs.size());
   const uint64_t a = ids[1], b = ids[2];
-  EXPECT_EQ(w.spawn(box({20, 20, 1})).get().size(), 1u);
+  EXPECT_EQ(w.spawn(boxBody({20, 20, 1})).get().size(), 1u);
 
   phys::JointDef j;
   j.type = phys::JointType::Ball;
@@ -365,7 +351,7 @@ TEST(ClientSdk, GuardRailsAreAnnouncedOnTheEventsTopic) {
     seen.push_back(e);
   });
   WorldHandle w = c.createWorld({"guarded", "", std::nullopt, 0}).get();
-  const std::vector<phys::BodyDef> bodies{ground(), box({0, 0, 5})};
+  const std::vector<phys::BodyDef> bodies{groundBody(), boxBody({0, 0, 5})};
   auto ids = w.spawn(bodies).get();
   // The largest force the protocol accepts, on a 1000 kg box: it would leave at an absurd
   // speed in one step, so the engine redoes the step, then stops the body.

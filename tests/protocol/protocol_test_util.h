@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "../common/bodies.h"
 #include "phys/protocol/builder.h"
 #include "phys/protocol/convert.h"
 #include "phys/protocol/decoder.h"
@@ -20,23 +21,12 @@ inline CommandHeader header(uint64_t seq = 1, uint32_t world = kWorld) {
   return {kClient, seq, world};
 }
 
-inline phys::BodyDef boxBody(phys::Vec3 p, phys::Vec3 he) {
-  phys::BodyDef d;
-  d.position = p;
-  phys::ShapeDef s;
-  s.geom = phys::ShapeGeom::box(he);
-  d.shapes.push_back(s);
-  return d;
-}
+using phys::test::boxBody;
 
+/// A named ground with a friction other than the default, so round trips show both.
 inline phys::BodyDef groundBody() {
-  phys::BodyDef d;
-  d.type = phys::BodyType::Static;
+  phys::BodyDef d = phys::test::groundBody(0.9f);
   d.name = "ground";
-  phys::ShapeDef s;
-  s.geom = phys::ShapeGeom::plane({0, 0, 1}, 0);
-  s.material.friction = 0.9f;
-  d.shapes.push_back(s);
   return d;
 }
 

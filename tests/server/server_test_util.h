@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "../common/bodies.h"
 #include "phys/protocol/builder.h"
 #include "phys/protocol/convert.h"
 #include "phys/protocol/decoder.h"
@@ -28,23 +29,8 @@ inline CoreConfig testConfig() {
   return c;
 }
 
-inline phys::BodyDef boxBody(phys::Vec3 p, phys::Vec3 he = {0.5f, 0.5f, 0.5f}) {
-  phys::BodyDef d;
-  d.position = p;
-  phys::ShapeDef s;
-  s.geom = phys::ShapeGeom::box(he);
-  d.shapes.push_back(s);
-  return d;
-}
-
-inline phys::BodyDef groundBody() {
-  phys::BodyDef d;
-  d.type = phys::BodyType::Static;
-  phys::ShapeDef s;
-  s.geom = phys::ShapeGeom::plane({0, 0, 1}, 0);
-  d.shapes.push_back(s);
-  return d;
-}
+using phys::test::boxBody;
+using phys::test::groundBody;
 
 /// A decoded reply that owns its bytes.
 using Reply = protocol::Decoded<wire::Reply>;

@@ -1,32 +1,12 @@
-// Small builders shared by the world-level tests.
+// Small helpers shared by the world-level tests (the body builders: tests/common/bodies.h).
 #pragma once
 
 #include <gtest/gtest.h>
 
+#include "../common/bodies.h"
 #include "phys/world.h"
 
 namespace phys::test {
-
-inline BodyDef sphereBody(Vec3 p, float r, float density = 1000) {
-  BodyDef d;
-  d.position = p;
-  ShapeDef s;
-  s.geom = ShapeGeom::sphere(r);
-  s.material.density = density;
-  d.shapes.push_back(s);
-  return d;
-}
-
-inline BodyDef boxBody(Vec3 p, Vec3 he, BodyType type = BodyType::Dynamic, Quat q = {}) {
-  BodyDef d;
-  d.type = type;
-  d.position = p;
-  d.rotation = q;
-  ShapeDef s;
-  s.geom = ShapeGeom::box(he);
-  d.shapes.push_back(s);
-  return d;
-}
 
 inline BodyId addBody(World& w, const BodyDef& d) {
   BodyId id;
@@ -37,14 +17,7 @@ inline BodyId addBody(World& w, const BodyDef& d) {
 
 /// A static ground plane z = 0.
 inline BodyId addGround(World& w, float friction = 0.6f, float restitution = 0) {
-  BodyDef g;
-  g.type = BodyType::Static;
-  ShapeDef s;
-  s.geom = ShapeGeom::plane({0, 0, 1}, 0);
-  s.material.friction = friction;
-  s.material.restitution = restitution;
-  g.shapes.push_back(s);
-  return addBody(w, g);
+  return addBody(w, groundBody(friction, restitution));
 }
 
 inline BodyState stateOf(const World& w, BodyId id) {
