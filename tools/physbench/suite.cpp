@@ -366,12 +366,8 @@ int runSuite(const SuiteOptions& opt) {
   }
 
   // Sweep budgets: every preset again at each substeps x iterations pair, as its own column
-  // (a derived preset), after the presets' own columns.
-  struct Budgeted {
-    std::string preset;
-    int substeps = 0, iterations = 0;
-  };
-  std::map<std::string, Budgeted> budgetColumns;
+  // (a derived preset, which carries the budget), after the presets' own columns.
+  std::map<std::string, std::string> budgetBase;  ///< derived preset -> the preset it varies
   if (!opt.substeps.empty() || !opt.iterations.empty()) {
     const std::vector<std::string> base = rep.presets;
     for (const std::string& name : base) {
@@ -387,7 +383,7 @@ int runSuite(const SuiteOptions& opt) {
           derived.name = budgetLabel(name, s, it);
           derived.settings.substeps = s;
           derived.settings.iterations = it;
-          budgetColumns[derived.name] = {name, s, it};
+          budgetBase[derived.name] = name;
           presets[derived.name] = derived;
           rep.presets.push_back(derived.name);
         }
@@ -479,12 +475,9 @@ int runSuite(const SuiteOptions& opt) {
       j.preset = rep.presets[k];
       j.result.scene = scenes[i].name;
       j.result.preset = j.preset;
-      j.result.config = j.preset;
-      if (auto b = budgetColumns.find(j.preset); b != budgetColumns.end()) {
-        j.result.config = b->second.preset;
-        j.result.substeps = b->second.substeps;
-        j.result.iterations = b->second.iterations;
-      } else if (auto p = presets.find(j.preset); p != presets.end()) {
+      auto base = budgetBase.find(j.preset);
+      j.result.config = base != budgetBase.end() ? base->second : j.preset;
+      if (auto p = presets.find(j.preset); p != presets.end()) {
         j.result.substeps = p->second.settings.substeps;
         j.result.iterations = p->second.settings.iterations;
       }
