@@ -53,7 +53,7 @@ static_assert(std::numeric_limits<float>::is_iec559 && std::numeric_limits<doubl
 #if defined(__GLIBCXX__) && UINTPTR_MAX == UINT64_MAX
 static_assert(sizeof(SolverSettings) == 80, "SolverSettings changed: update snapshot.cpp");
 static_assert(sizeof(WorldDef) == 128, "WorldDef changed: update snapshot.cpp");
-static_assert(sizeof(StepStats) == 120, "StepStats changed: update snapshot.cpp");
+static_assert(sizeof(StepStats) == 128, "StepStats changed: update snapshot.cpp");
 static_assert(sizeof(BodyRec) == 336, "BodyRec changed: update snapshot.cpp");
 static_assert(sizeof(ShapeGeom) == 56, "ShapeGeom changed: update snapshot.cpp");
 static_assert(sizeof(ShapeRec) == 112, "ShapeRec changed: update snapshot.cpp");
@@ -477,6 +477,7 @@ void ioStats(Ar& ar, D& s) {
   ar.i32(s.contactPoints);
   ar.i32(s.joints);
   ar.i32(s.pairs);
+  // s.vectorizedManifolds: how the host solved the last step, not the simulation's state.
   ar.f64(s.energyBefore);
   ar.f64(s.energyAfter);
   ar.f64(s.velocityResidual);

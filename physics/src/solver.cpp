@@ -1,6 +1,7 @@
 #include "solver.h"
 
 #include <algorithm>
+#include <cassert>
 #include <atomic>
 #include <bit>
 #include <cmath>
@@ -8,6 +9,7 @@
 #include <cstdlib>
 #include <limits>
 
+#include "solver_wide.h"
 #include "thread_pool.h"
 
 namespace phys {
@@ -178,8 +180,25 @@ void Solver::integrateVelocities(float h, float maxLinearSpeed, float maxAngular
   });
 }
 
+template <class F, class W>
+float Solver::forEachScheduled(F&& f, W&& w) {
+  if (!wide || !wide->active) return forEachGroup(std::forward<F>(f));
+  float m = 0;
+  for (const WideContacts::Item& item : wide->schedule) {
+    if (item.wide) {
+      m = std::max(m, w(item.index));
+    } else {
+      const Group& g = groups[item.index];
+      m = std::max(m, f(g, bodies[size_t(g.a)], bodies[size_t(g.b)]));
+    }
+  }
+  return m;
+}
+
 template <class F>
 float Solver::forEachGroup(F&& f, bool pushChannel) {
+  // The contact rows' impulses are in the wide blocks while they are active.
+  assert(!wide || !wide->active);
   std::atomic<float> result{0};
   auto vel = [&](size_t i) -> Velocity& {
     return pushChannel ? push[i] : static_cast<Velocity&>(bodies[i]);
@@ -256,10 +275,15 @@ static inline void groupRows(const Solver& s, const Solver::Group& g, size_t* be
 }
 
 void Solver::warmStart() {
-  forEachGroup([&](const Group& g, Velocity& A, Velocity& B) {
-    warmStartGroup(g, A, B);
-    return 0.0f;
-  });
+  forEachScheduled(
+      [&](const Group& g, Velocity& A, Velocity& B) {
+        warmStartGroup(g, A, B);
+        return 0.0f;
+      },
+      [&](uint32_t block) {
+        wide->warmStart(block, bodies);
+        return 0.0f;
+      });
 }
 
 void Solver::warmStartGroup(const Group& g, Velocity& A, Velocity& B) {
@@ -300,8 +324,19 @@ float Solver::solveIteration(const SolverSettings& s, float h, bool useBias, boo
   p.splitPushout = s.splitPushout;
   p.skipEquality = skipEquality;
   p.measure = s.tolerance > 0;
-  return forEachGroup(
-      [&](const Group& g, Velocity& A, Velocity& B) { return solveGroup(g, A, B, p); });
+  WideParams wp;
+  wp.invH = p.invH;
+  wp.linearSlop = p.linearSlop;
+  wp.maxPushout = p.maxPushout;
+  wp.biasRate = p.contactSoft.biasRate;
+  wp.massScale = p.contactSoft.massScale;
+  wp.impulseScale = p.contactSoft.impulseScale;
+  wp.soft = p.soft;
+  wp.useBias = p.useBias;
+  wp.measure = p.measure;
+  return forEachScheduled(
+      [&](const Group& g, Velocity& A, Velocity& B) { return solveGroup(g, A, B, p); },
+      [&](uint32_t block) { return wide->solve(block, bodies, wp); });
 }
 
 float Solver::solveGroup(const Group& g, Velocity& A, Velocity& B, const IterationParams& p) {
@@ -780,10 +815,15 @@ float Solver::pushoutGroup(const Group& g, Velocity& A, Velocity& B, const Itera
 }
 
 void Solver::applyRestitution(float threshold) {
-  forEachGroup([&](const Group& g, Velocity& A, Velocity& B) {
-    restitutionGroup(g, threshold, A, B);
-    return 0.0f;
-  });
+  forEachScheduled(
+      [&](const Group& g, Velocity& A, Velocity& B) {
+        restitutionGroup(g, threshold, A, B);
+        return 0.0f;
+      },
+      [&](uint32_t block) {
+        wide->restitution(block, bodies, threshold);
+        return 0.0f;
+      });
 }
 
 void Solver::restitutionGroup(const Group& g, float threshold, Velocity& A, Velocity& B) {

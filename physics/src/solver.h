@@ -21,6 +21,7 @@
 namespace phys {
 
 class ThreadPool;
+class WideContacts;
 
 /// What the iterations write: a body's velocities. Jacobi solves each constraint against its
 /// own copy, and parallel Gauss-Seidel gives a constraint a scratch copy of a body it must
@@ -114,6 +115,10 @@ class Solver {
   SolverSettings::Scheme scheme = SolverSettings::Scheme::GaussSeidel;
   bool jacobi() const { return scheme == SolverSettings::Scheme::Jacobi; }
   ThreadPool* pool = nullptr;   ///< parallel loops (colors, Jacobi, bodies); null: serial
+  /// The Gauss-Seidel scheme's vectorized contacts (solver_wide.h), owned by the World. While
+  /// active, warmStart, solveIteration and applyRestitution run its schedule and the contact
+  /// rows' impulses live in its blocks until WideContacts::store. Null: rows only.
+  WideContacts* wide = nullptr;
   std::vector<float> split;     ///< per body: constraints sharing its mass (Jacobi), else 1
   std::vector<Mat3> blockInvK;  ///< inverse of J M^-1 J^T per row block (2x2 padded to 3x3)
   /// Contact block solve: the normal rows of a manifold (2-4 points) solved together.
@@ -197,6 +202,10 @@ class Solver {
   /// with `pushChannel` their split push-out velocities.
   template <class F>
   float forEachGroup(F&& f, bool pushChannel = false);
+  /// forEachGroup, or with active wide contacts their schedule: w(block) for blocks of
+  /// manifolds, f(group, A, B) for the groups between them. Returns the largest result.
+  template <class F, class W>
+  float forEachScheduled(F&& f, W&& w);
   float solveGroup(const Group& g, Velocity& A, Velocity& B, const IterationParams& p);
   float pushoutGroup(const Group& g, Velocity& A, Velocity& B, const IterationParams& p);
   float solveFrictionPair(Row& r1, Row& r2, Velocity& A, Velocity& B, bool measure);

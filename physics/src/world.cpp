@@ -3,6 +3,7 @@
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -707,6 +708,17 @@ int World::jointCount() const {
 // ---------------------------------------------------------------------------------------------
 // The step
 
+namespace {
+std::atomic<bool> gVectorizedContacts{true};
+}  // namespace
+
+void setVectorizedContacts(bool on) {
+  gVectorizedContacts = on;
+}
+bool vectorizedContacts() {
+  return gVectorizedContacts;
+}
+
 void World::step() {
   Impl& w = *impl_;
   w.stats.guardRetries = 0;
@@ -813,6 +825,10 @@ void World::stepOnce(int substeps) {
   {
     StageTimer t(&p.restitution);
     if (s.restitution) solver.applyRestitution(s.restitutionThreshold);
+  }
+  if (w.wide.active) {
+    StageTimer t(&p.storeImpulses);
+    w.wide.store(solver);  // the contact rows hold the step's impulses again
   }
   if (s.positionPass != SolverSettings::PositionPass::None && s.positionIterations > 0) {
     StageTimer t(&p.positionPass);
@@ -1205,6 +1221,15 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   solver.scheme = s.scheme;
   solver.indexUnits();
   solver.finishRows(0, solver.rows.size());
+  // Bit-identical to the scalar pass (solver_wide.h); not for the split push-out, which
+  // reads the contact rows between the iterations, nor for the contact block solve.
+  solver.wide = &wide;
+  if (vectorizedContacts() && s.scheme == SolverSettings::Scheme::GaussSeidel &&
+      !s.blockContacts && !s.splitPushout)
+    wide.build(solver);
+  else
+    wide.clear();
+  stats.vectorizedManifolds = int(wide.laneCount());
 }
 
 void World::Impl::refreshJoints(float h) {

@@ -10,6 +10,7 @@
 #include "phys/world.h"
 #include "solver.h"
 #include "solver_ldl.h"
+#include "solver_wide.h"
 #include "thread_pool.h"
 
 namespace phys {
@@ -101,6 +102,7 @@ struct World::Impl {
   std::unordered_set<uint64_t> noCollide;  ///< body index pairs joined without collideConnected
   std::unique_ptr<ThreadPool> pool;        ///< null with one thread
   Solver solver;
+  WideContacts wide;  ///< the Gauss-Seidel scheme's contacts in SIMD lanes (solver_wide.h)
   EqualityLdl ldl;  ///< the joints' direct solve (equality = direct_ldl)
   Snapshot snapshot;
   StepProfile profile;

@@ -153,6 +153,13 @@ struct SolverSettings {
   bool geometricStiffness = true;
 };
 
+/// The Gauss-Seidel scheme solves contact manifolds eight at a time in SIMD lanes, in an
+/// order that keeps every body's sequence of constraints, so the result is bit-identical to
+/// solving them one by one (physics/src/solver_wide.h). On by default; turned off only to
+/// compare the two (tests, `physbench --scalar-contacts`). Process-wide.
+void setVectorizedContacts(bool on);
+bool vectorizedContacts();
+
 struct WorldDef {
   Vec3 gravity{0, 0, -9.81f};   ///< m/s^2
   float timeStep = 1.0f / 60;   ///< s, the fixed step used by step()
@@ -188,6 +195,7 @@ struct StepProfile {
 struct StepStats {
   uint64_t step = 0;  ///< steps taken so far
   int bodies = 0, awake = 0, contacts = 0, contactPoints = 0, joints = 0, pairs = 0;
+  int vectorizedManifolds = 0;  ///< contact manifolds solved in SIMD lanes (solver_wide.h)
   double energyBefore = 0;      ///< J, kinetic + potential at step start
   double energyAfter = 0;       ///< J, at step end
   double velocityResidual = 0;  ///< norm of J v + bias over active rows after the solve

@@ -1,0 +1,103 @@
+// The Gauss-Seidel scheme's contact manifolds, eight at a time.
+//
+// Serial Gauss-Seidel visits the constraint groups in row order. Two groups that share no
+// dynamic body commute: solving them in either order gives the same bits. WideContacts
+// builds a schedule that keeps, for every dynamic body, the order of the groups touching it,
+// and packs contact manifolds that do not share a body into blocks of eight, which the
+// kernels solve in the eight lanes of one SIMD register. Each lane runs the scalar kernels'
+// arithmetic operation for operation (same order, no FMA, masked instead of skipped
+// updates), so the result is bit-identical to the scalar pass: the schedule is a speed
+// setting, like the thread count. Groups that do not fit the contact pattern (joints,
+// manifolds with the block solve) stay scalar items of the schedule, in place.
+//
+// A block holds its rows in a compact structure-of-arrays form (about 190 bytes per contact
+// point instead of three 164-byte rows), built once per step after the rows are finished;
+// the blocks own the contact impulses between build() and store().
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "solver.h"
+
+namespace phys {
+
+namespace wide {
+constexpr int kLanes = 8;
+/// Eight floats and eight lane masks (GCC/Clang vector extensions): two SSE registers on
+/// baseline x86-64, one AVX register in the kernels' AVX2 clones (solver_wide.cpp). The
+/// alignment is explicit: without AVX enabled GCC gives these types only 16, and the AVX2
+/// clones' aligned loads then fault on blocks the baseline code allocated.
+typedef float vf __attribute__((vector_size(32), aligned(32)));
+typedef int32_t vm __attribute__((vector_size(32), aligned(32)));
+struct V3 {
+  vf x, y, z;
+};
+}  // namespace wide
+
+/// The constants of one pass over the contacts (Solver::IterationParams, minus joints).
+struct WideParams {
+  float invH = 0, linearSlop = 0, maxPushout = 0;
+  float biasRate = 0, massScale = 1, impulseScale = 0;  ///< contact softness
+  bool soft = true, useBias = true, measure = false;
+};
+
+class WideContacts {
+ public:
+  /// One entry of the schedule: a block of manifolds, or one group solved by the scalar code.
+  struct Item {
+    uint32_t index;  ///< block index, or group index
+    bool wide;
+  };
+  std::vector<Item> schedule;
+  bool active = false;
+
+  /// Packs the solver's finished contact rows into blocks and orders them with the other
+  /// groups (see the file comment). Call after Solver::finishRows; sets active.
+  void build(const Solver& s);
+  /// Writes the contact impulses, largest impulses and approach speeds back to the rows and
+  /// deactivates: the rows are the truth again.
+  void store(Solver& s);
+  void clear();
+
+  void warmStart(uint32_t block, std::vector<SolverBody>& bodies);
+  /// One Gauss-Seidel pass over a block; returns the largest velocity change (p.measure).
+  float solve(uint32_t block, std::vector<SolverBody>& bodies, const WideParams& p);
+  void restitution(uint32_t block, std::vector<SolverBody>& bodies, float threshold);
+
+  size_t blockCount() const { return blocks_.size(); }
+  size_t laneCount() const;
+  /// The groups in a block's lanes, for tests.
+  std::vector<uint32_t> groupsOf(uint32_t block) const;
+
+ private:
+  /// One row direction (normal, tangent 1, tangent 2) at one point of eight manifolds.
+  struct Dir {
+    wide::V3 angA, angB, mAngA, mAngB;
+    wide::vf effMass, lambda;
+  };
+  struct Point {
+    Dir n, t1, t2;
+    wide::vf C0, maxLambda, relativeVelocity;  ///< the normal row's
+    wide::vf restitution, mu;
+    wide::vf accelN;  ///< the bodies' constant accelerations along the normal (warm start)
+  };
+  /// The Jacobian's linear parts are the manifold's normal and tangents, the same at every
+  /// point: stored once per lane for each direction (0 = normal, 1, 2 = tangents).
+  struct Block {
+    wide::V3 linA[3], linB[3], mLinA[3], mLinB[3];
+    Point pt[Manifold::kMaxPoints];
+    int32_t a[wide::kLanes] = {}, b[wide::kLanes] = {};  ///< solver bodies; 0 in empty lanes
+    int32_t firstRow[wide::kLanes] = {};
+    uint32_t group[wide::kLanes] = {};
+    uint8_t count[wide::kLanes] = {};  ///< points of each lane's manifold
+    bool writeA[wide::kLanes] = {}, writeB[wide::kLanes] = {};  ///< dynamic bodies only
+    int lanes = 0, points = 0;
+  };
+  /// Points of the contact group at rows [begin, end) if it can be a lane, else 0.
+  static int lanePoints(const Solver& s, const Solver::Group& g, size_t begin, size_t end);
+  void addLane(Block& blk, const Solver& s, uint32_t group, size_t begin, int n);
+  std::vector<Block> blocks_;
+};
+
+}  // namespace phys
