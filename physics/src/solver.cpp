@@ -59,6 +59,18 @@ void Solver::parallel(size_t count, size_t grain, F&& fn) {
     fn(size_t(0), count);
 }
 
+Row contactRow(const SolverManifold& m, RowKind kind, Vec3 axis, int k) {
+  Row r;
+  r.kind = kind;
+  r.a = m.a;
+  r.b = m.b;
+  r.linA = -axis;
+  r.angA = -cross(m.rA[k], axis);
+  r.linB = axis;
+  r.angB = cross(m.rB[k], axis);
+  return r;
+}
+
 Softness makeSoftness(float hertz, float zeta, float h) {
   if (hertz <= 0) return {0, 1, 0};
   // Catto 2011: an implicit spring-damper expressed as bias rate and mass/impulse scales.
@@ -868,6 +880,8 @@ double Solver::velocityResidual(float h) const {
     }
     sum += e * e;
   }
+  // The contacts solved in wide blocks (after every row, as their rows would be).
+  if (wide && wide->blockCount() > 0) sum = wide->residual(bodies, h, sum);
   return std::sqrt(sum);
 }
 

@@ -87,6 +87,24 @@ struct Row {
   bool groupStart = false;
 };
 
+/// A contact manifold in the solver's terms, from which the World makes its rows (three per
+/// point: the normal, then after every normal a friction pair per point) or the wide blocks
+/// make their lanes (solver_wide.h), with the same arithmetic either way.
+struct SolverManifold {
+  int32_t a = 0, b = 0;  ///< solver bodies
+  int count = 0;         ///< points
+  Vec3 normal, t1, t2;   ///< from A to B, and the friction directions
+  float friction = 0, restitution = 0;
+  Vec3 rA[4], rB[4];        ///< contact points relative to the bodies' centres of mass
+  float separation[4] = {}; ///< C0 of the normal rows (m, negative when overlapping)
+  float relativeVelocity[4] = {};  ///< normal approach speed at the step's start
+  /// In: the warm start (zero without). Out (WideContacts::store): the step's impulses.
+  float normalImpulse[4] = {}, tangentImpulse[4][2] = {};
+};
+
+/// A contact row along `axis` (from A to B) at point k of m (linA = -axis, angA = -rA x axis).
+Row contactRow(const SolverManifold& m, RowKind kind, Vec3 axis, int k);
+
 struct Softness {
   float biasRate = 0, massScale = 1, impulseScale = 0;
 };

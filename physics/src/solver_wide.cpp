@@ -136,146 +136,120 @@ PHYS_WIDE_INLINE void applyImpulse(vm mask, const V3& mLinA, const V3& mLinB, co
   addScaled(mask, s.wB, mAngB, impulse);
 }
 
-bool sameVec(Vec3 a, Vec3 b) {
-  return a.x == b.x && a.y == b.y && a.z == b.z;
-}
-
 /// How many levels past its own a manifold looks for a block with a free lane (build()).
 constexpr int32_t kLevelSearch = 4;
 
 }  // namespace
 
-int WideContacts::lanePoints(const Solver& s, const Solver::Group& g, size_t begin,
-                             size_t end) {
-  const Row& first = s.rows[begin];
-  if (first.kind != RowKind::ContactNormal) return 0;
-  int n = 0;
-  while (begin + size_t(n) < end && s.rows[begin + size_t(n)].kind == RowKind::ContactNormal)
-    ++n;
-  if (n > Manifold::kMaxPoints || end - begin != size_t(3 * n)) return 0;
-  if (g.unitEnd - g.unitBegin != uint32_t(2 * n)) return 0;
-  for (int k = 0; k < n; ++k) {
-    const Row& r = s.rows[begin + size_t(k)];
-    const Row& t1 = s.rows[begin + size_t(n + 2 * k)];
-    const Row& t2 = s.rows[begin + size_t(n + 2 * k + 1)];
-    if (r.blockSize > 1 || r.contactPoints > 1) return 0;
-    if (t1.kind != RowKind::Friction || t2.kind != RowKind::Friction) return 0;
-    if (t1.parent != int32_t(begin) + k) return 0;
-    for (const Row* x : {&r, &t1, &t2})
-      if (x->a != g.a || x->b != g.b) return 0;
-    // The linear parts are stored once per lane: they must be the same at every point.
-    const Row* refs[3] = {&first, &s.rows[begin + size_t(n)], &s.rows[begin + size_t(n) + 1]};
-    const Row* mine[3] = {&r, &t1, &t2};
-    for (int d = 0; d < 3; ++d) {
-      if (!sameVec(refs[d]->linA, mine[d]->linA) || !sameVec(refs[d]->linB, mine[d]->linB) ||
-          !sameVec(refs[d]->mLinA, mine[d]->mLinA) || !sameVec(refs[d]->mLinB, mine[d]->mLinB))
-        return 0;
-    }
-  }
-  return n;
-}
-
-void WideContacts::addLane(Block& blk, const Solver& s, uint32_t group, size_t begin, int n) {
-  const Solver::Group& g = s.groups[group];
+void WideContacts::addLane(Block& blk, const Solver& s, uint32_t index, const SolverManifold& m) {
   const int l = blk.lanes++;
-  blk.group[l] = group;
-  blk.a[l] = g.a;
-  blk.b[l] = g.b;
-  blk.writeA[l] = s.bodies[size_t(g.a)].dynamic;
-  blk.writeB[l] = s.bodies[size_t(g.b)].dynamic;
-  blk.firstRow[l] = int32_t(begin);
-  blk.count[l] = uint8_t(n);
-  blk.points = std::max(blk.points, n);
-  const Row* lin[3] = {&s.rows[begin], &s.rows[begin + size_t(n)],
-                       &s.rows[begin + size_t(n) + 1]};
-  for (int d = 0; d < 3; ++d) {
-    put(blk.linA[d], l, lin[d]->linA);
-    put(blk.linB[d], l, lin[d]->linB);
-    put(blk.mLinA[d], l, lin[d]->mLinA);
-    put(blk.mLinB[d], l, lin[d]->mLinB);
-  }
-  const SolverBody& A = s.bodies[size_t(g.a)];
-  const SolverBody& B = s.bodies[size_t(g.b)];
-  for (int k = 0; k < n; ++k) {
-    const Row& r = s.rows[begin + size_t(k)];
-    const Row* dirs[3] = {&r, &s.rows[begin + size_t(n + 2 * k)],
-                          &s.rows[begin + size_t(n + 2 * k + 1)]};
+  blk.manifold[l] = index;
+  blk.a[l] = m.a;
+  blk.b[l] = m.b;
+  blk.count[l] = uint8_t(m.count);
+  blk.points = std::max(blk.points, m.count);
+  const SolverBody& A = s.bodies[size_t(m.a)];
+  const SolverBody& B = s.bodies[size_t(m.b)];
+  blk.writeA[l] = A.dynamic;
+  blk.writeB[l] = B.dynamic;
+  // The rows' values as World::contactRowsOf and Solver::finishRows make them (Gauss-Seidel:
+  // no mass splitting), operation for operation.
+  const Vec3 axes[3] = {m.normal, m.t1, m.t2};
+  const RowKind kinds[3] = {RowKind::ContactNormal, RowKind::Friction, RowKind::Friction};
+  for (int k = 0; k < m.count; ++k) {
     Point& p = blk.pt[k];
     Dir* out[3] = {&p.n, &p.t1, &p.t2};
     for (int d = 0; d < 3; ++d) {
-      put(out[d]->angA, l, dirs[d]->angA);
-      put(out[d]->angB, l, dirs[d]->angB);
-      put(out[d]->mAngA, l, dirs[d]->mAngA);
-      put(out[d]->mAngB, l, dirs[d]->mAngB);
-      out[d]->effMass[l] = dirs[d]->effMass;
-      out[d]->lambda[l] = dirs[d]->lambda;
+      Row r = contactRow(m, kinds[d], axes[d], k);
+      r.mLinA = r.linA * A.invMass;
+      r.mAngA = A.invI * r.angA;
+      r.mLinB = r.linB * B.invMass;
+      r.mAngB = B.invI * r.angB;
+      const float kk = dot(r.linA, r.mLinA) + dot(r.angA, r.mAngA) + dot(r.linB, r.mLinB) +
+                       dot(r.angB, r.mAngB);
+      if (k == 0) {
+        put(blk.linA[d], l, r.linA);
+        put(blk.linB[d], l, r.linB);
+        put(blk.mLinA[d], l, r.mLinA);
+        put(blk.mLinB[d], l, r.mLinB);
+      }
+      put(out[d]->angA, l, r.angA);
+      put(out[d]->angB, l, r.angB);
+      put(out[d]->mAngA, l, r.mAngA);
+      put(out[d]->mAngB, l, r.mAngB);
+      out[d]->effMass[l] = kk > 1e-12f ? 1 / kk : 0;
+      out[d]->lambda[l] = d == 0 ? m.normalImpulse[k] : m.tangentImpulse[k][d - 1];
+      if (d == 0) p.accelN[l] = dot(r.linA, A.linearAccel) + dot(r.linB, B.linearAccel);
     }
-    p.C0[l] = r.C0;
-    p.maxLambda[l] = r.maxLambda;
-    p.relativeVelocity[l] = r.relativeVelocity;
-    p.restitution[l] = r.restitution;
-    p.mu[l] = dirs[1]->mu;
-    p.accelN[l] = dot(r.linA, A.linearAccel) + dot(r.linB, B.linearAccel);
+    p.C0[l] = m.separation[k];
+    p.maxLambda[l] = 0;
+    p.relativeVelocity[l] = m.relativeVelocity[k];
+    p.restitution[l] = m.restitution;
+    p.mu[l] = m.friction;
   }
 }
 
 void WideContacts::clear() {
   schedule.clear();
   blocks_.clear();
+  laneOf_.clear();
   active = false;
 }
 
-void WideContacts::build(const Solver& s) {
+void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& manifolds) {
   clear();
   active = true;
-  // Levels: a group goes on the level after the last one that touched either of its dynamic
-  // bodies, so the groups of a level share no dynamic body and a level's items may run in
-  // any order; each body still meets its groups in row order. A manifold may also take a
+  // Levels: a constraint goes on the level after the last one that touched either of its
+  // dynamic bodies, so the constraints of a level share no dynamic body and a level's items
+  // may run in any order, while each body still meets its constraints in the serial order
+  // (the solver's row groups, the joints, then the manifolds). A manifold may also take a
   // free lane of a block a few levels further on, which fills blocks at the price of
-  // pushing its bodies' later groups back.
+  // pushing its bodies' later constraints back.
   struct Level {
     std::vector<Item> items;
     int32_t open = -1;  ///< a block of this level with a free lane
   };
   std::vector<Level> levels;
   std::vector<int32_t> levelOf(s.bodies.size(), -1);  // last level touching a dynamic body
-  blocks_.reserve(s.groups.size() / 4);
+  auto place = [&](int32_t a, int32_t b) {
+    const bool da = s.bodies[size_t(a)].dynamic, db = s.bodies[size_t(b)].dynamic;
+    return 1 + std::max(da ? levelOf[size_t(a)] : -1, db ? levelOf[size_t(b)] : -1);
+  };
+  auto touch = [&](int32_t a, int32_t b, int32_t at) {
+    if (s.bodies[size_t(a)].dynamic) levelOf[size_t(a)] = at;
+    if (s.bodies[size_t(b)].dynamic) levelOf[size_t(b)] = at;
+    if (size_t(at) >= levels.size()) levels.resize(size_t(at) + 1);
+  };
   for (uint32_t gi = 0; gi < s.groups.size(); ++gi) {
     const Solver::Group& g = s.groups[gi];
-    const size_t begin = s.units[g.unitBegin];
-    const size_t end = g.unitEnd < s.units.size() ? s.units[g.unitEnd] : s.rows.size();
-    const bool da = s.bodies[size_t(g.a)].dynamic, db = s.bodies[size_t(g.b)].dynamic;
-    int32_t at =
-        1 + std::max(da ? levelOf[size_t(g.a)] : -1, db ? levelOf[size_t(g.b)] : -1);
-    const int n = lanePoints(s, g, begin, end);
-    if (n == 0) {
-      if (size_t(at) >= levels.size()) levels.resize(size_t(at) + 1);
-      levels[size_t(at)].items.push_back({gi, false});
-    } else {
-      int32_t found = -1;
-      for (int32_t lv = at; lv < at + kLevelSearch && size_t(lv) < levels.size(); ++lv) {
-        if (levels[size_t(lv)].open >= 0) {
-          found = lv;
-          break;
-        }
-      }
-      if (found >= 0) {
-        at = found;
-      } else {
-        if (size_t(at) >= levels.size()) levels.resize(size_t(at) + 1);
-        levels[size_t(at)].open = int32_t(blocks_.size());
-        levels[size_t(at)].items.push_back({uint32_t(blocks_.size()), true});
-        blocks_.emplace_back();
-      }
-      Level& level = levels[size_t(at)];
-      Block& blk = blocks_[size_t(level.open)];
-      addLane(blk, s, gi, begin, n);
-      if (blk.lanes == kLanes) level.open = -1;
-    }
-    if (da) levelOf[size_t(g.a)] = at;
-    if (db) levelOf[size_t(g.b)] = at;
+    const int32_t at = place(g.a, g.b);
+    touch(g.a, g.b, at);
+    levels[size_t(at)].items.push_back({gi, false});
   }
-  schedule.reserve(s.groups.size());
+  blocks_.reserve(manifolds.size() / 4);
+  laneOf_.resize(manifolds.size());
+  for (uint32_t mi = 0; mi < manifolds.size(); ++mi) {
+    const SolverManifold& m = manifolds[mi];
+    int32_t at = place(m.a, m.b);
+    for (int32_t lv = at; lv < at + kLevelSearch && size_t(lv) < levels.size(); ++lv) {
+      if (levels[size_t(lv)].open >= 0) {
+        at = lv;
+        break;
+      }
+    }
+    touch(m.a, m.b, at);
+    Level& level = levels[size_t(at)];
+    if (level.open < 0) {
+      level.open = int32_t(blocks_.size());
+      level.items.push_back({uint32_t(blocks_.size()), true});
+      blocks_.emplace_back();
+    }
+    Block& blk = blocks_[size_t(level.open)];
+    laneOf_[mi] = {uint32_t(level.open), uint32_t(blk.lanes)};
+    addLane(blk, s, mi, m);
+    if (blk.lanes == kLanes) level.open = -1;
+  }
+  schedule.reserve(s.groups.size() + blocks_.size());
   for (const Level& level : levels)
     schedule.insert(schedule.end(), level.items.begin(), level.items.end());
 }
@@ -286,28 +260,45 @@ size_t WideContacts::laneCount() const {
   return n;
 }
 
-std::vector<uint32_t> WideContacts::groupsOf(uint32_t block) const {
+std::vector<uint32_t> WideContacts::manifoldsOf(uint32_t block) const {
   const Block& b = blocks_[block];
-  return std::vector<uint32_t>(b.group, b.group + b.lanes);
+  return std::vector<uint32_t>(b.manifold, b.manifold + b.lanes);
 }
 
-void WideContacts::store(Solver& s) {
+void WideContacts::store(std::vector<SolverManifold>& manifolds) {
   for (const Block& blk : blocks_) {
     for (int l = 0; l < blk.lanes; ++l) {
-      const size_t first = size_t(blk.firstRow[l]);
-      const int n = blk.count[l];
-      for (int k = 0; k < n; ++k) {
+      SolverManifold& m = manifolds[blk.manifold[l]];
+      for (int k = 0; k < m.count; ++k) {
         const Point& p = blk.pt[k];
-        Row& r = s.rows[first + size_t(k)];
-        r.lambda = p.n.lambda[l];
-        r.maxLambda = p.maxLambda[l];
-        r.relativeVelocity = p.relativeVelocity[l];
-        s.rows[first + size_t(n + 2 * k)].lambda = p.t1.lambda[l];
-        s.rows[first + size_t(n + 2 * k + 1)].lambda = p.t2.lambda[l];
+        m.normalImpulse[k] = p.n.lambda[l];
+        m.tangentImpulse[k][0] = p.t1.lambda[l];
+        m.tangentImpulse[k][1] = p.t2.lambda[l];
       }
     }
   }
-  clear();
+  active = false;
+}
+
+double WideContacts::residual(const std::vector<SolverBody>& bodies, float h, double sum) const {
+  // Solver::velocityResidual's contact rows, in the rows' order (friction rows add zero).
+  for (const auto& [block, l] : laneOf_) {
+    const Block& blk = blocks_[block];
+    const SolverBody& A = bodies[size_t(blk.a[l])];
+    const SolverBody& B = bodies[size_t(blk.b[l])];
+    const Vec3 linA = lane(blk.linA[0], int(l)), linB = lane(blk.linB[0], int(l));
+    for (int k = 0; k < blk.count[l]; ++k) {
+      const Dir& r = blk.pt[k].n;
+      const Vec3 angA = lane(r.angA, int(l)), angB = lane(r.angB, int(l));
+      const float vn = dot(linA, A.v) + dot(angA, A.w) + dot(linB, B.v) + dot(angB, B.w);
+      const float C = blk.pt[k].C0[l] + dot(linA, A.dp) + dot(angA, A.dtheta) + dot(linB, B.dp) +
+                      dot(angB, B.dtheta);
+      const float gap = std::max(C, 0.0f) / h;
+      const double e = r.lambda[l] > 0 ? vn : std::min(0.0f, vn + gap);
+      sum += e * e;
+    }
+  }
+  return sum;
 }
 
 PHYS_WIDE_CLONES void WideContacts::warmStart(uint32_t block, std::vector<SolverBody>& bodies) {

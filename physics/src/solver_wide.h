@@ -10,12 +10,13 @@
 // setting, like the thread count. Groups that do not fit the contact pattern (joints,
 // manifolds with the block solve) stay scalar items of the schedule, in place.
 //
-// A block holds its rows in a compact structure-of-arrays form (about 190 bytes per contact
-// point instead of three 164-byte rows), built once per step after the rows are finished;
-// the blocks own the contact impulses between build() and store().
+// The World hands the manifolds over instead of making contact rows; a block holds their
+// rows in a compact structure-of-arrays form (about 190 bytes per contact point instead of
+// three 164-byte rows) and owns the contact impulses between build() and store().
 #pragma once
 
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 #include "solver.h"
@@ -52,13 +53,15 @@ class WideContacts {
   std::vector<Item> schedule;
   bool active = false;
 
-  /// Packs the solver's finished contact rows into blocks and orders them with the other
-  /// groups (see the file comment). Call after Solver::finishRows; sets active.
-  void build(const Solver& s);
-  /// Writes the contact impulses, largest impulses and approach speeds back to the rows and
-  /// deactivates: the rows are the truth again.
-  void store(Solver& s);
+  /// Packs the manifolds into blocks and orders them after the solver's row groups (the
+  /// joints; see the file comment). The rows must be finished; sets active.
+  void build(const Solver& s, const std::vector<SolverManifold>& manifolds);
+  /// Writes the contact impulses into the manifolds and deactivates: the solver passes run
+  /// over the rows alone again. The blocks stay for residual().
+  void store(std::vector<SolverManifold>& manifolds);
   void clear();
+  /// Adds the contacts' part of Solver::velocityResidual to sum, in the rows' order.
+  double residual(const std::vector<SolverBody>& bodies, float h, double sum) const;
 
   void warmStart(uint32_t block, std::vector<SolverBody>& bodies);
   /// One Gauss-Seidel pass over a block; returns the largest velocity change (p.measure).
@@ -67,8 +70,8 @@ class WideContacts {
 
   size_t blockCount() const { return blocks_.size(); }
   size_t laneCount() const;
-  /// The groups in a block's lanes, for tests.
-  std::vector<uint32_t> groupsOf(uint32_t block) const;
+  /// The manifolds in a block's lanes, for tests.
+  std::vector<uint32_t> manifoldsOf(uint32_t block) const;
 
  private:
   /// One row direction (normal, tangent 1, tangent 2) at one point of eight manifolds.
@@ -88,16 +91,14 @@ class WideContacts {
     wide::V3 linA[3], linB[3], mLinA[3], mLinB[3];
     Point pt[Manifold::kMaxPoints];
     int32_t a[wide::kLanes] = {}, b[wide::kLanes] = {};  ///< solver bodies; 0 in empty lanes
-    int32_t firstRow[wide::kLanes] = {};
-    uint32_t group[wide::kLanes] = {};
+    uint32_t manifold[wide::kLanes] = {};
     uint8_t count[wide::kLanes] = {};  ///< points of each lane's manifold
     bool writeA[wide::kLanes] = {}, writeB[wide::kLanes] = {};  ///< dynamic bodies only
     int lanes = 0, points = 0;
   };
-  /// Points of the contact group at rows [begin, end) if it can be a lane, else 0.
-  static int lanePoints(const Solver& s, const Solver::Group& g, size_t begin, size_t end);
-  void addLane(Block& blk, const Solver& s, uint32_t group, size_t begin, int n);
+  void addLane(Block& blk, const Solver& s, uint32_t index, const SolverManifold& m);
   std::vector<Block> blocks_;
+  std::vector<std::pair<uint32_t, uint32_t>> laneOf_;  ///< per manifold: block, lane
 };
 
 }  // namespace phys

@@ -828,7 +828,7 @@ void World::stepOnce(int substeps) {
   }
   if (w.wide.active) {
     StageTimer t(&p.storeImpulses);
-    w.wide.store(solver);  // the contact rows hold the step's impulses again
+    w.wide.store(w.manifolds);  // the step's contact impulses, for storeImpulses
   }
   if (s.positionPass != SolverSettings::PositionPass::None && s.positionIterations > 0) {
     StageTimer t(&p.positionPass);
@@ -862,6 +862,12 @@ void World::Impl::storeImpulses() {
       c.tangentImpulse[i][0] = solver.rows[size_t(c.firstRow + n + 2 * i)].lambda;
       c.tangentImpulse[i][1] = solver.rows[size_t(c.firstRow + n + 2 * i + 1)].lambda;
     }
+  }
+  for (size_t m = 0; m < manifolds.size(); ++m) {  // solved in wide blocks, without rows
+    const SolverManifold& sm = manifolds[m];
+    Contact& c = contacts[manifoldContact[m]];
+    std::memcpy(c.normalImpulse, sm.normalImpulse, sizeof(float) * size_t(sm.count));
+    std::memcpy(c.tangentImpulse, sm.tangentImpulse, sizeof(float) * 2 * size_t(sm.count));
   }
   for (uint32_t i = 0; i < joints.capacity(); ++i) {
     if (!joints.alive(i)) continue;
@@ -1065,46 +1071,47 @@ void World::Impl::narrowPhase(float dt) {
   stats.contacts = int(contacts.size());
 }
 
-void World::Impl::contactRowsOf(const Contact& c, const SolverSettings& s) {
-  const int n = c.manifold.count;
-  if (n == 0) return;
+SolverManifold World::Impl::solverManifold(const Contact& c, const SolverSettings& s) const {
+  SolverManifold m;
   const BodyRec& A = *bodies.get(c.bodyA);
   const BodyRec& B = *bodies.get(c.bodyB);
-  const Vec3 normal = c.manifold.normal;
-  Vec3 t1, t2;
-  tangentBasis(normal, &t1, &t2);
-  const int32_t ia = A.solverIndex, ib = B.solverIndex;
-  Vec3 rA[Manifold::kMaxPoints], rB[Manifold::kMaxPoints];
-  // One row along `axis` (from A to B) at point k.
-  auto row = [&](RowKind kind, Vec3 axis, int k) {
-    Row r;
-    r.kind = kind;
-    r.a = ia;
-    r.b = ib;
-    r.linA = -axis;
-    r.angA = -cross(rA[k], axis);
-    r.linB = axis;
-    r.angB = cross(rB[k], axis);
-    return r;
-  };
-  for (int k = 0; k < n; ++k) {
+  m.a = A.solverIndex;
+  m.b = B.solverIndex;
+  m.count = c.manifold.count;
+  m.normal = c.manifold.normal;
+  tangentBasis(m.normal, &m.t1, &m.t2);
+  m.friction = c.friction;
+  m.restitution = c.restitution;
+  for (int k = 0; k < m.count; ++k) {
     const ContactPoint& cp = c.manifold.points[k];
-    rA[k] = cp.point - A.com;
-    rB[k] = cp.point - B.com;
-    Row r = row(RowKind::ContactNormal, normal, k);
-    r.C0 = cp.separation;
-    r.lambda = s.warmStart ? c.normalImpulse[k] : 0;
-    r.restitution = c.restitution;
+    m.rA[k] = cp.point - A.com;
+    m.rB[k] = cp.point - B.com;
+    m.separation[k] = cp.separation;
+    m.relativeVelocity[k] =
+        dot(m.normal, (B.v + cross(B.w, m.rB[k])) - (A.v + cross(A.w, m.rA[k])));
+    m.normalImpulse[k] = s.warmStart ? c.normalImpulse[k] : 0;
+    m.tangentImpulse[k][0] = s.warmStart ? c.tangentImpulse[k][0] : 0;
+    m.tangentImpulse[k][1] = s.warmStart ? c.tangentImpulse[k][1] : 0;
+  }
+  return m;
+}
+
+void World::Impl::contactRowsOf(const Contact& c, const SolverManifold& m) {
+  for (int k = 0; k < m.count; ++k) {
+    Row r = contactRow(m, RowKind::ContactNormal, m.normal, k);
+    r.C0 = m.separation[k];
+    r.lambda = m.normalImpulse[k];
+    r.restitution = m.restitution;
     r.groupStart = k == 0;
-    r.relativeVelocity = dot(normal, (B.v + cross(B.w, rB[k])) - (A.v + cross(A.w, rA[k])));
+    r.relativeVelocity = m.relativeVelocity[k];
     solver.rows.push_back(r);
   }
-  for (int k = 0; k < n; ++k) {
+  for (int k = 0; k < m.count; ++k) {
     for (int d = 0; d < 2; ++d) {
-      Row r = row(RowKind::Friction, d == 0 ? t1 : t2, k);
-      r.mu = c.friction;
+      Row r = contactRow(m, RowKind::Friction, d == 0 ? m.t1 : m.t2, k);
+      r.mu = m.friction;
       r.parent = c.firstRow + k;
-      r.lambda = s.warmStart ? c.tangentImpulse[k][d] : 0;
+      r.lambda = m.tangentImpulse[k][d];
       solver.rows.push_back(r);
     }
   }
@@ -1211,25 +1218,40 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   }
   stats.joints = jointsBuilt;
 
-  // Contacts: 3 rows per point (normal, two friction directions). Built serially: building
-  // them in parallel needs the vector sized first, and value-initializing 28,000 rows of
-  // 160 bytes (pyramid_40) cost more than the parallel build saved.
-  for (Contact& c : contacts) {
-    c.firstRow = c.manifold.count > 0 ? int32_t(solver.rows.size()) : -1;
-    contactRowsOf(c, s);
+  // Contacts: 3 rows per point (normal, two friction directions), or with the vectorized
+  // Gauss-Seidel scheme no rows but a manifold each, which the wide blocks take (bit-identical
+  // to the rows; solver_wide.h). Not for the split push-out and the position pass, which
+  // read the contact rows between the iterations, nor for the contact block solve.
+  // Built serially: building them in parallel needs the vector sized first, and
+  // value-initializing 28,000 rows of 160 bytes (pyramid_40) cost more than the parallel
+  // build saved.
+  const bool vectorized =
+      vectorizedContacts() && s.scheme == SolverSettings::Scheme::GaussSeidel &&
+      !s.blockContacts && !s.splitPushout &&
+      (s.positionPass == SolverSettings::PositionPass::None || s.positionIterations == 0);
+  manifolds.clear();
+  manifoldContact.clear();
+  for (uint32_t ci = 0; ci < contacts.size(); ++ci) {
+    Contact& c = contacts[ci];
+    c.firstRow = -1;
+    if (c.manifold.count == 0) continue;
+    if (vectorized) {
+      manifolds.push_back(solverManifold(c, s));
+      manifoldContact.push_back(ci);
+      continue;
+    }
+    c.firstRow = int32_t(solver.rows.size());
+    contactRowsOf(c, solverManifold(c, s));
   }
   solver.scheme = s.scheme;
   solver.indexUnits();
   solver.finishRows(0, solver.rows.size());
-  // Bit-identical to the scalar pass (solver_wide.h); not for the split push-out, which
-  // reads the contact rows between the iterations, nor for the contact block solve.
   solver.wide = &wide;
-  if (vectorizedContacts() && s.scheme == SolverSettings::Scheme::GaussSeidel &&
-      !s.blockContacts && !s.splitPushout)
-    wide.build(solver);
+  if (vectorized)
+    wide.build(solver, manifolds);
   else
     wide.clear();
-  stats.vectorizedManifolds = int(wide.laneCount());
+  stats.vectorizedManifolds = int(manifolds.size());
 }
 
 void World::Impl::refreshJoints(float h) {

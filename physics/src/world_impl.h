@@ -103,6 +103,9 @@ struct World::Impl {
   std::unique_ptr<ThreadPool> pool;        ///< null with one thread
   Solver solver;
   WideContacts wide;  ///< the Gauss-Seidel scheme's contacts in SIMD lanes (solver_wide.h)
+  /// With wide contacts: this step's manifolds (instead of contact rows) and their contacts.
+  std::vector<SolverManifold> manifolds;
+  std::vector<uint32_t> manifoldContact;
   EqualityLdl ldl;  ///< the joints' direct solve (equality = direct_ldl)
   Snapshot snapshot;
   StepProfile profile;
@@ -126,7 +129,9 @@ struct World::Impl {
   void buildSolverBodies(const SolverSettings& s);  ///< s: this step's (substeps may differ)
   /// Joints' geometric stiffness added to the solver bodies' inertia (substep h).
   void addGeometricStiffness(float h);
-  void contactRowsOf(const Contact& c, const SolverSettings& s);  ///< appended
+  /// A contact in the solver's terms (its points relative to the centres of mass, warm start).
+  SolverManifold solverManifold(const Contact& c, const SolverSettings& s) const;
+  void contactRowsOf(const Contact& c, const SolverManifold& m);  ///< appended
   void refreshJoints(float h);
   void storeImpulses();  ///< rows' impulses back to contacts and joints (warm starting)
   // Guard rails (world.cpp).

@@ -1,6 +1,6 @@
 // The Gauss-Seidel scheme's vectorized contacts (physics/src/solver_wide.h): a schedule that
 // keeps every body's order of constraints, blocks whose lanes share no dynamic body, and
-// results bit-identical to the scalar pass on every Gauss-Seidel preset.
+// results and velocity residuals bit-identical to the scalar pass on every Gauss-Seidel preset.
 #include <gtest/gtest.h>
 
 #include <map>
@@ -24,34 +24,21 @@ struct ScalarContacts {
   ~ScalarContacts() { setVectorizedContacts(true); }
 };
 
-/// A contact group between solver bodies a and b with `points` points: the normal rows, then
-/// a friction pair per point, as World builds them.
-void addManifold(Solver& s, int a, int b, int points) {
-  const int first = int(s.rows.size());
+/// A manifold between solver bodies a and b with `points` points.
+SolverManifold manifold(int a, int b, int points) {
+  SolverManifold m;
+  m.a = a;
+  m.b = b;
+  m.count = points;
+  m.normal = {0, 0, 1};
+  m.t1 = {1, 0, 0};
+  m.t2 = {0, 1, 0};
+  m.friction = 0.5f;
   for (int k = 0; k < points; ++k) {
-    Row r;
-    r.kind = RowKind::ContactNormal;
-    r.a = a;
-    r.b = b;
-    r.groupStart = k == 0;
-    r.linA = {0, 0, -1};
-    r.linB = {0, 0, 1};
-    r.angA = {0.1f * float(k), 0, 0};
-    s.rows.push_back(r);
+    m.rA[k] = {0.1f * float(k), 0, 0.5f};
+    m.rB[k] = {0.1f * float(k), 0, -0.5f};
   }
-  for (int k = 0; k < points; ++k) {
-    for (Vec3 t : {Vec3{1, 0, 0}, Vec3{0, 1, 0}}) {
-      Row r;
-      r.kind = RowKind::Friction;
-      r.a = a;
-      r.b = b;
-      r.linA = -t;
-      r.linB = t;
-      r.mu = 0.5f;
-      r.parent = first + k;
-      s.rows.push_back(r);
-    }
-  }
+  return m;
 }
 
 void addJoint(Solver& s, int a, int b) {
@@ -65,10 +52,23 @@ void addJoint(Solver& s, int a, int b) {
   s.rows.push_back(r);
 }
 
+Solver bodiesSolver(int n) {
+  Solver s;
+  s.bodies.resize(size_t(n) + 1);
+  for (int i = 1; i <= n; ++i) {
+    s.bodies[size_t(i)].dynamic = true;
+    s.bodies[size_t(i)].invMass = 1;
+    s.bodies[size_t(i)].invI = Mat3::diagonal({1, 1, 1});
+  }
+  s.scheme = SolverSettings::Scheme::GaussSeidel;
+  return s;
+}
+
 TEST(WideContacts, ScheduleKeepsEveryBodysOrderAndPacksDisjointLanes) {
   // A wall of bodies in rows, each resting on the two below it (a pyramid's contact graph),
-  // in the order a pyramid's contacts come: row by row. Two joints and one body that is
-  // kinematic (its constraints may share lanes: the solve never writes it).
+  // in the order a pyramid's contacts come: row by row; two joints (solved before every
+  // contact, as the World orders them) and one kinematic body, whose constraints may share
+  // lanes: the solve never writes it.
   const int base = 16;
   std::vector<std::vector<int>> id;
   int n = 0;
@@ -76,104 +76,116 @@ TEST(WideContacts, ScheduleKeepsEveryBodysOrderAndPacksDisjointLanes) {
     id.emplace_back();
     for (int i = 0; i < base - row; ++i) id.back().push_back(++n);
   }
-  Solver s;
-  s.bodies.resize(size_t(n) + 1);
-  for (int i = 1; i <= n; ++i) {
-    s.bodies[size_t(i)].dynamic = i != 5;
-    s.bodies[size_t(i)].invMass = i != 5 ? 1 : 0;
-  }
+  Solver s = bodiesSolver(n);
+  s.bodies[5].dynamic = false;
+  s.bodies[5].invMass = 0;
+  s.bodies[5].invI = Mat3::zero();
   addJoint(s, id[3][0], id[3][1]);
-  for (int i = 0; i < base; ++i) addManifold(s, 0, id[0][size_t(i)], 4);
+  addJoint(s, id[6][0], id[7][0]);
+  std::vector<SolverManifold> manifolds;
+  for (int i = 0; i < base; ++i) manifolds.push_back(manifold(0, id[0][size_t(i)], 4));
   for (int row = 1; row < base; ++row) {
     for (size_t i = 0; i < id[size_t(row)].size(); ++i) {
-      addManifold(s, id[size_t(row) - 1][i], id[size_t(row)][i], 4);
-      addManifold(s, id[size_t(row) - 1][i + 1], id[size_t(row)][i], 1 + int(i % 4));
+      manifolds.push_back(manifold(id[size_t(row) - 1][i], id[size_t(row)][i], 4));
+      manifolds.push_back(manifold(id[size_t(row) - 1][i + 1], id[size_t(row)][i], 1 + int(i % 4)));
     }
-    if (row == 7) addJoint(s, id[6][0], id[7][0]);
   }
-  s.scheme = SolverSettings::Scheme::GaussSeidel;
   s.indexUnits();
   s.finishRows(0, s.rows.size());
+  ASSERT_EQ(s.groups.size(), 2u);
   WideContacts w;
-  w.build(s);
+  w.build(s, manifolds);
   ASSERT_TRUE(w.active);
 
-  // Every group exactly once; joints stay scalar.
-  std::vector<uint32_t> order;  // groups in schedule order, lanes of a block together
-  std::multiset<uint32_t> seen;
-  size_t scalar = 0;
+  // The serial order: the joints' groups, then the manifolds. Each constraint is a pair of
+  // bodies; `order` lists them as the schedule meets them.
+  auto bodiesOf = [&](size_t c) {
+    return c < s.groups.size() ? std::pair(s.groups[c].a, s.groups[c].b)
+                               : std::pair(manifolds[c - s.groups.size()].a,
+                                           manifolds[c - s.groups.size()].b);
+  };
+  std::vector<size_t> order;
+  std::multiset<size_t> seen;
   for (size_t item = 0; item < w.schedule.size(); ++item) {
     const WideContacts::Item& it = w.schedule[item];
     if (!it.wide) {
-      ++scalar;
-      EXPECT_EQ(s.rows[s.units[s.groups[it.index].unitBegin]].kind, RowKind::Equality);
       order.push_back(it.index);
       seen.insert(it.index);
       continue;
     }
-    std::set<int> bodies;
-    for (uint32_t g : w.groupsOf(it.index)) {
-      for (int body : {s.groups[g].a, s.groups[g].b}) {
+    std::set<int> inBlock;
+    for (uint32_t m : w.manifoldsOf(it.index)) {
+      const size_t c = s.groups.size() + m;
+      for (int body : {bodiesOf(c).first, bodiesOf(c).second}) {
         if (!s.bodies[size_t(body)].dynamic) continue;
-        EXPECT_TRUE(bodies.insert(body).second) << "body " << body << " twice in block " << item;
+        EXPECT_TRUE(inBlock.insert(body).second) << "body " << body << " twice in block " << item;
       }
-      order.push_back(g);
-      seen.insert(g);
+      order.push_back(c);
+      seen.insert(c);
     }
   }
-  EXPECT_EQ(scalar, 2u);
-  ASSERT_EQ(seen.size(), s.groups.size());
-  for (uint32_t g = 0; g < s.groups.size(); ++g) EXPECT_EQ(seen.count(g), 1u) << g;
+  const size_t constraints = s.groups.size() + manifolds.size();
+  ASSERT_EQ(seen.size(), constraints);
+  for (size_t c = 0; c < constraints; ++c) EXPECT_EQ(seen.count(c), 1u) << c;
 
-  // Each dynamic body meets its groups in row order, as serial Gauss-Seidel does.
-  std::map<int, uint32_t> lastGroup;
-  for (uint32_t g : order) {
-    for (int body : {s.groups[g].a, s.groups[g].b}) {
+  // Each dynamic body meets its constraints in the serial order.
+  std::map<int, size_t> last;
+  for (size_t c : order) {
+    for (int body : {bodiesOf(c).first, bodiesOf(c).second}) {
       if (!s.bodies[size_t(body)].dynamic) continue;
-      auto it = lastGroup.find(body);
-      if (it != lastGroup.end()) {
-        EXPECT_LT(it->second, g) << "body " << body;
+      auto it = last.find(body);
+      if (it != last.end()) {
+        EXPECT_LT(it->second, c) << "body " << body;
       }
-      lastGroup[body] = g;
+      last[body] = c;
     }
   }
-  // Packing: no schedule is shorter than the longest chain of groups that share bodies (each
-  // must follow the one before), nor than the groups over the lanes; this one is close to it.
+  // Packing: no schedule is shorter than the longest chain of constraints that share bodies
+  // (each must follow the one before), nor than the manifolds over the lanes; this one is
+  // close to that bound.
   std::vector<int> depthOf(s.bodies.size(), 0);
   int depth = 0;
-  for (const Solver::Group& g : s.groups) {
-    const bool da = s.bodies[size_t(g.a)].dynamic, db = s.bodies[size_t(g.b)].dynamic;
-    const int d = 1 + std::max(da ? depthOf[size_t(g.a)] : 0, db ? depthOf[size_t(g.b)] : 0);
-    if (da) depthOf[size_t(g.a)] = d;
-    if (db) depthOf[size_t(g.b)] = d;
+  for (size_t c = 0; c < constraints; ++c) {
+    auto [a, b] = bodiesOf(c);
+    const bool da = s.bodies[size_t(a)].dynamic, db = s.bodies[size_t(b)].dynamic;
+    const int d = 1 + std::max(da ? depthOf[size_t(a)] : 0, db ? depthOf[size_t(b)] : 0);
+    if (da) depthOf[size_t(a)] = d;
+    if (db) depthOf[size_t(b)] = d;
     depth = std::max(depth, d);
   }
-  const size_t bound = std::max(size_t(depth), (s.groups.size() + wide::kLanes - 1) / wide::kLanes);
+  const size_t bound =
+      std::max(size_t(depth), (manifolds.size() + wide::kLanes - 1) / wide::kLanes);
   EXPECT_LE(double(w.schedule.size()), 1.2 * double(bound))
       << w.laneCount() << " lanes in " << w.blockCount() << " blocks; chain " << depth;
 }
 
-TEST(WideContacts, StoreHandsTheImpulsesBackToTheRows) {
-  Solver s;
-  s.bodies.resize(3);
-  for (int i = 1; i <= 2; ++i) {
-    s.bodies[size_t(i)].dynamic = true;
-    s.bodies[size_t(i)].invMass = 1;
-    s.bodies[size_t(i)].invI = Mat3::diagonal({1, 1, 1});
+TEST(WideContacts, StoreHandsTheImpulsesBackToTheManifolds) {
+  Solver s = bodiesSolver(2);
+  std::vector<SolverManifold> manifolds = {manifold(0, 1, 3), manifold(1, 2, 4)};
+  float x = 0;
+  for (SolverManifold& m : manifolds) {
+    for (int k = 0; k < m.count; ++k) {
+      m.normalImpulse[k] = x += 0.25f;
+      m.tangentImpulse[k][0] = x += 0.25f;
+      m.tangentImpulse[k][1] = -(x += 0.25f);
+    }
   }
-  addManifold(s, 0, 1, 3);
-  addManifold(s, 1, 2, 4);
-  for (size_t i = 0; i < s.rows.size(); ++i) s.rows[i].lambda = 0.25f * float(i + 1);
-  s.scheme = SolverSettings::Scheme::GaussSeidel;
   s.indexUnits();
-  s.finishRows(0, s.rows.size());
-  const std::vector<Row> before = s.rows;
+  const std::vector<SolverManifold> before = manifolds;
   WideContacts w;
-  w.build(s);
-  for (Row& r : s.rows) r.lambda = -1;  // the blocks own the impulses now
-  w.store(s);
+  w.build(s, manifolds);
+  for (SolverManifold& m : manifolds) {  // the blocks own the impulses now
+    for (int k = 0; k < m.count; ++k) m.normalImpulse[k] = m.tangentImpulse[k][0] = -1;
+  }
+  w.store(manifolds);
   EXPECT_FALSE(w.active);
-  for (size_t i = 0; i < s.rows.size(); ++i) EXPECT_EQ(s.rows[i].lambda, before[i].lambda) << i;
+  for (size_t i = 0; i < manifolds.size(); ++i) {
+    for (int k = 0; k < manifolds[i].count; ++k) {
+      EXPECT_EQ(manifolds[i].normalImpulse[k], before[i].normalImpulse[k]) << i << " " << k;
+      EXPECT_EQ(manifolds[i].tangentImpulse[k][0], before[i].tangentImpulse[k][0]);
+      EXPECT_EQ(manifolds[i].tangentImpulse[k][1], before[i].tangentImpulse[k][1]);
+    }
+  }
 }
 
 struct Case {
@@ -181,10 +193,13 @@ struct Case {
   int steps;
 };
 
-/// State hash after `steps` of a scene file with a preset, and the last step's count of
-/// vectorized manifolds.
-std::pair<uint64_t, int> run(const std::string& scenePath, const SolverSettings& solver,
-                             int steps) {
+struct Outcome {
+  uint64_t hash = 0;             ///< state after the run
+  std::vector<double> residual;  ///< each step's velocity residual
+  int vectorized = 0;            ///< most manifolds solved in lanes in a step
+};
+
+Outcome run(const std::string& scenePath, const SolverSettings& solver, int steps) {
   Scene scene;
   Status st = loadSceneFile(scenePath, &scene);
   EXPECT_TRUE(st.ok()) << st.message;
@@ -193,12 +208,14 @@ std::pair<uint64_t, int> run(const std::string& scenePath, const SolverSettings&
   World world(scene.world);
   std::vector<BodyId> ids;
   EXPECT_TRUE(instantiateScene(scene, &world, &ids).ok());
-  int vectorized = 0;
+  Outcome out;
   for (int i = 0; i < steps; ++i) {
     world.step();
-    vectorized = std::max(vectorized, world.stats().vectorizedManifolds);
+    out.vectorized = std::max(out.vectorized, world.stats().vectorizedManifolds);
+    out.residual.push_back(world.stats().velocityResidual);
   }
-  return {world.stateHash(), vectorized};
+  out.hash = world.stateHash();
+  return out;
 }
 
 TEST(WideContacts, BitIdenticalToTheScalarPassOnEveryGaussSeidelPreset) {
@@ -218,22 +235,25 @@ TEST(WideContacts, BitIdenticalToTheScalarPassOnEveryGaussSeidelPreset) {
     for (const Case& c : cases) {
       const std::string path =
           std::string(PHYS_SOURCE_DIR) + "/configs/scenes/" + c.scene + ".json";
-      auto [wide, lanes] = run(path, preset.settings, c.steps);
-      std::pair<uint64_t, int> scalar;
+      const Outcome wide = run(path, preset.settings, c.steps);
+      Outcome scalar;
       {
         ScalarContacts off;
         scalar = run(path, preset.settings, c.steps);
       }
-      EXPECT_EQ(scalar.second, 0) << c.scene;
-      if (preset.settings.splitPushout || preset.settings.blockContacts) {
-        EXPECT_EQ(lanes, 0) << name << " solves its contacts with rows only";
+      EXPECT_EQ(scalar.vectorized, 0) << c.scene;
+      const SolverSettings& ps = preset.settings;
+      if (ps.splitPushout || ps.blockContacts ||
+          (ps.positionPass != SolverSettings::PositionPass::None && ps.positionIterations > 0)) {
+        EXPECT_EQ(wide.vectorized, 0) << name << " solves its contacts with rows only";
       } else {
-        EXPECT_GT(lanes, 0) << c.scene << " with " << name;
+        EXPECT_GT(wide.vectorized, 0) << c.scene << " with " << name;
       }
-      EXPECT_EQ(wide, scalar.first) << c.scene << " with " << name;
+      EXPECT_EQ(wide.hash, scalar.hash) << c.scene << " with " << name;
+      EXPECT_EQ(wide.residual, scalar.residual) << c.scene << " with " << name;
     }
   }
-  EXPECT_GE(presetsRun, 4);  // soft_step, pgs, pgs_ngs, ldl_pgs
+  EXPECT_GE(presetsRun, 4);  // soft_step, pgs, pgs_ngs (rows: position pass), ldl_pgs
 }
 
 TEST(WideContacts, ConvergenceControlCountsTheSameIterations) {
