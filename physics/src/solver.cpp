@@ -296,6 +296,7 @@ void Solver::warmStart() {
         wide->warmStart(block, bodies);
         return 0.0f;
       });
+  if (wide && wide->active) wide->errorsCurrent = true;
 }
 
 void Solver::warmStartGroup(const Group& g, Velocity& A, Velocity& B) {
@@ -754,6 +755,7 @@ void rotateFree(SolverBody& b, float h) {
 }  // namespace
 
 void Solver::integratePositions(float h) {
+  if (wide) wide->errorsCurrent = false;
   parallel(bodies.size(), kBodyGrain, [&](size_t begin, size_t end) {
     for (size_t i = std::max<size_t>(begin, 1); i < end; ++i) {
       SolverBody& b = bodies[i];

@@ -1,6 +1,7 @@
 #include "solver_wide.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 
@@ -152,40 +153,41 @@ void WideContacts::addLane(Block& blk, const Solver& s, uint32_t index, const So
   const SolverBody& B = s.bodies[size_t(m.b)];
   blk.writeA[l] = A.dynamic;
   blk.writeB[l] = B.dynamic;
-  // The rows' values as World::contactRowsOf and Solver::finishRows make them (Gauss-Seidel:
-  // no mass splitting), operation for operation.
+  // The rows' values as contactRow and Solver::finishRows make them (Gauss-Seidel: no mass
+  // splitting; x * 1 is exact), operation for operation.
   const Vec3 axes[3] = {m.normal, m.t1, m.t2};
-  const RowKind kinds[3] = {RowKind::ContactNormal, RowKind::Friction, RowKind::Friction};
+  float linK[3][2];  // dot(linA, mLinA), dot(linB, mLinB)
+  for (int d = 0; d < 3; ++d) {
+    const Vec3 linA = -axes[d], linB = axes[d];
+    const Vec3 mLinA = linA * A.invMass, mLinB = linB * B.invMass;
+    put(blk.linA[d], l, linA);
+    put(blk.linB[d], l, linB);
+    put(blk.mLinA[d], l, mLinA);
+    put(blk.mLinB[d], l, mLinB);
+    linK[d][0] = dot(linA, mLinA);
+    linK[d][1] = dot(linB, mLinB);
+  }
   for (int k = 0; k < m.count; ++k) {
     Point& p = blk.pt[k];
     Dir* out[3] = {&p.n, &p.t1, &p.t2};
     for (int d = 0; d < 3; ++d) {
-      Row r = contactRow(m, kinds[d], axes[d], k);
-      r.mLinA = r.linA * A.invMass;
-      r.mAngA = A.invI * r.angA;
-      r.mLinB = r.linB * B.invMass;
-      r.mAngB = B.invI * r.angB;
-      const float kk = dot(r.linA, r.mLinA) + dot(r.angA, r.mAngA) + dot(r.linB, r.mLinB) +
-                       dot(r.angB, r.mAngB);
-      if (k == 0) {
-        put(blk.linA[d], l, r.linA);
-        put(blk.linB[d], l, r.linB);
-        put(blk.mLinA[d], l, r.mLinA);
-        put(blk.mLinB[d], l, r.mLinB);
-      }
-      put(out[d]->angA, l, r.angA);
-      put(out[d]->angB, l, r.angB);
-      put(out[d]->mAngA, l, r.mAngA);
-      put(out[d]->mAngB, l, r.mAngB);
-      out[d]->effMass[l] = kk > 1e-12f ? 1 / kk : 0;
-      out[d]->lambda[l] = d == 0 ? m.normalImpulse[k] : m.tangentImpulse[k][d - 1];
-      if (d == 0) p.accelN[l] = dot(r.linA, A.linearAccel) + dot(r.linB, B.linearAccel);
+      const Vec3 angA = -cross(m.rA[k], axes[d]), angB = cross(m.rB[k], axes[d]);
+      const Vec3 mAngA = A.invI * angA, mAngB = B.invI * angB;
+      const float kk = linK[d][0] + dot(angA, mAngA) + linK[d][1] + dot(angB, mAngB);
+      Dir& r = *out[d];
+      put(r.angA, l, angA);
+      put(r.angB, l, angB);
+      put(r.mAngA, l, mAngA);
+      put(r.mAngB, l, mAngB);
+      r.effMass[l] = kk > 1e-12f ? 1 / kk : 0;
+      r.lambda[l] = d == 0 ? m.normalImpulse[k] : m.tangentImpulse[k][d - 1];
     }
     p.C0[l] = m.separation[k];
     p.maxLambda[l] = 0;
     p.relativeVelocity[l] = m.relativeVelocity[k];
     p.restitution[l] = m.restitution;
     p.mu[l] = m.friction;
+    p.accelN[l] = dot(-m.normal, A.linearAccel) + dot(m.normal, B.linearAccel);
   }
 }
 
@@ -194,6 +196,7 @@ void WideContacts::clear() {
   blocks_.clear();
   laneOf_.clear();
   active = false;
+  errorsCurrent = false;
 }
 
 void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& manifolds) {
@@ -206,8 +209,8 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
   // free lane of a block a few levels further on, which fills blocks at the price of
   // pushing its bodies' later constraints back.
   struct Level {
-    std::vector<Item> items;
-    int32_t open = -1;  ///< a block of this level with a free lane
+    std::vector<Item> items;  ///< blocks numbered in the order they were opened
+    int32_t open = -1;        ///< a block of this level with a free lane
   };
   std::vector<Level> levels;
   std::vector<int32_t> levelOf(s.bodies.size(), -1);  // last level touching a dynamic body
@@ -226,7 +229,8 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
     touch(g.a, g.b, at);
     levels[size_t(at)].items.push_back({gi, false});
   }
-  blocks_.reserve(manifolds.size() / 4);
+  std::vector<std::array<uint32_t, kLanes>> lanes;  // per opened block: its manifolds
+  std::vector<uint8_t> used;
   laneOf_.resize(manifolds.size());
   for (uint32_t mi = 0; mi < manifolds.size(); ++mi) {
     const SolverManifold& m = manifolds[mi];
@@ -240,18 +244,43 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
     touch(m.a, m.b, at);
     Level& level = levels[size_t(at)];
     if (level.open < 0) {
-      level.open = int32_t(blocks_.size());
-      level.items.push_back({uint32_t(blocks_.size()), true});
-      blocks_.emplace_back();
+      level.open = int32_t(lanes.size());
+      level.items.push_back({uint32_t(lanes.size()), true});
+      lanes.emplace_back();
+      used.push_back(0);
     }
-    Block& blk = blocks_[size_t(level.open)];
-    laneOf_[mi] = {uint32_t(level.open), uint32_t(blk.lanes)};
-    addLane(blk, s, mi, m);
-    if (blk.lanes == kLanes) level.open = -1;
+    const size_t blk = size_t(level.open);
+    lanes[blk][used[blk]++] = mi;
+    if (used[blk] == kLanes) level.open = -1;
   }
-  schedule.reserve(s.groups.size() + blocks_.size());
-  for (const Level& level : levels)
-    schedule.insert(schedule.end(), level.items.begin(), level.items.end());
+  // The schedule, level by level, and the blocks numbered in its order, so that the passes
+  // stream through them; then each block is filled in one go. (Filling them in parallel
+  // made the step slower on this 2-core VM: the first pass then fetches every block from
+  // the other core.)
+  schedule.reserve(s.groups.size() + lanes.size());
+  std::vector<uint32_t> openedAs;  // per block in schedule order: its index as opened
+  openedAs.reserve(lanes.size());
+  for (const Level& level : levels) {
+    for (Item item : level.items) {
+      if (item.wide) {
+        openedAs.push_back(item.index);
+        item.index = uint32_t(openedAs.size() - 1);
+      }
+      schedule.push_back(item);
+    }
+  }
+  blocks_.resize(lanes.size());
+  auto fill = [&](size_t begin, size_t end) {
+    for (size_t b = begin; b < end; ++b) {
+      const uint32_t opened = openedAs[b];
+      for (uint8_t l = 0; l < used[opened]; ++l) {
+        const uint32_t mi = lanes[opened][l];
+        laneOf_[mi] = {uint32_t(b), l};
+        addLane(blocks_[b], s, mi, manifolds[mi]);
+      }
+    }
+  };
+  fill(0, blocks_.size());
 }
 
 size_t WideContacts::laneCount() const {
@@ -314,6 +343,7 @@ PHYS_WIDE_CLONES void WideContacts::warmStart(uint32_t block, std::vector<Solver
     vf vn = rowVelocity(blk.linA[0], blk.linB[0], r.angA, r.angB, s);
     const vf C = p.C0 + dot(blk.linA[0], dpA) + dot(r.angA, dtA) + dot(blk.linB[0], dpB) +
                  dot(r.angB, dtB);
+    p.C = C;
     const vm apart = (vn < 0) & (C > 0) & (p.accelN < 0);
     vn = select(apart, -vsqrt(vn * vn - 2.0f * p.accelN * C), vn);
     p.relativeVelocity = vmin(p.relativeVelocity, vn);
@@ -333,8 +363,11 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
   Block& blk = blocks_[block];
   Lanes s;
   gatherVelocities(bodies, blk.a, blk.b, s);
+  // The position errors: as the warm start left them while the bodies have not moved since
+  // (the iterations), else from the bodies' deltas (the relax pass after the positions).
   V3 dpA, dtA, dpB, dtB;
-  gatherDeltas(bodies, blk.a, blk.b, dpA, dtA, dpB, dtB);
+  const bool fresh = !errorsCurrent;
+  if (fresh) gatherDeltas(bodies, blk.a, blk.b, dpA, dtA, dpB, dtB);
   vf change = splat(0);
   // Solver::solveGroup's ContactNormal case, row by row.
   const float slop = !prm.soft ? prm.linearSlop : 0;
@@ -342,8 +375,9 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
     Point& p = blk.pt[k];
     Dir& r = p.n;
     const vf vn = rowVelocity(blk.linA[0], blk.linB[0], r.angA, r.angB, s);
-    const vf C = p.C0 + dot(blk.linA[0], dpA) + dot(r.angA, dtA) + dot(blk.linB[0], dpB) +
-                 dot(r.angB, dtB);
+    const vf C = fresh ? p.C0 + dot(blk.linA[0], dpA) + dot(r.angA, dtA) +
+                             dot(blk.linB[0], dpB) + dot(r.angB, dtB)
+                       : p.C;
     const vm speculative = C > 0;
     vf bias = C * prm.invH;  // close exactly the gap this substep, no more
     vf massScale = splat(1), impulseScale = splat(0);

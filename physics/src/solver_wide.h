@@ -52,6 +52,9 @@ class WideContacts {
   };
   std::vector<Item> schedule;
   bool active = false;
+  /// The points' C hold the position errors at the bodies' current deltas: warmStart sets
+  /// it, Solver::integratePositions clears it (the bodies moved).
+  bool errorsCurrent = false;
 
   /// Packs the manifolds into blocks and orders them after the solver's row groups (the
   /// joints; see the file comment). The rows must be finished; sets active.
@@ -82,6 +85,7 @@ class WideContacts {
   struct Point {
     Dir n, t1, t2;
     wide::vf C0, maxLambda, relativeVelocity;  ///< the normal row's
+    wide::vf C;  ///< position error at this substep's deltas (set by warmStart)
     wide::vf restitution, mu;
     wide::vf accelN;  ///< the bodies' constant accelerations along the normal (warm start)
   };

@@ -64,6 +64,9 @@ const char* toString(JointType t) {
 namespace {
 
 constexpr float kMinDistanceLength = 1e-3f;  ///< m, shortest rest length of a distance joint
+/// Contacts per chunk of the parallel narrow phase and manifold build (a box pair's narrow
+/// phase takes about 0.2 us).
+constexpr size_t kContactGrain = 256;
 
 Status invalid(std::string m) {
   return Status::Error(StatusCode::InvalidArgument, std::move(m));
@@ -1034,40 +1037,58 @@ void World::Impl::broadPhaseStage() {
 }
 
 void World::Impl::narrowPhase(float dt) {
-  stats.contactPoints = 0;
-  stats.maxPenetration = 0;
-  for (Contact& c : contacts) {
-    const ShapeRec& sa = shapes.at(c.shapeA);
-    const ShapeRec& sb = shapes.at(c.shapeB);
-    const BodyRec& A = *bodies.get(c.bodyA);
-    const BodyRec& B = *bodies.get(c.bodyB);
-    // The margin grows with the speeds so a fast body meets a speculative contact before it
-    // can pass through anything (no tunnelling without a separate continuous pass).
-    float reach =
-        (length(A.v) + length(A.w) * sa.boundRadius + length(B.v) + length(B.w) * sb.boundRadius) *
-        dt;
-    float margin = def.speculativeDistance + reach;
-    Manifold m;
-    collide(sa.def.geom, shapeTransform(A, sa), sb.def.geom, shapeTransform(B, sb), margin, &m);
-    // Carry impulses of points whose features persist (warm starting).
-    float ni[Manifold::kMaxPoints] = {}, ti[Manifold::kMaxPoints][2] = {};
-    for (int i = 0; i < m.count; ++i) {
-      const ContactPoint& cp = m.points[i];
-      for (int k = 0; k < c.manifold.count; ++k) {
-        if (c.manifold.points[k].featureId == cp.featureId) {
-          ni[i] = c.normalImpulse[k];
-          ti[i][0] = c.tangentImpulse[k][0];
-          ti[i][1] = c.tangentImpulse[k][1];
-          break;
+  // Every contact on its own (reads bodies and shapes, writes only itself), in parallel;
+  // the statistics are a max and a sum, the same for any split.
+  std::atomic<int> points{0};
+  std::atomic<float> deepest{0};
+  auto collideRange = [&](size_t begin, size_t end) {
+    int chunkPoints = 0;
+    float chunkDeepest = 0;
+    for (size_t ci = begin; ci < end; ++ci) {
+      Contact& c = contacts[ci];
+      const ShapeRec& sa = shapes.at(c.shapeA);
+      const ShapeRec& sb = shapes.at(c.shapeB);
+      const BodyRec& A = *bodies.get(c.bodyA);
+      const BodyRec& B = *bodies.get(c.bodyB);
+      // The margin grows with the speeds so a fast body meets a speculative contact before
+      // it can pass through anything (no tunnelling without a separate continuous pass).
+      float reach = (length(A.v) + length(A.w) * sa.boundRadius + length(B.v) +
+                     length(B.w) * sb.boundRadius) *
+                    dt;
+      float margin = def.speculativeDistance + reach;
+      Manifold m;
+      collide(sa.def.geom, shapeTransform(A, sa), sb.def.geom, shapeTransform(B, sb), margin,
+              &m);
+      // Carry impulses of points whose features persist (warm starting).
+      float ni[Manifold::kMaxPoints] = {}, ti[Manifold::kMaxPoints][2] = {};
+      for (int i = 0; i < m.count; ++i) {
+        const ContactPoint& cp = m.points[i];
+        for (int k = 0; k < c.manifold.count; ++k) {
+          if (c.manifold.points[k].featureId == cp.featureId) {
+            ni[i] = c.normalImpulse[k];
+            ti[i][0] = c.tangentImpulse[k][0];
+            ti[i][1] = c.tangentImpulse[k][1];
+            break;
+          }
         }
+        chunkDeepest = std::max(chunkDeepest, -cp.separation);
       }
-      stats.maxPenetration = std::max(stats.maxPenetration, double(-cp.separation));
+      c.manifold = m;
+      std::memcpy(c.normalImpulse, ni, sizeof ni);
+      std::memcpy(c.tangentImpulse, ti, sizeof ti);
+      chunkPoints += m.count;
     }
-    c.manifold = m;
-    std::memcpy(c.normalImpulse, ni, sizeof ni);
-    std::memcpy(c.tangentImpulse, ti, sizeof ti);
-    stats.contactPoints += m.count;
-  }
+    points += chunkPoints;
+    float seen = deepest.load();
+    while (chunkDeepest > seen && !deepest.compare_exchange_weak(seen, chunkDeepest)) {
+    }
+  };
+  if (pool)
+    pool->parallelFor(contacts.size(), kContactGrain, collideRange);
+  else
+    collideRange(0, contacts.size());
+  stats.contactPoints = points.load();
+  stats.maxPenetration = double(deepest.load());
   stats.contacts = int(contacts.size());
 }
 
@@ -1236,13 +1257,20 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
     c.firstRow = -1;
     if (c.manifold.count == 0) continue;
     if (vectorized) {
-      manifolds.push_back(solverManifold(c, s));
       manifoldContact.push_back(ci);
       continue;
     }
     c.firstRow = int32_t(solver.rows.size());
     contactRowsOf(c, solverManifold(c, s));
   }
+  manifolds.resize(manifoldContact.size());
+  auto makeManifolds = [&](size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i) manifolds[i] = solverManifold(contacts[manifoldContact[i]], s);
+  };
+  if (pool)
+    pool->parallelFor(manifolds.size(), kContactGrain, makeManifolds);
+  else
+    makeManifolds(0, manifolds.size());
   solver.scheme = s.scheme;
   solver.indexUnits();
   solver.finishRows(0, solver.rows.size());
