@@ -64,7 +64,7 @@ static_assert(sizeof(ConvexHull) == 112, "ConvexHull changed: update snapshot.cp
 #endif
 
 constexpr char kMagic[8] = {'P', 'H', 'Y', 'S', 'N', 'A', 'P', '\0'};
-constexpr uint32_t kVersion = 1;
+constexpr uint32_t kVersion = 2;  // 2: SolverSettings::patchFriction
 constexpr size_t kHeaderSize = 8 + 4 + 8 + 8;
 constexpr int kMaxGuardRetries = 1000;
 
@@ -451,6 +451,7 @@ void ioSolver(Ar& ar, D& s) {
   ar.e8(s.equalitySolve, S::EqualitySolve::DirectLdl);
   ar.flag(s.blockContacts);
   ar.flag(s.geometricStiffness);
+  ar.flag(s.patchFriction);
 }
 
 template <class Ar, class D>

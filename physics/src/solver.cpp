@@ -426,6 +426,14 @@ float Solver::solveGroup(const Group& g, Velocity& A, Velocity& B, const Iterati
         r.lambda = next;
         break;
       }
+      case RowKind::Twist: {
+        const float bound = r.mu * frictionLoad(r);
+        impulse = -r.effMass * vn;
+        float next = std::clamp(r.lambda + impulse, -bound, bound);
+        impulse = next - r.lambda;
+        r.lambda = next;
+        break;
+      }
     }
     if (impulse == 0) continue;
     applyImpulse(r, impulse, A, B);
@@ -684,12 +692,19 @@ bool Solver::solveContactBlock(size_t first, const IterationParams& p, Velocity&
   return true;
 }
 
+float Solver::frictionLoad(const Row& r) const {
+  if (r.patchPoints == 0) return rows[size_t(r.parent)].lambda;
+  float sum = 0;
+  for (int k = 0; k < r.patchPoints; ++k) sum += rows[size_t(r.parent + k)].lambda;
+  return sum;
+}
+
 float Solver::solveFrictionPair(Row& r1, Row& r2, Velocity& A, Velocity& B, bool measure) {
   // Both tangent directions at once, clamped to the friction disc |lambda_t| <= mu lambda_n:
   // isotropic Coulomb friction (clamping each axis alone would allow sqrt(2) mu diagonally).
   float l1 = r1.lambda - r1.effMass * rowVelocity(r1, A, B);
   float l2 = r2.lambda - r2.effMass * rowVelocity(r2, A, B);
-  float bound = r1.mu * rows[size_t(r1.parent)].lambda;
+  float bound = r1.mu * frictionLoad(r1);
   float len2 = l1 * l1 + l2 * l2;
   if (len2 > bound * bound) {
     float k = len2 > 0 ? bound / std::sqrt(len2) : 0;
@@ -874,6 +889,7 @@ double Solver::velocityResidual(float h) const {
         e = vn;
         break;
       case RowKind::Friction:
+      case RowKind::Twist:
         e = 0;  // sticking or sliding, friction has no target velocity of its own
         break;
       case RowKind::Motor:

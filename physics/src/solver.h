@@ -55,6 +55,7 @@ enum class RowKind : uint8_t {
   Limit,          ///< lambda >= 0, C >= 0 is allowed (speculative when C > 0)
   Motor,          ///< |lambda| <= maxImpulse, drives J v to target
   Spring,         ///< lambda free, soft with the row's own hertz and damping ratio
+  Twist,          ///< patch friction about the normal: |lambda| <= mu * sum(lambda(normals))
 };
 
 struct Row {
@@ -68,6 +69,9 @@ struct Row {
   float target = 0;                   ///< motor target velocity
   float mu = 0;                       ///< friction coefficient
   int32_t parent = -1;                ///< friction: the normal row bounding it
+  /// Patch friction and twist rows: the manifold's normal rows from `parent` whose impulses
+  /// bound it (0: the parent alone).
+  uint8_t patchPoints = 0;
   float restitution = 0;              ///< normal rows
   float relativeVelocity = 0;         ///< normal rows: J v before the solve
   float maxLambda = 0;                ///< normal rows: largest impulse in the step
@@ -100,6 +104,13 @@ struct SolverManifold {
   float relativeVelocity[4] = {};  ///< normal approach speed at the step's start
   /// In: the warm start (zero without). Out (WideContacts::store): the step's impulses.
   float normalImpulse[4] = {}, tangentImpulse[4][2] = {};
+  /// Patch friction (SolverSettings::patchFriction): the tangent rows act at the points'
+  /// centroid (patchRA, patchRB), the twist row about the normal with arm twistArm (the
+  /// points' mean distance from the centroid); impulses t1, t2, twist in patchImpulse.
+  bool patch = false;
+  Vec3 patchRA, patchRB;
+  float twistArm = 0;
+  float patchImpulse[3] = {};
 };
 
 /// A contact row along `axis` (from A to B) at point k of m (linA = -axis, angA = -rA x axis).
@@ -227,6 +238,8 @@ class Solver {
   float solveGroup(const Group& g, Velocity& A, Velocity& B, const IterationParams& p);
   float pushoutGroup(const Group& g, Velocity& A, Velocity& B, const IterationParams& p);
   float solveFrictionPair(Row& r1, Row& r2, Velocity& A, Velocity& B, bool measure);
+  /// The normal impulse bounding a friction or twist row.
+  float frictionLoad(const Row& r) const;
   float solveBlock(size_t first, const IterationParams& p, Velocity& A, Velocity& B);
   /// The normal rows of a manifold at `first` as one small LCP; false when it does not apply
   /// (a speculative point) or no active set solves it, and the rows are solved one by one.

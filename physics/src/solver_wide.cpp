@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cassert>
 #include <cmath>
 #include <cstring>
 
@@ -15,6 +16,7 @@ using wide::vf;
 using wide::kLanes;
 using wide::vm;
 using wide::V3;
+using wide::Lanes;
 
 namespace {
 
@@ -70,9 +72,6 @@ PHYS_WIDE_INLINE void addScaled(vm mask, V3& v, const V3& m, vf impulse) {
   v.z = select(mask, v.z + m.z * impulse, v.z);
 }
 
-struct Lanes {
-  V3 vA, wA, vB, wB;
-};
 
 PHYS_WIDE_INLINE void load(V3& out, int l, Vec3 v) {
   out.x[l] = v.x;
@@ -142,7 +141,9 @@ constexpr int32_t kLevelSearch = 4;
 
 }  // namespace
 
-void WideContacts::addLane(Block& blk, const Solver& s, uint32_t index, const SolverManifold& m) {
+void WideContacts::addLane(uint32_t block, const Solver& s, uint32_t index,
+                           const SolverManifold& m) {
+  Block& blk = blocks_[block];
   const int l = blk.lanes++;
   blk.manifold[l] = index;
   blk.a[l] = m.a;
@@ -167,26 +168,49 @@ void WideContacts::addLane(Block& blk, const Solver& s, uint32_t index, const So
     linK[d][0] = dot(linA, mLinA);
     linK[d][1] = dot(linB, mLinB);
   }
+  // One row at arms (rA, rB) along axis d (the rows' angular parts are -rA x axis, rB x axis).
+  auto row = [&](Dir& r, Vec3 rA, Vec3 rB, int d, float lambda) {
+    const Vec3 angA = -cross(rA, axes[d]), angB = cross(rB, axes[d]);
+    const Vec3 mAngA = A.invI * angA, mAngB = B.invI * angB;
+    const float kk = linK[d][0] + dot(angA, mAngA) + linK[d][1] + dot(angB, mAngB);
+    put(r.angA, l, angA);
+    put(r.angB, l, angB);
+    put(r.mAngA, l, mAngA);
+    put(r.mAngB, l, mAngB);
+    r.effMass[l] = kk > 1e-12f ? 1 / kk : 0;
+    r.lambda[l] = lambda;
+  };
+  if (m.patch) {
+    Patch& pa = patches_[block];
+    row(pa.t1, m.patchRA, m.patchRB, 1, m.patchImpulse[0]);
+    row(pa.t2, m.patchRA, m.patchRB, 2, m.patchImpulse[1]);
+    // The twist: no linear part, angular -n and n (dot(0, 0) + ... as the row's effMass).
+    const Vec3 zero{}, angA = -m.normal, angB = m.normal;
+    const Vec3 mAngA = A.invI * angA, mAngB = B.invI * angB;
+    const float kk = dot(zero, zero * A.invMass) + dot(angA, mAngA) + dot(zero, zero * B.invMass) +
+                     dot(angB, mAngB);
+    put(pa.twist.angA, l, angA);
+    put(pa.twist.angB, l, angB);
+    put(pa.twist.mAngA, l, mAngA);
+    put(pa.twist.mAngB, l, mAngB);
+    pa.twist.effMass[l] = kk > 1e-12f ? 1 / kk : 0;
+    pa.twist.lambda[l] = m.patchImpulse[2];
+    pa.mu[l] = m.friction;
+    pa.twistMu[l] = m.friction * m.twistArm;
+  }
   for (int k = 0; k < m.count; ++k) {
     Point& p = blk.pt[k];
-    Dir* out[3] = {&p.n, &p.t1, &p.t2};
-    for (int d = 0; d < 3; ++d) {
-      const Vec3 angA = -cross(m.rA[k], axes[d]), angB = cross(m.rB[k], axes[d]);
-      const Vec3 mAngA = A.invI * angA, mAngB = B.invI * angB;
-      const float kk = linK[d][0] + dot(angA, mAngA) + linK[d][1] + dot(angB, mAngB);
-      Dir& r = *out[d];
-      put(r.angA, l, angA);
-      put(r.angB, l, angB);
-      put(r.mAngA, l, mAngA);
-      put(r.mAngB, l, mAngB);
-      r.effMass[l] = kk > 1e-12f ? 1 / kk : 0;
-      r.lambda[l] = d == 0 ? m.normalImpulse[k] : m.tangentImpulse[k][d - 1];
+    if (!m.patch) {
+      PointFriction& f = frictionOf(block)[k];
+      row(f.t1, m.rA[k], m.rB[k], 1, m.tangentImpulse[k][0]);
+      row(f.t2, m.rA[k], m.rB[k], 2, m.tangentImpulse[k][1]);
+      f.mu[l] = m.friction;
     }
+    row(p.n, m.rA[k], m.rB[k], 0, m.normalImpulse[k]);
     p.C0[l] = m.separation[k];
     p.maxLambda[l] = 0;
     p.relativeVelocity[l] = m.relativeVelocity[k];
     p.restitution[l] = m.restitution;
-    p.mu[l] = m.friction;
     p.accelN[l] = dot(-m.normal, A.linearAccel) + dot(m.normal, B.linearAccel);
   }
 }
@@ -194,6 +218,8 @@ void WideContacts::addLane(Block& blk, const Solver& s, uint32_t index, const So
 void WideContacts::clear() {
   schedule.clear();
   blocks_.clear();
+  friction_.clear();
+  patches_.clear();
   laneOf_.clear();
   active = false;
   errorsCurrent = false;
@@ -202,6 +228,10 @@ void WideContacts::clear() {
 void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& manifolds) {
   clear();
   active = true;
+  patch_ = !manifolds.empty() && manifolds.front().patch;
+#ifndef NDEBUG
+  for (const SolverManifold& m : manifolds) assert(m.patch == patch_);  // one setting per step
+#endif
   // Levels: a constraint goes on the level after the last one that touched either of its
   // dynamic bodies, so the constraints of a level share no dynamic body and a level's items
   // may run in any order, while each body still meets its constraints in the serial order
@@ -270,13 +300,17 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
     }
   }
   blocks_.resize(lanes.size());
+  if (patch_)
+    patches_.resize(lanes.size());
+  else
+    friction_.resize(lanes.size() * Manifold::kMaxPoints);
   auto fill = [&](size_t begin, size_t end) {
     for (size_t b = begin; b < end; ++b) {
       const uint32_t opened = openedAs[b];
       for (uint8_t l = 0; l < used[opened]; ++l) {
         const uint32_t mi = lanes[opened][l];
         laneOf_[mi] = {uint32_t(b), l};
-        addLane(blocks_[b], s, mi, manifolds[mi]);
+        addLane(uint32_t(b), s, mi, manifolds[mi]);
       }
     }
   };
@@ -295,14 +329,22 @@ std::vector<uint32_t> WideContacts::manifoldsOf(uint32_t block) const {
 }
 
 void WideContacts::store(std::vector<SolverManifold>& manifolds) {
-  for (const Block& blk : blocks_) {
+  for (uint32_t b = 0; b < blocks_.size(); ++b) {
+    const Block& blk = blocks_[b];
     for (int l = 0; l < blk.lanes; ++l) {
       SolverManifold& m = manifolds[blk.manifold[l]];
       for (int k = 0; k < m.count; ++k) {
-        const Point& p = blk.pt[k];
-        m.normalImpulse[k] = p.n.lambda[l];
-        m.tangentImpulse[k][0] = p.t1.lambda[l];
-        m.tangentImpulse[k][1] = p.t2.lambda[l];
+        m.normalImpulse[k] = blk.pt[k].n.lambda[l];
+        if (patch_) continue;
+        const PointFriction& f = frictionOf(b)[k];
+        m.tangentImpulse[k][0] = f.t1.lambda[l];
+        m.tangentImpulse[k][1] = f.t2.lambda[l];
+      }
+      if (patch_) {
+        const Patch& pa = patches_[b];
+        m.patchImpulse[0] = pa.t1.lambda[l];
+        m.patchImpulse[1] = pa.t2.lambda[l];
+        m.patchImpulse[2] = pa.twist.lambda[l];
       }
     }
   }
@@ -330,6 +372,27 @@ double WideContacts::residual(const std::vector<SolverBody>& bodies, float h, do
   return sum;
 }
 
+PHYS_WIDE_INLINE void WideContacts::frictionPair(const Block& blk, Dir& r1, Dir& r2, vf bound,
+                                                  bool measure, vf& change, Lanes& s) {
+  vf l1 = r1.lambda - r1.effMass * rowVelocity(blk.linA[1], blk.linB[1], r1.angA, r1.angB, s);
+  vf l2 = r2.lambda - r2.effMass * rowVelocity(blk.linA[2], blk.linB[2], r2.angA, r2.angB, s);
+  const vf len2 = l1 * l1 + l2 * l2;
+  const vm outside = len2 > bound * bound;
+  const vf scale = select(len2 > 0, bound / vsqrt(len2), splat(0));
+  l1 = select(outside, l1 * scale, l1);
+  l2 = select(outside, l2 * scale, l2);
+  const vf d1 = l1 - r1.lambda, d2 = l2 - r2.lambda;
+  r1.lambda = l1;
+  r2.lambda = l2;
+  applyImpulse(d1 != 0, blk.mLinA[1], blk.mLinB[1], r1.mAngA, r1.mAngB, d1, s);
+  applyImpulse(d2 != 0, blk.mLinA[2], blk.mLinB[2], r2.mAngA, r2.mAngB, d2, s);
+  if (measure) {
+    vf c = select(r1.effMass > 0, vabs(d1) / r1.effMass, splat(0));
+    c = select(r2.effMass > 0, vmax(c, vabs(d2) / r2.effMass), c);
+    change = vmax(change, c);
+  }
+}
+
 PHYS_WIDE_CLONES void WideContacts::warmStart(uint32_t block, std::vector<SolverBody>& bodies) {
   Block& blk = blocks_[block];
   Lanes s;
@@ -349,11 +412,22 @@ PHYS_WIDE_CLONES void WideContacts::warmStart(uint32_t block, std::vector<Solver
     p.relativeVelocity = vmin(p.relativeVelocity, vn);
     applyImpulse(r.lambda != 0, blk.mLinA[0], blk.mLinB[0], r.mAngA, r.mAngB, r.lambda, s);
   }
-  for (int k = 0; k < blk.points; ++k) {
-    Point& p = blk.pt[k];
-    for (int d = 1; d < 3; ++d) {
-      Dir& r = d == 1 ? p.t1 : p.t2;
-      applyImpulse(r.lambda != 0, blk.mLinA[d], blk.mLinB[d], r.mAngA, r.mAngB, r.lambda, s);
+  if (patch_) {
+    Patch& pa = patches_[block];
+    applyImpulse(pa.t1.lambda != 0, blk.mLinA[1], blk.mLinB[1], pa.t1.mAngA, pa.t1.mAngB,
+                 pa.t1.lambda, s);
+    applyImpulse(pa.t2.lambda != 0, blk.mLinA[2], blk.mLinB[2], pa.t2.mAngA, pa.t2.mAngB,
+                 pa.t2.lambda, s);
+    const V3 zero{};
+    applyImpulse(pa.twist.lambda != 0, zero, zero, pa.twist.mAngA, pa.twist.mAngB,
+                 pa.twist.lambda, s);
+  } else {
+    PointFriction* fr = frictionOf(block);
+    for (int k = 0; k < blk.points; ++k) {
+      for (int d = 1; d < 3; ++d) {
+        Dir& r = d == 1 ? fr[k].t1 : fr[k].t2;
+        applyImpulse(r.lambda != 0, blk.mLinA[d], blk.mLinB[d], r.mAngA, r.mAngB, r.lambda, s);
+      }
     }
   }
   scatterVelocities(bodies, blk.a, blk.b, blk.writeA, blk.writeB, s);
@@ -400,29 +474,31 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
     if (prm.measure)
       change = select(moved & (r.effMass > 0), vmax(change, vabs(impulse) / r.effMass), change);
   }
-  // Solver::solveFrictionPair: both tangents clamped to the friction disc.
-  for (int k = 0; k < blk.points; ++k) {
-    Point& p = blk.pt[k];
-    Dir& r1 = p.t1;
-    Dir& r2 = p.t2;
-    vf l1 = r1.lambda - r1.effMass * rowVelocity(blk.linA[1], blk.linB[1], r1.angA, r1.angB, s);
-    vf l2 = r2.lambda - r2.effMass * rowVelocity(blk.linA[2], blk.linB[2], r2.angA, r2.angB, s);
-    const vf bound = p.mu * p.n.lambda;
-    const vf len2 = l1 * l1 + l2 * l2;
-    const vm outside = len2 > bound * bound;
-    const vf scale = select(len2 > 0, bound / vsqrt(len2), splat(0));
-    l1 = select(outside, l1 * scale, l1);
-    l2 = select(outside, l2 * scale, l2);
-    const vf d1 = l1 - r1.lambda, d2 = l2 - r2.lambda;
-    r1.lambda = l1;
-    r2.lambda = l2;
-    applyImpulse(d1 != 0, blk.mLinA[1], blk.mLinB[1], r1.mAngA, r1.mAngB, d1, s);
-    applyImpulse(d2 != 0, blk.mLinA[2], blk.mLinB[2], r2.mAngA, r2.mAngB, d2, s);
-    if (prm.measure) {
-      vf c = select(r1.effMass > 0, vabs(d1) / r1.effMass, splat(0));
-      c = select(r2.effMass > 0, vmax(c, vabs(d2) / r2.effMass), c);
-      change = vmax(change, c);
-    }
+  // Solver::solveFrictionPair: both tangents clamped to the friction disc of mu times the
+  // point's normal impulse, or with patch friction the manifold's.
+  if (patch_) {
+    Patch& pa = patches_[block];
+    vf load = splat(0);
+    for (int k = 0; k < blk.points; ++k) load = load + blk.pt[k].n.lambda;
+    frictionPair(blk, pa.t1, pa.t2, pa.mu * load, prm.measure, change, s);
+    // Solver::solveGroup's Twist case.
+    Dir& r = pa.twist;
+    const V3 zero{};
+    const vf vn = rowVelocity(zero, zero, r.angA, r.angB, s);
+    const vf bound = pa.twistMu * load;
+    vf impulse = -r.effMass * vn;
+    const vf sum = r.lambda + impulse;
+    const vf next = select(sum < -bound, -bound, select(bound < sum, bound, sum));
+    impulse = next - r.lambda;
+    r.lambda = next;
+    const vm moved = impulse != 0;
+    applyImpulse(moved, zero, zero, r.mAngA, r.mAngB, impulse, s);
+    if (prm.measure)
+      change = select(moved & (r.effMass > 0), vmax(change, vabs(impulse) / r.effMass), change);
+  } else {
+    PointFriction* fr = frictionOf(block);
+    for (int k = 0; k < blk.points; ++k)
+      frictionPair(blk, fr[k].t1, fr[k].t2, fr[k].mu * blk.pt[k].n.lambda, prm.measure, change, s);
   }
   scatterVelocities(bodies, blk.a, blk.b, blk.writeA, blk.writeB, s);
   if (!prm.measure) return 0;

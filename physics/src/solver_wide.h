@@ -34,6 +34,10 @@ typedef int32_t vm __attribute__((vector_size(32), aligned(32)));
 struct V3 {
   vf x, y, z;
 };
+/// The velocities of the bodies in a block's lanes.
+struct Lanes {
+  V3 vA, wA, vB, wB;
+};
 }  // namespace wide
 
 /// The constants of one pass over the contacts (Solver::IterationParams, minus joints).
@@ -77,17 +81,27 @@ class WideContacts {
   std::vector<uint32_t> manifoldsOf(uint32_t block) const;
 
  private:
-  /// One row direction (normal, tangent 1, tangent 2) at one point of eight manifolds.
+  /// One row direction (normal, tangent 1, tangent 2, twist) of eight manifolds.
   struct Dir {
     wide::V3 angA, angB, mAngA, mAngB;
     wide::vf effMass, lambda;
   };
   struct Point {
-    Dir n, t1, t2;
+    Dir n;
     wide::vf C0, maxLambda, relativeVelocity;  ///< the normal row's
     wide::vf C;  ///< position error at this substep's deltas (set by warmStart)
-    wide::vf restitution, mu;
+    wide::vf restitution;
     wide::vf accelN;  ///< the bodies' constant accelerations along the normal (warm start)
+  };
+  /// A point's friction pair (without patch friction).
+  struct PointFriction {
+    Dir t1, t2;
+    wide::vf mu;
+  };
+  /// Patch friction (SolverManifold::patch): a tangent pair at the centroid and the twist.
+  struct Patch {
+    Dir t1, t2, twist;
+    wide::vf mu, twistMu;  ///< friction, and friction times the twist arm
   };
   /// The Jacobian's linear parts are the manifold's normal and tangents, the same at every
   /// point: stored once per lane for each direction (0 = normal, 1, 2 = tangents).
@@ -100,9 +114,19 @@ class WideContacts {
     bool writeA[wide::kLanes] = {}, writeB[wide::kLanes] = {};  ///< dynamic bodies only
     int lanes = 0, points = 0;
   };
-  void addLane(Block& blk, const Solver& s, uint32_t index, const SolverManifold& m);
+  void addLane(uint32_t block, const Solver& s, uint32_t index, const SolverManifold& m);
+  /// Solver::solveFrictionPair on a block's lanes: the pair clamped to the disc of `bound`.
+  static void frictionPair(const Block& blk, Dir& r1, Dir& r2, wide::vf bound, bool measure,
+                           wide::vf& change, wide::Lanes& s);
+  PointFriction* frictionOf(uint32_t block) {
+    return &friction_[size_t(block) * Manifold::kMaxPoints];
+  }
   std::vector<Block> blocks_;
   std::vector<std::pair<uint32_t, uint32_t>> laneOf_;  ///< per manifold: block, lane
+  bool patch_ = false;  ///< every manifold has patch friction (else every one per point)
+  /// Per block: its points' friction (kMaxPoints each), or with patch friction its patch.
+  std::vector<PointFriction> friction_;
+  std::vector<Patch> patches_;
 };
 
 }  // namespace phys

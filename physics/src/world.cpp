@@ -860,8 +860,13 @@ void World::Impl::storeImpulses() {
   for (Contact& c : contacts) {
     if (c.firstRow < 0) continue;
     const int n = c.manifold.count;
+    for (int i = 0; i < n; ++i) c.normalImpulse[i] = solver.rows[size_t(c.firstRow + i)].lambda;
+    if (solver.rows[size_t(c.firstRow + n)].patchPoints > 0) {
+      for (int d = 0; d < 3; ++d)
+        (&c.tangentImpulse[0][0])[d] = solver.rows[size_t(c.firstRow + n + d)].lambda;
+      continue;
+    }
     for (int i = 0; i < n; ++i) {
-      c.normalImpulse[i] = solver.rows[size_t(c.firstRow + i)].lambda;
       c.tangentImpulse[i][0] = solver.rows[size_t(c.firstRow + n + 2 * i)].lambda;
       c.tangentImpulse[i][1] = solver.rows[size_t(c.firstRow + n + 2 * i + 1)].lambda;
     }
@@ -870,7 +875,10 @@ void World::Impl::storeImpulses() {
     const SolverManifold& sm = manifolds[m];
     Contact& c = contacts[manifoldContact[m]];
     std::memcpy(c.normalImpulse, sm.normalImpulse, sizeof(float) * size_t(sm.count));
-    std::memcpy(c.tangentImpulse, sm.tangentImpulse, sizeof(float) * 2 * size_t(sm.count));
+    if (sm.patch)
+      std::memcpy(c.tangentImpulse, sm.patchImpulse, sizeof sm.patchImpulse);
+    else
+      std::memcpy(c.tangentImpulse, sm.tangentImpulse, sizeof(float) * 2 * size_t(sm.count));
   }
   for (uint32_t i = 0; i < joints.capacity(); ++i) {
     if (!joints.alive(i)) continue;
@@ -1073,6 +1081,14 @@ void World::Impl::narrowPhase(float dt) {
         }
         chunkDeepest = std::max(chunkDeepest, -cp.separation);
       }
+      // Patch friction keeps the manifold's friction impulses while any point persists.
+      if (def.solver.patchFriction) {
+        bool persists = false;
+        for (int i = 0; i < m.count && !persists; ++i)
+          for (int k = 0; k < c.manifold.count; ++k)
+            persists = persists || c.manifold.points[k].featureId == m.points[i].featureId;
+        if (persists) std::memcpy(ti, c.tangentImpulse, sizeof ti);
+      }
       c.manifold = m;
       std::memcpy(c.normalImpulse, ni, sizeof ni);
       std::memcpy(c.tangentImpulse, ti, sizeof ti);
@@ -1114,6 +1130,19 @@ SolverManifold World::Impl::solverManifold(const Contact& c, const SolverSetting
     m.tangentImpulse[k][0] = s.warmStart ? c.tangentImpulse[k][0] : 0;
     m.tangentImpulse[k][1] = s.warmStart ? c.tangentImpulse[k][1] : 0;
   }
+  if (s.patchFriction && m.count > 0) {
+    m.patch = true;
+    Vec3 centroid;
+    for (int k = 0; k < m.count; ++k) centroid += c.manifold.points[k].point;
+    centroid = centroid * (1.0f / float(m.count));
+    m.patchRA = centroid - A.com;
+    m.patchRB = centroid - B.com;
+    float arm = 0;
+    for (int k = 0; k < m.count; ++k) arm += length(c.manifold.points[k].point - centroid);
+    m.twistArm = arm / float(m.count);
+    for (int d = 0; d < 3; ++d)
+      m.patchImpulse[d] = s.warmStart ? (&c.tangentImpulse[0][0])[d] : 0;
+  }
   return m;
 }
 
@@ -1126,6 +1155,37 @@ void World::Impl::contactRowsOf(const Contact& c, const SolverManifold& m) {
     r.groupStart = k == 0;
     r.relativeVelocity = m.relativeVelocity[k];
     solver.rows.push_back(r);
+  }
+  if (m.patch) {
+    // Patch friction: a tangent pair at the centroid, then the twist row.
+    for (int d = 0; d < 2; ++d) {
+      const Vec3 t = d == 0 ? m.t1 : m.t2;
+      Row r;
+      r.kind = RowKind::Friction;
+      r.a = m.a;
+      r.b = m.b;
+      r.linA = -t;
+      r.angA = -cross(m.patchRA, t);
+      r.linB = t;
+      r.angB = cross(m.patchRB, t);
+      r.mu = m.friction;
+      r.parent = c.firstRow;
+      r.patchPoints = uint8_t(m.count);
+      r.lambda = m.patchImpulse[d];
+      solver.rows.push_back(r);
+    }
+    Row r;
+    r.kind = RowKind::Twist;
+    r.a = m.a;
+    r.b = m.b;
+    r.angA = -m.normal;
+    r.angB = m.normal;
+    r.mu = m.friction * m.twistArm;
+    r.parent = c.firstRow;
+    r.patchPoints = uint8_t(m.count);
+    r.lambda = m.patchImpulse[2];
+    solver.rows.push_back(r);
+    return;
   }
   for (int k = 0; k < m.count; ++k) {
     for (int d = 0; d < 2; ++d) {

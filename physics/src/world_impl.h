@@ -64,6 +64,8 @@ struct Contact {
   BodyId bodyA, bodyB;
   Manifold manifold;
   float normalImpulse[Manifold::kMaxPoints] = {};
+  /// Per point: the friction pair's impulses. With patch friction the manifold's three
+  /// (tangent 1, tangent 2, twist) in the first three slots instead: kPatchSlots.
   float tangentImpulse[Manifold::kMaxPoints][2] = {};
   float friction = 0, restitution = 0;
   int32_t firstRow = -1;  ///< this step's first normal row

@@ -179,6 +179,7 @@ Offset<wire::SolverSettings> writeSolver(Fbb& fbb, const SolverOverrides& s) {
   if (s.blockContacts) b.add_block_contacts(*s.blockContacts);
   if (s.geometricStiffness) b.add_geometric_stiffness(*s.geometricStiffness);
   if (s.splitPushout) b.add_split_pushout(*s.splitPushout);
+  if (s.patchFriction) b.add_patch_friction(*s.patchFriction);
   return b.Finish();
 }
 
@@ -235,6 +236,7 @@ SolverOverrides SolverOverrides::from(const phys::SolverSettings& s) {
   o.blockContacts = s.blockContacts;
   o.geometricStiffness = s.geometricStiffness;
   o.splitPushout = s.splitPushout;
+  o.patchFriction = s.patchFriction;
   return o;
 }
 
@@ -244,7 +246,7 @@ bool SolverOverrides::empty() const {
          !stabilization && !baumgarte && !contactHertz && !contactDampingRatio && !jointHertz &&
          !jointDampingRatio && !maxPushout && !linearSlop && !warmStart && !restitution &&
          !restitutionThreshold && !equalitySolve && !blockContacts && !geometricStiffness &&
-         !splitPushout;
+         !splitPushout && !patchFriction;
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -140,6 +140,7 @@ SolverOverrides toOverrides(const wire::SolverSettings& in) {
   if (auto v = in.block_contacts()) o.blockContacts = *v;
   if (auto v = in.geometric_stiffness()) o.geometricStiffness = *v;
   if (auto v = in.split_pushout()) o.splitPushout = *v;
+  if (auto v = in.patch_friction()) o.patchFriction = *v;
   return o;
 }
 
@@ -168,6 +169,7 @@ void applyOverrides(const SolverOverrides& o, phys::SolverSettings* s) {
   if (o.blockContacts) s->blockContacts = *o.blockContacts;
   if (o.geometricStiffness) s->geometricStiffness = *o.geometricStiffness;
   if (o.splitPushout) s->splitPushout = *o.splitPushout;
+  if (o.patchFriction) s->patchFriction = *o.patchFriction;
 }
 
 void applySolverSettings(const wire::SolverSettings& in, phys::SolverSettings* out) {

@@ -533,6 +533,7 @@ bool Checker::solver(const wire::SolverSettings& s, int* fieldsSet) {
   flag(s.block_contacts());
   flag(s.geometric_stiffness());
   flag(s.split_pushout());
+  flag(s.patch_friction());
   if (fieldsSet) *fieldsSet = n;
   return true;
 }

@@ -280,6 +280,7 @@ TEST(ProtocolRoundTrip, MaterialAndSolver) {
   full.blockContacts = true;
   full.geometricStiffness = false;
   full.splitPushout = true;
+  full.patchFriction = true;
   auto f = mustDecode(CommandBuilder().setSolver("", SolverOverrides::from(full)).finish(header()));
   phys::SolverSettings got;
   applySolverSettings(*f->request_as_SetSolver()->settings(), &got);
@@ -294,6 +295,7 @@ TEST(ProtocolRoundTrip, MaterialAndSolver) {
   EXPECT_EQ(got.blockContacts, true);
   EXPECT_EQ(got.geometricStiffness, false);
   EXPECT_EQ(got.splitPushout, true);
+  EXPECT_EQ(got.patchFriction, true);
   EXPECT_EQ(got.contactHertz, full.contactHertz);
 }
 

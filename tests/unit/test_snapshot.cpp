@@ -274,6 +274,18 @@ TEST(Snapshot, JacobiSplitPushoutBlockContactsContinueBitExact) {
   expectContinuesBitExact(w, 40, 40, defaultWorld);
 }
 
+TEST(Snapshot, PatchFrictionContinuesBitExact) {
+  // The manifolds' friction impulses (tangent pair and twist) are in the snapshot.
+  WorldDef def;
+  def.solver.patchFriction = !def.solver.patchFriction;
+  for (int flip = 0; flip < 2; ++flip) {
+    def.solver.patchFriction = !def.solver.patchFriction;
+    World w(def);
+    buildMixedScene(w);
+    expectContinuesBitExact(w, 40, 40, defaultWorld);
+  }
+}
+
 TEST(Snapshot, ChainWithLdlAndGeometricStiffnessContinuesBitExact) {
   Scene scene;
   loadScene("ball_and_chain", &scene);
@@ -518,7 +530,7 @@ TEST(Snapshot, RejectsWrongMagicAndVersion) {
   bad[0] = 'X';
   EXPECT_NE(t.expectRejected(bad, "magic").find("magic"), std::string::npos);
   bad = snap;
-  bad[8] = 2;  // version 2
+  bad[8] = 3;  // version 3 (this build writes 2)
   EXPECT_NE(t.expectRejected(bad, "version").find("version"), std::string::npos);
   bad = snap;
   bad[11] = 0x80;

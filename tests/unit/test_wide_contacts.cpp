@@ -3,6 +3,8 @@
 // results and velocity residuals bit-identical to the scalar pass on every Gauss-Seidel preset.
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <cstdio>
 #include <map>
 #include <set>
 #include <string>
@@ -13,6 +15,7 @@
 #include "phys/presets.h"
 #include "phys/scene.h"
 #include "phys/world.h"
+#include "test_util.h"
 
 using namespace phys;
 
@@ -228,6 +231,10 @@ TEST(WideContacts, BitIdenticalToTheScalarPassOnEveryGaussSeidelPreset) {
   const Case cases[] = {{"pyramid_20", 90},  {"box_stack", 20},     {"overlap", 40},
                         {"restitution", 90}, {"friction_ramp", 60}, {"windmill", 60},
                         {"suspension_bridge", 60}};
+  // Every Gauss-Seidel preset, and the default with the other friction model.
+  Preset flipped = presets.at("soft_step");
+  flipped.settings.patchFriction = !flipped.settings.patchFriction;
+  presets["soft_step, patch_friction flipped"] = flipped;
   int presetsRun = 0;
   for (const auto& [name, preset] : presets) {
     if (preset.settings.scheme != SolverSettings::Scheme::GaussSeidel) continue;
@@ -253,7 +260,7 @@ TEST(WideContacts, BitIdenticalToTheScalarPassOnEveryGaussSeidelPreset) {
       EXPECT_EQ(wide.residual, scalar.residual) << c.scene << " with " << name;
     }
   }
-  EXPECT_GE(presetsRun, 4);  // soft_step, pgs, pgs_ngs (rows: position pass), ldl_pgs
+  EXPECT_GE(presetsRun, 5);  // soft_step (both ways), pgs, pgs_ngs (rows), ldl_pgs
 }
 
 TEST(WideContacts, ConvergenceControlCountsTheSameIterations) {
@@ -285,6 +292,45 @@ TEST(WideContacts, ConvergenceControlCountsTheSameIterations) {
   int total = 0;
   for (int u : wide.first) total += u;
   EXPECT_LT(total, 60 * s.substeps * s.iterations);
+}
+
+}  // namespace
+
+namespace {
+
+/// A 1 m cube resting on the ground, spun about the vertical at w0: time until it stops.
+double spinDownSeconds(bool patch, float w0) {
+  WorldDef def;
+  def.solver.patchFriction = patch;
+  World w(def);
+  BodyId ground, box;
+  EXPECT_TRUE(w.createBody(test::groundBody(0.5f), &ground).ok());
+  BodyDef d = test::boxBody({0, 0, 0.5f});
+  d.shapes[0].material.friction = 0.5f;
+  EXPECT_TRUE(w.createBody(d, &box).ok());
+  for (int i = 0; i < 30; ++i) w.step();  // settle
+  EXPECT_TRUE(w.setVelocity(box, {0, 0, 0}, {0, 0, w0}).ok());
+  for (int i = 1; i <= 600; ++i) {
+    w.step();
+    BodyState s;
+    EXPECT_TRUE(w.getBody(box, &s).ok());
+    if (std::abs(s.angularVelocity.z) < 1e-3f) return i * double(def.timeStep);
+  }
+  return 1e9;
+}
+
+TEST(PatchFriction, TwistStopsASpinningBoxAsPointFrictionDoes) {
+  // Coulomb friction at the four corners (mu m g / 4 each, at the half-diagonal sqrt(2) h)
+  // gives a torque mu m g sqrt(2) h about the vertical; with I = m (2h)^2 / 6 the spin falls
+  // at alpha = 3 sqrt(2) mu g / (2 h) = 20.8 rad/s^2 (mu 0.5, h 0.5). The patch's twist row
+  // has the same bound: mu times the normal load times the corners' mean distance.
+  const double mu = 0.5, g = 9.81, h = 0.5, w0 = 5;
+  const double expected = w0 / (3 * std::sqrt(2.0) * mu * g / (2 * h));
+  for (bool patch : {false, true}) {
+    const double t = spinDownSeconds(patch, float(w0));
+    std::printf("%s: stopped after %.3f s (expected %.3f)\n", patch ? "patch" : "point", t, expected);
+    EXPECT_NEAR(t, expected, 0.15 * expected + 1.0 / 60) << (patch ? "patch" : "point");
+  }
 }
 
 }  // namespace

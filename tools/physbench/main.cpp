@@ -90,6 +90,10 @@ int main(int argc, char** argv) {
   app.add_option("--threads", threads,
                  "threads per world (default 0: the machine's; with --jobs, divided among them)")
       ->check(CLI::Range(0, 64));
+  bool scalarContacts = false;
+  app.add_flag("--scalar-contacts", scalarContacts,
+               "solve Gauss-Seidel contacts one manifold at a time instead of in SIMD lanes "
+               "(bit-identical results; to compare the speeds)");
 
   // Peer engines (docs/PEERS.md): --peer in single-scene mode, --peers in the suite.
   CLI::Option* peerOpt = app.add_option(
@@ -192,6 +196,7 @@ int main(int argc, char** argv) {
        {sceneOpt, presetOpt, secondsOpt, jsonOpt, suiteFlag, sweepFlag, peerOpt, peerItOpt})
     o->excludes(stressFlag);
   CLI11_PARSE(app, argc, argv);
+  if (scalarContacts) phys::setVectorizedContacts(false);
   if (reportMode) sweepMode = true;  // the report's first half is the sweep
   // The suite's options serve the sweep too; --presets, --jobs and --csv also the stress mode.
   for (CLI::Option* o : suiteOnly) {

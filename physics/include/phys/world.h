@@ -151,6 +151,11 @@ struct SolverSettings {
   /// h^2 |f| |r| from last step's joint forces, which keeps light links under heavy loads
   /// stable at few substeps (their rotation then lags slightly).
   bool geometricStiffness = true;
+  /// Patch friction: a manifold's friction as two tangent rows at the centroid of its points
+  /// and a twist row about the normal, bounded by mu times the manifold's total normal
+  /// impulse (and the points' mean distance from the centroid, for the twist), instead of a
+  /// tangent pair at every point: 3 friction rows instead of 8 for a face contact.
+  bool patchFriction = true;
 };
 
 /// The Gauss-Seidel scheme solves contact manifolds eight at a time in SIMD lanes, in an

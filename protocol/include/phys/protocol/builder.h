@@ -67,6 +67,7 @@ struct SolverOverrides {
   std::optional<bool> blockContacts;
   std::optional<bool> geometricStiffness;
   std::optional<bool> splitPushout;
+  std::optional<bool> patchFriction;
 
   /// Every field set from s.
   static SolverOverrides from(const phys::SolverSettings& s);
