@@ -75,7 +75,7 @@ class WideContacts {
   float solve(uint32_t block, std::vector<SolverBody>& bodies, const WideParams& p);
   void restitution(uint32_t block, std::vector<SolverBody>& bodies, float threshold);
 
-  size_t blockCount() const { return blocks_.size(); }
+  size_t blockCount() const { return blockCount_; }
   size_t laneCount() const;
   /// The manifolds in a block's lanes, for tests.
   std::vector<uint32_t> manifoldsOf(uint32_t block) const;
@@ -121,7 +121,8 @@ class WideContacts {
   PointFriction* frictionOf(uint32_t block) {
     return &friction_[size_t(block) * Manifold::kMaxPoints];
   }
-  std::vector<Block> blocks_;
+  std::vector<Block> blocks_;  ///< the first blockCount_ are this step's
+  size_t blockCount_ = 0;
   std::vector<std::pair<uint32_t, uint32_t>> laneOf_;  ///< per manifold: block, lane
   bool patch_ = false;  ///< every manifold has patch friction (else every one per point)
   /// Per block: its points' friction (kMaxPoints each), or with patch friction its patch.

@@ -1310,7 +1310,6 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
       vectorizedContacts() && s.scheme == SolverSettings::Scheme::GaussSeidel &&
       !s.blockContacts && !s.splitPushout &&
       (s.positionPass == SolverSettings::PositionPass::None || s.positionIterations == 0);
-  manifolds.clear();
   manifoldContact.clear();
   for (uint32_t ci = 0; ci < contacts.size(); ++ci) {
     Contact& c = contacts[ci];
@@ -1323,6 +1322,8 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
     c.firstRow = int32_t(solver.rows.size());
     contactRowsOf(c, solverManifold(c, s));
   }
+  // Every field of a manifold is assigned below: resizing without a clear spares zeroing
+  // the entries that were there last step.
   manifolds.resize(manifoldContact.size());
   auto makeManifolds = [&](size_t begin, size_t end) {
     for (size_t i = begin; i < end; ++i) manifolds[i] = solverManifold(contacts[manifoldContact[i]], s);
