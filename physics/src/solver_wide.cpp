@@ -516,14 +516,25 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
 
 PHYS_WIDE_CLONES void WideContacts::restitution(uint32_t block, std::vector<SolverBody>& bodies, float threshold) {
   Block& blk = blocks_[block];
+  // Solver::restitutionGroup: normal rows that approached fast and carried an impulse. Most
+  // blocks have none (resting contacts): they are left without touching their bodies.
+  vm bounces[Manifold::kMaxPoints];
+  vm any = vm{} != vm{};
+  for (int k = 0; k < blk.points; ++k) {
+    const Point& p = blk.pt[k];
+    bounces[k] =
+        (p.restitution != 0) & ~(p.relativeVelocity > -threshold) & (p.maxLambda != 0);
+    any |= bounces[k];
+  }
+  bool none = true;
+  for (int l = 0; l < kLanes; ++l) none = none && any[l] == 0;
+  if (none) return;
   Lanes s;
   gatherVelocities(bodies, blk.a, blk.b, s);
-  // Solver::restitutionGroup: normal rows that approached fast and carried an impulse.
   for (int k = 0; k < blk.points; ++k) {
     Point& p = blk.pt[k];
     Dir& r = p.n;
-    const vm bounce = (p.restitution != 0) & ~(p.relativeVelocity > -threshold) &
-                      (p.maxLambda != 0);
+    const vm bounce = bounces[k];
     const vf vn = rowVelocity(blk.linA[0], blk.linB[0], r.angA, r.angB, s);
     vf impulse = -r.effMass * (vn + p.restitution * p.relativeVelocity);
     const vf next = vmax(r.lambda + impulse, splat(0));
