@@ -1,9 +1,9 @@
 #include "solver.h"
 
 #include <algorithm>
-#include <cassert>
 #include <atomic>
 #include <bit>
+#include <cassert>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>

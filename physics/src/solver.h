@@ -59,16 +59,16 @@ enum class RowKind : uint8_t {
 };
 
 struct Row {
-  int32_t a = 0, b = 0;               ///< solver body indices (0 = world)
-  Vec3 linA, angA, linB, angB;        ///< Jacobian
-  Vec3 mLinA, mAngA, mLinB, mAngB;    ///< M^-1 J^T
-  float effMass = 0;                  ///< 1 / (J M^-1 J^T)
-  float C0 = 0;                       ///< position error at the step's start (m or rad)
-  float lambda = 0;                   ///< accumulated impulse of the current substep, N s
-  float maxImpulse = 0;               ///< motor bound, N s per substep
-  float target = 0;                   ///< motor target velocity
-  float mu = 0;                       ///< friction coefficient
-  int32_t parent = -1;                ///< friction: the normal row bounding it
+  int32_t a = 0, b = 0;             ///< solver body indices (0 = world)
+  Vec3 linA, angA, linB, angB;      ///< Jacobian
+  Vec3 mLinA, mAngA, mLinB, mAngB;  ///< M^-1 J^T
+  float effMass = 0;                ///< 1 / (J M^-1 J^T)
+  float C0 = 0;                     ///< position error at the step's start (m or rad)
+  float lambda = 0;                 ///< accumulated impulse of the current substep, N s
+  float maxImpulse = 0;             ///< motor bound, N s per substep
+  float target = 0;                 ///< motor target velocity
+  float mu = 0;                     ///< friction coefficient
+  int32_t parent = -1;              ///< friction: the normal row bounding it
   /// Patch friction and twist rows: the manifold's normal rows from `parent` whose impulses
   /// bound it (0: the parent alone).
   uint8_t patchPoints = 0;
@@ -99,8 +99,8 @@ struct SolverManifold {
   int count = 0;         ///< points
   Vec3 normal, t1, t2;   ///< from A to B, and the friction directions
   float friction = 0, restitution = 0;
-  Vec3 rA[4], rB[4];        ///< contact points relative to the bodies' centres of mass
-  float separation[4] = {}; ///< C0 of the normal rows (m, negative when overlapping)
+  Vec3 rA[4], rB[4];               ///< contact points relative to the bodies' centres of mass
+  float separation[4] = {};        ///< C0 of the normal rows (m, negative when overlapping)
   float relativeVelocity[4] = {};  ///< normal approach speed at the step's start
   /// In: the warm start (zero without). Out (WideContacts::store): the step's impulses.
   float normalImpulse[4] = {}, tangentImpulse[4][2] = {};
@@ -143,7 +143,7 @@ class Solver {
   /// Set before indexUnits/finishRows.
   SolverSettings::Scheme scheme = SolverSettings::Scheme::GaussSeidel;
   bool jacobi() const { return scheme == SolverSettings::Scheme::Jacobi; }
-  ThreadPool* pool = nullptr;   ///< parallel loops (colors, Jacobi, bodies); null: serial
+  ThreadPool* pool = nullptr;  ///< parallel loops (colors, Jacobi, bodies); null: serial
   /// The Gauss-Seidel scheme's vectorized contacts (solver_wide.h), owned by the World. While
   /// active, warmStart, solveIteration and applyRestitution run its schedule and the contact
   /// rows' impulses live in its blocks until WideContacts::store. Null: rows only.

@@ -22,11 +22,11 @@
 
 namespace phys {
 
-using wide::vf;
 using wide::kLanes;
-using wide::vm;
-using wide::V3;
 using wide::Lanes;
+using wide::V3;
+using wide::vf;
+using wide::vm;
 
 namespace {
 
@@ -73,7 +73,6 @@ PHYS_WIDE_INLINE void addScaled(vm mask, V3& v, const V3& m, vf impulse) {
   v.z = select(mask, v.z + m.z * impulse, v.z);
 }
 
-
 PHYS_WIDE_INLINE void load(V3& out, int l, Vec3 v) {
   out.x[l] = v.x;
   out.y[l] = v.y;
@@ -83,8 +82,8 @@ PHYS_WIDE_INLINE Vec3 lane(const V3& in, int l) {
   return {in.x[l], in.y[l], in.z[l]};
 }
 
-PHYS_WIDE_INLINE void gatherVelocities(const std::vector<SolverBody>& bodies, const int32_t* a, const int32_t* b,
-                      Lanes& s) {
+PHYS_WIDE_INLINE void gatherVelocities(const std::vector<SolverBody>& bodies, const int32_t* a,
+                                       const int32_t* b, Lanes& s) {
   for (int l = 0; l < kLanes; ++l) {
     const SolverBody& A = bodies[size_t(a[l])];
     const SolverBody& B = bodies[size_t(b[l])];
@@ -94,8 +93,8 @@ PHYS_WIDE_INLINE void gatherVelocities(const std::vector<SolverBody>& bodies, co
     load(s.wB, l, B.w);
   }
 }
-PHYS_WIDE_INLINE void gatherDeltas(const std::vector<SolverBody>& bodies, const int32_t* a, const int32_t* b,
-                  V3& dpA, V3& dtA, V3& dpB, V3& dtB) {
+PHYS_WIDE_INLINE void gatherDeltas(const std::vector<SolverBody>& bodies, const int32_t* a,
+                                   const int32_t* b, V3& dpA, V3& dtA, V3& dpB, V3& dtB) {
   for (int l = 0; l < kLanes; ++l) {
     const SolverBody& A = bodies[size_t(a[l])];
     const SolverBody& B = bodies[size_t(b[l])];
@@ -105,8 +104,9 @@ PHYS_WIDE_INLINE void gatherDeltas(const std::vector<SolverBody>& bodies, const 
     load(dtB, l, B.dtheta);
   }
 }
-PHYS_WIDE_INLINE void scatterVelocities(std::vector<SolverBody>& bodies, const int32_t* a, const int32_t* b,
-                       const bool* writeA, const bool* writeB, const Lanes& s) {
+PHYS_WIDE_INLINE void scatterVelocities(std::vector<SolverBody>& bodies, const int32_t* a,
+                                        const int32_t* b, const bool* writeA, const bool* writeB,
+                                        const Lanes& s) {
   for (int l = 0; l < kLanes; ++l) {
     if (writeA[l]) {
       SolverBody& A = bodies[size_t(a[l])];
@@ -123,11 +123,11 @@ PHYS_WIDE_INLINE void scatterVelocities(std::vector<SolverBody>& bodies, const i
 
 /// J v of one row direction at one point (Solver::rowVelocity).
 PHYS_WIDE_INLINE vf rowVelocity(const V3& linA, const V3& linB, const V3& angA, const V3& angB,
-                      const Lanes& s) {
+                                const Lanes& s) {
   return dot(linA, s.vA) + dot(angA, s.wA) + dot(linB, s.vB) + dot(angB, s.wB);
 }
 PHYS_WIDE_INLINE void applyImpulse(vm mask, const V3& mLinA, const V3& mLinB, const V3& mAngA,
-                         const V3& mAngB, vf impulse, Lanes& s) {
+                                   const V3& mAngB, vf impulse, Lanes& s) {
   addScaled(mask, s.vA, mLinA, impulse);
   addScaled(mask, s.wA, mAngA, impulse);
   addScaled(mask, s.vB, mLinB, impulse);
@@ -380,7 +380,7 @@ double WideContacts::residual(const std::vector<SolverBody>& bodies, float h, do
 }
 
 PHYS_WIDE_INLINE void WideContacts::frictionPair(const Block& blk, Dir& r1, Dir& r2, vf bound,
-                                                  bool measure, vf& change, Lanes& s) {
+                                                 bool measure, vf& change, Lanes& s) {
   vf l1 = r1.lambda - r1.effMass * rowVelocity(blk.linA[1], blk.linB[1], r1.angA, r1.angB, s);
   vf l2 = r2.lambda - r2.effMass * rowVelocity(blk.linA[2], blk.linB[2], r2.angA, r2.angB, s);
   const vf len2 = l1 * l1 + l2 * l2;
@@ -411,8 +411,8 @@ PHYS_WIDE_CLONES void WideContacts::warmStart(uint32_t block, std::vector<Solver
     Point& p = blk.pt[k];
     Dir& r = p.n;
     vf vn = rowVelocity(blk.linA[0], blk.linB[0], r.angA, r.angB, s);
-    const vf C = p.C0 + dot(blk.linA[0], dpA) + dot(r.angA, dtA) + dot(blk.linB[0], dpB) +
-                 dot(r.angB, dtB);
+    const vf C =
+        p.C0 + dot(blk.linA[0], dpA) + dot(r.angA, dtA) + dot(blk.linB[0], dpB) + dot(r.angB, dtB);
     p.C = C;
     const vm apart = (vn < 0) & (C > 0) & (p.accelN < 0);
     vn = select(apart, -vsqrt(vn * vn - 2.0f * p.accelN * C), vn);
@@ -426,8 +426,8 @@ PHYS_WIDE_CLONES void WideContacts::warmStart(uint32_t block, std::vector<Solver
     applyImpulse(pa.t2.lambda != 0, blk.mLinA[2], blk.mLinB[2], pa.t2.mAngA, pa.t2.mAngB,
                  pa.t2.lambda, s);
     const V3 zero{};
-    applyImpulse(pa.twist.lambda != 0, zero, zero, pa.twist.mAngA, pa.twist.mAngB,
-                 pa.twist.lambda, s);
+    applyImpulse(pa.twist.lambda != 0, zero, zero, pa.twist.mAngA, pa.twist.mAngB, pa.twist.lambda,
+                 s);
   } else {
     PointFriction* fr = frictionOf(block);
     for (int k = 0; k < blk.points; ++k) {
@@ -440,7 +440,8 @@ PHYS_WIDE_CLONES void WideContacts::warmStart(uint32_t block, std::vector<Solver
   scatterVelocities(bodies, blk.a, blk.b, blk.writeA, blk.writeB, s);
 }
 
-PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBody>& bodies, const WideParams& prm) {
+PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBody>& bodies,
+                                           const WideParams& prm) {
   Block& blk = blocks_[block];
   Lanes s;
   gatherVelocities(bodies, blk.a, blk.b, s);
@@ -456,8 +457,8 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
     Point& p = blk.pt[k];
     Dir& r = p.n;
     const vf vn = rowVelocity(blk.linA[0], blk.linB[0], r.angA, r.angB, s);
-    const vf C = fresh ? p.C0 + dot(blk.linA[0], dpA) + dot(r.angA, dtA) +
-                             dot(blk.linB[0], dpB) + dot(r.angB, dtB)
+    const vf C = fresh ? p.C0 + dot(blk.linA[0], dpA) + dot(r.angA, dtA) + dot(blk.linB[0], dpB) +
+                             dot(r.angB, dtB)
                        : p.C;
     const vm speculative = C > 0;
     vf bias = C * prm.invH;  // close exactly the gap this substep, no more
@@ -514,7 +515,8 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
   return m;
 }
 
-PHYS_WIDE_CLONES void WideContacts::restitution(uint32_t block, std::vector<SolverBody>& bodies, float threshold) {
+PHYS_WIDE_CLONES void WideContacts::restitution(uint32_t block, std::vector<SolverBody>& bodies,
+                                                float threshold) {
   Block& blk = blocks_[block];
   // Solver::restitutionGroup: normal rows that approached fast and carried an impulse. Most
   // blocks have none (resting contacts): they are left without touching their bodies.
@@ -522,8 +524,7 @@ PHYS_WIDE_CLONES void WideContacts::restitution(uint32_t block, std::vector<Solv
   vm any = vm{} != vm{};
   for (int k = 0; k < blk.points; ++k) {
     const Point& p = blk.pt[k];
-    bounces[k] =
-        (p.restitution != 0) & ~(p.relativeVelocity > -threshold) & (p.maxLambda != 0);
+    bounces[k] = (p.restitution != 0) & ~(p.relativeVelocity > -threshold) & (p.maxLambda != 0);
     any |= bounces[k];
   }
   bool none = true;
@@ -541,8 +542,7 @@ PHYS_WIDE_CLONES void WideContacts::restitution(uint32_t block, std::vector<Solv
     impulse = next - r.lambda;
     r.lambda = select(bounce, next, r.lambda);
     p.maxLambda = select(bounce, vmax(p.maxLambda, next), p.maxLambda);
-    applyImpulse(bounce & (impulse != 0), blk.mLinA[0], blk.mLinB[0], r.mAngA, r.mAngB, impulse,
-                 s);
+    applyImpulse(bounce & (impulse != 0), blk.mLinA[0], blk.mLinB[0], r.mAngA, r.mAngB, impulse, s);
   }
   scatterVelocities(bodies, blk.a, blk.b, blk.writeA, blk.writeB, s);
 }

@@ -110,7 +110,7 @@ class WideContacts {
     Point pt[Manifold::kMaxPoints];
     int32_t a[wide::kLanes] = {}, b[wide::kLanes] = {};  ///< solver bodies; 0 in empty lanes
     uint32_t manifold[wide::kLanes] = {};
-    uint8_t count[wide::kLanes] = {};  ///< points of each lane's manifold
+    uint8_t count[wide::kLanes] = {};                           ///< points of each lane's manifold
     bool writeA[wide::kLanes] = {}, writeB[wide::kLanes] = {};  ///< dynamic bodies only
     int lanes = 0, points = 0;
   };

@@ -649,8 +649,7 @@ Status World::createJoint(const JointDef& in, JointId* out) {
   if (def.type == JointType::Distance && (!def.enableLimit || def.springHertz > 0) &&
       !(rec.length >= kMinDistanceLength))
     return invalid("joint: a distance joint needs a rest length of at least 1 mm (got " +
-                   std::to_string(rec.length) +
-                   " m); a ball joint pins two points together");
+                   std::to_string(rec.length) + " m); a ball joint pins two points together");
   JointId id = w.joints.add(std::move(rec));
   w.joints.get(id)->state.id = id;
   if (A) A->joints.push_back(id);
@@ -1065,8 +1064,7 @@ void World::Impl::narrowPhase(float dt) {
                     dt;
       float margin = def.speculativeDistance + reach;
       Manifold m;
-      collide(sa.def.geom, shapeTransform(A, sa), sb.def.geom, shapeTransform(B, sb), margin,
-              &m);
+      collide(sa.def.geom, shapeTransform(A, sa), sb.def.geom, shapeTransform(B, sb), margin, &m);
       // Carry impulses of points whose features persist (warm starting).
       float ni[Manifold::kMaxPoints] = {}, ti[Manifold::kMaxPoints][2] = {};
       for (int i = 0; i < m.count; ++i) {
@@ -1140,8 +1138,7 @@ SolverManifold World::Impl::solverManifold(const Contact& c, const SolverSetting
     float arm = 0;
     for (int k = 0; k < m.count; ++k) arm += length(c.manifold.points[k].point - centroid);
     m.twistArm = arm / float(m.count);
-    for (int d = 0; d < 3; ++d)
-      m.patchImpulse[d] = s.warmStart ? (&c.tangentImpulse[0][0])[d] : 0;
+    for (int d = 0; d < 3; ++d) m.patchImpulse[d] = s.warmStart ? (&c.tangentImpulse[0][0])[d] : 0;
   }
   return m;
 }
@@ -1307,8 +1304,8 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   // value-initializing 28,000 rows of 160 bytes (pyramid_40) cost more than the parallel
   // build saved.
   const bool vectorized =
-      vectorizedContacts() && s.scheme == SolverSettings::Scheme::GaussSeidel &&
-      !s.blockContacts && !s.splitPushout &&
+      vectorizedContacts() && s.scheme == SolverSettings::Scheme::GaussSeidel && !s.blockContacts &&
+      !s.splitPushout &&
       (s.positionPass == SolverSettings::PositionPass::None || s.positionIterations == 0);
   manifoldContact.clear();
   for (uint32_t ci = 0; ci < contacts.size(); ++ci) {
@@ -1326,7 +1323,8 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   // the entries that were there last step.
   manifolds.resize(manifoldContact.size());
   auto makeManifolds = [&](size_t begin, size_t end) {
-    for (size_t i = begin; i < end; ++i) manifolds[i] = solverManifold(contacts[manifoldContact[i]], s);
+    for (size_t i = begin; i < end; ++i)
+      manifolds[i] = solverManifold(contacts[manifoldContact[i]], s);
   };
   if (pool)
     pool->parallelFor(manifolds.size(), kContactGrain, makeManifolds);

@@ -103,9 +103,9 @@ TEST(WideContacts, ScheduleKeepsEveryBodysOrderAndPacksDisjointLanes) {
   // The serial order: the joints' groups, then the manifolds. Each constraint is a pair of
   // bodies; `order` lists them as the schedule meets them.
   auto bodiesOf = [&](size_t c) {
-    return c < s.groups.size() ? std::pair(s.groups[c].a, s.groups[c].b)
-                               : std::pair(manifolds[c - s.groups.size()].a,
-                                           manifolds[c - s.groups.size()].b);
+    return c < s.groups.size()
+               ? std::pair(s.groups[c].a, s.groups[c].b)
+               : std::pair(manifolds[c - s.groups.size()].a, manifolds[c - s.groups.size()].b);
   };
   std::vector<size_t> order;
   std::multiset<size_t> seen;
@@ -228,8 +228,8 @@ TEST(WideContacts, BitIdenticalToTheScalarPassOnEveryGaussSeidelPreset) {
           .ok());
   // Stacks, an impact, deep overlap, bounces, friction on a slope, motors and joints beside
   // contacts; each long enough for contacts to come, go and be warm-started.
-  const Case cases[] = {{"pyramid_20", 90},  {"box_stack", 20},     {"overlap", 40},
-                        {"restitution", 90}, {"friction_ramp", 60}, {"windmill", 60},
+  const Case cases[] = {{"pyramid_20", 90},       {"box_stack", 20},     {"overlap", 40},
+                        {"restitution", 90},      {"friction_ramp", 60}, {"windmill", 60},
                         {"suspension_bridge", 60}};
   // Every Gauss-Seidel preset, and the default with the other friction model.
   Preset flipped = presets.at("soft_step");
@@ -328,7 +328,8 @@ TEST(PatchFriction, TwistStopsASpinningBoxAsPointFrictionDoes) {
   const double expected = w0 / (3 * std::sqrt(2.0) * mu * g / (2 * h));
   for (bool patch : {false, true}) {
     const double t = spinDownSeconds(patch, float(w0));
-    std::printf("%s: stopped after %.3f s (expected %.3f)\n", patch ? "patch" : "point", t, expected);
+    std::printf("%s: stopped after %.3f s (expected %.3f)\n", patch ? "patch" : "point", t,
+                expected);
     EXPECT_NEAR(t, expected, 0.15 * expected + 1.0 / 60) << (patch ? "patch" : "point");
   }
 }

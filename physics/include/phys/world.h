@@ -139,7 +139,7 @@ struct SolverSettings {
   /// then dropped (split impulses), not by the contacts' velocity bias; contacts' velocity
   /// rows are then rigid. Bodies buried in each other separate without keeping the push.
   bool splitPushout = false;
-  float linearSlop = 0.005f;    ///< m, penetration left uncorrected (Baumgarte only)
+  float linearSlop = 0.005f;  ///< m, penetration left uncorrected (Baumgarte only)
   bool warmStart = true;
   bool restitution = true;
   float restitutionThreshold = 1;  ///< m/s, approach speed below which no bounce
