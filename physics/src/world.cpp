@@ -862,7 +862,7 @@ void World::Impl::storeImpulses() {
     for (int i = 0; i < n; ++i) c.normalImpulse[i] = solver.rows[size_t(c.firstRow + i)].lambda;
     if (solver.rows[size_t(c.firstRow + n)].patchPoints > 0) {
       for (int d = 0; d < 3; ++d)
-        (&c.tangentImpulse[0][0])[d] = solver.rows[size_t(c.firstRow + n + d)].lambda;
+        c.patchImpulse(d) = solver.rows[size_t(c.firstRow + n + d)].lambda;
       continue;
     }
     for (int i = 0; i < n; ++i) {
@@ -875,7 +875,7 @@ void World::Impl::storeImpulses() {
     Contact& c = contacts[manifoldContact[m]];
     std::memcpy(c.normalImpulse, sm.normalImpulse, sizeof(float) * size_t(sm.count));
     if (sm.patch)
-      std::memcpy(c.tangentImpulse, sm.patchImpulse, sizeof sm.patchImpulse);
+      for (int d = 0; d < 3; ++d) c.patchImpulse(d) = sm.patchImpulse[d];
     else
       std::memcpy(c.tangentImpulse, sm.tangentImpulse, sizeof(float) * 2 * size_t(sm.count));
   }
@@ -1138,7 +1138,9 @@ SolverManifold World::Impl::solverManifold(const Contact& c, const SolverSetting
     float arm = 0;
     for (int k = 0; k < m.count; ++k) arm += length(c.manifold.points[k].point - centroid);
     m.twistArm = arm / float(m.count);
-    for (int d = 0; d < 3; ++d) m.patchImpulse[d] = s.warmStart ? (&c.tangentImpulse[0][0])[d] : 0;
+    // Switching friction models between steps warm-starts one step from the other model's
+    // slots; the friction clamps bound what that can do.
+    for (int d = 0; d < 3; ++d) m.patchImpulse[d] = s.warmStart ? c.patchImpulse(d) : 0;
   }
   return m;
 }

@@ -65,10 +65,13 @@ struct Contact {
   Manifold manifold;
   float normalImpulse[Manifold::kMaxPoints] = {};
   /// Per point: the friction pair's impulses. With patch friction the manifold's three
-  /// (tangent 1, tangent 2, twist) in the first three slots instead: kPatchSlots.
+  /// (tangent 1, tangent 2, twist) in the first three slots instead: patchImpulse(d).
   float tangentImpulse[Manifold::kMaxPoints][2] = {};
   float friction = 0, restitution = 0;
   int32_t firstRow = -1;  ///< this step's first normal row
+
+  float& patchImpulse(int d) { return tangentImpulse[d / 2][d % 2]; }
+  float patchImpulse(int d) const { return tangentImpulse[d / 2][d % 2]; }
 };
 
 /// What a step changes, kept to roll it back (guard rails).
