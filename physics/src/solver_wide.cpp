@@ -73,7 +73,7 @@ PHYS_WIDE_INLINE void addScaled(vm mask, V3& v, const V3& m, vf impulse) {
   v.z = select(mask, v.z + m.z * impulse, v.z);
 }
 
-PHYS_WIDE_INLINE void load(V3& out, int l, Vec3 v) {
+PHYS_WIDE_INLINE void setLane(V3& out, int l, Vec3 v) {
   out.x[l] = v.x;
   out.y[l] = v.y;
   out.z[l] = v.z;
@@ -87,10 +87,10 @@ PHYS_WIDE_INLINE void gatherVelocities(const std::vector<SolverBody>& bodies, co
   for (int l = 0; l < kLanes; ++l) {
     const SolverBody& A = bodies[size_t(a[l])];
     const SolverBody& B = bodies[size_t(b[l])];
-    load(s.vA, l, A.v);
-    load(s.wA, l, A.w);
-    load(s.vB, l, B.v);
-    load(s.wB, l, B.w);
+    setLane(s.vA, l, A.v);
+    setLane(s.wA, l, A.w);
+    setLane(s.vB, l, B.v);
+    setLane(s.wB, l, B.w);
   }
 }
 PHYS_WIDE_INLINE void gatherDeltas(const std::vector<SolverBody>& bodies, const int32_t* a,
@@ -98,10 +98,10 @@ PHYS_WIDE_INLINE void gatherDeltas(const std::vector<SolverBody>& bodies, const 
   for (int l = 0; l < kLanes; ++l) {
     const SolverBody& A = bodies[size_t(a[l])];
     const SolverBody& B = bodies[size_t(b[l])];
-    load(dpA, l, A.dp);
-    load(dtA, l, A.dtheta);
-    load(dpB, l, B.dp);
-    load(dtB, l, B.dtheta);
+    setLane(dpA, l, A.dp);
+    setLane(dtA, l, A.dtheta);
+    setLane(dpB, l, B.dp);
+    setLane(dtB, l, B.dtheta);
   }
 }
 PHYS_WIDE_INLINE void scatterVelocities(std::vector<SolverBody>& bodies, const int32_t* a,
@@ -159,10 +159,10 @@ void WideContacts::addLane(uint32_t block, const Solver& s, uint32_t index,
   for (int d = 0; d < 3; ++d) {
     const Vec3 linA = -axes[d], linB = axes[d];
     const Vec3 mLinA = linA * A.invMass, mLinB = linB * B.invMass;
-    load(blk.linA[d], l, linA);
-    load(blk.linB[d], l, linB);
-    load(blk.mLinA[d], l, mLinA);
-    load(blk.mLinB[d], l, mLinB);
+    setLane(blk.linA[d], l, linA);
+    setLane(blk.linB[d], l, linB);
+    setLane(blk.mLinA[d], l, mLinA);
+    setLane(blk.mLinB[d], l, mLinB);
     linK[d][0] = dot(linA, mLinA);
     linK[d][1] = dot(linB, mLinB);
   }
@@ -171,10 +171,10 @@ void WideContacts::addLane(uint32_t block, const Solver& s, uint32_t index,
     const Vec3 angA = -cross(rA, axes[d]), angB = cross(rB, axes[d]);
     const Vec3 mAngA = A.invI * angA, mAngB = B.invI * angB;
     const float kk = linK[d][0] + dot(angA, mAngA) + linK[d][1] + dot(angB, mAngB);
-    load(r.angA, l, angA);
-    load(r.angB, l, angB);
-    load(r.mAngA, l, mAngA);
-    load(r.mAngB, l, mAngB);
+    setLane(r.angA, l, angA);
+    setLane(r.angB, l, angB);
+    setLane(r.mAngA, l, mAngA);
+    setLane(r.mAngB, l, mAngB);
     r.effMass[l] = kk > 1e-12f ? 1 / kk : 0;
     r.lambda[l] = lambda;
   };
@@ -187,10 +187,10 @@ void WideContacts::addLane(uint32_t block, const Solver& s, uint32_t index,
     const Vec3 mAngA = A.invI * angA, mAngB = B.invI * angB;
     const float kk = dot(zero, zero * A.invMass) + dot(angA, mAngA) + dot(zero, zero * B.invMass) +
                      dot(angB, mAngB);
-    load(pa.twist.angA, l, angA);
-    load(pa.twist.angB, l, angB);
-    load(pa.twist.mAngA, l, mAngA);
-    load(pa.twist.mAngB, l, mAngB);
+    setLane(pa.twist.angA, l, angA);
+    setLane(pa.twist.angB, l, angB);
+    setLane(pa.twist.mAngA, l, mAngA);
+    setLane(pa.twist.mAngB, l, mAngB);
     pa.twist.effMass[l] = kk > 1e-12f ? 1 / kk : 0;
     pa.twist.lambda[l] = m.patchImpulse[2];
     pa.mu[l] = m.friction;
