@@ -167,10 +167,11 @@ void WideContacts::addLane(uint32_t block, const Solver& s, uint32_t index,
     linK[d][1] = dot(linB, mLinB);
   }
   // One row at arms (rA, rB) along axis d (the rows' angular parts are -rA x axis, rB x axis).
-  auto row = [&](Dir& r, Vec3 rA, Vec3 rB, int d, float lambda) {
-    const Vec3 angA = -cross(rA, axes[d]), angB = cross(rB, axes[d]);
+  // A row with angular parts (angA, angB); linKA, linKB are its linear parts' share of
+  // J M^-1 J^T, summed in finishRows' order.
+  auto fill = [&](Dir& r, Vec3 angA, Vec3 angB, float linKA, float linKB, float lambda) {
     const Vec3 mAngA = A.invI * angA, mAngB = B.invI * angB;
-    const float kk = linK[d][0] + dot(angA, mAngA) + linK[d][1] + dot(angB, mAngB);
+    const float kk = linKA + dot(angA, mAngA) + linKB + dot(angB, mAngB);
     setLane(r.angA, l, angA);
     setLane(r.angB, l, angB);
     setLane(r.mAngA, l, mAngA);
@@ -178,21 +179,18 @@ void WideContacts::addLane(uint32_t block, const Solver& s, uint32_t index,
     r.effMass[l] = kk > 1e-12f ? 1 / kk : 0;
     r.lambda[l] = lambda;
   };
+  // A row along axis d at arms (rA, rB): angular parts -rA x axis and rB x axis.
+  auto row = [&](Dir& r, Vec3 rA, Vec3 rB, int d, float lambda) {
+    fill(r, -cross(rA, axes[d]), cross(rB, axes[d]), linK[d][0], linK[d][1], lambda);
+  };
   if (m.patch) {
     Patch& pa = patches_[block];
     row(pa.t1, m.patchRA, m.patchRB, 1, m.patchImpulse[0]);
     row(pa.t2, m.patchRA, m.patchRB, 2, m.patchImpulse[1]);
-    // The twist: no linear part, angular -n and n (dot(0, 0) + ... as the row's effMass).
-    const Vec3 zero{}, angA = -m.normal, angB = m.normal;
-    const Vec3 mAngA = A.invI * angA, mAngB = B.invI * angB;
-    const float kk = dot(zero, zero * A.invMass) + dot(angA, mAngA) + dot(zero, zero * B.invMass) +
-                     dot(angB, mAngB);
-    setLane(pa.twist.angA, l, angA);
-    setLane(pa.twist.angB, l, angB);
-    setLane(pa.twist.mAngA, l, mAngA);
-    setLane(pa.twist.mAngB, l, mAngB);
-    pa.twist.effMass[l] = kk > 1e-12f ? 1 / kk : 0;
-    pa.twist.lambda[l] = m.patchImpulse[2];
+    // The twist: no linear part (its share, dot(0, 0 * invMass), as finishRows sums it).
+    const Vec3 zero{};
+    fill(pa.twist, -m.normal, m.normal, dot(zero, zero * A.invMass), dot(zero, zero * B.invMass),
+         m.patchImpulse[2]);
     pa.mu[l] = m.friction;
     pa.twistMu[l] = m.friction * m.twistArm;
   }
