@@ -5,6 +5,7 @@ PHYS_PACKAGES=(cmake ninja-build g++ pkg-config libeigen3-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libcli11-dev
   cyclonedds-dev cyclonedds-tools libflatbuffers-dev flatbuffers-compiler libspdlog-dev
   libtomlplusplus-dev
+  libvulkan-dev glslc mesa-vulkan-drivers vulkan-validationlayers vulkan-tools
   libbullet-dev libode-dev libmujoco-dev gnuplot-nox)
 
 phys_install_deps() {

@@ -12,6 +12,7 @@ namespace {
 
 using StageField = double StepProfile::*;
 const std::pair<const char*, StageField> kStages[] = {
+    {"sync_to_device", &StepProfile::syncToDevice},
     {"apply_commands", &StepProfile::applyCommands},
     {"update_bounds", &StepProfile::updateBounds},
     {"broad_phase", &StepProfile::broadPhase},
@@ -27,6 +28,7 @@ const std::pair<const char*, StageField> kStages[] = {
     {"position_pass", &StepProfile::positionPass},
     {"store_impulses", &StepProfile::storeImpulses},
     {"finalize", &StepProfile::finalize},
+    {"readback", &StepProfile::readback},
 };
 
 double percentile(std::vector<double> v, double p) {

@@ -861,13 +861,17 @@ void loadScene(const Json& root, Scene* s) {
   if (const Json* sv = top.find("solver")) readSolver(*sv, "solver", &s->world.solver);
   if (const Json* w = top.find("world")) {
     Object o(*w, "world",
-             {"max_linear_speed", "max_angular_speed", "speculative_distance", "aabb_margin"});
+             {"max_linear_speed", "max_angular_speed", "speculative_distance", "aabb_margin",
+              "backend"});
     WorldDef& wd = s->world;
     wd.maxLinearSpeed = o.number("max_linear_speed", wd.maxLinearSpeed, Range::Positive);
     wd.maxAngularSpeed = o.number("max_angular_speed", wd.maxAngularSpeed, Range::Positive);
     wd.speculativeDistance =
         o.number("speculative_distance", wd.speculativeDistance, Range::NonNegative);
     wd.aabbMargin = o.number("aabb_margin", wd.aabbMargin, Range::NonNegative);
+    const std::string backend = o.string("backend", toString(wd.backend));
+    if (!parseBackend(backend, &wd.backend))
+      fail(o.path("backend"), "must be \"cpu\", \"gpu\" or \"auto\", got \"" + backend + "\"");
   }
 
   Builder b;
@@ -1202,6 +1206,7 @@ std::string sceneToJson(const Scene& s) {
                         {"max_angular_speed", jsonNumber(s.world.maxAngularSpeed)},
                         {"speculative_distance", jsonNumber(s.world.speculativeDistance)},
                         {"aabb_margin", jsonNumber(s.world.aabbMargin)}};
+  if (s.world.backend != Backend::Cpu) root["world"]["backend"] = toString(s.world.backend);
 
   // Materials other than the default are written once and referred to by name.
   std::vector<Material> materials;

@@ -52,7 +52,9 @@ static_assert(std::numeric_limits<float>::is_iec559 && std::numeric_limits<doubl
 // additions; they are only checked where they were measured (libstdc++, 64-bit).
 #if defined(__GLIBCXX__) && UINTPTR_MAX == UINT64_MAX
 static_assert(sizeof(SolverSettings) == 80, "SolverSettings changed: update snapshot.cpp");
-static_assert(sizeof(WorldDef) == 128, "WorldDef changed: update snapshot.cpp");
+// WorldDef's backend and gpuAllowCpuDevice are not saved: where a world runs is the
+// restoring process's choice.
+static_assert(sizeof(WorldDef) == 132, "WorldDef changed: update snapshot.cpp");
 static_assert(sizeof(StepStats) == 128, "StepStats changed: update snapshot.cpp");
 static_assert(sizeof(BodyRec) == 336, "BodyRec changed: update snapshot.cpp");
 static_assert(sizeof(ShapeGeom) == 56, "ShapeGeom changed: update snapshot.cpp");
@@ -1033,9 +1035,12 @@ Status World::restoreSnapshot(const uint8_t* data, size_t size) {
 
   // Everything checked: swap it in. Nothing below can fail (short of memory).
   Impl& w = *impl_;
-  const int threads = w.def.threads;
+  // Where the world runs is the process's choice, not the snapshot's.
+  const WorldDef kept = w.def;
   w.def = st->def;
-  w.def.threads = threads;
+  w.def.threads = kept.threads;
+  w.def.backend = kept.backend;
+  w.def.gpuAllowCpuDevice = kept.gpuAllowCpuDevice;
   w.bodies = std::move(st->bodies);
   w.shapes = std::move(st->shapes);
   w.joints = std::move(st->joints);
@@ -1047,6 +1052,7 @@ Status World::restoreSnapshot(const uint8_t* data, size_t size) {
   w.snapshot = {};  // the guard's rollback copy: taken again at the next step's start
   w.stats = st->stats;
   w.time = st->time;
+  w.deviceStale();
   return Status::Ok();
 }
 

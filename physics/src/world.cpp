@@ -227,6 +227,7 @@ World::World(const WorldDef& def) : impl_(std::make_unique<Impl>()) {
   impl_->def.threads = resolveThreadCount(std::clamp(def.threads, 0, 64));
   if (impl_->def.threads > 1) impl_->pool = std::make_unique<ThreadPool>(impl_->def.threads);
   impl_->solver.pool = impl_->pool.get();
+  impl_->openDevice();
 }
 World::~World() = default;
 
@@ -237,6 +238,7 @@ const WorldDef& World::def() const {
 Status World::setGravity(Vec3 g) {
   if (!isFinite(g)) return invalid("gravity must be finite");
   impl_->def.gravity = g;
+  impl_->deviceStale();
   return Status::Ok();
 }
 Status World::setTimeStep(float dt) {
@@ -401,6 +403,7 @@ Status World::createBody(const BodyDef& in, BodyId* out) {
   }
   w.updateMass(b);
   w.syncProxies(id, false);
+  w.deviceStale();
   if (out) *out = id;
   return Status::Ok();
 }
@@ -417,6 +420,7 @@ Status World::destroyBody(BodyId id) {
     w.shapes.remove(sid);
   }
   w.bodies.remove(id);
+  w.deviceStale();
   return Status::Ok();
 }
 
@@ -442,6 +446,7 @@ Status World::setTransform(BodyId id, Vec3 position, Quat rotation) {
   b->xf = {position, rotation};
   b->com = apply(b->xf, b->localCenter);
   impl_->syncProxies(id, true);
+  impl_->deviceEdited(id.index);
   return Status::Ok();
 }
 
@@ -453,6 +458,7 @@ Status World::setVelocity(BodyId id, Vec3 linear, Vec3 angular) {
     return Status::Error(StatusCode::IncorrectState, "set velocity: the body is static");
   b->v = linear;
   b->w = angular;
+  impl_->deviceEdited(id.index);
   return Status::Ok();
 }
 
@@ -478,6 +484,7 @@ Status World::setBodyType(BodyId id, BodyType type) {
     ShapeRec* s = w.shapes.get(sid);
     w.broadPhase.setStatic(s->proxy, type == BodyType::Static);
   }
+  w.deviceStale();
   return Status::Ok();
 }
 
@@ -493,6 +500,7 @@ Status World::setMass(BodyId id, float mass, Vec3 inertia) {
   b->givenMass = mass;
   b->givenInertia = inertia;
   impl_->updateMass(*b);
+  impl_->deviceStale();
   return Status::Ok();
 }
 
@@ -503,6 +511,7 @@ Status World::setMaterial(BodyId id, const Material& m) {
   if (!st.ok()) return st;
   for (ShapeId sid : b->shapes) impl_->shapes.get(sid)->def.material = m;
   impl_->updateMass(*b);
+  impl_->deviceStale();
   return Status::Ok();
 }
 
@@ -513,6 +522,7 @@ Status World::applyForce(BodyId id, Vec3 force, Vec3 point) {
   if (b->type != BodyType::Dynamic) return Status::Ok();
   b->force += force;
   b->torque += cross(point - b->com, force);
+  impl_->deviceEdited(id.index);
   return Status::Ok();
 }
 
@@ -521,6 +531,7 @@ Status World::applyTorque(BodyId id, Vec3 torque) {
   if (!b) return notFound("body");
   if (!isFinite(torque)) return invalid("apply torque: not finite");
   if (b->type == BodyType::Dynamic) b->torque += torque;
+  impl_->deviceEdited(id.index);
   return Status::Ok();
 }
 
@@ -533,6 +544,7 @@ Status World::applyImpulse(BodyId id, Vec3 impulse, Vec3 point) {
   Mat3 invI = R * b->invInertiaLocal * transpose(R);
   b->v += impulse * b->invMass;
   b->w += invI * cross(point - b->com, impulse);
+  impl_->deviceEdited(id.index);
   return Status::Ok();
 }
 
@@ -579,6 +591,7 @@ Status World::addShape(BodyId id, const ShapeDef& in, ShapeId* out) {
   b->shapes.push_back(sid);
   w.updateMass(*b);
   w.syncProxies(id, false);
+  w.deviceStale();
   if (out) *out = sid;
   return Status::Ok();
 }
@@ -595,6 +608,7 @@ Status World::removeShape(ShapeId id) {
   b->shapes.erase(std::find(b->shapes.begin(), b->shapes.end(), id));
   w.shapes.remove(id);
   w.updateMass(*b);
+  w.deviceStale();
   return Status::Ok();
 }
 
@@ -760,6 +774,15 @@ void World::stepOnce(int substeps) {
     StageTimer t(&p.applyCommands);
     w.applyCommands();
   }
+  // The GPU backend takes the whole step when it covers everything the step needs
+  // (world_gpu.cpp); otherwise the CPU stages below take it from the same host mirror.
+  if (w.device && w.stepOnDevice(substeps)) {
+    w.time += dt;
+    w.stats.step++;
+    w.stats.energyAfter = energy();
+    p.total = nowMs() - t0;
+    return;
+  }
   {
     StageTimer t(&p.updateBounds);
     w.updateBounds(dt);
@@ -847,6 +870,8 @@ void World::stepOnce(int substeps) {
     StageTimer t(&p.finalize);
     w.finalize(h);
   }
+  w.backend.cpuSteps++;
+  w.deviceStale();  // the CPU moved the bodies: the device's copy is old
 
   w.time += dt;
   w.stats.step++;
@@ -938,6 +963,7 @@ void World::Impl::restoreSnapshot() {
   }
   time = snapshot.time;
   stats.step = snapshot.step;
+  deviceStale();
 }
 
 const char* World::Impl::bodyFault(const BodyRec& b) const {
@@ -974,6 +1000,7 @@ void World::Impl::quarantine() {
     stats.guardQuarantined++;
     stats.lastGuardEvent += "; body " + std::to_string(s.index) + " stopped";
   }
+  deviceStale();
   for (Contact& c : contacts) {  // impulses computed from the bad state are not reused
     std::fill(std::begin(c.normalImpulse), std::end(c.normalImpulse), 0.0f);
     for (auto& t : c.tangentImpulse) t[0] = t[1] = 0;
@@ -1453,6 +1480,7 @@ Status World::observe(const std::vector<BodyId>& ids, const std::vector<Observed
   w.stats.energyAfter = energy();
   w.profile = StepProfile();
   w.profile.total = stepMs;
+  w.deviceStale();
   return Status::Ok();
 }
 

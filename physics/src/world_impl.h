@@ -43,6 +43,7 @@ struct BodyRec {
   std::vector<JointId> joints;
   std::string name;
   int32_t solverIndex = -1;  ///< this step's index into the solver body array, -1 if static
+  int32_t deviceIndex = -1;  ///< index among the GPU backend's bodies, -1 if static or none
 };
 
 struct JointRec {
@@ -95,6 +96,12 @@ struct Snapshot {
   double liftEnergy = 0;  ///< J, lifting every dynamic body by 0.1 m (the jump floor)
 };
 
+/// The GPU backend's part of a world (world_gpu.cpp).
+struct DeviceWorld;
+struct DeviceWorldDeleter {
+  void operator()(DeviceWorld* d) const;
+};
+
 struct World::Impl {
   WorldDef def;
   Pool<BodyRec, BodyTag> bodies;
@@ -116,6 +123,9 @@ struct World::Impl {
   StepProfile profile;
   StepStats stats;
   double time = 0;
+  // The GPU backend (world_gpu.cpp): null on the CPU backend.
+  BackendState backend;
+  std::unique_ptr<DeviceWorld, DeviceWorldDeleter> device;
 
   // Helpers shared by the source files.
   void updateMass(BodyRec& b);
@@ -139,6 +149,12 @@ struct World::Impl {
   void contactRowsOf(const Contact& c, const SolverManifold& m);  ///< appended
   void refreshJoints(float h);
   void storeImpulses();  ///< rows' impulses back to contacts and joints (warm starting)
+  // GPU backend (world_gpu.cpp).
+  void openDevice();                 ///< at construction, for Backend::Gpu and Auto
+  void deviceEdited(uint32_t slot);  ///< a body's pose, velocity or forces changed
+  void deviceStale();                ///< anything else changed: everything goes up again
+  /// The step on the device; false (the CPU takes it) when the device cannot take it.
+  bool stepOnDevice(int substeps);
   // Guard rails (world.cpp).
   void takeSnapshot();
   void restoreSnapshot();

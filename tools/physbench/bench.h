@@ -10,6 +10,7 @@
 
 #include "phys/metrics.h"
 #include "phys/scene.h"
+#include "phys/world.h"
 
 namespace phys::bench {
 
@@ -17,6 +18,7 @@ struct SingleOptions {
   std::string scenePath, presetName, presetsPath, jsonOut;
   double seconds = -1;     ///< < 0: the scene's duration
   int threads = 0;         ///< the world's threads; 0: the machine's
+  std::string backend;     ///< "cpu", "gpu", "auto"; empty: the scene's
   std::string peer;        ///< run the scene in this peer engine instead (--peer)
   int peerIterations = 0;  ///< the peer's solver iterations; 0: the engine's default
 };
@@ -24,6 +26,10 @@ struct SingleOptions {
 /// Runs one scene and prints its metrics. Exit status: 0 when every criterion of the scene
 /// passed, 1 when one failed, 2 on bad input.
 int runSingle(SingleOptions opt);
+
+/// "cpu", or where a world asked to run on the GPU ran: its device and how many steps the
+/// device and the CPU took (and why the CPU did).
+std::string backendLabel(const World& world);
 
 /// What runSingle prints (and writes as JSON) about one finished run.
 struct SingleResult {
@@ -59,6 +65,7 @@ struct SuiteOptions {
   bool quick = false;     ///< at most kQuickSeconds per run
   int jobs = 1;
   int threads = 0;  ///< each world's threads; 0: the machine's divided among the jobs
+  std::string backend;  ///< "cpu", "gpu", "auto"; empty: each scene's
   std::string csvOut, markdownOut, docPath;
   bool failOnCriteria = false;
   bool failOnNan = false;   ///< exit 1 when a run went NaN

@@ -90,6 +90,12 @@ int main(int argc, char** argv) {
   app.add_option("--threads", threads,
                  "threads per world (default 0: the machine's; with --jobs, divided among them)")
       ->check(CLI::Range(0, 64));
+  std::string backend;
+  app.add_option("--backend", backend,
+                 "where worlds run: cpu, gpu or auto (default: the scene's). Without a usable "
+                 "Vulkan device gpu and auto run on the CPU; PHYS_GPU_ALLOW_CPU=1 lets them use "
+                 "a CPU implementation such as lavapipe")
+      ->check(CLI::IsMember({"cpu", "gpu", "auto"}));
   bool scalarContacts = false;
   app.add_flag("--scalar-contacts", scalarContacts,
                "solve Gauss-Seidel contacts one manifold at a time instead of in SIMD lanes "
@@ -248,6 +254,7 @@ int main(int argc, char** argv) {
     }
     single.presetsPath = presetsPath;
     single.threads = threads;
+    single.backend = backend;
     return bench::runSingle(single);
   }
   if (app.count("--peer-iterations") && suite.peers.empty() && !sweepMode)
@@ -255,6 +262,7 @@ int main(int argc, char** argv) {
   suite.peerIterations = peerIterations;
   suite.presetsPath = presetsPath;
   suite.threads = threads;
+  suite.backend = backend;
   if (suite.scenesDir.empty()) suite.scenesDir = defaultScenesDir();
   suite.commandLine = commandLine(argc, argv);
   if (!reportMode) return bench::runSuite(suite);

@@ -14,6 +14,17 @@
 
 namespace phys::bench {
 
+std::string backendLabel(const World& world) {
+  const BackendState& b = world.backendState();
+  if (b.requested == Backend::Cpu) return "cpu";
+  if (b.active == Backend::Cpu)
+    return "cpu (" + std::string(toString(b.requested)) + ": " + b.note + ")";
+  std::string label = "gpu (" + b.device + "; " + std::to_string(b.gpuSteps) +
+                      " steps on the device, " + std::to_string(b.cpuSteps) + " on the CPU";
+  if (b.cpuSteps > 0) label += ": " + b.lastFallback;
+  return label + ")";
+}
+
 namespace {
 
 nlohmann::json optional(const std::optional<double>& v) {
@@ -70,6 +81,7 @@ int runSingle(SingleOptions opt) {
   double seconds = opt.seconds < 0 ? scene.duration : opt.seconds;
 
   scene.world.threads = opt.threads;
+  if (!opt.backend.empty()) parseBackend(opt.backend, &scene.world.backend);
   World world(scene.world);
   std::vector<BodyId> ids;
   st = instantiateScene(scene, &world, &ids);
@@ -83,8 +95,9 @@ int runSingle(SingleOptions opt) {
     world.step();
     rec.afterStep(world);
   }
-  SingleResult result{usedPreset,         "cpu", world.def().threads, world.bodyCount(),
-                      world.jointCount(), steps, rec.summary()};
+  SingleResult result{usedPreset,        backendLabel(world), world.def().threads,
+                      world.bodyCount(), world.jointCount(),  steps,
+                      rec.summary()};
   result.metrics.stateHash = world.stateHash();
   return reportSingle(opt, scene, result);
 }

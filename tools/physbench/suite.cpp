@@ -100,7 +100,8 @@ bool finiteWorld(const World& world, const std::vector<BodyId>& ids) {
 }
 
 /// Runs one job; every failure ends up in job.result (status Error), never thrown.
-void runJob(const SceneEntry& se, Job& job, int threads, double maxWallSeconds) {
+void runJob(const SceneEntry& se, Job& job, int threads, const std::string& backend,
+            double maxWallSeconds) {
   RunResult& r = job.result;
   r.main = mainMetricFor(se.name);
   if (!job.error.empty()) {
@@ -117,6 +118,7 @@ void runJob(const SceneEntry& se, Job& job, int threads, double maxWallSeconds) 
     Scene scene = se.scene;  // a copy per run: the recorder keeps a pointer to it
     scene.world.solver = job.settings->settings;
     scene.world.threads = threads;
+    if (!backend.empty()) parseBackend(backend, &scene.world.backend);
     Status st = World::validate(scene.world.solver);
     if (!st.ok()) throw std::runtime_error("preset " + job.preset + ": " + st.message);
     World world(scene.world);
@@ -528,7 +530,7 @@ int runSuite(const SuiteOptions& opt) {
       job.result.plannedSteps = scenes[job.scene].steps;
       job.state.store(1);
       progress.started(job);
-      runJob(scenes[job.scene], job, worldThreads, opt.maxRunWallSeconds);
+      runJob(scenes[job.scene], job, worldThreads, opt.backend, opt.maxRunWallSeconds);
       job.result.wallSeconds = secondsSince(job.started);
       job.state.store(2);
       progress.finished(job);

@@ -165,6 +165,26 @@ struct SolverSettings {
 void setVectorizedContacts(bool on);
 bool vectorizedContacts();
 
+/// Where a world's step runs. `Gpu` and `Auto` open a Vulkan device (gpu_solver/): a
+/// discrete GPU first, then an integrated one; a CPU implementation (lavapipe) only with
+/// WorldDef::gpuAllowCpuDevice or PHYS_GPU_ALLOW_CPU=1. With no usable device both run on
+/// the CPU and World::backendState() says why. The GPU backend does not cover every stage
+/// yet: a step it cannot take is taken by the CPU backend (counted, with the reason).
+enum class Backend : uint8_t { Cpu = 0, Gpu = 1, Auto = 2 };
+const char* toString(Backend b);
+bool parseBackend(const std::string& text, Backend* out);  ///< "cpu", "gpu", "auto"
+
+/// Which backend a world runs on and how its steps were taken.
+struct BackendState {
+  Backend requested = Backend::Cpu;
+  Backend active = Backend::Cpu;  ///< Gpu when a device was opened
+  std::string device;             ///< the Vulkan device's name, when active is Gpu
+  std::string note;               ///< why the CPU runs a world that asked for the GPU
+  uint64_t gpuSteps = 0;          ///< steps taken on the device
+  uint64_t cpuSteps = 0;          ///< steps taken by the CPU backend (all of a CPU world's)
+  std::string lastFallback;       ///< why the last CPU step of a GPU world was not on the device
+};
+
 struct WorldDef {
   Vec3 gravity{0, 0, -9.81f};   ///< m/s^2
   float timeStep = 1.0f / 60;   ///< s, the fixed step used by step()
@@ -187,10 +207,15 @@ struct WorldDef {
   /// lifting every dynamic body by 0.1 m counts as an explosion.
   float guardEnergyJump = 0.5f;
   int guardRetries = 2;
+  Backend backend = Backend::Cpu;
+  bool gpuAllowCpuDevice = false;  ///< let the GPU backend run on a CPU Vulkan device (tests)
 };
 
 /// Wall time of each step stage in milliseconds. Stage names are used everywhere.
+/// On the GPU backend the stages are the device's timestamps, plus the uploads of edited
+/// bodies (syncToDevice) and the states' readback; total is the wall time.
 struct StepProfile {
+  double syncToDevice = 0, readback = 0;
   double applyCommands = 0, updateBounds = 0, broadPhase = 0, narrowPhase = 0, buildIslands = 0,
          prepare = 0, integrateVelocities = 0, warmStart = 0, solve = 0, integratePositions = 0,
          relax = 0, restitution = 0, positionPass = 0, storeImpulses = 0, finalize = 0, total = 0;
@@ -315,6 +340,7 @@ class World {
                  double stepMs);
   const StepProfile& profile() const;
   const StepStats& stats() const;
+  const BackendState& backendState() const;
   /// Contacts after the last step (touching or speculative).
   std::vector<ContactInfo> contacts() const;
 

@@ -1,0 +1,81 @@
+// A world's step on the GPU. phys_core's World owns one when its backend is the GPU: it
+// hands over bodies and shapes as the flat records of shared.h (all of them when the world's
+// structure changes, one at a time when a body is edited), calls step(), and reads the body
+// states back for its host mirror (getBody, publishing, metrics).
+//
+// The step records every stage into one command buffer, submits it once and waits; only
+// dirty records go up and only the body states (and the bounds when asked) come down.
+#pragma once
+
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "phys/gpu/device_info.h"
+#include "phys/gpu/shared.h"
+
+namespace phys::gpu {
+
+/// The GPU step's stages, named as the CPU profile's (phys::StepProfile) where they match.
+enum class Stage : int {
+  SyncToDevice,
+  UpdateBounds,
+  Prepare,
+  IntegrateVelocities,
+  IntegratePositions,
+  Finalize,
+  Readback,
+  Count
+};
+const char* stageName(Stage s);
+constexpr int kStageCount = int(Stage::Count);
+
+struct StepInput {
+  float dt = 1.0f / 60;
+  int substeps = 1;
+  float maxLinearSpeed = 1e4f, maxAngularSpeed = 1e3f;
+  float margin = 0;         ///< m, speculative margin of the bounds
+  bool readBounds = false;  ///< bring the shapes' bounds back too (tests, diagnostics)
+};
+
+class GpuWorld {
+ public:
+  /// A world on the device the options choose (one device per process and options, shared
+  /// by every world on it). Null with *error when there is no usable device.
+  static std::unique_ptr<GpuWorld> create(const DeviceOptions& options, std::string* error);
+  ~GpuWorld();
+  GpuWorld(const GpuWorld&) = delete;
+  GpuWorld& operator=(const GpuWorld&) = delete;
+
+  const DeviceInfo& device() const;
+  /// Errors the validation layer reported on this world's device (runs with validation).
+  int validationErrors() const;
+
+  /// Replaces every body: body i of the GPU world is states[i] / params[i].
+  void setBodies(std::span<const GpuBodyState> states, std::span<const GpuBodyParams> params);
+  /// One body was edited: its records go up with the next step.
+  void setBody(uint32_t index, const GpuBodyState& state, const GpuBodyParams& params);
+  /// Replaces every shape.
+  void setShapes(std::span<const GpuShape> shapes);
+  uint32_t bodyCount() const;
+  uint32_t shapeCount() const;
+
+  /// One step of dt in `substeps` substeps. False with *error on a device failure (the
+  /// states are then those of the last good step).
+  bool step(const StepInput& in, std::string* error);
+  /// After a step: every body's state, in setBodies order.
+  std::span<const GpuBodyState> states() const;
+  /// After a step with readBounds: every shape's bounds, in setShapes order.
+  std::span<const GpuAabb> bounds() const;
+  /// Device time of each stage in the last step (ms), indexed by Stage; zeros without
+  /// timestamp support.
+  std::span<const double> stageMs() const;
+
+ private:
+  struct Impl;
+  explicit GpuWorld(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace phys::gpu

@@ -1,0 +1,17 @@
+// The GPU step's records (gpu_solver/shaders/shared.h) on the C++ side, with their sizes
+// checked against std430 as the shaders see them.
+#pragma once
+
+#include <cstddef>
+
+#include "../../../shaders/shared.h"
+
+namespace phys::gpu {
+static_assert(sizeof(vec4) == 16 && sizeof(uvec4) == 16);
+static_assert(sizeof(GpuBodyState) == 64);
+static_assert(sizeof(GpuBodyParams) == 144);
+static_assert(sizeof(GpuSolverBody) == 128);
+static_assert(sizeof(GpuShape) == 64 && offsetof(GpuShape, body) == 48);
+static_assert(sizeof(GpuAabb) == 32);
+static_assert(sizeof(GpuStepConstants) == 32);
+}  // namespace phys::gpu

@@ -1,0 +1,99 @@
+// Written once, read by both sides: the GPU step's buffer records, push constants and
+// workgroup sizes. GLSL includes this file (GL_GOOGLE_include_directive), C++ includes it
+// through phys/gpu/shared.h, which checks every size with static_assert.
+//
+// Rules (std430 in GLSL, plain structs in C++): members are vec4/uvec4/float/uint/int only,
+// no vec3 (its std430 alignment is 16 but its size 12, which C++ does not reproduce), and
+// every record is a multiple of 16 bytes.
+#ifndef PHYS_GPU_SHARED_H
+#define PHYS_GPU_SHARED_H
+
+#ifdef __cplusplus
+#include <cstdint>
+namespace phys::gpu {
+struct vec4 {
+  float x = 0, y = 0, z = 0, w = 0;
+};
+struct uvec4 {
+  uint32_t x = 0, y = 0, z = 0, w = 0;
+};
+using uint = uint32_t;
+#endif
+
+// Workgroup size of every one-thread-per-item kernel.
+#define PHYS_GPU_GROUP 64
+
+// GpuBodyParams.flags bits.
+#define PHYS_GPU_BODY_DYNAMIC 1u     // moved by forces and constraints (else kinematic)
+#define PHYS_GPU_BODY_GYROSCOPIC 2u  // unequal principal moments: the free-rotation splitting
+
+// GpuShape.type, as phys::ShapeType.
+#define PHYS_GPU_SHAPE_SPHERE 0u
+#define PHYS_GPU_SHAPE_BOX 1u
+#define PHYS_GPU_SHAPE_CAPSULE 2u
+#define PHYS_GPU_SHAPE_PLANE 3u
+#define PHYS_GPU_SHAPE_HULL 4u
+
+// A body's state: what the step advances and what comes back for publishing. One per
+// non-static body, in the host's order (GpuWorld's body index).
+struct GpuBodyState {
+  vec4 com;  // xyz: centre of mass in the world (m); w: unused
+  vec4 q;    // orientation (x, y, z, w), body frame -> world
+  vec4 v;    // xyz: linear velocity (m/s)
+  vec4 w;    // xyz: angular velocity (rad/s, world)
+};
+
+// What the integration needs beside the state; uploaded when a body is edited.
+struct GpuBodyParams {
+  vec4 accel;          // xyz: gravity * scale + force / mass (m/s^2); w: inverse mass
+  vec4 torque;         // xyz: applied torque (N m); w: linear damping (1/s)
+  vec4 principal;      // principal-axes frame -> body frame (quaternion)
+  vec4 moments;        // xyz: principal moments (kg m^2); w: angular damping (1/s)
+  vec4 invInertia[3];  // rows of the inverse inertia about the centre of mass, body axes
+  vec4 localCenter;    // xyz: centre of mass in the body frame
+  uvec4 flags;         // x: PHYS_GPU_BODY_* bits
+};
+
+// The solver's view of a body during the step (substeps): velocity, the displacement since
+// the step began and the current orientation.
+struct GpuSolverBody {
+  vec4 v;       // xyz linear velocity
+  vec4 w;       // xyz angular velocity
+  vec4 dp;      // xyz: centre-of-mass displacement since the step began (m)
+  vec4 q;       // current orientation
+  vec4 dtheta;  // xyz: accumulated rotation vector since the step began (rad)
+  vec4 invI[3];  // rows of the world inverse inertia at the step's start
+};
+
+// A shape for the collision stages: its body (GpuWorld body index, or -1 for static
+// geometry held in the world frame), its frame and its geometry.
+struct GpuShape {
+  vec4 localP;  // xyz: position in the body frame; w: bounding radius about the body's com
+  vec4 localQ;  // orientation in the body frame
+  vec4 size;    // sphere: (r); box: (hx, hy, hz); capsule: (r, half height); plane: (nx, ny, nz, d)
+  int body;     // GpuWorld body index, -1: static (localP/localQ are then world)
+  uint type;    // PHYS_GPU_SHAPE_*
+  uint pad0, pad1;
+};
+
+// World-space bounds of a shape, fattened by the speculative margin.
+struct GpuAabb {
+  vec4 lo;  // xyz; w: unused
+  vec4 hi;  // xyz; w: unused
+};
+
+// Push constants of the body stages.
+struct GpuStepConstants {
+  float h;              // s, substep length
+  float maxLinearSpeed;  // m/s
+  float maxAngularSpeed;  // rad/s
+  float margin;         // m, speculative margin added to the bounds
+  uint bodyCount;
+  uint shapeCount;
+  uint pad0, pad1;
+};
+
+#ifdef __cplusplus
+}  // namespace phys::gpu
+#endif
+#endif

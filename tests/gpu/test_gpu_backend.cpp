@@ -1,0 +1,378 @@
+// The GPU backend against the CPU backend and against analytic answers, on whatever Vulkan
+// device is present (lavapipe in CI). What the device covers so far: bodies without
+// contacts or joints; a step with either is taken by the CPU (the fallback is tested too).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <vector>
+
+#include "../common/bodies.h"
+#include "phys/gpu/gpu_world.h"
+#include "phys/scene.h"
+#include "phys/world.h"
+
+namespace phys {
+namespace {
+
+using test::boxBody;
+using test::groundBody;
+using test::sphereBody;
+
+WorldDef gpuDef(Backend backend = Backend::Gpu) {
+  WorldDef d;
+  d.backend = backend;
+  d.gpuAllowCpuDevice = true;
+  d.threads = 1;
+  return d;
+}
+
+BodyId add(World& w, const BodyDef& d) {
+  BodyId id;
+  Status st = w.createBody(d, &id);
+  EXPECT_TRUE(st.ok()) << st.message;
+  return id;
+}
+
+BodyState state(const World& w, BodyId id) {
+  BodyState s;
+  EXPECT_TRUE(w.getBody(id, &s).ok());
+  return s;
+}
+
+/// Skips the test when no Vulkan device can be opened at all (no loader or driver).
+#define REQUIRE_DEVICE(world)                                              \
+  do {                                                                     \
+    if ((world).backendState().active != Backend::Gpu)                     \
+      GTEST_SKIP() << "no Vulkan device: " << (world).backendState().note; \
+  } while (0)
+
+Vec3 angularMomentum(const BodyState& s) {
+  return s.inertia * s.angularVelocity;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Device choice
+
+TEST(GpuDevice, CpuImplementationOnlyWhenAllowed) {
+  std::vector<gpu::DeviceInfo> devices = gpu::listDevices();
+  if (devices.empty()) GTEST_SKIP() << "no Vulkan loader or driver";
+  bool onlyCpu = true;
+  for (const auto& d : devices) onlyCpu &= d.isCpu;
+  gpu::DeviceOptions strict;
+  std::string error;
+  auto world = gpu::GpuWorld::create(strict, &error);
+  if (onlyCpu) {
+    EXPECT_EQ(world, nullptr);
+    EXPECT_NE(error.find("PHYS_GPU_ALLOW_CPU"), std::string::npos) << error;
+  } else {
+    ASSERT_NE(world, nullptr) << error;
+    EXPECT_FALSE(world->device().isCpu);
+  }
+  gpu::DeviceOptions lenient;
+  lenient.allowCpu = true;
+  world = gpu::GpuWorld::create(lenient, &error);
+  ASSERT_NE(world, nullptr) << error;
+  EXPECT_FALSE(world->device().name.empty());
+  // A GPU is preferred to a CPU implementation whenever there is one.
+  EXPECT_EQ(world->device().isCpu, onlyCpu);
+}
+
+TEST(GpuDevice, NoDeviceFallsBackToTheCpuAndSaysWhy) {
+  WorldDef d = gpuDef();
+  d.gpuAllowCpuDevice = false;
+  std::vector<gpu::DeviceInfo> devices = gpu::listDevices();
+  bool onlyCpu = true;
+  for (const auto& dev : devices) onlyCpu &= dev.isCpu;
+  if (!onlyCpu) GTEST_SKIP() << "a GPU is present";
+  World w(d);
+  const BackendState& b = w.backendState();
+  EXPECT_EQ(b.requested, Backend::Gpu);
+  EXPECT_EQ(b.active, Backend::Cpu);
+  EXPECT_NE(b.note.find("no GPU device"), std::string::npos) << b.note;
+  // The world still works, on the CPU.
+  BodyId s = add(w, sphereBody({0, 0, 10}, 0.5f));
+  w.step();
+  EXPECT_LT(state(w, s).linearVelocity.z, 0);
+  EXPECT_EQ(b.cpuSteps, 1u);
+  EXPECT_EQ(b.gpuSteps, 0u);
+}
+
+TEST(GpuDevice, ValidationLayerReportsNothing) {
+  gpu::DeviceOptions o;
+  o.allowCpu = true;
+  o.validation = true;
+  std::string error;
+  auto world = gpu::GpuWorld::create(o, &error);
+  ASSERT_NE(world, nullptr) << error;
+  if (!world->device().validation) GTEST_SKIP() << "VK_LAYER_KHRONOS_validation not installed";
+  gpu::GpuBodyState s;
+  s.q.w = 1;
+  s.com.z = 5;
+  gpu::GpuBodyParams p;
+  p.accel = {0, 0, -9.81f, 1};
+  p.principal.w = 1;
+  p.moments = {1, 2, 3, 0};
+  p.flags.x = PHYS_GPU_BODY_DYNAMIC | PHYS_GPU_BODY_GYROSCOPIC;
+  std::vector<gpu::GpuBodyState> states(100, s);
+  std::vector<gpu::GpuBodyParams> params(100, p);
+  world->setBodies(states, params);
+  gpu::GpuShape shape;
+  shape.type = PHYS_GPU_SHAPE_SPHERE;
+  shape.size.x = 0.5f;
+  shape.localQ.w = 1;
+  world->setShapes(std::vector<gpu::GpuShape>(100, shape));
+  gpu::StepInput in;
+  in.substeps = 4;
+  in.readBounds = true;
+  for (int i = 0; i < 5; ++i) ASSERT_TRUE(world->step(in, &error)) << error;
+  world->setBody(3, s, p);  // a partial upload too
+  ASSERT_TRUE(world->step(in, &error)) << error;
+  EXPECT_EQ(world->validationErrors(), 0);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Bounds
+
+TEST(GpuBounds, MatchTheCpuShapesBounds) {
+  gpu::DeviceOptions o;
+  o.allowCpu = true;
+  std::string error;
+  auto world = gpu::GpuWorld::create(o, &error);
+  if (!world) GTEST_SKIP() << error;
+  // One body per shape kind at a tilted pose, and a static box in world coordinates.
+  const Quat q = normalize(Quat{0.3f, -0.2f, 0.5f, 0.8f});
+  const Vec3 com{1, -2, 3};
+  std::vector<ShapeGeom> geoms = {ShapeGeom::sphere(0.4f), ShapeGeom::box({0.2f, 0.5f, 0.9f}),
+                                  ShapeGeom::capsule(0.3f, 0.7f)};
+  std::vector<gpu::GpuBodyState> states;
+  std::vector<gpu::GpuBodyParams> params;
+  std::vector<gpu::GpuShape> shapes;
+  std::vector<AABB> expected;
+  const float margin = 0.01f;
+  const Transform local{{0.1f, 0.2f, -0.3f}, normalize(Quat{0, 0.3f, 0, 1})};
+  for (size_t i = 0; i < geoms.size(); ++i) {
+    gpu::GpuBodyState s;
+    s.com = {com.x + float(i), com.y, com.z, 0};
+    s.q = {q.x, q.y, q.z, q.w};
+    states.push_back(s);
+    gpu::GpuBodyParams p;
+    p.localCenter = {0, 0, 0, 0};
+    params.push_back(p);
+    gpu::GpuShape g;
+    g.body = int(i);
+    g.type = uint32_t(geoms[i].type);
+    g.localP = {local.p.x, local.p.y, local.p.z, 0};
+    g.localQ = {local.q.x, local.q.y, local.q.z, local.q.w};
+    if (geoms[i].type == ShapeType::Sphere) g.size = {geoms[i].radius, 0, 0, 0};
+    if (geoms[i].type == ShapeType::Box)
+      g.size = {geoms[i].halfExtents.x, geoms[i].halfExtents.y, geoms[i].halfExtents.z, 0};
+    if (geoms[i].type == ShapeType::Capsule) g.size = {geoms[i].radius, geoms[i].halfHeight, 0, 0};
+    shapes.push_back(g);
+    const Transform body{{com.x + float(i), com.y, com.z}, q};
+    AABB box = computeAABB(geoms[i], body * local);
+    box.lo -= Vec3{margin, margin, margin};
+    box.hi += Vec3{margin, margin, margin};
+    expected.push_back(box);
+  }
+  world->setBodies(states, params);
+  world->setShapes(shapes);
+  gpu::StepInput in;
+  in.dt = 1e-30f;  // the bounds are taken before the bodies move; keep them still anyway
+  in.margin = margin;
+  in.readBounds = true;
+  ASSERT_TRUE(world->step(in, &error)) << error;
+  ASSERT_EQ(world->bounds().size(), expected.size());
+  for (size_t i = 0; i < expected.size(); ++i) {
+    const gpu::GpuAabb& b = world->bounds()[i];
+    SCOPED_TRACE("shape " + std::to_string(i));
+    EXPECT_NEAR(b.lo.x, expected[i].lo.x, 1e-5f);
+    EXPECT_NEAR(b.lo.y, expected[i].lo.y, 1e-5f);
+    EXPECT_NEAR(b.lo.z, expected[i].lo.z, 1e-5f);
+    EXPECT_NEAR(b.hi.x, expected[i].hi.x, 1e-5f);
+    EXPECT_NEAR(b.hi.y, expected[i].hi.y, 1e-5f);
+    EXPECT_NEAR(b.hi.z, expected[i].hi.z, 1e-5f);
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Bodies: the device against the CPU and analytic answers
+
+TEST(GpuBodies, FreeFallMatchesTheCpuAndTheAnalyticAnswer) {
+  World g(gpuDef()), c(gpuDef(Backend::Cpu));
+  REQUIRE_DEVICE(g);
+  BodyDef d = sphereBody({0, 0, 100}, 0.5f);
+  d.linearVelocity = {3, -1, 20};
+  BodyId gs = add(g, d), cs = add(c, d);
+  const int steps = 120;
+  for (int i = 0; i < steps; ++i) {
+    g.step();
+    c.step();
+  }
+  EXPECT_EQ(g.backendState().gpuSteps, uint64_t(steps));
+  EXPECT_EQ(g.backendState().cpuSteps, 0u);
+  const BodyState a = state(g, gs), b = state(c, cs);
+  // Linear motion is the same few adds and multiplies on both: equal to float rounding.
+  EXPECT_NEAR(a.position.x, b.position.x, 1e-4f);
+  EXPECT_NEAR(a.position.z, b.position.z, 1e-4f);
+  EXPECT_NEAR(a.linearVelocity.z, b.linearVelocity.z, 1e-4f);
+  // Semi-implicit Euler: z = z0 + v0 t - g t^2 / 2 - g h t / 2 (h = the substep).
+  const double t = steps / 60.0, h = 1.0 / 60 / g.def().solver.substeps;
+  const double z = 100 + 20 * t - 9.81 * t * t / 2 - 9.81 * h * t / 2;
+  EXPECT_NEAR(a.position.z, z, 1e-3);
+  EXPECT_NEAR(a.position.x, 3 * t, 1e-4);
+}
+
+TEST(GpuBodies, TorqueFreeTumblingKeepsAngularMomentumAsTheCpuDoes) {
+  World g(gpuDef()), c(gpuDef(Backend::Cpu));
+  REQUIRE_DEVICE(g);
+  BodyDef d = boxBody({0, 0, 10}, {0.2f, 0.4f, 0.8f});
+  d.gravityScale = 0;
+  d.angularVelocity = {1, 2, 3};
+  BodyId gs = add(g, d), cs = add(c, d);
+  const Vec3 L0 = angularMomentum(state(g, gs));
+  for (int i = 0; i < 600; ++i) {
+    g.step();
+    c.step();
+  }
+  const BodyState a = state(g, gs), b = state(c, cs);
+  const Vec3 L = angularMomentum(a);
+  EXPECT_LT(length(L - L0) / length(L0), 1e-3f);
+  // The same splitting on both: the orientations agree to float rounding growth.
+  const float align = std::abs(a.rotation.x * b.rotation.x + a.rotation.y * b.rotation.y +
+                               a.rotation.z * b.rotation.z + a.rotation.w * b.rotation.w);
+  EXPECT_GT(align, 1 - 1e-5f);
+  EXPECT_LT(length(a.angularVelocity - b.angularVelocity), 1e-3f);
+}
+
+TEST(GpuBodies, KinematicBodyMovesAtItsVelocity) {
+  World g(gpuDef());
+  REQUIRE_DEVICE(g);
+  BodyDef d = boxBody({0, 0, 1}, {0.5f, 0.5f, 0.5f}, BodyType::Kinematic);
+  d.linearVelocity = {1, 0, 0};
+  d.angularVelocity = {0, 0, 0.5f};
+  BodyId k = add(g, d);
+  for (int i = 0; i < 60; ++i) g.step();
+  const BodyState s = state(g, k);
+  EXPECT_NEAR(s.position.x, 1, 1e-4f);
+  EXPECT_NEAR(s.position.z, 1, 1e-6f);  // no gravity on a kinematic body
+  EXPECT_NEAR(s.linearVelocity.x, 1, 1e-6f);
+  // Turned by 0.5 rad about z (to the plain update's O((w h)^3) per substep).
+  EXPECT_NEAR(2 * std::atan2(s.rotation.z, s.rotation.w), 0.5f, 1e-4f);
+}
+
+TEST(GpuBodies, EditsBetweenStepsReachTheDevice) {
+  World g(gpuDef());
+  REQUIRE_DEVICE(g);
+  BodyDef d = sphereBody({0, 0, 50}, 0.5f);
+  d.gravityScale = 0;
+  BodyId a = add(g, d), b = add(g, sphereBody({5, 0, 50}, 0.5f));
+  g.step();
+  // A new velocity, a teleport and a one-step force, each seen by the next step only.
+  ASSERT_TRUE(g.setVelocity(a, {2, 0, 0}, {}).ok());
+  g.step();
+  EXPECT_NEAR(state(g, a).linearVelocity.x, 2, 1e-6f);
+  EXPECT_NEAR(state(g, a).position.x, 2.0f / 60, 1e-5f);
+  ASSERT_TRUE(g.setTransform(a, {10, 0, 50}, {}).ok());
+  const float m = state(g, a).mass;
+  ASSERT_TRUE(g.applyForce(a, {0, m * 6, 0}, state(g, a).centerOfMass).ok());
+  g.step();
+  EXPECT_NEAR(state(g, a).linearVelocity.y, 6.0f / 60, 1e-5f);
+  EXPECT_NEAR(state(g, a).position.x, 10 + 2.0f / 60, 1e-5f);
+  g.step();  // the force lasted one step
+  EXPECT_NEAR(state(g, a).linearVelocity.y, 6.0f / 60, 1e-5f);
+  // Destroying a body re-uploads the rest; the other body kept falling all along.
+  const float vz = state(g, b).linearVelocity.z;
+  ASSERT_TRUE(g.destroyBody(a).ok());
+  g.step();
+  EXPECT_NEAR(state(g, b).linearVelocity.z, vz - 9.81f / 60, 1e-4f);
+  EXPECT_EQ(g.backendState().cpuSteps, 0u);
+}
+
+TEST(GpuBodies, RunsAreBitIdentical) {
+  auto run = [] {
+    World g(gpuDef());
+    if (g.backendState().active != Backend::Gpu) return uint64_t(0);
+    for (int i = 0; i < 20; ++i) {
+      BodyDef d = boxBody({float(i), 0, 10 + float(i)}, {0.1f + 0.02f * float(i), 0.3f, 0.5f});
+      d.angularVelocity = {0.3f * float(i), 1, -0.5f};
+      d.linearVelocity = {0, float(i) * 0.1f, 5};
+      add(g, d);
+    }
+    for (int i = 0; i < 100; ++i) g.step();
+    return g.stateHash();
+  };
+  const uint64_t a = run();
+  if (a == 0) GTEST_SKIP() << "no Vulkan device";
+  EXPECT_EQ(a, run());
+}
+
+TEST(GpuBodies, SnapshotRestoredIntoAGpuWorldContinuesTheSame) {
+  World g(gpuDef());
+  REQUIRE_DEVICE(g);
+  BodyDef d = boxBody({0, 0, 20}, {0.2f, 0.4f, 0.8f});
+  d.angularVelocity = {1, 2, 3};
+  add(g, d);
+  for (int i = 0; i < 30; ++i) g.step();
+  std::vector<uint8_t> snap;
+  ASSERT_TRUE(g.saveSnapshot(&snap).ok());
+  for (int i = 0; i < 30; ++i) g.step();
+  const uint64_t expected = g.stateHash();
+  World r(gpuDef());
+  ASSERT_TRUE(r.restoreSnapshot(snap.data(), snap.size()).ok());
+  EXPECT_EQ(r.def().backend, Backend::Gpu);  // the restoring world keeps its backend
+  for (int i = 0; i < 30; ++i) r.step();
+  EXPECT_EQ(r.stateHash(), expected);
+  EXPECT_EQ(r.backendState().gpuSteps, 30u);
+}
+
+// ---------------------------------------------------------------------------------------------
+// What the device does not cover yet is taken by the CPU
+
+TEST(GpuFallback, ContactsAreSteppedByTheCpuWithTheReason) {
+  World g(gpuDef()), c(gpuDef(Backend::Cpu));
+  REQUIRE_DEVICE(g);
+  for (World* w : {&g, &c}) {
+    add(*w, groundBody());
+    add(*w, boxBody({0, 0, 0.5f}));
+  }
+  for (int i = 0; i < 30; ++i) {
+    g.step();
+    c.step();
+  }
+  EXPECT_EQ(g.backendState().cpuSteps, 30u);
+  EXPECT_NE(g.backendState().lastFallback.find("contacts"), std::string::npos);
+  // Every step was the CPU's: bit for bit the CPU world.
+  EXPECT_EQ(g.stateHash(), c.stateHash());
+}
+
+TEST(GpuFallback, ABallFallsOnTheDeviceAndLandsOnTheCpu) {
+  World g(gpuDef());
+  REQUIRE_DEVICE(g);
+  add(g, groundBody());
+  BodyId s = add(g, sphereBody({0, 0, 3}, 0.5f));
+  for (int i = 0; i < 120; ++i) g.step();
+  const BackendState& b = g.backendState();
+  EXPECT_GT(b.gpuSteps, 20u);  // ~0.65 s of free fall before the bounds meet the ground
+  EXPECT_GT(b.cpuSteps, 20u);
+  const BodyState st = state(g, s);
+  EXPECT_NEAR(st.position.z, 0.5f, 5e-3f);  // resting on the ground
+  EXPECT_LT(length(st.linearVelocity), 0.05f);
+}
+
+TEST(GpuFallback, SceneFilesChooseTheBackend) {
+  Scene scene;
+  const char* json = R"({"name": "t", "world": {"backend": "gpu"},
+    "bodies": [{"name": "b", "position": [0, 0, 5], "shapes": [{"type": "sphere", "radius": 0.5}]}]})";
+  Status parsed = parseScene(json, "t.json", &scene);
+  ASSERT_TRUE(parsed.ok()) << parsed.message;
+  EXPECT_EQ(scene.world.backend, Backend::Gpu);
+  Scene back;
+  ASSERT_TRUE(parseScene(sceneToJson(scene), "again", &back).ok());
+  EXPECT_EQ(back.world.backend, Backend::Gpu);
+  Status st = parseScene(R"({"name": "t", "world": {"backend": "cuda"}})", "t.json", &scene);
+  EXPECT_FALSE(st.ok());
+  EXPECT_NE(st.message.find("world.backend"), std::string::npos) << st.message;
+}
+
+}  // namespace
+}  // namespace phys
