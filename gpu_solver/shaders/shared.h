@@ -66,14 +66,15 @@ struct GpuSolverBody {
 };
 
 // A shape for the collision stages: its body (GpuWorld body index, or -1 for static
-// geometry held in the world frame), its frame and its geometry.
+// geometry held in the world frame), its frame, its geometry and its material.
 struct GpuShape {
   vec4 localP;  // xyz: position in the body frame; w: bounding radius about the body's com
   vec4 localQ;  // orientation in the body frame
   vec4 size;    // sphere: (r); box: (hx, hy, hz); capsule: (r, half height); plane: (nx, ny, nz, d)
   int body;     // GpuWorld body index, -1: static (localP/localQ are then world)
   uint type;    // PHYS_GPU_SHAPE_*
-  uint pad0, pad1;
+  float friction;
+  float restitution;
 };
 
 // World-space bounds of a shape, fattened by the speculative margin.
@@ -82,15 +83,48 @@ struct GpuAabb {
   vec4 hi;  // xyz; w: unused
 };
 
-// Push constants of the body stages.
+// A candidate pair from the broad phase: shapes a < b (GpuWorld shape indices).
+struct GpuPair {
+  uint a;
+  uint b;
+  uint pad0;
+  uint pad1;
+};
+
+// A contact manifold, as phys::Manifold: up to 4 points sharing one normal. One per pair
+// (same index); count 0 when the shapes are apart by more than the margin.
+struct GpuManifold {
+  vec4 normal;       // xyz: unit normal from shape A to shape B; w: mixed friction
+  vec4 points[4];    // xyz: world point midway between the surfaces; w: separation (m)
+  uvec4 featureIds;  // per point, the layout of physics/src/collide_internal.h
+  uint count;        // 0..4
+  uint shapeA;       // = the pair's a
+  uint shapeB;       // = the pair's b
+  float restitution;  // mixed: max of the two
+  vec4 normalImpulse;    // per point: last step's impulse (warm start) in, this step's out
+  vec4 tangentImpulse1;  // per point, along the first tangent
+  vec4 tangentImpulse2;  // per point, along the second tangent
+};
+
+// Counters the stages write on the device (one uvec4 array); the host reads them back.
+#define PHYS_GPU_COUNTER_PAIRS 0u      // candidate pairs the broad phase found
+#define PHYS_GPU_COUNTER_OVERFLOW 1u   // pairs beyond the pair buffer's capacity (then dropped)
+#define PHYS_GPU_COUNTER_COUNT 4u
+
+// Push constants of the step's stages.
 struct GpuStepConstants {
-  float h;              // s, substep length
-  float maxLinearSpeed;  // m/s
-  float maxAngularSpeed;  // rad/s
-  float margin;         // m, speculative margin added to the bounds
+  float h;                    // s, substep length
+  float dt;                   // s, step length
+  float maxLinearSpeed;       // m/s
+  float maxAngularSpeed;      // rad/s
+  float speculativeDistance;  // m: contact points closer than this (plus the bodies' reach) are kept
+  float pad0;
+  float pad1;
+  float pad2;
   uint bodyCount;
   uint shapeCount;
-  uint pad0, pad1;
+  uint pairCapacity;  // pairs the pair and manifold buffers hold
+  uint pad3;
 };
 
 #ifdef __cplusplus

@@ -1,5 +1,7 @@
 #version 450
-// UpdateBounds: each shape's world box, fattened by the speculative margin.
+// UpdateBounds: each shape's world box, swept by its body's motion over the step and padded
+// by half the speculative distance and by how far its rotation can carry it (as the CPU's
+// World::Impl::updateBounds), so every pair that can touch during the step is found.
 #extension GL_GOOGLE_include_directive : require
 #extension GL_ARB_gpu_shader_fp64 : require
 #include "shared.h"
@@ -17,12 +19,18 @@ void main() {
   GpuShape s = shapes[i];
   vec3 p = s.localP.xyz;
   vec4 q = s.localQ;
+  vec3 sweepLo = vec3(0), sweepHi = vec3(0);
+  float pad = 0.5 * k.speculativeDistance;
   if (s.body >= 0) {
     // Body frame: origin = com - R localCenter.
     GpuBodyState b = states[s.body];
     vec3 origin = b.com.xyz - quatRotate(b.q, params[s.body].localCenter.xyz);
     p = origin + quatRotate(b.q, p);
     q = quatNormalize(quatMul(b.q, q));
+    vec3 sweep = b.v.xyz * k.dt;
+    sweepLo = min(sweep, vec3(0));
+    sweepHi = max(sweep, vec3(0));
+    pad += length(b.w.xyz) * k.dt * s.localP.w;
   }
   vec3 ext;
   if (s.type == PHYS_GPU_SHAPE_SPHERE) {
@@ -41,6 +49,6 @@ void main() {
     ext = vec3(s.localP.w);
     if (s.body >= 0) p = states[s.body].com.xyz;
   }
-  bounds[i].lo = vec4(p - ext - vec3(k.margin), 0);
-  bounds[i].hi = vec4(p + ext + vec3(k.margin), 0);
+  bounds[i].lo = vec4(p - ext + sweepLo - vec3(pad), 0);
+  bounds[i].hi = vec4(p + ext + sweepHi + vec3(pad), 0);
 }

@@ -202,9 +202,10 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
   const int substeps = std::max(in.substeps, 1);
   GpuStepConstants c{};
   c.h = in.dt / float(substeps);
+  c.dt = in.dt;
   c.maxLinearSpeed = in.maxLinearSpeed;
   c.maxAngularSpeed = in.maxAngularSpeed;
-  c.margin = in.margin;
+  c.speculativeDistance = in.speculativeDistance;
   c.bodyCount = n;
   c.shapeCount = m;
   try {

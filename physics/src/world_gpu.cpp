@@ -110,6 +110,8 @@ gpu::GpuShape shapeOf(const ShapeRec& s, const BodyRec& b, const Transform& worl
   g.localP = v4(xf.p, s.boundRadius);
   g.localQ = q4(xf.q);
   g.body = fixed ? -1 : b.deviceIndex;
+  g.friction = s.def.material.friction;
+  g.restitution = s.def.material.restitution;
   const ShapeGeom& geom = s.def.geom;
   g.type = uint32_t(geom.type);
   switch (geom.type) {
@@ -228,7 +230,7 @@ bool World::Impl::stepOnDevice(int substeps) {
   in.substeps = substeps;
   in.maxLinearSpeed = def.maxLinearSpeed;
   in.maxAngularSpeed = def.maxAngularSpeed;
-  in.margin = 0.5f * def.speculativeDistance;
+  in.speculativeDistance = def.speculativeDistance;
   std::string error;
   if (!g.step(in, &error)) {
     backend.lastFallback = "the device step failed: " + error;

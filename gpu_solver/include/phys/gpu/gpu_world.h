@@ -35,7 +35,7 @@ struct StepInput {
   float dt = 1.0f / 60;
   int substeps = 1;
   float maxLinearSpeed = 1e4f, maxAngularSpeed = 1e3f;
-  float margin = 0;         ///< m, speculative margin of the bounds
+  float speculativeDistance = 0.02f;  ///< m, as WorldDef::speculativeDistance
   bool readBounds = false;  ///< bring the shapes' bounds back too (tests, diagnostics)
 };
 
