@@ -3,6 +3,13 @@
 #ifndef PHYS_GPU_COMMON_GLSL
 #define PHYS_GPU_COMMON_GLSL
 
+// Linear thread and workgroup indices: Stream::dispatch spreads more workgroups than a
+// dimension holds (65535 on some devices) over y.
+uint globalIndex() {
+  return gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;
+}
+uint groupIndex() { return gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x; }
+
 vec4 quatMul(vec4 a, vec4 b) {
   return vec4(a.w * b.x + a.x * b.w + a.y * b.z - a.z * b.y,
               a.w * b.y - a.x * b.z + a.y * b.w + a.z * b.x,

@@ -41,7 +41,7 @@ void rotateFree(inout vec4 q, inout vec3 w, vec4 principal, vec3 I, float h) {
 }
 
 void main() {
-  uint i = gl_GlobalInvocationID.x;
+  uint i = globalIndex();
   if (i >= k.bodyCount) return;
   GpuBodyParams p = params[i];
   GpuSolverBody b = bodies[i];

@@ -10,7 +10,7 @@ layout(std430, binding = 1) buffer Solver { GpuSolverBody bodies[]; };
 layout(push_constant) uniform Push { GpuStepConstants k; };
 
 void main() {
-  uint i = gl_GlobalInvocationID.x;
+  uint i = globalIndex();
   if (i >= k.bodyCount) return;
   GpuBodyParams p = params[i];
   if ((p.flags.x & PHYS_GPU_BODY_DYNAMIC) == 0u) return;

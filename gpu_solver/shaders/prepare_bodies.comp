@@ -12,7 +12,7 @@ layout(std430, binding = 2) writeonly buffer Solver { GpuSolverBody bodies[]; };
 layout(push_constant) uniform Push { GpuStepConstants k; };
 
 void main() {
-  uint i = gl_GlobalInvocationID.x;
+  uint i = globalIndex();
   if (i >= k.bodyCount) return;
   GpuBodyState s = states[i];
   GpuBodyParams p = params[i];

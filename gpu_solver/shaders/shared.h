@@ -22,6 +22,8 @@ using uint = uint32_t;
 
 // Workgroup size of every one-thread-per-item kernel.
 #define PHYS_GPU_GROUP 64
+// Values per workgroup of the prefix sum (scan_local.comp, scan_add.comp).
+#define PHYS_GPU_SCAN_GROUP 256
 
 // GpuBodyParams.flags bits.
 #define PHYS_GPU_BODY_DYNAMIC 1u     // moved by forces and constraints (else kinematic)
@@ -125,6 +127,14 @@ struct GpuStepConstants {
   uint shapeCount;
   uint pairCapacity;  // pairs the pair and manifold buffers hold
   uint pad3;
+};
+
+// Push constants of the sort and scan passes (bitonic_sort.comp, scan_*.comp).
+struct GpuSortConstants {
+  uint n;  // values (the sort: a power of two)
+  uint j;  // the sort's compare distance
+  uint k;  // the sort's sequence length
+  uint pad;
 };
 
 #ifdef __cplusplus

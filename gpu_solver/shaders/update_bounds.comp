@@ -14,7 +14,7 @@ layout(std430, binding = 3) writeonly buffer Bounds { GpuAabb bounds[]; };
 layout(push_constant) uniform Push { GpuStepConstants k; };
 
 void main() {
-  uint i = gl_GlobalInvocationID.x;
+  uint i = globalIndex();
   if (i >= k.shapeCount) return;
   GpuShape s = shapes[i];
   vec3 p = s.localP.xyz;

@@ -227,6 +227,11 @@ std::shared_ptr<Device> Device::open(const DeviceOptions& options, std::string* 
   d->physical_ = best;
   d->info_ = describe(best);
   d->info_.validation = validation;
+  {
+    VkPhysicalDeviceProperties p;
+    vkGetPhysicalDeviceProperties(best, &p);
+    d->maxGroupsX = p.limits.maxComputeWorkGroupCount[0];
+  }
   d->queueFamily_ = uint32_t(computeFamily(best));
   vkGetPhysicalDeviceMemoryProperties(best, &d->memory_);
 
@@ -499,7 +504,8 @@ void Stream::dispatch(const Kernel& k, std::span<const Buffer* const> buffers, c
   if (k.pushBytes()) {
     vkCmdPushConstants(cmd_, k.layout(), VK_SHADER_STAGE_COMPUTE_BIT, 0, k.pushBytes(), push);
   }
-  vkCmdDispatch(cmd_, groups, 1, 1);
+  const uint32_t x = std::min(groups, device_->maxGroupsX);
+  vkCmdDispatch(cmd_, x, (groups + x - 1) / x, 1);
   barrier();
 }
 

@@ -36,6 +36,7 @@ class Device {
   uint32_t memoryType(uint32_t typeBits, VkMemoryPropertyFlags required,
                       VkMemoryPropertyFlags preferred) const;
   PFN_vkCmdPushDescriptorSetKHR pushDescriptorSet = nullptr;
+  uint32_t maxGroupsX = 65535;  ///< workgroups in one dispatch dimension
   /// Validation errors reported so far (runs with the validation layer).
   int validationErrors() const { return validationErrors_; }
   /// Held around vkQueueSubmit: worlds on other threads share the one queue.
@@ -126,7 +127,8 @@ class Stream {
   /// Copies `bytes` of `src` into host memory once the stream has finished (after submit()).
   void download(const Buffer& src, VkDeviceSize offset, void* out, VkDeviceSize bytes);
   void fill(const Buffer& dst, uint32_t value);
-  /// Records a dispatch of `groups` workgroups, then a compute barrier.
+  /// Records a dispatch of `groups` workgroups (spread over y beyond the device's x limit:
+  /// kernels use common.glsl's globalIndex()), then a compute barrier.
   void dispatch(const Kernel& k, std::span<const Buffer* const> buffers, const void* push,
                 uint32_t groups);
   /// Marks the end of a stage: the time since the previous mark is the stage's.

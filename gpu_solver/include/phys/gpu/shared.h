@@ -17,4 +17,5 @@ static_assert(sizeof(GpuPair) == 16);
 static_assert(sizeof(GpuManifold) == 160 && offsetof(GpuManifold, count) == 96 &&
               offsetof(GpuManifold, normalImpulse) == 112);
 static_assert(sizeof(GpuStepConstants) == 48);
+static_assert(sizeof(GpuSortConstants) == 16);
 }  // namespace phys::gpu
