@@ -108,9 +108,10 @@ struct GpuManifold {
   vec4 tangentImpulse2;  // per point, along the second tangent
 };
 
-// Counters the stages write on the device (one uvec4 array); the host reads them back.
-#define PHYS_GPU_COUNTER_PAIRS 0u      // candidate pairs the broad phase found
-#define PHYS_GPU_COUNTER_OVERFLOW 1u   // pairs beyond the pair buffer's capacity (then dropped)
+// Counters the stages write on the device (a uint array); the host reads them back.
+#define PHYS_GPU_COUNTER_PAIRS 0u       // candidate pairs the broad phase found (at most the capacity)
+#define PHYS_GPU_COUNTER_OVERFLOW 1u    // pairs beyond the pair buffers' capacity (then dropped)
+#define PHYS_GPU_COUNTER_PREV_PAIRS 2u  // the previous step's pairs (its manifolds, for warm starts)
 #define PHYS_GPU_COUNTER_COUNT 4u
 
 // Push constants of the step's stages.
@@ -125,8 +126,12 @@ struct GpuStepConstants {
   float pad2;
   uint bodyCount;
   uint shapeCount;
-  uint pairCapacity;  // pairs the pair and manifold buffers hold
+  uint pairCapacity;    // pairs the pair and manifold buffers hold (a power of two)
+  uint planeCount;      // static planes (the broad phase pairs them with every shape below them)
+  uint shapeSortCount;  // length of the broad phase's key sort (a power of two >= shapeCount)
   uint pad3;
+  uint pad4;
+  uint pad5;
 };
 
 // Push constants of the sort and scan passes (bitonic_sort.comp, scan_*.comp).

@@ -6,6 +6,7 @@
 #include <stdexcept>
 #include <tuple>
 
+#include "gpu_primitives.h"
 #include "shader_table.h"
 #include "vk_device.h"
 
@@ -17,6 +18,10 @@ const char* stageName(Stage s) {
       return "sync_to_device";
     case Stage::UpdateBounds:
       return "update_bounds";
+    case Stage::BroadPhase:
+      return "broad_phase";
+    case Stage::NarrowPhase:
+      return "narrow_phase";
     case Stage::Prepare:
       return "prepare";
     case Stage::IntegrateVelocities:
@@ -35,21 +40,32 @@ const char* stageName(Stage s) {
 
 namespace {
 
-/// The step's kernels, built once per device.
+/// The step's kernels, built once per device. A stage whose shader is not in the build yet
+/// has a null kernel (and the step says it cannot take contacts).
 struct Kernels {
-  Kernel prepareBodies, integrateVelocities, integratePositions, finalize, updateBounds;
-  explicit Kernels(const std::shared_ptr<Device>& d)
-      : prepareBodies(d, "prepare_bodies", code("prepare_bodies"), 3, sizeof(GpuStepConstants)),
-        integrateVelocities(d, "integrate_velocities", code("integrate_velocities"), 2,
-                            sizeof(GpuStepConstants)),
-        integratePositions(d, "integrate_positions", code("integrate_positions"), 2,
-                           sizeof(GpuStepConstants)),
-        finalize(d, "finalize", code("finalize"), 2, sizeof(GpuStepConstants)),
-        updateBounds(d, "update_bounds", code("update_bounds"), 4, sizeof(GpuStepConstants)) {}
-  static std::span<const uint32_t> code(const char* name) {
-    std::span<const uint32_t> c = shaderCode(name);
-    if (c.empty()) throw std::runtime_error(std::string("shader not embedded: ") + name);
-    return c;
+  std::unique_ptr<Kernel> prepareBodies, integrateVelocities, integratePositions, finalize,
+      updateBounds, bpKeys, bpCount, bpWrite, bpPairs, narrowPhase;
+  Primitives primitives;
+  explicit Kernels(const std::shared_ptr<Device>& d) : primitives(d) {
+    const uint32_t push = sizeof(GpuStepConstants);
+    auto make = [&](const char* name, uint32_t bindings) {
+      std::span<const uint32_t> c = shaderCode(name);
+      return c.empty() ? nullptr : std::make_unique<Kernel>(d, name, c, bindings, push);
+    };
+    prepareBodies = make("prepare_bodies", 3);
+    integrateVelocities = make("integrate_velocities", 2);
+    integratePositions = make("integrate_positions", 2);
+    finalize = make("finalize", 2);
+    updateBounds = make("update_bounds", 4);
+    bpKeys = make("bp_keys", 3);
+    bpCount = make("bp_count", 6);
+    bpWrite = make("bp_write", 8);
+    bpPairs = make("bp_pairs", 3);
+    narrowPhase = make("narrow_phase", 6);
+    for (Kernel* k :
+         {prepareBodies.get(), integrateVelocities.get(), integratePositions.get(), finalize.get(),
+          updateBounds.get(), bpKeys.get(), bpCount.get(), bpWrite.get(), bpPairs.get()})
+      if (!k) throw std::runtime_error("a step shader is not embedded");
   }
 };
 
@@ -95,15 +111,29 @@ struct GpuWorld::Impl {
   std::vector<GpuBodyState> states;
   std::vector<GpuBodyParams> params;
   std::vector<GpuShape> shapes;
-  std::vector<GpuAabb> bounds;
+  std::vector<uint32_t> planes;  ///< indices of the plane shapes
   std::vector<uint32_t> dirtyBodies;
   bool allBodiesDirty = false, shapesDirty = false;
-  // Device buffers.
-  Buffer stateBuf, paramBuf, solverBuf, shapeBuf, boundsBuf;
+  // What came back from the last step.
+  std::vector<GpuAabb> bounds;
+  std::vector<GpuPair> pairs;
+  std::vector<GpuManifold> manifolds;
+  uint32_t counters[PHYS_GPU_COUNTER_COUNT] = {};
+  // Device buffers: bodies and shapes.
+  Buffer stateBuf, paramBuf, solverBuf, shapeBuf, boundsBuf, planeBuf;
+  // The broad phase's: sort keys, per-position counts (then offsets), pair keys, pairs;
+  // the manifolds of this step and of the last (warm starts), and the counters.
+  Buffer keyBuf, countBuf, pairKeyBuf, pairBuf, counterBuf;
+  Buffer manifoldBuf[2];
+  int current = 0;  ///< manifoldBuf[current] is this step's
+  uint32_t pairCapacity = 64;
+  Primitives::ScanScratch scanScratch;
   std::vector<double> stageMs = std::vector<double>(kStageCount, 0.0);
 
-  Device& device() { return *shared->device; }
-  void sync(Stream& s);
+  void sync(Stream& s, const GpuStepConstants& c);
+  void recordBroadPhase(Stream& s, const GpuStepConstants& c);
+  void recordNarrowPhase(Stream& s, const GpuStepConstants& c);
+  Kernels& kernels() { return *shared->kernels; }
 };
 
 GpuWorld::GpuWorld(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -148,6 +178,9 @@ void GpuWorld::setBody(uint32_t index, const GpuBodyState& state, const GpuBodyP
 
 void GpuWorld::setShapes(std::span<const GpuShape> shapes) {
   impl_->shapes.assign(shapes.begin(), shapes.end());
+  impl_->planes.clear();
+  for (uint32_t i = 0; i < shapes.size(); ++i)
+    if (shapes[i].type == PHYS_GPU_SHAPE_PLANE) impl_->planes.push_back(i);
   impl_->shapesDirty = true;
 }
 
@@ -158,7 +191,7 @@ uint32_t GpuWorld::shapeCount() const {
   return uint32_t(impl_->shapes.size());
 }
 
-void GpuWorld::Impl::sync(Stream& s) {
+void GpuWorld::Impl::sync(Stream& s, const GpuStepConstants& c) {
   const std::shared_ptr<Device>& d = shared->device;
   const size_t n = states.size();
   // Growing a buffer loses its contents: everything in it goes up again.
@@ -168,6 +201,19 @@ void GpuWorld::Impl::sync(Stream& s) {
   if (grown) allBodiesDirty = true;
   if (reserve(d, shapeBuf, shapes.size() * sizeof(GpuShape))) shapesDirty = true;
   reserve(d, boundsBuf, shapes.size() * sizeof(GpuAabb));
+  if (reserve(d, planeBuf, planes.size() * 4)) shapesDirty = true;
+  reserve(d, keyBuf, VkDeviceSize(c.shapeSortCount) * 8);
+  reserve(d, countBuf, VkDeviceSize(c.shapeSortCount) * 4);
+  bool pairsGrown = reserve(d, pairKeyBuf, VkDeviceSize(pairCapacity) * 8);
+  pairsGrown |= reserve(d, pairBuf, VkDeviceSize(pairCapacity) * sizeof(GpuPair));
+  for (Buffer& m : manifoldBuf)
+    pairsGrown |= reserve(d, m, VkDeviceSize(pairCapacity) * sizeof(GpuManifold));
+  if (!counterBuf) {
+    counterBuf = Buffer(d, PHYS_GPU_COUNTER_COUNT * 4, Buffer::Kind::Device);
+    s.fill(counterBuf, 0);
+  }
+  // New shape indices or lost manifolds: last step's contacts cannot warm-start this one.
+  if (shapesDirty || pairsGrown) s.fill(counterBuf, 0);
 
   // Many scattered edits: one upload of everything is cheaper than a copy per body.
   if (!allBodiesDirty && dirtyBodies.size() > n / 4) allBodiesDirty = true;
@@ -189,62 +235,125 @@ void GpuWorld::Impl::sync(Stream& s) {
       i = j;
     }
   }
-  if (shapesDirty) s.upload(shapeBuf, 0, shapes.data(), shapes.size() * sizeof(GpuShape));
+  if (shapesDirty) {
+    s.upload(shapeBuf, 0, shapes.data(), shapes.size() * sizeof(GpuShape));
+    s.upload(planeBuf, 0, planes.data(), planes.size() * 4);
+  }
   dirtyBodies.clear();
   allBodiesDirty = shapesDirty = false;
+}
+
+void GpuWorld::Impl::recordBroadPhase(Stream& s, const GpuStepConstants& c) {
+  Kernels& k = kernels();
+  // Last step's pair count is the count of last step's manifolds (warm starts).
+  s.copy(counterBuf, PHYS_GPU_COUNTER_PAIRS * 4, counterBuf, PHYS_GPU_COUNTER_PREV_PAIRS * 4, 4);
+  const Buffer* keys[] = {&boundsBuf, &shapeBuf, &keyBuf};
+  s.dispatch(*k.bpKeys, keys, &c, groupsFor(c.shapeSortCount));
+  k.primitives.sort(s, keyBuf, c.shapeSortCount);
+  const Buffer* sweep[] = {&boundsBuf, &shapeBuf, &paramBuf,   &keyBuf,
+                           &planeBuf,  &countBuf, &pairKeyBuf, &counterBuf};
+  s.dispatch(*k.bpCount, std::span(sweep, 6), &c, groupsFor(c.shapeSortCount));
+  k.primitives.scan(s, countBuf, c.shapeSortCount, scanScratch);
+  s.fill(pairKeyBuf, 0xFFFFFFFFu);  // the unused tail sorts last
+  s.dispatch(*k.bpWrite, sweep, &c, groupsFor(c.shapeSortCount));
+  k.primitives.sort(s, pairKeyBuf, c.pairCapacity);
+  const Buffer* pairs[] = {&pairKeyBuf, &pairBuf, &counterBuf};
+  s.dispatch(*k.bpPairs, pairs, &c, groupsFor(c.pairCapacity));
+}
+
+void GpuWorld::Impl::recordNarrowPhase(Stream& s, const GpuStepConstants& c) {
+  Kernels& k = kernels();
+  if (!k.narrowPhase) return;
+  const Buffer* b[] = {&stateBuf,  &paramBuf, &shapeBuf, &pairBuf, &manifoldBuf[current],
+                       &counterBuf};
+  s.dispatch(*k.narrowPhase, b, &c, groupsFor(c.pairCapacity));
 }
 
 bool GpuWorld::step(const StepInput& in, std::string* error) {
   Impl& w = *impl_;
   Stream& s = *w.stream;
-  Kernels& k = *w.shared->kernels;
+  Kernels& k = w.kernels();
   const uint32_t n = uint32_t(w.states.size()), m = uint32_t(w.shapes.size());
   const int substeps = std::max(in.substeps, 1);
-  GpuStepConstants c{};
-  c.h = in.dt / float(substeps);
-  c.dt = in.dt;
-  c.maxLinearSpeed = in.maxLinearSpeed;
-  c.maxAngularSpeed = in.maxAngularSpeed;
-  c.speculativeDistance = in.speculativeDistance;
-  c.bodyCount = n;
-  c.shapeCount = m;
-  try {
-    s.begin();
-    w.sync(s);
-    s.mark(int(Stage::SyncToDevice));
-    const Buffer* bounds[] = {&w.stateBuf, &w.paramBuf, &w.shapeBuf, &w.boundsBuf};
-    s.dispatch(k.updateBounds, bounds, &c, groupsFor(m));
-    s.mark(int(Stage::UpdateBounds));
-    const Buffer* prepare[] = {&w.stateBuf, &w.paramBuf, &w.solverBuf};
-    s.dispatch(k.prepareBodies, prepare, &c, groupsFor(n));
-    s.mark(int(Stage::Prepare));
-    const Buffer* integrate[] = {&w.paramBuf, &w.solverBuf};
-    for (int sub = 0; sub < substeps; ++sub) {
-      s.dispatch(k.integrateVelocities, integrate, &c, groupsFor(n));
-      s.mark(int(Stage::IntegrateVelocities));
-      s.dispatch(k.integratePositions, integrate, &c, groupsFor(n));
-      s.mark(int(Stage::IntegratePositions));
-    }
-    const Buffer* finalize[] = {&w.stateBuf, &w.solverBuf};
-    s.dispatch(k.finalize, finalize, &c, groupsFor(n));
-    s.mark(int(Stage::Finalize));
-    // Only what the host mirror needs comes back.
+  for (int attempt = 0;; ++attempt) {
+    GpuStepConstants c{};
+    c.h = in.dt / float(substeps);
+    c.dt = in.dt;
+    c.maxLinearSpeed = in.maxLinearSpeed;
+    c.maxAngularSpeed = in.maxAngularSpeed;
+    c.speculativeDistance = in.speculativeDistance;
+    c.bodyCount = n;
+    c.shapeCount = m;
+    c.pairCapacity = w.pairCapacity;
+    c.planeCount = uint32_t(w.planes.size());
+    c.shapeSortCount = Primitives::pow2(m);
     std::vector<GpuBodyState> result(n);
-    s.download(w.stateBuf, 0, result.data(), n * sizeof(GpuBodyState));
-    if (in.readBounds) {
-      w.bounds.resize(m);
-      s.download(w.boundsBuf, 0, w.bounds.data(), m * sizeof(GpuAabb));
-    }
-    s.mark(int(Stage::Readback));
-    if (!s.submit(error)) {
-      w.allBodiesDirty = w.shapesDirty = true;  // what went up is not to be trusted
+    try {
+      s.begin();
+      w.sync(s, c);
+      s.mark(int(Stage::SyncToDevice));
+      const Buffer* bounds[] = {&w.stateBuf, &w.paramBuf, &w.shapeBuf, &w.boundsBuf};
+      s.dispatch(*k.updateBounds, bounds, &c, groupsFor(m));
+      s.mark(int(Stage::UpdateBounds));
+      w.recordBroadPhase(s, c);
+      s.mark(int(Stage::BroadPhase));
+      w.recordNarrowPhase(s, c);
+      s.mark(int(Stage::NarrowPhase));
+      const Buffer* prepare[] = {&w.stateBuf, &w.paramBuf, &w.solverBuf};
+      s.dispatch(*k.prepareBodies, prepare, &c, groupsFor(n));
+      s.mark(int(Stage::Prepare));
+      const Buffer* integrate[] = {&w.paramBuf, &w.solverBuf};
+      for (int sub = 0; sub < substeps; ++sub) {
+        s.dispatch(*k.integrateVelocities, integrate, &c, groupsFor(n));
+        s.mark(int(Stage::IntegrateVelocities));
+        s.dispatch(*k.integratePositions, integrate, &c, groupsFor(n));
+        s.mark(int(Stage::IntegratePositions));
+      }
+      const Buffer* finalize[] = {&w.stateBuf, &w.solverBuf};
+      s.dispatch(*k.finalize, finalize, &c, groupsFor(n));
+      s.mark(int(Stage::Finalize));
+      // Only what the host mirror needs comes back (and what tests ask for).
+      s.download(w.stateBuf, 0, result.data(), n * sizeof(GpuBodyState));
+      s.download(w.counterBuf, 0, w.counters, sizeof w.counters);
+      if (in.readBounds) {
+        w.bounds.resize(m);
+        s.download(w.boundsBuf, 0, w.bounds.data(), m * sizeof(GpuAabb));
+      }
+      if (in.readContacts) {
+        w.pairs.resize(w.pairCapacity);
+        w.manifolds.resize(w.pairCapacity);
+        s.download(w.pairBuf, 0, w.pairs.data(), w.pairs.size() * sizeof(GpuPair));
+        s.download(w.manifoldBuf[w.current], 0, w.manifolds.data(),
+                   w.manifolds.size() * sizeof(GpuManifold));
+      }
+      s.mark(int(Stage::Readback));
+      if (!s.submit(error)) {
+        w.allBodiesDirty = w.shapesDirty = true;  // what went up is not to be trusted
+        return false;
+      }
+    } catch (const std::exception& e) {
+      if (error) *error = e.what();
+      w.allBodiesDirty = w.shapesDirty = true;
       return false;
     }
+    const uint32_t found =
+        w.counters[PHYS_GPU_COUNTER_PAIRS] + w.counters[PHYS_GPU_COUNTER_OVERFLOW];
+    if (w.counters[PHYS_GPU_COUNTER_OVERFLOW] > 0 && attempt == 0) {
+      // More pairs than the buffers hold: grow them and take the step again from the
+      // states before it (the host mirror), which all go up again.
+      w.pairCapacity = Primitives::pow2(found + found / 2);
+      w.allBodiesDirty = w.shapesDirty = true;
+      continue;
+    }
+    if (in.readContacts) {
+      w.pairs.resize(w.counters[PHYS_GPU_COUNTER_PAIRS]);
+      w.manifolds.resize(w.counters[PHYS_GPU_COUNTER_PAIRS]);
+    }
+    // Room to grow without a retry next time; shrink when far too large.
+    if (found * 3 > w.pairCapacity * 2) w.pairCapacity = Primitives::pow2(found * 2);
     w.states.swap(result);
-  } catch (const std::exception& e) {
-    if (error) *error = e.what();
-    w.allBodiesDirty = w.shapesDirty = true;
-    return false;
+    w.current ^= 1;
+    break;
   }
   w.stageMs.assign(kStageCount, 0.0);
   const std::vector<double>& ms = s.stageMs();
@@ -257,6 +366,18 @@ std::span<const GpuBodyState> GpuWorld::states() const {
 }
 std::span<const GpuAabb> GpuWorld::bounds() const {
   return impl_->bounds;
+}
+std::span<const GpuPair> GpuWorld::pairs() const {
+  return impl_->pairs;
+}
+std::span<const GpuManifold> GpuWorld::manifolds() const {
+  return impl_->manifolds;
+}
+uint32_t GpuWorld::pairCount() const {
+  return impl_->counters[PHYS_GPU_COUNTER_PAIRS];
+}
+bool GpuWorld::hasNarrowPhase() const {
+  return impl_->kernels().narrowPhase != nullptr;
 }
 std::span<const double> GpuWorld::stageMs() const {
   return impl_->stageMs;

@@ -485,6 +485,14 @@ void Stream::fill(const Buffer& dst, uint32_t value) {
   barrier();
 }
 
+void Stream::copy(const Buffer& src, VkDeviceSize srcOffset, const Buffer& dst,
+                  VkDeviceSize dstOffset, VkDeviceSize bytes) {
+  if (bytes == 0) return;
+  VkBufferCopy c{srcOffset, dstOffset, bytes};
+  vkCmdCopyBuffer(cmd_, src.handle(), dst.handle(), 1, &c);
+  barrier();
+}
+
 void Stream::dispatch(const Kernel& k, std::span<const Buffer* const> buffers, const void* push,
                       uint32_t groups) {
   if (groups == 0) return;

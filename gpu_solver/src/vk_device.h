@@ -127,6 +127,9 @@ class Stream {
   /// Copies `bytes` of `src` into host memory once the stream has finished (after submit()).
   void download(const Buffer& src, VkDeviceSize offset, void* out, VkDeviceSize bytes);
   void fill(const Buffer& dst, uint32_t value);
+  /// Copies between device buffers (the regions must not overlap).
+  void copy(const Buffer& src, VkDeviceSize srcOffset, const Buffer& dst, VkDeviceSize dstOffset,
+            VkDeviceSize bytes);
   /// Records a dispatch of `groups` workgroups (spread over y beyond the device's x limit:
   /// kernels use common.glsl's globalIndex()), then a compute barrier.
   void dispatch(const Kernel& k, std::span<const Buffer* const> buffers, const void* push,

@@ -258,6 +258,8 @@ bool World::Impl::stepOnDevice(int substeps) {
   auto stage = [&](gpu::Stage s) { return ms[size_t(s)]; };
   profile.syncToDevice = stage(gpu::Stage::SyncToDevice);
   profile.updateBounds = stage(gpu::Stage::UpdateBounds);
+  profile.broadPhase = stage(gpu::Stage::BroadPhase);
+  profile.narrowPhase = stage(gpu::Stage::NarrowPhase);
   profile.prepare = stage(gpu::Stage::Prepare);
   profile.integrateVelocities = stage(gpu::Stage::IntegrateVelocities);
   profile.integratePositions = stage(gpu::Stage::IntegratePositions);

@@ -21,6 +21,8 @@ namespace phys::gpu {
 enum class Stage : int {
   SyncToDevice,
   UpdateBounds,
+  BroadPhase,
+  NarrowPhase,
   Prepare,
   IntegrateVelocities,
   IntegratePositions,
@@ -37,6 +39,7 @@ struct StepInput {
   float maxLinearSpeed = 1e4f, maxAngularSpeed = 1e3f;
   float speculativeDistance = 0.02f;  ///< m, as WorldDef::speculativeDistance
   bool readBounds = false;  ///< bring the shapes' bounds back too (tests, diagnostics)
+  bool readContacts = false;  ///< bring the pairs and manifolds back too
 };
 
 class GpuWorld {
@@ -68,6 +71,14 @@ class GpuWorld {
   std::span<const GpuBodyState> states() const;
   /// After a step with readBounds: every shape's bounds, in setShapes order.
   std::span<const GpuAabb> bounds() const;
+  /// After a step: the broad phase's pairs (shape indices a < b, sorted) and, with the
+  /// narrow phase, their manifolds (same index); both only with readContacts.
+  std::span<const GpuPair> pairs() const;
+  std::span<const GpuManifold> manifolds() const;
+  /// The last step's candidate pairs (always read back).
+  uint32_t pairCount() const;
+  /// Whether this build has the narrow phase on the device.
+  bool hasNarrowPhase() const;
   /// Device time of each stage in the last step (ms), indexed by Stage; zeros without
   /// timestamp support.
   std::span<const double> stageMs() const;

@@ -16,6 +16,6 @@ static_assert(sizeof(GpuAabb) == 32);
 static_assert(sizeof(GpuPair) == 16);
 static_assert(sizeof(GpuManifold) == 160 && offsetof(GpuManifold, count) == 96 &&
               offsetof(GpuManifold, normalImpulse) == 112);
-static_assert(sizeof(GpuStepConstants) == 48);
+static_assert(sizeof(GpuStepConstants) == 64);
 static_assert(sizeof(GpuSortConstants) == 16);
 }  // namespace phys::gpu

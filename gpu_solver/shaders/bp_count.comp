@@ -1,0 +1,21 @@
+#version 450
+// BroadPhase, 2: how many pairs each sorted position has (broad_phase.glsl).
+#extension GL_GOOGLE_include_directive : require
+#extension GL_ARB_gpu_shader_fp64 : require
+#include "shared.h"
+#include "common.glsl"
+#include "broad_phase.glsl"
+layout(local_size_x = PHYS_GPU_GROUP) in;
+layout(std430, binding = 5) writeonly buffer Counts { uint counts[]; };
+
+void main() {
+  uint p = globalIndex();
+  if (p >= k.shapeSortCount) return;
+  uint s = keys[p].y;
+  uint n = 0u;
+  if (s != 0xFFFFFFFFu) {
+#define COUNT(t) ++n
+    FOR_EACH_PAIR(p, s, COUNT)
+  }
+  counts[p] = n;
+}
