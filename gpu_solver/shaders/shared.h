@@ -112,7 +112,10 @@ struct GpuManifold {
 #define PHYS_GPU_COUNTER_PAIRS 0u       // candidate pairs the broad phase found (at most the capacity)
 #define PHYS_GPU_COUNTER_OVERFLOW 1u    // pairs beyond the pair buffers' capacity (then dropped)
 #define PHYS_GPU_COUNTER_PREV_PAIRS 2u  // the previous step's pairs (its manifolds, for warm starts)
-#define PHYS_GPU_COUNTER_COUNT 4u
+#define PHYS_GPU_COUNTER_CONTACTS 3u    // manifolds with points
+#define PHYS_GPU_COUNTER_POINTS 4u      // contact points
+#define PHYS_GPU_COUNTER_DEEPEST 5u     // the deepest penetration (m), as float bits (>= 0)
+#define PHYS_GPU_COUNTER_COUNT 8u
 
 // Push constants of the step's stages.
 struct GpuStepConstants {
@@ -132,6 +135,58 @@ struct GpuStepConstants {
   uint pad3;
   uint pad4;
   uint pad5;
+};
+
+// The solver's view of one manifold (index = its pair's): the rows of its points, as the
+// CPU's contact rows (World::Impl::contactRowsOf): a normal row per point, then a friction
+// pair per point along t1 and t2. Built by prepare_contacts.comp; lambdas are the
+// accumulated impulses of the current substep.
+struct GpuContact {
+  int bodyA;      // GpuWorld body index, -1: static (no velocity, no mass)
+  int bodyB;
+  uint count;     // points, 0..4 (0: nothing to solve)
+  float friction;
+  vec4 normal;    // xyz: from A to B; w: restitution
+  vec4 t1;        // xyz: first tangent
+  vec4 t2;        // xyz: second tangent
+  vec4 rA[4];     // xyz: point - A's centre of mass at the step's start; w: separation then (C0)
+  vec4 rB[4];     // xyz: point - B's centre of mass; w: the approach speed for restitution
+  vec4 massN;     // per point: effective masses (bodies' masses split among their contacts)
+  vec4 massT1;
+  vec4 massT2;
+  vec4 lambdaN;   // per point: accumulated impulses
+  vec4 lambdaT1;
+  vec4 lambdaT2;
+  vec4 maxLambdaN;  // per point: the largest normal impulse of the step (restitution)
+};
+
+// One contact's velocity changes of its two bodies in a Jacobi pass, gathered per body
+// through the body's reference list (apply_deltas.comp).
+struct GpuDelta {
+  vec4 dvA;
+  vec4 dwA;
+  vec4 dvB;
+  vec4 dwB;
+};
+
+// Push constants of the contact solver's passes.
+struct GpuSolveConstants {
+  float h;              // s, substep
+  float invH;
+  float biasRate;       // soft contact (Catto 2011) or Baumgarte: bias per metre of error
+  float massScale;
+  float impulseScale;
+  float linearSlop;     // m, Baumgarte only
+  float maxPushout;     // m/s
+  float restitutionThreshold;  // m/s
+  uint useBias;         // 0: the relax pass
+  uint soft;            // soft contacts (no slop)
+  uint bodyCount;
+  uint refCount;        // length of the body-reference sort (a power of two)
+  uint warmStart;       // start from last step's impulses
+  uint pad0;
+  uint pad1;
+  uint pad2;
 };
 
 // Push constants of the sort and scan passes (bitonic_sort.comp, scan_*.comp).

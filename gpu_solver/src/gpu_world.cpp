@@ -1,6 +1,7 @@
 #include "phys/gpu/gpu_world.h"
 
 #include <algorithm>
+#include <cstring>
 #include <map>
 #include <mutex>
 #include <stdexcept>
@@ -28,6 +29,16 @@ const char* stageName(Stage s) {
       return "integrate_velocities";
     case Stage::IntegratePositions:
       return "integrate_positions";
+    case Stage::WarmStart:
+      return "warm_start";
+    case Stage::Solve:
+      return "solve";
+    case Stage::Relax:
+      return "relax";
+    case Stage::Restitution:
+      return "restitution";
+    case Stage::StoreImpulses:
+      return "store_impulses";
     case Stage::Finalize:
       return "finalize";
     case Stage::Readback:
@@ -40,32 +51,41 @@ const char* stageName(Stage s) {
 
 namespace {
 
-/// The step's kernels, built once per device. A stage whose shader is not in the build yet
-/// has a null kernel (and the step says it cannot take contacts).
+/// The step's kernels, built once per device. The narrow phase may be missing from a build
+/// (then the device steps only worlds without contacts).
 struct Kernels {
   std::unique_ptr<Kernel> prepareBodies, integrateVelocities, integratePositions, finalize,
-      updateBounds, bpKeys, bpCount, bpWrite, bpPairs, narrowPhase;
+      updateBounds, bpKeys, bpCount, bpWrite, bpPairs, narrowPhase, matchContacts, csrKeys,
+      csrRanges, prepareContacts, contactWarmStart, contactSolve, contactRestitution, applyDeltas,
+      storeImpulses, contactStats;
   Primitives primitives;
   explicit Kernels(const std::shared_ptr<Device>& d) : primitives(d) {
-    const uint32_t push = sizeof(GpuStepConstants);
-    auto make = [&](const char* name, uint32_t bindings) {
+    auto make = [&](const char* name, uint32_t bindings, uint32_t push) {
       std::span<const uint32_t> c = shaderCode(name);
-      return c.empty() ? nullptr : std::make_unique<Kernel>(d, name, c, bindings, push);
+      if (c.empty()) throw std::runtime_error(std::string("shader not embedded: ") + name);
+      return std::make_unique<Kernel>(d, name, c, bindings, push);
     };
-    prepareBodies = make("prepare_bodies", 3);
-    integrateVelocities = make("integrate_velocities", 2);
-    integratePositions = make("integrate_positions", 2);
-    finalize = make("finalize", 2);
-    updateBounds = make("update_bounds", 4);
-    bpKeys = make("bp_keys", 3);
-    bpCount = make("bp_count", 6);
-    bpWrite = make("bp_write", 8);
-    bpPairs = make("bp_pairs", 3);
-    narrowPhase = make("narrow_phase", 6);
-    for (Kernel* k :
-         {prepareBodies.get(), integrateVelocities.get(), integratePositions.get(), finalize.get(),
-          updateBounds.get(), bpKeys.get(), bpCount.get(), bpWrite.get(), bpPairs.get()})
-      if (!k) throw std::runtime_error("a step shader is not embedded");
+    const uint32_t step = sizeof(GpuStepConstants), solve = sizeof(GpuSolveConstants);
+    prepareBodies = make("prepare_bodies", 3, step);
+    integrateVelocities = make("integrate_velocities", 2, step);
+    integratePositions = make("integrate_positions", 2, step);
+    finalize = make("finalize", 2, step);
+    updateBounds = make("update_bounds", 4, step);
+    bpKeys = make("bp_keys", 3, step);
+    bpCount = make("bp_count", 6, step);
+    bpWrite = make("bp_write", 8, step);
+    bpPairs = make("bp_pairs", 3, step);
+    if (!shaderCode("narrow_phase").empty()) narrowPhase = make("narrow_phase", 6, step);
+    matchContacts = make("match_contacts", 3, step);
+    csrKeys = make("csr_keys", 5, solve);
+    csrRanges = make("csr_ranges", 2, solve);
+    prepareContacts = make("prepare_contacts", 8, solve);
+    contactWarmStart = make("contact_warm_start", 6, solve);
+    contactSolve = make("contact_solve", 6, solve);
+    contactRestitution = make("contact_restitution", 6, solve);
+    applyDeltas = make("apply_deltas", 4, solve);
+    storeImpulses = make("store_impulses", 3, step);
+    contactStats = make("contact_stats", 2, step);
   }
 };
 
@@ -88,6 +108,43 @@ std::shared_ptr<SharedDevice> openShared(const DeviceOptions& o, std::string* er
   s->kernels = std::make_unique<Kernels>(s->device);
   cache[key] = s;
   return s;
+}
+
+/// Catto's soft constraint as bias rate and mass and impulse scales (Solver's makeSoftness),
+/// or Baumgarte's rigid row with a bias rate.
+GpuSolveConstants solveConstants(const ContactSettings& cs, float h, uint32_t bodies,
+                                 uint32_t pairCapacity) {
+  GpuSolveConstants sc{};
+  sc.h = h;
+  sc.invH = 1 / h;
+  if (cs.soft) {
+    const float hertz = std::min(cs.contactHertz, 0.25f * sc.invH);
+    sc.biasRate = 0;
+    sc.massScale = 1;
+    sc.impulseScale = 0;
+    if (hertz > 0) {
+      const float omega = 2 * 3.14159265358979f * hertz;
+      const float a1 = 2 * cs.contactDampingRatio + h * omega;
+      const float a2 = h * omega * a1;
+      const float a3 = 1 / (1 + a2);
+      sc.biasRate = omega / a1;
+      sc.massScale = a2 * a3;
+      sc.impulseScale = a3;
+    }
+  } else {
+    sc.biasRate = cs.baumgarte * sc.invH;
+    sc.massScale = 1;
+    sc.impulseScale = 0;
+  }
+  sc.linearSlop = cs.linearSlop;
+  sc.maxPushout = cs.maxPushout;
+  sc.restitutionThreshold = cs.restitutionThreshold;
+  sc.useBias = 1;
+  sc.soft = cs.soft ? 1 : 0;
+  sc.bodyCount = bodies;
+  sc.refCount = 2 * pairCapacity;
+  sc.warmStart = cs.warmStart ? 1 : 0;
+  return sc;
 }
 
 uint32_t groupsFor(uint32_t n) {
@@ -125,6 +182,9 @@ struct GpuWorld::Impl {
   // the manifolds of this step and of the last (warm starts), and the counters.
   Buffer keyBuf, countBuf, pairKeyBuf, pairBuf, counterBuf;
   Buffer manifoldBuf[2];
+  // The contact solver's: rows per manifold, velocity changes per manifold, the bodies'
+  // sorted references to their contacts and each body's range in them (and mass split).
+  Buffer contactBuf, deltaBuf, refKeyBuf, refBuf;
   int current = 0;  ///< manifoldBuf[current] is this step's
   uint32_t pairCapacity = 64;
   Primitives::ScanScratch scanScratch;
@@ -133,6 +193,9 @@ struct GpuWorld::Impl {
   void sync(Stream& s, const GpuStepConstants& c);
   void recordBroadPhase(Stream& s, const GpuStepConstants& c);
   void recordNarrowPhase(Stream& s, const GpuStepConstants& c);
+  void recordPrepareContacts(Stream& s, const GpuSolveConstants& sc);
+  /// One Jacobi pass of `kernel` over the contacts, then every body takes its average.
+  void recordContactPass(Stream& s, const Kernel& kernel, const GpuSolveConstants& sc);
   Kernels& kernels() { return *shared->kernels; }
 };
 
@@ -203,6 +266,10 @@ void GpuWorld::Impl::sync(Stream& s, const GpuStepConstants& c) {
   reserve(d, boundsBuf, shapes.size() * sizeof(GpuAabb));
   if (reserve(d, planeBuf, planes.size() * 4)) shapesDirty = true;
   reserve(d, keyBuf, VkDeviceSize(c.shapeSortCount) * 8);
+  reserve(d, contactBuf, VkDeviceSize(pairCapacity) * sizeof(GpuContact));
+  reserve(d, deltaBuf, VkDeviceSize(pairCapacity) * sizeof(GpuDelta));
+  reserve(d, refKeyBuf, VkDeviceSize(pairCapacity) * 2 * 8);
+  reserve(d, refBuf, n * 16);
   reserve(d, countBuf, VkDeviceSize(c.shapeSortCount) * 4);
   bool pairsGrown = reserve(d, pairKeyBuf, VkDeviceSize(pairCapacity) * 8);
   pairsGrown |= reserve(d, pairBuf, VkDeviceSize(pairCapacity) * sizeof(GpuPair));
@@ -245,8 +312,11 @@ void GpuWorld::Impl::sync(Stream& s, const GpuStepConstants& c) {
 
 void GpuWorld::Impl::recordBroadPhase(Stream& s, const GpuStepConstants& c) {
   Kernels& k = kernels();
-  // Last step's pair count is the count of last step's manifolds (warm starts).
+  // Last step's pair count is the count of last step's manifolds (warm starts); the
+  // statistics start from zero.
   s.copy(counterBuf, PHYS_GPU_COUNTER_PAIRS * 4, counterBuf, PHYS_GPU_COUNTER_PREV_PAIRS * 4, 4);
+  const uint32_t zeros[3] = {0, 0, 0};
+  s.upload(counterBuf, PHYS_GPU_COUNTER_CONTACTS * 4, zeros, sizeof zeros);
   const Buffer* keys[] = {&boundsBuf, &shapeBuf, &keyBuf};
   s.dispatch(*k.bpKeys, keys, &c, groupsFor(c.shapeSortCount));
   k.primitives.sort(s, keyBuf, c.shapeSortCount);
@@ -267,6 +337,31 @@ void GpuWorld::Impl::recordNarrowPhase(Stream& s, const GpuStepConstants& c) {
   const Buffer* b[] = {&stateBuf,  &paramBuf, &shapeBuf, &pairBuf, &manifoldBuf[current],
                        &counterBuf};
   s.dispatch(*k.narrowPhase, b, &c, groupsFor(c.pairCapacity));
+  const Buffer* match[] = {&manifoldBuf[current ^ 1], &manifoldBuf[current], &counterBuf};
+  s.dispatch(*k.matchContacts, match, &c, groupsFor(c.pairCapacity));
+  const Buffer* stats[] = {&manifoldBuf[current], &counterBuf};
+  s.dispatch(*k.contactStats, stats, &c, groupsFor(c.pairCapacity));
+}
+
+void GpuWorld::Impl::recordPrepareContacts(Stream& s, const GpuSolveConstants& sc) {
+  Kernels& k = kernels();
+  const Buffer* keys[] = {&manifoldBuf[current], &shapeBuf, &paramBuf, &refKeyBuf, &counterBuf};
+  s.dispatch(*k.csrKeys, keys, &sc, groupsFor(sc.refCount / 2));
+  k.primitives.sort(s, refKeyBuf, sc.refCount);
+  const Buffer* ranges[] = {&refKeyBuf, &refBuf};
+  s.dispatch(*k.csrRanges, ranges, &sc, groupsFor(sc.bodyCount));
+  const Buffer* prep[] = {&solverBuf,  &paramBuf,  &refBuf,
+                          &stateBuf,   &shapeBuf,  &manifoldBuf[current],
+                          &contactBuf, &counterBuf};
+  s.dispatch(*k.prepareContacts, prep, &sc, groupsFor(pairCapacity));
+}
+
+void GpuWorld::Impl::recordContactPass(Stream& s, const Kernel& kernel,
+                                       const GpuSolveConstants& sc) {
+  const Buffer* pass[] = {&solverBuf, &paramBuf, &contactBuf, &deltaBuf, &counterBuf, &refBuf};
+  s.dispatch(kernel, pass, &sc, groupsFor(pairCapacity));
+  const Buffer* apply[] = {&solverBuf, &deltaBuf, &refKeyBuf, &refBuf};
+  s.dispatch(*kernels().applyDeltas, apply, &sc, groupsFor(sc.bodyCount));
 }
 
 bool GpuWorld::step(const StepInput& in, std::string* error) {
@@ -287,6 +382,8 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
     c.pairCapacity = w.pairCapacity;
     c.planeCount = uint32_t(w.planes.size());
     c.shapeSortCount = Primitives::pow2(m);
+    const bool solve = in.solveContacts && k.narrowPhase != nullptr;
+    const GpuSolveConstants sc = solveConstants(in.contacts, c.h, n, w.pairCapacity);
     std::vector<GpuBodyState> result(n);
     try {
       s.begin();
@@ -301,13 +398,37 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
       s.mark(int(Stage::NarrowPhase));
       const Buffer* prepare[] = {&w.stateBuf, &w.paramBuf, &w.solverBuf};
       s.dispatch(*k.prepareBodies, prepare, &c, groupsFor(n));
+      if (solve) w.recordPrepareContacts(s, sc);
       s.mark(int(Stage::Prepare));
       const Buffer* integrate[] = {&w.paramBuf, &w.solverBuf};
       for (int sub = 0; sub < substeps; ++sub) {
         s.dispatch(*k.integrateVelocities, integrate, &c, groupsFor(n));
         s.mark(int(Stage::IntegrateVelocities));
+        if (solve) {
+          w.recordContactPass(s, *k.contactWarmStart, sc);
+          s.mark(int(Stage::WarmStart));
+          for (int it = 0; it < in.contacts.iterations; ++it)
+            w.recordContactPass(s, *k.contactSolve, sc);
+          s.mark(int(Stage::Solve));
+        }
         s.dispatch(*k.integratePositions, integrate, &c, groupsFor(n));
         s.mark(int(Stage::IntegratePositions));
+        if (solve && in.contacts.relaxIterations > 0) {
+          GpuSolveConstants relax = sc;
+          relax.useBias = 0;
+          for (int it = 0; it < in.contacts.relaxIterations; ++it)
+            w.recordContactPass(s, *k.contactSolve, relax);
+          s.mark(int(Stage::Relax));
+        }
+      }
+      if (solve) {
+        if (in.contacts.restitution) {
+          w.recordContactPass(s, *k.contactRestitution, sc);
+          s.mark(int(Stage::Restitution));
+        }
+        const Buffer* store[] = {&w.contactBuf, &w.manifoldBuf[w.current], &w.counterBuf};
+        s.dispatch(*k.storeImpulses, store, &c, groupsFor(w.pairCapacity));
+        s.mark(int(Stage::StoreImpulses));
       }
       const Buffer* finalize[] = {&w.stateBuf, &w.solverBuf};
       s.dispatch(*k.finalize, finalize, &c, groupsFor(n));
@@ -375,6 +496,13 @@ std::span<const GpuManifold> GpuWorld::manifolds() const {
 }
 uint32_t GpuWorld::pairCount() const {
   return impl_->counters[PHYS_GPU_COUNTER_PAIRS];
+}
+ContactStats GpuWorld::contactStats() const {
+  const uint32_t* c = impl_->counters;
+  float deepest;
+  std::memcpy(&deepest, &c[PHYS_GPU_COUNTER_DEEPEST], 4);
+  return {c[PHYS_GPU_COUNTER_PAIRS], c[PHYS_GPU_COUNTER_CONTACTS], c[PHYS_GPU_COUNTER_POINTS],
+          deepest};
 }
 bool GpuWorld::hasNarrowPhase() const {
   return impl_->kernels().narrowPhase != nullptr;

@@ -2,11 +2,14 @@
 // device world (gpu_solver/) as flat records, stepping it and copying the states back into
 // the host mirror (BodyRec), which is what getBody, the metrics and publishing read.
 //
-// What the device covers so far: bodies without contacts or joints (bounds, integration,
-// gyroscopic rotation, finalize). A step that has a contact or a joint is taken by the CPU
-// backend from the same mirror, counted in BackendState::cpuSteps with the reason; the
-// device's copy is then refreshed before its next step. Until the broad phase runs on the
-// device, the CPU's broad phase tells whether a step has contacts.
+// What the device covers so far: every stage for spheres, boxes, capsules and planes with
+// the Jacobi scheme (the pj, pjsoft, tj, tjsoft family: bounds, broad phase, narrow phase,
+// warm starts, mass-split Jacobi contacts with soft or Baumgarte stabilization, substeps,
+// relax, restitution, integration). Joints, hulls, the Gauss-Seidel schemes, patch
+// friction and the position pass are not on the device yet: a world that needs one of them
+// and has contacts or joints in a step has that step taken by the CPU backend from the same
+// host mirror, counted in BackendState::cpuSteps with the reason (the CPU's broad phase
+// tells whether it has contacts); the device's copy is refreshed before its next step.
 #include <algorithm>
 #include <cstdio>
 
@@ -63,6 +66,7 @@ bool World::Impl::stepOnDevice(int) {
 
 struct DeviceWorld {
   std::unique_ptr<gpu::GpuWorld> world;
+  bool hulls = false;            ///< a hull shape is in the world
   std::vector<uint32_t> slots;   ///< device body index -> body slot
   std::vector<uint32_t> edited;  ///< body slots edited since the last upload
   bool stale = true;             ///< bodies or shapes changed: upload everything
@@ -174,22 +178,42 @@ void World::Impl::deviceStale() {
   if (device) device->stale = true;
 }
 
+/// Why the device cannot solve this world's contacts (empty: it can).
+static std::string contactsOffDevice(const SolverSettings& s, bool hulls, bool narrowPhase) {
+  if (!narrowPhase) return "this build has no narrow phase on the GPU";
+  if (hulls) return "hull shapes are not on the GPU backend yet";
+  if (s.scheme != SolverSettings::Scheme::Jacobi)
+    return std::string("the ") +
+           (s.scheme == SolverSettings::Scheme::GaussSeidel ? "gauss_seidel"
+                                                            : "colored_gauss_seidel") +
+           " scheme is not on the GPU backend yet (jacobi is)";
+  if (s.patchFriction) return "patch friction is not on the GPU backend yet";
+  if (s.positionPass != SolverSettings::PositionPass::None && s.positionIterations > 0)
+    return "the position pass is not on the GPU backend yet";
+  if (s.blockContacts) return "the contact block solve is not on the GPU backend yet";
+  if (s.splitPushout) return "the split push-out is not on the GPU backend yet";
+  return {};
+}
+
+static gpu::ContactSettings contactSettings(const SolverSettings& s) {
+  gpu::ContactSettings c;
+  c.iterations = s.iterations;
+  c.relaxIterations = s.relaxIterations;
+  c.soft = s.stabilization == SolverSettings::Stabilization::Soft;
+  c.contactHertz = s.contactHertz;
+  c.contactDampingRatio = s.contactDampingRatio;
+  c.baumgarte = s.baumgarte;
+  c.linearSlop = s.linearSlop;
+  c.maxPushout = s.maxPushout;
+  c.warmStart = s.warmStart;
+  c.restitution = s.restitution;
+  c.restitutionThreshold = s.restitutionThreshold;
+  return c;
+}
+
 bool World::Impl::stepOnDevice(int substeps) {
   DeviceWorld& d = *device;
   const float dt = def.timeStep;
-  std::string why;
-  if (joints.size() > 0) {
-    why = "joints are not on the GPU backend yet";
-  } else {
-    updateBounds(dt);
-    broadPhaseStage();
-    if (!contacts.empty()) why = "contacts are not on the GPU backend yet";
-  }
-  if (!why.empty()) {
-    backend.lastFallback = why;
-    return false;
-  }
-
   gpu::GpuWorld& g = *d.world;
   if (d.stale) {
     d.slots.clear();
@@ -207,9 +231,11 @@ bool World::Impl::stepOnDevice(int substeps) {
     }
     g.setBodies(states, params);
     std::vector<gpu::GpuShape> shapeRecs;
+    d.hulls = false;
     for (uint32_t i = 0; i < shapes.capacity(); ++i) {
       if (!shapes.alive(i)) continue;
       const ShapeRec& s = shapes.at(i);
+      d.hulls |= s.def.geom.type == ShapeType::Hull;
       const BodyRec& b = *bodies.get(s.body);
       shapeRecs.push_back(shapeOf(s, b, shapeTransform(b, s)));
     }
@@ -225,12 +251,30 @@ bool World::Impl::stepOnDevice(int substeps) {
   d.edited.clear();
   d.stale = false;
 
+  // A world whose contacts or joints the device cannot solve yet steps on the device only
+  // while it has none (the CPU's broad phase tells).
+  std::string why = joints.size() > 0
+                        ? std::string("joints are not on the GPU backend yet")
+                        : contactsOffDevice(def.solver, d.hulls, d.world->hasNarrowPhase());
+  const bool solveOnDevice = why.empty();
+  if (!solveOnDevice && joints.size() == 0) {
+    updateBounds(dt);
+    broadPhaseStage();
+    if (contacts.empty()) why.clear();
+  }
+  if (!why.empty()) {
+    backend.lastFallback = why;
+    return false;
+  }
+
   gpu::StepInput in;
   in.dt = dt;
   in.substeps = substeps;
   in.maxLinearSpeed = def.maxLinearSpeed;
   in.maxAngularSpeed = def.maxAngularSpeed;
   in.speculativeDistance = def.speculativeDistance;
+  in.solveContacts = solveOnDevice;
+  in.contacts = contactSettings(def.solver);
   std::string error;
   if (!g.step(in, &error)) {
     backend.lastFallback = "the device step failed: " + error;
@@ -263,12 +307,21 @@ bool World::Impl::stepOnDevice(int substeps) {
   profile.prepare = stage(gpu::Stage::Prepare);
   profile.integrateVelocities = stage(gpu::Stage::IntegrateVelocities);
   profile.integratePositions = stage(gpu::Stage::IntegratePositions);
+  profile.warmStart = stage(gpu::Stage::WarmStart);
+  profile.solve = stage(gpu::Stage::Solve);
+  profile.relax = stage(gpu::Stage::Relax);
+  profile.restitution = stage(gpu::Stage::Restitution);
+  profile.storeImpulses = stage(gpu::Stage::StoreImpulses);
   profile.finalize = stage(gpu::Stage::Finalize);
   profile.readback = stage(gpu::Stage::Readback);
   stats.bodies = int(bodies.size());
   stats.awake = int(d.slots.size());
-  stats.contacts = stats.contactPoints = stats.joints = 0;
-  stats.maxPenetration = 0;
+  const gpu::ContactStats cs = g.contactStats();
+  stats.pairs = int(cs.pairs);
+  stats.contacts = int(cs.manifolds);
+  stats.contactPoints = int(cs.points);
+  stats.joints = 0;
+  stats.maxPenetration = cs.deepest;
   stats.velocityResidual = 0;
   stats.iterationsUsed = 0;
   backend.gpuSteps++;

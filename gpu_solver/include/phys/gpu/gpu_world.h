@@ -25,7 +25,12 @@ enum class Stage : int {
   NarrowPhase,
   Prepare,
   IntegrateVelocities,
+  WarmStart,
+  Solve,
   IntegratePositions,
+  Relax,
+  Restitution,
+  StoreImpulses,
   Finalize,
   Readback,
   Count
@@ -33,13 +38,36 @@ enum class Stage : int {
 const char* stageName(Stage s);
 constexpr int kStageCount = int(Stage::Count);
 
+/// The contact solver's settings on the device: the Jacobi scheme with mass splitting
+/// (phys::SolverSettings' names and meanings).
+struct ContactSettings {
+  int iterations = 8;
+  int relaxIterations = 0;
+  bool soft = true;  ///< soft contacts (hertz, damping ratio), else Baumgarte
+  float contactHertz = 30, contactDampingRatio = 10, baumgarte = 0.2f;
+  float linearSlop = 0.005f;  ///< m, Baumgarte only
+  float maxPushout = 3;       ///< m/s
+  bool warmStart = true;
+  bool restitution = true;
+  float restitutionThreshold = 1;  ///< m/s
+};
+
 struct StepInput {
   float dt = 1.0f / 60;
   int substeps = 1;
   float maxLinearSpeed = 1e4f, maxAngularSpeed = 1e3f;
   float speculativeDistance = 0.02f;  ///< m, as WorldDef::speculativeDistance
-  bool readBounds = false;  ///< bring the shapes' bounds back too (tests, diagnostics)
-  bool readContacts = false;  ///< bring the pairs and manifolds back too
+  bool readBounds = false;            ///< bring the shapes' bounds back too (tests, diagnostics)
+  bool readContacts = false;          ///< bring the pairs and manifolds back too
+  /// Solve contacts (needs the narrow phase in the build); without, bodies pass through
+  /// each other and only the collision stages run.
+  bool solveContacts = true;
+  ContactSettings contacts;
+};
+
+struct ContactStats {
+  uint32_t pairs = 0, manifolds = 0, points = 0;
+  float deepest = 0;
 };
 
 class GpuWorld {
@@ -77,6 +105,9 @@ class GpuWorld {
   std::span<const GpuManifold> manifolds() const;
   /// The last step's candidate pairs (always read back).
   uint32_t pairCount() const;
+  /// The last step's contacts: candidate pairs, manifolds with points, points, deepest
+  /// penetration (m).
+  ContactStats contactStats() const;
   /// Whether this build has the narrow phase on the device.
   bool hasNarrowPhase() const;
   /// Device time of each stage in the last step (ms), indexed by Stage; zeros without

@@ -1,0 +1,76 @@
+#version 450
+// Prepare, contacts: each manifold's rows as World::Impl::solverManifold and contactRowsOf
+// build them: anchors from the bodies' centres of mass at the step's start, the tangent
+// basis, effective masses with the bodies' masses split among their contacts, the approach
+// speed for restitution, and last step's impulses when warm starting.
+#extension GL_GOOGLE_include_directive : require
+#extension GL_ARB_gpu_shader_fp64 : require
+#include "shared.h"
+#include "common.glsl"
+layout(local_size_x = PHYS_GPU_GROUP) in;
+layout(std430, binding = 0) readonly buffer Bodies { GpuSolverBody bodies[]; };
+layout(std430, binding = 1) readonly buffer Params { GpuBodyParams params[]; };
+layout(std430, binding = 2) readonly buffer Refs { uvec4 refs[]; };
+layout(std430, binding = 3) readonly buffer States { GpuBodyState states[]; };
+layout(std430, binding = 4) readonly buffer Shapes { GpuShape shapes[]; };
+layout(std430, binding = 5) readonly buffer Manifolds { GpuManifold manifolds[]; };
+layout(std430, binding = 6) writeonly buffer Contacts { GpuContact contacts[]; };
+layout(std430, binding = 7) readonly buffer Counters { uint counters[]; };
+layout(push_constant) uniform Push { GpuSolveConstants k; };
+#include "contact.glsl"
+
+// Pixar's branchless orthonormal basis (Duff et al. 2017), as phys::tangentBasis.
+void tangentBasis(vec3 n, out vec3 t1, out vec3 t2) {
+  float sign = uintBitsToFloat((floatBitsToUint(n.z) & 0x80000000u) | floatBitsToUint(1.0));
+  float a = -1.0 / (sign + n.z);
+  float b = n.x * n.y * a;
+  t1 = vec3(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
+  t2 = vec3(b, sign + n.y * n.y * a, -n.y);
+}
+
+void main() {
+  uint i = globalIndex();
+  if (i >= counters[PHYS_GPU_COUNTER_PAIRS]) return;
+  GpuManifold m = manifolds[i];
+  GpuContact c;
+  c.count = m.count;
+  if (m.count == 0u) {
+    contacts[i].count = 0u;
+    return;
+  }
+  c.bodyA = shapes[m.shapeA].body;
+  c.bodyB = shapes[m.shapeB].body;
+  c.friction = m.normal.w;
+  vec3 n = m.normal.xyz;
+  c.normal = vec4(n, m.restitution);
+  vec3 t1, t2;
+  tangentBasis(n, t1, t2);
+  c.t1 = vec4(t1, 0);
+  c.t2 = vec4(t2, 0);
+  Side A = loadSide(c.bodyA), B = loadSide(c.bodyB);
+  vec3 comA = c.bodyA >= 0 ? states[c.bodyA].com.xyz : vec3(0);
+  vec3 comB = c.bodyB >= 0 ? states[c.bodyB].com.xyz : vec3(0);
+  vec3 vA = c.bodyA >= 0 ? states[c.bodyA].v.xyz : vec3(0), wA = c.bodyA >= 0 ? states[c.bodyA].w.xyz : vec3(0);
+  vec3 vB = c.bodyB >= 0 ? states[c.bodyB].v.xyz : vec3(0), wB = c.bodyB >= 0 ? states[c.bodyB].w.xyz : vec3(0);
+  for (uint p = 0u; p < 4u; ++p) {
+    c.rA[p] = vec4(0);
+    c.rB[p] = vec4(0);
+  }
+  c.massN = c.massT1 = c.massT2 = vec4(0);
+  for (uint p = 0u; p < m.count; ++p) {
+    vec3 point = m.points[p].xyz;
+    vec3 rA = point - comA, rB = point - comB;
+    float approach = dot(n, (vB + cross(wB, rB)) - (vA + cross(wA, rA)));
+    c.rA[p] = vec4(rA, m.points[p].w);
+    c.rB[p] = vec4(rB, approach);
+    c.massN[p] = effectiveMass(n, rA, rB, A, B);
+    c.massT1[p] = effectiveMass(t1, rA, rB, A, B);
+    c.massT2[p] = effectiveMass(t2, rA, rB, A, B);
+  }
+  bool warm = k.warmStart != 0u;
+  c.lambdaN = warm ? m.normalImpulse : vec4(0);
+  c.lambdaT1 = warm ? m.tangentImpulse1 : vec4(0);
+  c.lambdaT2 = warm ? m.tangentImpulse2 : vec4(0);
+  c.maxLambdaN = vec4(0);
+  contacts[i] = c;
+}
