@@ -41,6 +41,18 @@ vec3 rotationVector(vec4 q) {
   if (s < 1e-12) return q.xyz * 2.0;
   return q.xyz * (2.0 * atan(s, q.w) / s);
 }
+float copysignf(float mag, float sgn) {
+  return uintBitsToFloat((floatBitsToUint(mag) & 0x7FFFFFFFu) |
+                         (floatBitsToUint(sgn) & 0x80000000u));
+}
+// phys::tangentBasis: Pixar's branchless orthonormal basis (Duff et al. 2017).
+void tangentBasis(vec3 n, out vec3 t1, out vec3 t2) {
+  float sgn = copysignf(1.0, n.z);
+  float a = -1.0 / (sgn + n.z);
+  float b = n.x * n.y * a;
+  t1 = vec3(1.0 + sgn * n.x * n.x * a, sgn * b, -sgn * n.x);
+  t2 = vec3(b, sgn + n.y * n.y * a, -n.y);
+}
 // Column-major 3x3 from a quaternion (GLSL mat3 is column-major, as phys::Mat3).
 mat3 quatToMat3(vec4 q) {
   return mat3(quatRotate(q, vec3(1, 0, 0)), quatRotate(q, vec3(0, 1, 0)),

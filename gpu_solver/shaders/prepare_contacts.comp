@@ -19,15 +19,6 @@ layout(std430, binding = 7) readonly buffer Counters { uint counters[]; };
 layout(push_constant) uniform Push { GpuSolveConstants k; };
 #include "contact.glsl"
 
-// Pixar's branchless orthonormal basis (Duff et al. 2017), as phys::tangentBasis.
-void tangentBasis(vec3 n, out vec3 t1, out vec3 t2) {
-  float sign = uintBitsToFloat((floatBitsToUint(n.z) & 0x80000000u) | floatBitsToUint(1.0));
-  float a = -1.0 / (sign + n.z);
-  float b = n.x * n.y * a;
-  t1 = vec3(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
-  t2 = vec3(b, sign + n.y * n.y * a, -n.y);
-}
-
 void main() {
   uint i = globalIndex();
   if (i >= counters[PHYS_GPU_COUNTER_PAIRS]) return;
