@@ -30,11 +30,12 @@ bool overlaps(uint s, uint t) {
          all(lessThanEqual(bounds[t].lo.xyz, bounds[s].hi.xyz));
 }
 
-// The box's lowest corner along the plane's normal is below the plane.
+// The box's lowest corner along the plane's normal is below the plane, padded like any
+// shape by half the speculative distance (the box has the other half).
 bool belowPlane(uint s, uint plane) {
   vec4 pl = shapes[plane].size;
   vec3 corner = mix(bounds[s].hi.xyz, bounds[s].lo.xyz, greaterThan(pl.xyz, vec3(0)));
-  return dot(pl.xyz, corner) <= pl.w;
+  return dot(pl.xyz, corner) <= pl.w + 0.5 * k.speculativeDistance;
 }
 
 // Calls PAIR(other) for every pair of the shape at sorted position p, in a fixed order.

@@ -30,15 +30,22 @@ void main() {
     return;
   GpuManifold old = prev[lo];
   vec4 ni = vec4(0), t1 = vec4(0), t2 = vec4(0);
+  bool persists = false;
   for (uint p = 0u; p < n; ++p) {
     for (uint q = 0u; q < old.count; ++q) {
       if (old.featureIds[q] == manifolds[i].featureIds[p]) {
         ni[p] = old.normalImpulse[q];
         t1[p] = old.tangentImpulse1[q];
         t2[p] = old.tangentImpulse2[q];
+        persists = true;
         break;
       }
     }
+  }
+  // Patch friction keeps the manifold's friction impulses while any point persists.
+  if (k.patchFriction != 0u && persists) {
+    t1 = old.tangentImpulse1;
+    t2 = old.tangentImpulse2;
   }
   manifolds[i].normalImpulse = ni;
   manifolds[i].tangentImpulse1 = t1;

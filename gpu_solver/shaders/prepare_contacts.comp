@@ -16,6 +16,7 @@ layout(std430, binding = 4) readonly buffer Shapes { GpuShape shapes[]; };
 layout(std430, binding = 5) readonly buffer Manifolds { GpuManifold manifolds[]; };
 layout(std430, binding = 6) writeonly buffer Contacts { GpuContact contacts[]; };
 layout(std430, binding = 7) readonly buffer Counters { uint counters[]; };
+layout(std430, binding = 8) writeonly buffer Colors { uint colors[]; };
 layout(push_constant) uniform Push { GpuSolveConstants k; };
 #include "contact.glsl"
 
@@ -25,6 +26,8 @@ void main() {
   GpuManifold m = manifolds[i];
   GpuContact c;
   c.count = m.count;
+  // Colored Gauss-Seidel colors the contacts with points (color_round.comp).
+  colors[i] = m.count == 0u ? PHYS_GPU_NO_COLOR : PHYS_GPU_UNCOLORED;
   if (m.count == 0u) {
     contacts[i].count = 0u;
     return;
@@ -57,6 +60,24 @@ void main() {
     c.massN[p] = effectiveMass(n, rA, rB, A, B);
     c.massT1[p] = effectiveMass(t1, rA, rB, A, B);
     c.massT2[p] = effectiveMass(t2, rA, rB, A, B);
+  }
+  // Patch friction: the tangent pair at the points' centroid, the twist about the normal
+  // with the points' mean distance from it as arm (World::Impl::solverManifold).
+  c.patchRA = c.patchRB = vec4(0);
+  if (k.patchFriction != 0u) {
+    vec3 patchCenter = vec3(0);
+    for (uint p = 0u; p < m.count; ++p) patchCenter += m.points[p].xyz;
+    patchCenter = patchCenter * (1.0 / float(m.count));
+    float arm = 0;
+    for (uint p = 0u; p < m.count; ++p) arm += length(m.points[p].xyz - patchCenter);
+    vec3 pa = patchCenter - comA, pb = patchCenter - comB;
+    c.patchRA = vec4(pa, arm / float(m.count));
+    c.patchRB = vec4(pb, 1);
+    c.massT1 = c.massT2 = vec4(0);
+    c.massT1[0] = effectiveMass(t1, pa, pb, A, B);
+    c.massT2[0] = effectiveMass(t2, pa, pb, A, B);
+    float kt = dot(-n, A.invI * -n) + dot(n, B.invI * n);
+    c.massT1[1] = kt > 1e-12 ? 1.0 / kt : 0.0;
   }
   bool warm = k.warmStart != 0u;
   c.lambdaN = warm ? m.normalImpulse : vec4(0);

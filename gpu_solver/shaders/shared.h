@@ -115,6 +115,7 @@ struct GpuManifold {
 #define PHYS_GPU_COUNTER_CONTACTS 3u    // manifolds with points
 #define PHYS_GPU_COUNTER_POINTS 4u      // contact points
 #define PHYS_GPU_COUNTER_DEEPEST 5u     // the deepest penetration (m), as float bits (>= 0)
+#define PHYS_GPU_COUNTER_COLORS 6u      // colors the coloring used (the overflow not counted)
 #define PHYS_GPU_COUNTER_COUNT 8u
 
 // Push constants of the step's stages.
@@ -132,7 +133,7 @@ struct GpuStepConstants {
   uint pairCapacity;    // pairs the pair and manifold buffers hold (a power of two)
   uint planeCount;      // static planes (the broad phase pairs them with every shape below them)
   uint shapeSortCount;  // length of the broad phase's key sort (a power of two >= shapeCount)
-  uint pad3;
+  uint patchFriction;   // warm starts keep a manifold's friction while any point persists
   uint pad4;
   uint pad5;
 };
@@ -158,6 +159,12 @@ struct GpuContact {
   vec4 lambdaT1;
   vec4 lambdaT2;
   vec4 maxLambdaN;  // per point: the largest normal impulse of the step (restitution)
+  // Patch friction (instead of a friction pair per point): the tangent pair acts at the
+  // points' centroid and a twist row turns about the normal. Its masses and impulses use
+  // the first slots of the per-point ones: massT1[0], massT2[0] and lambdaT1[0], lambdaT2[0]
+  // for the tangents, massT1[1] and lambdaT1[1] for the twist.
+  vec4 patchRA;   // xyz: centroid - A's centre of mass; w: twist arm (mean point distance)
+  vec4 patchRB;   // xyz: centroid - B's centre of mass; w: 1 with patch friction, else 0
 };
 
 // One contact's velocity changes of its two bodies in a Jacobi pass, gathered per body
@@ -184,10 +191,23 @@ struct GpuSolveConstants {
   uint bodyCount;
   uint refCount;        // length of the body-reference sort (a power of two)
   uint warmStart;       // start from last step's impulses
+  uint jacobi;          // the Jacobi scheme (masses split among contacts), else colored Gauss-Seidel
+  uint patchFriction;   // a manifold's friction at its centroid plus a twist row
   uint pad0;
+  uint color;           // colored Gauss-Seidel: the color this pass solves
+  uint colorLimit;      // colors dispatched; later ones go to the serial overflow
+  uint mode;            // PHYS_GPU_PASS_*
   uint pad1;
-  uint pad2;
 };
+
+// GpuSolveConstants.mode of the colored Gauss-Seidel pass.
+#define PHYS_GPU_PASS_WARM_START 0u
+#define PHYS_GPU_PASS_SOLVE 1u
+#define PHYS_GPU_PASS_RESTITUTION 2u
+// Graph coloring: a contact not colored yet, and one with nothing to solve.
+#define PHYS_GPU_UNCOLORED 0xFFFFFFFFu
+#define PHYS_GPU_NO_COLOR 0xFFFFFFFEu
+#define PHYS_GPU_MAX_COLORS 64u
 
 // Push constants of the sort and scan passes (bitonic_sort.comp, scan_*.comp).
 struct GpuSortConstants {

@@ -57,7 +57,7 @@ struct Kernels {
   std::unique_ptr<Kernel> prepareBodies, integrateVelocities, integratePositions, finalize,
       updateBounds, bpKeys, bpCount, bpWrite, bpPairs, narrowPhase, matchContacts, csrKeys,
       csrRanges, prepareContacts, contactWarmStart, contactSolve, contactRestitution, applyDeltas,
-      storeImpulses, contactStats;
+      storeImpulses, contactStats, colorRound, colorKeys, colorRanges, contactGs;
   Primitives primitives;
   explicit Kernels(const std::shared_ptr<Device>& d) : primitives(d) {
     auto make = [&](const char* name, uint32_t bindings, uint32_t push) {
@@ -79,13 +79,17 @@ struct Kernels {
     matchContacts = make("match_contacts", 3, step);
     csrKeys = make("csr_keys", 5, solve);
     csrRanges = make("csr_ranges", 2, solve);
-    prepareContacts = make("prepare_contacts", 8, solve);
+    prepareContacts = make("prepare_contacts", 9, solve);
     contactWarmStart = make("contact_warm_start", 6, solve);
     contactSolve = make("contact_solve", 6, solve);
     contactRestitution = make("contact_restitution", 6, solve);
     applyDeltas = make("apply_deltas", 4, solve);
     storeImpulses = make("store_impulses", 3, step);
     contactStats = make("contact_stats", 2, step);
+    colorRound = make("color_round", 7, solve);
+    colorKeys = make("color_keys", 3, solve);
+    colorRanges = make("color_ranges", 3, solve);
+    contactGs = make("contact_gs", 6, solve);
   }
 };
 
@@ -144,6 +148,8 @@ GpuSolveConstants solveConstants(const ContactSettings& cs, float h, uint32_t bo
   sc.bodyCount = bodies;
   sc.refCount = 2 * pairCapacity;
   sc.warmStart = cs.warmStart ? 1 : 0;
+  sc.jacobi = cs.jacobi ? 1 : 0;
+  sc.patchFriction = cs.patchFriction ? 1 : 0;
   return sc;
 }
 
@@ -185,7 +191,11 @@ struct GpuWorld::Impl {
   // The contact solver's: rows per manifold, velocity changes per manifold, the bodies'
   // sorted references to their contacts and each body's range in them (and mass split).
   Buffer contactBuf, deltaBuf, refKeyBuf, refBuf;
-  int current = 0;  ///< manifoldBuf[current] is this step's
+  // Colored Gauss-Seidel's: each contact's color (two, for the coloring rounds), the
+  // contacts sorted by color, each color's range and its indirect dispatch size.
+  Buffer colorBuf[2], colorKeyBuf, rangeBuf, argsBuf;
+  uint32_t colorLimit = 16;  ///< colors dispatched (then the serial overflow), from the last step
+  int current = 0;           ///< manifoldBuf[current] is this step's
   uint32_t pairCapacity = 64;
   Primitives::ScanScratch scanScratch;
   std::vector<double> stageMs = std::vector<double>(kStageCount, 0.0);
@@ -194,6 +204,10 @@ struct GpuWorld::Impl {
   void recordBroadPhase(Stream& s, const GpuStepConstants& c);
   void recordNarrowPhase(Stream& s, const GpuStepConstants& c);
   void recordPrepareContacts(Stream& s, const GpuSolveConstants& sc);
+  /// Colors the contacts (no two of a color share a dynamic body) and sorts them by color.
+  void recordColoring(Stream& s, const GpuSolveConstants& sc);
+  /// One colored Gauss-Seidel pass over every color (mode: warm start, solve, restitution).
+  void recordColoredPass(Stream& s, GpuSolveConstants sc, uint32_t mode);
   /// One Jacobi pass of `kernel` over the contacts, then every body takes its average.
   void recordContactPass(Stream& s, const Kernel& kernel, const GpuSolveConstants& sc);
   Kernels& kernels() { return *shared->kernels; }
@@ -270,6 +284,10 @@ void GpuWorld::Impl::sync(Stream& s, const GpuStepConstants& c) {
   reserve(d, deltaBuf, VkDeviceSize(pairCapacity) * sizeof(GpuDelta));
   reserve(d, refKeyBuf, VkDeviceSize(pairCapacity) * 2 * 8);
   reserve(d, refBuf, n * 16);
+  for (Buffer& b : colorBuf) reserve(d, b, VkDeviceSize(pairCapacity) * 4);
+  reserve(d, colorKeyBuf, VkDeviceSize(pairCapacity) * 8);
+  reserve(d, rangeBuf, (PHYS_GPU_MAX_COLORS + 1) * 16);
+  reserve(d, argsBuf, (PHYS_GPU_MAX_COLORS + 1) * 12);
   reserve(d, countBuf, VkDeviceSize(c.shapeSortCount) * 4);
   bool pairsGrown = reserve(d, pairKeyBuf, VkDeviceSize(pairCapacity) * 8);
   pairsGrown |= reserve(d, pairBuf, VkDeviceSize(pairCapacity) * sizeof(GpuPair));
@@ -315,7 +333,7 @@ void GpuWorld::Impl::recordBroadPhase(Stream& s, const GpuStepConstants& c) {
   // Last step's pair count is the count of last step's manifolds (warm starts); the
   // statistics start from zero.
   s.copy(counterBuf, PHYS_GPU_COUNTER_PAIRS * 4, counterBuf, PHYS_GPU_COUNTER_PREV_PAIRS * 4, 4);
-  const uint32_t zeros[3] = {0, 0, 0};
+  const uint32_t zeros[4] = {0, 0, 0, 0};
   s.upload(counterBuf, PHYS_GPU_COUNTER_CONTACTS * 4, zeros, sizeof zeros);
   const Buffer* keys[] = {&boundsBuf, &shapeBuf, &keyBuf};
   s.dispatch(*k.bpKeys, keys, &c, groupsFor(c.shapeSortCount));
@@ -350,10 +368,36 @@ void GpuWorld::Impl::recordPrepareContacts(Stream& s, const GpuSolveConstants& s
   k.primitives.sort(s, refKeyBuf, sc.refCount);
   const Buffer* ranges[] = {&refKeyBuf, &refBuf};
   s.dispatch(*k.csrRanges, ranges, &sc, groupsFor(sc.bodyCount));
-  const Buffer* prep[] = {&solverBuf,  &paramBuf,  &refBuf,
-                          &stateBuf,   &shapeBuf,  &manifoldBuf[current],
-                          &contactBuf, &counterBuf};
+  const Buffer* prep[] = {&solverBuf,  &paramBuf,   &refBuf,
+                          &stateBuf,   &shapeBuf,   &manifoldBuf[current],
+                          &contactBuf, &counterBuf, &colorBuf[0]};
   s.dispatch(*k.prepareContacts, prep, &sc, groupsFor(pairCapacity));
+}
+
+void GpuWorld::Impl::recordColoring(Stream& s, const GpuSolveConstants& sc) {
+  Kernels& k = kernels();
+  // Jones-Plassmann rounds, ping-ponging the two color buffers. Contacts still uncolored
+  // after them go to the serial overflow, as do colors past the limit.
+  constexpr int kRounds = 24;
+  for (int r = 0; r < kRounds; ++r) {
+    const Buffer* b[] = {&refKeyBuf,           &refBuf,    &contactBuf, &paramBuf, &colorBuf[r % 2],
+                         &colorBuf[1 - r % 2], &counterBuf};
+    s.dispatch(*k.colorRound, b, &sc, groupsFor(pairCapacity));
+  }
+  const Buffer* keys[] = {&colorBuf[kRounds % 2], &colorKeyBuf, &counterBuf};
+  s.dispatch(*k.colorKeys, keys, &sc, groupsFor(pairCapacity));
+  k.primitives.sort(s, colorKeyBuf, pairCapacity);
+  const Buffer* ranges[] = {&colorKeyBuf, &rangeBuf, &argsBuf};
+  s.dispatch(*k.colorRanges, ranges, &sc, groupsFor(sc.colorLimit + 1));
+}
+
+void GpuWorld::Impl::recordColoredPass(Stream& s, GpuSolveConstants sc, uint32_t mode) {
+  sc.mode = mode;
+  const Buffer* b[] = {&solverBuf, &paramBuf, &contactBuf, &colorKeyBuf, &rangeBuf, &refBuf};
+  for (uint32_t color = 0; color <= sc.colorLimit; ++color) {
+    sc.color = color;
+    s.dispatchIndirect(*kernels().contactGs, b, &sc, argsBuf, VkDeviceSize(color) * 12);
+  }
 }
 
 void GpuWorld::Impl::recordContactPass(Stream& s, const Kernel& kernel,
@@ -383,7 +427,10 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
     c.planeCount = uint32_t(w.planes.size());
     c.shapeSortCount = Primitives::pow2(m);
     const bool solve = in.solveContacts && k.narrowPhase != nullptr;
-    const GpuSolveConstants sc = solveConstants(in.contacts, c.h, n, w.pairCapacity);
+    const bool jacobi = in.contacts.jacobi;
+    c.patchFriction = in.contacts.patchFriction ? 1 : 0;
+    GpuSolveConstants sc = solveConstants(in.contacts, c.h, n, w.pairCapacity);
+    sc.colorLimit = w.colorLimit;
     std::vector<GpuBodyState> result(n);
     try {
       s.begin();
@@ -398,32 +445,43 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
       s.mark(int(Stage::NarrowPhase));
       const Buffer* prepare[] = {&w.stateBuf, &w.paramBuf, &w.solverBuf};
       s.dispatch(*k.prepareBodies, prepare, &c, groupsFor(n));
-      if (solve) w.recordPrepareContacts(s, sc);
+      if (solve) {
+        w.recordPrepareContacts(s, sc);
+        if (!jacobi) w.recordColoring(s, sc);
+      }
       s.mark(int(Stage::Prepare));
+      // One pass of the contact solver: Jacobi (every contact, then each body's average) or
+      // colored Gauss-Seidel (color by color).
+      auto pass = [&](const Kernel& jacobiKernel, uint32_t mode, bool useBias) {
+        GpuSolveConstants p = sc;
+        p.useBias = useBias ? 1 : 0;
+        if (jacobi)
+          w.recordContactPass(s, jacobiKernel, p);
+        else
+          w.recordColoredPass(s, p, mode);
+      };
       const Buffer* integrate[] = {&w.paramBuf, &w.solverBuf};
       for (int sub = 0; sub < substeps; ++sub) {
         s.dispatch(*k.integrateVelocities, integrate, &c, groupsFor(n));
         s.mark(int(Stage::IntegrateVelocities));
         if (solve) {
-          w.recordContactPass(s, *k.contactWarmStart, sc);
+          pass(*k.contactWarmStart, PHYS_GPU_PASS_WARM_START, true);
           s.mark(int(Stage::WarmStart));
           for (int it = 0; it < in.contacts.iterations; ++it)
-            w.recordContactPass(s, *k.contactSolve, sc);
+            pass(*k.contactSolve, PHYS_GPU_PASS_SOLVE, true);
           s.mark(int(Stage::Solve));
         }
         s.dispatch(*k.integratePositions, integrate, &c, groupsFor(n));
         s.mark(int(Stage::IntegratePositions));
         if (solve && in.contacts.relaxIterations > 0) {
-          GpuSolveConstants relax = sc;
-          relax.useBias = 0;
           for (int it = 0; it < in.contacts.relaxIterations; ++it)
-            w.recordContactPass(s, *k.contactSolve, relax);
+            pass(*k.contactSolve, PHYS_GPU_PASS_SOLVE, false);
           s.mark(int(Stage::Relax));
         }
       }
       if (solve) {
         if (in.contacts.restitution) {
-          w.recordContactPass(s, *k.contactRestitution, sc);
+          pass(*k.contactRestitution, PHYS_GPU_PASS_RESTITUTION, true);
           s.mark(int(Stage::Restitution));
         }
         const Buffer* store[] = {&w.contactBuf, &w.manifoldBuf[w.current], &w.counterBuf};
@@ -470,6 +528,9 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
       w.pairs.resize(w.counters[PHYS_GPU_COUNTER_PAIRS]);
       w.manifolds.resize(w.counters[PHYS_GPU_COUNTER_PAIRS]);
     }
+    // Colors to dispatch next step: this step's and a few more (those past it go to the
+    // serial overflow, still solved).
+    w.colorLimit = std::clamp(w.counters[PHYS_GPU_COUNTER_COLORS] + 4, 8u, PHYS_GPU_MAX_COLORS);
     // Room to grow without a retry next time; shrink when far too large.
     if (found * 3 > w.pairCapacity * 2) w.pairCapacity = Primitives::pow2(found * 2);
     w.states.swap(result);

@@ -306,7 +306,7 @@ Buffer::Buffer(std::shared_ptr<Device> device, VkDeviceSize bytes, Kind kind)
   VkBufferCreateInfo bi{VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO};
   bi.size = size_;
   bi.usage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_TRANSFER_SRC_BIT |
-             VK_BUFFER_USAGE_TRANSFER_DST_BIT;
+             VK_BUFFER_USAGE_TRANSFER_DST_BIT | VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT;
   bi.sharingMode = VK_SHARING_MODE_EXCLUSIVE;
   check(vkCreateBuffer(device_->handle(), &bi, nullptr, &buffer_), "vkCreateBuffer");
   VkMemoryRequirements req;
@@ -493,9 +493,7 @@ void Stream::copy(const Buffer& src, VkDeviceSize srcOffset, const Buffer& dst,
   barrier();
 }
 
-void Stream::dispatch(const Kernel& k, std::span<const Buffer* const> buffers, const void* push,
-                      uint32_t groups) {
-  if (groups == 0) return;
+void Stream::bind(const Kernel& k, std::span<const Buffer* const> buffers, const void* push) {
   vkCmdBindPipeline(cmd_, VK_PIPELINE_BIND_POINT_COMPUTE, k.pipeline());
   std::vector<VkDescriptorBufferInfo> infos(buffers.size());
   std::vector<VkWriteDescriptorSet> writes(buffers.size());
@@ -512,8 +510,21 @@ void Stream::dispatch(const Kernel& k, std::span<const Buffer* const> buffers, c
   if (k.pushBytes()) {
     vkCmdPushConstants(cmd_, k.layout(), VK_SHADER_STAGE_COMPUTE_BIT, 0, k.pushBytes(), push);
   }
+}
+
+void Stream::dispatch(const Kernel& k, std::span<const Buffer* const> buffers, const void* push,
+                      uint32_t groups) {
+  if (groups == 0) return;
+  bind(k, buffers, push);
   const uint32_t x = std::min(groups, device_->maxGroupsX);
   vkCmdDispatch(cmd_, x, (groups + x - 1) / x, 1);
+  barrier();
+}
+
+void Stream::dispatchIndirect(const Kernel& k, std::span<const Buffer* const> buffers,
+                              const void* push, const Buffer& args, VkDeviceSize offset) {
+  bind(k, buffers, push);
+  vkCmdDispatchIndirect(cmd_, args.handle(), offset);
   barrier();
 }
 
@@ -521,9 +532,11 @@ void Stream::barrier() {
   VkMemoryBarrier mb{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
   mb.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT | VK_ACCESS_TRANSFER_WRITE_BIT;
   mb.dstAccessMask = VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT |
-                     VK_ACCESS_TRANSFER_READ_BIT | VK_ACCESS_TRANSFER_WRITE_BIT;
-  const VkPipelineStageFlags stages =
-      VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_TRANSFER_BIT;
+                     VK_ACCESS_TRANSFER_READ_BIT | VK_ACCESS_TRANSFER_WRITE_BIT |
+                     VK_ACCESS_INDIRECT_COMMAND_READ_BIT;
+  const VkPipelineStageFlags stages = VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT |
+                                      VK_PIPELINE_STAGE_TRANSFER_BIT |
+                                      VK_PIPELINE_STAGE_DRAW_INDIRECT_BIT;
   vkCmdPipelineBarrier(cmd_, stages, stages, 0, 1, &mb, 0, nullptr, 0, nullptr);
 }
 

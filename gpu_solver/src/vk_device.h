@@ -134,6 +134,10 @@ class Stream {
   /// kernels use common.glsl's globalIndex()), then a compute barrier.
   void dispatch(const Kernel& k, std::span<const Buffer* const> buffers, const void* push,
                 uint32_t groups);
+  /// Records a dispatch whose workgroup count the device wrote: 3 uints at `offset` of
+  /// `args` (a 1D count), then a compute barrier.
+  void dispatchIndirect(const Kernel& k, std::span<const Buffer* const> buffers, const void* push,
+                        const Buffer& args, VkDeviceSize offset);
   /// Marks the end of a stage: the time since the previous mark is the stage's.
   void mark(int stage);
   /// Submits, waits, copies the downloads out. Returns false (and sets *error) on a device
@@ -149,6 +153,7 @@ class Stream {
     void* out;
   };
   VkDeviceSize stage(VkDeviceSize bytes);  ///< room in the staging buffer, grown as needed
+  void bind(const Kernel& k, std::span<const Buffer* const> buffers, const void* push);
   void barrier();
   std::shared_ptr<Device> device_;
   VkCommandPool pool_ = VK_NULL_HANDLE;

@@ -182,12 +182,6 @@ void World::Impl::deviceStale() {
 static std::string contactsOffDevice(const SolverSettings& s, bool hulls, bool narrowPhase) {
   if (!narrowPhase) return "this build has no narrow phase on the GPU";
   if (hulls) return "hull shapes are not on the GPU backend yet";
-  if (s.scheme != SolverSettings::Scheme::Jacobi)
-    return std::string("the ") +
-           (s.scheme == SolverSettings::Scheme::GaussSeidel ? "gauss_seidel"
-                                                            : "colored_gauss_seidel") +
-           " scheme is not on the GPU backend yet (jacobi is)";
-  if (s.patchFriction) return "patch friction is not on the GPU backend yet";
   if (s.positionPass != SolverSettings::PositionPass::None && s.positionIterations > 0)
     return "the position pass is not on the GPU backend yet";
   if (s.blockContacts) return "the contact block solve is not on the GPU backend yet";
@@ -197,6 +191,10 @@ static std::string contactsOffDevice(const SolverSettings& s, bool hulls, bool n
 
 static gpu::ContactSettings contactSettings(const SolverSettings& s) {
   gpu::ContactSettings c;
+  // Both Gauss-Seidel schemes run on colors on the device (the CPU's gauss_seidel runs the
+  // contacts in one fixed order: the results differ in rounding and order).
+  c.jacobi = s.scheme == SolverSettings::Scheme::Jacobi;
+  c.patchFriction = s.patchFriction;
   c.iterations = s.iterations;
   c.relaxIterations = s.relaxIterations;
   c.soft = s.stabilization == SolverSettings::Stabilization::Soft;

@@ -86,7 +86,8 @@ std::vector<std::pair<uint32_t, uint32_t>> bruteForce(const Arrangement& s,
         // The box's lowest corner along the normal.
         const float x = pl.x > 0 ? box.lo.x : box.hi.x, y = pl.y > 0 ? box.lo.y : box.hi.y,
                     z = pl.z > 0 ? box.lo.z : box.hi.z;
-        if (pl.x * x + pl.y * y + pl.z * z <= pl.w) out.push_back({a, b});
+        if (pl.x * x + pl.y * y + pl.z * z <= pl.w + 0.5f * StepInput().speculativeDistance)
+          out.push_back({a, b});
         continue;
       }
       const GpuAabb &A = bounds[a], &B = bounds[b];

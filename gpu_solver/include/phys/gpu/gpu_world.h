@@ -38,9 +38,12 @@ enum class Stage : int {
 const char* stageName(Stage s);
 constexpr int kStageCount = int(Stage::Count);
 
-/// The contact solver's settings on the device: the Jacobi scheme with mass splitting
-/// (phys::SolverSettings' names and meanings).
+/// The contact solver's settings on the device (phys::SolverSettings' names and meanings):
+/// the Jacobi scheme with mass splitting, or Gauss-Seidel on colors (the device colors the
+/// contacts every step; within a color the order does not matter).
 struct ContactSettings {
+  bool jacobi = true;
+  bool patchFriction = false;
   int iterations = 8;
   int relaxIterations = 0;
   bool soft = true;  ///< soft contacts (hertz, damping ratio), else Baumgarte

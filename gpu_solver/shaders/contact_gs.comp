@@ -1,0 +1,50 @@
+#version 450
+// Colored Gauss-Seidel (contacts): the contacts of one color, in parallel (no two share a
+// dynamic body), each applying its rows straight to its bodies' velocities; the overflow
+// slot is walked by one thread in contact order. The pass (warm start, solve or relax,
+// restitution) is GpuSolveConstants.mode; contact.glsl has the rows.
+#extension GL_GOOGLE_include_directive : require
+#extension GL_ARB_gpu_shader_fp64 : require
+#include "shared.h"
+#include "common.glsl"
+layout(local_size_x = PHYS_GPU_GROUP) in;
+layout(std430, binding = 0) buffer Bodies { GpuSolverBody bodies[]; };
+layout(std430, binding = 1) readonly buffer Params { GpuBodyParams params[]; };
+layout(std430, binding = 2) buffer Contacts { GpuContact contacts[]; };
+layout(std430, binding = 3) readonly buffer Keys { uvec2 colorKeys[]; };
+layout(std430, binding = 4) readonly buffer Ranges { uvec4 ranges[]; };
+layout(std430, binding = 5) readonly buffer Refs { uvec4 refs[]; };
+layout(push_constant) uniform Push { GpuSolveConstants k; };
+#include "contact.glsl"
+
+void store(int b, vec3 v, vec3 w) {
+  if (b < 0 || (params[b].flags.x & PHYS_GPU_BODY_DYNAMIC) == 0u) return;
+  bodies[b].v.xyz = v;
+  bodies[b].w.xyz = w;
+}
+
+void solveOne(uint i) {
+  GpuContact c = contacts[i];
+  Side A = loadSide(c.bodyA), B = loadSide(c.bodyB);
+  vec3 va = A.v, wa = A.w, vb = B.v, wb = B.w;
+  if (k.mode == PHYS_GPU_PASS_WARM_START)
+    warmStartContact(c, A, B, va, wa, vb, wb);
+  else if (k.mode == PHYS_GPU_PASS_SOLVE)
+    solveContact(c, A, B, k.useBias != 0u, va, wa, vb, wb);
+  else
+    restituteContact(c, A, B, va, wa, vb, wb);
+  contacts[i] = c;
+  store(c.bodyA, va, wa);
+  store(c.bodyB, vb, wb);
+}
+
+void main() {
+  uvec4 range = ranges[k.color];
+  if (k.color == k.colorLimit) {
+    if (globalIndex() != 0u) return;
+    for (uint e = range.x; e < range.y; ++e) solveOne(colorKeys[e].y);
+    return;
+  }
+  uint e = range.x + globalIndex();
+  if (e < range.y) solveOne(colorKeys[e].y);
+}
