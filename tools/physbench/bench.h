@@ -19,6 +19,7 @@ struct SingleOptions {
   double seconds = -1;     ///< < 0: the scene's duration
   int threads = 0;         ///< the world's threads; 0: the machine's
   std::string backend;     ///< "cpu", "gpu", "auto"; empty: the scene's
+  bool requireDevice = false;  ///< fail unless every step ran on the GPU backend
   std::string peer;        ///< run the scene in this peer engine instead (--peer)
   int peerIterations = 0;  ///< the peer's solver iterations; 0: the engine's default
 };

@@ -96,6 +96,8 @@ int main(int argc, char** argv) {
                  "Vulkan device gpu and auto run on the CPU; PHYS_GPU_ALLOW_CPU=1 lets them use "
                  "a CPU implementation such as lavapipe")
       ->check(CLI::IsMember({"cpu", "gpu", "auto"}));
+  app.add_flag("--require-device", single.requireDevice,
+               "with --backend gpu or auto: fail (exit 1) unless every step ran on the device");
   bool scalarContacts = false;
   app.add_flag("--scalar-contacts", scalarContacts,
                "solve Gauss-Seidel contacts one manifold at a time instead of in SIMD lanes "

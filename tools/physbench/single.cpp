@@ -99,7 +99,17 @@ int runSingle(SingleOptions opt) {
                       world.bodyCount(), world.jointCount(),  steps,
                       rec.summary()};
   result.metrics.stateHash = world.stateHash();
-  return reportSingle(opt, scene, result);
+  const int code = reportSingle(opt, scene, result);
+  const BackendState& b = world.backendState();
+  if (opt.requireDevice && (b.active != Backend::Gpu || b.cpuSteps > 0)) {
+    std::printf("FAILED: --require-device, but %s\n",
+                b.active != Backend::Gpu ? ("no device: " + b.note).c_str()
+                                         : (std::to_string(b.cpuSteps) +
+                                            " steps ran on the CPU: " + b.lastFallback)
+                                               .c_str());
+    return 1;
+  }
+  return code;
 }
 
 int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResult& r) {
