@@ -185,4 +185,24 @@ void restituteContact(inout GpuContact c, Side A, Side B, inout vec3 va, inout v
   }
 }
 
+// The position pass (post-stabilization, Solver::positionPass): each normal row's error
+// at the current poses (linearized from the accumulated deltas) removed by a fraction, as
+// a displacement; velocities untouched. Adds the contact's displacements of its two bodies
+// (linear, rotation vector) from the poses in A and B to dpA..dthB.
+void positionContact(GpuContact c, Side A, Side B, inout vec3 dpA, inout vec3 dthA,
+                     inout vec3 dpB, inout vec3 dthB) {
+  vec3 n = c.normal.xyz;
+  for (uint p = 0u; p < c.count; ++p) {
+    vec3 rA = c.rA[p].xyz, rB = c.rB[p].xyz;
+    float C = rowError(c.rA[p].w, n, rA, rB, A, B);
+    float d = -c.massN[p] * clamp(k.positionBaumgarte * (C + k.linearSlop),
+                                  -k.maxPositionCorrection, 0.0);
+    if (d == 0) continue;
+    dpA += -n * (A.invMass * d);
+    dthA += (A.invI * -cross(rA, n)) * d;
+    dpB += n * (B.invMass * d);
+    dthB += (B.invI * cross(rB, n)) * d;
+  }
+}
+
 #endif

@@ -23,9 +23,36 @@ void store(int b, vec3 v, vec3 w) {
   bodies[b].w.xyz = w;
 }
 
+// Nonlinear Gauss-Seidel: the contact's corrections move its bodies' poses at once.
+void moveBody(int b, vec3 dp, vec3 dth) {
+  if (b < 0 || (params[b].flags.x & PHYS_GPU_BODY_DYNAMIC) == 0u) return;
+  if (dp == vec3(0) && dth == vec3(0)) return;
+  bodies[b].dp.xyz += dp;
+  bodies[b].dtheta.xyz += dth;
+  bodies[b].q = integrateRotation(bodies[b].q, dth, 1.0);
+}
+
 void solveOne(uint i) {
   GpuContact c = contacts[i];
   Side A = loadSide(c.bodyA), B = loadSide(c.bodyB);
+  if (k.mode == PHYS_GPU_PASS_POSITION) {
+    // Row by row, each from the poses the previous rows left (Solver::positionPass).
+    vec3 n = c.normal.xyz;
+    for (uint p = 0u; p < c.count; ++p) {
+      GpuContact one = c;
+      one.count = 1u;
+      one.rA[0] = c.rA[p];
+      one.rB[0] = c.rB[p];
+      one.massN[0] = c.massN[p];
+      vec3 dpA = vec3(0), dthA = vec3(0), dpB = vec3(0), dthB = vec3(0);
+      positionContact(one, A, B, dpA, dthA, dpB, dthB);
+      moveBody(c.bodyA, dpA, dthA);
+      moveBody(c.bodyB, dpB, dthB);
+      A = loadSide(c.bodyA);
+      B = loadSide(c.bodyB);
+    }
+    return;
+  }
   vec3 va = A.v, wa = A.w, vb = B.v, wb = B.w;
   if (k.mode == PHYS_GPU_PASS_WARM_START)
     warmStartContact(c, A, B, va, wa, vb, wb);

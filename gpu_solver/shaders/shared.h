@@ -198,12 +198,17 @@ struct GpuSolveConstants {
   uint colorLimit;      // colors dispatched; later ones go to the serial overflow
   uint mode;            // PHYS_GPU_PASS_*
   uint pad1;
+  float positionBaumgarte;      // the position pass: fraction of the error removed per pass
+  float maxPositionCorrection;  // m per pass and row
+  uint pad2;
+  uint pad3;
 };
 
 // GpuSolveConstants.mode of the colored Gauss-Seidel pass.
 #define PHYS_GPU_PASS_WARM_START 0u
 #define PHYS_GPU_PASS_SOLVE 1u
 #define PHYS_GPU_PASS_RESTITUTION 2u
+#define PHYS_GPU_PASS_POSITION 3u  // nonlinear Gauss-Seidel position pass
 // Graph coloring: a contact not colored yet, and one with nothing to solve.
 #define PHYS_GPU_UNCOLORED 0xFFFFFFFFu
 #define PHYS_GPU_NO_COLOR 0xFFFFFFFEu

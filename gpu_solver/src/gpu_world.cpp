@@ -37,6 +37,8 @@ const char* stageName(Stage s) {
       return "relax";
     case Stage::Restitution:
       return "restitution";
+    case Stage::PositionPass:
+      return "position_pass";
     case Stage::StoreImpulses:
       return "store_impulses";
     case Stage::Finalize:
@@ -57,7 +59,8 @@ struct Kernels {
   std::unique_ptr<Kernel> prepareBodies, integrateVelocities, integratePositions, finalize,
       updateBounds, bpKeys, bpCount, bpWrite, bpPairs, narrowPhase, matchContacts, csrKeys,
       csrRanges, prepareContacts, contactWarmStart, contactSolve, contactRestitution, applyDeltas,
-      storeImpulses, contactStats, colorRound, colorKeys, colorRanges, contactGs;
+      storeImpulses, contactStats, colorRound, colorKeys, colorRanges, contactGs, positionJacobi,
+      applyPositions;
   Primitives primitives;
   explicit Kernels(const std::shared_ptr<Device>& d) : primitives(d) {
     auto make = [&](const char* name, uint32_t bindings, uint32_t push) {
@@ -90,6 +93,8 @@ struct Kernels {
     colorKeys = make("color_keys", 3, solve);
     colorRanges = make("color_ranges", 3, solve);
     contactGs = make("contact_gs", 6, solve);
+    positionJacobi = make("position_jacobi", 6, solve);
+    applyPositions = make("apply_positions", 4, solve);
   }
 };
 
@@ -150,6 +155,8 @@ GpuSolveConstants solveConstants(const ContactSettings& cs, float h, uint32_t bo
   sc.warmStart = cs.warmStart ? 1 : 0;
   sc.jacobi = cs.jacobi ? 1 : 0;
   sc.patchFriction = cs.patchFriction ? 1 : 0;
+  sc.positionBaumgarte = cs.positionBaumgarte;
+  sc.maxPositionCorrection = cs.maxPositionCorrection;
   return sc;
 }
 
@@ -483,6 +490,20 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
         if (in.contacts.restitution) {
           pass(*k.contactRestitution, PHYS_GPU_PASS_RESTITUTION, true);
           s.mark(int(Stage::Restitution));
+        }
+        if (in.contacts.positionIterations > 0) {
+          for (int it = 0; it < in.contacts.positionIterations; ++it) {
+            if (jacobi) {
+              const Buffer* b[] = {&w.solverBuf, &w.paramBuf,   &w.contactBuf,
+                                   &w.deltaBuf,  &w.counterBuf, &w.refBuf};
+              s.dispatch(*k.positionJacobi, b, &sc, groupsFor(w.pairCapacity));
+              const Buffer* apply[] = {&w.solverBuf, &w.deltaBuf, &w.refKeyBuf, &w.refBuf};
+              s.dispatch(*k.applyPositions, apply, &sc, groupsFor(n));
+            } else {
+              w.recordColoredPass(s, sc, PHYS_GPU_PASS_POSITION);
+            }
+          }
+          s.mark(int(Stage::PositionPass));
         }
         const Buffer* store[] = {&w.contactBuf, &w.manifoldBuf[w.current], &w.counterBuf};
         s.dispatch(*k.storeImpulses, store, &c, groupsFor(w.pairCapacity));

@@ -182,8 +182,14 @@ void World::Impl::deviceStale() {
 static std::string contactsOffDevice(const SolverSettings& s, bool hulls, bool narrowPhase) {
   if (!narrowPhase) return "this build has no narrow phase on the GPU";
   if (hulls) return "hull shapes are not on the GPU backend yet";
-  if (s.positionPass != SolverSettings::PositionPass::None && s.positionIterations > 0)
-    return "the position pass is not on the GPU backend yet";
+  // The device pairs the position pass's form with the scheme (as the presets do).
+  const bool jacobi = s.scheme == SolverSettings::Scheme::Jacobi;
+  if (s.positionIterations > 0 &&
+      ((s.positionPass == SolverSettings::PositionPass::NonlinearJacobi && !jacobi) ||
+       (s.positionPass == SolverSettings::PositionPass::NonlinearGaussSeidel && jacobi)))
+    return "the position pass's form differs from the scheme's (the GPU backend pairs "
+           "nonlinear_jacobi with jacobi and nonlinear_gauss_seidel with the Gauss-Seidel "
+           "schemes)";
   if (s.blockContacts) return "the contact block solve is not on the GPU backend yet";
   if (s.splitPushout) return "the split push-out is not on the GPU backend yet";
   return {};
@@ -206,6 +212,12 @@ static gpu::ContactSettings contactSettings(const SolverSettings& s) {
   c.warmStart = s.warmStart;
   c.restitution = s.restitution;
   c.restitutionThreshold = s.restitutionThreshold;
+  // The position pass: nonlinear Jacobi with the Jacobi scheme, nonlinear Gauss-Seidel on
+  // colors with the others (contactsOffDevice sends other pairings to the CPU).
+  c.positionIterations =
+      s.positionPass == SolverSettings::PositionPass::None ? 0 : s.positionIterations;
+  c.positionBaumgarte = s.positionBaumgarte;
+  c.maxPositionCorrection = s.maxPositionCorrection;
   return c;
 }
 
@@ -309,6 +321,7 @@ bool World::Impl::stepOnDevice(int substeps) {
   profile.solve = stage(gpu::Stage::Solve);
   profile.relax = stage(gpu::Stage::Relax);
   profile.restitution = stage(gpu::Stage::Restitution);
+  profile.positionPass = stage(gpu::Stage::PositionPass);
   profile.storeImpulses = stage(gpu::Stage::StoreImpulses);
   profile.finalize = stage(gpu::Stage::Finalize);
   profile.readback = stage(gpu::Stage::Readback);

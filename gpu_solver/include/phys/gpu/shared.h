@@ -21,5 +21,5 @@ static_assert(sizeof(GpuSortConstants) == 16);
 static_assert(sizeof(GpuContact) == 336 && offsetof(GpuContact, rA) == 64 &&
               offsetof(GpuContact, massN) == 192);
 static_assert(sizeof(GpuDelta) == 64);
-static_assert(sizeof(GpuSolveConstants) == 80);
+static_assert(sizeof(GpuSolveConstants) == 96);
 }  // namespace phys::gpu
