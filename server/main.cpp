@@ -77,16 +77,19 @@ int main(int argc, char** argv) {
   }
   for (const StartupWorld& w : cfg.worlds) {
     uint32_t id = 0;
-    s = core.createWorld(w.name, w.preset, w.scene, &id);
+    s = core.createWorld(w.name, w.preset, w.scene, &id, w.backend);
     if (!s.ok()) {
       spdlog::critical("world '{}': {}", w.name, s.message);
       return 2;
     }
     if (w.run) core.setRun(id, RunMode::RealTime, w.rateHz);
-    spdlog::info("world {} '{}': scene '{}', {} bodies, {}", id, w.name, w.scene,
+    const phys::BackendState& b = core.world(id)->world->backendState();
+    spdlog::info("world {} '{}': scene '{}', {} bodies, {}, backend {}{}", id, w.name, w.scene,
                  core.world(id)->world->bodyCount(),
                  w.run ? "running at " + std::to_string(core.world(id)->rateHz) + " Hz"
-                       : std::string("paused"));
+                       : std::string("paused"),
+                 phys::toString(b.active), b.device.empty() ? "" : " (" + b.device + ")");
+    if (!b.note.empty()) spdlog::warn("world {} '{}': {}", id, w.name, b.note);
   }
 
   DdsEndpoint endpoint(&core, {cfg.domain, cycloneXml});

@@ -39,9 +39,10 @@ ctl list > "$out/after.txt"
 wait $(jobs -p | grep -v "^$daemon$") 2>/dev/null || true
 
 echo "fanout: $subs subscribers, $seconds s measured after ${warmup} s warm-up, $(nproc) cores, $(date -u +%F)"
-# Columns of physctl list: id name preset bodies joints tick time state rate overruns frames.
-read -r _ _ _ bodies _ tick0 _ _ _ over0 frames0 < <(grep ' fanout ' "$out/before.txt")
-read -r _ _ _ _ _ tick1 _ _ _ over1 frames1 < <(grep ' fanout ' "$out/after.txt")
+# Columns of physctl list: id name preset bodies joints tick time state rate overruns frames
+# backend [(device)].
+read -r _ _ _ bodies _ tick0 _ _ _ over0 frames0 _ < <(grep ' fanout ' "$out/before.txt")
+read -r _ _ _ _ _ tick1 _ _ _ over1 frames1 _ < <(grep ' fanout ' "$out/after.txt")
 echo "physd: $bodies bodies, $((tick1 - tick0)) ticks, $((over1 - over0)) overruns, $((frames1 - frames0)) frames published in the window"
 cat "$out"/sub*.txt
 awk '/delivered/ {

@@ -66,22 +66,7 @@ std::string str(const flatbuffers::String* s) {
 }
 
 WorldSummary toSummary(const wire::WorldSummary& w) {
-  WorldSummary s;
-  s.world = w.world();
-  s.name = str(w.name());
-  s.preset = str(w.preset());
-  s.bodies = w.bodies();
-  s.joints = w.joints();
-  s.tick = w.tick();
-  s.time = w.time();
-  s.running = w.running();
-  s.rateHz = w.rate_hz();
-  s.tickMs = w.tick_ms();
-  s.tickMsMax = w.tick_ms_max();
-  s.overruns = w.overruns();
-  s.subscribers = w.subscribers();
-  s.frames = w.frames();
-  return s;
+  return protocol::toWorldSummary(w);
 }
 
 uint64_t randomId() {

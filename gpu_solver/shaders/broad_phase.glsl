@@ -12,6 +12,10 @@ layout(std430, binding = 1) readonly buffer Shapes { GpuShape shapes[]; };
 layout(std430, binding = 2) readonly buffer Params { GpuBodyParams params[]; };
 layout(std430, binding = 3) readonly buffer Keys { uvec2 keys[]; };
 layout(std430, binding = 4) readonly buffer Planes { uint planes[]; };
+// The body (host slot) owning each shape, and the sorted pairs of slots joined by a joint
+// without collide_connected (World::Impl::noCollide).
+layout(std430, binding = 8) readonly buffer Owners { uint owners[]; };
+layout(std430, binding = 9) readonly buffer NoCollide { uvec2 noCollide[]; };
 layout(push_constant) uniform Push { GpuStepConstants k; };
 
 bool dynamicShape(uint s) {
@@ -20,9 +24,21 @@ bool dynamicShape(uint s) {
 }
 
 // As the CPU's broadPhaseStage: not two shapes of one body, and one of them dynamic.
+bool joinedApart(uint s, uint t) {
+  uint a = min(owners[s], owners[t]), b = max(owners[s], owners[t]);
+  uint lo = 0u, hi = k.noCollideCount;
+  while (lo < hi) {
+    uint mid = (lo + hi) / 2u;
+    uvec2 key = noCollide[mid];
+    if (key.x < a || (key.x == a && key.y < b)) lo = mid + 1u; else hi = mid;
+  }
+  return lo < k.noCollideCount && noCollide[lo] == uvec2(a, b);
+}
+
 bool canCollide(uint s, uint t) {
   if (shapes[s].body >= 0 && shapes[s].body == shapes[t].body) return false;
-  return dynamicShape(s) || dynamicShape(t);
+  if (!dynamicShape(s) && !dynamicShape(t)) return false;
+  return k.noCollideCount == 0u || !joinedApart(s, t);
 }
 
 bool overlaps(uint s, uint t) {

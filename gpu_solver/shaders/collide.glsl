@@ -1,7 +1,8 @@
 // The narrow phase of physics/src/narrowphase.cpp, collide_box.cpp and collide_poly.cpp for
-// spheres, boxes, capsules and planes, routine for routine and formula for formula, so the
-// GPU finds the same points with the same feature ids (warm starting matches points by id).
-// Hulls are not ported: a pair with a hull gives no contact.
+// spheres, boxes, capsules, planes and convex hulls, routine for routine and formula for
+// formula, so the GPU finds the same points with the same feature ids (warm starting matches
+// points by id). Hull records come from binding 6 (layout in collide_hull.glsl); the includer
+// declares `layout(std430, binding = 6) readonly buffer Hulls { uint hullData[]; };` first.
 // Include after shared.h and common.glsl.
 #ifndef PHYS_GPU_COLLIDE_GLSL
 #define PHYS_GPU_COLLIDE_GLSL
@@ -65,6 +66,9 @@ void setPoint(inout Manifold m, int k, vec3 point, float sep, uint id) {
   m.id[k] = id;
 }
 
+// Hull records and PolyRef (a box or a hull in its local frame).
+#include "collide_hull.glsl"
+
 // ---- Contact clipping and reduction (narrowphase.cpp, collide_internal.h) -------------------
 
 struct ClipVertex {
@@ -77,86 +81,115 @@ struct ClipPlane {
   vec3 n;
   float d;  // inside: dot(n, x) <= d
 };
-// The two clip buffers (a box face: 4 vertices + 4 side planes at most).
-ClipVertex gClip[2][8];
+// The two clip buffers: an incident face (at most PHYS_HULL_MAX_FACE_VERTICES) grows by at
+// most one vertex per side plane of the reference face (as many).
+#define PHYS_CLIP_CAPACITY (2 * PHYS_HULL_MAX_FACE_VERTICES + 2)
+ClipVertex gClip[2][PHYS_CLIP_CAPACITY];
+
+// One pass of detail::clipPolygon: the polygon in gClip[inb] (n vertices) against plane
+// number p, into gClip[1 - inb]; returns the new count.
+int clipPass(int inb, int n, ClipPlane pl, uint p) {
+  int outb = 1 - inb;
+  uint side = kSideLabel | p;
+  int m = 0;
+  for (int k = 0; k < n; ++k) {
+    ClipVertex cur = gClip[inb][k];
+    ClipVertex nxt = gClip[inb][k + 1 == n ? 0 : k + 1];
+    float dc = dot(pl.n, cur.p) - pl.d;
+    float dn = dot(pl.n, nxt.p) - pl.d;
+    // Vertices within the slop count as inside; new points go exactly onto the plane.
+    bool curIn = dc <= kClipSlop, nxtIn = dn <= kClipSlop;
+    if (curIn && m < PHYS_CLIP_CAPACITY) gClip[outb][m++] = cur;
+    if (curIn == nxtIn) continue;
+    if (curIn && dc >= 0.0) {
+      if (m > 0) gClip[outb][m - 1].edge = side;  // cur sits on the plane: leave from it
+      continue;
+    }
+    if (!curIn && dn >= 0.0) continue;  // nxt sits on the plane: enter at nxt itself
+    if (m == PHYS_CLIP_CAPACITY) continue;  // (never with faces the packer accepts)
+    ClipVertex v;
+    float t = dc / (dc - dn);
+    v.p = cur.p + (nxt.p - cur.p) * t;
+    v.sep = 0.0;
+    if ((cur.edge & kSideLabel) != 0u) {
+      uint s0 = cur.edge & ~kSideLabel, s1 = p;
+      v.feature = localFeature(2u, s0 < s1 ? s0 : s1, s0 < s1 ? s1 : s0);
+    } else {
+      v.feature = localFeature(1u, cur.edge, p);
+    }
+    // Leaving: the polygon now runs along the plane; entering: along cur's edge.
+    v.edge = curIn ? side : cur.edge;
+    gClip[outb][m++] = v;
+  }
+  return m;
+}
 
 // Mirrors detail::clipPolygon on the polygon in gClip[0]; returns the count and the buffer
 // holding the result in `result`.
 int clipPolygon(int n, ClipPlane planes[4], int numPlanes, out int result) {
   int inb = 0;
   for (int p = 0; p < numPlanes && n > 0; ++p) {
-    int outb = 1 - inb;
-    ClipPlane pl = planes[p];
-    uint side = kSideLabel | uint(p);
-    int m = 0;
-    for (int k = 0; k < n; ++k) {
-      ClipVertex cur = gClip[inb][k];
-      ClipVertex nxt = gClip[inb][k + 1 == n ? 0 : k + 1];
-      float dc = dot(pl.n, cur.p) - pl.d;
-      float dn = dot(pl.n, nxt.p) - pl.d;
-      // Vertices within the slop count as inside; new points go exactly onto the plane.
-      bool curIn = dc <= kClipSlop, nxtIn = dn <= kClipSlop;
-      if (curIn) gClip[outb][m++] = cur;
-      if (curIn == nxtIn) continue;
-      if (curIn && dc >= 0.0) {
-        gClip[outb][m - 1].edge = side;  // cur sits on the plane: leave from it
-        continue;
-      }
-      if (!curIn && dn >= 0.0) continue;  // nxt sits on the plane: enter at nxt itself
-      ClipVertex v;
-      float t = dc / (dc - dn);
-      v.p = cur.p + (nxt.p - cur.p) * t;
-      v.sep = 0.0;
-      if ((cur.edge & kSideLabel) != 0u) {
-        uint s0 = cur.edge & ~kSideLabel, s1 = uint(p);
-        v.feature = localFeature(2u, s0 < s1 ? s0 : s1, s0 < s1 ? s1 : s0);
-      } else {
-        v.feature = localFeature(1u, cur.edge, uint(p));
-      }
-      // Leaving: the polygon now runs along the plane; entering: along cur's edge.
-      v.edge = curIn ? side : cur.edge;
-      gClip[outb][m++] = v;
-    }
-    n = m;
-    inb = outb;
+    n = clipPass(inb, n, planes[p], uint(p));
+    inb = 1 - inb;
   }
   result = inb;
   return n;
 }
 
-// Candidates of selectFour (a clipped face: <= 8 points; a box's vertices: 8).
-vec3 gCandP[8];
-float gCandSep[8];
-bool gCandValid[8];
+// The candidate points of selectFour: the clipped points in gClip[buf] (buf >= 0), or the
+// vertices of a box or hull against the plane dot(n, x) = d in its frame (buf < 0).
+struct Candidates {
+  int buf;
+  Poly poly;
+  vec3 n;
+  float d;
+  float margin;  // a point counts when its separation is below the margin
+};
+Candidates clipCandidates(int buf, float margin) {
+  Candidates c;
+  c.buf = buf;
+  polyOf(PHYS_GPU_SHAPE_BOX, vec4(0), c.poly);
+  c.n = vec3(0);
+  c.d = 0.0;
+  c.margin = margin;
+  return c;
+}
+vec3 candPoint(Candidates c, int i) {
+  return c.buf >= 0 ? gClip[c.buf][i].p : polyVertex(c.poly, uint(i));
+}
+float candSep(Candidates c, int i) {
+  return c.buf >= 0 ? gClip[c.buf][i].sep : dot(c.n, polyVertex(c.poly, uint(i))) - c.d;
+}
+bool candValid(Candidates c, int i) { return candSep(c, i) < c.margin; }
 
-// Mirrors detail::selectFour over gCand*: at most four of n points, the deepest, the farthest
+// Mirrors detail::selectFour: at most four of the n candidates, the deepest, the farthest
 // from it, then the two spanning the largest area (projected along `normal`).
-int selectFour(int n, vec3 normal, out int sel[4]) {
+int selectFour(Candidates c, int n, vec3 normal, out int sel[4]) {
   sel = int[4](0, 0, 0, 0);
   int count = 0;
   float minSep = kInf;
   for (int i = 0; i < n; ++i) {
-    if (!gCandValid[i]) continue;
+    if (!candValid(c, i)) continue;
     ++count;
-    minSep = minf(minSep, gCandSep[i]);
+    minSep = minf(minSep, candSep(c, i));
   }
   if (count <= 4) {
     int k = 0;
     for (int i = 0; i < n; ++i)
-      if (gCandValid[i]) sel[k++] = i;
+      if (candValid(c, i)) sel[k++] = i;
     return k;
   }
   // The first point within 0.1 mm of the deepest, so depth noise does not change the choice.
   int i0 = -1;
   for (int i = 0; i < n && i0 < 0; ++i)
-    if (gCandValid[i] && gCandSep[i] <= minSep + 1e-4) i0 = i;
+    if (candValid(c, i) && candSep(c, i) <= minSep + 1e-4) i0 = i;
   sel[0] = i0;
-  vec3 p0 = gCandP[i0];
+  vec3 p0 = candPoint(c, i0);
   int i1 = -1;
   float bestD = 0.0;
   for (int i = 0; i < n; ++i) {
-    if (!gCandValid[i] || i == i0) continue;
-    vec3 d = gCandP[i] - p0;
+    if (!candValid(c, i) || i == i0) continue;
+    vec3 d = candPoint(c, i) - p0;
     d -= normal * dot(d, normal);
     float d2 = lengthSquared(d);
     if (d2 > bestD) {
@@ -166,12 +199,12 @@ int selectFour(int n, vec3 normal, out int sel[4]) {
   }
   if (i1 < 0 || bestD < 1e-14) return 1;
   sel[1] = i1;
-  vec3 p1 = gCandP[i1];
+  vec3 p1 = candPoint(c, i1);
   int i2 = -1;
   float bestA = 0.0, signA = 1.0;
   for (int i = 0; i < n; ++i) {
-    if (!gCandValid[i] || i == i0 || i == i1) continue;
-    float a = dot(cross(p1 - p0, gCandP[i] - p0), normal);
+    if (!candValid(c, i) || i == i0 || i == i1) continue;
+    float a = dot(cross(p1 - p0, candPoint(c, i) - p0), normal);
     if (abs(a) > bestA) {
       bestA = abs(a);
       signA = a < 0.0 ? -1.0 : 1.0;
@@ -180,12 +213,12 @@ int selectFour(int n, vec3 normal, out int sel[4]) {
   }
   if (i2 < 0 || bestA < 1e-14) return 2;
   sel[2] = i2;
-  vec3 p2 = gCandP[i2];
+  vec3 p2 = candPoint(c, i2);
   int i3 = -1;
   float bestOut = 0.0;
   for (int i = 0; i < n; ++i) {
-    if (!gCandValid[i] || i == i0 || i == i1 || i == i2) continue;
-    vec3 p = gCandP[i];
+    if (!candValid(c, i) || i == i0 || i == i1 || i == i2) continue;
+    vec3 p = candPoint(c, i);
     float a01 = signA * dot(cross(p1 - p0, p - p0), normal);
     float a12 = signA * dot(cross(p2 - p1, p - p1), normal);
     float a20 = signA * dot(cross(p0 - p2, p - p2), normal);
@@ -204,13 +237,8 @@ int selectFour(int n, vec3 normal, out int sel[4]) {
 // manifold: keeps sep < margin, reduces to four, places each point midway.
 bool emitFaceContacts(int buf, int n, vec3 nRef, float margin, bool refIsB, uint refFace,
                       uint incFace, inout Manifold m) {
-  for (int i = 0; i < n; ++i) {
-    gCandP[i] = gClip[buf][i].p;
-    gCandSep[i] = gClip[buf][i].sep;
-    gCandValid[i] = gClip[buf][i].sep < margin;
-  }
   int sel[4];
-  int count = selectFour(n, nRef, sel);
+  int count = selectFour(clipCandidates(buf, margin), n, nRef, sel);
   uint base = (refIsB ? kKindFaceB : kKindFaceA) | (refFace & 0xFFu) << 22 |
               (incFace & 0xFFu) << 14;
   m.normal = refIsB ? -nRef : nRef;
@@ -416,50 +444,61 @@ bool collidePlaneCapsule(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manif
   return count > 0;
 }
 
-// ---- The box as the unit-box hull scaled by its half extents (collide_poly.cpp) --------------
-// Vertex i = signs (x, y, z) of its bits; face f = 2 * axis + (normal < 0), offset = h[axis];
-// edge e = 4 * axis + bits (bit 0, 1 = positive side on axis + 1, axis + 2), from the vertex
-// on the negative side of `axis` to the one on its positive side.
+// ---- Boxes and hulls (collide_poly.cpp; a box is the unit-box hull scaled, see
+// collide_hull.glsl) ----------------------------------------------------------------------------
 
-// Loops of the box faces (+x -x +y -y +z -z), counter-clockwise seen from outside.
-const uint kBoxFaceLoops[24] = uint[24](1u, 3u, 7u, 5u, 0u, 4u, 6u, 2u, 2u, 6u, 7u, 3u,
-                                        0u, 1u, 5u, 4u, 4u, 5u, 7u, 6u, 0u, 2u, 3u, 1u);
-
-vec3 boxHullVertex(vec3 h, uint i) {  // PolyRef::vertex for a box
-  return vec3((i & 1u) != 0u ? 1.0 : -1.0, (i & 2u) != 0u ? 1.0 : -1.0,
-              (i & 4u) != 0u ? 1.0 : -1.0) * h;
-}
-vec3 boxHullNormal(int f) {  // PolyRef::normal for a box
-  vec3 n = vec3(0);
-  n[f >> 1] = (f & 1) != 0 ? -1.0 : 1.0;
-  return n;
-}
-float boxHullOffset(vec3 h, int f) { return h[f >> 1]; }
-float boxSupport(vec3 h, vec3 d) { return dot(abs(d), h); }
-void boxHullEdge(int e, out uint v0, out uint v1) {
-  int axis = e >> 2;
-  uint bits = uint(e & 3), v = 0u;
-  if ((bits & 1u) != 0u) v |= 1u << uint((axis + 1) % 3);
-  if ((bits & 2u) != 0u) v |= 1u << uint((axis + 2) % 3);
-  v0 = v;
-  v1 = v | 1u << uint(axis);
+// Mirrors insideFace: x (in the face's plane) within face f's loop.
+bool polyInsideFace(Poly p, int f, vec3 x) {
+  vec3 n = polyNormal(p, f);
+  int m = polyLoopSize(p, f);
+  for (int k = 0; k < m; ++k) {
+    vec3 a = polyVertex(p, polyLoopVertex(p, f, k));
+    vec3 b = polyVertex(p, polyLoopVertex(p, f, k + 1 == m ? 0 : k + 1));
+    if (dot(cross(b - a, x - a), n) < 0.0) return false;
+  }
+  return true;
 }
 
-// Mirrors closestPointOutside for a box: the clamp.
-vec3 boxClosestPoint(vec3 h, vec3 x) {
-  return vec3(maxf(-h.x, minf(h.x, x.x)), maxf(-h.y, minf(h.y, x.y)),
-              maxf(-h.z, minf(h.z, x.z)));
+// Mirrors closestPointOutside: the closest point of the shape to x, x outside.
+vec3 polyClosestPointOutside(Poly p, vec3 x) {
+  if (p.box)
+    return vec3(maxf(-p.scale.x, minf(p.scale.x, x.x)), maxf(-p.scale.y, minf(p.scale.y, x.y)),
+                maxf(-p.scale.z, minf(p.scale.z, x.z)));
+  // A projection that lands on its face is the answer; otherwise the closest point lies on an
+  // edge.
+  for (int f = 0; f < p.nf; ++f) {
+    vec3 n = polyNormal(p, f);
+    float d = dot(n, x) - polyOffset(p, f);
+    if (d <= 0.0) continue;
+    vec3 proj = x - n * d;
+    if (polyInsideFace(p, f, proj)) return proj;
+  }
+  vec3 best = x;
+  float bestD2 = kInf;
+  for (int e = 0; e < p.ne; ++e) {
+    uint i0, i1;
+    polyEdge(p, e, i0, i1);
+    vec3 a = polyVertex(p, i0), b = polyVertex(p, i1);
+    vec3 c = a + (b - a) * closestOnSegment(a, b, x);
+    float d2 = lengthSquared(x - c);
+    if (d2 < bestD2) {
+      bestD2 = d2;
+      best = c;
+    }
+  }
+  return best;
 }
 
-// Mirrors collidePolySphere for a box (A) against a sphere (B).
-bool collideBoxSphere(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifold m) {
-  vec3 h = a.size.xyz;
+// Mirrors collidePolySphere: box or hull (A) against a sphere (B).
+bool collidePolySphere(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifold m) {
+  Poly p;
+  if (!polyOf(a.type, a.size, p)) return false;
   vec3 c = xfApplyInverse(xa, xb.p);
   float r = b.size.x;
   int fmax = 0;
   float dmax = -kInf;
-  for (int f = 0; f < 6; ++f) {
-    float d = dot(boxHullNormal(f), c) - boxHullOffset(h, f);
+  for (int f = 0; f < p.nf; ++f) {
+    float d = dot(polyNormal(p, f), c) - polyOffset(p, f);
     if (d > dmax) {
       dmax = d;
       fmax = f;
@@ -470,14 +509,14 @@ bool collideBoxSphere(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifold
   float sep;
   if (dmax <= 0.0) {
     // Centre inside: push out through the nearest face.
-    n = boxHullNormal(fmax);
+    n = polyNormal(p, fmax);
     q = c - n * dmax;
     sep = dmax - r;
   } else {
-    q = boxClosestPoint(h, c);
+    q = polyClosestPointOutside(p, c);
     vec3 v = c - q;
     float dist = length(v);
-    n = dist > 1e-7 ? v * (1.0 / dist) : boxHullNormal(fmax);
+    n = dist > 1e-7 ? v * (1.0 / dist) : polyNormal(p, fmax);
     sep = dist - r;
   }
   if (sep >= margin) return false;
@@ -487,15 +526,16 @@ bool collideBoxSphere(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifold
   return true;
 }
 
-// Mirrors clipSegmentToFace for a box: clips p0 p1 to the prism over face f.
-bool boxClipSegmentToFace(vec3 h, int f, vec3 p0, vec3 p1, out float t0, out float t1) {
-  vec3 n = boxHullNormal(f);
+// Mirrors clipSegmentToFace: clips p0 p1 to the prism over face f.
+bool polyClipSegmentToFace(Poly p, int f, vec3 p0, vec3 p1, out float t0, out float t1) {
+  vec3 n = polyNormal(p, f);
+  int m = polyLoopSize(p, f);
   float lo = 0.0, hi = 1.0;
   t0 = 0.0;
   t1 = 0.0;
-  for (int k = 0; k < 4; ++k) {
-    vec3 a = boxHullVertex(h, kBoxFaceLoops[4 * f + k]);
-    vec3 b = boxHullVertex(h, kBoxFaceLoops[4 * f + (k + 1) % 4]);
+  for (int k = 0; k < m; ++k) {
+    vec3 a = polyVertex(p, polyLoopVertex(p, f, k));
+    vec3 b = polyVertex(p, polyLoopVertex(p, f, k + 1 == m ? 0 : k + 1));
     vec3 sn = safeNormalize(cross(b - a, n));
     float d = dot(sn, a);
     float d0 = dot(sn, p0) - d, d1 = dot(sn, p1) - d;
@@ -509,14 +549,14 @@ bool boxClipSegmentToFace(vec3 h, int f, vec3 p0, vec3 p1, out float t0, out flo
   return lo <= hi;
 }
 
-// Mirrors segmentFaceContacts for a box: capsule core p0 p1 (radius r, box-local) over face f,
-// up to two points, normal = the face's.
-int boxSegmentFaceContacts(vec3 h, int f, vec3 p0, vec3 p1, float r, float margin, Xf xf,
-                           inout Manifold m) {
+// Mirrors segmentFaceContacts: capsule core p0 p1 (radius r, shape-local) over face f, up to
+// two points, normal = the face's.
+int polySegmentFaceContacts(Poly p, int f, vec3 p0, vec3 p1, float r, float margin, Xf xf,
+                            inout Manifold m) {
   float t0, t1;
-  if (!boxClipSegmentToFace(h, f, p0, p1, t0, t1)) return 0;
-  vec3 n = boxHullNormal(f);
-  float o = boxHullOffset(h, f);
+  if (!polyClipSegmentToFace(p, f, p0, p1, t0, t1)) return 0;
+  vec3 n = polyNormal(p, f);
+  float o = polyOffset(p, f);
   vec3 x[2] = vec3[2](p0 + (p1 - p0) * t0, p0 + (p1 - p0) * t1);
   bool clipped[2] = bool[2](t0 > 0.0, t1 < 1.0);
   int ends = (t1 - t0) * length(p1 - p0) > 1e-6 ? 2 : 1;
@@ -533,9 +573,10 @@ int boxSegmentFaceContacts(vec3 h, int f, vec3 p0, vec3 p1, float r, float margi
   return count;
 }
 
-// Mirrors collidePolyCapsule for a box (A) against a capsule (B).
-bool collideBoxCapsule(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifold m) {
-  vec3 h = a.size.xyz;
+// Mirrors collidePolyCapsule: box or hull (A) against a capsule (B).
+bool collidePolyCapsule(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifold m) {
+  Poly p;
+  if (!polyOf(a.type, a.size, p)) return false;
   vec3 axis = quatRotate(xb.q, vec3(0, 0, b.size.y));
   vec3 p0 = xfApplyInverse(xa, xb.p - axis), p1 = xfApplyInverse(xa, xb.p + axis);
   float r = b.size.x;
@@ -545,9 +586,9 @@ bool collideBoxCapsule(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifol
   int face = 0;
   float tlo = 0.0, thi = 1.0;
   bool apart = false;
-  for (int f = 0; f < 6; ++f) {
-    vec3 n = boxHullNormal(f);
-    float o = boxHullOffset(h, f);
+  for (int f = 0; f < p.nf; ++f) {
+    vec3 n = polyNormal(p, f);
+    float o = polyOffset(p, f);
     float d0 = dot(n, p0) - o, d1 = dot(n, p1) - o;
     float sf = minf(d0, d1) - r;
     if (sf > margin) return false;
@@ -566,26 +607,40 @@ bool collideBoxCapsule(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifol
   if (tlo > thi) apart = true;
 
   if (apart) {
-    // Exact closest points: a segment end against the box, or the segment against an edge.
+    // Exact closest points: a segment end against a face, or the segment against an edge.
     float best = kInf;
     vec3 bs = vec3(0), bq = vec3(0);
     vec3 segEnds[2] = vec3[2](p0, p1);
     for (int k = 0; k < 2; ++k) {
       vec3 e = segEnds[k];
-      vec3 q = boxClosestPoint(h, e);
-      float d2 = lengthSquared(e - q);
-      if (d2 < best) {
-        best = d2;
-        bs = e;
-        bq = q;
+      if (p.box) {
+        vec3 q = polyClosestPointOutside(p, e);
+        float d2 = lengthSquared(e - q);
+        if (d2 < best) {
+          best = d2;
+          bs = e;
+          bq = q;
+        }
+        continue;
+      }
+      for (int f = 0; f < p.nf; ++f) {
+        vec3 n = polyNormal(p, f);
+        float d = dot(n, e) - polyOffset(p, f);
+        if (d <= 0.0 || d * d >= best) continue;
+        vec3 proj = e - n * d;
+        if (polyInsideFace(p, f, proj)) {
+          best = d * d;
+          bs = e;
+          bq = proj;
+        }
       }
     }
-    for (int e = 0; e < 12; ++e) {
+    for (int e = 0; e < p.ne; ++e) {
       uint v0, v1;
-      boxHullEdge(e, v0, v1);
+      polyEdge(p, e, v0, v1);
       float s, t;
       vec3 c1, c2;
-      closestSegmentSegment(p0, p1, boxHullVertex(h, v0), boxHullVertex(h, v1), s, t, c1, c2);
+      closestSegmentSegment(p0, p1, polyVertex(p, v0), polyVertex(p, v1), s, t, c1, c2);
       float d2 = lengthSquared(c1 - c2);
       if (d2 < best) {
         best = d2;
@@ -602,14 +657,14 @@ bool collideBoxCapsule(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifol
       // Lying on a face: both ends of the core over that face.
       int fbest = 0;
       float cbest = -2.0;
-      for (int f = 0; f < 6; ++f) {
-        float c = dot(boxHullNormal(f), n);
+      for (int f = 0; f < p.nf; ++f) {
+        float c = dot(polyNormal(p, f), n);
         if (c > cbest) {
           cbest = c;
           fbest = f;
         }
       }
-      if (cbest > 0.9999 && boxSegmentFaceContacts(h, fbest, p0, p1, r, margin, xa, m) > 0)
+      if (cbest > 0.9999 && polySegmentFaceContacts(p, fbest, p0, p1, r, margin, xa, m) > 0)
         return true;
       m.normal = quatRotate(xa.q, n);
       m.count = 1;
@@ -618,28 +673,28 @@ bool collideBoxCapsule(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifol
     }
   }
 
-  // The core touches or crosses the box: least-penetration axis over the faces and the
+  // The core touches or crosses the shape: least-penetration axis over the faces and the
   // crosses of the core with the edges.
   vec3 u = p1 - p0;
   float edgeSep = -kInf;
   int edge = -1;
   vec3 edgeN = vec3(0);
   if (lengthSquared(u) > 1e-12) {
-    for (int e = 0; e < 12; ++e) {
+    for (int e = 0; e < p.ne; ++e) {
       uint i0, i1;
-      boxHullEdge(e, i0, i1);
-      vec3 va = boxHullVertex(h, i0), vb = boxHullVertex(h, i1);
+      polyEdge(p, e, i0, i1);
+      vec3 va = polyVertex(p, i0), vb = polyVertex(p, i1);
       vec3 n = cross(vb - va, u);
       float len = length(n);
       if (len < 1e-4 * sqrt(lengthSquared(vb - va) * lengthSquared(u))) continue;
       n = n * (1.0 / len);
       float sp = dot(n, p0);
-      float hi = boxSupport(h, n), lo = -boxSupport(h, -n);
+      float hi = polySupport(p, n), lo = -polySupport(p, -n);
       float s1 = sp - r - hi;  // capsule on the +n side
       float s2 = lo - sp - r;  // capsule on the -n side
       float se = maxf(s1, s2);
       if (se > margin) return false;
-      // Parallel edges share the axis; only the one on the box's support along it touches.
+      // Parallel edges share the axis; only the one on the shape's support along it touches.
       float ve = dot(n, va), tol = 1e-5 * (hi - lo);
       bool onSupport = s1 >= s2 ? ve >= hi - tol : ve <= lo + tol;
       if (onSupport && se > edgeSep) {
@@ -651,21 +706,21 @@ bool collideBoxCapsule(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifol
   }
   if (edge >= 0 && beats(edgeSep, faceSep, kEdgeRelTol, kEdgeAbsTol)) {
     uint i0, i1;
-    boxHullEdge(edge, i0, i1);
+    polyEdge(p, edge, i0, i1);
     float s, t;
     vec3 c1, c2;
-    closestSegmentSegment(p0, p1, boxHullVertex(h, i0), boxHullVertex(h, i1), s, t, c1, c2);
+    closestSegmentSegment(p0, p1, polyVertex(p, i0), polyVertex(p, i1), s, t, c1, c2);
     m.normal = quatRotate(xa.q, edgeN);
     m.count = 1;
     setPoint(m, 0, xfApply(xa, c2 + edgeN * (0.5 * edgeSep)), edgeSep,
              otherFeatureId(3u, uint(edge)));
     return edgeSep < margin;
   }
-  if (boxSegmentFaceContacts(h, face, p0, p1, r, margin, xa, m) > 0) return true;
+  if (polySegmentFaceContacts(p, face, p0, p1, r, margin, xa, m) > 0) return true;
   // The core's shadow misses the face (rare): the deeper end alone.
-  vec3 n = boxHullNormal(face);
+  vec3 n = polyNormal(p, face);
   vec3 e = dot(n, p0) <= dot(n, p1) ? p0 : p1;
-  float sep = dot(n, e) - boxHullOffset(h, face) - r;
+  float sep = dot(n, e) - polyOffset(p, face) - r;
   if (sep >= margin) return false;
   m.normal = quatRotate(xa.q, n);
   m.count = 1;
@@ -673,32 +728,225 @@ bool collideBoxCapsule(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifol
   return true;
 }
 
-// Mirrors collidePlanePoly for a plane (A) against a box (B): every vertex below the margin,
-// reduced to four, in B's frame.
-bool collidePlaneBox(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifold m) {
+// Mirrors collidePlanePoly: a plane (A) against a box or hull (B): every vertex below the
+// margin, reduced to four, in B's frame.
+bool collidePlanePoly(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifold m) {
+  Poly p;
+  if (!polyOf(b.type, b.size, p)) return false;
   vec3 n;
   float d;
   worldPlane(a, n, d);
-  vec3 h = b.size.xyz;
   vec3 nl = quatInvRotate(xb.q, n);
   float dl = d - dot(n, xb.p);
   // Quick reject on the lowest point.
-  if (-boxSupport(h, -nl) - dl >= margin) return false;
-  for (int i = 0; i < 8; ++i) {
-    gCandP[i] = boxHullVertex(h, uint(i));
-    gCandSep[i] = dot(nl, gCandP[i]) - dl;
-    gCandValid[i] = gCandSep[i] < margin;
-  }
+  if (-polySupport(p, -nl) - dl >= margin) return false;
+  Candidates c;
+  c.buf = -1;
+  c.poly = p;
+  c.n = nl;
+  c.d = dl;
+  c.margin = margin;
   int sel[4];
-  int count = selectFour(8, nl, sel);
+  int count = selectFour(c, p.nv, nl, sel);
   m.normal = n;
   m.count = count;
   for (int k = 0; k < count; ++k) {
-    float sep = gCandSep[sel[k]];
-    setPoint(m, k, xfApply(xb, gCandP[sel[k]] - nl * (0.5 * sep)), sep,
+    float sep = candSep(c, sel[k]);
+    setPoint(m, k, xfApply(xb, candPoint(c, sel[k]) - nl * (0.5 * sep)), sep,
              otherFeatureId(1u, uint(sel[k])));
   }
   return count > 0;
+}
+
+// ---- Box or hull against box or hull (collidePolyPoly: SAT with Gauss-map pruning) ----------
+
+// A box or hull in the world (toWorld): what the CPU stores per vertex and face is computed
+// where needed, formula for formula.
+struct WorldPoly {
+  Poly p;
+  vec3 pos;
+  mat3 r;  // columns: the shape's axes in the world (phys::toMat3)
+  vec3 center;  // the world centroid
+};
+vec3 mat3Mul(mat3 r, vec3 v) { return r[0] * v.x + r[1] * v.y + r[2] * v.z; }  // as Mat3 * Vec3
+WorldPoly toWorld(Poly p, Xf xf) {
+  WorldPoly w;
+  w.p = p;
+  w.pos = xf.p;
+  w.r = quatToMat3(xf.q);
+  w.center = xf.p + mat3Mul(w.r, polyCentroid(p));
+  return w;
+}
+vec3 worldVertex(WorldPoly w, uint i) { return w.pos + mat3Mul(w.r, polyVertex(w.p, i)); }
+vec3 worldNormal(WorldPoly w, int f) { return mat3Mul(w.r, polyNormal(w.p, f)); }
+float worldOffset(WorldPoly w, int f) { return polyOffset(w.p, f) + dot(worldNormal(w, f), w.pos); }
+
+// Mirrors queryFaces: the face of p whose plane q lies farthest in front of.
+float queryFaces(WorldPoly p, WorldPoly q, float margin, out int face) {
+  float bestSep = -kInf;
+  face = -1;
+  for (int f = 0; f < p.p.nf; ++f) {
+    vec3 n = worldNormal(p, f);
+    float mn = kInf;
+    for (int j = 0; j < q.p.nv; ++j) mn = minf(mn, dot(n, worldVertex(q, uint(j))));
+    float s = mn - worldOffset(p, f);
+    if (s > bestSep) {
+      bestSep = s;
+      face = f;
+    }
+    if (s > margin) break;
+  }
+  return bestSep;
+}
+
+// Mirrors queryEdges: the edge pairs of p and q that form a face of the Minkowski difference
+// (Gregorius, GDC 2013); the best separation, its edges and normal (from p to q).
+float queryEdges(WorldPoly p, WorldPoly q, float margin, out int ea, out int eb, out vec3 en) {
+  float bestSep = -kInf;
+  ea = -1;
+  eb = -1;
+  en = vec3(0);
+  for (int i = 0; i < p.p.ne; ++i) {
+    uint pi0, pi1;
+    int pf0, pf1;
+    polyEdge(p.p, i, pi0, pi1);
+    polyEdgeFaces(p.p, i, pf0, pf1);
+    vec3 pa = worldVertex(p, pi0);
+    vec3 ep = worldVertex(p, pi1) - pa;
+    vec3 a = worldNormal(p, pf0), b = worldNormal(p, pf1);
+    vec3 bxa = cross(b, a);
+    for (int j = 0; j < q.p.ne; ++j) {
+      int qf0, qf1;
+      polyEdgeFaces(q.p, j, qf0, qf1);
+      vec3 c = -worldNormal(q, qf0), d = -worldNormal(q, qf1);
+      vec3 dxc = cross(d, c);
+      float cba = dot(c, bxa), dba = dot(d, bxa), adc = dot(a, dxc), bdc = dot(b, dxc);
+      if (!(cba * dba < 0.0 && adc * bdc < 0.0 && cba * bdc > 0.0)) continue;
+      uint qi0, qi1;
+      polyEdge(q.p, j, qi0, qi1);
+      vec3 qa = worldVertex(q, qi0);
+      vec3 eq = worldVertex(q, qi1) - qa;
+      vec3 n = cross(ep, eq);
+      float len = length(n);
+      if (len < 1e-4 * sqrt(lengthSquared(ep) * lengthSquared(eq))) continue;
+      n = n * (1.0 / len);
+      if (dot(n, pa - p.center) < 0.0) n = -n;
+      float s = dot(n, qa - pa);
+      if (s > bestSep) {
+        bestSep = s;
+        ea = i;
+        eb = j;
+        en = n;
+      }
+      if (s > margin) return bestSep;
+    }
+  }
+  return bestSep;
+}
+
+// Mirrors polyFaceContact: ref's face as reference, inc's most anti-parallel face clipped to
+// it.
+bool polyFaceContact(WorldPoly ref, WorldPoly inc, int face, bool refIsB, float margin,
+                     inout Manifold m) {
+  vec3 nRef = worldNormal(ref, face);
+  float refOffset = worldOffset(ref, face);
+  int incFace = 0;
+  float best = kInf;
+  for (int g = 0; g < inc.p.nf; ++g) {
+    float d = dot(worldNormal(inc, g), nRef);
+    if (d < best) {
+      best = d;
+      incFace = g;
+    }
+  }
+  int nr = polyLoopSize(ref.p, face), ni = polyLoopSize(inc.p, incFace);
+  ni = min(ni, PHYS_CLIP_CAPACITY);
+  for (int q = 0; q < ni; ++q) {
+    gClip[0][q].p = worldVertex(inc, polyLoopVertex(inc.p, incFace, q));
+    gClip[0][q].sep = 0.0;
+    gClip[0][q].feature = localFeature(0u, uint(q), 0u);
+    gClip[0][q].edge = uint(q) & 0x7FFFu;
+  }
+  // The side planes of the reference face, numbered by loop position.
+  int n = ni, buf = 0;
+  for (int k = 0; k < nr && n > 0; ++k) {
+    vec3 a = worldVertex(ref, polyLoopVertex(ref.p, face, k));
+    vec3 b = worldVertex(ref, polyLoopVertex(ref.p, face, k + 1 == nr ? 0 : k + 1));
+    vec3 sn = safeNormalize(cross(b - a, nRef));
+    n = clipPass(buf, n, ClipPlane(sn, dot(sn, a)), uint(k));
+    buf = 1 - buf;
+  }
+  for (int q = 0; q < n; ++q) gClip[buf][q].sep = dot(nRef, gClip[buf][q].p) - refOffset;
+  return emitFaceContacts(buf, n, nRef, margin, refIsB, uint(face), uint(incFace), m);
+}
+
+// The edgeContact lambda of collidePolyPoly: one point midway between the two edges.
+bool polyEdgeContact(WorldPoly A, WorldPoly B, int ea, int eb, vec3 en, float sep, float margin,
+                     inout Manifold m) {
+  uint a0, a1, b0, b1;
+  polyEdge(A.p, ea, a0, a1);
+  polyEdge(B.p, eb, b0, b1);
+  float t, u;
+  vec3 pa, pb;
+  closestSegmentSegment(worldVertex(A, a0), worldVertex(A, a1), worldVertex(B, b0),
+                        worldVertex(B, b1), t, u, pa, pb);
+  m.normal = en;
+  m.count = 1;
+  setPoint(m, 0, 0.5 * (pa + pb), sep, edgeFeatureId(uint(ea), uint(eb)));
+  return sep < margin;
+}
+
+// Mirrors collidePolyPoly: box or hull (A) against box or hull (B).
+bool collidePolyPoly(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifold m) {
+  Poly pa, pb;
+  if (!polyOf(a.type, a.size, pa) || !polyOf(b.type, b.size, pb)) return false;
+  WorldPoly A = toWorld(pa, xa), B = toWorld(pb, xb);
+  int faceA, faceB;
+  float sepA = queryFaces(A, B, margin, faceA);
+  if (sepA > margin) return false;
+  float sepB = queryFaces(B, A, margin, faceB);
+  if (sepB > margin) return false;
+  int ea, eb;
+  vec3 en;
+  float sepE = queryEdges(A, B, margin, ea, eb, en);
+  if (sepE > margin) return false;
+
+  bool haveEdge = ea >= 0;
+  if (haveEdge && beats(sepE, maxf(sepA, sepB), kEdgeRelTol, kEdgeAbsTol)) {
+    // As in collideBoxBox: an edge axis close to a face normal is nearly parallel faces
+    // meeting over a rim; that face's clipped contact holds the whole face.
+    int fa = -1, fb = -1;
+    float dotA = kEdgeFaceCos, dotB = kEdgeFaceCos;
+    for (int f = 0; f < A.p.nf; ++f) {
+      float d = dot(worldNormal(A, f), en);
+      if (d >= dotA) {
+        dotA = d;
+        fa = f;
+      }
+    }
+    for (int f = 0; f < B.p.nf; ++f) {
+      float d = -dot(worldNormal(B, f), en);
+      if (d >= dotB) {
+        dotB = d;
+        fb = f;
+      }
+    }
+    if (fa >= 0) {
+      if (polyFaceContact(A, B, fa, false, margin, m)) return true;
+    } else if (fb >= 0) {
+      if (polyFaceContact(B, A, fb, true, margin, m)) return true;
+    }
+    return polyEdgeContact(A, B, ea, eb, en, sepE, margin, m);
+  }
+  // Prefer A's face unless B's is clearly better, so the reference face does not flip-flop.
+  bool refB = beats(sepB, sepA, kFaceRelTol, kFaceAbsTol);
+  if (refB ? polyFaceContact(B, A, faceB, true, margin, m)
+           : polyFaceContact(A, B, faceA, false, margin, m))
+    return true;
+  // The favoured face's clip came out empty: fall back rather than miss the contact.
+  if (haveEdge && polyEdgeContact(A, B, ea, eb, en, sepE, margin, m)) return true;
+  return refB ? polyFaceContact(A, B, faceA, false, margin, m)
+              : polyFaceContact(B, A, faceB, true, margin, m);
 }
 
 // ---- Box against box (collide_box.cpp) ---------------------------------------------------------
@@ -890,13 +1138,13 @@ bool collideBoxBox(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifold m)
 // ---- Dispatch (phys::collide) ----------------------------------------------------------------
 
 // Mirrors phys::collide's table kPairs: which routine takes (A, B), and whether it is written
-// for (B, A) (then the shapes are swapped and its normal negated). Hulls: no contact.
+// for (B, A) (then the shapes are swapped and its normal negated).
 bool collide(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifold m) {
   m.count = 0;
   uint ta = a.type, tb = b.type;
-  if (ta > PHYS_GPU_SHAPE_PLANE || tb > PHYS_GPU_SHAPE_PLANE) return false;
-  // Each routine's first shape comes first in the order plane, box, capsule, sphere.
-  const int kRank[4] = int[4](3, 1, 2, 0);  // by type: sphere, box, capsule, plane
+  if (ta > PHYS_GPU_SHAPE_HULL || tb > PHYS_GPU_SHAPE_HULL) return false;
+  // Each routine's first shape comes first in the order plane, box, hull, capsule, sphere.
+  const int kRank[5] = int[5](4, 1, 3, 0, 2);  // by type: sphere, box, capsule, plane, hull
   bool flip = kRank[tb] < kRank[ta];
   Geom g0 = flip ? b : a, g1 = flip ? a : b;
   Xf x0 = flip ? xb : xa, x1 = flip ? xa : xb;
@@ -904,18 +1152,20 @@ bool collide(Geom a, Xf xa, Geom b, Xf xb, float margin, inout Manifold m) {
   bool hit = false;
   if (t0 == PHYS_GPU_SHAPE_SPHERE) {
     hit = collideSphereSphere(g0, x0, g1, x1, margin, m);
-  } else if (t0 == PHYS_GPU_SHAPE_BOX) {
-    if (t1 == PHYS_GPU_SHAPE_SPHERE) hit = collideBoxSphere(g0, x0, g1, x1, margin, m);
-    else if (t1 == PHYS_GPU_SHAPE_BOX) hit = collideBoxBox(g0, x0, g1, x1, margin, m);
-    else hit = collideBoxCapsule(g0, x0, g1, x1, margin, m);
   } else if (t0 == PHYS_GPU_SHAPE_CAPSULE) {
     if (t1 == PHYS_GPU_SHAPE_SPHERE) hit = collideCapsuleSphere(g0, x0, g1, x1, margin, m);
     else hit = collideCapsuleCapsule(g0, x0, g1, x1, margin, m);
-  } else {  // plane
+  } else if (t0 == PHYS_GPU_SHAPE_PLANE) {
     if (t1 == PHYS_GPU_SHAPE_SPHERE) hit = collidePlaneSphere(g0, x0, g1, x1, margin, m);
-    else if (t1 == PHYS_GPU_SHAPE_BOX) hit = collidePlaneBox(g0, x0, g1, x1, margin, m);
     else if (t1 == PHYS_GPU_SHAPE_CAPSULE) hit = collidePlaneCapsule(g0, x0, g1, x1, margin, m);
+    else if (t1 != PHYS_GPU_SHAPE_PLANE) hit = collidePlanePoly(g0, x0, g1, x1, margin, m);
     // plane-plane: no contact
+  } else {  // box or hull
+    if (t1 == PHYS_GPU_SHAPE_SPHERE) hit = collidePolySphere(g0, x0, g1, x1, margin, m);
+    else if (t1 == PHYS_GPU_SHAPE_CAPSULE) hit = collidePolyCapsule(g0, x0, g1, x1, margin, m);
+    else if (t0 == PHYS_GPU_SHAPE_BOX && t1 == PHYS_GPU_SHAPE_BOX)
+      hit = collideBoxBox(g0, x0, g1, x1, margin, m);
+    else hit = collidePolyPoly(g0, x0, g1, x1, margin, m);
   }
   if (!hit) {
     m.count = 0;

@@ -1,5 +1,6 @@
 #version 450
-// Colored Gauss-Seidel: sort keys (color, contact) of the contacts with points. Colors at
+// Colored Gauss-Seidel: sort keys (color, constraint) of the joints and the contacts with
+// points. Colors at
 // or past the limit, and contacts the rounds left uncolored, go to the overflow slot
 // (colorLimit), which one thread solves in contact order.
 #extension GL_GOOGLE_include_directive : require
@@ -15,7 +16,8 @@ layout(push_constant) uniform Push { GpuSolveConstants k; };
 void main() {
   uint c = globalIndex();
   if (c >= k.refCount / 2u) return;  // the key sort's length: the pair capacity
-  uint color = c < counters[PHYS_GPU_COUNTER_PAIRS] ? colors[c] : PHYS_GPU_NO_COLOR;
+  uint color =
+      c < k.jointCount + counters[PHYS_GPU_COUNTER_PAIRS] ? colors[c] : PHYS_GPU_NO_COLOR;
   if (color == PHYS_GPU_NO_COLOR) {
     colorKeys[c] = uvec2(0xFFFFFFFFu);
     return;

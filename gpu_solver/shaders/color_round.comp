@@ -17,6 +17,7 @@ layout(std430, binding = 3) readonly buffer Params { GpuBodyParams params[]; };
 layout(std430, binding = 4) readonly buffer ColorsIn { uint colorIn[]; };
 layout(std430, binding = 5) writeonly buffer ColorsOut { uint colorOut[]; };
 layout(std430, binding = 6) readonly buffer Counters { uint counters[]; };
+layout(std430, binding = 7) readonly buffer Joints { GpuJoint joints[]; };
 layout(push_constant) uniform Push { GpuSolveConstants k; };
 
 uint hash(uint x) {  // a fixed integer mix (lowbias32)
@@ -33,14 +34,18 @@ bool outranks(uint a, uint b) {
 }
 
 void main() {
-  uint c = globalIndex();
-  if (c >= counters[PHYS_GPU_COUNTER_PAIRS]) return;
+  uint c = globalIndex();  // constraint id: joints, then contacts
+  if (c >= k.jointCount + counters[PHYS_GPU_COUNTER_PAIRS]) return;
   uint mine = colorIn[c];
   colorOut[c] = mine;
   if (mine != PHYS_GPU_UNCOLORED) return;
   uvec2 used = uvec2(0);  // colors 0..31, 32..63 of the colored neighbours
   for (int side = 0; side < 2; ++side) {
-    int b = side == 0 ? contacts[c].bodyA : contacts[c].bodyB;
+    int b;
+    if (c < k.jointCount)
+      b = side == 0 ? joints[c].bodyA : joints[c].bodyB;
+    else
+      b = side == 0 ? contacts[c - k.jointCount].bodyA : contacts[c - k.jointCount].bodyB;
     if (b < 0 || (params[b].flags.x & PHYS_GPU_BODY_DYNAMIC) == 0u) continue;
     for (uint e = refs[b].x; e < refs[b].y; ++e) {
       uint other = refKeys[e].y >> 1;

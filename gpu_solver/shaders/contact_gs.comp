@@ -14,8 +14,11 @@ layout(std430, binding = 2) buffer Contacts { GpuContact contacts[]; };
 layout(std430, binding = 3) readonly buffer Keys { uvec2 colorKeys[]; };
 layout(std430, binding = 4) readonly buffer Ranges { uvec4 ranges[]; };
 layout(std430, binding = 5) readonly buffer Refs { uvec4 refs[]; };
+layout(std430, binding = 6) readonly buffer Joints { GpuJoint joints[]; };
+layout(std430, binding = 7) buffer Rows { GpuJointRows jointRows[]; };
 layout(push_constant) uniform Push { GpuSolveConstants k; };
 #include "contact.glsl"
+#include "joint.glsl"
 
 void store(int b, vec3 v, vec3 w) {
   if (b < 0 || (params[b].flags.x & PHYS_GPU_BODY_DYNAMIC) == 0u) return;
@@ -32,7 +35,42 @@ void moveBody(int b, vec3 dp, vec3 dth) {
   bodies[b].q = integrateRotation(bodies[b].q, dth, 1.0);
 }
 
-void solveOne(uint i) {
+void solveJointOne(uint ji) {
+  GpuJoint j = joints[ji];
+  Side A = loadSide(j.bodyA), B = loadSide(j.bodyB);
+  if (k.mode == PHYS_GPU_PASS_POSITION) {
+    // Row by row, each from the poses the previous rows left (Solver::positionPass).
+    GpuJointRows J = jointRows[ji];
+    for (uint i = 0u; i < J.count; ++i) {
+      GpuJointRow r = J.rows[i];
+      float d = positionCorrection(r, A, B);
+      if (d == 0) continue;
+      moveBody(j.bodyA, r.linA.xyz * (A.invMass * d), (A.invI * r.angA.xyz) * d);
+      moveBody(j.bodyB, r.linB.xyz * (B.invMass * d), (B.invI * r.angB.xyz) * d);
+      A = loadSide(j.bodyA);
+      B = loadSide(j.bodyB);
+    }
+    return;
+  }
+  if (k.mode == PHYS_GPU_PASS_RESTITUTION) return;
+  vec3 va = A.v, wa = A.w, vb = B.v, wb = B.w;
+  if (k.mode == PHYS_GPU_PASS_WARM_START) {
+    warmStartJoint(jointRows[ji], A, B, va, wa, vb, wb);
+  } else {
+    GpuJointRows J = jointRows[ji];
+    solveJoint(J, A, B, k.useBias != 0u, va, wa, vb, wb);
+    for (uint i = 0u; i < J.count; ++i) jointRows[ji].rows[i].angA.w = J.rows[i].angA.w;
+  }
+  store(j.bodyA, va, wa);
+  store(j.bodyB, vb, wb);
+}
+
+void solveOne(uint id) {
+  if (id < k.jointCount) {
+    solveJointOne(id);
+    return;
+  }
+  uint i = id - k.jointCount;
   GpuContact c = contacts[i];
   Side A = loadSide(c.bodyA), B = loadSide(c.bodyB);
   if (k.mode == PHYS_GPU_PASS_POSITION) {

@@ -19,5 +19,5 @@ void main() {
   vec3 va = A.v, wa = A.w, vb = B.v, wb = B.w;
   warmStartContact(c, A, B, va, wa, vb, wb);
   contacts[i] = c;
-  deltas[i] = GpuDelta(vec4(va - A.v, 0), vec4(wa - A.w, 0), vec4(vb - B.v, 0), vec4(wb - B.w, 0));
+  deltas[k.jointCount + i] = GpuDelta(vec4(va - A.v, 0), vec4(wa - A.w, 0), vec4(vb - B.v, 0), vec4(wb - B.w, 0));
 }

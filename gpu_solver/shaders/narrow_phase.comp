@@ -3,10 +3,13 @@
 // World::Impl::narrowPhase: the shapes' world transforms, the speculative margin grown by the
 // bodies' speeds, then phys::collide (collide.glsl) with A = the pair's shape a, B = shape b.
 // Impulses start at zero; matching them to last step's by feature id is a later stage's job.
+// Hull shapes read their records from binding 6 (layout in collide_hull.glsl, packed by
+// phys/gpu/hull_pack.h): GpuShape.size.x = uintBitsToFloat(header offset).
 #extension GL_GOOGLE_include_directive : require
 #extension GL_ARB_gpu_shader_fp64 : require
 #include "shared.h"
 #include "common.glsl"
+layout(std430, binding = 6) readonly buffer Hulls { uint hullData[]; };
 #include "collide.glsl"
 layout(local_size_x = PHYS_GPU_GROUP) in;
 layout(std430, binding = 0) readonly buffer States { GpuBodyState states[]; };

@@ -18,5 +18,5 @@ void main() {
   Side A = loadSide(c.bodyA), B = loadSide(c.bodyB);
   vec3 dpA = vec3(0), dthA = vec3(0), dpB = vec3(0), dthB = vec3(0);
   positionContact(c, A, B, dpA, dthA, dpB, dthB);
-  deltas[i] = GpuDelta(vec4(dpA, 0), vec4(dthA, 0), vec4(dpB, 0), vec4(dthB, 0));
+  deltas[k.jointCount + i] = GpuDelta(vec4(dpA, 0), vec4(dthA, 0), vec4(dpB, 0), vec4(dthB, 0));
 }

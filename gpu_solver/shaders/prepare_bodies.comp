@@ -28,6 +28,10 @@ void main() {
     // The rows are stored: transpose to get GLSL's column-major local inverse inertia.
     mat3 local = transpose(mat3(p.invInertia[0].xyz, p.invInertia[1].xyz, p.invInertia[2].xyz));
     invI = R * local * transpose(R);
+    // Joints' geometric stiffness (World::Impl::addGeometricStiffness): h^2 k on the
+    // world inertia's diagonal, from last step's joint forces.
+    float stiffness = p.localCenter.w;
+    if (stiffness > 0) invI = inverse(inverse(invI) + mat3(k.h * k.h * stiffness));
   }
   mat3 rows = transpose(invI);
   b.invI[0] = vec4(rows[0], 0);

@@ -27,7 +27,7 @@ void main() {
   GpuContact c;
   c.count = m.count;
   // Colored Gauss-Seidel colors the contacts with points (color_round.comp).
-  colors[i] = m.count == 0u ? PHYS_GPU_NO_COLOR : PHYS_GPU_UNCOLORED;
+  colors[k.jointCount + i] = m.count == 0u ? PHYS_GPU_NO_COLOR : PHYS_GPU_UNCOLORED;
   if (m.count == 0u) {
     contacts[i].count = 0u;
     return;

@@ -52,7 +52,8 @@ struct GpuBodyParams {
   vec4 principal;      // principal-axes frame -> body frame (quaternion)
   vec4 moments;        // xyz: principal moments (kg m^2); w: angular damping (1/s)
   vec4 invInertia[3];  // rows of the inverse inertia about the centre of mass, body axes
-  vec4 localCenter;    // xyz: centre of mass in the body frame
+  vec4 localCenter;    // xyz: centre of mass in the body frame; w: geometric stiffness of
+                       // its joints (N m/rad, from last step's joint forces; 0: none)
   uvec4 flags;         // x: PHYS_GPU_BODY_* bits
 };
 
@@ -134,7 +135,7 @@ struct GpuStepConstants {
   uint planeCount;      // static planes (the broad phase pairs them with every shape below them)
   uint shapeSortCount;  // length of the broad phase's key sort (a power of two >= shapeCount)
   uint patchFriction;   // warm starts keep a manifold's friction while any point persists
-  uint pad4;
+  uint noCollideCount;  // body pairs joined without collide_connected (the broad phase skips them)
   uint pad5;
 };
 
@@ -193,15 +194,82 @@ struct GpuSolveConstants {
   uint warmStart;       // start from last step's impulses
   uint jacobi;          // the Jacobi scheme (masses split among contacts), else colored Gauss-Seidel
   uint patchFriction;   // a manifold's friction at its centroid plus a twist row
-  uint pad0;
+  uint jointCount;      // constraint ids: joints 0..jointCount-1, then contact i as jointCount + i
   uint color;           // colored Gauss-Seidel: the color this pass solves
   uint colorLimit;      // colors dispatched; later ones go to the serial overflow
   uint mode;            // PHYS_GPU_PASS_*
   uint pad1;
   float positionBaumgarte;      // the position pass: fraction of the error removed per pass
   float maxPositionCorrection;  // m per pass and row
+  uint refresh;                 // prepare_joints: keep the rows' impulses (a later substep)
   uint pad2;
-  uint pad3;
+  float jointBiasRate;          // joints' equality rows: soft (Catto 2011) or Baumgarte
+  float jointMassScale;
+  float jointImpulseScale;
+  float pad3;
+};
+
+// GpuJoint.type, as phys::JointType; GpuJoint.flags.
+#define PHYS_GPU_JOINT_BALL 0u
+#define PHYS_GPU_JOINT_HINGE 1u
+#define PHYS_GPU_JOINT_FIXED 2u
+#define PHYS_GPU_JOINT_DISTANCE 3u
+#define PHYS_GPU_JOINT_PRISMATIC 4u
+#define PHYS_GPU_JOINT_LIMIT 1u
+#define PHYS_GPU_JOINT_MOTOR 2u
+#define PHYS_GPU_JOINT_MAX_ROWS 8u
+// GpuJointRow kinds, as phys::RowKind.
+#define PHYS_GPU_ROW_EQUALITY 2u
+#define PHYS_GPU_ROW_LIMIT 3u
+#define PHYS_GPU_ROW_MOTOR 4u
+#define PHYS_GPU_ROW_SPRING 5u
+
+// A joint as the device needs it, uploaded with the world's structure (world_gpu.cpp fills
+// it from JointRec, phys/world.h's JointDef).
+struct GpuJoint {
+  int bodyA;      // GpuWorld body index; -1: the world or a static body (then anchorA is the
+                  // world anchor and qA its orientation)
+  int bodyB;
+  uint type;      // PHYS_GPU_JOINT_*
+  uint flags;     // PHYS_GPU_JOINT_LIMIT | _MOTOR
+  vec4 anchorA;   // xyz: A's anchor from A's centre of mass, A's body axes; w: rest length (distance)
+  vec4 anchorB;   // xyz: likewise for B; w: lower limit
+  vec4 axisA;     // xyz: unit axis in A's body axes; w: upper limit
+  vec4 axisB;     // xyz: unit axis in B's body axes; w: motor speed
+  vec4 relRot0;   // conj(qA) qB at creation
+  vec4 refA;      // xyz: hinge reference in A's axes; w: max motor force
+  vec4 refB;      // xyz: hinge reference in B's axes; w: spring hertz (distance)
+  vec4 qA;        // A's orientation when A is static
+  vec4 spring;    // x: spring damping ratio; y: 1 if the distance is rigid
+};
+
+// One row of a joint for the current substep (the CPU's Row: Jacobian, error, impulse).
+struct GpuJointRow {
+  vec4 linA;  // xyz; w: C0 (the error minus the Jacobian times the bodies' deltas)
+  vec4 angA;  // xyz; w: lambda, the accumulated impulse
+  vec4 linB;  // xyz; w: effective mass
+  vec4 angB;  // xyz; w: unused
+  uvec4 info;  // x: kind (PHYS_GPU_ROW_*); y: rows in this row's block (1: none, 2-3: solved
+               // together, on the block's first row); z: motor target / spring hertz bits;
+               // w: motor max impulse / spring damping ratio bits
+};
+
+// A joint's rows (PHYS_GPU_JOINT_MAX_ROWS slots) and its blocks' inverse K matrices.
+struct GpuJointRows {
+  GpuJointRow rows[PHYS_GPU_JOINT_MAX_ROWS];
+  vec4 invK[6];   // rows of K^-1 for the blocks starting at row 0 and row 3 (3 vec4 each)
+  uint count;     // rows
+  uint pad0;
+  uint pad1;
+  uint pad2;
+};
+
+// What a step leaves of each joint for the host: its impulses (next step's warm start on
+// either backend, snapshots) and its reaction on B.
+struct GpuJointOut {
+  vec4 impulses[2];   // the rows' impulses, rows 0-3 and 4-7
+  vec4 force;         // xyz: reaction force on B (N); w: rows
+  vec4 torque;        // xyz: reaction torque on B (N m), pure rotation rows only
 };
 
 // GpuSolveConstants.mode of the colored Gauss-Seidel pass.

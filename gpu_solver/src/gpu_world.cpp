@@ -60,7 +60,7 @@ struct Kernels {
       updateBounds, bpKeys, bpCount, bpWrite, bpPairs, narrowPhase, matchContacts, csrKeys,
       csrRanges, prepareContacts, contactWarmStart, contactSolve, contactRestitution, applyDeltas,
       storeImpulses, contactStats, colorRound, colorKeys, colorRanges, contactGs, positionJacobi,
-      applyPositions;
+      applyPositions, prepareJoints, jointJacobi, storeJoints;
   Primitives primitives;
   explicit Kernels(const std::shared_ptr<Device>& d) : primitives(d) {
     auto make = [&](const char* name, uint32_t bindings, uint32_t push) {
@@ -75,12 +75,12 @@ struct Kernels {
     finalize = make("finalize", 2, step);
     updateBounds = make("update_bounds", 4, step);
     bpKeys = make("bp_keys", 3, step);
-    bpCount = make("bp_count", 6, step);
-    bpWrite = make("bp_write", 8, step);
+    bpCount = make("bp_count", 10, step);
+    bpWrite = make("bp_write", 10, step);
     bpPairs = make("bp_pairs", 3, step);
-    if (!shaderCode("narrow_phase").empty()) narrowPhase = make("narrow_phase", 6, step);
+    if (!shaderCode("narrow_phase").empty()) narrowPhase = make("narrow_phase", 7, step);
     matchContacts = make("match_contacts", 3, step);
-    csrKeys = make("csr_keys", 5, solve);
+    csrKeys = make("csr_keys", 6, solve);
     csrRanges = make("csr_ranges", 2, solve);
     prepareContacts = make("prepare_contacts", 9, solve);
     contactWarmStart = make("contact_warm_start", 6, solve);
@@ -89,11 +89,14 @@ struct Kernels {
     applyDeltas = make("apply_deltas", 4, solve);
     storeImpulses = make("store_impulses", 3, step);
     contactStats = make("contact_stats", 2, step);
-    colorRound = make("color_round", 7, solve);
+    colorRound = make("color_round", 8, solve);
     colorKeys = make("color_keys", 3, solve);
     colorRanges = make("color_ranges", 3, solve);
-    contactGs = make("contact_gs", 6, solve);
+    contactGs = make("contact_gs", 8, solve);
     positionJacobi = make("position_jacobi", 6, solve);
+    prepareJoints = make("prepare_joints", 8, solve);
+    jointJacobi = make("joint_jacobi", 6, solve);
+    storeJoints = make("store_joints", 2, solve);
     applyPositions = make("apply_positions", 4, solve);
   }
 };
@@ -145,6 +148,26 @@ GpuSolveConstants solveConstants(const ContactSettings& cs, float h, uint32_t bo
     sc.massScale = 1;
     sc.impulseScale = 0;
   }
+  // Joints: soft with their own frequency (capped at a quarter of the substep rate), or
+  // Baumgarte (Solver::solveIteration's jointSoft).
+  sc.jointBiasRate = sc.biasRate;
+  sc.jointMassScale = sc.massScale;
+  sc.jointImpulseScale = sc.impulseScale;
+  if (cs.soft) {
+    const float hertz = std::min(cs.jointHertz, 0.25f * sc.invH);
+    sc.jointBiasRate = 0;
+    sc.jointMassScale = 1;
+    sc.jointImpulseScale = 0;
+    if (hertz > 0) {
+      const float omega = 2 * 3.14159265358979f * hertz;
+      const float a1 = 2 * cs.jointDampingRatio + h * omega;
+      const float a2 = h * omega * a1;
+      const float a3 = 1 / (1 + a2);
+      sc.jointBiasRate = omega / a1;
+      sc.jointMassScale = a2 * a3;
+      sc.jointImpulseScale = a3;
+    }
+  }
   sc.linearSlop = cs.linearSlop;
   sc.maxPushout = cs.maxPushout;
   sc.restitutionThreshold = cs.restitutionThreshold;
@@ -181,7 +204,13 @@ struct GpuWorld::Impl {
   std::vector<GpuBodyState> states;
   std::vector<GpuBodyParams> params;
   std::vector<GpuShape> shapes;
-  std::vector<uint32_t> planes;  ///< indices of the plane shapes
+  std::vector<uint32_t> planes;                          ///< indices of the plane shapes
+  std::vector<uint32_t> owners;                          ///< each shape's body (host slot)
+  std::vector<uint32_t> hulls;                           ///< packed hull records (hull_pack.h)
+  std::vector<std::pair<uint32_t, uint32_t>> noCollide;  ///< sorted slot pairs
+  std::vector<GpuJoint> joints;
+  std::vector<GpuJointOut> jointOut;  ///< warm starts going up, results coming back
+  bool jointsDirty = false;
   std::vector<uint32_t> dirtyBodies;
   bool allBodiesDirty = false, shapesDirty = false;
   // What came back from the last step.
@@ -190,7 +219,8 @@ struct GpuWorld::Impl {
   std::vector<GpuManifold> manifolds;
   uint32_t counters[PHYS_GPU_COUNTER_COUNT] = {};
   // Device buffers: bodies and shapes.
-  Buffer stateBuf, paramBuf, solverBuf, shapeBuf, boundsBuf, planeBuf;
+  Buffer stateBuf, paramBuf, solverBuf, shapeBuf, boundsBuf, planeBuf, ownerBuf, noCollideBuf,
+      hullBuf;
   // The broad phase's: sort keys, per-position counts (then offsets), pair keys, pairs;
   // the manifolds of this step and of the last (warm starts), and the counters.
   Buffer keyBuf, countBuf, pairKeyBuf, pairBuf, counterBuf;
@@ -201,6 +231,8 @@ struct GpuWorld::Impl {
   // Colored Gauss-Seidel's: each contact's color (two, for the coloring rounds), the
   // contacts sorted by color, each color's range and its indirect dispatch size.
   Buffer colorBuf[2], colorKeyBuf, rangeBuf, argsBuf;
+  // Joints: their records, this substep's rows, and their impulses and reactions.
+  Buffer jointBuf, jointRowBuf, jointOutBuf;
   uint32_t colorLimit = 16;  ///< colors dispatched (then the serial overflow), from the last step
   int current = 0;           ///< manifoldBuf[current] is this step's
   uint32_t pairCapacity = 64;
@@ -211,6 +243,8 @@ struct GpuWorld::Impl {
   void recordBroadPhase(Stream& s, const GpuStepConstants& c);
   void recordNarrowPhase(Stream& s, const GpuStepConstants& c);
   void recordPrepareContacts(Stream& s, const GpuSolveConstants& sc);
+  /// The joints' rows at the current poses (refresh: a later substep, impulses kept).
+  void recordPrepareJoints(Stream& s, GpuSolveConstants sc, bool refresh);
   /// Colors the contacts (no two of a color share a dynamic body) and sorts them by color.
   void recordColoring(Stream& s, const GpuSolveConstants& sc);
   /// One colored Gauss-Seidel pass over every color (mode: warm start, solve, restitution).
@@ -260,12 +294,45 @@ void GpuWorld::setBody(uint32_t index, const GpuBodyState& state, const GpuBodyP
   if (!impl_->allBodiesDirty) impl_->dirtyBodies.push_back(index);
 }
 
-void GpuWorld::setShapes(std::span<const GpuShape> shapes) {
+void GpuWorld::setShapes(std::span<const GpuShape> shapes, std::span<const uint32_t> owners) {
+  if (!owners.empty() && owners.size() != shapes.size())
+    throw std::invalid_argument("setShapes: owners and shapes differ in size");
   impl_->shapes.assign(shapes.begin(), shapes.end());
+  impl_->owners.assign(owners.begin(), owners.end());
+  if (owners.empty()) {
+    impl_->owners.resize(shapes.size());
+    for (uint32_t i = 0; i < shapes.size(); ++i) impl_->owners[i] = i;  // every shape its own
+  }
   impl_->planes.clear();
   for (uint32_t i = 0; i < shapes.size(); ++i)
     if (shapes[i].type == PHYS_GPU_SHAPE_PLANE) impl_->planes.push_back(i);
   impl_->shapesDirty = true;
+}
+
+void GpuWorld::setHulls(std::vector<uint32_t> words) {
+  impl_->hulls = std::move(words);
+  impl_->shapesDirty = true;
+}
+
+void GpuWorld::setNoCollide(std::vector<std::pair<uint32_t, uint32_t>> pairs) {
+  for (auto& p : pairs)
+    if (p.first > p.second) std::swap(p.first, p.second);
+  std::sort(pairs.begin(), pairs.end());
+  impl_->noCollide = std::move(pairs);
+  impl_->shapesDirty = true;
+}
+
+void GpuWorld::setJoints(std::span<const GpuJoint> joints, std::span<const GpuJointOut> impulses) {
+  if (joints.size() != impulses.size()) throw std::invalid_argument("setJoints: sizes differ");
+  impl_->joints.assign(joints.begin(), joints.end());
+  impl_->jointOut.assign(impulses.begin(), impulses.end());
+  impl_->jointsDirty = true;
+}
+uint32_t GpuWorld::jointCount() const {
+  return uint32_t(impl_->joints.size());
+}
+std::span<const GpuJointOut> GpuWorld::jointResults() const {
+  return impl_->jointOut;
 }
 
 uint32_t GpuWorld::bodyCount() const {
@@ -286,13 +353,22 @@ void GpuWorld::Impl::sync(Stream& s, const GpuStepConstants& c) {
   if (reserve(d, shapeBuf, shapes.size() * sizeof(GpuShape))) shapesDirty = true;
   reserve(d, boundsBuf, shapes.size() * sizeof(GpuAabb));
   if (reserve(d, planeBuf, planes.size() * 4)) shapesDirty = true;
+  if (reserve(d, ownerBuf, owners.size() * 4)) shapesDirty = true;
+  if (reserve(d, hullBuf, hulls.size() * 4)) shapesDirty = true;
+  if (reserve(d, noCollideBuf, noCollide.size() * 8)) shapesDirty = true;
   reserve(d, keyBuf, VkDeviceSize(c.shapeSortCount) * 8);
+  // Constraints: the joints, then a slot per pair.
+  const uint32_t constraints = uint32_t(joints.size()) + pairCapacity;
+  const uint32_t keyLength = Primitives::pow2(constraints);  // = refCount / 2
   reserve(d, contactBuf, VkDeviceSize(pairCapacity) * sizeof(GpuContact));
-  reserve(d, deltaBuf, VkDeviceSize(pairCapacity) * sizeof(GpuDelta));
-  reserve(d, refKeyBuf, VkDeviceSize(pairCapacity) * 2 * 8);
+  reserve(d, deltaBuf, VkDeviceSize(constraints) * sizeof(GpuDelta));
+  reserve(d, refKeyBuf, VkDeviceSize(keyLength) * 2 * 8);
   reserve(d, refBuf, n * 16);
-  for (Buffer& b : colorBuf) reserve(d, b, VkDeviceSize(pairCapacity) * 4);
-  reserve(d, colorKeyBuf, VkDeviceSize(pairCapacity) * 8);
+  for (Buffer& b : colorBuf) reserve(d, b, VkDeviceSize(keyLength) * 4);
+  reserve(d, colorKeyBuf, VkDeviceSize(keyLength) * 8);
+  reserve(d, jointBuf, joints.size() * sizeof(GpuJoint));
+  reserve(d, jointRowBuf, joints.size() * sizeof(GpuJointRows));
+  if (reserve(d, jointOutBuf, joints.size() * sizeof(GpuJointOut))) jointsDirty = true;
   reserve(d, rangeBuf, (PHYS_GPU_MAX_COLORS + 1) * 16);
   reserve(d, argsBuf, (PHYS_GPU_MAX_COLORS + 1) * 12);
   reserve(d, countBuf, VkDeviceSize(c.shapeSortCount) * 4);
@@ -330,6 +406,14 @@ void GpuWorld::Impl::sync(Stream& s, const GpuStepConstants& c) {
   if (shapesDirty) {
     s.upload(shapeBuf, 0, shapes.data(), shapes.size() * sizeof(GpuShape));
     s.upload(planeBuf, 0, planes.data(), planes.size() * 4);
+    s.upload(ownerBuf, 0, owners.data(), owners.size() * 4);
+    s.upload(hullBuf, 0, hulls.data(), hulls.size() * 4);
+    s.upload(noCollideBuf, 0, noCollide.data(), noCollide.size() * 8);
+  }
+  if (jointsDirty) {
+    s.upload(jointBuf, 0, joints.data(), joints.size() * sizeof(GpuJoint));
+    s.upload(jointOutBuf, 0, jointOut.data(), jointOut.size() * sizeof(GpuJointOut));
+    jointsDirty = false;
   }
   dirtyBodies.clear();
   allBodiesDirty = shapesDirty = false;
@@ -345,9 +429,9 @@ void GpuWorld::Impl::recordBroadPhase(Stream& s, const GpuStepConstants& c) {
   const Buffer* keys[] = {&boundsBuf, &shapeBuf, &keyBuf};
   s.dispatch(*k.bpKeys, keys, &c, groupsFor(c.shapeSortCount));
   k.primitives.sort(s, keyBuf, c.shapeSortCount);
-  const Buffer* sweep[] = {&boundsBuf, &shapeBuf, &paramBuf,   &keyBuf,
-                           &planeBuf,  &countBuf, &pairKeyBuf, &counterBuf};
-  s.dispatch(*k.bpCount, std::span(sweep, 6), &c, groupsFor(c.shapeSortCount));
+  const Buffer* sweep[] = {&boundsBuf, &shapeBuf,   &paramBuf,   &keyBuf,   &planeBuf,
+                           &countBuf,  &pairKeyBuf, &counterBuf, &ownerBuf, &noCollideBuf};
+  s.dispatch(*k.bpCount, sweep, &c, groupsFor(c.shapeSortCount));
   k.primitives.scan(s, countBuf, c.shapeSortCount, scanScratch);
   s.fill(pairKeyBuf, 0xFFFFFFFFu);  // the unused tail sorts last
   s.dispatch(*k.bpWrite, sweep, &c, groupsFor(c.shapeSortCount));
@@ -359,8 +443,8 @@ void GpuWorld::Impl::recordBroadPhase(Stream& s, const GpuStepConstants& c) {
 void GpuWorld::Impl::recordNarrowPhase(Stream& s, const GpuStepConstants& c) {
   Kernels& k = kernels();
   if (!k.narrowPhase) return;
-  const Buffer* b[] = {&stateBuf,  &paramBuf, &shapeBuf, &pairBuf, &manifoldBuf[current],
-                       &counterBuf};
+  const Buffer* b[] = {&stateBuf,   &paramBuf, &shapeBuf, &pairBuf, &manifoldBuf[current],
+                       &counterBuf, &hullBuf};
   s.dispatch(*k.narrowPhase, b, &c, groupsFor(c.pairCapacity));
   const Buffer* match[] = {&manifoldBuf[current ^ 1], &manifoldBuf[current], &counterBuf};
   s.dispatch(*k.matchContacts, match, &c, groupsFor(c.pairCapacity));
@@ -370,7 +454,8 @@ void GpuWorld::Impl::recordNarrowPhase(Stream& s, const GpuStepConstants& c) {
 
 void GpuWorld::Impl::recordPrepareContacts(Stream& s, const GpuSolveConstants& sc) {
   Kernels& k = kernels();
-  const Buffer* keys[] = {&manifoldBuf[current], &shapeBuf, &paramBuf, &refKeyBuf, &counterBuf};
+  const Buffer* keys[] = {&manifoldBuf[current], &shapeBuf, &paramBuf, &refKeyBuf,
+                          &counterBuf,           &jointBuf};
   s.dispatch(*k.csrKeys, keys, &sc, groupsFor(sc.refCount / 2));
   k.primitives.sort(s, refKeyBuf, sc.refCount);
   const Buffer* ranges[] = {&refKeyBuf, &refBuf};
@@ -379,6 +464,15 @@ void GpuWorld::Impl::recordPrepareContacts(Stream& s, const GpuSolveConstants& s
                           &stateBuf,   &shapeBuf,   &manifoldBuf[current],
                           &contactBuf, &counterBuf, &colorBuf[0]};
   s.dispatch(*k.prepareContacts, prep, &sc, groupsFor(pairCapacity));
+  recordPrepareJoints(s, sc, false);
+}
+
+void GpuWorld::Impl::recordPrepareJoints(Stream& s, GpuSolveConstants sc, bool refresh) {
+  if (sc.jointCount == 0) return;
+  sc.refresh = refresh ? 1 : 0;
+  const Buffer* b[] = {&solverBuf, &paramBuf,    &refBuf,      &stateBuf,
+                       &jointBuf,  &jointRowBuf, &jointOutBuf, &colorBuf[0]};
+  s.dispatch(*kernels().prepareJoints, b, &sc, groupsFor(sc.jointCount));
 }
 
 void GpuWorld::Impl::recordColoring(Stream& s, const GpuSolveConstants& sc) {
@@ -386,21 +480,24 @@ void GpuWorld::Impl::recordColoring(Stream& s, const GpuSolveConstants& sc) {
   // Jones-Plassmann rounds, ping-ponging the two color buffers. Contacts still uncolored
   // after them go to the serial overflow, as do colors past the limit.
   constexpr int kRounds = 24;
+  const uint32_t constraints = sc.jointCount + pairCapacity;
   for (int r = 0; r < kRounds; ++r) {
-    const Buffer* b[] = {&refKeyBuf,           &refBuf,    &contactBuf, &paramBuf, &colorBuf[r % 2],
-                         &colorBuf[1 - r % 2], &counterBuf};
-    s.dispatch(*k.colorRound, b, &sc, groupsFor(pairCapacity));
+    const Buffer* b[] = {&refKeyBuf,  &refBuf,          &contactBuf,
+                         &paramBuf,   &colorBuf[r % 2], &colorBuf[1 - r % 2],
+                         &counterBuf, &jointBuf};
+    s.dispatch(*k.colorRound, b, &sc, groupsFor(constraints));
   }
   const Buffer* keys[] = {&colorBuf[kRounds % 2], &colorKeyBuf, &counterBuf};
-  s.dispatch(*k.colorKeys, keys, &sc, groupsFor(pairCapacity));
-  k.primitives.sort(s, colorKeyBuf, pairCapacity);
+  s.dispatch(*k.colorKeys, keys, &sc, groupsFor(sc.refCount / 2));
+  k.primitives.sort(s, colorKeyBuf, sc.refCount / 2);
   const Buffer* ranges[] = {&colorKeyBuf, &rangeBuf, &argsBuf};
   s.dispatch(*k.colorRanges, ranges, &sc, groupsFor(sc.colorLimit + 1));
 }
 
 void GpuWorld::Impl::recordColoredPass(Stream& s, GpuSolveConstants sc, uint32_t mode) {
   sc.mode = mode;
-  const Buffer* b[] = {&solverBuf, &paramBuf, &contactBuf, &colorKeyBuf, &rangeBuf, &refBuf};
+  const Buffer* b[] = {&solverBuf, &paramBuf, &contactBuf, &colorKeyBuf,
+                       &rangeBuf,  &refBuf,   &jointBuf,   &jointRowBuf};
   for (uint32_t color = 0; color <= sc.colorLimit; ++color) {
     sc.color = color;
     s.dispatchIndirect(*kernels().contactGs, b, &sc, argsBuf, VkDeviceSize(color) * 12);
@@ -409,6 +506,12 @@ void GpuWorld::Impl::recordColoredPass(Stream& s, GpuSolveConstants sc, uint32_t
 
 void GpuWorld::Impl::recordContactPass(Stream& s, const Kernel& kernel,
                                        const GpuSolveConstants& sc) {
+  // The joints' part of the pass first (their deltas; none at restitution), then the
+  // contacts', then every body's average.
+  if (sc.jointCount > 0) {
+    const Buffer* joint[] = {&solverBuf, &paramBuf, &refBuf, &jointBuf, &jointRowBuf, &deltaBuf};
+    s.dispatch(*kernels().jointJacobi, joint, &sc, groupsFor(sc.jointCount));
+  }
   const Buffer* pass[] = {&solverBuf, &paramBuf, &contactBuf, &deltaBuf, &counterBuf, &refBuf};
   s.dispatch(kernel, pass, &sc, groupsFor(pairCapacity));
   const Buffer* apply[] = {&solverBuf, &deltaBuf, &refKeyBuf, &refBuf};
@@ -432,13 +535,17 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
     c.shapeCount = m;
     c.pairCapacity = w.pairCapacity;
     c.planeCount = uint32_t(w.planes.size());
+    c.noCollideCount = uint32_t(w.noCollide.size());
     c.shapeSortCount = Primitives::pow2(m);
     const bool solve = in.solveContacts && k.narrowPhase != nullptr;
     const bool jacobi = in.contacts.jacobi;
     c.patchFriction = in.contacts.patchFriction ? 1 : 0;
     GpuSolveConstants sc = solveConstants(in.contacts, c.h, n, w.pairCapacity);
     sc.colorLimit = w.colorLimit;
+    sc.jointCount = uint32_t(w.joints.size());
+    sc.refCount = 2 * Primitives::pow2(sc.jointCount + w.pairCapacity);
     std::vector<GpuBodyState> result(n);
+    std::vector<GpuJointOut> jointResults(w.joints.size());
     try {
       s.begin();
       w.sync(s, c);
@@ -462,6 +569,7 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
       auto pass = [&](const Kernel& jacobiKernel, uint32_t mode, bool useBias) {
         GpuSolveConstants p = sc;
         p.useBias = useBias ? 1 : 0;
+        p.mode = mode;
         if (jacobi)
           w.recordContactPass(s, jacobiKernel, p);
         else
@@ -471,6 +579,10 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
       for (int sub = 0; sub < substeps; ++sub) {
         s.dispatch(*k.integrateVelocities, integrate, &c, groupsFor(n));
         s.mark(int(Stage::IntegrateVelocities));
+        if (solve && sub > 0 && sc.jointCount > 0) {
+          w.recordPrepareJoints(s, sc, true);
+          s.mark(int(Stage::Prepare));
+        }
         if (solve) {
           pass(*k.contactWarmStart, PHYS_GPU_PASS_WARM_START, true);
           s.mark(int(Stage::WarmStart));
@@ -494,6 +606,13 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
         if (in.contacts.positionIterations > 0) {
           for (int it = 0; it < in.contacts.positionIterations; ++it) {
             if (jacobi) {
+              GpuSolveConstants pp = sc;
+              pp.mode = PHYS_GPU_PASS_POSITION;
+              if (sc.jointCount > 0) {
+                const Buffer* joint[] = {&w.solverBuf, &w.paramBuf,    &w.refBuf,
+                                         &w.jointBuf,  &w.jointRowBuf, &w.deltaBuf};
+                s.dispatch(*k.jointJacobi, joint, &pp, groupsFor(sc.jointCount));
+              }
               const Buffer* b[] = {&w.solverBuf, &w.paramBuf,   &w.contactBuf,
                                    &w.deltaBuf,  &w.counterBuf, &w.refBuf};
               s.dispatch(*k.positionJacobi, b, &sc, groupsFor(w.pairCapacity));
@@ -504,6 +623,10 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
             }
           }
           s.mark(int(Stage::PositionPass));
+        }
+        if (sc.jointCount > 0) {
+          const Buffer* joints[] = {&w.jointRowBuf, &w.jointOutBuf};
+          s.dispatch(*k.storeJoints, joints, &sc, groupsFor(sc.jointCount));
         }
         const Buffer* store[] = {&w.contactBuf, &w.manifoldBuf[w.current], &w.counterBuf};
         s.dispatch(*k.storeImpulses, store, &c, groupsFor(w.pairCapacity));
@@ -519,6 +642,9 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
         w.bounds.resize(m);
         s.download(w.boundsBuf, 0, w.bounds.data(), m * sizeof(GpuAabb));
       }
+      if (solve && !w.joints.empty())
+        s.download(w.jointOutBuf, 0, jointResults.data(),
+                   jointResults.size() * sizeof(GpuJointOut));
       if (in.readContacts) {
         w.pairs.resize(w.pairCapacity);
         w.manifolds.resize(w.pairCapacity);
@@ -528,12 +654,13 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
       }
       s.mark(int(Stage::Readback));
       if (!s.submit(error)) {
-        w.allBodiesDirty = w.shapesDirty = true;  // what went up is not to be trusted
+        // What went up is not to be trusted.
+        w.allBodiesDirty = w.shapesDirty = w.jointsDirty = true;
         return false;
       }
     } catch (const std::exception& e) {
       if (error) *error = e.what();
-      w.allBodiesDirty = w.shapesDirty = true;
+      w.allBodiesDirty = w.shapesDirty = w.jointsDirty = true;
       return false;
     }
     const uint32_t found =
@@ -542,7 +669,7 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
       // More pairs than the buffers hold: grow them and take the step again from the
       // states before it (the host mirror), which all go up again.
       w.pairCapacity = Primitives::pow2(found + found / 2);
-      w.allBodiesDirty = w.shapesDirty = true;
+      w.allBodiesDirty = w.shapesDirty = w.jointsDirty = true;
       continue;
     }
     if (in.readContacts) {
@@ -555,6 +682,7 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
     // Room to grow without a retry next time; shrink when far too large.
     if (found * 3 > w.pairCapacity * 2) w.pairCapacity = Primitives::pow2(found * 2);
     w.states.swap(result);
+    if (solve && !w.joints.empty()) w.jointOut.swap(jointResults);
     w.current ^= 1;
     break;
   }

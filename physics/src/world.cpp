@@ -670,6 +670,7 @@ Status World::createJoint(const JointDef& in, JointId* out) {
   B->joints.push_back(id);
   if (!def.collideConnected && A)
     w.noCollide.insert(Impl::bodyPairKey(def.bodyA.index, def.bodyB.index));
+  w.deviceStale();
   if (out) *out = id;
   return Status::Ok();
 }
@@ -686,6 +687,7 @@ Status World::destroyJoint(JointId id) {
   }
   w.joints.remove(id);
   w.rebuildNoCollide();
+  w.deviceStale();
   return Status::Ok();
 }
 
@@ -700,6 +702,7 @@ Status World::setMotor(JointId id, bool enable, float speed, float maxForce) {
   j->def.enableMotor = enable;
   j->def.motorSpeed = speed;
   j->def.maxMotorForce = maxForce;
+  impl_->deviceStale();
   return Status::Ok();
 }
 

@@ -11,12 +11,17 @@
 // host mirror, counted in BackendState::cpuSteps with the reason (the CPU's broad phase
 // tells whether it has contacts); the device's copy is refreshed before its next step.
 #include <algorithm>
+#include <bit>
 #include <cstdio>
+#include <cstring>
+#include <unordered_map>
 
+#include "joints.h"
 #include "world_impl.h"
 
 #ifdef PHYS_WITH_GPU
 #include "phys/gpu/gpu_world.h"
+#include "phys/gpu/hull_pack.h"
 #endif
 
 namespace phys {
@@ -66,10 +71,13 @@ bool World::Impl::stepOnDevice(int) {
 
 struct DeviceWorld {
   std::unique_ptr<gpu::GpuWorld> world;
-  bool hulls = false;            ///< a hull shape is in the world
-  std::vector<uint32_t> slots;   ///< device body index -> body slot
-  std::vector<uint32_t> edited;  ///< body slots edited since the last upload
-  bool stale = true;             ///< bodies or shapes changed: upload everything
+  bool hulls = false;                ///< a hull the device cannot take (hull_pack.h's limits)
+  bool staticB = false;              ///< a joint's body B is static (not on the device yet)
+  std::vector<uint32_t> jointSlots;  ///< device joint index -> joint slot
+  std::vector<float> stiffness;      ///< body slot -> joints' geometric stiffness this step
+  std::vector<uint32_t> slots;       ///< device body index -> body slot
+  std::vector<uint32_t> edited;      ///< body slots edited since the last upload
+  bool stale = true;                 ///< bodies or shapes changed: upload everything
 };
 
 void DeviceWorldDeleter::operator()(DeviceWorld* d) const {
@@ -89,7 +97,7 @@ gpu::GpuBodyState stateOf(const BodyRec& b) {
   return {v4(b.com), q4(b.xf.q), v4(b.v), v4(b.w)};
 }
 
-gpu::GpuBodyParams paramsOf(const BodyRec& b, Vec3 gravity) {
+gpu::GpuBodyParams paramsOf(const BodyRec& b, Vec3 gravity, float stiffness) {
   gpu::GpuBodyParams p;
   const bool dynamic = b.type == BodyType::Dynamic;
   p.accel = v4(dynamic ? gravity * b.gravityScale + b.force * b.invMass : Vec3{}, b.invMass);
@@ -97,7 +105,7 @@ gpu::GpuBodyParams paramsOf(const BodyRec& b, Vec3 gravity) {
   p.principal = q4(b.principal);
   p.moments = v4(b.principalMoments, b.angularDamping);
   for (int r = 0; r < 3; ++r) p.invInertia[r] = v4(b.invInertiaLocal.row(r));
-  p.localCenter = v4(b.localCenter);
+  p.localCenter = v4(b.localCenter, dynamic ? stiffness : 0.0f);
   // The same rule as Solver bodies (buildSolverBodies): equal moments need no splitting.
   const Vec3 I = b.principalMoments;
   const float spread = std::max({I.x, I.y, I.z}) - std::min({I.x, I.y, I.z});
@@ -107,7 +115,45 @@ gpu::GpuBodyParams paramsOf(const BodyRec& b, Vec3 gravity) {
   return p;
 }
 
-gpu::GpuShape shapeOf(const ShapeRec& s, const BodyRec& b, const Transform& world) {
+gpu::GpuJoint jointOf(const JointRec& j, const BodyRec* A, const BodyRec& B) {
+  const JointDef& d = j.def;
+  gpu::GpuJoint g;
+  g.type = uint32_t(d.type);
+  g.flags =
+      (d.enableLimit ? PHYS_GPU_JOINT_LIMIT : 0u) | (d.enableMotor ? PHYS_GPU_JOINT_MOTOR : 0u);
+  g.qA = {0, 0, 0, 1};
+  if (A && A->deviceIndex >= 0) {
+    g.bodyA = A->deviceIndex;
+    g.anchorA = v4(d.anchorA - A->localCenter, j.length);
+  } else {
+    // The world, or a static body: its anchor and orientation in the world (jointFrame).
+    g.bodyA = -1;
+    g.anchorA = v4(A ? apply(A->xf, d.anchorA) : d.anchorA, j.length);
+    if (A) g.qA = q4(A->xf.q);
+  }
+  g.bodyB = B.deviceIndex;
+  g.anchorB = v4(d.anchorB - B.localCenter, d.lower);
+  g.axisA = v4(normalize(d.axisA), d.upper);
+  g.axisB = v4(normalize(d.axisB), d.motorSpeed);
+  g.relRot0 = q4(j.relRot0);
+  g.refA = v4(j.refA, d.maxMotorForce);
+  g.refB = v4(j.refB, d.springHertz);
+  const bool rigid = !d.enableLimit && d.springHertz <= 0;
+  g.spring = {d.springDampingRatio, rigid ? 1.0f : 0.0f, 0, 0};
+  return g;
+}
+
+gpu::GpuJointOut jointImpulses(const JointRec& j) {
+  gpu::GpuJointOut o;
+  for (int k = 0; k < j.impulseCount && k < JointRec::kMaxRows; ++k)
+    (k < 4 ? (&o.impulses[0].x)[k] : (&o.impulses[1].x)[k - 4]) = j.impulses[k];
+  const uint32_t count = uint32_t(j.impulseCount);
+  std::memcpy(&o.force.w, &count, 4);
+  return o;
+}
+
+gpu::GpuShape shapeOf(const ShapeRec& s, const BodyRec& b, const Transform& world,
+                      uint32_t hullOffset) {
   gpu::GpuShape g;
   const bool fixed = b.type == BodyType::Static;
   const Transform& xf = fixed ? world : s.def.local;
@@ -135,7 +181,14 @@ gpu::GpuShape shapeOf(const ShapeRec& s, const BodyRec& b, const Transform& worl
       break;
     }
     case ShapeType::Hull:
-      g.size = {};
+      // The record's offset as float bits (no arithmetic on it); a static hull's bound is a
+      // sphere about the shape's position: its farthest vertex.
+      g.size = {std::bit_cast<float>(hullOffset), 0, 0, 0};
+      if (fixed && geom.hull) {
+        float r = 0;
+        for (const Vec3& v : geom.hull->vertices) r = std::max(r, length(v));
+        g.localP.w = r;
+      }
       break;
   }
   return g;
@@ -181,7 +234,7 @@ void World::Impl::deviceStale() {
 /// Why the device cannot solve this world's contacts (empty: it can).
 static std::string contactsOffDevice(const SolverSettings& s, bool hulls, bool narrowPhase) {
   if (!narrowPhase) return "this build has no narrow phase on the GPU";
-  if (hulls) return "hull shapes are not on the GPU backend yet";
+  if (hulls) return "a hull shape is beyond the GPU backend's hull limits (hull_pack.h)";
   // The device pairs the position pass's form with the scheme (as the presets do).
   const bool jacobi = s.scheme == SolverSettings::Scheme::Jacobi;
   if (s.positionIterations > 0 &&
@@ -206,6 +259,8 @@ static gpu::ContactSettings contactSettings(const SolverSettings& s) {
   c.soft = s.stabilization == SolverSettings::Stabilization::Soft;
   c.contactHertz = s.contactHertz;
   c.contactDampingRatio = s.contactDampingRatio;
+  c.jointHertz = s.jointHertz;
+  c.jointDampingRatio = s.jointDampingRatio;
   c.baumgarte = s.baumgarte;
   c.linearSlop = s.linearSlop;
   c.maxPushout = s.maxPushout;
@@ -224,6 +279,30 @@ static gpu::ContactSettings contactSettings(const SolverSettings& s) {
 bool World::Impl::stepOnDevice(int substeps) {
   DeviceWorld& d = *device;
   const float dt = def.timeStep;
+  // Joints' geometric stiffness from last step's forces (addGeometricStiffness): it goes up
+  // in the bodies' parameters, so a body that has or had some goes up again.
+  if (def.solver.geometricStiffness && joints.size() > 0) {
+    std::vector<float> k(bodies.capacity(), 0.0f);
+    for (uint32_t i = 0; i < joints.capacity(); ++i) {
+      if (!joints.alive(i)) continue;
+      const JointRec& j = joints.at(i);
+      const float f = length(j.state.reactionForce);
+      if (!(f > 0)) continue;
+      const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
+      const BodyRec& B = *bodies.get(j.def.bodyB);
+      BodyPose pa = A ? poseOf(*A) : BodyPose{}, pb = poseOf(B);
+      JointFrame fr = jointFrame(j, A ? &pa : nullptr, pb);
+      if (A && A->type == BodyType::Dynamic) k[j.def.bodyA.index] += f * length(fr.rA);
+      if (B.type == BodyType::Dynamic) k[j.def.bodyB.index] += f * length(fr.rB);
+    }
+    for (uint32_t i = 0; i < k.size(); ++i)
+      if (k[i] > 0 || (i < d.stiffness.size() && d.stiffness[i] > 0)) d.edited.push_back(i);
+    d.stiffness.swap(k);
+  } else if (!d.stiffness.empty()) {
+    for (uint32_t i = 0; i < d.stiffness.size(); ++i)
+      if (d.stiffness[i] > 0) d.edited.push_back(i);
+    d.stiffness.clear();
+  }
   gpu::GpuWorld& g = *d.world;
   if (d.stale) {
     d.slots.clear();
@@ -237,25 +316,62 @@ bool World::Impl::stepOnDevice(int substeps) {
       b.deviceIndex = int32_t(d.slots.size());
       d.slots.push_back(i);
       states.push_back(stateOf(b));
-      params.push_back(paramsOf(b, def.gravity));
+      params.push_back(paramsOf(b, def.gravity, d.stiffness.empty() ? 0.0f : d.stiffness[i]));
     }
     g.setBodies(states, params);
     std::vector<gpu::GpuShape> shapeRecs;
+    std::vector<uint32_t> owners;
+    std::vector<uint32_t> hullWords(4, 0);  // no record at offset 0
+    std::unordered_map<const ConvexHull*, uint32_t> packed;
     d.hulls = false;
     for (uint32_t i = 0; i < shapes.capacity(); ++i) {
       if (!shapes.alive(i)) continue;
       const ShapeRec& s = shapes.at(i);
-      d.hulls |= s.def.geom.type == ShapeType::Hull;
+      uint32_t hull = gpu::kNoHull;
+      if (s.def.geom.type == ShapeType::Hull && s.def.geom.hull) {
+        const ConvexHull* h = s.def.geom.hull.get();
+        auto it = packed.find(h);
+        if (it == packed.end()) {
+          std::string error;
+          it = packed.emplace(h, gpu::packHull(gpu::hullInputOf(*h), &hullWords, &error)).first;
+          d.hulls |= it->second == gpu::kNoHull;  // unusable on the device: the CPU takes it
+        }
+        hull = it->second;
+      }
       const BodyRec& b = *bodies.get(s.body);
-      shapeRecs.push_back(shapeOf(s, b, shapeTransform(b, s)));
+      shapeRecs.push_back(shapeOf(s, b, shapeTransform(b, s), hull));
+      owners.push_back(s.body.index);
     }
-    g.setShapes(shapeRecs);
+    g.setShapes(shapeRecs, owners);
+    g.setHulls(std::move(hullWords));
+    std::vector<std::pair<uint32_t, uint32_t> > apart;
+    for (uint64_t key : noCollide) apart.push_back({uint32_t(key >> 32), uint32_t(key)});
+    g.setNoCollide(std::move(apart));
+    std::vector<gpu::GpuJoint> jointRecs;
+    std::vector<gpu::GpuJointOut> jointWarm;
+    d.jointSlots.clear();
+    d.staticB = false;
+    for (uint32_t i = 0; i < joints.capacity(); ++i) {
+      if (!joints.alive(i)) continue;
+      const JointRec& j = joints.at(i);
+      const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
+      const BodyRec& B = *bodies.get(j.def.bodyB);
+      if (B.deviceIndex < 0) {
+        d.staticB = true;
+        continue;
+      }
+      d.jointSlots.push_back(i);
+      jointRecs.push_back(jointOf(j, A, B));
+      jointWarm.push_back(jointImpulses(j));
+    }
+    g.setJoints(jointRecs, jointWarm);
   } else {
     for (uint32_t slot : d.edited) {
       if (!bodies.alive(slot)) continue;
       const BodyRec& b = bodies.at(slot);
       if (b.deviceIndex >= 0)
-        g.setBody(uint32_t(b.deviceIndex), stateOf(b), paramsOf(b, def.gravity));
+        g.setBody(uint32_t(b.deviceIndex), stateOf(b),
+                  paramsOf(b, def.gravity, d.stiffness.empty() ? 0.0f : d.stiffness[slot]));
     }
   }
   d.edited.clear();
@@ -263,9 +379,10 @@ bool World::Impl::stepOnDevice(int substeps) {
 
   // A world whose contacts or joints the device cannot solve yet steps on the device only
   // while it has none (the CPU's broad phase tells).
-  std::string why = joints.size() > 0
-                        ? std::string("joints are not on the GPU backend yet")
-                        : contactsOffDevice(def.solver, d.hulls, d.world->hasNarrowPhase());
+  std::string why = d.staticB ? std::string(
+                                    "a joint on a static body B is not on the GPU "
+                                    "backend yet")
+                              : contactsOffDevice(def.solver, d.hulls, d.world->hasNarrowPhase());
   const bool solveOnDevice = why.empty();
   if (!solveOnDevice && joints.size() == 0) {
     updateBounds(dt);
@@ -308,6 +425,21 @@ bool World::Impl::stepOnDevice(int substeps) {
     }
   }
 
+  // Joints: impulses (next step's warm start on either backend, snapshots), reactions, and
+  // their errors at the new poses.
+  std::span<const gpu::GpuJointOut> jout = g.jointResults();
+  for (size_t k = 0; k < d.jointSlots.size() && k < jout.size(); ++k) {
+    JointRec& j = joints.at(d.jointSlots[k]);
+    uint32_t count;
+    std::memcpy(&count, &jout[k].force.w, 4);
+    j.impulseCount = int32_t(std::min<uint32_t>(count, JointRec::kMaxRows));
+    for (int r = 0; r < j.impulseCount; ++r)
+      j.impulses[r] = r < 4 ? (&jout[k].impulses[0].x)[r] : (&jout[k].impulses[1].x)[r - 4];
+    j.state.reactionForce = {jout[k].force.x, jout[k].force.y, jout[k].force.z};
+    j.state.reactionTorque = {jout[k].torque.x, jout[k].torque.y, jout[k].torque.z};
+  }
+  if (!d.jointSlots.empty()) measureJoints();
+
   std::span<const double> ms = g.stageMs();
   auto stage = [&](gpu::Stage s) { return ms[size_t(s)]; };
   profile.syncToDevice = stage(gpu::Stage::SyncToDevice);
@@ -331,7 +463,7 @@ bool World::Impl::stepOnDevice(int substeps) {
   stats.pairs = int(cs.pairs);
   stats.contacts = int(cs.manifolds);
   stats.contactPoints = int(cs.points);
-  stats.joints = 0;
+  stats.joints = int(d.jointSlots.size());
   stats.maxPenetration = cs.deepest;
   stats.velocityResidual = 0;
   stats.iterationsUsed = 0;

@@ -186,9 +186,13 @@ Offset<wire::SolverSettings> writeSolver(Fbb& fbb, const SolverOverrides& s) {
 Offset<wire::WorldSummary> writeWorldSummary(Fbb& fbb, const WorldSummary& w) {
   auto name = optString(fbb, w.name);
   auto preset = optString(fbb, w.preset);
+  auto backend = optString(fbb, w.backend);
+  auto device = optString(fbb, w.device);
+  auto note = optString(fbb, w.backendNote);
   return wire::CreateWorldSummary(fbb, w.world, name, preset, w.bodies, w.joints, w.tick, w.time,
                                   w.running, w.rateHz, w.tickMs, w.tickMsMax, w.overruns,
-                                  w.subscribers, w.frames);
+                                  w.subscribers, w.frames, backend, device, note, w.gpuSteps,
+                                  w.cpuSteps);
 }
 
 Offset<wire::LimitsInfo> writeLimits(Fbb& fbb, const Limits& l) {
@@ -269,9 +273,11 @@ CommandBuilder& CommandBuilder::hello(std::string_view clientName, uint16_t vers
 CommandBuilder& CommandBuilder::createWorld(const CreateWorldArgs& args) {
   auto name = optString(fbb_, args.name);
   auto preset = optString(fbb_, args.preset);
+  auto backend = optString(fbb_, args.backend);
   wire::Vec3 g = toWire(args.gravity.value_or(phys::Vec3{}));
   return add(wire::Request::CreateWorld,
-             wire::CreateCreateWorld(fbb_, name, preset, args.gravity ? &g : nullptr, args.timeStep)
+             wire::CreateCreateWorld(fbb_, name, preset, args.gravity ? &g : nullptr, args.timeStep,
+                                     backend)
                  .Union());
 }
 

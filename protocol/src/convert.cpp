@@ -176,6 +176,31 @@ void applySolverSettings(const wire::SolverSettings& in, phys::SolverSettings* o
   applyOverrides(toOverrides(in), out);
 }
 
+WorldSummary toWorldSummary(const wire::WorldSummary& in) {
+  auto str = [](const flatbuffers::String* s) { return s ? s->str() : std::string(); };
+  WorldSummary s;
+  s.world = in.world();
+  s.name = str(in.name());
+  s.preset = str(in.preset());
+  s.bodies = in.bodies();
+  s.joints = in.joints();
+  s.tick = in.tick();
+  s.time = in.time();
+  s.running = in.running();
+  s.rateHz = in.rate_hz();
+  s.tickMs = in.tick_ms();
+  s.tickMsMax = in.tick_ms_max();
+  s.overruns = in.overruns();
+  s.subscribers = in.subscribers();
+  s.frames = in.frames();
+  s.backend = str(in.backend());
+  s.device = str(in.device());
+  s.backendNote = str(in.backend_note());
+  s.gpuSteps = in.gpu_steps();
+  s.cpuSteps = in.cpu_steps();
+  return s;
+}
+
 Status toSnapshotData(const wire::Snapshot& in, SnapshotData* out) {
   SnapshotData s;
   if (in.name()) s.name = in.name()->str();

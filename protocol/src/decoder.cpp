@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "flatbuffers/flatbuffers.h"
+#include "phys/world.h"
 
 namespace phys::protocol {
 
@@ -245,6 +246,15 @@ class Checker {
       }
     }
     return true;
+  }
+  /// A world backend: absent or empty (the server's default), "cpu", "gpu" or "auto".
+  bool backend(const flatbuffers::String* s, std::string_view f) {
+    if (!text(s, lim.maxFileNameBytes, f, false)) return false;
+    phys::Backend b;
+    if (!s || s->size() == 0 || phys::parseBackend(s->str(), &b)) return true;
+    return invalid(f,
+                   "must be \"cpu\", \"gpu\" or \"auto\" (or empty: the server's default), got \"" +
+                       s->str() + "\"");
   }
   /// A server-side file, scene or preset name: [A-Za-z0-9._-], not starting with '.'.
   bool fileName(const flatbuffers::String* s, std::string_view f, bool required) {
@@ -569,7 +579,9 @@ bool Checker::request(wire::Request type, const void* table) {
       if (!text(r->name(), lim.maxNameBytes, "name", true) ||
           !fileName(r->preset(), "preset", false) || !vec(r->gravity(), lim.maxGravity, "gravity"))
         return false;
-      return r->time_step() == 0 || positive(r->time_step(), lim.maxTimeStep, "time_step");
+      if (r->time_step() != 0 && !positive(r->time_step(), lim.maxTimeStep, "time_step"))
+        return false;
+      return backend(r->backend(), "backend");
     }
     case wire::Request::DestroyWorld:
     case wire::Request::ResetWorld:

@@ -527,6 +527,16 @@ Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey) {
         return finish();
       }
       phys::WorldDef def;
+      def.backend = config_.backend;
+      if (r->backend() && r->backend()->size() &&
+          !phys::parseBackend(r->backend()->str(), &def.backend)) {
+        // The codec rejects it first; checked again for commands applied without it.
+        st = err(Code::InvalidArgument,
+                 "create_world.backend must be \"cpu\", \"gpu\" or \"auto\" (or empty: the "
+                 "server's default), got \"" +
+                     r->backend()->str() + "\"");
+        return finish();
+      }
       def.solver = it->second.settings;
       if (r->gravity()) def.gravity = protocol::toPhys(*r->gravity());
       if (r->time_step() > 0) def.timeStep = r->time_step();
@@ -587,6 +597,9 @@ Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey) {
       }
       phys::WorldDef def = scene.world;
       def.threads = config_.threads;
+      def.gpuAllowCpuDevice = config_.gpuAllowCpuDevice;
+      // A scene that asks for the GPU (or auto) gets it; else the world keeps its setting.
+      if (def.backend == phys::Backend::Cpu) def.backend = sw->world->def().backend;
       auto fresh = std::make_unique<phys::World>(def);
       std::vector<phys::BodyId> bodyIds;
       std::vector<phys::JointId> jointIds;

@@ -57,6 +57,22 @@ Status get(const toml::table& t, const char* key, const std::string& where, T* o
   return Status::Error(Code::InvalidArgument, where + "." + key + " has the wrong type or range");
 }
 
+/// A backend name ("cpu", "gpu", "auto") at where.key, if the key is there.
+Status getBackend(const toml::table& t, const std::string& where, std::string* text,
+                  phys::Backend* out) {
+  std::string v;
+  Status s = get(t, "backend", where, &v);
+  if (!s.ok() || !t.get("backend")) return s;
+  phys::Backend b;
+  if (!phys::parseBackend(v, &b))
+    return Status::Error(
+        Code::InvalidArgument,
+        where + ".backend must be \"cpu\", \"gpu\" or \"auto\", got \"" + v + "\"");
+  if (text) *text = v;
+  if (out) *out = b;
+  return Status::Ok();
+}
+
 #define PHYS_GET(t, key, where, out)     \
   do {                                   \
     Status s_ = get(t, key, where, out); \
@@ -78,11 +94,11 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
   Status s = checkKeys(root, {"server", "dds", "paths", "limits", "worlds"}, "physd config");
   if (!s.ok()) return s;
   if (auto* t = root["server"].as_table()) {
-    s = checkKeys(
-        *t,
-        {"name", "id", "log_level", "threads", "default_rate_hz", "max_catch_up_steps",
-         "status_period_s", "bodies_per_chunk", "frame_ring", "max_worlds", "realtime_priority"},
-        "server");
+    s = checkKeys(*t,
+                  {"name", "id", "log_level", "threads", "default_rate_hz", "max_catch_up_steps",
+                   "status_period_s", "bodies_per_chunk", "frame_ring", "max_worlds",
+                   "realtime_priority", "backend", "gpu_allow_cpu_device"},
+                  "server");
     if (!s.ok()) return s;
     PHYS_GET(*t, "name", "server", &c.core.serverName);
     PHYS_GET(*t, "id", "server", &c.core.serverId);
@@ -95,6 +111,9 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     PHYS_GET(*t, "frame_ring", "server", &c.core.frameRingCapacity);
     PHYS_GET(*t, "max_worlds", "server", &c.core.maxWorlds);
     PHYS_GET(*t, "realtime_priority", "server", &c.realtimePriority);
+    s = getBackend(*t, "server", nullptr, &c.core.backend);
+    if (!s.ok()) return s;
+    PHYS_GET(*t, "gpu_allow_cpu_device", "server", &c.core.gpuAllowCpuDevice);
   }
   if (auto* t = root["dds"].as_table()) {
     s = checkKeys(*t, {"domain", "config"}, "dds");
@@ -134,7 +153,7 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
       const toml::table* t = arr->get(i)->as_table();
       const std::string where = "worlds[" + std::to_string(i) + "]";
       if (!t) return Status::Error(Code::InvalidArgument, where + " must be a table");
-      s = checkKeys(*t, {"name", "scene", "preset", "run", "rate_hz"}, where);
+      s = checkKeys(*t, {"name", "scene", "preset", "run", "rate_hz", "backend"}, where);
       if (!s.ok()) return s;
       StartupWorld w;
       PHYS_GET(*t, "name", where, &w.name);
@@ -142,6 +161,8 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
       PHYS_GET(*t, "preset", where, &w.preset);
       PHYS_GET(*t, "run", where, &w.run);
       PHYS_GET(*t, "rate_hz", where, &w.rateHz);
+      s = getBackend(*t, where, &w.backend, nullptr);
+      if (!s.ok()) return s;
       if (w.name.empty()) return Status::Error(Code::InvalidArgument, where + ".name is required");
       c.worlds.push_back(std::move(w));
     }

@@ -38,18 +38,20 @@ std::unique_ptr<ServerWorld> ServerCore::makeWorld(const std::string& name,
   w->preset = preset;
   phys::WorldDef d = def;
   d.threads = config_.threads;
+  d.gpuAllowCpuDevice = config_.gpuAllowCpuDevice;
   w->world = std::make_unique<phys::World>(d);
   w->rateHz = config_.defaultRateHz;
   return w;
 }
 
 Status ServerCore::createWorld(const std::string& name, const std::string& preset,
-                               const std::string& scene, uint32_t* id) {
+                               const std::string& scene, uint32_t* id, const std::string& backend) {
   const CoreCounters saved = counters_;  // start-up worlds are not client commands
   protocol::CommandBuilder b;
   protocol::CreateWorldArgs args;
   args.name = name;
   args.preset = preset;
+  args.backend = backend;
   Bytes reply =
       applyBytes(b.createWorld(args).finish({config_.serverId, 0, 0}), config_.serverId, 0);
   auto d = protocol::decodeReply(std::move(reply), config_.limits);
@@ -314,6 +316,13 @@ std::vector<protocol::WorldSummary> ServerCore::summaries() const {
     s.tickMsMax = w->tickMsMax;
     s.overruns = w->overruns;
     s.frames = w->framesProduced;
+    const phys::BackendState& b = w->world->backendState();
+    s.backend = phys::toString(b.active);
+    if (b.active == phys::Backend::Gpu) s.device = b.device;
+    // Why the CPU runs it, or (a GPU world) why its last CPU-taken step was not on the device.
+    s.backendNote = b.note.empty() && b.cpuSteps > 0 ? b.lastFallback : b.note;
+    s.gpuSteps = b.gpuSteps;
+    s.cpuSteps = b.cpuSteps;
     auto it = subscribers_.find(id);
     s.subscribers = it == subscribers_.end() ? 0 : it->second;
     out.push_back(std::move(s));

@@ -193,6 +193,12 @@ TEST(ClientSdk, RoundTripOfEveryCommand) {
   auto running = c.listWorlds().get();
   ASSERT_EQ(running.size(), 1u);
   EXPECT_FALSE(running[0].running);
+  // Where it runs: the server's default backend (cpu), every step on the CPU.
+  EXPECT_EQ(running[0].backend, "cpu");
+  EXPECT_TRUE(running[0].device.empty());
+  EXPECT_TRUE(running[0].backendNote.empty()) << running[0].backendNote;
+  EXPECT_GT(running[0].cpuSteps, 0u);
+  EXPECT_EQ(running[0].gpuSteps, 0u);
 
   w.removeJoints(joints).get();
   w.removeBodies(std::span(&b, 1)).get();
@@ -227,6 +233,14 @@ TEST(ClientSdk, ErrorRepliesAreTypedErrors) {
             }),
             ErrorCode::InvalidArgument);
   EXPECT_EQ(codeOf([&] { w.loadScene("no_such_scene").get(); }), ErrorCode::NotFound);
+  try {
+    c.createWorld({"warp", "", std::nullopt, 0, "warp"}).get();
+    FAIL() << "no error";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.code(), ErrorCode::InvalidArgument);
+    EXPECT_NE(e.message().find("create_world.backend must be"), std::string::npos) << e.message();
+  }
+  EXPECT_EQ(c.listWorlds().get().size(), 1u);  // no world "warp"
   try {
     w.applyForce(ids[1], {0, std::numeric_limits<float>::infinity(), 0}).get();
     FAIL() << "no error";

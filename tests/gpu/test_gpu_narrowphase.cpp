@@ -1,9 +1,9 @@
 // The GPU narrow phase (gpu_solver/shaders/narrow_phase.comp) against the CPU's phys::collide,
 // run through the device layer on seeded random configurations of every pair of spheres,
-// boxes, capsules and planes, in both orders, on static and moving bodies, with centres of
-// mass off the body origin and shapes off their body frame. The two must find the same points
-// with the same feature ids (warm starting matches points across steps by id), and agree on
-// normals, positions and separations to about 1e-4.
+// boxes, capsules, planes and convex hulls (packed by phys/gpu/hull_pack.h), in both orders, on
+// static and moving bodies, with centres of mass off the body origin and shapes off their body
+// frame. The two must find the same points with the same feature ids (warm starting matches points
+// across steps by id), and agree on normals, positions and separations to about 1e-4.
 //
 // A configuration within a rounding error of a decision (two SAT axes within the tolerance, a
 // point at the margin, a vertex at a clip plane's slop) may go either way on either side; such
@@ -12,14 +12,17 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <map>
 #include <memory>
 #include <random>
 #include <string>
 #include <vector>
 
+#include "phys/gpu/hull_pack.h"
 #include "phys/gpu/shared.h"
 #include "phys/shapes.h"
 #include "shader_table.h"
@@ -106,6 +109,12 @@ float extent(const ShapeGeom& g) {
       return length(g.halfExtents);
     case ShapeType::Capsule:
       return g.radius + g.halfHeight;
+    case ShapeType::Hull: {
+      float r = 0;
+      if (g.hull)
+        for (const Vec3& v : g.hull->vertices) r = std::max(r, length(v));
+      return r;
+    }
     default:
       return 0;
   }
@@ -165,6 +174,84 @@ Vec3 randomHalfExtents(Rng& rng, float lo = 0.1f, float hi = 1.0f) {
   return {rng.uniform(lo, hi), rng.uniform(lo, hi), rng.uniform(lo, hi)};
 }
 
+using HullPtr = std::shared_ptr<const ConvexHull>;
+
+HullPtr hullOf(const std::vector<Vec3>& points) {
+  std::string error;
+  HullPtr h = buildConvexHull(points, &error);
+  EXPECT_NE(h, nullptr) << error;
+  return h;
+}
+
+/// The convex hull of 4 to 30 random points (in a box, on an ellipsoid, or a box's corners
+/// with points on its faces, which merge into polygons), off the shape's origin.
+HullPtr randomHull(Rng& rng) {
+  for (;;) {
+    const int n = 4 + rng.below(27);
+    const Vec3 s = randomHalfExtents(rng, 0.15f, 0.8f);
+    const Vec3 shift = rng.box(0.2f);
+    std::vector<Vec3> points;
+    const int kind = rng.below(3);
+    for (int i = 0; i < n; ++i) {
+      Vec3 p;
+      if (kind == 0) {
+        p = rng.box(s);
+      } else if (kind == 1) {
+        p = mulComponents(rng.direction(), s);
+      } else if (i < 8) {
+        p = {i & 1 ? s.x : -s.x, i & 2 ? s.y : -s.y, i & 4 ? s.z : -s.z};
+      } else {
+        p = rng.box(s);
+        int axis = rng.below(3);
+        p[axis] = rng.chance(0.5f) ? s[axis] : -s[axis];
+      }
+      points.push_back(p + shift);
+    }
+    std::string error;
+    if (HullPtr h = buildConvexHull(points, &error)) return h;
+  }
+}
+
+/// A prism over a regular polygon of `sides` (radius r, half height hh along z): two faces of
+/// `sides` vertices.
+HullPtr prismHull(int sides, float r, float hh) {
+  std::vector<Vec3> points;
+  for (int i = 0; i < sides; ++i) {
+    float a = kPi2 * float(i) / float(sides);
+    points.push_back({r * std::cos(a), r * std::sin(a), -hh});
+    points.push_back({r * std::cos(a), r * std::sin(a), hh});
+  }
+  return hullOf(points);
+}
+
+/// The hull of a box's 8 corners.
+HullPtr boxCornersHull(Vec3 he) {
+  std::vector<Vec3> points;
+  for (int i = 0; i < 8; ++i)
+    points.push_back({i & 1 ? he.x : -he.x, i & 2 ? he.y : -he.y, i & 4 ? he.z : -he.z});
+  return hullOf(points);
+}
+
+/// A random hull: half the time from a point cloud, else a prism of 3 to 24 sides.
+HullPtr anyHull(Rng& rng) {
+  if (rng.chance(0.6f)) return randomHull(rng);
+  return prismHull(3 + rng.below(22), rng.uniform(0.2f, 0.8f), rng.uniform(0.1f, 0.6f));
+}
+
+/// max over the hull at `xf` of dot(dir, x), relative to xf.p.
+float hullSupport(const ConvexHull& h, Quat q, Vec3 dir) {
+  float best = -1e30f;
+  for (const Vec3& v : h.vertices) best = std::max(best, dot(rotate(q, v), dir));
+  return best;
+}
+
+/// The mean of a hull face's vertices.
+Vec3 faceCentre(const ConvexHull& h, size_t f) {
+  Vec3 c;
+  for (uint32_t i : h.faces[f].indices) c += h.vertices[i];
+  return c * (1.0f / float(h.faces[f].indices.size()));
+}
+
 // ---------------------------------------------------------------------------------------------
 // The kernel on the device
 
@@ -178,7 +265,7 @@ class GpuNarrow : public ::testing::Test {
     if (!device_) return;
     try {
       kernel_ =
-          std::make_unique<gpu::Kernel>(device_, "narrow_phase", gpu::shaderCode("narrow_phase"), 6,
+          std::make_unique<gpu::Kernel>(device_, "narrow_phase", gpu::shaderCode("narrow_phase"), 7,
                                         uint32_t(sizeof(gpu::GpuStepConstants)));
     } catch (const std::exception& e) {
       error_ = e.what();
@@ -200,11 +287,15 @@ class GpuNarrow : public ::testing::Test {
 
  public:
   /// Runs the kernel over the scene's pairs with counters[PAIRS] = pairCount; the manifold
-  /// buffer starts filled with the byte 0xA5.
+  /// buffer starts filled with the byte 0xA5. Hulls are packed once each (shapes sharing a
+  /// hull share its record), after a few words of padding so no offset is 0; a scene without
+  /// hulls binds a 16-byte hull buffer of zeros.
   static std::vector<gpu::GpuManifold> run(const Scene& scene, uint32_t pairCount) {
     std::vector<gpu::GpuBodyState> states;
     std::vector<gpu::GpuBodyParams> params;
     std::vector<gpu::GpuShape> shapes;
+    std::vector<uint32_t> hullWords;
+    std::map<const ConvexHull*, uint32_t> hullOffsets;
     for (const SceneShape& s : scene.shapes) {
       gpu::GpuShape g;
       g.type = static_cast<uint32_t>(s.geom.type);
@@ -227,6 +318,23 @@ class GpuNarrow : public ::testing::Test {
           float d;
           worldPlane(s, &n, &d);
           g.size = {n.x, n.y, n.z, d};
+          break;
+        }
+        case ShapeType::Hull: {
+          uint32_t offset = gpu::kNoHull;  // no hull: no contact, as on the CPU
+          if (s.geom.hull) {
+            auto it = hullOffsets.find(s.geom.hull.get());
+            if (it != hullOffsets.end()) {
+              offset = it->second;
+            } else {
+              if (hullWords.empty()) hullWords.assign(5, 0xDEADBEEFu);
+              std::string error;
+              offset = gpu::packHull(gpu::hullInputOf(*s.geom.hull), &hullWords, &error);
+              EXPECT_NE(offset, gpu::kNoHull) << error;
+              hullOffsets[s.geom.hull.get()] = offset;
+            }
+          }
+          g.size = {std::bit_cast<float>(offset), 0, 0, 0};
           break;
         }
         default:
@@ -264,6 +372,8 @@ class GpuNarrow : public ::testing::Test {
     Buffer pairBuf(device_, bytesOf(pairs), Buffer::Kind::Device);
     Buffer manifoldBuf(device_, bytesOf(out), Buffer::Kind::Device);
     Buffer counterBuf(device_, sizeof counters, Buffer::Kind::Device);
+    if (hullWords.empty()) hullWords.assign(4, 0u);
+    Buffer hullBuf(device_, bytesOf(hullWords), Buffer::Kind::Device);
     gpu::GpuStepConstants k;
     k.dt = kDt;
     k.h = kDt / 4;
@@ -282,8 +392,9 @@ class GpuNarrow : public ::testing::Test {
     stream.upload(pairBuf, 0, pairs.data(), bytesOf(pairs));
     stream.upload(manifoldBuf, 0, out.data(), bytesOf(out));
     stream.upload(counterBuf, 0, counters, sizeof counters);
-    const Buffer* bindings[] = {&stateBuf, &paramBuf,    &shapeBuf,
-                                &pairBuf,  &manifoldBuf, &counterBuf};
+    stream.upload(hullBuf, 0, hullWords.data(), bytesOf(hullWords));
+    const Buffer* bindings[] = {&stateBuf,    &paramBuf,   &shapeBuf, &pairBuf,
+                                &manifoldBuf, &counterBuf, &hullBuf};
     stream.dispatch(*kernel_, bindings, &k,
                     static_cast<uint32_t>((np + PHYS_GPU_GROUP - 1) / PHYS_GPU_GROUP));
     stream.download(manifoldBuf, 0, out.data(), bytesOf(out));
@@ -838,14 +949,337 @@ TEST_F(GpuNarrow, CapsulePlane) {
 }
 
 // ---------------------------------------------------------------------------------------------
+// Convex hulls
+
+namespace {
+
+/// The rotation taking unit vector `from` to unit vector `to`, opposite ones included.
+Quat rotationTo(Vec3 from, Vec3 to) {
+  if (dot(from, to) > -0.9999f) return fromTo(from, to);
+  Vec3 axis = std::fabs(from.x) < 0.9f ? cross(from, Vec3{1, 0, 0}) : cross(from, Vec3{0, 1, 0});
+  return axisAngle(normalize(axis), kPi);
+}
+
+/// The world transform putting face fb of hull b against face fa of hull a (at xa): b's face
+/// normal opposite a's, turned by `yaw` about it, then tipped by `tilt`; b's face centre
+/// `lateral` off a's face centre, b's lowest point along a's normal `gap` above a's face.
+Transform restOnFace(const ConvexHull& a, const Transform& xa, size_t fa, const ConvexHull& b,
+                     size_t fb, float yaw, Quat tilt, Vec3 lateral, float gap) {
+  const Vec3 nA = rotate(xa.q, a.faces[fa].normal);
+  const Vec3 cA = apply(xa, faceCentre(a, fa));
+  const Quat qb = normalize(tilt * axisAngle(nA, yaw) * rotationTo(b.faces[fb].normal, -nA));
+  Vec3 pb = cA + lateral - rotate(qb, faceCentre(b, fb));
+  const float lowest = dot(pb, nA) - hullSupport(b, qb, -nA);
+  pb += nA * (dot(cA, nA) + gap - lowest);
+  return {pb, qb};
+}
+
+/// A random in-plane offset (perpendicular to n) of up to `reach`.
+Vec3 lateralOffset(Rng& rng, Vec3 n, float reach) {
+  return perpendicular(rng, n) * rng.uniform(0, reach);
+}
+
+/// Half the hull's extent across its face f (the farthest vertex from the face's centre).
+float faceRadius(const ConvexHull& h, size_t f) {
+  Vec3 c = faceCentre(h, f);
+  float r = 0;
+  for (uint32_t i : h.faces[f].indices) r = std::max(r, length(h.vertices[i] - c));
+  return r;
+}
+
+/// Random hull-hull (or box-hull) pairs: touching, apart or overlapping along a random
+/// direction, or face resting on face (flush or tipped by up to 20 degrees).
+void addPolyPairs(Rng& rng, Scene& scene, int count, bool boxA) {
+  for (int i = 0; i < count; ++i) {
+    Vec3 he = randomHalfExtents(rng, 0.15f, 0.8f);
+    HullPtr ha = boxA ? boxCornersHull(he) : anyHull(rng);
+    HullPtr hb = anyHull(rng);
+    ShapeGeom ga = boxA ? ShapeGeom::box(he) : ShapeGeom::convexHull(ha);
+    Transform a{rng.box(3.0f), rng.rotation()};
+    Transform b;
+    if (i % 2 == 0) {
+      b.q = rng.rotation();
+      Vec3 dir = rng.direction();
+      float reach = hullSupport(*ha, a.q, dir) + hullSupport(*hb, b.q, -dir);
+      b.p = a.p + dir * (reach * rng.uniform(0.6f, 1.0f) + rng.uniform(-0.05f, 0.05f));
+    } else {
+      // Either one on the other: the first placed is the one underneath.
+      bool bOnA = rng.chance(0.5f);
+      const ConvexHull& low = bOnA ? *ha : *hb;
+      const ConvexHull& high = bOnA ? *hb : *ha;
+      size_t fl = size_t(rng.below(int(low.faces.size())));
+      size_t fh = size_t(rng.below(int(high.faces.size())));
+      Vec3 nl = rotate(a.q, low.faces[fl].normal);
+      Quat tilt =
+          i % 4 == 1 ? Quat{} : axisAngle(perpendicular(rng, nl), rng.uniform(0.5f, 20.0f) * kDeg);
+      Vec3 lateral = lateralOffset(rng, nl, 0.5f * faceRadius(low, fl));
+      float gap = rng.uniform(-0.03f, 0.008f);
+      b = restOnFace(low, a, fl, high, fh, rng.uniform(0, kPi2), tilt, lateral, gap);
+      if (!bOnA) std::swap(a, b);
+    }
+    scene.pairOf(rng, place(rng, ga, a), place(rng, ShapeGeom::convexHull(hb), b));
+  }
+}
+
+/// The lowest face of a hull at orientation q along -n (the face to rest on a plane of normal n).
+size_t lowestFace(const ConvexHull& h, Quat q, Vec3 n) {
+  size_t best = 0;
+  float bestDot = 2;
+  for (size_t f = 0; f < h.faces.size(); ++f) {
+    float d = dot(rotate(q, h.faces[f].normal), n);
+    if (d < bestDot) bestDot = d, best = f;
+  }
+  return best;
+}
+
+}  // namespace
+
+TEST(GpuNarrowHullPack, Layout) {
+  HullPtr h = prismHull(5, 0.5f, 0.25f);
+  ASSERT_NE(h, nullptr);
+  std::vector<uint32_t> data(3, 7u);
+  std::string error;
+  const uint32_t at = gpu::packHull(gpu::hullInputOf(*h), &data, &error);
+  ASSERT_EQ(at, 3u) << error;
+  const uint32_t nv = uint32_t(h->vertices.size()), nf = uint32_t(h->faces.size()),
+                 ne = uint32_t(h->edges.size());
+  EXPECT_EQ(data[at + 0], nv);
+  EXPECT_EQ(data[at + 1], nf);
+  EXPECT_EQ(data[at + 2], ne);
+  EXPECT_EQ(data[at + 3], uint32_t(data.size()) - at);
+  EXPECT_EQ(std::bit_cast<float>(data[at + 4]), h->centroid.x);
+  EXPECT_EQ(data[at + 7], 5u);
+  for (uint32_t i = 0; i < nv; ++i)
+    for (int k = 0; k < 3; ++k)
+      EXPECT_EQ(std::bit_cast<float>(data[at + data[at + 8] + 3 * i + k]), h->vertices[i][k]);
+  for (uint32_t f = 0; f < nf; ++f) {
+    EXPECT_EQ(std::bit_cast<float>(data[at + data[at + 9] + 4 * f + 3]), h->faces[f].offset);
+    const uint32_t table = at + data[at + 10];
+    const uint32_t begin = data[table + f], end = data[table + f + 1];
+    ASSERT_EQ(end - begin, h->faces[f].indices.size());
+    for (uint32_t k = 0; k < end - begin; ++k)
+      EXPECT_EQ(data[at + begin + k], h->faces[f].indices[k]);
+  }
+  // Edge faces derived by the packer equal buildConvexHull's.
+  gpu::HullInput noAdjacency = gpu::hullInputOf(*h);
+  noAdjacency.edgeFaces.clear();
+  std::vector<uint32_t> derived;
+  ASSERT_EQ(gpu::packHull(noAdjacency, &derived, &error), 0u) << error;
+  for (uint32_t e = 0; e < ne; ++e) {
+    const uint32_t* rec = &data[at + data[at + 11] + 4 * e];
+    EXPECT_EQ(rec[0], h->edges[e].first);
+    EXPECT_EQ(rec[1], h->edges[e].second);
+    EXPECT_EQ(rec[2], h->edgeFaces[e].first);
+    EXPECT_EQ(rec[3], h->edgeFaces[e].second);
+    const uint32_t* d = &derived[derived[11] + 4 * e];
+    EXPECT_EQ(d[2], h->edgeFaces[e].first);
+    EXPECT_EQ(d[3], h->edgeFaces[e].second);
+  }
+  // Unusable hulls are refused and leave the data alone.
+  const size_t size = data.size();
+  gpu::HullInput bad = gpu::hullInputOf(*h);
+  bad.faces[0].indices.push_back(uint32_t(nv));
+  EXPECT_EQ(gpu::packHull(bad, &data, &error), gpu::kNoHull);
+  EXPECT_FALSE(error.empty());
+  gpu::HullInput big = gpu::hullInputOf(*prismHull(int(gpu::kHullMaxFaceVertices) + 1, 1, 1));
+  EXPECT_EQ(gpu::packHull(big, &data, &error), gpu::kNoHull);
+  std::vector<uint32_t> largest;
+  EXPECT_EQ(gpu::packHull(gpu::hullInputOf(*prismHull(int(gpu::kHullMaxFaceVertices), 1, 1)),
+                          &largest, &error),
+            0u)
+      << error;
+  EXPECT_EQ(data.size(), size);
+}
+
+TEST_F(GpuNarrow, HullHull) {
+  Rng rng(17);
+  Scene scene;
+  addPolyPairs(rng, scene, 400, false);
+  Tally t = runAndCompare(scene);
+  EXPECT_GT(t.touching, 250);
+  EXPECT_GT(t.byCount[4], 60);
+  EXPECT_GT(t.edges, 20);
+  EXPECT_GT(t.faceA, 100);
+  EXPECT_GT(t.faceB, 100);
+  EXPECT_GT(t.clipPoints, 100);
+}
+
+TEST_F(GpuNarrow, BoxHull) {
+  Rng rng(18);
+  Scene scene;
+  addPolyPairs(rng, scene, 400, true);
+  Tally t = runAndCompare(scene);
+  EXPECT_GT(t.touching, 250);
+  EXPECT_GT(t.byCount[4], 60);
+  EXPECT_GT(t.edges, 20);
+  EXPECT_GT(t.faceA, 100);
+  EXPECT_GT(t.faceB, 100);
+}
+
+TEST_F(GpuNarrow, HullSphere) {
+  Rng rng(19);
+  Scene scene;
+  for (int i = 0; i < 400; ++i) {
+    HullPtr h = anyHull(rng);
+    Vec3 lo = h->vertices[0], hi = h->vertices[0];
+    for (const Vec3& v : h->vertices) lo = vmin(lo, v), hi = vmax(hi, v);
+    Transform xf{rng.box(4.0f), rng.rotation()};
+    float r = rng.uniform(0.05f, 0.6f);
+    // Around the hull: face, edge and vertex regions, and inside.
+    Vec3 half = (hi - lo) * 0.5f + Vec3{r + 0.1f, r + 0.1f, r + 0.1f};
+    Vec3 local = (lo + hi) * 0.5f + rng.box(half);
+    // Inside, near the centroid (not on it: a regular prism's faces would tie there).
+    if (i % 40 == 0) local = h->centroid + rng.box(0.05f);
+    scene.pairOf(rng, place(rng, ShapeGeom::convexHull(h), xf),
+                 place(rng, ShapeGeom::sphere(r), {apply(xf, local), rng.rotation()}));
+  }
+  Tally t = runAndCompare(scene);
+  EXPECT_GT(t.touching, 150);
+}
+
+TEST_F(GpuNarrow, HullCapsule) {
+  Rng rng(20);
+  Scene scene;
+  const Vec3 z{0, 0, 1};
+  for (int i = 0; i < 500; ++i) {
+    HullPtr h = anyHull(rng);
+    Vec3 lo = h->vertices[0], hi = h->vertices[0];
+    for (const Vec3& v : h->vertices) lo = vmin(lo, v), hi = vmax(hi, v);
+    Transform xf{rng.box(3.0f), rng.rotation()};
+    float r = rng.uniform(0.05f, 0.4f), hh = rng.uniform(0.1f, 0.8f);
+    Vec3 local;
+    Quat qLocal;
+    switch (i % 4) {
+      case 0:
+      case 1: {  // anywhere around the hull
+        float m = r + 0.5f * hh;
+        local = (lo + hi) * 0.5f + rng.box((hi - lo) * 0.5f + Vec3{m, m, m});
+        qLocal = rng.rotation();
+        break;
+      }
+      case 2: {  // lying on a face, level or tipped by up to 1.5 degrees
+        size_t f = size_t(rng.below(int(h->faces.size())));
+        Vec3 n = h->faces[f].normal;
+        Vec3 dir = perpendicular(rng, n);
+        dir = rotate(axisAngle(cross(n, dir), rng.uniform(0, 1.5f) * kDeg), dir);
+        qLocal = rotationTo(z, dir) * axisAngle(z, rng.uniform(0, kPi2));
+        local = faceCentre(*h, f) + lateralOffset(rng, n, 0.5f * faceRadius(*h, f)) +
+                n * (r + rng.uniform(-0.05f, 0.01f));
+        break;
+      }
+      default:  // the core through the hull
+        local = h->centroid + rng.box((hi - lo) * 0.2f);
+        qLocal = rng.rotation();
+    }
+    scene.pairOf(rng, place(rng, ShapeGeom::convexHull(h), xf),
+                 place(rng, ShapeGeom::capsule(r, hh), {apply(xf, local), xf.q * qLocal}));
+  }
+  Tally t = runAndCompare(scene);
+  EXPECT_GT(t.touching, 250);
+  EXPECT_GT(t.byCount[2], 40);
+  EXPECT_GT(t.otherSub[3], 5);
+}
+
+TEST_F(GpuNarrow, HullPlane) {
+  Rng rng(21);
+  Scene scene;
+  for (int i = 0; i < 400; ++i) {
+    Vec3 n = rng.direction();
+    float d = rng.uniform(-2, 2);
+    HullPtr h = anyHull(rng);
+    Quat q = rng.rotation();
+    float gap = rng.uniform(-0.2f, 0.05f);
+    if (i % 3 == 1) {  // resting on a face, tipped by up to 2 degrees
+      size_t f = lowestFace(*h, q, n);
+      q = normalize(axisAngle(perpendicular(rng, n), rng.uniform(0, 2) * kDeg) *
+                    rotationTo(rotate(q, h->faces[f].normal), -n) * q);
+      gap = rng.uniform(-0.01f, 0.005f);
+    } else if (i % 3 == 2) {  // deep: many vertices below
+      gap = -rng.uniform(0.3f, 0.8f) * (hullSupport(*h, q, n) + hullSupport(*h, q, -n));
+    }
+    Vec3 c = n * (d + hullSupport(*h, q, -n) + gap) + perpendicular(rng, n) * rng.uniform(0, 4);
+    scene.pairOf(rng, planeShape(rng, n, d), place(rng, ShapeGeom::convexHull(h), {c, q}));
+  }
+  Tally t = runAndCompare(scene);
+  EXPECT_GT(t.byCount[4], 100);
+  EXPECT_GT(t.byCount[1], 20);
+}
+
+TEST_F(GpuNarrow, HullThatIsABox) {
+  // A box's corner hull against every kind, flush and tipped; its ids follow the CPU's hull
+  // path (not the box path's).
+  Rng rng(22);
+  Scene scene;
+  for (int i = 0; i < 400; ++i) {
+    Vec3 he = randomHalfExtents(rng, 0.2f, 0.8f);
+    HullPtr h = boxCornersHull(he);
+    Transform a{rng.box(3.0f), rng.rotation()};
+    const Vec3 up = rotate(a.q, {0, 0, 1});
+    Quat tilt = i % 3 == 0 ? Quat{} : axisAngle(perpendicular(rng, up), rng.uniform(0, 10) * kDeg);
+    Quat rel = tilt * axisAngle(up, i % 2 ? 0.0f : rng.uniform(0, kPi2));
+    SceneShape hull = place(rng, ShapeGeom::convexHull(h), a);
+    switch (i % 5) {
+      case 0: {  // an equal box or corner hull on top
+        Vec3 hb = i % 10 == 0 ? he : randomHalfExtents(rng, 0.2f, 0.8f);
+        Quat qb = rel * a.q;
+        float lift = he.z + boxSupport(hb, qb, -up) + rng.uniform(-0.02f, 0.003f);
+        Vec3 pb = a.p + up * lift + lateralOffset(rng, up, 0.5f * std::min(he.x, he.y));
+        ShapeGeom gb =
+            rng.chance(0.5f) ? ShapeGeom::box(hb) : ShapeGeom::convexHull(boxCornersHull(hb));
+        scene.pairOf(rng, hull, place(rng, gb, {pb, qb}));
+        break;
+      }
+      case 1: {  // a sphere around it
+        float r = rng.uniform(0.05f, 0.5f);
+        Vec3 local = rng.box(he + Vec3{r + 0.1f, r + 0.1f, r + 0.1f});
+        scene.pairOf(rng, hull,
+                     place(rng, ShapeGeom::sphere(r), {apply(a, local), rng.rotation()}));
+        break;
+      }
+      case 2: {  // a capsule lying on top or anywhere
+        float r = rng.uniform(0.05f, 0.3f), hh = rng.uniform(0.1f, 0.6f);
+        Vec3 local = i % 2 ? Vec3{rng.uniform(-he.x, he.x), rng.uniform(-he.y, he.y),
+                                  he.z + r + rng.uniform(-0.03f, 0.005f)}
+                           : rng.box(he + Vec3{r + hh, r + hh, r + hh});
+        Quat ql =
+            i % 2 ? axisAngle({0, 0, 1}, rng.uniform(0, kPi2)) * axisAngle({1, 0, 0}, 0.5f * kPi)
+                  : rng.rotation();
+        scene.pairOf(rng, hull, place(rng, ShapeGeom::capsule(r, hh), {apply(a, local), a.q * ql}));
+        break;
+      }
+      case 3: {  // on a plane
+        scene.pairOf(rng, hull,
+                     planeShape(rng, up, dot(up, a.p) - he.z - rng.uniform(-0.02f, 0.01f)));
+        break;
+      }
+      default: {  // against a random hull
+        HullPtr hb = anyHull(rng);
+        Quat qb = rng.rotation();
+        Vec3 dir = rng.direction();
+        float reach = hullSupport(*h, a.q, dir) + hullSupport(*hb, qb, -dir);
+        Vec3 pb = a.p + dir * (reach * rng.uniform(0.7f, 1.0f));
+        scene.pairOf(rng, hull, place(rng, ShapeGeom::convexHull(hb), {pb, qb}));
+      }
+    }
+  }
+  Tally t = runAndCompare(scene);
+  EXPECT_GT(t.touching, 250);
+  EXPECT_GT(t.byCount[4], 60);
+}
+
+// ---------------------------------------------------------------------------------------------
 // Mixed scenes, the pair records and the pair count
 
 namespace {
 
-/// A cluster of random shapes of every kind (hulls too: no contact on either side), every
-/// pair among them, and two planes.
-Scene mixedScene(Rng& rng, int n) {
+/// A cluster of random shapes of every kind, every pair among them, and two planes. Hull
+/// shapes have no hull (no contact on either side) unless `realHulls`: then most share one of
+/// three hulls.
+Scene mixedScene(Rng& rng, int n, bool realHulls = false) {
   Scene scene;
+  std::vector<HullPtr> hulls;
+  if (realHulls)
+    for (int k = 0; k < 3; ++k) hulls.push_back(anyHull(rng));
   scene.add(planeShape(rng, {0, 0, 1}, -1.0f));
   scene.add(planeShape(rng, rng.direction(), -1.5f));
   for (int i = 0; i < n; ++i) {
@@ -862,7 +1296,11 @@ Scene mixedScene(Rng& rng, int n) {
         g = ShapeGeom::capsule(rng.uniform(0.1f, 0.4f), rng.uniform(0.1f, 0.7f));
         break;
       default:
-        g.type = rng.chance(0.5f) ? ShapeType::Hull : ShapeType::Sphere;
+        if (realHulls) {
+          g = ShapeGeom::convexHull(rng.chance(0.9f) ? hulls[size_t(rng.below(3))] : nullptr);
+        } else {
+          g.type = rng.chance(0.5f) ? ShapeType::Hull : ShapeType::Sphere;
+        }
     }
     scene.add(place(rng, g, {rng.box(1.0f), rng.rotation()}));
   }
@@ -879,6 +1317,13 @@ Scene mixedScene(Rng& rng, int n) {
 TEST_F(GpuNarrow, MixedCluster) {
   Rng rng(15);
   Scene scene = mixedScene(rng, 40);
+  Tally t = runAndCompare(scene);
+  EXPECT_GT(t.touching, 100);
+}
+
+TEST_F(GpuNarrow, MixedClusterWithHulls) {
+  Rng rng(23);
+  Scene scene = mixedScene(rng, 40, true);
   Tally t = runAndCompare(scene);
   EXPECT_GT(t.touching, 100);
 }

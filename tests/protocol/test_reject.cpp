@@ -448,6 +448,26 @@ TEST(ProtocolReject, IdLists) {
                "set_material.bodies[0] must be a non-zero id");
 }
 
+TEST(ProtocolReject, Backend) {
+  // Only "cpu", "gpu" and "auto" (or nothing: the server's default); names are exact.
+  for (const char* bad : {"GPU", "cuda", " gpu", "cpu,gpu", "vulkan"}) {
+    SCOPED_TRACE(bad);
+    expectReject(CommandBuilder().createWorld({"w", "", {}, 0, bad}).finish(header(1, 0)),
+                 Code::InvalidArgument,
+                 std::string("create_world.backend must be \"cpu\", \"gpu\" or \"auto\" (or "
+                             "empty: the server's default), got \"") +
+                     bad + "\"");
+  }
+  expectReject(CommandBuilder().createWorld({"w", "", {}, 0, "g\npu"}).finish(header(1, 0)),
+               Code::InvalidArgument, "create_world.backend must not contain control characters");
+  expectReject(
+      CommandBuilder().createWorld({"w", "", {}, 0, std::string(200, 'g')}).finish(header(1, 0)),
+      Code::ResourceExhausted, "create_world.backend is 200 bytes, the limit is 128");
+  // An empty backend is the server's default.
+  EXPECT_TRUE(
+      decodeCommand(CommandBuilder().createWorld({"w", "", {}, 0, ""}).finish(header(1, 0))).ok());
+}
+
 TEST(ProtocolReject, NamesAndFiles) {
   expectReject(CommandBuilder().createWorld({"", "", {}, 0}).finish(header(1, 0)),
                Code::InvalidArgument, "create_world.name must be given");

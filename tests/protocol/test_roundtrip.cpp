@@ -81,6 +81,7 @@ TEST(ProtocolRoundTrip, CreateWorld) {
   a.preset = "soft_step";
   a.gravity = phys::Vec3{0, 0, -1.62f};
   a.timeStep = 1.0f / 120;
+  a.backend = "gpu";
   auto d = mustDecode(CommandBuilder().createWorld(a).finish(header(1, 0)));
   auto* r = d->request_as_CreateWorld();
   ASSERT_TRUE(r);
@@ -88,12 +89,22 @@ TEST(ProtocolRoundTrip, CreateWorld) {
   EXPECT_EQ(r->preset()->str(), "soft_step");
   expectVec(toPhys(*r->gravity()), {0, 0, -1.62f});
   EXPECT_EQ(r->time_step(), 1.0f / 120);
+  ASSERT_TRUE(r->backend());
+  EXPECT_EQ(r->backend()->str(), "gpu");
 
-  // Defaults: no gravity, no preset, time step 0 (the server's 1/60).
+  // Defaults: no gravity, no preset, time step 0 (the server's 1/60), no backend (the
+  // server's default).
   auto d2 = mustDecode(CommandBuilder().createWorld({"plain", "", {}, 0}).finish(header(2, 0)));
   EXPECT_EQ(d2->request_as_CreateWorld()->gravity(), nullptr);
   EXPECT_EQ(d2->request_as_CreateWorld()->preset(), nullptr);
   EXPECT_EQ(d2->request_as_CreateWorld()->time_step(), 0.0f);
+  EXPECT_EQ(d2->request_as_CreateWorld()->backend(), nullptr);
+
+  // Every backend name decodes.
+  for (const char* b : {"cpu", "gpu", "auto"}) {
+    auto d3 = mustDecode(CommandBuilder().createWorld({"w", "", {}, 0, b}).finish(header(3, 0)));
+    EXPECT_EQ(d3->request_as_CreateWorld()->backend()->str(), b);
+  }
 }
 
 TEST(ProtocolRoundTrip, WorldLifecycleAndTime) {
@@ -443,7 +454,17 @@ TEST(ProtocolRoundTrip, Replies) {
   w.rateHz = 60;
   w.overruns = 2;
   w.frames = 48;
-  auto list = decodeReply(encodeWorldListReply(h, {&w, 1}));
+  w.backend = "gpu";
+  w.device = "llvmpipe (LLVM 15.0.6, 256 bits)";
+  w.backendNote = "hull shapes are not on the device yet";
+  w.gpuSteps = 40;
+  w.cpuSteps = 10;
+  WorldSummary plain;  // a CPU world: no device, no note
+  plain.world = 8;
+  plain.backend = "cpu";
+  plain.cpuSteps = 3;
+  std::vector<WorldSummary> both = {w, plain};
+  auto list = decodeReply(encodeWorldListReply(h, both));
   ASSERT_TRUE(list.ok());
   auto* ws = list->result_as_WorldList()->worlds()->Get(0);
   EXPECT_EQ(ws->world(), 7u);
@@ -452,6 +473,37 @@ TEST(ProtocolRoundTrip, Replies) {
   EXPECT_TRUE(ws->running());
   EXPECT_EQ(ws->overruns(), 2u);
   EXPECT_EQ(ws->frames(), 48u);
+  EXPECT_EQ(ws->backend()->str(), "gpu");
+  EXPECT_EQ(ws->device()->str(), "llvmpipe (LLVM 15.0.6, 256 bits)");
+  EXPECT_EQ(ws->backend_note()->str(), "hull shapes are not on the device yet");
+  EXPECT_EQ(ws->gpu_steps(), 40u);
+  EXPECT_EQ(ws->cpu_steps(), 10u);
+  // The plain-data conversion (what the SDK hands out) carries every field.
+  WorldSummary back = toWorldSummary(*ws);
+  EXPECT_EQ(back.world, 7u);
+  EXPECT_EQ(back.name, "arena");
+  EXPECT_EQ(back.preset, "soft_step");
+  EXPECT_EQ(back.bodies, 100u);
+  EXPECT_EQ(back.tick, 50u);
+  EXPECT_TRUE(back.running);
+  EXPECT_EQ(back.rateHz, 60.0f);
+  EXPECT_EQ(back.overruns, 2u);
+  EXPECT_EQ(back.frames, 48u);
+  EXPECT_EQ(back.backend, w.backend);
+  EXPECT_EQ(back.device, w.device);
+  EXPECT_EQ(back.backendNote, w.backendNote);
+  EXPECT_EQ(back.gpuSteps, 40u);
+  EXPECT_EQ(back.cpuSteps, 10u);
+  auto* ws2 = list->result_as_WorldList()->worlds()->Get(1);
+  EXPECT_EQ(ws2->backend()->str(), "cpu");
+  EXPECT_EQ(ws2->device(), nullptr);  // empty strings are left out
+  EXPECT_EQ(ws2->backend_note(), nullptr);
+  WorldSummary back2 = toWorldSummary(*ws2);
+  EXPECT_EQ(back2.backend, "cpu");
+  EXPECT_TRUE(back2.device.empty());
+  EXPECT_TRUE(back2.backendNote.empty());
+  EXPECT_EQ(back2.gpuSteps, 0u);
+  EXPECT_EQ(back2.cpuSteps, 3u);
 
   phys::BodyState s;
   s.id = phys::BodyId{4, 2};
@@ -570,6 +622,9 @@ TEST(ProtocolRoundTrip, StatusAndEvents) {
   w.tickMs = 0.8f;
   w.tickMsMax = 2.5f;
   w.subscribers = 8;
+  w.backend = "cpu";
+  w.backendNote = "no GPU device, running on the CPU: no Vulkan device";
+  w.cpuSteps = 12;
   s.worlds.push_back(w);
   s.framesDropped = 5;
   auto d = decodeServerStatus(encodeServerStatus(s));
@@ -579,6 +634,12 @@ TEST(ProtocolRoundTrip, StatusAndEvents) {
   EXPECT_EQ(d->errors(), 3u);
   EXPECT_EQ(d->worlds()->Get(0)->tick_ms(), 0.8f);
   EXPECT_EQ(d->worlds()->Get(0)->subscribers(), 8u);
+  WorldSummary ws = toWorldSummary(*d->worlds()->Get(0));
+  EXPECT_EQ(ws.backend, "cpu");
+  EXPECT_EQ(ws.device, "");
+  EXPECT_EQ(ws.backendNote, w.backendNote);
+  EXPECT_EQ(ws.gpuSteps, 0u);
+  EXPECT_EQ(ws.cpuSteps, 12u);
   EXPECT_EQ(d->frames_dropped(), 5u);
 
   auto e = decodeEvent(

@@ -21,6 +21,10 @@ TEST(ServerConfig, ShippedConfigLoads) {
   ASSERT_EQ(c.worlds.size(), 1u);
   EXPECT_EQ(c.worlds[0].scene, "default");
   EXPECT_TRUE(c.worlds[0].run);
+  // CI has no GPU: the shipped default keeps worlds on the CPU.
+  EXPECT_EQ(c.core.backend, phys::Backend::Cpu);
+  EXPECT_FALSE(c.core.gpuAllowCpuDevice);
+  EXPECT_EQ(c.worlds[0].backend, "");
   // The start-up world of the shipped config can be created.
   ServerCore core(c.core);
   ASSERT_TRUE(core.init().ok());
@@ -56,6 +60,49 @@ TEST(ServerConfig, RejectsUnknownKeysAndWrongTypes) {
   EXPECT_EQ(c.core.limits.maxStepsPerCommand, 10u);
   ASSERT_EQ(c.worlds.size(), 1u);
   EXPECT_FALSE(c.worlds[0].run);
+}
+
+TEST(ServerConfig, Backend) {
+  DaemonConfig c;
+  Status s = parseDaemonConfig("", "/tmp", &c);
+  ASSERT_TRUE(s.ok()) << s.message;
+  EXPECT_EQ(c.core.backend, phys::Backend::Cpu);  // without the keys
+  EXPECT_FALSE(c.core.gpuAllowCpuDevice);
+  for (auto [text, want] :
+       {std::pair{"cpu", phys::Backend::Cpu}, std::pair{"gpu", phys::Backend::Gpu},
+        std::pair{"auto", phys::Backend::Auto}}) {
+    s = parseDaemonConfig(std::string("[server]\nbackend = \"") + text +
+                              "\"\ngpu_allow_cpu_device = true\n"
+                              "[[worlds]]\nname = \"a\"\nbackend = \"" +
+                              text + "\"\n[[worlds]]\nname = \"b\"\n",
+                          "/tmp", &c);
+    ASSERT_TRUE(s.ok()) << text << ": " << s.message;
+    EXPECT_EQ(c.core.backend, want) << text;
+    EXPECT_TRUE(c.core.gpuAllowCpuDevice);
+    ASSERT_EQ(c.worlds.size(), 2u);
+    EXPECT_EQ(c.worlds[0].backend, text);
+    EXPECT_EQ(c.worlds[1].backend, "");  // server.backend
+  }
+  // Unknown names, wrong case and wrong types are config errors that name the key.
+  for (const char* bad : {"GPU", "cuda", "", "cpu "}) {
+    s = parseDaemonConfig(std::string("[server]\nbackend = \"") + bad + "\"\n", "/tmp", &c);
+    EXPECT_FALSE(s.ok()) << bad;
+    EXPECT_EQ(s.code, Code::InvalidArgument);
+    EXPECT_NE(s.message.find("server.backend must be \"cpu\", \"gpu\" or \"auto\", got \"" +
+                             std::string(bad) + "\""),
+              std::string::npos)
+        << s.message;
+    s = parseDaemonConfig(std::string("[[worlds]]\nname = \"a\"\nbackend = \"") + bad + "\"\n",
+                          "/tmp", &c);
+    EXPECT_FALSE(s.ok()) << bad;
+    EXPECT_NE(s.message.find("worlds[0].backend must be"), std::string::npos) << s.message;
+  }
+  s = parseDaemonConfig("[server]\nbackend = 1\n", "/tmp", &c);
+  EXPECT_FALSE(s.ok());
+  EXPECT_NE(s.message.find("server.backend"), std::string::npos) << s.message;
+  s = parseDaemonConfig("[server]\ngpu_allow_cpu_device = \"yes\"\n", "/tmp", &c);
+  EXPECT_FALSE(s.ok());
+  EXPECT_NE(s.message.find("server.gpu_allow_cpu_device"), std::string::npos) << s.message;
 }
 
 TEST(ServerConfig, BadStartupWorldFails) {

@@ -1,7 +1,7 @@
 // physctl: a command-line client of physd over the client SDK (docs/CLIENT.md).
 //
 //   physctl [--domain N] [--config XML] list
-//   physctl create NAME [--preset P]
+//   physctl create NAME [--preset P] [--backend cpu|gpu|auto]
 //   physctl load WORLD SCENE          # a server-side scene name, or a local .json file
 //   physctl step WORLD N
 //   physctl run WORLD [--rate HZ]
@@ -59,14 +59,21 @@ pc::WorldHandle resolve(pc::Client& c, const std::string& world) {
   return c.worldNamed(world);
 }
 
+/// The worlds, one a line; a world's backend (and device) after its numbers, and below it
+/// why the CPU runs a world that asked for the GPU.
 void printWorlds(const std::vector<pc::WorldSummary>& worlds) {
-  std::printf("%6s  %-20s %-12s %8s %7s %10s %10s %8s %6s %8s %10s\n", "id", "name", "preset",
-              "bodies", "joints", "tick", "time s", "state", "rate", "overruns", "frames");
-  for (const auto& w : worlds)
-    std::printf("%6u  %-20s %-12s %8u %7u %10llu %10.2f %8s %6.0f %8llu %10llu\n", w.world,
+  std::printf("%6s  %-20s %-12s %8s %7s %10s %10s %8s %6s %8s %10s  %s\n", "id", "name", "preset",
+              "bodies", "joints", "tick", "time s", "state", "rate", "overruns", "frames",
+              "backend");
+  for (const auto& w : worlds) {
+    std::string backend = w.backend.empty() ? "cpu" : w.backend;  // servers before backends
+    if (!w.device.empty()) backend += " (" + w.device + ")";
+    std::printf("%6u  %-20s %-12s %8u %7u %10llu %10.2f %8s %6.0f %8llu %10llu  %s\n", w.world,
                 w.name.c_str(), w.preset.c_str(), w.bodies, w.joints, (unsigned long long)w.tick,
                 w.time, w.running ? "running" : "paused", double(w.rateHz),
-                (unsigned long long)w.overruns, (unsigned long long)w.frames);
+                (unsigned long long)w.overruns, (unsigned long long)w.frames, backend.c_str());
+    if (!w.backendNote.empty()) std::printf("%6s  note: %s\n", "", w.backendNote.c_str());
+  }
 }
 
 /// Live table from phys/status and the worlds' state frames until Ctrl-C.
@@ -228,7 +235,7 @@ int main(int argc, char** argv) {
   app.add_option("--timeout", timeoutMs, "connect and request timeout, ms")
       ->check(CLI::PositiveNumber);
 
-  std::string world, name, preset, scene, file;
+  std::string world, name, preset, scene, file, backend;
   uint32_t steps = 1;
   float rate = 60;
 
@@ -236,6 +243,8 @@ int main(int argc, char** argv) {
   auto* create = app.add_subcommand("create", "create a world (paused)");
   create->add_option("NAME", name, "world name")->required();
   create->add_option("--preset", preset, "solver preset");
+  create->add_option("--backend", backend, "cpu, gpu or auto (default: the server's)")
+      ->check(CLI::IsMember({"cpu", "gpu", "auto"}));
   auto* load = app.add_subcommand("load", "load a scene into a world");
   load->add_option("WORLD", world, "world id or name")->required();
   load->add_option("SCENE", scene, "server-side scene name, or a local .json file")->required();
@@ -322,8 +331,15 @@ int main(int argc, char** argv) {
           "%d round trips (ListWorlds): p50 %.0f us, p90 %.0f us, p99 %.0f us, max %.0f us\n",
           pings, pct(0.5), pct(0.9), pct(0.99), us.back());
     } else if (*create) {
-      pc::WorldHandle w = client.createWorld({name, preset, std::nullopt, 0}).get();
+      pc::WorldHandle w = client.createWorld({name, preset, std::nullopt, 0, backend}).get();
       std::printf("created world %u '%s'\n", w.id(), name.c_str());
+      // Where it runs (a world that asked for the GPU may run on the CPU; the note says why).
+      for (const pc::WorldSummary& s : client.listWorlds().get())
+        if (s.world == w.id()) {
+          std::printf("backend %s%s\n", s.backend.empty() ? "cpu" : s.backend.c_str(),
+                      s.device.empty() ? "" : (" (" + s.device + ")").c_str());
+          if (!s.backendNote.empty()) std::printf("note: %s\n", s.backendNote.c_str());
+        }
     } else if (*load) {
       pc::WorldHandle w = resolve(client, world);
       pc::Ids ids;

@@ -10,6 +10,7 @@
 #include <memory>
 #include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "phys/gpu/device_info.h"
@@ -49,8 +50,9 @@ struct ContactSettings {
   int relaxIterations = 0;
   bool soft = true;  ///< soft contacts (hertz, damping ratio), else Baumgarte
   float contactHertz = 30, contactDampingRatio = 10, baumgarte = 0.2f;
-  float linearSlop = 0.005f;  ///< m, Baumgarte only
-  float maxPushout = 3;       ///< m/s
+  float jointHertz = 60, jointDampingRatio = 2;  ///< joints' equality rows when soft
+  float linearSlop = 0.005f;                     ///< m, Baumgarte only
+  float maxPushout = 3;                          ///< m/s
   bool warmStart = true;
   bool restitution = true;
   float restitutionThreshold = 1;  ///< m/s
@@ -96,8 +98,20 @@ class GpuWorld {
   void setBodies(std::span<const GpuBodyState> states, std::span<const GpuBodyParams> params);
   /// One body was edited: its records go up with the next step.
   void setBody(uint32_t index, const GpuBodyState& state, const GpuBodyParams& params);
-  /// Replaces every shape.
-  void setShapes(std::span<const GpuShape> shapes);
+  /// Replaces every shape; owners[i] names shape i's body for setNoCollide (any ids; empty:
+  /// every shape its own).
+  void setShapes(std::span<const GpuShape> shapes, std::span<const uint32_t> owners = {});
+  /// The packed hull records (hull_pack.h) hull shapes point into (GpuShape.size.x holds a
+  /// record's offset as float bits).
+  void setHulls(std::vector<uint32_t> words);
+  /// Pairs of owners whose shapes never collide (bodies joined without collide_connected).
+  void setNoCollide(std::vector<std::pair<uint32_t, uint32_t>> pairs);
+  /// Replaces every joint, with the impulses to warm-start them from (GpuJointOut.impulses
+  /// and the row count in force.w's bits; zeros: none).
+  void setJoints(std::span<const GpuJoint> joints, std::span<const GpuJointOut> impulses);
+  uint32_t jointCount() const;
+  /// After a step: every joint's impulses and reaction on B, in setJoints order.
+  std::span<const GpuJointOut> jointResults() const;
   uint32_t bodyCount() const;
   uint32_t shapeCount() const;
 

@@ -39,6 +39,8 @@ struct CreateWorldArgs {
   std::string preset;                 ///< solver preset; empty: the server's default
   std::optional<phys::Vec3> gravity;  ///< m/s^2; absent: (0, 0, -9.81)
   float timeStep = 0;                 ///< s; 0: 1/60
+  /// "cpu", "gpu" or "auto" (phys::toString(Backend)); empty: the server's default.
+  std::string backend = {};
 };
 
 /// Solver settings to change; unset fields keep the world's current value.
@@ -176,6 +178,12 @@ struct WorldSummary {
   uint64_t overruns = 0;
   uint32_t subscribers = 0;
   uint64_t frames = 0;  ///< state frames handed to the publisher
+  std::string backend;  ///< where the world runs: "cpu" or "gpu" (BackendState::active)
+  std::string device;   ///< the Vulkan device's name when on the GPU, else empty
+  /// Why the CPU runs a world that asked for the GPU (BackendState::note), or why the last
+  /// CPU-taken step of a GPU world was not on the device; empty when there is nothing to say.
+  std::string backendNote;
+  uint64_t gpuSteps = 0, cpuSteps = 0;  ///< steps taken on the device / by the CPU backend
 };
 
 /// A reply without a result (errors; Pause, DestroyWorld, ...).

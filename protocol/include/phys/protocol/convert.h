@@ -51,6 +51,9 @@ SolverOverrides toOverrides(const wire::SolverSettings& in);
 /// Applies the overrides that are set.
 void applyOverrides(const SolverOverrides& in, phys::SolverSettings* out);
 
+/// A world's summary (WorldList, ServerStatus) as plain data; absent strings are empty.
+WorldSummary toWorldSummary(const wire::WorldSummary& in);
+
 /// A decoded snapshot as plain data (hulls rebuilt; fails like toBodyDef).
 Status toSnapshotData(const wire::Snapshot& in, SnapshotData* out);
 

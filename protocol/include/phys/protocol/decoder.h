@@ -5,9 +5,10 @@
 // and verifies as the expected root type with the expected file identifier; every float is
 // finite and within its range; quaternions are within Limits::quatTolerance of unit length;
 // masses, densities and sizes are positive and bounded; friction and restitution are in
-// range; enum values and union types are known; counts and strings are within the limits;
-// ids that must be set are non-zero and lists of ids to remove have no repeats; commands that
-// need a world name one; a Batch holds only batchable commands.
+// range; enum values and union types are known; a CreateWorld backend is "cpu", "gpu" or
+// "auto" (or empty); counts and strings are within the limits; ids that must be set are
+// non-zero and lists of ids to remove have no repeats; commands that need a world name one;
+// a Batch holds only batchable commands.
 //
 // What it cannot check, left to the server: that world, body and joint ids are live, that a
 // preset, scene or snapshot file exists, that hull points span a volume (convert.h's

@@ -12,10 +12,11 @@ namespace phys::server {
 /// A world created at start-up.
 struct StartupWorld {
   std::string name;
-  std::string scene;   ///< a scene of scenes_dir by name; empty: an empty world
-  std::string preset;  ///< empty: the presets file's default
-  bool run = true;     ///< start running
-  double rateHz = 0;   ///< 0: the server's default rate
+  std::string scene;    ///< a scene of scenes_dir by name; empty: an empty world
+  std::string preset;   ///< empty: the presets file's default
+  bool run = true;      ///< start running
+  double rateHz = 0;    ///< 0: the server's default rate
+  std::string backend;  ///< "cpu", "gpu", "auto"; empty: server.backend
 };
 
 struct DaemonConfig {

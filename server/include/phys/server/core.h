@@ -46,6 +46,9 @@ struct CoreConfig {
   uint32_t bodiesPerChunk = protocol::kDefaultBodiesPerChunk;
   size_t frameRingCapacity = 4;  ///< state frame sets queued for the publisher
   double defaultRateHz = 60;     ///< Run without a rate
+  /// Backend of worlds whose CreateWorld names none (start-up worlds: their `backend`).
+  phys::Backend backend = phys::Backend::Cpu;
+  bool gpuAllowCpuDevice = false;  ///< WorldDef::gpuAllowCpuDevice of every world
 };
 
 /// Time control of a world.
@@ -104,9 +107,10 @@ class ServerCore {
   PublishQueue& out() { return out_; }
 
   // --- Start-up (tick thread or before it runs) ---
-  /// A world with a preset (empty: the default) and optionally a scene by name.
+  /// A world with a preset (empty: the default), optionally a scene by name, and a backend
+  /// ("cpu", "gpu", "auto"; empty: config().backend; a scene's other than "cpu" wins).
   Status createWorld(const std::string& name, const std::string& preset, const std::string& scene,
-                     uint32_t* id);
+                     uint32_t* id, const std::string& backend = {});
   Status setRun(uint32_t world, RunMode mode, double rateHz);
 
   // --- Commands ---
