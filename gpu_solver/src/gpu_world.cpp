@@ -122,52 +122,39 @@ std::shared_ptr<SharedDevice> openShared(const DeviceOptions& o, std::string* er
   return s;
 }
 
-/// Catto's soft constraint as bias rate and mass and impulse scales (Solver's makeSoftness),
-/// or Baumgarte's rigid row with a bias rate.
+/// A row's stabilization as (bias rate, mass scale, impulse scale): Catto's soft constraint
+/// at `hertz` (capped at a quarter of the substep rate) and `zeta`, as Solver's
+/// makeSoftness(cappedHertz(..)), or Baumgarte's rigid row.
+struct Stabilization {
+  float biasRate = 0, massScale = 1, impulseScale = 0;
+};
+Stabilization stabilization(bool soft, float hertz, float zeta, float baumgarte, float h) {
+  if (!soft) return {baumgarte / h, 1, 0};
+  hertz = std::min(hertz, 0.25f / h);
+  if (hertz <= 0) return {};
+  const float omega = 2 * 3.14159265358979f * hertz;
+  const float a1 = 2 * zeta + h * omega;
+  const float a2 = h * omega * a1;
+  const float a3 = 1 / (1 + a2);
+  return {omega / a1, a2 * a3, a3};
+}
+
 GpuSolveConstants solveConstants(const ContactSettings& cs, float h, uint32_t bodies,
                                  uint32_t pairCapacity) {
   GpuSolveConstants sc{};
   sc.h = h;
   sc.invH = 1 / h;
-  if (cs.soft) {
-    const float hertz = std::min(cs.contactHertz, 0.25f * sc.invH);
-    sc.biasRate = 0;
-    sc.massScale = 1;
-    sc.impulseScale = 0;
-    if (hertz > 0) {
-      const float omega = 2 * 3.14159265358979f * hertz;
-      const float a1 = 2 * cs.contactDampingRatio + h * omega;
-      const float a2 = h * omega * a1;
-      const float a3 = 1 / (1 + a2);
-      sc.biasRate = omega / a1;
-      sc.massScale = a2 * a3;
-      sc.impulseScale = a3;
-    }
-  } else {
-    sc.biasRate = cs.baumgarte * sc.invH;
-    sc.massScale = 1;
-    sc.impulseScale = 0;
-  }
-  // Joints: soft with their own frequency (capped at a quarter of the substep rate), or
-  // Baumgarte (Solver::solveIteration's jointSoft).
-  sc.jointBiasRate = sc.biasRate;
-  sc.jointMassScale = sc.massScale;
-  sc.jointImpulseScale = sc.impulseScale;
-  if (cs.soft) {
-    const float hertz = std::min(cs.jointHertz, 0.25f * sc.invH);
-    sc.jointBiasRate = 0;
-    sc.jointMassScale = 1;
-    sc.jointImpulseScale = 0;
-    if (hertz > 0) {
-      const float omega = 2 * 3.14159265358979f * hertz;
-      const float a1 = 2 * cs.jointDampingRatio + h * omega;
-      const float a2 = h * omega * a1;
-      const float a3 = 1 / (1 + a2);
-      sc.jointBiasRate = omega / a1;
-      sc.jointMassScale = a2 * a3;
-      sc.jointImpulseScale = a3;
-    }
-  }
+  const Stabilization contact =
+      stabilization(cs.soft, cs.contactHertz, cs.contactDampingRatio, cs.baumgarte, h);
+  sc.biasRate = contact.biasRate;
+  sc.massScale = contact.massScale;
+  sc.impulseScale = contact.impulseScale;
+  // Joints: with their own frequency (Solver::solveIteration's jointSoft).
+  const Stabilization joint =
+      stabilization(cs.soft, cs.jointHertz, cs.jointDampingRatio, cs.baumgarte, h);
+  sc.jointBiasRate = joint.biasRate;
+  sc.jointMassScale = joint.massScale;
+  sc.jointImpulseScale = joint.impulseScale;
   sc.linearSlop = cs.linearSlop;
   sc.maxPushout = cs.maxPushout;
   sc.restitutionThreshold = cs.restitutionThreshold;

@@ -1227,15 +1227,9 @@ void World::Impl::contactRowsOf(const Contact& c, const SolverManifold& m) {
   }
 }
 
-void World::Impl::addGeometricStiffness(float h) {
-  // Andrews, Teichmann and Kry 2017: a joint force f at arm r turns into a torque that
-  // changes as the body turns, a stiffness of about |f| |r| (N m/rad). Our Jacobians are
-  // frozen over a substep, so that stiffness is integrated explicitly and blows up once
-  // omega h > ~1: a 1 kg link between a 1000 kg ball and the anchor, at the bottom of the
-  // swing (tension 3e4 N), has omega of about 340 rad/s. Adding h^2 k to the inertia (the
-  // implicit-Euler term, from last step's joint forces) makes the link's rotation stable at
-  // any substep; a light body under a large load turns a little more slowly.
-  std::vector<float> k(solver.bodies.size(), 0.0f);
+std::vector<float> World::Impl::jointStiffness() const {
+  // Each joint's force |f| at each dynamic body's arm |r| (N m/rad), by body slot.
+  std::vector<float> k(bodies.capacity(), 0.0f);
   for (uint32_t i = 0; i < joints.capacity(); ++i) {
     if (!joints.alive(i)) continue;
     const JointRec& j = joints.at(i);
@@ -1245,9 +1239,24 @@ void World::Impl::addGeometricStiffness(float h) {
     const BodyRec& B = *bodies.get(j.def.bodyB);
     BodyPose pa = A ? poseOf(*A) : BodyPose{}, pb = poseOf(B);
     JointFrame fr = jointFrame(j, A ? &pa : nullptr, pb);
-    if (A && A->type == BodyType::Dynamic) k[size_t(A->solverIndex)] += f * length(fr.rA);
-    if (B.type == BodyType::Dynamic) k[size_t(B.solverIndex)] += f * length(fr.rB);
+    if (A && A->type == BodyType::Dynamic) k[j.def.bodyA.index] += f * length(fr.rA);
+    if (B.type == BodyType::Dynamic) k[j.def.bodyB.index] += f * length(fr.rB);
   }
+  return k;
+}
+
+void World::Impl::addGeometricStiffness(float h) {
+  // Andrews, Teichmann and Kry 2017: a joint force f at arm r turns into a torque that
+  // changes as the body turns, a stiffness of about |f| |r| (N m/rad). Our Jacobians are
+  // frozen over a substep, so that stiffness is integrated explicitly and blows up once
+  // omega h > ~1: a 1 kg link between a 1000 kg ball and the anchor, at the bottom of the
+  // swing (tension 3e4 N), has omega of about 340 rad/s. Adding h^2 k to the inertia (the
+  // implicit-Euler term, from last step's joint forces) makes the link's rotation stable at
+  // any substep; a light body under a large load turns a little more slowly.
+  const std::vector<float> bySlot = jointStiffness();
+  std::vector<float> k(solver.bodies.size(), 0.0f);
+  for (uint32_t slot = 0; slot < bySlot.size(); ++slot)
+    if (bySlot[slot] > 0) k[size_t(bodies.at(slot).solverIndex)] = bySlot[slot];
   for (size_t i = 1; i < solver.bodies.size(); ++i) {
     if (!(k[i] > 0)) continue;
     SolverBody& sb = solver.bodies[i];

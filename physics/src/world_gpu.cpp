@@ -16,7 +16,6 @@
 #include <cstring>
 #include <unordered_map>
 
-#include "joints.h"
 #include "world_impl.h"
 
 #ifdef PHYS_WITH_GPU
@@ -282,19 +281,7 @@ bool World::Impl::stepOnDevice(int substeps) {
   // Joints' geometric stiffness from last step's forces (addGeometricStiffness): it goes up
   // in the bodies' parameters, so a body that has or had some goes up again.
   if (def.solver.geometricStiffness && joints.size() > 0) {
-    std::vector<float> k(bodies.capacity(), 0.0f);
-    for (uint32_t i = 0; i < joints.capacity(); ++i) {
-      if (!joints.alive(i)) continue;
-      const JointRec& j = joints.at(i);
-      const float f = length(j.state.reactionForce);
-      if (!(f > 0)) continue;
-      const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
-      const BodyRec& B = *bodies.get(j.def.bodyB);
-      BodyPose pa = A ? poseOf(*A) : BodyPose{}, pb = poseOf(B);
-      JointFrame fr = jointFrame(j, A ? &pa : nullptr, pb);
-      if (A && A->type == BodyType::Dynamic) k[j.def.bodyA.index] += f * length(fr.rA);
-      if (B.type == BodyType::Dynamic) k[j.def.bodyB.index] += f * length(fr.rB);
-    }
+    std::vector<float> k = jointStiffness();
     for (uint32_t i = 0; i < k.size(); ++i)
       if (k[i] > 0 || (i < d.stiffness.size() && d.stiffness[i] > 0)) d.edited.push_back(i);
     d.stiffness.swap(k);

@@ -143,7 +143,9 @@ struct World::Impl {
   void narrowPhase(float h);
   void buildSolverBodies(const SolverSettings& s);  ///< s: this step's (substeps may differ)
   /// Joints' geometric stiffness added to the solver bodies' inertia (substep h).
-  void addGeometricStiffness(float h);
+    void addGeometricStiffness(float h);
+  /// Joints' geometric stiffness per body slot, from last step's joint forces.
+  std::vector<float> jointStiffness() const;
   /// A contact in the solver's terms (its points relative to the centres of mass, warm start).
   SolverManifold solverManifold(const Contact& c, const SolverSettings& s) const;
   void contactRowsOf(const Contact& c, const SolverManifold& m);  ///< appended
