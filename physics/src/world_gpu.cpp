@@ -454,6 +454,7 @@ bool World::Impl::stepOnDevice(int substeps) {
   stats.maxPenetration = cs.deepest;
   stats.velocityResidual = 0;
   stats.iterationsUsed = 0;
+  backend.validationErrors = g.validationErrors();
   backend.gpuSteps++;
   return true;
 }

@@ -97,7 +97,8 @@ int main(int argc, char** argv) {
                  "a CPU implementation such as lavapipe")
       ->check(CLI::IsMember({"cpu", "gpu", "auto"}));
   app.add_flag("--require-device", single.requireDevice,
-               "with --backend gpu or auto: fail (exit 1) unless every step ran on the device");
+               "with --backend gpu or auto: fail (exit 1) unless every step ran on the device "
+               "(and, with PHYS_GPU_VALIDATION=1, the validation layer reported nothing)");
   bool scalarContacts = false;
   app.add_flag("--scalar-contacts", scalarContacts,
                "solve Gauss-Seidel contacts one manifold at a time instead of in SIMD lanes "

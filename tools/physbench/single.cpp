@@ -101,12 +101,17 @@ int runSingle(SingleOptions opt) {
   result.metrics.stateHash = world.stateHash();
   const int code = reportSingle(opt, scene, result);
   const BackendState& b = world.backendState();
+  if (opt.requireDevice && b.validationErrors > 0) {
+    std::printf("FAILED: --require-device, but the validation layer reported %d errors\n",
+                b.validationErrors);
+    return 1;
+  }
   if (opt.requireDevice && (b.active != Backend::Gpu || b.cpuSteps > 0)) {
-    std::printf("FAILED: --require-device, but %s\n",
-                b.active != Backend::Gpu ? ("no device: " + b.note).c_str()
-                                         : (std::to_string(b.cpuSteps) +
-                                            " steps ran on the CPU: " + b.lastFallback)
-                                               .c_str());
+    std::printf(
+        "FAILED: --require-device, but %s\n",
+        b.active != Backend::Gpu
+            ? ("no device: " + b.note).c_str()
+            : (std::to_string(b.cpuSteps) + " steps ran on the CPU: " + b.lastFallback).c_str());
     return 1;
   }
   return code;

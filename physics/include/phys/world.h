@@ -182,7 +182,10 @@ struct BackendState {
   std::string note;               ///< why the CPU runs a world that asked for the GPU
   uint64_t gpuSteps = 0;          ///< steps taken on the device
   uint64_t cpuSteps = 0;          ///< steps taken by the CPU backend (all of a CPU world's)
-  std::string lastFallback;       ///< why the last CPU step of a GPU world was not on the device
+    std::string lastFallback;       ///< why the last CPU step of a GPU world was not on the device
+  /// Errors the Vulkan validation layer reported on the world's device so far (only with
+  /// PHYS_GPU_VALIDATION=1; tests and physbench --require-device fail on any).
+  int validationErrors = 0;
 };
 
 struct WorldDef {
