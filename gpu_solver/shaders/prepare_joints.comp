@@ -80,9 +80,16 @@ void main() {
     rA = j.anchorA.xyz;  // as the CPU: the world anchor (no velocity, no mass: no lever)
     pA = j.anchorA.xyz;
   }
-  qB = bodies[j.bodyB].q;
-  rB = quatRotate(qB, j.anchorB.xyz);
-  vec3 pB = states[j.bodyB].com.xyz + bodies[j.bodyB].dp.xyz + rB;
+    vec3 pB;
+  if (j.bodyB >= 0) {
+    qB = bodies[j.bodyB].q;
+    rB = quatRotate(qB, j.anchorB.xyz);
+    pB = states[j.bodyB].com.xyz + bodies[j.bodyB].dp.xyz + rB;
+  } else {
+    qB = j.qB;
+    rB = j.anchorB.xyz;
+    pB = j.anchorB.xyz;
+  }
   vec3 dp = pB - pA;
   const vec3 ex = vec3(1, 0, 0), ey = vec3(0, 1, 0), ez = vec3(0, 0, 1);
   uint type = j.type;

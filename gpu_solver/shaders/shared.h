@@ -227,9 +227,9 @@ struct GpuSolveConstants {
 // A joint as the device needs it, uploaded with the world's structure (world_gpu.cpp fills
 // it from JointRec, phys/world.h's JointDef).
 struct GpuJoint {
-  int bodyA;      // GpuWorld body index; -1: the world or a static body (then anchorA is the
+    int bodyA;      // GpuWorld body index; -1: the world or a static body (then anchorA is the
                   // world anchor and qA its orientation)
-  int bodyB;
+  int bodyB;      // likewise (-1: a static body; anchorB and qB in the world)
   uint type;      // PHYS_GPU_JOINT_*
   uint flags;     // PHYS_GPU_JOINT_LIMIT | _MOTOR
   vec4 anchorA;   // xyz: A's anchor from A's centre of mass, A's body axes; w: rest length (distance)
@@ -239,8 +239,9 @@ struct GpuJoint {
   vec4 relRot0;   // conj(qA) qB at creation
   vec4 refA;      // xyz: hinge reference in A's axes; w: max motor force
   vec4 refB;      // xyz: hinge reference in B's axes; w: spring hertz (distance)
-  vec4 qA;        // A's orientation when A is static
+    vec4 qA;        // A's orientation when A is static
   vec4 spring;    // x: spring damping ratio; y: 1 if the distance is rigid
+  vec4 qB;        // B's orientation when B is static
 };
 
 // One row of a joint for the current substep (the CPU's Row: Jacobian, error, impulse).

@@ -71,7 +71,6 @@ bool World::Impl::stepOnDevice(int) {
 struct DeviceWorld {
   std::unique_ptr<gpu::GpuWorld> world;
   bool hulls = false;                ///< a hull the device cannot take (hull_pack.h's limits)
-  bool staticB = false;              ///< a joint's body B is static (not on the device yet)
   std::vector<uint32_t> jointSlots;  ///< device joint index -> joint slot
   std::vector<float> stiffness;      ///< body slot -> joints' geometric stiffness this step
   std::vector<uint32_t> slots;       ///< device body index -> body slot
@@ -130,8 +129,14 @@ gpu::GpuJoint jointOf(const JointRec& j, const BodyRec* A, const BodyRec& B) {
     g.anchorA = v4(A ? apply(A->xf, d.anchorA) : d.anchorA, j.length);
     if (A) g.qA = q4(A->xf.q);
   }
+  g.qB = {0, 0, 0, 1};
   g.bodyB = B.deviceIndex;
-  g.anchorB = v4(d.anchorB - B.localCenter, d.lower);
+  if (B.deviceIndex >= 0) {
+    g.anchorB = v4(d.anchorB - B.localCenter, d.lower);
+  } else {  // a static body B: its anchor and orientation in the world
+    g.anchorB = v4(apply(B.xf, d.anchorB), d.lower);
+    g.qB = q4(B.xf.q);
+  }
   g.axisA = v4(normalize(d.axisA), d.upper);
   g.axisB = v4(normalize(d.axisB), d.motorSpeed);
   g.relRot0 = q4(j.relRot0);
@@ -337,16 +342,12 @@ bool World::Impl::stepOnDevice(int substeps) {
     std::vector<gpu::GpuJoint> jointRecs;
     std::vector<gpu::GpuJointOut> jointWarm;
     d.jointSlots.clear();
-    d.staticB = false;
     for (uint32_t i = 0; i < joints.capacity(); ++i) {
       if (!joints.alive(i)) continue;
       const JointRec& j = joints.at(i);
       const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
       const BodyRec& B = *bodies.get(j.def.bodyB);
-      if (B.deviceIndex < 0) {
-        d.staticB = true;
-        continue;
-      }
+
       d.jointSlots.push_back(i);
       jointRecs.push_back(jointOf(j, A, B));
       jointWarm.push_back(jointImpulses(j));
@@ -366,10 +367,7 @@ bool World::Impl::stepOnDevice(int substeps) {
 
   // A world whose contacts or joints the device cannot solve yet steps on the device only
   // while it has none (the CPU's broad phase tells).
-  std::string why = d.staticB ? std::string(
-                                    "a joint on a static body B is not on the GPU "
-                                    "backend yet")
-                              : contactsOffDevice(def.solver, d.hulls, d.world->hasNarrowPhase());
+  std::string why = contactsOffDevice(def.solver, d.hulls, d.world->hasNarrowPhase());
   const bool solveOnDevice = why.empty();
   if (!solveOnDevice && joints.size() == 0) {
     updateBounds(dt);

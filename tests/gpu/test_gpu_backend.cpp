@@ -652,6 +652,39 @@ TEST(GpuJoints, HangingChainCarriesItsWeight) {
   EXPECT_LT(length(state(t.gpu, t.g.back()).linearVelocity), 0.05f);
 }
 
+TEST(GpuJoints, AStaticBodyCanBeEitherSide) {
+  // A pendulum hung from a static body, once as body A and once as body B: the same motion
+  // as the CPU's, all on the device.
+  for (bool staticIsB : {false, true}) {
+    SCOPED_TRACE(staticIsB ? "static B" : "static A");
+    SolverSettings s;
+    s.equalitySolve = SolverSettings::EqualitySolve::Iterative;
+    World g(TwinChains::def(s, Backend::Gpu)), c(TwinChains::def(s, Backend::Cpu));
+    REQUIRE_DEVICE(g);
+    BodyId gb, cb;
+    for (World* w : {&g, &c}) {
+      BodyId post = add(*w, boxBody({0, 0, 5}, {0.1f, 0.1f, 0.1f}, BodyType::Static));
+      BodyId bob = add(*w, sphereBody({1, 0, 5}, 0.2f));
+      JointDef j;
+      j.type = JointType::Ball;
+      j.bodyA = staticIsB ? bob : post;
+      j.bodyB = staticIsB ? post : bob;
+      j.anchorA = staticIsB ? Vec3{-1, 0, 0} : Vec3{};
+      j.anchorB = staticIsB ? Vec3{} : Vec3{-1, 0, 0};
+      ASSERT_TRUE(w->createJoint(j, nullptr).ok());
+      (w == &g ? gb : cb) = bob;
+    }
+    for (int i = 0; i < 60; ++i) {
+      g.step();
+      c.step();
+    }
+    EXPECT_EQ(g.backendState().cpuSteps, 0u);
+    const BodyState a = state(g, gb), b = state(c, cb);
+    EXPECT_LT(length(a.position - b.position), 2e-3f);
+    EXPECT_NEAR(length(a.position - Vec3{0, 0, 5}), 1, 5e-3f);  // still 1 m from the post
+  }
+}
+
 TEST(GpuJoints, JoinedBodiesDoNotCollideUnlessAsked) {
   for (bool collide : {false, true}) {
     WorldDef d = gpuDef();

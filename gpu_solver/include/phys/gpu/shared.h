@@ -22,7 +22,7 @@ static_assert(sizeof(GpuContact) == 336 && offsetof(GpuContact, rA) == 64 &&
               offsetof(GpuContact, massN) == 192);
 static_assert(sizeof(GpuDelta) == 64);
 static_assert(sizeof(GpuSolveConstants) == 112);
-static_assert(sizeof(GpuJoint) == 160);
+static_assert(sizeof(GpuJoint) == 176);
 static_assert(sizeof(GpuJointRow) == 80);
 static_assert(sizeof(GpuJointRows) == 8 * 80 + 96 + 16);
 static_assert(sizeof(GpuJointOut) == 64);
