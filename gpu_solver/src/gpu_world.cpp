@@ -666,7 +666,7 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
     // Colors to dispatch next step: this step's and a few more (those past it go to the
     // serial overflow, still solved).
     w.colorLimit = std::clamp(w.counters[PHYS_GPU_COUNTER_COLORS] + 4, 8u, PHYS_GPU_MAX_COLORS);
-    // Room to grow without a retry next time; shrink when far too large.
+    // Room to grow without a retry next time (the buffers never shrink).
     if (found * 3 > w.pairCapacity * 2) w.pairCapacity = Primitives::pow2(found * 2);
     w.states.swap(result);
     if (solve && !w.joints.empty()) w.jointOut.swap(jointResults);

@@ -2,14 +2,13 @@
 // device world (gpu_solver/) as flat records, stepping it and copying the states back into
 // the host mirror (BodyRec), which is what getBody, the metrics and publishing read.
 //
-// What the device covers so far: every stage for spheres, boxes, capsules and planes with
-// the Jacobi scheme (the pj, pjsoft, tj, tjsoft family: bounds, broad phase, narrow phase,
-// warm starts, mass-split Jacobi contacts with soft or Baumgarte stabilization, substeps,
-// relax, restitution, integration). Joints, hulls, the Gauss-Seidel schemes, patch
-// friction and the position pass are not on the device yet: a world that needs one of them
-// and has contacts or joints in a step has that step taken by the CPU backend from the same
-// host mirror, counted in BackendState::cpuSteps with the reason (the CPU's broad phase
-// tells whether it has contacts); the device's copy is refreshed before its next step.
+// The device takes the whole step for every shape (hulls packed once per structure change),
+// joint and preset, with these differences (docs/ARCHITECTURE.md, "The GPU backend"): the
+// Gauss-Seidel schemes run on colors, joints are iterative (no LDL), a few settings
+// (contactsOffDevice) are the CPU's alone. A world that needs one of those has each step
+// with a contact or joint taken by the CPU backend from the same host mirror, counted in
+// BackendState::cpuSteps with the reason; the device's copy is refreshed before its next
+// step.
 #include <algorithm>
 #include <bit>
 #include <cstdio>
