@@ -24,6 +24,8 @@ using uint = uint32_t;
 #define PHYS_GPU_GROUP 64
 // Values per workgroup of the prefix sum (scan_local.comp, scan_add.comp).
 #define PHYS_GPU_SCAN_GROUP 256
+// Keys per workgroup of the bitonic sort's shared-memory passes (bitonic_local.comp).
+#define PHYS_GPU_SORT_TILE 512
 
 // GpuBodyParams.flags bits.
 #define PHYS_GPU_BODY_DYNAMIC 1u     // moved by forces and constraints (else kinematic)

@@ -20,6 +20,7 @@ uint32_t groups(uint32_t n, uint32_t size) {
 Primitives::Primitives(const std::shared_ptr<Device>& device) : device_(device) {
   const uint32_t push = sizeof(GpuSortConstants);
   bitonic_ = std::make_unique<Kernel>(device, "bitonic_sort", code("bitonic_sort"), 1, push);
+  bitonicLocal_ = std::make_unique<Kernel>(device, "bitonic_local", code("bitonic_local"), 1, push);
   scanLocal_ = std::make_unique<Kernel>(device, "scan_local", code("scan_local"), 2, push);
   scanAdd_ = std::make_unique<Kernel>(device, "scan_add", code("scan_add"), 2, push);
 }
@@ -34,11 +35,27 @@ void Primitives::sort(Stream& s, const Buffer& keys, uint32_t n) const {
   if (n < 2) return;
   if (n != pow2(n)) throw std::invalid_argument("Primitives::sort: n must be a power of two");
   const Buffer* b[] = {&keys};
-  for (uint32_t k = 2; k <= n; k <<= 1) {
-    for (uint32_t j = k >> 1; j > 0; j >>= 1) {
-      GpuSortConstants c{n, j, k, 0};
-      s.dispatch(*bitonic_, b, &c, groups(n, PHYS_GPU_GROUP));
-    }
+  auto global = [&](uint32_t k, uint32_t j) {
+    GpuSortConstants c{n, j, k, 0};
+    s.dispatch(*bitonic_, b, &c, groups(n, PHYS_GPU_GROUP));
+  };
+  constexpr uint32_t tile = PHYS_GPU_SORT_TILE;
+  if (n < tile) {
+    for (uint32_t k = 2; k <= n; k <<= 1)
+      for (uint32_t j = k >> 1; j > 0; j >>= 1) global(k, j);
+    return;
+  }
+  // The passes with j < tile in shared memory, one dispatch for all of them at a time: the
+  // same network in log(n/tile) * (log(n/tile) + 3) / 2 + 1 dispatches instead of
+  // log(n) * (log(n) + 1) / 2.
+  auto local = [&](uint32_t k) {
+    GpuSortConstants c{n, 0, k, 0};
+    s.dispatch(*bitonicLocal_, b, &c, n / tile);
+  };
+  local(0);
+  for (uint32_t k = 2 * tile; k <= n; k <<= 1) {
+    for (uint32_t j = k >> 1; j >= tile; j >>= 1) global(k, j);
+    local(k);
   }
 }
 

@@ -30,7 +30,7 @@ class Primitives {
 
  private:
   std::shared_ptr<Device> device_;
-  std::unique_ptr<Kernel> bitonic_, scanLocal_, scanAdd_;
+  std::unique_ptr<Kernel> bitonic_, bitonicLocal_, scanLocal_, scanAdd_;
 };
 
 }  // namespace phys::gpu

@@ -23,7 +23,7 @@ TEST(GpuPrimitives, SortMatchesStdSortWithTies) {
   Primitives prim(device);
   Stream stream(device);
   std::mt19937 rng(7);
-  for (uint32_t count : {1u, 2u, 5u, 64u, 1000u, 4096u, 70000u}) {
+  for (uint32_t count : {1u, 2u, 5u, 64u, 300u, 512u, 513u, 1000u, 4096u, 70000u, 300000u}) {
     SCOPED_TRACE("count " + std::to_string(count));
     const uint32_t n = Primitives::pow2(count);
     std::vector<std::pair<uint32_t, uint32_t>> keys(n, {~0u, ~0u});
