@@ -36,12 +36,17 @@ vec3 softness(float hertz, float zeta, float h) {
   return vec3(omega / a1, a2 * a3, a3);
 }
 
-// One pass over a joint's rows (Solver::solveGroup), on velocities va..wb.
+// One pass over a joint's rows (Solver::solveGroup), on velocities va..wb; equality rows
+// only when the joints are not solved directly (GpuSolveConstants.ldlIslands).
 void solveJoint(inout GpuJointRows J, Side A, Side B, bool useBias, inout vec3 va,
                 inout vec3 wa, inout vec3 vb, inout vec3 wb) {
   for (uint i = 0u; i < J.count;) {
     GpuJointRow r = J.rows[i];
     uint n = r.info.y;
+    if (k.ldlIslands != 0u && r.info.x == PHYS_GPU_ROW_EQUALITY) {
+      i += max(n, 1u);  // the direct solve's (joint_ldl.comp), as Solver's skipEquality
+      continue;
+    }
     if (n > 1u) {
       // The block's rows at once: d = -K^-1 (J v + bias) scaled, minus the soft decay.
       uint slot = i == 0u ? 0u : 3u;

@@ -199,8 +199,9 @@ struct GpuSolveConstants {
   uint jointCount;      // constraint ids: joints 0..jointCount-1, then contact i as jointCount + i
   uint color;           // colored Gauss-Seidel: the color this pass solves
   uint colorLimit;      // colors dispatched; later ones go to the serial overflow
-  uint mode;            // PHYS_GPU_PASS_*
-  uint pad1;
+  uint mode;            // PHYS_GPU_PASS_* (joint_ldl.comp: PHYS_GPU_LDL_*)
+  uint ldlIslands;      // joint islands of the joints' direct solve (0: joints iterative; else
+                        // the passes leave the joints' equality rows to joint_ldl.comp)
   float positionBaumgarte;      // the position pass: fraction of the error removed per pass
   float maxPositionCorrection;  // m per pass and row
   uint refresh;                 // prepare_joints: keep the rows' impulses (a later substep)
@@ -274,6 +275,26 @@ struct GpuJointOut {
   vec4 force;         // xyz: reaction force on B (N); w: rows
   vec4 torque;        // xyz: reaction torque on B (N m), pure rotation rows only
 };
+
+// The joints' direct solve (SolverSettings::equalitySolve = direct_ldl; Roblox's LDL hybrid):
+// the equality rows of the joints, island by island (joints joined through dynamic bodies),
+// in a fill-reducing order; A = J M^-1 J^T factored as L D L^T with L's pattern fixed by the
+// plan (joint_ldl.h builds it on the host, joint_ldl.comp factors and solves). Row numbers
+// are global: an island's rows are one contiguous range.
+struct GpuLdlRow {
+  uint joint;         // the joint whose row this is
+  uint row;           // the row's index among the joint's rows (an equality row)
+  uint patternBegin;  // row k of L: its entries L(k, i), i < k, are
+  uint patternEnd;    //   pattern[patternBegin, patternEnd) as (i, index in L), i ascending
+  uint columnBegin;   // column k of L: its entries L(i, k), i > k, are
+  uint columnEnd;     //   values[columnBegin, columnEnd) with i = columnRows[] alike
+  uint pad0;
+  uint pad1;
+};
+// An island: uvec4(first row, rows, 0, 0).
+// GpuSolveConstants.mode of joint_ldl.comp.
+#define PHYS_GPU_LDL_FACTOR 0u  // assemble A from the rows now and factor it
+#define PHYS_GPU_LDL_SOLVE 1u   // solve every equality row at once (useBias: with the error)
 
 // GpuSolveConstants.mode of the colored Gauss-Seidel pass.
 #define PHYS_GPU_PASS_WARM_START 0u

@@ -8,6 +8,7 @@
 #include <tuple>
 
 #include "gpu_primitives.h"
+#include "joint_ldl.h"
 #include "shader_table.h"
 #include "vk_device.h"
 
@@ -60,7 +61,7 @@ struct Kernels {
       updateBounds, bpKeys, bpCount, bpWrite, bpPairs, narrowPhase, matchContacts, csrKeys,
       csrRanges, prepareContacts, contactWarmStart, contactSolve, contactRestitution, applyDeltas,
       storeImpulses, contactStats, colorRound, colorKeys, colorRanges, contactGs, positionJacobi,
-      applyPositions, prepareJoints, jointJacobi, storeJoints;
+      applyPositions, prepareJoints, jointJacobi, storeJoints, jointLdl;
   Primitives primitives;
   explicit Kernels(const std::shared_ptr<Device>& d) : primitives(d) {
     auto make = [&](const char* name, uint32_t bindings, uint32_t push) {
@@ -97,6 +98,7 @@ struct Kernels {
     prepareJoints = make("prepare_joints", 8, solve);
     jointJacobi = make("joint_jacobi", 6, solve);
     storeJoints = make("store_joints", 2, solve);
+    jointLdl = make("joint_ldl", 12, solve);
     applyPositions = make("apply_positions", 4, solve);
   }
 };
@@ -220,6 +222,12 @@ struct GpuWorld::Impl {
   Buffer colorBuf[2], colorKeyBuf, rangeBuf, argsBuf;
   // Joints: their records, this substep's rows, and their impulses and reactions.
   Buffer jointBuf, jointRowBuf, jointOutBuf;
+  // The joints' direct solve (joint_ldl.h): the plan's islands, rows, L's pattern by row and
+  // by column, and the numbers: L, D and a work vector (doubles). Planned again when the
+  // joints or the set of dynamic bodies change.
+  Buffer ldlIslandBuf, ldlRowBuf, ldlPatternBuf, ldlColumnBuf, ldlValueBuf, ldlDiagBuf, ldlWorkBuf;
+  bool ldlDirty = true;
+  uint32_t ldlIslands = 0;
   uint32_t colorLimit = 16;  ///< colors dispatched (then the serial overflow), from the last step
   int current = 0;           ///< manifoldBuf[current] is this step's
   uint32_t pairCapacity = 64;
@@ -232,6 +240,11 @@ struct GpuWorld::Impl {
   void recordPrepareContacts(Stream& s, const GpuSolveConstants& sc);
   /// The joints' rows at the current poses (refresh: a later substep, impulses kept).
   void recordPrepareJoints(Stream& s, GpuSolveConstants sc, bool refresh);
+  /// Plans the joints' direct solve again if the joints or the dynamic bodies changed, and
+  /// uploads the plan; returns the islands (0: nothing to solve directly).
+  uint32_t syncLdl(Stream& s);
+  /// The joints' direct solve: factor (after the rows are built) or solve (after a pass).
+  void recordLdl(Stream& s, GpuSolveConstants sc, uint32_t mode, bool useBias);
   /// Colors the contacts (no two of a color share a dynamic body) and sorts them by color.
   void recordColoring(Stream& s, const GpuSolveConstants& sc);
   /// One colored Gauss-Seidel pass over every color (mode: warm start, solve, restitution).
@@ -272,11 +285,14 @@ void GpuWorld::setBodies(std::span<const GpuBodyState> states,
   impl_->params.assign(params.begin(), params.end());
   impl_->allBodiesDirty = true;
   impl_->dirtyBodies.clear();
+  impl_->ldlDirty = true;
 }
 
 void GpuWorld::setBody(uint32_t index, const GpuBodyState& state, const GpuBodyParams& params) {
   if (index >= impl_->states.size()) throw std::out_of_range("setBody: no such body");
   impl_->states[index] = state;
+  if ((impl_->params[index].flags.x ^ params.flags.x) & PHYS_GPU_BODY_DYNAMIC)
+    impl_->ldlDirty = true;  // rows couple through dynamic bodies only
   impl_->params[index] = params;
   if (!impl_->allBodiesDirty) impl_->dirtyBodies.push_back(index);
 }
@@ -314,6 +330,7 @@ void GpuWorld::setJoints(std::span<const GpuJoint> joints, std::span<const GpuJo
   impl_->joints.assign(joints.begin(), joints.end());
   impl_->jointOut.assign(impulses.begin(), impulses.end());
   impl_->jointsDirty = true;
+  impl_->ldlDirty = true;
 }
 uint32_t GpuWorld::jointCount() const {
   return uint32_t(impl_->joints.size());
@@ -460,6 +477,39 @@ void GpuWorld::Impl::recordPrepareJoints(Stream& s, GpuSolveConstants sc, bool r
   const Buffer* b[] = {&solverBuf, &paramBuf,    &refBuf,      &stateBuf,
                        &jointBuf,  &jointRowBuf, &jointOutBuf, &colorBuf[0]};
   s.dispatch(*kernels().prepareJoints, b, &sc, groupsFor(sc.jointCount));
+  recordLdl(s, sc, PHYS_GPU_LDL_FACTOR, true);
+}
+
+uint32_t GpuWorld::Impl::syncLdl(Stream& s) {
+  if (!ldlDirty) return ldlIslands;
+  const JointLdlPlan plan = planJointLdl(joints, params);
+  const std::shared_ptr<Device>& d = shared->device;
+  const size_t rows = plan.rows.size(), entries = plan.entries();
+  reserve(d, ldlIslandBuf, plan.islands.size() * sizeof(uvec4));
+  reserve(d, ldlRowBuf, rows * sizeof(GpuLdlRow));
+  reserve(d, ldlPatternBuf, plan.pattern.size() * 4);
+  reserve(d, ldlColumnBuf, entries * 4);
+  reserve(d, ldlValueBuf, entries * 8);
+  reserve(d, ldlDiagBuf, rows * 8);
+  reserve(d, ldlWorkBuf, rows * 8);
+  s.upload(ldlIslandBuf, 0, plan.islands.data(), plan.islands.size() * sizeof(uvec4));
+  s.upload(ldlRowBuf, 0, plan.rows.data(), rows * sizeof(GpuLdlRow));
+  s.upload(ldlPatternBuf, 0, plan.pattern.data(), plan.pattern.size() * 4);
+  s.upload(ldlColumnBuf, 0, plan.columnRows.data(), entries * 4);
+  ldlIslands = uint32_t(plan.islands.size());
+  ldlDirty = false;
+  return ldlIslands;
+}
+
+void GpuWorld::Impl::recordLdl(Stream& s, GpuSolveConstants sc, uint32_t mode, bool useBias) {
+  if (sc.ldlIslands == 0) return;
+  sc.mode = mode;
+  sc.useBias = useBias ? 1 : 0;
+  sc.jacobi = 0;  // whole masses: the direct solve is not split among constraints
+  const Buffer* b[] = {&solverBuf,    &paramBuf,      &refBuf,       &jointBuf,
+                       &jointRowBuf,  &ldlIslandBuf,  &ldlRowBuf,    &ldlPatternBuf,
+                       &ldlColumnBuf, &ldlValueBuf,   &ldlDiagBuf,   &ldlWorkBuf};
+  s.dispatch(*kernels().jointLdl, b, &sc, groupsFor(sc.ldlIslands));
 }
 
 void GpuWorld::Impl::recordColoring(Stream& s, const GpuSolveConstants& sc) {
@@ -536,6 +586,7 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
     try {
       s.begin();
       w.sync(s, c);
+      if (solve && in.contacts.directJoints && sc.jointCount > 0) sc.ldlIslands = w.syncLdl(s);
       s.mark(int(Stage::SyncToDevice));
       const Buffer* bounds[] = {&w.stateBuf, &w.paramBuf, &w.shapeBuf, &w.boundsBuf};
       s.dispatch(*k.updateBounds, bounds, &c, groupsFor(m));
@@ -561,6 +612,8 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
           w.recordContactPass(s, jacobiKernel, p);
         else
           w.recordColoredPass(s, p, mode);
+        // The joints' equality rows, all at once, after the rest (the CPU's iterate()).
+        if (mode == PHYS_GPU_PASS_SOLVE) w.recordLdl(s, p, PHYS_GPU_LDL_SOLVE, useBias);
       };
       const Buffer* integrate[] = {&w.paramBuf, &w.solverBuf};
       for (int sub = 0; sub < substeps; ++sub) {
@@ -642,12 +695,12 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
       s.mark(int(Stage::Readback));
       if (!s.submit(error)) {
         // What went up is not to be trusted.
-        w.allBodiesDirty = w.shapesDirty = w.jointsDirty = true;
+        w.allBodiesDirty = w.shapesDirty = w.jointsDirty = w.ldlDirty = true;
         return false;
       }
     } catch (const std::exception& e) {
       if (error) *error = e.what();
-      w.allBodiesDirty = w.shapesDirty = w.jointsDirty = true;
+      w.allBodiesDirty = w.shapesDirty = w.jointsDirty = w.ldlDirty = true;
       return false;
     }
     const uint32_t found =
@@ -656,7 +709,7 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
       // More pairs than the buffers hold: grow them and take the step again from the
       // states before it (the host mirror), which all go up again.
       w.pairCapacity = Primitives::pow2(found + found / 2);
-      w.allBodiesDirty = w.shapesDirty = w.jointsDirty = true;
+      w.allBodiesDirty = w.shapesDirty = w.jointsDirty = w.ldlDirty = true;
       continue;
     }
     if (in.readContacts) {

@@ -4,7 +4,8 @@
 //
 // The device takes the whole step for every shape (hulls packed once per structure change),
 // joint and preset, with these differences (docs/ARCHITECTURE.md, "The GPU backend"): the
-// Gauss-Seidel schemes run on colors, joints are iterative (no LDL), a few settings
+// Gauss-Seidel schemes run on colors, direct_ldl joints by the device's own sparse
+// L D L^T (joint_ldl.comp; double precision, one thread per joint island), a few settings
 // (contactsOffDevice) are the CPU's alone. A world that needs one of those has each step
 // with a contact or joint taken by the CPU backend from the same host mirror, counted in
 // BackendState::cpuSteps with the reason; the device's copy is refreshed before its next
@@ -276,6 +277,7 @@ static gpu::ContactSettings contactSettings(const SolverSettings& s) {
       s.positionPass == SolverSettings::PositionPass::None ? 0 : s.positionIterations;
   c.positionBaumgarte = s.positionBaumgarte;
   c.maxPositionCorrection = s.maxPositionCorrection;
+  c.directJoints = s.equalitySolve == SolverSettings::EqualitySolve::DirectLdl;
   return c;
 }
 

@@ -61,6 +61,10 @@ struct ContactSettings {
   int positionIterations = 0;
   float positionBaumgarte = 0.2f;
   float maxPositionCorrection = 0.2f;  ///< m
+  /// The joints' equality rows solved together and exactly (an L D L^T factorization of
+  /// J M^-1 J^T per substep, joint_ldl.comp) after every pass, as the CPU's direct_ldl;
+  /// otherwise iterated with the rest.
+  bool directJoints = false;
 };
 
 struct StepInput {

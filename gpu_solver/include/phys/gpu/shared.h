@@ -26,4 +26,5 @@ static_assert(sizeof(GpuJoint) == 176);
 static_assert(sizeof(GpuJointRow) == 80);
 static_assert(sizeof(GpuJointRows) == 8 * 80 + 96 + 16);
 static_assert(sizeof(GpuJointOut) == 64);
+static_assert(sizeof(GpuLdlRow) == 32);
 }  // namespace phys::gpu
