@@ -3,6 +3,10 @@
 #ifndef PHYS_GPU_CONTACT_GLSL
 #define PHYS_GPU_CONTACT_GLSL
 
+// This step takes the split push-out (contact_gs.comp sets it): the velocity passes
+// correct penetration only down to PHYS_GPU_SPLIT_DEPTH, the pseudo velocities the rest.
+bool splitActive = false;
+
 struct Side {
   vec3 v, w, dp, dtheta;
   float invMass;  // split: the body's inverse mass times its contact count (Jacobi)
@@ -131,6 +135,7 @@ void solveContact(inout GpuContact c, Side A, Side B, bool useBias, inout vec3 v
     } else if (useBias) {
       float slop = k.soft != 0u ? 0.0 : k.linearSlop;
       float Cs = min(0.0, C + slop);
+      if (splitActive) Cs = max(Cs, -PHYS_GPU_SPLIT_DEPTH);
       bias = max(k.biasRate * Cs, -k.maxPushout);
       massScale = k.massScale;
       impulseScale = k.impulseScale;
@@ -161,6 +166,38 @@ void solveContact(inout GpuContact c, Side A, Side B, bool useBias, inout vec3 v
                  c.t2.xyz, c.rA[p].xyz, c.rB[p].xyz, A, B, va, wa, vb, wb);
     c.lambdaT1[p] = lt1;
     c.lambdaT2[p] = lt2;
+  }
+}
+
+// Split push-out (Solver::solvePushout, pushoutGroup): on the pseudo velocities va..wb
+// alone, which start at zero each substep. First the last substep's push impulses again
+// (none at a step's first substep), then passes of the soft position bias of the depth
+// beyond PHYS_GPU_SPLIT_DEPTH, each point's impulse kept >= 0.
+void pushWarmStartContact(GpuContact c, Side A, Side B, inout vec3 va, inout vec3 wa,
+                          inout vec3 vb, inout vec3 wb) {
+  for (uint p = 0u; p < c.count; ++p)
+    if (c.pushLambda[p] != 0)
+      applyRow(c.pushLambda[p], c.normal.xyz, c.rA[p].xyz, c.rB[p].xyz, A, B, va, wa, vb, wb);
+}
+void pushoutContact(inout GpuContact c, Side A, Side B, inout vec3 va, inout vec3 wa,
+                    inout vec3 vb, inout vec3 wb) {
+  vec3 n = c.normal.xyz;
+  for (uint p = 0u; p < c.count; ++p) {
+    vec3 rA = c.rA[p].xyz, rB = c.rB[p].xyz;
+    float C = rowError(c.rA[p].w, n, rA, rB, A, B) + PHYS_GPU_SPLIT_DEPTH;
+    if (C >= 0 && c.pushLambda[p] == 0) continue;
+    float bias = 0, massScale = 1, impulseScale = 0;
+    if (C < 0) {
+      bias = max(k.biasRate * C, -k.maxPushout);
+      massScale = k.massScale;
+      impulseScale = k.impulseScale;
+    }
+    float vn = rowVelocity(n, rA, rB, va, wa, vb, wb);
+    float impulse = -c.massN[p] * massScale * (vn + bias) - impulseScale * c.pushLambda[p];
+    float next = max(c.pushLambda[p] + impulse, 0.0);
+    impulse = next - c.pushLambda[p];
+    c.pushLambda[p] = next;
+    if (impulse != 0) applyRow(impulse, n, rA, rB, A, B, va, wa, vb, wb);
   }
 }
 

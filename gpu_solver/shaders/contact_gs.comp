@@ -2,7 +2,8 @@
 // Colored Gauss-Seidel (contacts): the contacts of one color, in parallel (no two share a
 // dynamic body), each applying its rows straight to its bodies' velocities; the overflow
 // slot is walked by one thread in contact order. The pass (warm start, solve or relax,
-// restitution) is GpuSolveConstants.mode; contact.glsl has the rows.
+// restitution, the position pass, the split push-out's passes) is GpuSolveConstants.mode;
+// contact.glsl has the rows.
 #extension GL_GOOGLE_include_directive : require
 #extension GL_ARB_gpu_shader_fp64 : require
 #include "shared.h"
@@ -16,6 +17,9 @@ layout(std430, binding = 4) readonly buffer Ranges { uvec4 ranges[]; };
 layout(std430, binding = 5) readonly buffer Refs { uvec4 refs[]; };
 layout(std430, binding = 6) readonly buffer Joints { GpuJoint joints[]; };
 layout(std430, binding = 7) buffer Rows { GpuJointRows jointRows[]; };
+layout(std430, binding = 8) readonly buffer Counters { uint counters[]; };
+// The split push-out's pseudo velocities: body b's linear at 2b, angular at 2b + 1.
+layout(std430, binding = 9) buffer Push { vec4 pushVelocity[]; };
 layout(push_constant) uniform Push { GpuSolveConstants k; };
 #include "contact.glsl"
 #include "joint.glsl"
@@ -65,12 +69,46 @@ void solveJointOne(uint ji) {
   store(j.bodyB, vb, wb);
 }
 
+void storePush(int b, vec3 v, vec3 w) {
+  if (b < 0 || (params[b].flags.x & PHYS_GPU_BODY_DYNAMIC) == 0u) return;
+  pushVelocity[2 * b] = vec4(v, 0);
+  pushVelocity[2 * b + 1] = vec4(w, 0);
+}
+
+// The split push-out's passes over one contact, on its bodies' pseudo velocities.
+void pushOne(uint i) {
+  GpuContact c = contacts[i];
+  Side A = loadSide(c.bodyA), B = loadSide(c.bodyB);
+  vec3 va = vec3(0), wa = vec3(0), vb = vec3(0), wb = vec3(0);
+  if (c.bodyA >= 0) {
+    va = pushVelocity[2 * c.bodyA].xyz;
+    wa = pushVelocity[2 * c.bodyA + 1].xyz;
+  }
+  if (c.bodyB >= 0) {
+    vb = pushVelocity[2 * c.bodyB].xyz;
+    wb = pushVelocity[2 * c.bodyB + 1].xyz;
+  }
+  if (k.mode == PHYS_GPU_PASS_PUSH_WARM) {
+    pushWarmStartContact(c, A, B, va, wa, vb, wb);
+  } else {
+    pushoutContact(c, A, B, va, wa, vb, wb);
+    contacts[i].pushLambda = c.pushLambda;
+  }
+  storePush(c.bodyA, va, wa);
+  storePush(c.bodyB, vb, wb);
+}
+
 void solveOne(uint id) {
+  bool push = k.mode == PHYS_GPU_PASS_PUSH_WARM || k.mode == PHYS_GPU_PASS_PUSHOUT;
   if (id < k.jointCount) {
-    solveJointOne(id);
+    if (!push) solveJointOne(id);  // the push-out is the contacts' alone
     return;
   }
   uint i = id - k.jointCount;
+  if (push) {
+    pushOne(i);
+    return;
+  }
   GpuContact c = contacts[i];
   Side A = loadSide(c.bodyA), B = loadSide(c.bodyB);
   if (k.mode == PHYS_GPU_PASS_POSITION) {
@@ -104,6 +142,12 @@ void solveOne(uint id) {
 }
 
 void main() {
+  // The split push-out only in a step with a contact deeper than the contacts' own bias
+  // corrects (the CPU's rule, from the same narrow phase's deepest penetration).
+  splitActive = k.splitPushout != 0u &&
+                uintBitsToFloat(counters[PHYS_GPU_COUNTER_DEEPEST]) > PHYS_GPU_SPLIT_DEPTH;
+  if ((k.mode == PHYS_GPU_PASS_PUSH_WARM || k.mode == PHYS_GPU_PASS_PUSHOUT) && !splitActive)
+    return;
   uvec4 range = ranges[k.color];
   if (k.color == k.colorLimit) {
     if (globalIndex() != 0u) return;

@@ -9,6 +9,8 @@
 layout(local_size_x = PHYS_GPU_GROUP) in;
 layout(std430, binding = 0) readonly buffer Params { GpuBodyParams params[]; };
 layout(std430, binding = 1) buffer Solver { GpuSolverBody bodies[]; };
+// The split push-out's pseudo velocities (body i: linear at 2i, angular at 2i + 1).
+layout(std430, binding = 2) readonly buffer Push { vec4 pushVelocity[]; };
 layout(push_constant) uniform Push { GpuStepConstants k; };
 
 vec4 axisRotation(int i, float a) {
@@ -46,12 +48,23 @@ void main() {
   GpuBodyParams p = params[i];
   GpuSolverBody b = bodies[i];
   vec4 q0 = b.q;
-  b.dp.xyz += b.v.xyz * k.h;
+  vec3 pv = vec3(0), pw = vec3(0);
+  if (k.splitPushout != 0u) {
+    pv = pushVelocity[2 * i].xyz;
+    pw = pushVelocity[2 * i + 1].xyz;
+  }
   vec3 w = b.w.xyz;
-  if ((p.flags.x & PHYS_GPU_BODY_GYROSCOPIC) != 0u) {
+  if (pv != vec3(0) || pw != vec3(0)) {
+    // Pushed out this substep: the pseudo velocity moves the body, the velocity stays
+    // (plain rotation, as the CPU's Solver::integratePositions).
+    b.dp.xyz += (b.v.xyz + pv) * k.h;
+    b.q = integrateRotation(b.q, w + pw, k.h);
+  } else if ((p.flags.x & PHYS_GPU_BODY_GYROSCOPIC) != 0u) {
+    b.dp.xyz += b.v.xyz * k.h;
     rotateFree(b.q, w, p.principal, p.moments.xyz, k.h);
     b.w.xyz = w;
   } else {
+    b.dp.xyz += b.v.xyz * k.h;
     b.q = integrateRotation(b.q, w, k.h);
   }
   b.dtheta.xyz += rotationVector(quatMul(b.q, quatConj(q0)));

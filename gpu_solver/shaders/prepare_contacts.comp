@@ -84,5 +84,6 @@ void main() {
   c.lambdaT1 = warm ? m.tangentImpulse1 : vec4(0);
   c.lambdaT2 = warm ? m.tangentImpulse2 : vec4(0);
   c.maxLambdaN = vec4(0);
+  c.pushLambda = vec4(0);  // the split push-out starts each step from zero
   contacts[i] = c;
 }

@@ -138,7 +138,7 @@ struct GpuStepConstants {
   uint shapeSortCount;  // length of the broad phase's key sort (a power of two >= shapeCount)
   uint patchFriction;   // warm starts keep a manifold's friction while any point persists
   uint noCollideCount;  // body pairs joined without collide_connected (the broad phase skips them)
-  uint pad5;
+  uint splitPushout;    // integrate_positions: positions also move by the push-out velocities
 };
 
 // The solver's view of one manifold (index = its pair's): the rows of its points, as the
@@ -168,6 +168,7 @@ struct GpuContact {
   // for the tangents, massT1[1] and lambdaT1[1] for the twist.
   vec4 patchRA;   // xyz: centroid - A's centre of mass; w: twist arm (mean point distance)
   vec4 patchRB;   // xyz: centroid - B's centre of mass; w: 1 with patch friction, else 0
+  vec4 pushLambda;  // per point: the split push-out's accumulated impulse this step
 };
 
 // One contact's velocity changes of its two bodies in a Jacobi pass, gathered per body
@@ -205,7 +206,9 @@ struct GpuSolveConstants {
   float positionBaumgarte;      // the position pass: fraction of the error removed per pass
   float maxPositionCorrection;  // m per pass and row
   uint refresh;                 // prepare_joints: keep the rows' impulses (a later substep)
-  uint pad2;
+  uint splitPushout;            // split push-out asked for: penetration beyond
+                                // PHYS_GPU_SPLIT_DEPTH by pseudo velocities, in the steps
+                                // whose deepest contact is deeper than that
   float jointBiasRate;          // joints' equality rows: soft (Catto 2011) or Baumgarte
   float jointMassScale;
   float jointImpulseScale;
@@ -301,6 +304,11 @@ struct GpuLdlRow {
 #define PHYS_GPU_PASS_SOLVE 1u
 #define PHYS_GPU_PASS_RESTITUTION 2u
 #define PHYS_GPU_PASS_POSITION 3u  // nonlinear Gauss-Seidel position pass
+#define PHYS_GPU_PASS_PUSH_WARM 4u  // split push-out: the last substep's push impulses again
+#define PHYS_GPU_PASS_PUSHOUT 5u    // split push-out: one pass on the pseudo velocities
+// Split push-out (SolverSettings::kSplitDepth): the contacts' own bias corrects penetration
+// up to this depth (m), the pseudo velocities the rest.
+#define PHYS_GPU_SPLIT_DEPTH 0.01
 // Graph coloring: a contact not colored yet, and one with nothing to solve.
 #define PHYS_GPU_UNCOLORED 0xFFFFFFFFu
 #define PHYS_GPU_NO_COLOR 0xFFFFFFFEu

@@ -72,7 +72,7 @@ struct Kernels {
     const uint32_t step = sizeof(GpuStepConstants), solve = sizeof(GpuSolveConstants);
     prepareBodies = make("prepare_bodies", 3, step);
     integrateVelocities = make("integrate_velocities", 2, step);
-    integratePositions = make("integrate_positions", 2, step);
+    integratePositions = make("integrate_positions", 3, step);
     finalize = make("finalize", 2, step);
     updateBounds = make("update_bounds", 4, step);
     bpKeys = make("bp_keys", 3, step);
@@ -93,7 +93,7 @@ struct Kernels {
     colorRound = make("color_round", 8, solve);
     colorKeys = make("color_keys", 3, solve);
     colorRanges = make("color_ranges", 3, solve);
-    contactGs = make("contact_gs", 8, solve);
+    contactGs = make("contact_gs", 10, solve);
     positionJacobi = make("position_jacobi", 6, solve);
     prepareJoints = make("prepare_joints", 8, solve);
     jointJacobi = make("joint_jacobi", 6, solve);
@@ -167,6 +167,7 @@ GpuSolveConstants solveConstants(const ContactSettings& cs, float h, uint32_t bo
   sc.warmStart = cs.warmStart ? 1 : 0;
   sc.jacobi = cs.jacobi ? 1 : 0;
   sc.patchFriction = cs.patchFriction ? 1 : 0;
+  sc.splitPushout = cs.splitPushout && !cs.jacobi ? 1 : 0;
   sc.positionBaumgarte = cs.positionBaumgarte;
   sc.maxPositionCorrection = cs.maxPositionCorrection;
   return sc;
@@ -220,6 +221,8 @@ struct GpuWorld::Impl {
   // Colored Gauss-Seidel's: each contact's color (two, for the coloring rounds), the
   // contacts sorted by color, each color's range and its indirect dispatch size.
   Buffer colorBuf[2], colorKeyBuf, rangeBuf, argsBuf;
+  // The split push-out's pseudo velocities (two vec4 a body), zeroed every substep.
+  Buffer pushBuf;
   // Joints: their records, this substep's rows, and their impulses and reactions.
   Buffer jointBuf, jointRowBuf, jointOutBuf;
   // The joints' direct solve (joint_ldl.h): the plan's islands, rows, L's pattern by row and
@@ -353,6 +356,7 @@ void GpuWorld::Impl::sync(Stream& s, const GpuStepConstants& c) {
   bool grown = reserve(d, stateBuf, n * sizeof(GpuBodyState));
   grown |= reserve(d, paramBuf, n * sizeof(GpuBodyParams));
   reserve(d, solverBuf, n * sizeof(GpuSolverBody));
+  reserve(d, pushBuf, n * 32);
   if (grown) allBodiesDirty = true;
   if (reserve(d, shapeBuf, shapes.size() * sizeof(GpuShape))) shapesDirty = true;
   reserve(d, boundsBuf, shapes.size() * sizeof(GpuAabb));
@@ -533,8 +537,8 @@ void GpuWorld::Impl::recordColoring(Stream& s, const GpuSolveConstants& sc) {
 
 void GpuWorld::Impl::recordColoredPass(Stream& s, GpuSolveConstants sc, uint32_t mode) {
   sc.mode = mode;
-  const Buffer* b[] = {&solverBuf, &paramBuf, &contactBuf, &colorKeyBuf,
-                       &rangeBuf,  &refBuf,   &jointBuf,   &jointRowBuf};
+  const Buffer* b[] = {&solverBuf, &paramBuf, &contactBuf,  &colorKeyBuf, &rangeBuf,
+                       &refBuf,    &jointBuf, &jointRowBuf, &counterBuf,  &pushBuf};
   for (uint32_t color = 0; color <= sc.colorLimit; ++color) {
     sc.color = color;
     s.dispatchIndirect(*kernels().contactGs, b, &sc, argsBuf, VkDeviceSize(color) * 12);
@@ -578,6 +582,8 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
     const bool jacobi = in.contacts.jacobi;
     c.patchFriction = in.contacts.patchFriction ? 1 : 0;
     GpuSolveConstants sc = solveConstants(in.contacts, c.h, n, w.pairCapacity);
+    if (!solve) sc.splitPushout = 0;
+    c.splitPushout = sc.splitPushout;
     sc.colorLimit = w.colorLimit;
     sc.jointCount = uint32_t(w.joints.size());
     sc.refCount = 2 * Primitives::pow2(sc.jointCount + w.pairCapacity);
@@ -630,7 +636,15 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
             pass(*k.contactSolve, PHYS_GPU_PASS_SOLVE, true);
           s.mark(int(Stage::Solve));
         }
-        s.dispatch(*k.integratePositions, integrate, &c, groupsFor(n));
+        if (sc.splitPushout != 0) {
+          // The split push-out (the kernels do nothing in a step without deep contacts).
+          s.fill(w.pushBuf, 0);
+          w.recordColoredPass(s, sc, PHYS_GPU_PASS_PUSH_WARM);
+          for (int it = 0; it < in.contacts.iterations; ++it)
+            w.recordColoredPass(s, sc, PHYS_GPU_PASS_PUSHOUT);
+        }
+        const Buffer* positions[] = {&w.paramBuf, &w.solverBuf, &w.pushBuf};
+        s.dispatch(*k.integratePositions, positions, &c, groupsFor(n));
         s.mark(int(Stage::IntegratePositions));
         if (solve && in.contacts.relaxIterations > 0) {
           for (int it = 0; it < in.contacts.relaxIterations; ++it)

@@ -18,7 +18,7 @@ namespace {
 // Split push-out: the soft contact's own bias corrects penetration up to this depth (a
 // resting contact's sag, so stacks behave exactly as without the split); the pseudo
 // velocities push out the rest.
-constexpr float kSplitDepth = 0.01f;
+constexpr float kSplitDepth = SolverSettings::kSplitDepth;
 // Stiffness is capped at a quarter of the substep rate: stiffer springs are not resolved by
 // the integrator and only add energy (and topple stacks).
 float cappedHertz(float hertz, float invH) {

@@ -799,6 +799,11 @@ void World::stepOnce(int substeps) {
     w.narrowPhase(dt);
   }
   { StageTimer t(&p.buildIslands); /* islands and colors: not needed by the serial solver */ }
+  // The split push-out only where there is something to push out: a step whose contacts are
+  // all shallower than kSplitDepth is the unsplit solve (vectorized contacts, no pseudo
+  // velocities), the same bits as without the option.
+  if (s.splitPushout && !(w.stats.maxPenetration > SolverSettings::kSplitDepth))
+    s.splitPushout = false;
   {
     StageTimer t(&p.prepare);
     w.buildSolverBodies(s);

@@ -248,7 +248,8 @@ static std::string contactsOffDevice(const SolverSettings& s, bool hulls, bool n
            "nonlinear_jacobi with jacobi and nonlinear_gauss_seidel with the Gauss-Seidel "
            "schemes)";
   if (s.blockContacts) return "the contact block solve is not on the GPU backend yet";
-  if (s.splitPushout) return "the split push-out is not on the GPU backend yet";
+  if (s.splitPushout && (jacobi || s.stabilization != SolverSettings::Stabilization::Soft))
+    return "the GPU backend has the split push-out with soft Gauss-Seidel only";
   return {};
 }
 
@@ -278,6 +279,7 @@ static gpu::ContactSettings contactSettings(const SolverSettings& s) {
   c.positionBaumgarte = s.positionBaumgarte;
   c.maxPositionCorrection = s.maxPositionCorrection;
   c.directJoints = s.equalitySolve == SolverSettings::EqualitySolve::DirectLdl;
+  c.splitPushout = s.splitPushout;
   return c;
 }
 

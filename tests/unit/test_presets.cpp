@@ -22,7 +22,18 @@ TEST(Presets, ShippedFileLoadsAndItsDefaultExists) {
   EXPECT_EQ(s.iterations, d.iterations);
   EXPECT_EQ(s.relaxIterations, d.relaxIterations);
   EXPECT_EQ(s.contactHertz, d.contactHertz);
+  EXPECT_EQ(s.contactDampingRatio, d.contactDampingRatio);
   EXPECT_EQ(s.stabilization, d.stabilization);
+  EXPECT_EQ(s.scheme, d.scheme);
+  EXPECT_EQ(s.maxPushout, d.maxPushout);
+  EXPECT_EQ(s.splitPushout, d.splitPushout);
+  EXPECT_EQ(s.equalitySolve, d.equalitySolve);
+  EXPECT_EQ(s.patchFriction, d.patchFriction);
+  EXPECT_EQ(s.geometricStiffness, d.geometricStiffness);
+  EXPECT_EQ(s.warmStart, d.warmStart);
+  EXPECT_EQ(s.restitution, d.restitution);
+  EXPECT_EQ(s.blockContacts, d.blockContacts);
+  EXPECT_EQ(s.positionPass, d.positionPass);
 }
 
 TEST(Presets, BadFieldsAreRejectedWithTheirPath) {

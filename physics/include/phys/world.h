@@ -135,10 +135,15 @@ struct SolverSettings {
   float jointHertz = 60;        ///< soft joint stiffness; capped at a quarter of substep rate
   float jointDampingRatio = 2;  ///< for soft joints
   float maxPushout = 3;         ///< m/s, the fastest speed penetration recovery may add
-  /// Split push-out: penetration is resolved by pseudo velocities that move positions and are
-  /// then dropped (split impulses), not by the contacts' velocity bias; contacts' velocity
-  /// rows are then rigid. Bodies buried in each other separate without keeping the push.
-  bool splitPushout = false;
+  /// Split push-out: penetration deeper than kSplitDepth is resolved by pseudo velocities
+  /// that move positions and are then dropped (split impulses), not by the contacts'
+  /// velocity bias. Bodies buried in each other separate without keeping the push. Only a
+  /// step that starts with a contact deeper than kSplitDepth takes it; every other step is
+  /// the unsplit solve, bit for bit (and as fast).
+  bool splitPushout = true;
+  /// m: the soft contacts' own bias corrects penetration up to this depth (deeper than a
+  /// resting sag), the split push-out the rest.
+  static constexpr float kSplitDepth = 0.01f;
   float linearSlop = 0.005f;  ///< m, penetration left uncorrected (Baumgarte only)
   bool warmStart = true;
   bool restitution = true;

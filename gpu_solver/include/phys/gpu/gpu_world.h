@@ -65,6 +65,10 @@ struct ContactSettings {
   /// J M^-1 J^T per substep, joint_ldl.comp) after every pass, as the CPU's direct_ldl;
   /// otherwise iterated with the rest.
   bool directJoints = false;
+  /// Split push-out (Gauss-Seidel on colors only): in a step whose deepest contact is
+  /// deeper than SolverSettings::kSplitDepth, penetration beyond that depth is pushed out by
+  /// pseudo velocities that move the bodies and are dropped, as the CPU's.
+  bool splitPushout = false;
 };
 
 struct StepInput {

@@ -18,7 +18,7 @@ static_assert(sizeof(GpuManifold) == 160 && offsetof(GpuManifold, count) == 96 &
               offsetof(GpuManifold, normalImpulse) == 112);
 static_assert(sizeof(GpuStepConstants) == 64);
 static_assert(sizeof(GpuSortConstants) == 16);
-static_assert(sizeof(GpuContact) == 336 && offsetof(GpuContact, rA) == 64 &&
+static_assert(sizeof(GpuContact) == 352 && offsetof(GpuContact, rA) == 64 &&
               offsetof(GpuContact, massN) == 192);
 static_assert(sizeof(GpuDelta) == 64);
 static_assert(sizeof(GpuSolveConstants) == 112);
