@@ -137,8 +137,7 @@ void planIsland(const std::vector<RowRef>& refs, std::span<const GpuJoint> joint
 
 }  // namespace
 
-JointLdlPlan planJointLdl(std::span<const GpuJoint> joints,
-                          std::span<const GpuBodyParams> params) {
+JointLdlPlan planJointLdl(std::span<const GpuJoint> joints, std::span<const GpuBodyParams> params) {
   JointLdlPlan plan;
   auto dynamic = [&](int b) {
     return b >= 0 && size_t(b) < params.size() &&

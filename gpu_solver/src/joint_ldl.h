@@ -23,10 +23,10 @@ namespace phys::gpu {
 uint32_t equalityRowCount(const GpuJoint& j);
 
 struct JointLdlPlan {
-  std::vector<uvec4> islands;         ///< (first row, rows, 0, 0)
-  std::vector<GpuLdlRow> rows;        ///< every island's rows, in elimination order
-  std::vector<uint32_t> pattern;      ///< pairs (i, index of L(k, i)), GpuLdlRow's pattern
-  std::vector<uint32_t> columnRows;   ///< the row of each entry of L, column by column
+  std::vector<uvec4> islands;        ///< (first row, rows, 0, 0)
+  std::vector<GpuLdlRow> rows;       ///< every island's rows, in elimination order
+  std::vector<uint32_t> pattern;     ///< pairs (i, index of L(k, i)), GpuLdlRow's pattern
+  std::vector<uint32_t> columnRows;  ///< the row of each entry of L, column by column
   size_t entries() const { return columnRows.size(); }
 };
 

@@ -26,7 +26,8 @@ GpuJoint joint(uint32_t type, int a, int b, bool rigid = true) {
 
 std::vector<GpuBodyParams> bodies(int n, std::set<int> notDynamic = {}) {
   std::vector<GpuBodyParams> p(static_cast<size_t>(n));
-  for (int i = 0; i < n; ++i) p[size_t(i)].flags.x = notDynamic.count(i) ? 0u : PHYS_GPU_BODY_DYNAMIC;
+  for (int i = 0; i < n; ++i)
+    p[size_t(i)].flags.x = notDynamic.count(i) ? 0u : PHYS_GPU_BODY_DYNAMIC;
   return p;
 }
 
@@ -119,9 +120,9 @@ TEST(GpuJointLdlPlan, IslandsSplitAtStaticAndKinematicBodies) {
   // static (non-dynamic) bodies and a spring-only distance joint: the kinematic body takes
   // no impulse, so it joins nothing; the last two have nothing to solve.
   std::vector<GpuJoint> joints = {
-      joint(PHYS_GPU_JOINT_BALL, -1, 0), joint(PHYS_GPU_JOINT_HINGE, 0, 1),
+      joint(PHYS_GPU_JOINT_BALL, -1, 0),          joint(PHYS_GPU_JOINT_HINGE, 0, 1),
       joint(PHYS_GPU_JOINT_BALL, 1, 2),  // body 2 kinematic
-      joint(PHYS_GPU_JOINT_FIXED, 2, 3), joint(PHYS_GPU_JOINT_BALL, 3, 4),
+      joint(PHYS_GPU_JOINT_FIXED, 2, 3),          joint(PHYS_GPU_JOINT_BALL, 3, 4),
       joint(PHYS_GPU_JOINT_BALL, -1, 2),  // kinematic to the world
       joint(PHYS_GPU_JOINT_DISTANCE, 3, 4, false)};
   const JointLdlPlan plan = planJointLdl(joints, bodies(5, {2}));

@@ -60,6 +60,9 @@ float fixedPointError(const Solver& s, const SolverSettings& st) {
 
 TEST(ContactBlock, OneIterationReachesTheRowByRowFixedPoint) {
   SolverSettings st;  // soft contacts
+  // The corners are 1-2.5 cm deep: with the split push-out the rows' bias would stop at 1 cm
+  // (and the block solve stand aside); this is the bias's own fixed point.
+  st.splitPushout = false;
   for (int points : {2, 3, 4}) {
     Solver block = cubeOnGround(true, points);
     ASSERT_EQ(block.rows[0].contactPoints, points);

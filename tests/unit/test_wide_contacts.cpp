@@ -250,10 +250,12 @@ TEST(WideContacts, BitIdenticalToTheScalarPassOnEveryGaussSeidelPreset) {
       }
       EXPECT_EQ(scalar.vectorized, 0) << c.scene;
       const SolverSettings& ps = preset.settings;
-      if (ps.splitPushout || ps.blockContacts ||
+      if (ps.blockContacts ||
           (ps.positionPass != SolverSettings::PositionPass::None && ps.positionIterations > 0)) {
         EXPECT_EQ(wide.vectorized, 0) << name << " solves its contacts with rows only";
-      } else {
+      } else if (!ps.splitPushout || c.scene != std::string("overlap")) {
+        // With the split push-out, the steps with a contact deeper than 1 cm take rows (all
+        // of overlap's first 40); the others are vectorized.
         EXPECT_GT(wide.vectorized, 0) << c.scene << " with " << name;
       }
       EXPECT_EQ(wide.hash, scalar.hash) << c.scene << " with " << name;
