@@ -578,6 +578,20 @@ struct TwinChains {
       }
     }
   }
+  /// The two worlds agree: every link within `position` m of its twin, the first joint's
+  /// error within `error` m and its reaction on B within `reaction` of the CPU's (relative,
+  /// plus 1 N).
+  void expectAgree(float position, float error, float reaction) const {
+    for (size_t i = 0; i < g.size(); ++i) {
+      SCOPED_TRACE("link " + std::to_string(i));
+      EXPECT_LT(length(state(gpu, g[i]).position - state(cpu, c[i]).position), position);
+    }
+    JointState a, b;
+    ASSERT_TRUE(gpu.getJoint(gj[0], nullptr, &a).ok());
+    ASSERT_TRUE(cpu.getJoint(cj[0], nullptr, &b).ok());
+    EXPECT_NEAR(a.positionError, b.positionError, error);
+    EXPECT_LT(length(a.reactionForce - b.reactionForce), reaction * length(b.reactionForce) + 1);
+  }
   static WorldDef def(const SolverSettings& s, Backend b) {
     WorldDef d = gpuDef(b);
     d.solver = s;
@@ -606,17 +620,8 @@ TEST(GpuJoints, EveryJointTypeMatchesTheCpu) {
       }
       EXPECT_EQ(t.gpu.backendState().gpuSteps, 60u);
       EXPECT_EQ(t.gpu.stats().joints, 5);
-      for (size_t i = 0; i < t.g.size(); ++i) {
-        SCOPED_TRACE("link " + std::to_string(i));
-        EXPECT_LT(length(state(t.gpu, t.g[i]).position - state(t.cpu, t.c[i]).position),
-                  jacobi ? 1e-3f : 1e-2f);
-      }
-      // The joints report what the CPU's do: errors at the new poses, reactions.
-      JointState a, b;
-      ASSERT_TRUE(t.gpu.getJoint(t.gj[0], nullptr, &a).ok());
-      ASSERT_TRUE(t.cpu.getJoint(t.cj[0], nullptr, &b).ok());
-      EXPECT_NEAR(a.positionError, b.positionError, 2e-3f);
-      EXPECT_LT(length(a.reactionForce - b.reactionForce), 0.05f * length(b.reactionForce) + 1);
+      // The joints report what the CPU's do too: errors at the new poses, reactions.
+      t.expectAgree(jacobi ? 1e-3f : 1e-2f, 2e-3f, 0.05f);
     }
   }
 }
@@ -728,15 +733,7 @@ TEST(GpuJoints, DirectSolveMatchesTheCpuForEveryJointType) {
       t.cpu.step();
     }
     EXPECT_EQ(t.gpu.backendState().gpuSteps, 60u);
-    for (size_t i = 0; i < t.g.size(); ++i) {
-      SCOPED_TRACE("link " + std::to_string(i));
-      EXPECT_LT(length(state(t.gpu, t.g[i]).position - state(t.cpu, t.c[i]).position), 2e-3f);
-    }
-    JointState a, b;
-    ASSERT_TRUE(t.gpu.getJoint(t.gj[0], nullptr, &a).ok());
-    ASSERT_TRUE(t.cpu.getJoint(t.cj[0], nullptr, &b).ok());
-    EXPECT_NEAR(a.positionError, b.positionError, 1e-3f);
-    EXPECT_LT(length(a.reactionForce - b.reactionForce), 0.02f * length(b.reactionForce) + 1);
+    t.expectAgree(2e-3f, 1e-3f, 0.02f);
   }
 }
 
