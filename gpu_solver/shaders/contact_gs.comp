@@ -19,7 +19,7 @@ layout(std430, binding = 6) readonly buffer Joints { GpuJoint joints[]; };
 layout(std430, binding = 7) buffer Rows { GpuJointRows jointRows[]; };
 layout(std430, binding = 8) readonly buffer Counters { uint counters[]; };
 // The split push-out's pseudo velocities: body b's linear at 2b, angular at 2b + 1.
-layout(std430, binding = 9) buffer Push { vec4 pushVelocity[]; };
+layout(std430, binding = 9) buffer PushVelocities { vec4 pushVelocity[]; };
 layout(push_constant) uniform Push { GpuSolveConstants k; };
 #include "contact.glsl"
 #include "joint.glsl"

@@ -10,7 +10,7 @@ layout(local_size_x = PHYS_GPU_GROUP) in;
 layout(std430, binding = 0) readonly buffer Params { GpuBodyParams params[]; };
 layout(std430, binding = 1) buffer Solver { GpuSolverBody bodies[]; };
 // The split push-out's pseudo velocities (body i: linear at 2i, angular at 2i + 1).
-layout(std430, binding = 2) readonly buffer Push { vec4 pushVelocity[]; };
+layout(std430, binding = 2) readonly buffer PushVelocities { vec4 pushVelocity[]; };
 layout(push_constant) uniform Push { GpuStepConstants k; };
 
 vec4 axisRotation(int i, float a) {
