@@ -41,6 +41,13 @@ struct Islands {
   }
 };
 
+/// Whether body b (a GpuWorld index; -1: the world or a static body) takes impulses: only
+/// dynamic bodies couple rows and join islands.
+bool dynamic(std::span<const GpuBodyParams> params, int b) {
+  return b >= 0 && size_t(b) < params.size() &&
+         (params[size_t(b)].flags.x & PHYS_GPU_BODY_DYNAMIC) != 0;
+}
+
 struct RowRef {
   uint32_t joint, row;
 };
@@ -50,15 +57,12 @@ void planIsland(const std::vector<RowRef>& refs, std::span<const GpuJoint> joint
                 std::span<const GpuBodyParams> params, JointLdlPlan& plan) {
   const int n = int(refs.size());
   const size_t N = refs.size();
-  auto dynamic = [&](int b) {
-    return b >= 0 && (params[size_t(b)].flags.x & PHYS_GPU_BODY_DYNAMIC) != 0;
-  };
   // Rows couple through the dynamic bodies they share: every pair of rows on one body.
   std::vector<std::pair<int, int>> onBody;  // (body, row)
   for (int r = 0; r < n; ++r) {
     const GpuJoint& j = joints[refs[size_t(r)].joint];
-    if (dynamic(j.bodyA)) onBody.push_back({j.bodyA, r});
-    if (dynamic(j.bodyB) && j.bodyB != j.bodyA) onBody.push_back({j.bodyB, r});
+    if (dynamic(params, j.bodyA)) onBody.push_back({j.bodyA, r});
+    if (dynamic(params, j.bodyB) && j.bodyB != j.bodyA) onBody.push_back({j.bodyB, r});
   }
   std::sort(onBody.begin(), onBody.end());
   std::vector<Eigen::Triplet<double>> entries;
@@ -139,10 +143,6 @@ void planIsland(const std::vector<RowRef>& refs, std::span<const GpuJoint> joint
 
 JointLdlPlan planJointLdl(std::span<const GpuJoint> joints, std::span<const GpuBodyParams> params) {
   JointLdlPlan plan;
-  auto dynamic = [&](int b) {
-    return b >= 0 && size_t(b) < params.size() &&
-           (params[size_t(b)].flags.x & PHYS_GPU_BODY_DYNAMIC) != 0;
-  };
   // Joints with equality rows and a dynamic body, joined into islands through their
   // dynamic bodies (a static or kinematic body joins nothing: it takes no impulse).
   Islands bodies(params.size());
@@ -150,7 +150,7 @@ JointLdlPlan planJointLdl(std::span<const GpuJoint> joints, std::span<const GpuB
   for (size_t j = 0; j < joints.size(); ++j) {
     const GpuJoint& g = joints[j];
     if (equalityRowCount(g) == 0) continue;
-    const bool a = dynamic(g.bodyA), b = dynamic(g.bodyB);
+    const bool a = dynamic(params, g.bodyA), b = dynamic(params, g.bodyB);
     if (a && b) bodies.join(uint32_t(g.bodyA), uint32_t(g.bodyB));
     if (a || b) anchor[j] = a ? g.bodyA : g.bodyB;
   }
