@@ -88,6 +88,7 @@ void MetricsRecorder::afterStep(const World& world) {
   const StepStats& st = world.stats();
   s.energySolveDeltaMax = std::max(s.energySolveDeltaMax, st.energyAfter - st.energyBefore);
   s.velocityResidualMax = std::max(s.velocityResidualMax, st.velocityResidual);
+  s.substepsMax = std::max(s.substepsMax, st.substeps);
   m.energyEnd = st.energyAfter;
   const double E = st.energyAfter;
   s.energyRiseMax =
@@ -170,6 +171,7 @@ const std::vector<std::string>& metricNames() {
                                                  "top_drift",
                                                  "velocity_residual_max",
                                                  "max_speed",
+                                                 "substeps_max",
                                                  "nan"};
   return names;
 }
@@ -189,6 +191,7 @@ std::optional<double> MetricsSummary::value(const std::string& name) const {
   if (name == "top_drift") return topDrift;
   if (name == "velocity_residual_max") return velocityResidualMax;
   if (name == "max_speed") return maxSpeed;
+  if (name == "substeps_max") return double(substepsMax);
   if (name == "nan") return double(nan);
   auto it = extra.find(name);
   if (it != extra.end()) return it->second;

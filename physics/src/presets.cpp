@@ -110,13 +110,15 @@ Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path, 
     else if (k == "tolerance")
       st = readNumber(v, p, &s.tolerance);
     else if (k == "warm_start" || k == "restitution" || k == "block_contacts" ||
-             k == "geometric_stiffness" || k == "split_pushout" || k == "patch_friction") {
+             k == "geometric_stiffness" || k == "split_pushout" || k == "patch_friction" ||
+             k == "stack_stiffening") {
       if (!v.is_boolean()) return bad(p + ": must be true or false");
       bool* field = k == "warm_start"       ? &s.warmStart
                     : k == "restitution"    ? &s.restitution
                     : k == "block_contacts" ? &s.blockContacts
                     : k == "split_pushout"  ? &s.splitPushout
                     : k == "patch_friction" ? &s.patchFriction
+                    : k == "stack_stiffening" ? &s.stackStiffening
                                             : &s.geometricStiffness;
       *field = v.get<bool>();
     } else if (k == "position_iterations") {
@@ -164,6 +166,7 @@ nlohmann::json solverSettingsToJson(const SolverSettings& s) {
           {"block_contacts", s.blockContacts},
           {"split_pushout", s.splitPushout},
           {"patch_friction", s.patchFriction},
+          {"stack_stiffening", s.stackStiffening},
           {"geometric_stiffness", s.geometricStiffness},
           {"restitution_threshold", s.restitutionThreshold},
           {"equality", enumName(kEqualitySolves, s.equalitySolve)},

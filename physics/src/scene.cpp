@@ -484,6 +484,7 @@ const std::vector<MetricInfo>& metricTable() {
       {"energy_solve_delta_max"},
       {"velocity_residual_max"},
       {"max_speed"},
+      {"substeps_max"},
       {"nan"},
       {"friction_ramp.static_displacement_max", false, false, {"ramp", "ramp_box"}},
       {"friction_ramp.accel_error_max", false, false, {"ramp", "ramp_box"}},

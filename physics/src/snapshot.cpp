@@ -51,11 +51,11 @@ static_assert(std::numeric_limits<float>::is_iec559 && std::numeric_limits<doubl
 // bumped), or snapshots silently lose it and restored worlds diverge. The sizes catch most
 // additions; they are only checked where they were measured (libstdc++, 64-bit).
 #if defined(__GLIBCXX__) && UINTPTR_MAX == UINT64_MAX
-static_assert(sizeof(SolverSettings) == 80, "SolverSettings changed: update snapshot.cpp");
+static_assert(sizeof(SolverSettings) == 84, "SolverSettings changed: update snapshot.cpp");
 // WorldDef's backend and gpuAllowCpuDevice are not saved: where a world runs is the
 // restoring process's choice.
-static_assert(sizeof(WorldDef) == 132, "WorldDef changed: update snapshot.cpp");
-static_assert(sizeof(StepStats) == 128, "StepStats changed: update snapshot.cpp");
+static_assert(sizeof(WorldDef) == 136, "WorldDef changed: update snapshot.cpp");
+static_assert(sizeof(StepStats) == 144, "StepStats changed: update snapshot.cpp");
 static_assert(sizeof(BodyRec) == 336, "BodyRec changed: update snapshot.cpp");
 static_assert(sizeof(ShapeGeom) == 56, "ShapeGeom changed: update snapshot.cpp");
 static_assert(sizeof(ShapeRec) == 112, "ShapeRec changed: update snapshot.cpp");
@@ -66,7 +66,7 @@ static_assert(sizeof(ConvexHull) == 112, "ConvexHull changed: update snapshot.cp
 #endif
 
 constexpr char kMagic[8] = {'P', 'H', 'Y', 'S', 'N', 'A', 'P', '\0'};
-constexpr uint32_t kVersion = 2;  // 2: SolverSettings::patchFriction
+constexpr uint32_t kVersion = 3;  // 2: SolverSettings::patchFriction; 3: stackStiffening
 constexpr size_t kHeaderSize = 8 + 4 + 8 + 8;
 constexpr int kMaxGuardRetries = 1000;
 
@@ -454,6 +454,7 @@ void ioSolver(Ar& ar, D& s) {
   ar.flag(s.blockContacts);
   ar.flag(s.geometricStiffness);
   ar.flag(s.patchFriction);
+  ar.flag(s.stackStiffening);
 }
 
 template <class Ar, class D>
@@ -486,6 +487,10 @@ void ioStats(Ar& ar, D& s) {
   ar.f64(s.velocityResidual);
   ar.f64(s.maxPenetration);
   ar.i32(s.iterationsUsed);
+  ar.i32(s.substeps);
+  ar.f32(s.substepTime);
+  ar.i32(s.stackDepth);
+  ar.f32(s.stackHertz);
   ar.i32(s.guardRetries);
   ar.u64(s.guardEvents);
   ar.u64(s.guardQuarantined);
@@ -1020,6 +1025,9 @@ Status World::restoreSnapshot(const uint8_t* data, size_t size) {
     s.where("time and statistics");
     s.f64(p->time);
     ioStats(s, p->stats);
+    // The warm starts' unit: a wrong one would scale every stored impulse.
+    if (s.ok() && !(p->stats.substepTime >= 0 && p->stats.substepTime <= 1))
+      s.fail("the last substep length is not in [0, 1] s");
   });
   run("HULL", readHulls);
   run("BODY", readBodies);

@@ -767,7 +767,6 @@ void World::stepOnce(int substeps) {
   const float dt = w.def.timeStep;
   SolverSettings s = w.def.solver;
   s.substeps = substeps;
-  const float h = dt / float(s.substeps);
   StepProfile& p = w.profile;
   p = StepProfile();
   const double t0 = nowMs();
@@ -780,6 +779,8 @@ void World::stepOnce(int substeps) {
   // The GPU backend takes the whole step when it covers everything the step needs
   // (world_gpu.cpp); otherwise the CPU stages below take it from the same host mirror.
   if (w.device && w.stepOnDevice(substeps)) {
+    w.stats.substeps = substeps;
+    w.stats.substepTime = 0;
     w.time += dt;
     w.stats.step++;
     w.stats.energyAfter = energy();
@@ -798,7 +799,13 @@ void World::stepOnce(int substeps) {
     StageTimer t(&p.narrowPhase);
     w.narrowPhase(dt);
   }
-  { StageTimer t(&p.buildIslands); /* islands and colors: not needed by the serial solver */ }
+  {
+    // Islands and colors are not needed by the serial solver; the stacks' depth is.
+    StageTimer t(&p.buildIslands);
+    w.stiffenForStacks(dt, &s);
+  }
+  w.stats.substeps = s.substeps;
+  const float h = dt / float(s.substeps);
   // The split push-out only where there is something to push out: a step whose contacts are
   // all shallower than kSplitDepth is the unsplit solve (vectorized contacts, no pseudo
   // velocities), the same bits as without the option.
@@ -806,6 +813,7 @@ void World::stepOnce(int substeps) {
     s.splitPushout = false;
   {
     StageTimer t(&p.prepare);
+    w.rescaleWarmStarts(h);
     w.buildSolverBodies(s);
   }
   Solver& solver = w.solver;
@@ -873,6 +881,7 @@ void World::stepOnce(int substeps) {
     w.stats.velocityResidual = solver.velocityResidual(h);
     w.stats.iterationsUsed = iterationsUsed;
     w.storeImpulses();
+    w.stats.substepTime = h;
   }
   {
     StageTimer t(&p.finalize);
@@ -885,6 +894,199 @@ void World::stepOnce(int substeps) {
   w.stats.step++;
   w.stats.energyAfter = energy();
   p.total = nowMs() - t0;
+}
+
+void World::Impl::stiffenForStacks(float dt, SolverSettings* s) {
+  if (!s->stackStiffening) {
+    stats.stackDepth = 0;
+    stats.stackHertz = 0;
+    return;
+  }
+  // Stacks change slowly next to their buckling (seconds): measured every
+  // kStackInterval-th step, the frequency is kept in between (in StepStats, so a restored
+  // snapshot continues the same way).
+  if (stats.step % SolverSettings::kStackInterval == 0) measureStacks(dt, *s);
+  if (!(stats.stackHertz > s->contactHertz)) return;
+  s->contactHertz = stats.stackHertz;
+  const int needed = int(std::ceil(4 * stats.stackHertz * dt));
+  s->substeps = std::clamp(needed, s->substeps, std::max(s->substeps, 64));
+}
+
+void World::Impl::measureStacks(float dt, const SolverSettings& s) {
+  stats.stackDepth = 0;
+  stats.stackHertz = 0;
+  const float g = length(def.gravity);
+  if (!(g > 0)) return;
+  const Vec3 down = def.gravity / g;
+  // Horizontal axes, for the spread of the points each level stands on.
+  const Vec3 e1 =
+      normalize(std::abs(down.x) < 0.9f ? cross(down, Vec3{1, 0, 0}) : cross(down, Vec3{0, 1, 0}));
+  const Vec3 e2 = cross(down, e1);
+
+  // Support contacts: touching, with a normal within 45 degrees of gravity; linked per body
+  // (stackHead / stackNext over 2 * contact + end). Static and kinematic bodies are depth 0.
+  const size_t nb = bodies.capacity();
+  stackDepth.assign(nb, -1);
+  stackHead.assign(nb, -1);
+  stackNext.assign(2 * contacts.size(), -1);
+  stackSupport.assign(contacts.size(), 0);
+  stackRise.assign(nb, 0.0f);
+  stackQueue.clear();
+  for (size_t ci = 0; ci < contacts.size(); ++ci) {
+    const Contact& c = contacts[ci];
+    const Manifold& m = c.manifold;
+    if (m.count == 0 || std::abs(dot(m.normal, down)) < 0.7071f) continue;
+    float sep = m.points[0].separation;
+    for (int k = 1; k < m.count; ++k) sep = std::min(sep, m.points[k].separation);
+    if (sep > 0.5f * def.speculativeDistance) continue;
+    stackSupport[ci] = 1;
+    const uint32_t ends[2] = {c.bodyA.index, c.bodyB.index};
+    for (int e = 0; e < 2; ++e) {
+      stackNext[2 * ci + size_t(e)] = stackHead[ends[e]];
+      stackHead[ends[e]] = int32_t(2 * ci + size_t(e));
+      if (bodies.at(ends[e]).type != BodyType::Dynamic && stackDepth[ends[e]] < 0) {
+        stackDepth[ends[e]] = 0;
+        stackQueue.push_back(int32_t(ends[e]));
+      }
+    }
+  }
+  // Breadth first from the supports: a body's depth is its shortest support chain; its rise
+  // is its centre's height above the body it was reached from (twice above the contact, for
+  // the first level). Stacks are the bodies joined by support contacts: union-find over them
+  // (stackRoot), depth 0 excluded.
+  stackRoot.assign(nb, -1);
+  auto root = [&](int32_t i) {
+    while (stackRoot[size_t(i)] != i)
+      i = stackRoot[size_t(i)] = stackRoot[size_t(stackRoot[size_t(i)])];
+    return i;
+  };
+  for (size_t q = 0; q < stackQueue.size(); ++q) {
+    const uint32_t i = uint32_t(stackQueue[q]);
+    const BodyRec& bi = bodies.at(i);
+    for (int32_t e = stackHead[i]; e >= 0; e = stackNext[size_t(e)]) {
+      const Contact& c = contacts[size_t(e) / 2];
+      const uint32_t j = (e & 1) ? c.bodyA.index : c.bodyB.index;
+      const BodyRec& bj = bodies.at(j);
+      if (bj.type != BodyType::Dynamic) continue;
+      if (stackDepth[j] < 0) {
+        Vec3 below = bi.com;
+        float scale = 1;
+        if (bi.type != BodyType::Dynamic) {
+          below = {};
+          for (int k = 0; k < c.manifold.count; ++k) below += c.manifold.points[k].point;
+          below = below / float(c.manifold.count);
+          scale = 2;
+        }
+        stackDepth[j] = stackDepth[i] + 1;
+        stackRise[j] = scale * std::abs(dot(bj.com - below, down));
+        stackRoot[j] = int32_t(j);
+        stackQueue.push_back(int32_t(j));
+      }
+      if (stackDepth[i] > 0) {  // both dynamic: one stack
+        const int32_t a = root(int32_t(i)), b = root(int32_t(j));
+        if (a != b) stackRoot[size_t(std::max(a, b))] = std::min(a, b);
+      }
+    }
+  }
+  // Levels: stack by stack (in order of their lowest body index), bottom first.
+  stackIndex.assign(nb, -1);
+  stackFirstLevel.clear();
+  stackLevels.clear();
+  for (uint32_t i = 0; i < nb; ++i) {
+    if (stackDepth[i] <= 0 || root(int32_t(i)) != int32_t(i)) continue;
+    stackIndex[i] = int32_t(stackFirstLevel.size());
+    stackFirstLevel.push_back(0);
+  }
+  stackDeepest.assign(stackFirstLevel.size(), 0);
+  for (uint32_t i = 0; i < nb; ++i)
+    if (stackDepth[i] > 0) {
+      int32_t& d = stackDeepest[size_t(stackIndex[size_t(root(int32_t(i)))])];
+      d = std::max(d, stackDepth[i]);
+      stats.stackDepth = std::max(stats.stackDepth, stackDepth[i]);
+    }
+  int32_t total = 0;
+  for (size_t k = 0; k < stackFirstLevel.size(); ++k) {
+    stackFirstLevel[k] = total;
+    total += stackDeepest[k];
+  }
+  stackFirstLevel.push_back(total);
+  stackLevels.assign(size_t(total), LevelSums{});
+  auto level = [&](uint32_t body) -> LevelSums& {
+    const int32_t stack = stackIndex[size_t(root(int32_t(body)))];
+    return stackLevels[size_t(stackFirstLevel[size_t(stack)] + stackDepth[body] - 1)];
+  };
+  for (uint32_t i = 0; i < nb; ++i)
+    if (stackDepth[i] > 0) {
+      LevelSums& l = level(i);
+      l.mass += bodies.at(i).mass;
+      l.rise += stackRise[i];
+      l.bodies += 1;
+    }
+  // The points each level stands on: support contacts from one level down. A soft contact's
+  // stiffness is m_eff omega^2; m_eff is taken as a cube corner's, a quarter of the bodies'
+  // reduced mass (exact for the pyramids' and columns' cubes).
+  for (size_t ci = 0; ci < contacts.size(); ++ci) {
+    if (!stackSupport[ci]) continue;
+    const Contact& c = contacts[ci];
+    const uint32_t a = c.bodyA.index, b = c.bodyB.index;
+    if (stackDepth[a] < 0 || stackDepth[b] < 0 || std::abs(stackDepth[a] - stackDepth[b]) != 1)
+      continue;
+    const uint32_t upper = stackDepth[a] > stackDepth[b] ? a : b;
+    const float invMass = bodies.at(a).invMass + bodies.at(b).invMass;
+    if (!(invMass > 0)) continue;
+    const double w = 0.25 / invMass;
+    LevelSums& l = level(upper);
+    for (int k = 0; k < c.manifold.count; ++k) {
+      const double x = dot(c.manifold.points[k].point, e1), y = dot(c.manifold.points[k].point, e2);
+      l.w += w;
+      l.wx += w * x;
+      l.wy += w * y;
+      l.wxx += w * x * x;
+      l.wxy += w * x * y;
+      l.wyy += w * y * y;
+    }
+  }
+  // Each stack's critical frequency; the step takes the largest, kStackMargin times over,
+  // unless the preset's contacts are that much stiffer already.
+  const double margin = SolverSettings::kStackMargin;
+  const double omega0 = 2 * kPi * std::min(s.contactHertz, 0.25f * float(s.substeps) / dt);
+  const double omegaMax = 2 * kPi * 0.25 * 64 / dt;  // a quarter of the most substeps
+  double need = 0;
+  for (size_t k = 0; k + 1 < stackFirstLevel.size(); ++k) {
+    stackModel.clear();
+    for (int32_t d = stackFirstLevel[k]; d < stackFirstLevel[k + 1]; ++d) {
+      const LevelSums& l = stackLevels[size_t(d)];
+      StackLevel m;
+      m.mass = l.mass;
+      m.height = l.bodies ? l.rise / l.bodies : 0;
+      if (l.w > 0) {
+        // The centred second moments; the softer principal axis.
+        const double xx = l.wxx - l.wx * l.wx / l.w, yy = l.wyy - l.wy * l.wy / l.w;
+        const double xy = l.wxy - l.wx * l.wy / l.w;
+        m.bend = std::max(0.0, 0.5 * (xx + yy) - std::sqrt(0.25 * (xx - yy) * (xx - yy) + xy * xy));
+      }
+      stackModel.push_back(m);
+    }
+    const double omega = stackCriticalOmega(stackModel, g, omega0 / margin, omegaMax);
+    if (omega <= omegaMax) need = std::max(need, omega);  // else no stiffness holds it
+  }
+  if (need > 0) stats.stackHertz = float(margin * need / (2 * kPi));
+}
+
+void World::Impl::rescaleWarmStarts(float h) {
+  // Warm starts are impulses per substep: the substeps just changed length (stack
+  // stiffening, a guard retry, a new time step), so last step's impulses are scaled to keep
+  // the forces they stand for.
+  const float before = stats.substepTime;
+  if (!(before > 0) || before == h) return;
+  const float k = h / before;
+  for (Contact& c : contacts) {
+    for (float& f : c.normalImpulse) f *= k;
+    for (auto& t : c.tangentImpulse) t[0] *= k, t[1] *= k;
+  }
+  for (uint32_t i = 0; i < joints.capacity(); ++i)
+    if (joints.alive(i))
+      for (float& f : joints.at(i).impulses) f *= k;
 }
 
 void World::Impl::storeImpulses() {
@@ -940,6 +1142,7 @@ void World::Impl::takeSnapshot() {
   }
   snapshot.time = time;
   snapshot.step = stats.step;
+  snapshot.substepTime = stats.substepTime;
   snapshot.kinetic = 0;
   snapshot.liftEnergy = 1;
   const double g = length(def.gravity);
@@ -971,6 +1174,7 @@ void World::Impl::restoreSnapshot() {
   }
   time = snapshot.time;
   stats.step = snapshot.step;
+  stats.substepTime = snapshot.substepTime;
   deviceStale();
 }
 

@@ -11,6 +11,7 @@
 #include "solver.h"
 #include "solver_ldl.h"
 #include "solver_wide.h"
+#include "stacks.h"
 #include "thread_pool.h"
 
 namespace phys {
@@ -92,6 +93,7 @@ struct Snapshot {
   std::vector<JointImpulses> jointImpulses;
   double time = 0;
   uint64_t step = 0;
+  float substepTime = 0;  ///< StepStats::substepTime: the contacts' impulses' unit
   double kinetic = 0;     ///< J, kinetic energy at the step start
   double liftEnergy = 0;  ///< J, lifting every dynamic body by 0.1 m (the jump floor)
 };
@@ -141,6 +143,25 @@ struct World::Impl {
   void updateBounds(float h);
   void broadPhaseStage();
   void narrowPhase(float h);
+  /// Stack stiffening (SolverSettings::stackStiffening): the contact frequency and substeps
+  /// this step's stacks need, into `s`; measureStacks finds the frequency (StepStats).
+  void stiffenForStacks(float dt, SolverSettings* s);
+  void measureStacks(float dt, const SolverSettings& s);
+  /// Scales the stored warm-start impulses (per substep) to substeps of length h.
+  void rescaleWarmStarts(float h);
+  /// Its scratch: per body (index) its support depth, adjacency head, union-find parent and
+  /// (for a root) its stack's index; per contact whether it supports and its adjacency
+  /// links; per stack its deepest level and its first level in stackLevels.
+  std::vector<int32_t> stackDepth, stackHead, stackNext, stackQueue, stackRoot, stackIndex,
+      stackDeepest, stackFirstLevel;
+  std::vector<uint8_t> stackSupport;
+  std::vector<float> stackRise;
+  struct LevelSums {
+    double mass = 0, rise = 0, w = 0, wx = 0, wy = 0, wxx = 0, wxy = 0, wyy = 0;
+    int bodies = 0;
+  };
+  std::vector<LevelSums> stackLevels;
+  std::vector<StackLevel> stackModel;
   void buildSolverBodies(const SolverSettings& s);  ///< s: this step's (substeps may differ)
   /// Joints' geometric stiffness added to the solver bodies' inertia (substep h).
     void addGeometricStiffness(float h);

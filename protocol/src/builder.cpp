@@ -180,6 +180,7 @@ Offset<wire::SolverSettings> writeSolver(Fbb& fbb, const SolverOverrides& s) {
   if (s.geometricStiffness) b.add_geometric_stiffness(*s.geometricStiffness);
   if (s.splitPushout) b.add_split_pushout(*s.splitPushout);
   if (s.patchFriction) b.add_patch_friction(*s.patchFriction);
+  if (s.stackStiffening) b.add_stack_stiffening(*s.stackStiffening);
   return b.Finish();
 }
 
@@ -211,7 +212,7 @@ Offset<wire::LimitsInfo> writeLimits(Fbb& fbb, const Limits& l) {
 // (SolverSettings, appended at the end), SolverOverrides and its from()/empty(),
 // detail::writeSolver, convert.cpp (toOverrides, applyOverrides), the decoder's range check
 // and docs/PROTOCOL.md; then update the size here.
-static_assert(sizeof(phys::SolverSettings) == 80,
+static_assert(sizeof(phys::SolverSettings) == 84,
               "phys::SolverSettings changed: mirror the change in the protocol (see comment)");
 
 SolverOverrides SolverOverrides::from(const phys::SolverSettings& s) {
@@ -241,6 +242,7 @@ SolverOverrides SolverOverrides::from(const phys::SolverSettings& s) {
   o.geometricStiffness = s.geometricStiffness;
   o.splitPushout = s.splitPushout;
   o.patchFriction = s.patchFriction;
+  o.stackStiffening = s.stackStiffening;
   return o;
 }
 
@@ -250,7 +252,7 @@ bool SolverOverrides::empty() const {
          !stabilization && !baumgarte && !contactHertz && !contactDampingRatio && !jointHertz &&
          !jointDampingRatio && !maxPushout && !linearSlop && !warmStart && !restitution &&
          !restitutionThreshold && !equalitySolve && !blockContacts && !geometricStiffness &&
-         !splitPushout && !patchFriction;
+         !splitPushout && !patchFriction && !stackStiffening;
 }
 
 // ---------------------------------------------------------------------------------------------

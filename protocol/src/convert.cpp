@@ -141,6 +141,7 @@ SolverOverrides toOverrides(const wire::SolverSettings& in) {
   if (auto v = in.geometric_stiffness()) o.geometricStiffness = *v;
   if (auto v = in.split_pushout()) o.splitPushout = *v;
   if (auto v = in.patch_friction()) o.patchFriction = *v;
+  if (auto v = in.stack_stiffening()) o.stackStiffening = *v;
   return o;
 }
 
@@ -170,6 +171,7 @@ void applyOverrides(const SolverOverrides& o, phys::SolverSettings* s) {
   if (o.geometricStiffness) s->geometricStiffness = *o.geometricStiffness;
   if (o.splitPushout) s->splitPushout = *o.splitPushout;
   if (o.patchFriction) s->patchFriction = *o.patchFriction;
+  if (o.stackStiffening) s->stackStiffening = *o.stackStiffening;
 }
 
 void applySolverSettings(const wire::SolverSettings& in, phys::SolverSettings* out) {

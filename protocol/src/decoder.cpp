@@ -544,6 +544,7 @@ bool Checker::solver(const wire::SolverSettings& s, int* fieldsSet) {
   flag(s.geometric_stiffness());
   flag(s.split_pushout());
   flag(s.patch_friction());
+  flag(s.stack_stiffening());
   if (fieldsSet) *fieldsSet = n;
   return true;
 }

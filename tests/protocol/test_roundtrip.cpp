@@ -292,6 +292,7 @@ TEST(ProtocolRoundTrip, MaterialAndSolver) {
   full.geometricStiffness = false;
   full.splitPushout = true;
   full.patchFriction = true;
+  full.stackStiffening = false;  // the default is true
   auto f = mustDecode(CommandBuilder().setSolver("", SolverOverrides::from(full)).finish(header()));
   phys::SolverSettings got;
   applySolverSettings(*f->request_as_SetSolver()->settings(), &got);
@@ -307,6 +308,7 @@ TEST(ProtocolRoundTrip, MaterialAndSolver) {
   EXPECT_EQ(got.geometricStiffness, false);
   EXPECT_EQ(got.splitPushout, true);
   EXPECT_EQ(got.patchFriction, true);
+  EXPECT_EQ(got.stackStiffening, false);
   EXPECT_EQ(got.contactHertz, full.contactHertz);
 }
 

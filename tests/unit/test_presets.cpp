@@ -27,6 +27,7 @@ TEST(Presets, ShippedFileLoadsAndItsDefaultExists) {
   EXPECT_EQ(s.scheme, d.scheme);
   EXPECT_EQ(s.maxPushout, d.maxPushout);
   EXPECT_EQ(s.splitPushout, d.splitPushout);
+  EXPECT_EQ(s.stackStiffening, d.stackStiffening);
   EXPECT_EQ(s.equalitySolve, d.equalitySolve);
   EXPECT_EQ(s.patchFriction, d.patchFriction);
   EXPECT_EQ(s.geometricStiffness, d.geometricStiffness);

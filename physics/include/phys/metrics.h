@@ -27,6 +27,7 @@ struct MetricsSummary {
   std::optional<double> topDrift;  ///< m, largest horizontal displacement of a top body
   double velocityResidualMax = 0;
   double maxSpeed = 0;  ///< m/s
+  int substepsMax = 0;  ///< most substeps a step took (stack stiffening, guard retries)
   long long nan = 0;    ///< non-finite numbers seen in body states
   uint64_t stateHash = 0;
   /// Scene-specific metrics ("friction_ramp.static_displacement_max", ...).

@@ -156,6 +156,17 @@ struct SolverSettings {
   /// h^2 |f| |r| from last step's joint forces, which keeps light links under heavy loads
   /// stable at few substeps (their rotation then lags slightly).
   bool geometricStiffness = true;
+  /// Stack stiffening: a tall stack on soft contacts buckles (leans out and falls) unless its
+  /// contacts are stiff enough for its height. Each step cuts every stack into levels by
+  /// support depth (contacts within 45 degrees of gravity, counted up from static and
+  /// kinematic bodies) and finds the contact frequency at which it stands (physics/src/
+  /// stacks.h); where that is above the preset's, the step takes kStackMargin times it and
+  /// the substeps that keep it under a quarter of the substep rate (docs/ARCHITECTURE.md,
+  /// "Tall stacks"). Measured every kStackInterval-th step. Steps whose stacks stand at
+  /// 1/kStackMargin of the preset's frequency are the preset's, bit for bit. CPU backend only.
+  bool stackStiffening = true;
+  static constexpr float kStackMargin = 1.2f;
+  static constexpr int kStackInterval = 8;
   /// Patch friction: a manifold's friction as two tangent rows at the centroid of its points
   /// and a twist row about the normal, bounded by mu times the manifold's total normal
   /// impulse (and the points' mean distance from the centroid, for the twist), instead of a
@@ -240,6 +251,12 @@ struct StepStats {
   double maxPenetration = 0;    ///< m, deepest contact overlap at the start of the step
   int iterationsUsed =
       0;  ///< velocity iterations of the step (substeps x iterations, as redone by the guard)
+  int substeps = 0;    ///< substeps of the step (after stack stiffening and guard retries)
+  /// s, the substep length of the last CPU step: the unit of the warm-start impulses it
+  /// stored (0 after a device step, whose impulses stay on the device).
+  float substepTime = 0;
+  int stackDepth = 0;  ///< bodies in the deepest support chain (with stack stiffening on)
+  float stackHertz = 0;  ///< Hz, the contact frequency stack stiffening asks for (0: none)
   int guardRetries = 0;           ///< times this step was rolled back and redone
   uint64_t guardEvents = 0;       ///< steps redone so far
   uint64_t guardQuarantined = 0;  ///< bodies stopped so far because retries did not help

@@ -70,6 +70,7 @@ struct SolverOverrides {
   std::optional<bool> geometricStiffness;
   std::optional<bool> splitPushout;
   std::optional<bool> patchFriction;
+  std::optional<bool> stackStiffening;
 
   /// Every field set from s.
   static SolverOverrides from(const phys::SolverSettings& s);
