@@ -1050,10 +1050,15 @@ void World::Impl::measureStacks(float dt, const SolverSettings& s) {
   // unless the preset's contacts are that much stiffer already.
   const double margin = SolverSettings::kStackMargin;
   const double omega0 = 2 * kPi * std::min(s.contactHertz, 0.25f * float(s.substeps) / dt);
-  const double omegaMax = 2 * kPi * 0.25 * 64 / dt;  // a quarter of the most substeps
+  // Beyond kStackMaxFactor times the preset's frequency a stack is taken as one that no
+  // stiffness should hold: a level on nearly collinear points (a capsule lying on two
+  // others asked for 535 Hz in the default scene) tips over anyway.
+  const double omegaMax = std::min(double(SolverSettings::kStackMaxFactor) * omega0,
+                                   2 * kPi * 0.25 * 64 / dt);  // a quarter of the most substeps
   double need = 0;
   for (size_t k = 0; k + 1 < stackFirstLevel.size(); ++k) {
     stackModel.clear();
+    bool degenerate = false;
     for (int32_t d = stackFirstLevel[k]; d < stackFirstLevel[k + 1]; ++d) {
       const LevelSums& l = stackLevels[size_t(d)];
       StackLevel m;
@@ -1065,8 +1070,13 @@ void World::Impl::measureStacks(float dt, const SolverSettings& s) {
         const double xy = l.wxy - l.wx * l.wy / l.w;
         m.bend = std::max(0.0, 0.5 * (xx + yy) - std::sqrt(0.25 * (xx - yy) * (xx - yy) + xy * xy));
       }
+      // A level whose points spread less than kStackMinSpread of its height across (a box
+      // on another's edge, a capsule on two others) tips over whatever the stiffness.
+      const double spread = SolverSettings::kStackMinSpread * m.height;
+      if (!(m.bend > l.w * spread * spread)) degenerate = true;
       stackModel.push_back(m);
     }
+    if (degenerate) continue;
     const double omega = stackCriticalOmega(stackModel, g, omega0 / margin, omegaMax);
     if (omega <= omegaMax) need = std::max(need, omega);  // else no stiffness holds it
   }

@@ -166,6 +166,11 @@ struct SolverSettings {
   /// 1/kStackMargin of the preset's frequency are the preset's, bit for bit. CPU backend only.
   bool stackStiffening = true;
   static constexpr float kStackMargin = 1.2f;
+  /// Stacks that need more than this many times the preset's frequency are left alone.
+  static constexpr float kStackMaxFactor = 3;
+  /// Stacks with a level whose support points spread (RMS, across its softer axis) less than
+  /// this fraction of its height are left alone: such a level tips over whatever the stiffness.
+  static constexpr float kStackMinSpread = 0.05f;
   static constexpr int kStackInterval = 8;
   /// Patch friction: a manifold's friction as two tangent rows at the centroid of its points
   /// and a twist row about the normal, bounded by mu times the manifold's total normal
