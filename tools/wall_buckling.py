@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Buckling of a pyramid wall on soft contacts: where SolverSettings::kStackHertz comes from.
+"""Buckling of a pyramid wall on soft contacts: the model of stack stiffening, for one wall.
 
 A pyramid wall (pyramid_20/_40/_100) is one cube thick. On compliant contacts it can lean out
 of its plane: each row tilts about the wall's long axis on the springs under it. The model:
@@ -11,8 +11,10 @@ wall stands while K - G (tridiagonal) is positive definite. A soft contact's sti
 k = m_eff (2 pi f)^2 with the corner point's effective mass, m/8 between two cubes.
 
 Prints, per height N, the critical contact stiffness and frequency for unit cubes under
-9.81 m/s^2. They follow f ~ 0.2 N^1.5 Hz (0.4 N^1.5 sqrt(g/L) / 2 pi), which stack
-stiffening takes 1.2 times over: kStackHertz = 1.2 * 0.4 / (2 pi) = 0.0764.
+9.81 m/s^2. They follow f ~ 0.2 N^1.5 Hz (0.4 N^1.5 sqrt(g/L) / 2 pi). The engine solves
+the same model for any stack (physics/src/stacks.h; tests/unit/test_stacks_model.cpp checks
+it against the figures printed here) and takes SolverSettings::kStackMargin (1.2) times the
+critical frequency, the last column.
 
 Usage: tools/wall_buckling.py [N ...]
 """
@@ -62,7 +64,7 @@ def main():
         k = critical(n)
         f = math.sqrt(k / m_eff) / (2 * math.pi)
         print(f"{n:4d}  {k:12.3g}  {f:11.1f}  {0.2 * n ** 1.5:9.1f}  "
-              f"{0.0764 * math.sqrt(9.81) * n * n / math.sqrt(n):21.1f}")
+              f"{1.2 * f:21.1f}")
 
 
 if __name__ == "__main__":

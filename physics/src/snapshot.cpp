@@ -1028,6 +1028,10 @@ Status World::restoreSnapshot(const uint8_t* data, size_t size) {
     // The warm starts' unit: a wrong one would scale every stored impulse.
     if (s.ok() && !(p->stats.substepTime >= 0 && p->stats.substepTime <= 1))
       s.fail("the last substep length is not in [0, 1] s");
+    // Stack stiffening's frequency sets the substeps: at most a quarter of 64 per step of
+    // at least 1 us.
+    if (s.ok() && !(p->stats.stackHertz >= 0 && p->stats.stackHertz <= 1.6e7f))
+      s.fail("the stack stiffening frequency is not in [0, 1.6e7] Hz");
   });
   run("HULL", readHulls);
   run("BODY", readBodies);

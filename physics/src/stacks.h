@@ -7,7 +7,8 @@
 // centre along the softest horizontal axis. Gravity pushes a tilt theta of level d on by
 // g * height_d * (mass of levels >= d) * theta. The stack stands while the tridiagonal
 // stiffness minus that is positive definite (tools/wall_buckling.py is the same model for a
-// pyramid wall; it predicts pyramid_100's lean at 90 Hz and a 20-cube column's fall at 30 Hz).
+// pyramid wall). It predicts pyramid_100's lean at 90 Hz and, for a column, the 20-cube
+// column's fall at 30 Hz (docs/ARCHITECTURE.md, "Tall stacks").
 #pragma once
 
 #include <span>

@@ -237,18 +237,25 @@ const WorldDef& World::def() const {
 
 Status World::setGravity(Vec3 g) {
   if (!isFinite(g)) return invalid("gravity must be finite");
+  if (!(g == impl_->def.gravity)) impl_->forgetStacks();
   impl_->def.gravity = g;
   impl_->deviceStale();
   return Status::Ok();
 }
 Status World::setTimeStep(float dt) {
   if (!(finite(dt) && dt > 0 && dt <= 1)) return invalid("time step must be in (0, 1] s");
+  if (dt != impl_->def.timeStep) impl_->forgetStacks();
   impl_->def.timeStep = dt;
   return Status::Ok();
 }
 Status World::setSolverSettings(const SolverSettings& s) {
   Status st = validate(s);
-  if (st.ok()) impl_->def.solver = s;
+  if (!st.ok()) return st;
+  const SolverSettings& old = impl_->def.solver;
+  if (s.stackStiffening != old.stackStiffening || s.contactHertz != old.contactHertz ||
+      s.substeps != old.substeps)
+    impl_->forgetStacks();
+  impl_->def.solver = s;
   return st;
 }
 const StepProfile& World::profile() const {
@@ -754,7 +761,8 @@ void World::step() {
     w.stats.guardRetries++;
     w.stats.lastGuardEvent = "step " + std::to_string(w.stats.step) + ": " + fault;
     w.restoreSnapshot();
-    substeps = std::min(substeps * 2, 64);
+    // Twice what the failed attempt took (stack stiffening may have taken more than asked).
+    substeps = std::min(std::max(substeps, w.stats.substeps) * 2, 64);
     stepOnce(substeps);
     fault = w.checkHealth();
   }
@@ -778,9 +786,14 @@ void World::stepOnce(int substeps) {
   }
   // The GPU backend takes the whole step when it covers everything the step needs
   // (world_gpu.cpp); otherwise the CPU stages below take it from the same host mirror.
+  if (w.device) w.rescaleWarmStarts(dt / float(substeps));  // joints' go up when stale
   if (w.device && w.stepOnDevice(substeps)) {
+    // The device does not measure stacks: it runs the preset's substeps. Its joint impulses
+    // come back to the host in that unit.
     w.stats.substeps = substeps;
-    w.stats.substepTime = 0;
+    w.stats.substepTime = dt / float(substeps);
+    w.stats.stackDepth = 0;
+    w.stats.stackHertz = 0;
     w.time += dt;
     w.stats.step++;
     w.stats.energyAfter = energy();
@@ -906,10 +919,11 @@ void World::Impl::stiffenForStacks(float dt, SolverSettings* s) {
   // kStackInterval-th step, the frequency is kept in between (in StepStats, so a restored
   // snapshot continues the same way).
   if (stats.step % SolverSettings::kStackInterval == 0) measureStacks(dt, *s);
-  if (!(stats.stackHertz > s->contactHertz)) return;
-  s->contactHertz = stats.stackHertz;
-  const int needed = int(std::ceil(4 * stats.stackHertz * dt));
-  s->substeps = std::clamp(needed, s->substeps, std::max(s->substeps, 64));
+  const float effective = std::min(s->contactHertz, 0.25f * float(s->substeps) / dt);
+  if (!(stats.stackHertz > effective)) return;
+  s->contactHertz = std::max(s->contactHertz, stats.stackHertz);
+  const double needed = std::ceil(4.0 * double(stats.stackHertz) * double(dt));
+  s->substeps = std::max(s->substeps, int(std::min(needed, 64.0)));
 }
 
 void World::Impl::measureStacks(float dt, const SolverSettings& s) {
@@ -1088,8 +1102,10 @@ void World::Impl::rescaleWarmStarts(float h) {
   // stiffening, a guard retry, a new time step), so last step's impulses are scaled to keep
   // the forces they stand for.
   const float before = stats.substepTime;
+  stats.substepTime = h;  // their unit from here on
   if (!(before > 0) || before == h) return;
-  const float k = h / before;
+  // Bounded, so that a corrupt or absurd unit cannot blow the impulses up.
+  const float k = std::clamp(h / before, 1e-4f, 1e4f);
   for (Contact& c : contacts) {
     for (float& f : c.normalImpulse) f *= k;
     for (auto& t : c.tangentImpulse) t[0] *= k, t[1] *= k;

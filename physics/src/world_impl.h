@@ -147,6 +147,12 @@ struct World::Impl {
   /// this step's stacks need, into `s`; measureStacks finds the frequency (StepStats).
   void stiffenForStacks(float dt, SolverSettings* s);
   void measureStacks(float dt, const SolverSettings& s);
+  /// The measured stacks are for other settings (gravity, time step, contact frequency,
+  /// substeps): the preset's until the next measuring step (deterministic: StepStats).
+  void forgetStacks() {
+    stats.stackDepth = 0;
+    stats.stackHertz = 0;
+  }
   /// Scales the stored warm-start impulses (per substep) to substeps of length h.
   void rescaleWarmStarts(float h);
   /// Its scratch: per body (index) its support depth, adjacency head, union-find parent and

@@ -99,48 +99,62 @@ TEST(StackStiffening, TallColumnFallsWithoutItAndStandsWithIt) {
   EXPECT_LT(drift[1], 0.03f);
 }
 
+struct SceneRun {
+  uint64_t hash = 0;
+  int mostSubsteps = 0;  ///< over the run
+  int depth = 0;         ///< the last step's deepest support chain
+};
+
+/// configs/scenes/NAME.json with stack stiffening on or off, `steps` steps on one thread.
+SceneRun runScene(const std::string& name, bool stiffening, int steps) {
+  Scene s;
+  Status st = loadSceneFile(std::string(PHYS_SOURCE_DIR) + "/configs/scenes/" + name + ".json", &s);
+  EXPECT_TRUE(st.ok()) << st.message;
+  s.world.solver.stackStiffening = stiffening;
+  s.world.threads = 1;
+  World w(s.world);
+  EXPECT_TRUE(instantiateScene(s, &w, nullptr).ok());
+  SceneRun r;
+  for (int i = 0; i < steps; ++i) {
+    w.step();
+    r.mostSubsteps = std::max(r.mostSubsteps, w.stats().substeps);
+  }
+  r.hash = w.stateHash();
+  r.depth = w.stats().stackDepth;
+  return r;
+}
+
 TEST(StackStiffening, ShortStacksKeepThePresetBitForBit) {
   // pyramid_20 (20 high, unit cubes) needs 21 Hz: the preset's 90 Hz stand, and the step is
   // the preset's to the bit.
-  uint64_t hash[2] = {};
-  for (int on = 0; on < 2; ++on) {
-    Scene s;
-    Status st = loadSceneFile(std::string(PHYS_SOURCE_DIR) + "/configs/scenes/pyramid_20.json", &s);
-    ASSERT_TRUE(st.ok()) << st.message;
-    s.world.solver.stackStiffening = on != 0;
-    s.world.threads = 1;
-    World w(s.world);
-    ASSERT_TRUE(instantiateScene(s, &w, nullptr).ok());
-    for (int i = 0; i < 60; ++i) w.step();
-    EXPECT_EQ(w.stats().substeps, 6);
-    EXPECT_EQ(w.stats().stackDepth, on ? 20 : 0);
-    hash[on] = w.stateHash();
-  }
-  EXPECT_EQ(hash[0], hash[1]);
+  const SceneRun off = runScene("pyramid_20", false, 60), on = runScene("pyramid_20", true, 60);
+  EXPECT_EQ(on.mostSubsteps, 6);
+  EXPECT_EQ(on.depth, 20);
+  EXPECT_EQ(off.depth, 0);
+  EXPECT_EQ(on.hash, off.hash);
+}
+
+TEST(StackStiffening, ComparesWithTheFrequencyTheSubstepsAllow) {
+  // A column of 30 cubes needs about 85 Hz, so it takes 1.2 times that (7 substeps). Asking
+  // for 120 Hz at 6 substeps gets 90 (a quarter of the substep rate): it still needs them.
+  WorldDef def;
+  def.solver.contactHertz = 120;
+  World w(def);
+  addGround(w);
+  for (int i = 0; i < 30; ++i) addBody(w, boxBody({0, 0, 0.5f + float(i)}));
+  w.step();
+  EXPECT_GT(w.stats().stackHertz, 90.0f);
+  EXPECT_LT(w.stats().stackHertz, 120.0f);
+  EXPECT_EQ(w.stats().substeps, 7);
 }
 
 TEST(StackStiffening, DebrisOnEdgesIsLeftAlone) {
   // The demo scene's pile: at 1.7 s two bodies rest on nearly collinear points under two
   // more, which the model could only hold at 535 Hz; such a level tips over whatever the
   // stiffness, so the step stays the preset's (and bit for bit the same as without it).
-  uint64_t hash[2] = {};
-  int most = 0;
-  for (int on = 0; on < 2; ++on) {
-    Scene s;
-    Status st = loadSceneFile(std::string(PHYS_SOURCE_DIR) + "/configs/scenes/default.json", &s);
-    ASSERT_TRUE(st.ok()) << st.message;
-    s.world.solver.stackStiffening = on != 0;
-    s.world.threads = 1;
-    World w(s.world);
-    ASSERT_TRUE(instantiateScene(s, &w, nullptr).ok());
-    for (int i = 0; i < 150; ++i) {
-      w.step();
-      if (on) most = std::max(most, w.stats().substeps);
-    }
-    hash[on] = w.stateHash();
-  }
-  EXPECT_EQ(most, 6);
-  EXPECT_EQ(hash[0], hash[1]);
+  const SceneRun off = runScene("default", false, 150), on = runScene("default", true, 150);
+  EXPECT_EQ(on.mostSubsteps, 6);
+  EXPECT_EQ(on.hash, off.hash);
 }
 
 TEST(StackStiffening, DepthCountsSupportChainsOnly) {

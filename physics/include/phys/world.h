@@ -157,13 +157,14 @@ struct SolverSettings {
   /// stable at few substeps (their rotation then lags slightly).
   bool geometricStiffness = true;
   /// Stack stiffening: a tall stack on soft contacts buckles (leans out and falls) unless its
-  /// contacts are stiff enough for its height. Each step cuts every stack into levels by
-  /// support depth (contacts within 45 degrees of gravity, counted up from static and
-  /// kinematic bodies) and finds the contact frequency at which it stands (physics/src/
-  /// stacks.h); where that is above the preset's, the step takes kStackMargin times it and
-  /// the substeps that keep it under a quarter of the substep rate (docs/ARCHITECTURE.md,
-  /// "Tall stacks"). Measured every kStackInterval-th step. Steps whose stacks stand at
-  /// 1/kStackMargin of the preset's frequency are the preset's, bit for bit. CPU backend only.
+  /// contacts are stiff enough for its height. Every kStackInterval-th step cuts every stack
+  /// into levels by support depth (contacts within 45 degrees of gravity, counted up from
+  /// static and kinematic bodies) and finds the contact frequency at which it stands
+  /// (physics/src/stacks.h); where that is above 1/kStackMargin of the preset's, the steps
+  /// take kStackMargin times it and the substeps that keep it under a quarter of the substep
+  /// rate (which also lifts that cap for joints) until the next measurement
+  /// (docs/ARCHITECTURE.md, "Tall stacks"). Other steps are the preset's, bit for bit. CPU
+  /// backend only.
   bool stackStiffening = true;
   static constexpr float kStackMargin = 1.2f;
   /// Stacks that need more than this many times the preset's frequency are left alone.
