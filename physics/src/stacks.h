@@ -9,6 +9,9 @@
 // stiffness minus that is positive definite (tools/wall_buckling.py is the same model for a
 // pyramid wall). It predicts pyramid_100's lean at 90 Hz and, for a column, the 20-cube
 // column's fall at 30 Hz (docs/ARCHITECTURE.md, "Tall stacks").
+//
+// stacks.cpp also holds the world's side (World::Impl::stiffenForStacks, measureStacks):
+// finding the stacks and their levels in a step's contacts.
 #pragma once
 
 #include <span>
