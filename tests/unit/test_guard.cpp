@@ -55,10 +55,7 @@ TEST(Guard, WithoutTheGuardTheSameBodyRunsAway) {
 
 TEST(Guard, HealthyScenesRaiseNoAlarm) {
   for (const char* name : {"pyramid_20", "default", "windmill", "restitution", "tunnelling"}) {
-    Scene scene;
-    ASSERT_TRUE(
-        loadSceneFile(std::string(PHYS_SOURCE_DIR) + "/configs/scenes/" + name + ".json", &scene)
-            .ok());
+    Scene scene = test::loadScene(name);
     World w(scene.world);
     std::vector<BodyId> ids;
     ASSERT_TRUE(instantiateScene(scene, &w, &ids).ok());

@@ -15,6 +15,7 @@
 #include "phys/metrics.h"
 #include "phys/scene.h"
 #include "phys/world.h"
+#include "test_util.h"
 
 namespace phys {
 namespace {
@@ -780,13 +781,7 @@ TEST(Scene, EveryShippedSceneParses) {
 }
 
 TEST(Scene, ShippedSceneBodyCounts) {
-  auto load = [](const char* name) {
-    Scene s;
-    Status st =
-        loadSceneFile(std::string(PHYS_SOURCE_DIR) + "/configs/scenes/" + name + ".json", &s);
-    EXPECT_TRUE(st.ok()) << st.message;
-    return s;
-  };
+  auto load = [](const char* name) { return test::loadScene(name); };
   EXPECT_EQ(countNamed(load("pyramid_20"), "pyramid/"), 210);
   EXPECT_EQ(countNamed(load("pyramid_40"), "pyramid/"), 820);
   EXPECT_EQ(countNamed(load("pyramid_100"), "pyramid/"), 5050);

@@ -172,12 +172,6 @@ void buildMixedScene(World& w) {
   addBody(w, sphereBody({-0.3f, 0.1f, 8}, 0.25f, 500));
 }
 
-void loadScene(const char* name, Scene* scene) {
-  Status st =
-      loadSceneFile(std::string(PHYS_SOURCE_DIR) + "/configs/scenes/" + name + ".json", scene);
-  ASSERT_TRUE(st.ok()) << st.message;
-}
-
 /// Steps `src` n times, snapshots it, steps it m more times; a world made by `makeTarget`
 /// restored from the snapshot and stepped m times must match step for step, and the same
 /// world restored into itself too.
@@ -287,8 +281,7 @@ TEST(Snapshot, PatchFrictionContinuesBitExact) {
 }
 
 TEST(Snapshot, ChainWithLdlAndGeometricStiffnessContinuesBitExact) {
-  Scene scene;
-  loadScene("ball_and_chain", &scene);
+  Scene scene = test::loadScene("ball_and_chain");
   ASSERT_EQ(scene.world.solver.equalitySolve, SolverSettings::EqualitySolve::DirectLdl);
   ASSERT_TRUE(scene.world.solver.geometricStiffness);
   World w(scene.world);
@@ -298,8 +291,7 @@ TEST(Snapshot, ChainWithLdlAndGeometricStiffnessContinuesBitExact) {
 }
 
 TEST(Snapshot, WindmillMotorContinuesBitExact) {
-  Scene scene;
-  loadScene("windmill", &scene);
+  Scene scene = test::loadScene("windmill");
   World w(scene.world);
   std::vector<BodyId> ids;
   std::vector<JointId> joints;
@@ -319,8 +311,7 @@ TEST(Snapshot, WindmillMotorContinuesBitExact) {
 }
 
 TEST(Snapshot, SuspensionBridgeContinuesBitExact) {
-  Scene scene;
-  loadScene("suspension_bridge", &scene);
+  Scene scene = test::loadScene("suspension_bridge");
   World w(scene.world);
   std::vector<BodyId> ids;
   ASSERT_TRUE(instantiateScene(scene, &w, &ids).ok());
@@ -424,8 +415,7 @@ TEST(Snapshot, SizesOfSomeScenes) {
               w.contacts().size(), snap.size());
   EXPECT_LT(snap.size(), size_t(w.bodyCount()) * 2000);
   for (const char* name : {"ball_and_chain", "windmill", "pyramid_20"}) {
-    Scene scene;
-    loadScene(name, &scene);
+    Scene scene = test::loadScene(name);
     World s(scene.world);
     std::vector<BodyId> ids;
     ASSERT_TRUE(instantiateScene(scene, &s, &ids).ok());

@@ -63,9 +63,7 @@ TEST(SolverSpace, EveryPresetRunsEverySceneWithoutNaN) {
 TEST(SolverSpace, JacobiGivesTheSameStateTwice) {
   auto presets = shippedPresets();
   auto run = [&](const std::string& preset) {
-    Scene scene;
-    EXPECT_TRUE(
-        loadSceneFile(std::string(PHYS_SOURCE_DIR) + "/configs/scenes/default.json", &scene).ok());
+    Scene scene = test::loadScene("default");
     scene.world.solver = presets[preset].settings;
     World world(scene.world);
     std::vector<BodyId> ids;

@@ -99,10 +99,7 @@ struct SceneRun {
 };
 
 SceneRun runScene(const std::string& scene, bool split, int steps) {
-  Scene s;
-  Status st =
-      loadSceneFile(std::string(PHYS_SOURCE_DIR) + "/configs/scenes/" + scene + ".json", &s);
-  EXPECT_TRUE(st.ok()) << st.message;
+  Scene s = test::loadScene(scene);
   s.world.solver.splitPushout = split;
   s.world.threads = 1;
   World w(s.world);

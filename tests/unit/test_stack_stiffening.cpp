@@ -107,9 +107,7 @@ struct SceneRun {
 
 /// configs/scenes/NAME.json with stack stiffening on or off, `steps` steps on one thread.
 SceneRun runScene(const std::string& name, bool stiffening, int steps) {
-  Scene s;
-  Status st = loadSceneFile(std::string(PHYS_SOURCE_DIR) + "/configs/scenes/" + name + ".json", &s);
-  EXPECT_TRUE(st.ok()) << st.message;
+  Scene s = test::loadScene(name);
   s.world.solver.stackStiffening = stiffening;
   s.world.threads = 1;
   World w(s.world);

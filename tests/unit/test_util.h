@@ -3,7 +3,10 @@
 
 #include <gtest/gtest.h>
 
+#include <string>
+
 #include "../common/bodies.h"
+#include "phys/scene.h"
 #include "phys/world.h"
 
 namespace phys::test {
@@ -18,6 +21,15 @@ inline BodyId addBody(World& w, const BodyDef& d) {
 /// A static ground plane z = 0.
 inline BodyId addGround(World& w, float friction = 0.6f, float restitution = 0) {
   return addBody(w, groundBody(friction, restitution));
+}
+
+/// configs/scenes/NAME.json of the source tree (a load failure is reported as a test failure
+/// and leaves the scene empty).
+inline Scene loadScene(const std::string& name) {
+  Scene s;
+  Status st = loadSceneFile(std::string(PHYS_SOURCE_DIR) + "/configs/scenes/" + name + ".json", &s);
+  EXPECT_TRUE(st.ok()) << name << ": " << st.message;
+  return s;
 }
 
 inline BodyState stateOf(const World& w, BodyId id) {
