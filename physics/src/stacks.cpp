@@ -44,11 +44,7 @@ double stackCriticalOmega(std::span<const StackLevel> levels, double g, double o
 // The world's side: its stacks, measured from this step's contacts.
 
 void World::Impl::stiffenForStacks(float dt, SolverSettings* s) {
-  if (!s->stackStiffening) {
-    stats.stackDepth = 0;
-    stats.stackHertz = 0;
-    return;
-  }
+  if (!s->stackStiffening) return forgetStacks();
   // Stacks change slowly next to their buckling (seconds): measured every
   // kStackInterval-th step, the frequency is kept in between (in StepStats, so a restored
   // snapshot continues the same way).
@@ -61,8 +57,7 @@ void World::Impl::stiffenForStacks(float dt, SolverSettings* s) {
 }
 
 void World::Impl::measureStacks(float dt, const SolverSettings& s) {
-  stats.stackDepth = 0;
-  stats.stackHertz = 0;
+  forgetStacks();
   const float g = length(def.gravity);
   if (!(g > 0)) return;
   const Vec3 down = def.gravity / g;
