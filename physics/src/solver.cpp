@@ -195,16 +195,30 @@ void Solver::integrateVelocities(float h, float maxLinearSpeed, float maxAngular
 template <class F, class W>
 float Solver::forEachScheduled(F&& f, W&& w) {
   if (!wide || !wide->active) return forEachGroup(std::forward<F>(f));
-  float m = 0;
-  for (const WideContacts::Item& item : wide->schedule) {
-    if (item.wide) {
-      m = std::max(m, w(item.index));
-    } else {
-      const Group& g = groups[item.index];
-      m = std::max(m, f(g, bodies[size_t(g.a)], bodies[size_t(g.b)]));
+  auto run = [&](size_t begin, size_t end) {
+    float m = 0;
+    for (size_t k = begin; k < end; ++k) {
+      const WideContacts::Item& item = wide->schedule[k];
+      if (item.wide) {
+        m = std::max(m, w(item.index));
+      } else {
+        const Group& g = groups[item.index];
+        m = std::max(m, f(g, bodies[size_t(g.a)], bodies[size_t(g.b)]));
+      }
     }
-  }
-  return m;
+    return m;
+  };
+  if (!wide->halves()) return run(0, wide->schedule.size());
+  // The row groups, then the two halves at once (they share no dynamic body, and hold only
+  // wide blocks, which write dynamic bodies alone), then the blocks between them: the bits
+  // of the serial pass (solver_wide.h, "Halves").
+  float m = run(0, wide->part(0));
+  float half[2] = {0, 0};
+  parallel(2, 1, [&](size_t begin, size_t end) {
+    for (size_t h = begin; h < end; ++h) half[h] = run(wide->part(int(h)), wide->part(int(h) + 1));
+  });
+  m = std::max({m, half[0], half[1]});
+  return std::max(m, run(wide->part(2), wide->schedule.size()));
 }
 
 template <class F>

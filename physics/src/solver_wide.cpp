@@ -2,10 +2,13 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cassert>
 #include <cmath>
 #include <cstring>
 #include <type_traits>
+
+#include "thread_pool.h"
 
 #if defined(__SSE__)
 #include <immintrin.h>
@@ -219,9 +222,24 @@ void WideContacts::clear() {
   errorsCurrent = false;
 }
 
-void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& manifolds) {
+template <class F>
+void WideContacts::forEachPart(F&& fn) const {
+  if (halves_ && pool_) {
+    // Each half's blocks on the thread that solves them (see build).
+    pool_->parallelFor(2, 1, [&](size_t begin, size_t end) {
+      for (size_t h = begin; h < end; ++h) fn(partBlock_[h], partBlock_[h + 1]);
+    });
+    fn(partBlock_[2], blockCount_);
+  } else {
+    fn(size_t(0), blockCount_);
+  }
+}
+
+void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& manifolds,
+                         const uint32_t* halfEnd) {
   clear();
   active = true;
+  halves_ = halfEnd != nullptr;
   patch_ = !manifolds.empty() && manifolds.front().patch;
 #ifndef NDEBUG
   for (const SolverManifold& m : manifolds) assert(m.patch == patch_);  // one setting per step
@@ -231,16 +249,20 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
   // may run in any order, while each body still meets its constraints in the serial order
   // (the solver's row groups, the joints, then the manifolds). A manifold may also take a
   // free lane of a block a few levels further on, which fills blocks at the price of
-  // pushing its bodies' later constraints back.
+  // pushing its bodies' later constraints back. With halves, each part (the row groups, the
+  // first half, the second, those between) starts on a level of its own (`floor`), so the
+  // parts follow one another in the schedule.
   struct Level {
     std::vector<Item> items;  ///< blocks numbered in the order they were opened
     int32_t open = -1;        ///< a block of this level with a free lane
   };
   std::vector<Level> levels;
   std::vector<int32_t> levelOf(s.bodies.size(), -1);  // last level touching a dynamic body
+  int32_t floor = 0;
   auto place = [&](int32_t a, int32_t b) {
     const bool da = s.bodies[size_t(a)].dynamic, db = s.bodies[size_t(b)].dynamic;
-    return 1 + std::max(da ? levelOf[size_t(a)] : -1, db ? levelOf[size_t(b)] : -1);
+    return std::max(floor,
+                    1 + std::max(da ? levelOf[size_t(a)] : -1, db ? levelOf[size_t(b)] : -1));
   };
   auto touch = [&](int32_t a, int32_t b, int32_t at) {
     if (s.bodies[size_t(a)].dynamic) levelOf[size_t(a)] = at;
@@ -256,26 +278,34 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
   std::vector<std::array<uint32_t, kLanes>> lanes;  // per opened block: its manifolds
   std::vector<uint8_t> used;
   laneOf_.resize(manifolds.size());
-  for (uint32_t mi = 0; mi < manifolds.size(); ++mi) {
-    const SolverManifold& m = manifolds[mi];
-    int32_t at = place(m.a, m.b);
-    for (int32_t lv = at; lv < at + kLevelSearch && size_t(lv) < levels.size(); ++lv) {
-      if (levels[size_t(lv)].open >= 0) {
-        at = lv;
-        break;
+  const uint32_t n = uint32_t(manifolds.size());
+  const uint32_t partEnd[3] = {halves_ ? halfEnd[0] : n, halves_ ? halfEnd[1] : n, n};
+  size_t partLevel[3] = {};  // the level each part of the manifolds begins on
+  uint32_t mi = 0;
+  for (int part = 0; part < 3; ++part) {
+    if (halves_) floor = int32_t(levels.size());
+    partLevel[part] = levels.size();
+    for (; mi < partEnd[part]; ++mi) {
+      const SolverManifold& m = manifolds[mi];
+      int32_t at = place(m.a, m.b);
+      for (int32_t lv = at; lv < at + kLevelSearch && size_t(lv) < levels.size(); ++lv) {
+        if (levels[size_t(lv)].open >= 0) {
+          at = lv;
+          break;
+        }
       }
+      touch(m.a, m.b, at);
+      Level& level = levels[size_t(at)];
+      if (level.open < 0) {
+        level.open = int32_t(lanes.size());
+        level.items.push_back({uint32_t(lanes.size()), true});
+        lanes.emplace_back();
+        used.push_back(0);
+      }
+      const size_t blk = size_t(level.open);
+      lanes[blk][used[blk]++] = mi;
+      if (used[blk] == kLanes) level.open = -1;
     }
-    touch(m.a, m.b, at);
-    Level& level = levels[size_t(at)];
-    if (level.open < 0) {
-      level.open = int32_t(lanes.size());
-      level.items.push_back({uint32_t(lanes.size()), true});
-      lanes.emplace_back();
-      used.push_back(0);
-    }
-    const size_t blk = size_t(level.open);
-    lanes[blk][used[blk]++] = mi;
-    if (used[blk] == kLanes) level.open = -1;
   }
   // The schedule, level by level, and the blocks numbered in its order, so that the passes
   // stream through them; then each block is filled in one go. (Filling them in parallel
@@ -284,8 +314,16 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
   schedule.reserve(s.groups.size() + lanes.size());
   std::vector<uint32_t> openedAs;  // per block in schedule order: its index as opened
   openedAs.reserve(lanes.size());
-  for (const Level& level : levels) {
-    for (Item item : level.items) {
+  auto startParts = [&](size_t level) {
+    for (int p = 0; p < 3; ++p) {
+      if (partLevel[p] != level) continue;
+      part_[p] = schedule.size();
+      partBlock_[p] = openedAs.size();
+    }
+  };
+  for (size_t li = 0; li < levels.size(); ++li) {
+    startParts(li);
+    for (Item item : levels[li].items) {
       if (item.wide) {
         openedAs.push_back(item.index);
         item.index = uint32_t(openedAs.size() - 1);
@@ -293,6 +331,7 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
       schedule.push_back(item);
     }
   }
+  startParts(levels.size());  // empty parts at the end
   // The storage only grows; each block is zeroed just before it is filled (empty lanes and
   // points must read as zeros), while its cache lines are about to be written anyway.
   // Zeroing all of it up front (vector::resize after clear) cost 0.1 ms on pyramid_40.
@@ -319,7 +358,63 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
       }
     }
   };
-  fill(0, blockCount_);
+  assert(!halves_ || partBlock_[0] == 0);  // the row groups' levels hold no blocks
+  pool_ = s.pool;
+  forEachPart(fill);
+}
+
+void splitHalves(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& com,
+                 const std::vector<std::pair<int32_t, int32_t>>& pairs,
+                 std::vector<uint8_t>& half) {
+  half.assign(bodies.size(), kNoHalf);
+  std::vector<uint32_t> dyn;
+  for (uint32_t i = 1; i < bodies.size(); ++i)
+    if (bodies[i].dynamic) dyn.push_back(i);
+  if (dyn.empty()) return;
+  // Each axis's median cut, by (coordinate, index): the same split whatever order the bodies
+  // came in. The cut that the fewest contacts cross wins (the first of equals).
+  std::vector<uint8_t> trial(bodies.size(), kNoHalf);
+  size_t fewest = SIZE_MAX;
+  for (int axis = 0; axis < 3; ++axis) {
+    auto coord = [&](uint32_t i) { return axis == 0 ? com[i].x : axis == 1 ? com[i].y : com[i].z; };
+    const auto mid = dyn.begin() + std::ptrdiff_t(dyn.size() / 2);
+    std::nth_element(dyn.begin(), mid, dyn.end(), [&](uint32_t a, uint32_t b) {
+      const float ca = coord(a), cb = coord(b);
+      return ca < cb || (ca == cb && a < b);
+    });
+    for (auto it = dyn.begin(); it != dyn.end(); ++it) trial[*it] = it < mid ? 0 : 1;
+    size_t crossing = 0;
+    for (const auto& [a, b] : pairs) crossing += manifoldPart(trial, a, b) == 2;
+    if (crossing < fewest) {
+      fewest = crossing;
+      half.swap(trial);
+      trial.assign(bodies.size(), kNoHalf);
+    }
+  }
+}
+
+std::vector<uint32_t> colorOrder(const std::vector<SolverBody>& bodies,
+                                 const std::vector<std::pair<int32_t, int32_t>>& pairs) {
+  std::vector<uint32_t> colors(bodies.size(), 0);    // per body: the colours it has, as bits
+  std::vector<std::pair<uint32_t, uint32_t>> keyed;  // (colour, index)
+  keyed.reserve(pairs.size());
+  for (uint32_t i = 0; i < pairs.size(); ++i) {
+    const auto [a, b] = pairs[i];
+    const bool da = bodies[size_t(a)].dynamic, db = bodies[size_t(b)].dynamic;
+    const uint32_t used = (da ? colors[size_t(a)] : 0) | (db ? colors[size_t(b)] : 0);
+    // Past 32 colours (a body in 32 contacts across the cut) the last is shared: the order
+    // stays valid, only its blocks fill less.
+    const uint32_t color = std::min(31u, uint32_t(std::countr_one(used)));
+    if (da) colors[size_t(a)] |= 1u << color;
+    if (db) colors[size_t(b)] |= 1u << color;
+    keyed.push_back({color, i});
+  }
+  std::stable_sort(keyed.begin(), keyed.end(),
+                   [](const auto& x, const auto& y) { return x.first < y.first; });
+  std::vector<uint32_t> order;
+  order.reserve(keyed.size());
+  for (const auto& [color, i] : keyed) order.push_back(i);
+  return order;
 }
 
 size_t WideContacts::laneCount() const {
@@ -334,46 +429,59 @@ std::vector<uint32_t> WideContacts::manifoldsOf(uint32_t block) const {
 }
 
 void WideContacts::store(std::vector<SolverManifold>& manifolds) {
-  for (uint32_t b = 0; b < blockCount_; ++b) {
-    const Block& blk = blocks_[b];
-    for (int l = 0; l < blk.lanes; ++l) {
-      SolverManifold& m = manifolds[blk.manifold[l]];
-      for (int k = 0; k < m.count; ++k) {
-        m.normalImpulse[k] = blk.pt[k].n.lambda[l];
-        if (patch_) continue;
-        const PointFriction& f = frictionOf(b)[k];
-        m.tangentImpulse[k][0] = f.t1.lambda[l];
-        m.tangentImpulse[k][1] = f.t2.lambda[l];
-      }
-      if (patch_) {
-        const Patch& pa = patches_[b];
-        m.patchImpulse[0] = pa.t1.lambda[l];
-        m.patchImpulse[1] = pa.t2.lambda[l];
-        m.patchImpulse[2] = pa.twist.lambda[l];
+  forEachPart([&](size_t begin, size_t end) {
+    for (size_t b = begin; b < end; ++b) {
+      const Block& blk = blocks_[b];
+      for (int l = 0; l < blk.lanes; ++l) {
+        SolverManifold& m = manifolds[blk.manifold[l]];
+        for (int k = 0; k < m.count; ++k) {
+          m.normalImpulse[k] = blk.pt[k].n.lambda[l];
+          if (patch_) continue;
+          const PointFriction& f = frictionOf(uint32_t(b))[k];
+          m.tangentImpulse[k][0] = f.t1.lambda[l];
+          m.tangentImpulse[k][1] = f.t2.lambda[l];
+        }
+        if (patch_) {
+          const Patch& pa = patches_[b];
+          m.patchImpulse[0] = pa.t1.lambda[l];
+          m.patchImpulse[1] = pa.t2.lambda[l];
+          m.patchImpulse[2] = pa.twist.lambda[l];
+        }
       }
     }
-  }
+  });
   active = false;
 }
 
 double WideContacts::residual(const std::vector<SolverBody>& bodies, float h, double sum) const {
-  // Solver::velocityResidual's contact rows, in the rows' order (friction rows add zero).
-  for (const auto& [block, l] : laneOf_) {
-    const Block& blk = blocks_[block];
-    const SolverBody& A = bodies[size_t(blk.a[l])];
-    const SolverBody& B = bodies[size_t(blk.b[l])];
-    const Vec3 linA = lane(blk.linA[0], int(l)), linB = lane(blk.linB[0], int(l));
-    for (int k = 0; k < blk.count[l]; ++k) {
-      const Dir& r = blk.pt[k].n;
-      const Vec3 angA = lane(r.angA, int(l)), angB = lane(r.angB, int(l));
-      const float vn = dot(linA, A.v) + dot(angA, A.w) + dot(linB, B.v) + dot(angB, B.w);
-      const float C = blk.pt[k].C0[l] + dot(linA, A.dp) + dot(angA, A.dtheta) + dot(linB, B.dp) +
-                      dot(angB, B.dtheta);
-      const float gap = std::max(C, 0.0f) / h;
-      const double e = r.lambda[l] > 0 ? vn : std::min(0.0f, vn + gap);
-      sum += e * e;
+  // Solver::velocityResidual's contact rows: each point's term where its block lives, then
+  // the sum in the rows' order (friction rows add zero; so do the unused points, +0.0).
+  constexpr int kPoints = Manifold::kMaxPoints;
+  residualTerms_.resize(laneOf_.size() * kPoints);
+  forEachPart([&](size_t begin, size_t end) {
+    for (size_t b = begin; b < end; ++b) {
+      const Block& blk = blocks_[b];
+      for (int l = 0; l < blk.lanes; ++l) {
+        const SolverBody& A = bodies[size_t(blk.a[l])];
+        const SolverBody& B = bodies[size_t(blk.b[l])];
+        const Vec3 linA = lane(blk.linA[0], l), linB = lane(blk.linB[0], l);
+        double* terms = &residualTerms_[size_t(blk.manifold[l]) * kPoints];
+        for (int k = 0; k < kPoints; ++k) {
+          terms[k] = 0;
+          if (k >= blk.count[l]) continue;
+          const Dir& r = blk.pt[k].n;
+          const Vec3 angA = lane(r.angA, l), angB = lane(r.angB, l);
+          const float vn = dot(linA, A.v) + dot(angA, A.w) + dot(linB, B.v) + dot(angB, B.w);
+          const float C = blk.pt[k].C0[l] + dot(linA, A.dp) + dot(angA, A.dtheta) +
+                          dot(linB, B.dp) + dot(angB, B.dtheta);
+          const float gap = std::max(C, 0.0f) / h;
+          const double e = r.lambda[l] > 0 ? vn : std::min(0.0f, vn + gap);
+          terms[k] = e * e;
+        }
+      }
     }
-  }
+  });
+  for (double t : residualTerms_) sum += t;
   return sum;
 }
 

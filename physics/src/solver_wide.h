@@ -13,6 +13,14 @@
 // The World hands the manifolds over instead of making contact rows; a block holds their
 // rows in a compact structure-of-arrays form (about 190 bytes per contact point instead of
 // three 164-byte rows) and owns the contact impulses between build() and store().
+//
+// Halves: in a world with many contacts, the World splits the dynamic bodies into two halves
+// (splitHalves: at the median along the axis where they spread most) and orders the contacts
+// as the first half's, the second half's, then those between the halves. That order is the
+// world's, not the threads': it is the Gauss-Seidel order of the scalar rows too, whatever
+// the thread count. The first two parts share no dynamic body, so they commute: their blocks
+// run on two threads at once, then the few between the halves on one, and the result is the
+// same bits as the serial pass. Scalar groups (joints) come first, serially.
 #pragma once
 
 #include <cstdint>
@@ -22,6 +30,8 @@
 #include "solver.h"
 
 namespace phys {
+
+class ThreadPool;
 
 namespace wide {
 constexpr int kLanes = 8;
@@ -61,8 +71,15 @@ class WideContacts {
   bool errorsCurrent = false;
 
   /// Packs the manifolds into blocks and orders them after the solver's row groups (the
-  /// joints; see the file comment). The rows must be finished; sets active.
-  void build(const Solver& s, const std::vector<SolverManifold>& manifolds);
+  /// joints; see the file comment). The rows must be finished; sets active. With halves,
+  /// manifolds [0, halfEnd[0]) are the first half's, [halfEnd[0], halfEnd[1]) the second's,
+  /// and the rest lie between them (see "Halves" above); without, all are one part.
+  void build(const Solver& s, const std::vector<SolverManifold>& manifolds,
+             const uint32_t* halfEnd = nullptr);
+  /// With halves: the schedule's parts, [0, part(0)) the row groups, [part(0), part(1)) the
+  /// first half's blocks, [part(1), part(2)) the second half's, then those between.
+  bool halves() const { return halves_; }
+  size_t part(int i) const { return part_[i]; }
   /// Writes the contact impulses into the manifolds and deactivates: the solver passes run
   /// over the rows alone again. The blocks stay for residual().
   void store(std::vector<SolverManifold>& manifolds);
@@ -125,9 +142,41 @@ class WideContacts {
   size_t blockCount_ = 0;
   std::vector<std::pair<uint32_t, uint32_t>> laneOf_;  ///< per manifold: block, lane
   bool patch_ = false;  ///< every manifold has patch friction (else every one per point)
+  bool halves_ = false;
+  size_t part_[3] = {};       ///< see part()
+  size_t partBlock_[3] = {};  ///< with halves: the blocks before each part
+  ThreadPool* pool_ = nullptr;
+  mutable std::vector<double> residualTerms_;  ///< residual(): per manifold, kMaxPoints
+  /// fn(firstBlock, endBlock) over the blocks: with halves each half's on the thread that
+  /// solves it (the pool gives a loop's chunk h to the same thread every time), then the rest.
+  template <class F>
+  void forEachPart(F&& fn) const;
   /// Per block: its points' friction (kMaxPoints each), or with patch friction its patch.
   std::vector<PointFriction> friction_;
   std::vector<Patch> patches_;
 };
+
+/// Halves (see the file comment) from this many contact manifolds: below it, one more
+/// fork-join per pass costs about what the second core saves.
+constexpr size_t kHalvesMinManifolds = 256;
+constexpr uint8_t kNoHalf = 0xff;
+/// Per solver body: its half (0 or 1), cut at the median of the dynamic bodies' centres of
+/// mass (`com`, per solver body) along the axis whose cut the fewest contacts (`pairs`, solver
+/// bodies a, b) cross; kNoHalf for the world and kinematic bodies.
+void splitHalves(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& com,
+                 const std::vector<std::pair<int32_t, int32_t>>& pairs, std::vector<uint8_t>& half);
+/// The order in which to solve the contacts between the halves: they touch the bodies along
+/// the cut, each after the last in the contacts' order (a row's neighbours, then the row
+/// above), and in that order they form one long chain, a manifold per wide block. By colour
+/// (greedily, the first colour neither dynamic body has yet), in their order within a colour,
+/// they fill blocks. Returns the permutation of `pairs` (solver bodies a, b of each contact).
+std::vector<uint32_t> colorOrder(const std::vector<SolverBody>& bodies,
+                                 const std::vector<std::pair<int32_t, int32_t>>& pairs);
+/// A manifold's part: the half of its dynamic bodies, or 2 between the halves.
+inline uint8_t manifoldPart(const std::vector<uint8_t>& half, int32_t a, int32_t b) {
+  const uint8_t ha = half[size_t(a)], hb = half[size_t(b)];
+  if (ha == kNoHalf) return hb == kNoHalf ? 0 : hb;
+  return hb == kNoHalf || hb == ha ? ha : 2;
+}
 
 }  // namespace phys

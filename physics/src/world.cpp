@@ -1327,6 +1327,7 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   solver.contactK.clear();
   solver.blockContacts = s.blockContacts;
   solver.bodies.push_back(SolverBody{});
+  solverCom.assign(1, Vec3{});
   int awake = 0;
   for (uint32_t i = 0; i < bodies.capacity(); ++i) {
     if (!bodies.alive(i)) continue;
@@ -1360,6 +1361,7 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
       sb.principalMoments = b.principalMoments;
     }
     solver.bodies.push_back(sb);
+    solverCom.push_back(b.com);
     ++awake;
   }
   stats.bodies = int(bodies.size());
@@ -1395,11 +1397,11 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
       vectorizedContacts() && s.scheme == SolverSettings::Scheme::GaussSeidel && !s.blockContacts &&
       !s.splitPushout &&
       (s.positionPass == SolverSettings::PositionPass::None || s.positionIterations == 0);
+  uint32_t halfEnd[2] = {};
+  const bool halves = orderContacts(s, halfEnd);
   manifoldContact.clear();
-  for (uint32_t ci = 0; ci < contacts.size(); ++ci) {
+  for (uint32_t ci : contactOrder) {
     Contact& c = contacts[ci];
-    c.firstRow = -1;
-    if (c.manifold.count == 0) continue;
     if (vectorized) {
       manifoldContact.push_back(ci);
       continue;
@@ -1423,10 +1425,50 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   solver.finishRows(0, solver.rows.size());
   solver.wide = &wide;
   if (vectorized)
-    wide.build(solver, manifolds);
+    wide.build(solver, manifolds, halves ? halfEnd : nullptr);
   else
     wide.clear();
   stats.vectorizedManifolds = int(manifolds.size());
+}
+
+bool World::Impl::orderContacts(const SolverSettings& s, uint32_t halfEnd[2]) {
+  // The Gauss-Seidel order of the touching contacts: with many contacts, the first half's, the
+  // second half's, then those between (solver_wide.h, "Halves"), so that the halves run on two
+  // threads; the same order with any thread count, and in the rows as in the wide blocks.
+  contactOrder.clear();
+  for (uint32_t ci = 0; ci < contacts.size(); ++ci) {
+    contacts[ci].firstRow = -1;
+    if (contacts[ci].manifold.count > 0) contactOrder.push_back(ci);
+  }
+  const bool halves =
+      s.scheme == SolverSettings::Scheme::GaussSeidel && contactOrder.size() >= kHalvesMinManifolds;
+  stats.contactsBetweenHalves = -1;
+  if (halves) {
+    std::vector<std::pair<int32_t, int32_t>> pairs;  // solver bodies
+    pairs.reserve(contactOrder.size());
+    for (uint32_t ci : contactOrder) {
+      const Contact& c = contacts[ci];
+      pairs.push_back({bodies.at(c.bodyA.index).solverIndex, bodies.at(c.bodyB.index).solverIndex});
+    }
+    splitHalves(solver.bodies, solverCom, pairs, solverHalf);
+    std::vector<uint32_t> byPart[3];  // indices into contactOrder and pairs
+    for (uint32_t k = 0; k < pairs.size(); ++k)
+      byPart[manifoldPart(solverHalf, pairs[k].first, pairs[k].second)].push_back(k);
+    // Between the halves: by colour (solver_wide.h), so that they fill blocks.
+    std::vector<std::pair<int32_t, int32_t>> betweenPairs;
+    for (uint32_t k : byPart[2]) betweenPairs.push_back(pairs[k]);
+    const std::vector<uint32_t> byColor = colorOrder(solver.bodies, betweenPairs);
+    std::vector<uint32_t> order;
+    order.reserve(contactOrder.size());
+    for (int part = 0; part < 2; ++part)
+      for (uint32_t k : byPart[part]) order.push_back(contactOrder[k]);
+    for (uint32_t i : byColor) order.push_back(contactOrder[byPart[2][i]]);
+    contactOrder.swap(order);
+    halfEnd[0] = uint32_t(byPart[0].size());
+    halfEnd[1] = halfEnd[0] + uint32_t(byPart[1].size());
+    stats.contactsBetweenHalves = int(byPart[2].size());
+  }
+  return halves;
 }
 
 void World::Impl::refreshJoints(float h) {

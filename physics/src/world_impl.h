@@ -120,6 +120,11 @@ struct World::Impl {
   /// With wide contacts: this step's manifolds (instead of contact rows) and their contacts.
   std::vector<SolverManifold> manifolds;
   std::vector<uint32_t> manifoldContact;
+  /// The Gauss-Seidel order of this step's touching contacts (halves: solver_wide.h), and per
+  /// solver body its centre of mass and half.
+  std::vector<uint32_t> contactOrder;
+  std::vector<Vec3> solverCom;
+  std::vector<uint8_t> solverHalf;
   EqualityLdl ldl;  ///< the joints' direct solve (equality = direct_ldl)
   Snapshot snapshot;
   StepProfile profile;
@@ -168,9 +173,11 @@ struct World::Impl {
   };
   std::vector<LevelSums> stackLevels;
   std::vector<StackLevel> stackModel;
+  /// Fills contactOrder; with halves (solver_wide.h) returns true and where the halves' end.
+  bool orderContacts(const SolverSettings& s, uint32_t halfEnd[2]);
   void buildSolverBodies(const SolverSettings& s);  ///< s: this step's (substeps may differ)
   /// Joints' geometric stiffness added to the solver bodies' inertia (substep h).
-    void addGeometricStiffness(float h);
+  void addGeometricStiffness(float h);
   /// Joints' geometric stiffness per body slot, from last step's joint forces.
   std::vector<float> jointStiffness() const;
   /// A contact in the solver's terms (its points relative to the centres of mass, warm start).

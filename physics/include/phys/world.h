@@ -251,6 +251,10 @@ struct StepStats {
   uint64_t step = 0;  ///< steps taken so far
   int bodies = 0, awake = 0, contacts = 0, contactPoints = 0, joints = 0, pairs = 0;
   int vectorizedManifolds = 0;  ///< contact manifolds solved in SIMD lanes (solver_wide.h)
+  /// Gauss-Seidel in halves (solver_wide.h): the contacts between the two halves, which run
+  /// after them on one thread; -1 when the step was not split (too few contacts, not
+  /// Gauss-Seidel).
+  int contactsBetweenHalves = -1;
   double energyBefore = 0;      ///< J, kinetic + potential at step start
   double energyAfter = 0;       ///< J, at step end
   double velocityResidual = 0;  ///< norm of J v + bias over active rows after the solve

@@ -1,0 +1,276 @@
+// Gauss-Seidel in halves (physics/src/solver_wide.h, "Halves"): the cut, the colour order of
+// the contacts across it, a schedule whose halves share no dynamic body, and whole worlds
+// that give the same bits with any thread count and with the scalar rows.
+#include <gtest/gtest.h>
+
+#include <map>
+#include <set>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "../../physics/src/solver.h"
+#include "../../physics/src/solver_wide.h"
+#include "phys/scene.h"
+#include "phys/world.h"
+#include "test_util.h"
+
+using namespace phys;
+
+namespace {
+
+using Pairs = std::vector<std::pair<int32_t, int32_t>>;
+
+/// Solver bodies: [0] the world, then `n` dynamic bodies.
+std::vector<SolverBody> dynamicBodies(int n) {
+  std::vector<SolverBody> bodies(size_t(n) + 1);
+  for (int i = 1; i <= n; ++i) {
+    bodies[size_t(i)].dynamic = true;
+    bodies[size_t(i)].invMass = 1;
+    bodies[size_t(i)].invI = Mat3::diagonal({1, 1, 1});
+  }
+  return bodies;
+}
+
+/// Two rows of ten bodies along x, one above the other (z = 0 and z = 1): body 1 + i + 10 row.
+struct TwoRows {
+  std::vector<SolverBody> bodies = dynamicBodies(20);
+  std::vector<Vec3> com = std::vector<Vec3>(21);
+  TwoRows() {
+    for (int row = 0; row < 2; ++row)
+      for (int i = 0; i < 10; ++i) com[size_t(id(row, i))] = {float(i), 0, float(row)};
+  }
+  static int32_t id(int row, int i) { return 1 + i + 10 * row; }
+};
+
+TEST(Halves, CutAtTheMedianWhereTheFewestContactsCross) {
+  TwoRows w;
+  w.bodies[7].dynamic = false;  // a kinematic body belongs to no half
+  Pairs pairs;
+  for (int i = 0; i < 10; ++i) pairs.push_back({0, TwoRows::id(0, i)});  // the ground
+  for (int i = 0; i < 10; ++i) pairs.push_back({TwoRows::id(0, i), TwoRows::id(1, i)});
+  std::vector<uint8_t> half;
+  // Rows side by side along x and stacked: cutting across x crosses the two side contacts
+  // at the middle, cutting between the rows all ten vertical ones.
+  Pairs withSides = pairs;
+  for (int row = 0; row < 2; ++row)
+    for (int i = 0; i + 1 < 10; ++i)
+      withSides.push_back({TwoRows::id(row, i), TwoRows::id(row, i + 1)});
+  splitHalves(w.bodies, w.com, withSides, half);
+  ASSERT_EQ(half.size(), w.bodies.size());
+  EXPECT_EQ(half[0], kNoHalf);
+  EXPECT_EQ(half[7], kNoHalf);
+  int counts[2] = {0, 0};
+  for (int row = 0; row < 2; ++row) {
+    for (int i = 0; i < 10; ++i) {
+      const int32_t b = TwoRows::id(row, i);
+      if (!w.bodies[size_t(b)].dynamic) continue;
+      ASSERT_LT(half[size_t(b)], 2);
+      ++counts[half[size_t(b)]];
+      // 19 dynamic bodies: the lower 9 by (x, index) in half 0.
+      EXPECT_EQ(half[size_t(b)], i < 5 && !(i == 4 && row == 1) ? 0 : 1) << row << " " << i;
+    }
+  }
+  EXPECT_EQ(counts[0], 9);
+  EXPECT_EQ(counts[1], 10);
+
+  // Columns that touch only the one above: a cut across x crosses none of their contacts.
+  w.bodies[7].dynamic = true;
+  Pairs columns;
+  for (int i = 0; i < 10; ++i) columns.push_back({TwoRows::id(0, i), TwoRows::id(1, i)});
+  splitHalves(w.bodies, w.com, columns, half);
+  size_t crossing = 0;
+  for (const auto& [a, b] : columns) crossing += manifoldPart(half, a, b) == 2;
+  EXPECT_EQ(crossing, 0u);
+
+  // Rows that touch only their neighbours: the cut between the rows crosses none, and is taken
+  // though x is the wider spread.
+  Pairs rows;
+  for (int row = 0; row < 2; ++row)
+    for (int i = 0; i + 1 < 10; ++i) rows.push_back({TwoRows::id(row, i), TwoRows::id(row, i + 1)});
+  splitHalves(w.bodies, w.com, rows, half);
+  for (int i = 0; i < 10; ++i) {
+    EXPECT_EQ(half[size_t(TwoRows::id(0, i))], 0) << i;
+    EXPECT_EQ(half[size_t(TwoRows::id(1, i))], 1) << i;
+  }
+}
+
+TEST(Halves, ManifoldPartIgnoresBodiesTheSolveNeverWrites) {
+  const std::vector<uint8_t> half = {kNoHalf, 0, 1, kNoHalf};  // world, two bodies, kinematic
+  EXPECT_EQ(manifoldPart(half, 0, 1), 0);
+  EXPECT_EQ(manifoldPart(half, 2, 0), 1);
+  EXPECT_EQ(manifoldPart(half, 3, 2), 1);
+  EXPECT_EQ(manifoldPart(half, 1, 2), 2);
+  EXPECT_EQ(manifoldPart(half, 1, 1), 0);
+}
+
+TEST(Halves, ColourOrderTurnsAChainIntoTwoColours) {
+  // A chain 1-2, 2-3, ..., 40-41 (the contacts along a cut, each sharing a body with the
+  // last), plus contacts with the world, which never count.
+  std::vector<SolverBody> bodies = dynamicBodies(41);
+  Pairs pairs;
+  for (int i = 1; i <= 40; ++i) {
+    pairs.push_back({i, i + 1});
+    if (i % 10 == 0) pairs.push_back({0, i});
+  }
+  const std::vector<uint32_t> order = colorOrder(bodies, pairs);
+  ASSERT_EQ(order.size(), pairs.size());
+  EXPECT_EQ(std::set<uint32_t>(order.begin(), order.end()).size(), pairs.size());
+  // Colour runs: within each, no dynamic body twice, and the contacts' own order kept.
+  std::vector<std::set<int32_t>> colours(1);
+  uint32_t last = 0;
+  for (size_t k = 0; k < order.size(); ++k) {
+    const auto [a, b] = pairs[order[k]];
+    const bool clash = (a != 0 && colours.back().count(a)) || colours.back().count(b);
+    if (k > 0 && (clash || order[k] < last)) colours.emplace_back();
+    if (a != 0) {
+      EXPECT_TRUE(colours.back().insert(a).second);
+    }
+    EXPECT_TRUE(colours.back().insert(b).second);
+    last = order[k];
+  }
+  // The chain alternates two colours; each world contact takes the first colour its body
+  // lacks (a third where the body has both).
+  EXPECT_LE(colours.size(), 3u);
+}
+
+TEST(Halves, ScheduleRunsTheHalvesApartAfterTheRowGroups) {
+  // A pyramid's contact graph, rows of 12 down to 1; the bodies of the left columns in one
+  // half, the right in the other, the contacts ordered as the World orders them (first half,
+  // second, between by colour); and one joint, which must come before every contact.
+  const int base = 12;
+  std::vector<std::vector<int>> id;
+  int n = 0;
+  for (int row = 0; row < base; ++row) {
+    id.emplace_back();
+    for (int i = 0; i < base - row; ++i) id.back().push_back(++n);
+  }
+  Solver s;
+  s.bodies = dynamicBodies(n);
+  s.scheme = SolverSettings::Scheme::GaussSeidel;
+  Row joint;
+  joint.kind = RowKind::Equality;
+  joint.a = id[2][0];
+  joint.b = id[2][6];
+  joint.groupStart = true;
+  joint.linA = {1, 0, 0};
+  joint.linB = {-1, 0, 0};
+  s.rows.push_back(joint);
+  s.indexUnits();
+  s.finishRows(0, s.rows.size());
+  std::vector<uint8_t> half(s.bodies.size(), kNoHalf);
+  for (int row = 0; row < base; ++row)
+    for (size_t i = 0; i < id[size_t(row)].size(); ++i)
+      half[size_t(id[size_t(row)][i])] = 2 * i + size_t(row) < size_t(base) ? 0 : 1;
+  Pairs all;
+  for (int i = 0; i < base; ++i) all.push_back({0, id[0][size_t(i)]});
+  for (int row = 1; row < base; ++row) {
+    for (size_t i = 0; i < id[size_t(row)].size(); ++i) {
+      all.push_back({id[size_t(row) - 1][i], id[size_t(row)][i]});
+      all.push_back({id[size_t(row) - 1][i + 1], id[size_t(row)][i]});
+    }
+  }
+  Pairs parts[3];
+  for (const auto& p : all) parts[manifoldPart(half, p.first, p.second)].push_back(p);
+  ASSERT_FALSE(parts[0].empty());
+  ASSERT_FALSE(parts[1].empty());
+  ASSERT_FALSE(parts[2].empty());
+  std::vector<SolverManifold> manifolds;
+  auto add = [&](std::pair<int32_t, int32_t> p) {
+    SolverManifold m;
+    m.a = p.first;
+    m.b = p.second;
+    m.count = 4;
+    m.normal = {0, 0, 1};
+    m.t1 = {1, 0, 0};
+    m.t2 = {0, 1, 0};
+    m.friction = 0.5f;
+    for (int k = 0; k < 4; ++k) {
+      m.rA[k] = {0.1f * float(k), 0, 0.5f};
+      m.rB[k] = {0.1f * float(k), 0, -0.5f};
+    }
+    manifolds.push_back(m);
+  };
+  for (int part = 0; part < 2; ++part)
+    for (const auto& p : parts[part]) add(p);
+  for (uint32_t k : colorOrder(s.bodies, parts[2])) add(parts[2][k]);
+  const uint32_t halfEnd[2] = {uint32_t(parts[0].size()),
+                               uint32_t(parts[0].size() + parts[1].size())};
+  WideContacts w;
+  w.build(s, manifolds, halfEnd);
+  ASSERT_TRUE(w.halves());
+  ASSERT_LE(w.part(0), w.part(1));
+  ASSERT_LE(w.part(1), w.part(2));
+  ASSERT_LE(w.part(2), w.schedule.size());
+
+  // The joint's group alone before the halves; each half's blocks hold only its manifolds
+  // (so only its dynamic bodies); the rest after.
+  ASSERT_EQ(w.part(0), 1u);
+  EXPECT_FALSE(w.schedule[0].wide);
+  std::multiset<uint32_t> seen;
+  for (size_t k = w.part(0); k < w.schedule.size(); ++k) {
+    const WideContacts::Item& item = w.schedule[k];
+    ASSERT_TRUE(item.wide) << k;
+    const int part = k < w.part(1) ? 0 : k < w.part(2) ? 1 : 2;
+    for (uint32_t m : w.manifoldsOf(item.index)) {
+      seen.insert(m);
+      const uint32_t first = part == 0 ? 0 : part == 1 ? halfEnd[0] : halfEnd[1];
+      const uint32_t end = part == 0 ? halfEnd[0] : part == 1 ? halfEnd[1] : manifolds.size();
+      EXPECT_GE(m, first) << "block " << k;
+      EXPECT_LT(m, end) << "block " << k;
+    }
+  }
+  EXPECT_EQ(seen.size(), manifolds.size());
+  EXPECT_EQ(std::set<uint32_t>(seen.begin(), seen.end()).size(), manifolds.size());
+  // Each dynamic body still meets its manifolds in their order.
+  std::map<int32_t, uint32_t> last;
+  for (size_t k = w.part(0); k < w.schedule.size(); ++k) {
+    for (uint32_t m : w.manifoldsOf(w.schedule[k].index)) {
+      for (int32_t body : {manifolds[m].a, manifolds[m].b}) {
+        if (body == 0) continue;
+        auto it = last.find(body);
+        if (it != last.end()) {
+          EXPECT_LT(it->second, m) << "body " << body;
+        }
+        last[body] = m;
+      }
+    }
+  }
+  // The contacts across the cut fill blocks: fewer blocks than contacts.
+  EXPECT_LT(w.schedule.size() - w.part(2), parts[2].size());
+}
+
+struct Outcome {
+  uint64_t hash = 0;
+  int between = -2;  ///< the last step's contactsBetweenHalves
+};
+
+Outcome runScene(const std::string& name, int threads, int steps, bool vectorized = true) {
+  Scene scene = test::loadScene(name);
+  scene.world.threads = threads;
+  setVectorizedContacts(vectorized);
+  World world(scene.world);
+  std::vector<BodyId> ids;
+  EXPECT_TRUE(instantiateScene(scene, &world, &ids).ok());
+  Outcome r;
+  for (int i = 0; i < steps; ++i) world.step();
+  setVectorizedContacts(true);
+  r.hash = world.stateHash();
+  r.between = world.stats().contactsBetweenHalves;
+  return r;
+}
+
+TEST(Halves, SameBitsWithAnyThreadCountAndWithTheScalarRows) {
+  // pyramid_20 (about 600 contacts) and the windmill (joints beside 1000 contacts) are split;
+  // the restitution scene (a few balls) is below the threshold and is not.
+  for (const char* name : {"pyramid_20", "windmill"}) {
+    const Outcome one = runScene(name, 1, 60);
+    EXPECT_GT(one.between, 0) << name;
+    EXPECT_EQ(runScene(name, 2, 60).hash, one.hash) << name;
+    EXPECT_EQ(runScene(name, 3, 60).hash, one.hash) << name;
+    EXPECT_EQ(runScene(name, 2, 60, false).hash, one.hash) << name << " (scalar rows)";
+  }
+  EXPECT_EQ(runScene("restitution", 2, 10).between, -1);
+}
+
+}  // namespace
