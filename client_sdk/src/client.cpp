@@ -57,7 +57,10 @@ const char* toString(ErrorCode c) {
 namespace {
 
 BodyState toState(const wire::BodyState& s) {
-  return {s.id(), protocol::toPhys(s.position()), protocol::toPhys(s.rotation()),
+  // The rotation as physd sent it (a unit quaternion of the World): normalizing it again,
+  // as commands' quaternions are, cost a square root and a division per body and tick.
+  const wire::Quat& q = s.rotation();
+  return {s.id(), protocol::toPhys(s.position()), phys::Quat{q.x(), q.y(), q.z(), q.w()},
           protocol::toPhys(s.linear_velocity()), protocol::toPhys(s.angular_velocity())};
 }
 

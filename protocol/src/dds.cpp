@@ -1,7 +1,11 @@
 // RAII wrappers around the Cyclone DDS C API (phys/protocol/dds.h).
 #include "phys/protocol/dds.h"
 
+#include <dds/ddsi/ddsi_serdata.h>
+
 #include <algorithm>
+#include <bit>
+#include <cstring>
 
 #include "phys/protocol/qos.h"
 
@@ -89,20 +93,71 @@ bool Reader::create(const Participant& p, const Topic& t, const protocol::QosPre
   return true;
 }
 
+namespace {
+
+/// The envelope of a sample in its serialized (CDR) form, read in place: the payload is not
+/// copied. Layout, little-endian (XCDR1 and XCDR2 align the same here): a 4-byte
+/// encapsulation header, then key u64 @0, seq u64 @8, kind u16 @16, schema_version u16 @18,
+/// the payload's length u32 @20 and its bytes @24 (offsets after the header). Returns false
+/// for anything else (big-endian, delimited or mutable encodings, a short or inconsistent
+/// buffer): the caller then deserializes the sample the ordinary way.
+bool viewEnvelope(const uint8_t* p, size_t size, phys_wire_Envelope* env) {
+  constexpr size_t kHeader = 4, kFixed = 24;
+  if (size < kHeader + kFixed) return false;
+  // Encapsulation identifiers: 0x0001 CDR_LE, 0x0007 PLAIN_CDR2_LE.
+  if (p[0] != 0 || (p[1] != 0x01 && p[1] != 0x07)) return false;
+  if constexpr (std::endian::native != std::endian::little) return false;
+  const uint8_t* d = p + kHeader;
+  uint32_t length = 0;
+  std::memcpy(&env->key, d, 8);
+  std::memcpy(&env->seq, d + 8, 8);
+  std::memcpy(&env->kind, d + 16, 2);
+  std::memcpy(&env->schema_version, d + 18, 2);
+  std::memcpy(&length, d + 20, 4);
+  if (length > size - kHeader - kFixed) return false;
+  env->bytes._buffer = const_cast<uint8_t*>(d + kFixed);
+  env->bytes._length = length;
+  env->bytes._maximum = length;
+  env->bytes._release = false;
+  return true;
+}
+
+}  // namespace
+
 int Reader::take(const std::function<void(const phys_wire_Envelope&)>& fn) {
+  // Serialized samples (dds_takecdr), viewed in place: dds_take would copy every payload
+  // out of Cyclone's sample into a buffer of its own first, 64 KB per state chunk and
+  // subscriber (docs/BENCHMARKS.md, fan-out).
   constexpr int kBatch = 32;
   int total = 0;
   for (;;) {
-    void* samples[kBatch] = {};
+    ddsi_serdata* samples[kBatch] = {};
     dds_sample_info_t infos[kBatch];
-    int n = dds_take(e_, samples, infos, kBatch, kBatch);
+    int n = dds_takecdr(e_, samples, kBatch, infos, 0);
     if (n < 0) return total > 0 ? total : n;
-    for (int i = 0; i < n; ++i)
+    for (int i = 0; i < n; ++i) {
+      ddsi_serdata* sd = samples[i];
       if (infos[i].valid_data) {
-        fn(*static_cast<const phys_wire_Envelope*>(samples[i]));
-        ++total;
+        const uint32_t size = ddsi_serdata_size(sd);
+        ddsrt_iovec_t ref{};
+        ddsi_serdata* held = ddsi_serdata_to_ser_ref(sd, 0, size, &ref);
+        phys_wire_Envelope env{};
+        if (held && ref.iov_len == size &&
+            viewEnvelope(static_cast<const uint8_t*>(ref.iov_base), size, &env)) {
+          fn(env);
+          ++total;
+        } else {
+          env = phys_wire_Envelope{};
+          if (ddsi_serdata_to_sample(sd, &env, nullptr, nullptr)) {
+            fn(env);
+            ++total;
+          }
+          dds_sample_free(&env, &phys_wire_Envelope_desc, DDS_FREE_CONTENTS);
+        }
+        if (held) ddsi_serdata_to_ser_unref(held, &ref);
       }
-    if (n > 0) dds_return_loan(e_, samples, n);
+      ddsi_serdata_unref(sd);
+    }
     if (n < kBatch) return total;
   }
 }
