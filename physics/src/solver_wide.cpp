@@ -6,6 +6,7 @@
 #include <cassert>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <type_traits>
 
 #include "thread_pool.h"
@@ -217,6 +218,7 @@ void WideContacts::addLane(uint32_t block, const Solver& s, uint32_t index,
 void WideContacts::clear() {
   schedule.clear();
   blockCount_ = 0;  // the blocks' storage stays for the next step (see build)
+  halves_ = false;
   laneOf_.clear();
   active = false;
   errorsCurrent = false;
@@ -280,6 +282,7 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
   laneOf_.resize(manifolds.size());
   const uint32_t n = uint32_t(manifolds.size());
   const uint32_t partEnd[3] = {halves_ ? halfEnd[0] : n, halves_ ? halfEnd[1] : n, n};
+  assert(partEnd[0] <= partEnd[1] && partEnd[1] <= n);
   size_t partLevel[3] = {};  // the level each part of the manifolds begins on
   uint32_t mi = 0;
   for (int part = 0; part < 3; ++part) {
@@ -308,9 +311,10 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
     }
   }
   // The schedule, level by level, and the blocks numbered in its order, so that the passes
-  // stream through them; then each block is filled in one go. (Filling them in parallel
-  // made the step slower on this 2-core VM: the first pass then fetches every block from
-  // the other core.)
+  // stream through them; then each block is filled in one go, by the thread that solves it
+  // (forEachPart). Without halves all on the caller: filling the blocks of one sweep on two
+  // cores made the step slower on this 2-core VM, the first pass then fetching every other
+  // block from the other core.
   schedule.reserve(s.groups.size() + lanes.size());
   std::vector<uint32_t> openedAs;  // per block in schedule order: its index as opened
   openedAs.reserve(lanes.size());
@@ -376,7 +380,11 @@ void splitHalves(const std::vector<SolverBody>& bodies, const std::vector<Vec3>&
   std::vector<uint8_t> trial(bodies.size(), kNoHalf);
   size_t fewest = SIZE_MAX;
   for (int axis = 0; axis < 3; ++axis) {
-    auto coord = [&](uint32_t i) { return axis == 0 ? com[i].x : axis == 1 ? com[i].y : com[i].z; };
+    // A total order even for a body gone non-finite (the guard rolls such steps back).
+    auto coord = [&](uint32_t i) {
+      const float c = axis == 0 ? com[i].x : axis == 1 ? com[i].y : com[i].z;
+      return std::isnan(c) ? std::numeric_limits<float>::infinity() : c;
+    };
     const auto mid = dyn.begin() + std::ptrdiff_t(dyn.size() / 2);
     std::nth_element(dyn.begin(), mid, dyn.end(), [&](uint32_t a, uint32_t b) {
       const float ca = coord(a), cb = coord(b);

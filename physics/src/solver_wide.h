@@ -15,12 +15,12 @@
 // three 164-byte rows) and owns the contact impulses between build() and store().
 //
 // Halves: in a world with many contacts, the World splits the dynamic bodies into two halves
-// (splitHalves: at the median along the axis where they spread most) and orders the contacts
-// as the first half's, the second half's, then those between the halves. That order is the
-// world's, not the threads': it is the Gauss-Seidel order of the scalar rows too, whatever
-// the thread count. The first two parts share no dynamic body, so they commute: their blocks
-// run on two threads at once, then the few between the halves on one, and the result is the
-// same bits as the serial pass. Scalar groups (joints) come first, serially.
+// (splitHalves: at the median, on the axis whose cut the fewest contacts cross) and orders the
+// contacts as the first half's, the second half's, then those between the halves. That order
+// is the world's, not the threads': it is the Gauss-Seidel order of the scalar rows too,
+// whatever the thread count. The first two parts share no dynamic body, so they commute:
+// their blocks run on two threads at once, then the few between the halves on one, and the
+// result is the same bits as the serial pass. Scalar groups (joints) come first, serially.
 #pragma once
 
 #include <cstdint>
@@ -148,7 +148,8 @@ class WideContacts {
   ThreadPool* pool_ = nullptr;
   mutable std::vector<double> residualTerms_;  ///< residual(): per manifold, kMaxPoints
   /// fn(firstBlock, endBlock) over the blocks: with halves each half's on the thread that
-  /// solves it (the pool gives a loop's chunk h to the same thread every time), then the rest.
+  /// normally solves it (the pool gives a loop's chunk h to the same thread unless that one is
+  /// late, when another takes it: only speed depends on it), then the rest.
   template <class F>
   void forEachPart(F&& fn) const;
   /// Per block: its points' friction (kMaxPoints each), or with patch friction its patch.

@@ -794,6 +794,7 @@ void World::stepOnce(int substeps) {
     w.stats.substepTime = dt / float(substeps);
     w.stats.stackDepth = 0;
     w.stats.stackHertz = 0;
+    w.stats.contactsBetweenHalves = -1;
     w.time += dt;
     w.stats.step++;
     w.stats.energyAfter = energy();
@@ -1448,7 +1449,7 @@ bool World::Impl::orderContacts(const SolverSettings& s, uint32_t halfEnd[2]) {
     pairs.reserve(contactOrder.size());
     for (uint32_t ci : contactOrder) {
       const Contact& c = contacts[ci];
-      pairs.push_back({bodies.at(c.bodyA.index).solverIndex, bodies.at(c.bodyB.index).solverIndex});
+      pairs.push_back({bodies.get(c.bodyA)->solverIndex, bodies.get(c.bodyB)->solverIndex});
     }
     splitHalves(solver.bodies, solverCom, pairs, solverHalf);
     std::vector<uint32_t> byPart[3];  // indices into contactOrder and pairs
@@ -1578,6 +1579,7 @@ Status World::observe(const std::vector<BodyId>& ids, const std::vector<Observed
   w.stats.velocityResidual = 0;
   w.stats.iterationsUsed = 0;
   w.stats.guardRetries = 0;
+  w.stats.contactsBetweenHalves = -1;
   w.stats.energyAfter = energy();
   w.profile = StepProfile();
   w.profile.total = stepMs;

@@ -93,15 +93,13 @@ bool Reader::create(const Participant& p, const Topic& t, const protocol::QosPre
   return true;
 }
 
-namespace {
-
-/// The envelope of a sample in its serialized (CDR) form, read in place: the payload is not
-/// copied. Layout, little-endian (XCDR1 and XCDR2 align the same here): a 4-byte
-/// encapsulation header, then key u64 @0, seq u64 @8, kind u16 @16, schema_version u16 @18,
-/// the payload's length u32 @20 and its bytes @24 (offsets after the header). Returns false
-/// for anything else (big-endian, delimited or mutable encodings, a short or inconsistent
-/// buffer): the caller then deserializes the sample the ordinary way.
-bool viewEnvelope(const uint8_t* p, size_t size, phys_wire_Envelope* env) {
+// Layout, little-endian (XCDR1 and XCDR2 align the same here): a 4-byte encapsulation header,
+// then key u64 @0, seq u64 @8, kind u16 @16, schema_version u16 @18, the payload's length u32
+// @20 and its bytes @24 (offsets after the header). Delimited (0x0009) and mutable (0x000b)
+// encodings, and big-endian ones, are refused. This reads Cyclone DDS 0.10's serialized form
+// (dds/ddsi/ddsi_serdata.h, not a stable API): a later version that changes it only sends
+// samples down the fallback, at the old speed.
+bool viewSerializedEnvelope(const uint8_t* p, size_t size, phys_wire_Envelope* env) {
   constexpr size_t kHeader = 4, kFixed = 24;
   if (size < kHeader + kFixed) return false;
   // Encapsulation identifiers: 0x0001 CDR_LE, 0x0007 PLAIN_CDR2_LE.
@@ -122,8 +120,6 @@ bool viewEnvelope(const uint8_t* p, size_t size, phys_wire_Envelope* env) {
   return true;
 }
 
-}  // namespace
-
 int Reader::take(const std::function<void(const phys_wire_Envelope&)>& fn) {
   // Serialized samples (dds_takecdr), viewed in place: dds_take would copy every payload
   // out of Cyclone's sample into a buffer of its own first, 64 KB per state chunk and
@@ -143,7 +139,7 @@ int Reader::take(const std::function<void(const phys_wire_Envelope&)>& fn) {
         ddsi_serdata* held = ddsi_serdata_to_ser_ref(sd, 0, size, &ref);
         phys_wire_Envelope env{};
         if (held && ref.iov_len == size &&
-            viewEnvelope(static_cast<const uint8_t*>(ref.iov_base), size, &env)) {
+            viewSerializedEnvelope(static_cast<const uint8_t*>(ref.iov_base), size, &env)) {
           fn(env);
           ++total;
         } else {

@@ -8,6 +8,7 @@
 #include <span>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "phys/protocol/dds.h"
 #include "phys/protocol/dds_envelope.h"
@@ -182,8 +183,10 @@ TEST(ProtocolEnvelope, LoopbackWriteRead) {
 TEST(ProtocolEnvelope, ReaderTakeHandsOverEveryPayloadByteForByte) {
   // dds::Reader::take reads each sample's envelope in its serialized form, in place
   // (protocol/src/dds.cpp): payloads of 0, 1 and 3 bytes (the end of the CDR stream and
-  // its padding), a 1000-body state chunk's size, and 1 MB (many fragments) must come out
-  // with the key, seq, kind, schema version and every byte the writer gave.
+  // its padding), a 1000-body state chunk's size, and 1 MB must come out with the key, seq,
+  // kind, schema version and every byte the writer gave. (One participant: delivery is
+  // in-process, XCDR1; the other encodings are checked on built buffers below, and the SDK's
+  // tests run the same path between processes.)
   const uint32_t domain = 150 + uint32_t(getpid() % 80);
   std::string err;
   dds::Participant participant;
@@ -218,6 +221,55 @@ TEST(ProtocolEnvelope, ReaderTakeHandsOverEveryPayloadByteForByte) {
       },
       std::chrono::seconds(5)));
   EXPECT_EQ(got, sent);
+}
+
+/// An envelope serialized as CDR: encapsulation id `enc`, key 7, seq 9, kind 3, schema 1,
+/// then the payload's length and bytes.
+std::vector<uint8_t> cdrEnvelope(uint8_t enc, const std::vector<uint8_t>& payload) {
+  std::vector<uint8_t> b = {0, enc, 0, 0};
+  auto put = [&](uint64_t v, int n) {
+    for (int i = 0; i < n; ++i) b.push_back(uint8_t(v >> (8 * i)));
+  };
+  put(7, 8);
+  put(9, 8);
+  put(3, 2);
+  put(1, 2);
+  put(payload.size(), 4);
+  b.insert(b.end(), payload.begin(), payload.end());
+  return b;
+}
+
+TEST(ProtocolEnvelope, SerializedViewReadsLittleEndianCdrOnly) {
+  const std::vector<uint8_t> payload = {1, 2, 3, 4, 5};
+  for (uint8_t enc : {uint8_t(0x01), uint8_t(0x07)}) {  // XCDR1, PLAIN_CDR2 (little-endian)
+    const std::vector<uint8_t> b = cdrEnvelope(enc, payload);
+    phys_wire_Envelope env{};
+    ASSERT_TRUE(dds::viewSerializedEnvelope(b.data(), b.size(), &env)) << int(enc);
+    EXPECT_EQ(env.key, 7u);
+    EXPECT_EQ(env.seq, 9u);
+    EXPECT_EQ(env.kind, 3u);
+    EXPECT_EQ(env.schema_version, 1u);
+    ASSERT_EQ(env.bytes._length, payload.size());
+    EXPECT_EQ(env.bytes._buffer, b.data() + 28);  // in place, not copied
+    EXPECT_FALSE(env.bytes._release);
+  }
+  // Big-endian, delimited and mutable encodings go to Cyclone's own deserializer.
+  for (uint8_t enc : {uint8_t(0x00), uint8_t(0x06), uint8_t(0x09), uint8_t(0x0b)}) {
+    const std::vector<uint8_t> b = cdrEnvelope(enc, payload);
+    phys_wire_Envelope env{};
+    EXPECT_FALSE(dds::viewSerializedEnvelope(b.data(), b.size(), &env)) << int(enc);
+  }
+  // A length past the buffer, a buffer cut inside the fixed fields: refused, nothing read
+  // past the end.
+  std::vector<uint8_t> b = cdrEnvelope(0x01, payload);
+  b.pop_back();
+  phys_wire_Envelope env{};
+  EXPECT_FALSE(dds::viewSerializedEnvelope(b.data(), b.size(), &env));
+  b = cdrEnvelope(0x01, {});
+  EXPECT_TRUE(dds::viewSerializedEnvelope(b.data(), b.size(), &env));
+  EXPECT_EQ(env.bytes._length, 0u);
+  EXPECT_FALSE(dds::viewSerializedEnvelope(b.data(), b.size() - 1, &env));
+  EXPECT_FALSE(dds::viewSerializedEnvelope(b.data(), 3, &env));
 }
 
 }  // namespace

@@ -204,7 +204,7 @@ struct BackendState {
   std::string note;               ///< why the CPU runs a world that asked for the GPU
   uint64_t gpuSteps = 0;          ///< steps taken on the device
   uint64_t cpuSteps = 0;          ///< steps taken by the CPU backend (all of a CPU world's)
-    std::string lastFallback;       ///< why the last CPU step of a GPU world was not on the device
+  std::string lastFallback;       ///< why the last CPU step of a GPU world was not on the device
   /// Errors the Vulkan validation layer reported on the world's device so far (only with
   /// PHYS_GPU_VALIDATION=1; tests and physbench --require-device fail on any).
   int validationErrors = 0;
@@ -252,8 +252,10 @@ struct StepStats {
   int bodies = 0, awake = 0, contacts = 0, contactPoints = 0, joints = 0, pairs = 0;
   int vectorizedManifolds = 0;  ///< contact manifolds solved in SIMD lanes (solver_wide.h)
   /// Gauss-Seidel in halves (solver_wide.h): the contacts between the two halves, which run
-  /// after them on one thread; -1 when the step was not split (too few contacts, not
-  /// Gauss-Seidel).
+  /// after them on one thread; -1 when the step's contact order was not split (too few
+  /// contacts, another scheme, a step on the GPU backend). The halves run on two threads when
+  /// the contacts are solved in SIMD lanes (vectorizedManifolds > 0); otherwise the rows are
+  /// in the split order and solved serially.
   int contactsBetweenHalves = -1;
   double energyBefore = 0;      ///< J, kinetic + potential at step start
   double energyAfter = 0;       ///< J, at step end
@@ -261,14 +263,14 @@ struct StepStats {
   double maxPenetration = 0;    ///< m, deepest contact overlap at the start of the step
   int iterationsUsed =
       0;  ///< velocity iterations of the step (substeps x iterations, as redone by the guard)
-  int substeps = 0;    ///< substeps of the step (after stack stiffening and guard retries)
+  int substeps = 0;  ///< substeps of the step (after stack stiffening and guard retries)
   /// s, the substep length of the last CPU step: the unit of the warm-start impulses it
   /// stored (0 after a device step, whose impulses stay on the device).
   float substepTime = 0;
-  int stackDepth = 0;  ///< bodies in the deepest support chain (with stack stiffening on)
-  float stackHertz = 0;  ///< Hz, the contact frequency stack stiffening asks for (0: none)
-  int guardRetries = 0;           ///< times this step was rolled back and redone
-  uint64_t guardEvents = 0;       ///< steps redone so far
+  int stackDepth = 0;        ///< bodies in the deepest support chain (with stack stiffening on)
+  float stackHertz = 0;      ///< Hz, the contact frequency stack stiffening asks for (0: none)
+  int guardRetries = 0;      ///< times this step was rolled back and redone
+  uint64_t guardEvents = 0;  ///< steps redone so far
   uint64_t guardQuarantined = 0;  ///< bodies stopped so far because retries did not help
   std::string lastGuardEvent;     ///< what the last violation was, for logs
 };

@@ -69,7 +69,7 @@ struct Ids {
 struct BodyState {
   uint64_t id = 0;
   phys::Vec3 position;
-  phys::Quat rotation;
+  phys::Quat rotation;  ///< as physd sent it: unit length to float rounding, not re-normalized
   phys::Vec3 linearVelocity;
   phys::Vec3 angularVelocity;
 };

@@ -93,6 +93,12 @@ class Writer : public Entity {
 };
 
 /// An envelope reader with the topic's QoS preset.
+/// The envelope of a sample in its serialized (CDR) form, `size` bytes from the 4-byte
+/// encapsulation header on, read in place: env's payload points into `cdr`. Little-endian
+/// XCDR1 (0x0001) and PLAIN_CDR2 (0x0007) only; false for anything else, or a short or
+/// inconsistent buffer (Reader::take then deserializes the sample the ordinary way).
+bool viewSerializedEnvelope(const uint8_t* cdr, size_t size, phys_wire_Envelope* env);
+
 class Reader : public Entity {
  public:
   bool create(const Participant& p, const Topic& t, const protocol::QosPreset& qos,
