@@ -3,7 +3,9 @@
 # 60 Hz (configs/bench/fanout_10k.toml) and N subscriber processes (physctl subscribe) each
 # report how many complete ticks they received and the tick-to-subscriber latency. The
 # daemon's own counters (tick overruns, frames handed to the publisher, frames its ring
-# dropped) are read before and after the measuring window.
+# dropped) are read before and after the measuring window. Each subscriber logs its
+# per-tick latencies (physctl subscribe --latency-log); the last line is, per tick, the latency
+# of the last subscriber to have it.
 #
 #   tools/fanout_bench.sh [--subscribers N] [--seconds S] [--build DIR] [--config TOML]
 set -euo pipefail
@@ -30,7 +32,8 @@ daemon=$!
 for _ in $(seq 100); do ctl --timeout 500 list > /dev/null 2>&1 && break; sleep 0.2; done
 warmup=5
 for i in $(seq "$subs"); do
-  ctl subscribe fanout --warmup "$warmup" --seconds "$seconds" > "$out/sub$i.txt" 2>&1 &
+  ctl subscribe fanout --warmup "$warmup" --seconds "$seconds" --latency-log "$out/lat$i.txt" \
+    > "$out/sub$i.txt" 2>&1 &
 done
 sleep "$warmup"
 ctl list > "$out/before.txt"
@@ -50,3 +53,11 @@ awk '/delivered/ {
        sub("%", "", d); d += 0; p += 0; n++; if (n == 1 || d < dmin) dmin = d; if (p > pmax) pmax = p }
      END { if (n) printf "all %d subscribers: worst delivered %.3f%%, worst p99 latency %.3f ms\n", n, dmin, pmax
            else print "no subscriber reported" }' "$out"/sub*.txt
+# Per tick: when the last subscriber had it (over the ticks every subscriber received).
+cat "$out"/lat*.txt 2>/dev/null |
+  awk -v n="$subs" '{ c[$1]++; if (!($1 in m) || $2 > m[$1]) m[$1] = $2 }
+                    END { for (t in c) if (c[t] == n) print m[t] }' | sort -g |
+  awk '{ v[++k] = $1 }
+       END { if (!k) { print "no tick reached every subscriber"; exit }
+             i50 = int(0.5 * k) + 1; i99 = int(0.99 * k) + 1; if (i99 > k) i99 = k
+             printf "last subscriber per tick (%d ticks that all had): p50 %.3f ms, p99 %.3f ms, max %.3f ms\n", k, v[i50], v[i99], v[k] }'

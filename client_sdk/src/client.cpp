@@ -495,7 +495,7 @@ struct Client::Impl {
     s->owner = this;
     std::string err;
     if (!s->topic.create(participant, protocol::stateTopic(world), &err) ||
-        !s->reader.create(participant, s->topic, protocol::kStateQos, &err))
+        !s->reader.create(participant, s->topic, protocol::kStateReaderQos, &err))
       fail("state subscription", err);
     {
       std::lock_guard<std::mutex> lk(subsMutex);

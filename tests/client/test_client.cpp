@@ -10,6 +10,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <limits>
 #include <map>
 #include <memory>
@@ -352,6 +353,77 @@ TEST(ClientSdk, EightSubscribersReceiveEveryBodyOfEveryTick) {
     }
   }
   subs.clear();
+}
+
+// A subscriber held up (here: its callback blocks) while three more ticks are published
+// still gets each of them afterwards, oldest first: state readers keep the last 4 samples
+// per chunk (protocol::kStateReaderDepth). With a reader depth of 1 it would get only the
+// newest.
+TEST(ClientSdk, SubscriberHeldUpForThreeTicksStillGetsEachOfThem) {
+  Env env;
+  Client& c = env.client;
+  c.connect();
+  Client slowClient{options("slow")};
+  WorldHandle w = c.createWorld({"held", "", std::nullopt, 0}).get();
+  auto ids = w.spawn(grid(1499)).get();  // 1500 bodies: 2 chunks
+  struct Seen {
+    std::mutex m;
+    std::map<uint64_t, size_t> ticks;  // tick -> bodies
+    std::vector<uint64_t> order;
+    bool has(uint64_t t) {
+      std::lock_guard<std::mutex> lk(m);
+      return ticks.count(t) > 0;
+    }
+  } observed, slow;
+  // Released on every path out of the test (a failed ASSERT included): the slow client's
+  // destructor joins its SDK thread, which may be waiting here.
+  struct Release {
+    std::promise<void> p;
+    bool done = false;
+    void go() {
+      if (!std::exchange(done, true)) p.set_value();
+    }
+    ~Release() { go(); }
+  } release;
+  std::shared_future<void> released = release.p.get_future().share();
+  std::atomic<bool> blocking{false};
+  Subscription observer = c.subscribe(w.id(), [&](const StateFrame& f) {
+    std::lock_guard<std::mutex> lk(observed.m);
+    observed.ticks[f.tick] = f.bodies.size();
+  });
+  Subscription held = slowClient.subscribe(w.id(), [&, released](const StateFrame& f) {
+    {
+      std::lock_guard<std::mutex> lk(slow.m);
+      slow.ticks[f.tick] = f.bodies.size();
+      slow.order.push_back(f.tick);
+    }
+    if (blocking.exchange(false)) released.wait();
+  });
+  // Until both readers are matched; then the next tick blocks the slow subscriber's thread.
+  uint64_t tick = 0;
+  ASSERT_TRUE(waitFor([&] {
+    tick = w.step(1).get().tick;
+    return waitFor([&] { return observed.has(tick) && slow.has(tick); }, 500ms);
+  }));
+  blocking = true;
+  const uint64_t first = w.step(1).get().tick;
+  ASSERT_TRUE(waitFor([&] { return slow.has(first) && !blocking; }));
+  std::vector<uint64_t> later;
+  for (int i = 0; i < 3; ++i) later.push_back(w.step(1).get().tick);
+  // Delivered to every reader (the observer has them), while the slow one's thread waits.
+  ASSERT_TRUE(waitFor([&] { return observed.has(later.back()); }));
+  std::this_thread::sleep_for(200ms);
+  EXPECT_FALSE(slow.has(later.front()));
+  release.go();
+  ASSERT_TRUE(waitFor([&] { return slow.has(later.back()); }));
+  std::lock_guard<std::mutex> lk(slow.m);
+  for (uint64_t t : later) {
+    ASSERT_TRUE(slow.ticks.count(t)) << "tick " << t << " lost";
+    EXPECT_EQ(slow.ticks[t], ids.size()) << "tick " << t;
+  }
+  EXPECT_TRUE(std::is_sorted(slow.order.begin(), slow.order.end()));
+  held.reset();
+  observer.reset();
 }
 
 TEST(ClientSdk, GuardRailsAreAnnouncedOnTheEventsTopic) {

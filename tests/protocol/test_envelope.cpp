@@ -84,6 +84,8 @@ TEST(ProtocolTopics, NamesKeysAndQos) {
     EXPECT_EQ(depth, t.qos.depth);
   }
   EXPECT_EQ(kStateQos.depth, 1);
+  EXPECT_GT(kStateReaderQos.depth, kStateQos.depth);
+  EXPECT_EQ(kStateReaderQos.reliability, kStateQos.reliability);
   EXPECT_EQ(kWorldInfoQos.durability, Durability::TransientLocal);
 }
 

@@ -10,7 +10,7 @@
 //   physctl snapshot save WORLD FILE  # the world's exact snapshot into a local file
 //   physctl snapshot restore WORLD FILE
 //   physctl ping [--count N]           # command round trip percentiles (a benchmark)
-//   physctl subscribe WORLD [--seconds S] [--warmup W]
+//   physctl subscribe WORLD [--seconds S] [--warmup W] [--latency-log FILE]
 //                                      # receive state frames; print delivery and latency
 //
 // WORLD is a world id or name. Errors print the server's code and message and exit 1.
@@ -19,8 +19,10 @@
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <atomic>
+#include <cerrno>
 #include <csignal>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -164,7 +166,18 @@ int watch(pc::Client& c, const std::string& only) {
 /// complete ticks received against the ticks between the first and the last one seen, and the
 /// tick-to-subscriber latency (this host's wall clock minus the frame's stamp_ns, taken when
 /// the SDK has reassembled the tick). A benchmark (tools/fanout_bench.sh runs eight).
-int subscribe(pc::Client& c, const std::string& world, double warmup, double seconds) {
+/// latencyLog: when not empty, a file that gets one line per tick received, "tick latency_ms".
+int subscribe(pc::Client& c, const std::string& world, double warmup, double seconds,
+              const std::string& latencyLog) {
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> log(nullptr, &std::fclose);
+  if (!latencyLog.empty()) {
+    log.reset(std::fopen(latencyLog.c_str(), "w"));
+    if (!log) {
+      std::fprintf(stderr, "physctl: cannot write %s: %s\n", latencyLog.c_str(),
+                   std::strerror(errno));
+      return 1;
+    }
+  }
   pc::WorldHandle w = resolve(c, world);
   struct Record {
     uint64_t tick;
@@ -206,6 +219,10 @@ int subscribe(pc::Client& c, const std::string& world, double warmup, double sec
   for (const Record& r : records) {
     lat.push_back(r.latencyMs);
     minBodies = std::min(minBodies, r.bodies);
+  }
+  if (log) {
+    for (const Record& r : records)
+      std::fprintf(log.get(), "%llu %.3f\n", (unsigned long long)r.tick, r.latencyMs);
   }
   std::sort(lat.begin(), lat.end());
   auto pct = [&](double q) {
@@ -271,6 +288,9 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   subscribeCmd->add_option("--warmup", subWarmup, "seconds ignored first (default 2)")
       ->check(CLI::NonNegativeNumber);
+  std::string latencyLog;
+  subscribeCmd->add_option("--latency-log", latencyLog,
+                           "write one line per received tick, \"tick latency_ms\", to this file");
   auto* snapshot = app.add_subcommand("snapshot", "save or restore a world's snapshot");
   snapshot->require_subcommand(1);
   auto* save = snapshot->add_subcommand("save", "save WORLD's snapshot into a local FILE");
@@ -306,7 +326,7 @@ int main(int argc, char** argv) {
     if (*subscribeCmd) {
       std::signal(SIGINT, onSignal);
       std::signal(SIGTERM, onSignal);
-      return subscribe(client, world, subWarmup, subSeconds);
+      return subscribe(client, world, subWarmup, subSeconds, latencyLog);
     }
     if (*list) {
       printWorlds(client.listWorlds().get());

@@ -53,11 +53,17 @@ inline constexpr QosPreset kCommandQos{Reliability::Reliable, Durability::Volati
                                        History::KeepLast, 256, 100};
 inline constexpr QosPreset kReplyQos{Reliability::Reliable, Durability::Volatile, History::KeepLast,
                                      256, 100};
-/// State chunks: keep-last 1 per chunk (key = chunk index), so a slow subscriber sees the
-/// newest tick and never stalls the publisher; reliable so a lost fragment is resent while
-/// it is still the newest.
+/// State chunks: the writer keeps the last 1 per chunk (key = chunk index), so a slow
+/// subscriber never stalls the publisher; reliable so a lost fragment is resent while it is
+/// still the newest.
 inline constexpr QosPreset kStateQos{Reliability::Reliable, Durability::Volatile, History::KeepLast,
                                      1, 0};
+/// State readers keep the last 4 per chunk: a subscriber held up for up to 3 ticks (a slow
+/// callback, the scheduler) still gets each of them, oldest first; one further behind skips
+/// to the newest 4. Reader and writer depths need not match in DDS.
+inline constexpr int32_t kStateReaderDepth = 4;
+inline constexpr QosPreset kStateReaderQos{Reliability::Reliable, Durability::Volatile,
+                                           History::KeepLast, kStateReaderDepth, 0};
 /// World descriptions: transient-local, the latest per (world, chunk) kept for late joiners.
 inline constexpr QosPreset kWorldInfoQos{Reliability::Reliable, Durability::TransientLocal,
                                          History::KeepLast, 1, 100};
