@@ -214,7 +214,13 @@ uint64_t ServerCore::advance(double wallSeconds) {
       n = 1;
     }
     if (n > 0) {
-      const double ms = stepTimed(w, n);
+      // Every step of real time is a tick its subscribers see: steps taken to catch up
+      // (at most maxCatchUpSteps) get a frame each, not only the last one.
+      double ms = 0;
+      for (uint64_t i = 0; i < n; ++i) {
+        ms += stepTimed(w, 1);
+        if (i + 1 < n) queueFrame(w);
+      }
       total += n;
       w.tickMs = float(ms);
       w.tickMsMax = std::max(w.tickMsMax, w.tickMs);

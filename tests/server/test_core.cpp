@@ -319,6 +319,37 @@ TEST_F(CoreTest, RunAndPause) {
   EXPECT_EQ(w->tick, t + 5);
 }
 
+// A real-time tick that steps more than once to catch up publishes a frame for each step:
+// subscribers see every tick number (before: one frame, for the last step).
+TEST_F(CoreTest, CatchUpStepsPublishAFrameEach) {
+  spawn({groundBody(), boxBody({0, 0, 1})});
+  ASSERT_EQ(send(CommandBuilder().run(60))->status(), Code::Ok);
+  auto frameTicks = [&] {
+    std::vector<uint64_t> ticks;
+    for (;;) {
+      auto item = core.out().pop(std::chrono::milliseconds(0));
+      if (!item.reliable && !item.frame) break;
+      if (!item.frame) continue;
+      auto f = protocol::decodeStateFrame(std::move(item.frame->chunks.at(0)));
+      EXPECT_TRUE(f.ok()) << f.status.message;
+      EXPECT_EQ(f->tick(), item.frame->tick);
+      ticks.push_back(item.frame->tick);
+    }
+    return ticks;
+  };
+  frameTicks();
+  ASSERT_EQ(core.advance(1.0 / 60), 1u);
+  EXPECT_EQ(frameTicks(), (std::vector<uint64_t>{1}));
+  ASSERT_EQ(core.advance(3.0 / 60), 3u);
+  EXPECT_EQ(frameTicks(), (std::vector<uint64_t>{2, 3, 4}));
+  EXPECT_EQ(core.world(world)->overruns, 0u);
+  // Step N stays one frame, for the last of the N.
+  ASSERT_EQ(send(CommandBuilder().pause())->status(), Code::Ok);
+  ASSERT_EQ(send(CommandBuilder().step(5))->status(), Code::Ok);
+  core.advance(0);
+  EXPECT_EQ(frameTicks(), (std::vector<uint64_t>{9}));
+}
+
 TEST_F(CoreTest, QueryState) {
   auto ids = spawn({groundBody(), boxBody({0, 0, 1}), boxBody({0, 0, 3}), boxBody({0, 0, 5})});
   Reply r = send(CommandBuilder().queryState());
