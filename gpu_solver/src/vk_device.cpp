@@ -100,6 +100,20 @@ DeviceInfo describe(VkPhysicalDevice pd) {
   return info;
 }
 
+/// Validation errors reported in this process, every device's and its teardown's included.
+std::atomic<int> gValidationErrors{0};
+
+VKAPI_ATTR VkBool32 VKAPI_CALL onInstanceMessage(VkDebugUtilsMessageSeverityFlagBitsEXT severity,
+                                                 VkDebugUtilsMessageTypeFlagsEXT,
+                                                 const VkDebugUtilsMessengerCallbackDataEXT* data,
+                                                 void*) {
+  if (severity >= VK_DEBUG_UTILS_MESSAGE_SEVERITY_WARNING_BIT_EXT) {
+    std::fprintf(stderr, "[vulkan] %s\n", data->pMessage);
+    if (severity >= VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT) gValidationErrors++;
+  }
+  return VK_FALSE;
+}
+
 VkInstance createInstance(bool validation, std::string* error) {
   VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO};
   app.pApplicationName = "physd";
@@ -116,6 +130,15 @@ VkInstance createInstance(bool validation, std::string* error) {
   ci.ppEnabledLayerNames = layers.data();
   ci.enabledExtensionCount = uint32_t(extensions.size());
   ci.ppEnabledExtensionNames = extensions.data();
+  // With validation, a messenger for vkCreateInstance and vkDestroyInstance themselves (the
+  // device's own messenger is gone by then): what teardown leaves behind is reported too.
+  VkDebugUtilsMessengerCreateInfoEXT mi{VK_STRUCTURE_TYPE_DEBUG_UTILS_MESSENGER_CREATE_INFO_EXT};
+  mi.messageSeverity = VK_DEBUG_UTILS_MESSAGE_SEVERITY_WARNING_BIT_EXT |
+                       VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT;
+  mi.messageType =
+      VK_DEBUG_UTILS_MESSAGE_TYPE_GENERAL_BIT_EXT | VK_DEBUG_UTILS_MESSAGE_TYPE_VALIDATION_BIT_EXT;
+  mi.pfnUserCallback = &onInstanceMessage;
+  if (validation) ci.pNext = &mi;
   VkInstance instance = VK_NULL_HANDLE;
   VkResult r = vkCreateInstance(&ci, nullptr, &instance);
   if (r != VK_SUCCESS) {
@@ -142,6 +165,10 @@ DeviceOptions deviceOptionsFromEnv(DeviceOptions base) {
   return base;
 }
 
+int validationErrorsInProcess() {
+  return gValidationErrors.load();
+}
+
 std::vector<DeviceInfo> listDevices(std::string* error) {
   VkInstance instance = createInstance(false, error);
   if (!instance) return {};
@@ -160,8 +187,10 @@ VKAPI_ATTR VkBool32 VKAPI_CALL Device::onMessage(VkDebugUtilsMessageSeverityFlag
                                                  void* user) {
   if (severity >= VK_DEBUG_UTILS_MESSAGE_SEVERITY_WARNING_BIT_EXT) {
     std::fprintf(stderr, "[vulkan] %s\n", data->pMessage);
-    if (severity >= VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT)
+    if (severity >= VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT) {
       static_cast<Device*>(user)->validationErrors_++;
+      gValidationErrors++;
+    }
   }
   return VK_FALSE;
 }

@@ -60,6 +60,9 @@ void DeviceWorldDeleter::operator()(DeviceWorld* d) const {
 void World::Impl::openDevice() {
   backend.note = "built without the GPU backend (PHYS_WITH_GPU=OFF)";
 }
+int gpuValidationErrorsInProcess() {
+  return 0;
+}
 void World::Impl::deviceEdited(uint32_t) {}
 void World::Impl::deviceStale() {}
 bool World::Impl::stepOnDevice(int) {
@@ -200,6 +203,10 @@ gpu::GpuShape shapeOf(const ShapeRec& s, const BodyRec& b, const Transform& worl
 
 }  // namespace
 
+int gpuValidationErrorsInProcess() {
+  return gpu::validationErrorsInProcess();
+}
+
 void World::Impl::openDevice() {
   backend.requested = def.backend;
   if (def.backend == Backend::Cpu) return;
@@ -218,6 +225,7 @@ void World::Impl::openDevice() {
   }
   device.reset(new DeviceWorld);
   backend.device = world->device().name;
+  backend.validation = world->device().validation;
   backend.active = Backend::Gpu;
   device->world = std::move(world);
 }

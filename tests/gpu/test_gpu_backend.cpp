@@ -1,10 +1,13 @@
 // The GPU backend against the CPU backend and against analytic answers, on whatever Vulkan
-// device is present (lavapipe in CI). What the device covers so far: bodies, and contacts
-// with the Jacobi scheme; a step the device cannot take (a joint, or a contact under a
-// scheme it does not have yet) is taken by the CPU (the fallback is tested too).
+// device is present (lavapipe in CI): bodies, contacts (Jacobi and colored Gauss-Seidel),
+// joints (with the LDL solve of their equality rows); a step the device cannot take (a
+// setting it does not have, docs/ARCHITECTURE.md) is taken by the CPU (the fallback is tested
+// too).
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdlib>
+#include <string>
 #include <vector>
 
 #include "../common/bodies.h"
@@ -146,6 +149,40 @@ TEST(GpuDevice, ValidationLayerReportsNothing) {
   world->setBody(3, s, p);  // a partial upload too
   ASSERT_TRUE(world->step(in, &error)) << error;
   EXPECT_EQ(world->validationErrors(), 0);
+  // Teardown: buffers, memory, pipelines or the device left behind are reported when the
+  // device and the instance are destroyed, after the world's own count can be read.
+  const int before = gpu::validationErrorsInProcess();
+  world.reset();
+  EXPECT_EQ(gpu::validationErrorsInProcess(), before);
+}
+
+// A whole World on the device (contacts, joints and their LDL solve, colors), stepped and
+// destroyed under the validation layer: nothing reported, teardown included.
+TEST(GpuDevice, WorldTeardownIsCleanUnderValidation) {
+  gpu::DeviceOptions o;
+  o.allowCpu = true;
+  o.validation = true;
+  std::string error;
+  if (auto probe = gpu::GpuWorld::create(o, &error); !probe || !probe->device().validation)
+    GTEST_SKIP() << "no device with VK_LAYER_KHRONOS_validation: " << error;
+  const int before = gpu::validationErrorsInProcess();
+  ::setenv("PHYS_GPU_VALIDATION", "1", 1);
+  {
+    Scene sc;
+    ASSERT_TRUE(
+        loadSceneFile(std::string(PHYS_SOURCE_DIR) + "/configs/scenes/ball_and_chain.json", &sc)
+            .ok());
+    sc.world.backend = Backend::Gpu;
+    sc.world.gpuAllowCpuDevice = true;
+    World w(sc.world);
+    std::vector<BodyId> ids;
+    ASSERT_TRUE(instantiateScene(sc, &w, &ids).ok());
+    for (int i = 0; i < 5; ++i) w.step();
+    EXPECT_EQ(w.backendState().active, Backend::Gpu) << w.backendState().note;
+    EXPECT_EQ(w.backendState().cpuSteps, 0u) << w.backendState().lastFallback;
+  }
+  ::unsetenv("PHYS_GPU_VALIDATION");
+  EXPECT_EQ(gpu::validationErrorsInProcess(), before);
 }
 
 // ---------------------------------------------------------------------------------------------

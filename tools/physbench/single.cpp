@@ -2,8 +2,11 @@
 // The ctest scene tests rely on its output and exit status; keep both stable.
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
+#include <cstring>
 #include <fstream>
 #include <iostream>
+#include <memory>
 #include <nlohmann/json.hpp>
 
 #include "bench.h"
@@ -26,6 +29,12 @@ std::string backendLabel(const World& world) {
 }
 
 namespace {
+
+/// An environment flag as phys_gpu reads it: set, not empty, not "0".
+bool envFlagSet(const char* name) {
+  const char* v = std::getenv(name);
+  return v && *v && std::strcmp(v, "0") != 0;
+}
 
 nlohmann::json optional(const std::optional<double>& v) {
   return v && std::isfinite(*v) ? nlohmann::json(*v) : nlohmann::json(nullptr);
@@ -82,28 +91,42 @@ int runSingle(SingleOptions opt) {
 
   scene.world.threads = opt.threads;
   if (!opt.backend.empty()) parseBackend(opt.backend, &scene.world.backend);
-  World world(scene.world);
+  const int validationBefore = gpuValidationErrorsInProcess();
+  auto world = std::make_unique<World>(scene.world);
   std::vector<BodyId> ids;
-  st = instantiateScene(scene, &world, &ids);
+  st = instantiateScene(scene, world.get(), &ids);
   if (!st.ok()) {
     std::cerr << "physbench: " << opt.scenePath << ": " << st.message << "\n";
     return 2;
   }
-  MetricsRecorder rec(scene, world, ids);
+  MetricsRecorder rec(scene, *world, ids);
   const int steps = int(std::lround(seconds / scene.world.timeStep));
   for (int i = 0; i < steps; ++i) {
-    world.step();
-    rec.afterStep(world);
+    world->step();
+    rec.afterStep(*world);
   }
-  SingleResult result{usedPreset,        backendLabel(world), world.def().threads,
-                      world.bodyCount(), world.jointCount(),  steps,
+  SingleResult result{usedPreset,         backendLabel(*world), world->def().threads,
+                      world->bodyCount(), world->jointCount(),  steps,
                       rec.summary()};
-  result.metrics.stateHash = world.stateHash();
+  result.metrics.stateHash = world->stateHash();
   const int code = reportSingle(opt, scene, result);
-  const BackendState& b = world.backendState();
-  if (opt.requireDevice && b.validationErrors > 0) {
-    std::printf("FAILED: --require-device, but the validation layer reported %d errors\n",
-                b.validationErrors);
+  const BackendState b = world->backendState();
+  // The world's teardown under validation: what it leaves behind is reported when its device
+  // is destroyed.
+  world.reset();
+  const int validationErrors = gpuValidationErrorsInProcess() - validationBefore;
+  if (opt.requireDevice && validationErrors > 0) {
+    std::printf(
+        "FAILED: --require-device, but the validation layer reported %d errors (%d of them "
+        "at teardown)\n",
+        validationErrors, validationErrors - b.validationErrors);
+    return 1;
+  }
+  if (opt.requireDevice && b.active == Backend::Gpu && envFlagSet("PHYS_GPU_VALIDATION") &&
+      !b.validation) {
+    std::printf(
+        "FAILED: --require-device with PHYS_GPU_VALIDATION=1, but the validation layer is not "
+        "loaded (package vulkan-validationlayers)\n");
     return 1;
   }
   if (opt.requireDevice && (b.active != Backend::Gpu || b.cpuSteps > 0)) {

@@ -208,7 +208,13 @@ struct BackendState {
   /// Errors the Vulkan validation layer reported on the world's device so far (only with
   /// PHYS_GPU_VALIDATION=1; tests and physbench --require-device fail on any).
   int validationErrors = 0;
+  bool validation = false;  ///< the validation layer is loaded on the world's device
 };
+
+/// Vulkan validation errors reported in this process so far, by every GPU world's device,
+/// including those raised while a device was destroyed (what a world's teardown left behind).
+/// 0 without validation (PHYS_GPU_VALIDATION=1) or without the GPU backend.
+int gpuValidationErrorsInProcess();
 
 struct WorldDef {
   Vec3 gravity{0, 0, -9.81f};   ///< m/s^2

@@ -32,6 +32,11 @@ struct DeviceInfo {
 /// Options from the defaults and the environment (see DeviceOptions).
 DeviceOptions deviceOptionsFromEnv(DeviceOptions base = {});
 
+/// Validation errors reported in this process so far, by every device opened with validation,
+/// including those raised while a device was being destroyed (leaked buffers, memory, pipelines
+/// show up there). Read it after the last World on the device is gone to check teardown.
+int validationErrorsInProcess();
+
 /// Every Vulkan device present (name and type), for diagnostics; empty without a loader.
 std::vector<DeviceInfo> listDevices(std::string* error = nullptr);
 
