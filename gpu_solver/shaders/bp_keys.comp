@@ -1,5 +1,6 @@
 #version 450
-// BroadPhase, 1: the sort keys, (low x of the bounds as an ordered uint, shape index);
+// BroadPhase, 1: the sort keys, (low end of the bounds on the sweep axis as an ordered uint,
+// shape index);
 // planes and the padding sort last as (~0u, ~0u).
 #extension GL_GOOGLE_include_directive : require
 #extension GL_ARB_gpu_shader_fp64 : require
@@ -24,5 +25,5 @@ void main() {
     keys[i] = uvec2(0xFFFFFFFFu);
     return;
   }
-  keys[i] = uvec2(orderedBits(bounds[i].lo.x), i);
+  keys[i] = uvec2(orderedBits(bounds[i].lo[k.sweepAxis]), i);
 }

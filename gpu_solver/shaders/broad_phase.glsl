@@ -57,10 +57,10 @@ bool belowPlane(uint s, uint plane) {
 // Calls PAIR(other) for every pair of the shape at sorted position p, in a fixed order.
 #define FOR_EACH_PAIR(p, s, PAIR)                                       \
   {                                                                     \
-    float hiX = bounds[s].hi.x;                                         \
+    float hiX = bounds[s].hi[k.sweepAxis];                              \
     for (uint q = p + 1u; q < k.shapeSortCount; ++q) {                  \
       uint t = keys[q].y;                                               \
-      if (t == 0xFFFFFFFFu || bounds[t].lo.x > hiX) break;              \
+      if (t == 0xFFFFFFFFu || bounds[t].lo[k.sweepAxis] > hiX) break;   \
       if (overlaps(s, t) && canCollide(s, t)) PAIR(t);                  \
     }                                                                   \
     for (uint j = 0u; j < k.planeCount; ++j) {                          \

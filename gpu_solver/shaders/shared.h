@@ -128,7 +128,7 @@ struct GpuStepConstants {
   float maxLinearSpeed;       // m/s
   float maxAngularSpeed;      // rad/s
   float speculativeDistance;  // m: contact points closer than this (plus the bodies' reach) are kept
-  float pad0;
+  uint sweepAxis;             // broad phase: the axis (0, 1, 2) the bounds are sorted and swept on
   float pad1;
   float pad2;
   uint bodyCount;

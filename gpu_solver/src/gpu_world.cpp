@@ -231,6 +231,13 @@ struct GpuWorld::Impl {
   Buffer ldlIslandBuf, ldlRowBuf, ldlPatternBuf, ldlColumnBuf, ldlValueBuf, ldlDiagBuf, ldlWorkBuf;
   bool ldlDirty = true;
   uint32_t ldlIslands = 0;
+  /// The broad phase's sweep axis: the one along which the shapes' bodies spread most (a
+  /// column or a stack along x would otherwise make the sweep quadratic in its length).
+  /// Chosen again every kSweepAxisPeriod steps from the host's copy of the states.
+  uint32_t sweepAxis = 0;
+  uint64_t stepsSinceSweepAxis = ~uint64_t(0);
+  static constexpr uint64_t kSweepAxisPeriod = 16;
+  void chooseSweepAxis();
   uint32_t colorLimit = 16;  ///< colors dispatched (then the serial overflow), from the last step
   int current = 0;           ///< manifoldBuf[current] is this step's
   uint32_t pairCapacity = 64;
@@ -305,6 +312,7 @@ void GpuWorld::setShapes(std::span<const GpuShape> shapes, std::span<const uint3
     throw std::invalid_argument("setShapes: owners and shapes differ in size");
   impl_->shapes.assign(shapes.begin(), shapes.end());
   impl_->owners.assign(owners.begin(), owners.end());
+  impl_->stepsSinceSweepAxis = ~uint64_t(0);  // the axis is chosen again at the next step
   if (owners.empty()) {
     impl_->owners.resize(shapes.size());
     for (uint32_t i = 0; i < shapes.size(); ++i) impl_->owners[i] = i;  // every shape its own
@@ -510,9 +518,9 @@ void GpuWorld::Impl::recordLdl(Stream& s, GpuSolveConstants sc, uint32_t mode, b
   sc.mode = mode;
   sc.useBias = useBias ? 1 : 0;
   sc.jacobi = 0;  // whole masses: the direct solve is not split among constraints
-  const Buffer* b[] = {&solverBuf,    &paramBuf,      &refBuf,       &jointBuf,
-                       &jointRowBuf,  &ldlIslandBuf,  &ldlRowBuf,    &ldlPatternBuf,
-                       &ldlColumnBuf, &ldlValueBuf,   &ldlDiagBuf,   &ldlWorkBuf};
+  const Buffer* b[] = {&solverBuf,    &paramBuf,     &refBuf,     &jointBuf,
+                       &jointRowBuf,  &ldlIslandBuf, &ldlRowBuf,  &ldlPatternBuf,
+                       &ldlColumnBuf, &ldlValueBuf,  &ldlDiagBuf, &ldlWorkBuf};
   s.dispatch(*kernels().jointLdl, b, &sc, groupsFor(sc.ldlIslands));
 }
 
@@ -559,6 +567,40 @@ void GpuWorld::Impl::recordContactPass(Stream& s, const Kernel& kernel,
   s.dispatch(*kernels().applyDeltas, apply, &sc, groupsFor(sc.bodyCount));
 }
 
+void GpuWorld::Impl::chooseSweepAxis() {
+  if (stepsSinceSweepAxis < kSweepAxisPeriod) {
+    ++stepsSinceSweepAxis;
+    return;
+  }
+  stepsSinceSweepAxis = 1;
+  // Variance of the (non-plane) shapes' body centres along each axis, in double (a static
+  // shape's own position).
+  double sum[3] = {0, 0, 0}, sq[3] = {0, 0, 0};
+  size_t count = 0;
+  for (const GpuShape& s : shapes) {
+    if (s.type == PHYS_GPU_SHAPE_PLANE) continue;
+    if (s.body >= 0 && size_t(s.body) >= states.size()) continue;
+    const vec4& p = s.body >= 0 ? states[size_t(s.body)].com : s.localP;
+    const double c[3] = {p.x, p.y, p.z};
+    for (int a = 0; a < 3; ++a) {
+      sum[a] += c[a];
+      sq[a] += c[a] * c[a];
+    }
+    ++count;
+  }
+  if (count == 0) return;
+  uint32_t best = 0;
+  double bestVar = -1;
+  for (uint32_t a = 0; a < 3; ++a) {
+    const double mean = sum[a] / double(count), var = sq[a] / double(count) - mean * mean;
+    if (var > bestVar * 1.0001) {  // ties keep the lower axis (x first)
+      best = a;
+      bestVar = var;
+    }
+  }
+  sweepAxis = best;
+}
+
 bool GpuWorld::step(const StepInput& in, std::string* error) {
   Impl& w = *impl_;
   Stream& s = *w.stream;
@@ -572,6 +614,8 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
     c.maxLinearSpeed = in.maxLinearSpeed;
     c.maxAngularSpeed = in.maxAngularSpeed;
     c.speculativeDistance = in.speculativeDistance;
+    if (attempt == 0) w.chooseSweepAxis();
+    c.sweepAxis = w.sweepAxis;
     c.bodyCount = n;
     c.shapeCount = m;
     c.pairCapacity = w.pairCapacity;
@@ -757,6 +801,9 @@ std::span<const GpuPair> GpuWorld::pairs() const {
 }
 std::span<const GpuManifold> GpuWorld::manifolds() const {
   return impl_->manifolds;
+}
+uint32_t GpuWorld::sweepAxis() const {
+  return impl_->sweepAxis;
 }
 uint32_t GpuWorld::pairCount() const {
   return impl_->counters[PHYS_GPU_COUNTER_PAIRS];

@@ -332,6 +332,14 @@ uint32_t Device::memoryType(uint32_t typeBits, VkMemoryPropertyFlags required,
 
 Buffer::Buffer(std::shared_ptr<Device> device, VkDeviceSize bytes, Kind kind)
     : device_(std::move(device)), size_(std::max<VkDeviceSize>(bytes, 16)) {
+  // Shaders bind whole buffers: one larger than a storage binding may span cannot be bound
+  // (a world too large for this device; the step fails with this message and the World
+  // takes it on the CPU).
+  const uint64_t range = device_->info().maxStorageBufferRange;
+  if (kind == Kind::Device && range > 0 && size_ > range)
+    throw std::runtime_error("a device buffer of " + std::to_string(size_) +
+                             " bytes exceeds this device's maxStorageBufferRange (" +
+                             std::to_string(range) + " bytes)");
   VkBufferCreateInfo bi{VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO};
   bi.size = size_;
   bi.usage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_TRANSFER_SRC_BIT |

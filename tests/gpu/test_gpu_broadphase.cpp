@@ -1,6 +1,7 @@
 // The device's broad phase against a brute-force pass over the same bounds: the same pairs,
-// sorted, with the CPU's filters (no pair within a body, none without a dynamic body), and a
-// pair list that grows its buffers when a step finds more pairs than they hold.
+// sorted, with the CPU's filters (no pair within a body, none without a dynamic body), on
+// whichever axis the sweep takes, and a pair list that grows its buffers when a step finds
+// more pairs than they hold.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -29,15 +30,15 @@ GpuShape shape(int body, uint32_t type, vec4 size, vec4 p = {}) {
   return s;
 }
 
-/// `bodies` bodies in a `side` m cube, a third of them with two shapes, a few kinematic, a
-/// few static boxes, and two static planes.
-Arrangement randomSetup(uint32_t seed, int bodies, float side) {
+/// `bodies` bodies in a `side` m cube (stretched by `stretch` along each axis), a third of
+/// them with two shapes, a few kinematic, a few static boxes, and two static planes.
+Arrangement randomSetup(uint32_t seed, int bodies, float side, vec4 stretch = {1, 1, 1, 0}) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> pos(0, side), unit(-1, 1);
   Arrangement s;
   for (int i = 0; i < bodies; ++i) {
     GpuBodyState st;
-    st.com = {pos(rng), pos(rng), pos(rng), 0};
+    st.com = {pos(rng) * stretch.x, pos(rng) * stretch.y, pos(rng) * stretch.z, 0};
     st.q = {unit(rng), unit(rng), unit(rng), 1.5f};
     const float l =
         std::sqrt(st.q.x * st.q.x + st.q.y * st.q.y + st.q.z * st.q.z + st.q.w * st.q.w);
@@ -109,11 +110,21 @@ std::unique_ptr<GpuWorld> openWorld() {
 TEST(GpuBroadPhase, SamePairsAsBruteForceOverTheSameBounds) {
   auto world = openWorld();
   if (!world) GTEST_SKIP() << "no Vulkan device";
-  // Sparse to dense (the dense one overflows the first pair buffer and is retried), two seeds.
-  for (auto [seed, bodies, side] :
-       {std::tuple{1u, 80, 10.0f}, std::tuple{2u, 300, 12.0f}, std::tuple{3u, 400, 6.0f}}) {
-    SCOPED_TRACE("seed " + std::to_string(seed));
-    Arrangement s = randomSetup(seed, bodies, side);
+  // Sparse to dense (the dense one overflows the first pair buffer and is retried); then
+  // columns along y and z, which the sweep takes along their length.
+  struct Case {
+    uint32_t seed;
+    int bodies;
+    float side;
+    vec4 stretch;
+    uint32_t axis;
+  };
+  for (const Case& c :
+       {Case{1u, 80, 10.0f, {1, 1, 1, 0}, 99}, Case{2u, 300, 12.0f, {1, 1, 1, 0}, 99},
+        Case{3u, 400, 6.0f, {1, 1, 1, 0}, 99}, Case{4u, 300, 3.0f, {1, 8, 1, 0}, 1},
+        Case{5u, 300, 3.0f, {0.5f, 1, 10, 0}, 2}}) {
+    SCOPED_TRACE("seed " + std::to_string(c.seed));
+    Arrangement s = randomSetup(c.seed, c.bodies, c.side, c.stretch);
     world->setBodies(s.states, s.params);
     world->setShapes(s.shapes);
     StepInput in;
@@ -129,6 +140,7 @@ TEST(GpuBroadPhase, SamePairsAsBruteForceOverTheSameBounds) {
     EXPECT_EQ(got, expected);
     EXPECT_EQ(world->pairCount(), uint32_t(expected.size()));
     EXPECT_GT(expected.size(), 10u);
+    if (c.axis < 3) EXPECT_EQ(world->sweepAxis(), c.axis);
   }
 }
 

@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <numeric>
 #include <random>
+#include <stdexcept>
+#include <string>
 
 #include "gpu_primitives.h"
 
@@ -40,6 +42,23 @@ TEST(GpuPrimitives, SortMatchesStdSortWithTies) {
     std::sort(keys.begin(), keys.end());
     EXPECT_EQ(out, keys);
   }
+}
+
+TEST(GpuBuffers, LargerThanAStorageBindingIsRefusedWithTheLimit) {
+  // Shaders bind whole buffers; one past maxStorageBufferRange is refused before anything is
+  // allocated, with a message naming the limit (a world too large for the device).
+  auto device = openDevice();
+  if (!device) GTEST_SKIP() << "no Vulkan device";
+  const uint64_t range = device->info().maxStorageBufferRange;
+  ASSERT_GT(range, 0u);
+  try {
+    Buffer b(device, range + 16, Buffer::Kind::Device);
+    FAIL() << "a buffer of " << range + 16 << " bytes was created";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("maxStorageBufferRange"), std::string::npos) << e.what();
+  }
+  Buffer fits(device, 1 << 20, Buffer::Kind::Device);  // an ordinary size still works
+  EXPECT_EQ(fits.size(), VkDeviceSize(1 << 20));
 }
 
 TEST(GpuPrimitives, ExclusiveScanMatchesStd) {

@@ -136,6 +136,9 @@ class GpuWorld {
   std::span<const GpuManifold> manifolds() const;
   /// The last step's candidate pairs (always read back).
   uint32_t pairCount() const;
+  /// The axis (0 x, 1 y, 2 z) the last step's broad phase sorted and swept the bounds on: the
+  /// one along which the shapes' bodies spread most, chosen every 16 steps and after setShapes.
+  uint32_t sweepAxis() const;
   /// The last step's contacts: candidate pairs, manifolds with points, points, deepest
   /// penetration (m).
   ContactStats contactStats() const;
