@@ -20,10 +20,10 @@
 #ifndef PHYS_GPU_COLLIDE_HULL_GLSL
 #define PHYS_GPU_COLLIDE_HULL_GLSL
 
-#define PHYS_HULL_HEADER_WORDS 12u
+#define PHYS_HULL_HEADER_WORDS PHYS_GPU_HULL_HEADER_WORDS
 // The most vertices of one face (the packer refuses more): the clip buffers hold an incident
-// face clipped by a reference face's side planes.
-#define PHYS_HULL_MAX_FACE_VERTICES 32
+// face clipped by a reference face's side planes. Both from shared.h, as the packer's.
+#define PHYS_HULL_MAX_FACE_VERTICES PHYS_GPU_HULL_MAX_FACE_VERTICES
 
 float hullFloat(uint at) { return uintBitsToFloat(hullData[at]); }
 vec3 hullVec3(uint at) { return vec3(hullFloat(at), hullFloat(at + 1u), hullFloat(at + 2u)); }

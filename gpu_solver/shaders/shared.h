@@ -313,6 +313,10 @@ struct GpuLdlRow {
 #define PHYS_GPU_UNCOLORED 0xFFFFFFFFu
 #define PHYS_GPU_NO_COLOR 0xFFFFFFFEu
 #define PHYS_GPU_MAX_COLORS 64u
+// Packed convex hulls (hull_pack.h, collide_hull.glsl): the words of a record's header, and
+// the most vertices one face may have (the narrow phase clips faces in fixed buffers).
+#define PHYS_GPU_HULL_HEADER_WORDS 12u
+#define PHYS_GPU_HULL_MAX_FACE_VERTICES 32
 
 // Push constants of the sort and scan passes (bitonic_sort.comp, scan_*.comp).
 struct GpuSortConstants {

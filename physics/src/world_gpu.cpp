@@ -71,6 +71,9 @@ bool World::Impl::stepOnDevice(int) {
 
 #else
 
+// The device's split depth is the CPU's (shared.h's is a GLSL literal).
+static_assert(float(PHYS_GPU_SPLIT_DEPTH) == SolverSettings::kSplitDepth);
+
 struct DeviceWorld {
   std::unique_ptr<gpu::GpuWorld> world;
   bool hulls = false;                ///< a hull the device cannot take (hull_pack.h's limits)

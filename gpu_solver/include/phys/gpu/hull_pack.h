@@ -28,15 +28,17 @@
 #include <string>
 #include <vector>
 
+#include "phys/gpu/shared.h"
+
 namespace phys::gpu {
 
 /// GpuShape.size.x bits of a hull shape without a hull: no contact.
 constexpr uint32_t kNoHull = 0xFFFFFFFFu;
-/// Words of a packed hull's header.
-constexpr uint32_t kHullHeaderWords = 12;
+/// Words of a packed hull's header (shared.h, as the shaders read it).
+constexpr uint32_t kHullHeaderWords = PHYS_GPU_HULL_HEADER_WORDS;
 /// The most vertices one face may have (the narrow phase clips a face against another in
-/// fixed buffers; collide_hull.glsl's PHYS_HULL_MAX_FACE_VERTICES).
-constexpr uint32_t kHullMaxFaceVertices = 32;
+/// fixed buffers; shared.h, as collide_hull.glsl's clip buffers are sized).
+constexpr uint32_t kHullMaxFaceVertices = PHYS_GPU_HULL_MAX_FACE_VERTICES;
 
 /// A convex hull as phys::ConvexHull holds it, in plain types.
 struct HullInput {
