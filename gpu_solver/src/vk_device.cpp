@@ -103,14 +103,22 @@ DeviceInfo describe(VkPhysicalDevice pd) {
 /// Validation errors reported in this process, every device's and its teardown's included.
 std::atomic<int> gValidationErrors{0};
 
+/// Prints a warning or error of the validation layer and counts an error in the process's
+/// total; true for an error.
+bool reportMessage(VkDebugUtilsMessageSeverityFlagBitsEXT severity,
+                   const VkDebugUtilsMessengerCallbackDataEXT* data) {
+  if (severity < VK_DEBUG_UTILS_MESSAGE_SEVERITY_WARNING_BIT_EXT) return false;
+  std::fprintf(stderr, "[vulkan] %s\n", data->pMessage);
+  if (severity < VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT) return false;
+  gValidationErrors++;
+  return true;
+}
+
 VKAPI_ATTR VkBool32 VKAPI_CALL onInstanceMessage(VkDebugUtilsMessageSeverityFlagBitsEXT severity,
                                                  VkDebugUtilsMessageTypeFlagsEXT,
                                                  const VkDebugUtilsMessengerCallbackDataEXT* data,
                                                  void*) {
-  if (severity >= VK_DEBUG_UTILS_MESSAGE_SEVERITY_WARNING_BIT_EXT) {
-    std::fprintf(stderr, "[vulkan] %s\n", data->pMessage);
-    if (severity >= VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT) gValidationErrors++;
-  }
+  reportMessage(severity, data);
   return VK_FALSE;
 }
 
@@ -185,13 +193,7 @@ VKAPI_ATTR VkBool32 VKAPI_CALL Device::onMessage(VkDebugUtilsMessageSeverityFlag
                                                  VkDebugUtilsMessageTypeFlagsEXT,
                                                  const VkDebugUtilsMessengerCallbackDataEXT* data,
                                                  void* user) {
-  if (severity >= VK_DEBUG_UTILS_MESSAGE_SEVERITY_WARNING_BIT_EXT) {
-    std::fprintf(stderr, "[vulkan] %s\n", data->pMessage);
-    if (severity >= VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT) {
-      static_cast<Device*>(user)->validationErrors_++;
-      gValidationErrors++;
-    }
-  }
+  if (reportMessage(severity, data)) static_cast<Device*>(user)->validationErrors_++;
   return VK_FALSE;
 }
 

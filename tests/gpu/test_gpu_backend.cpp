@@ -166,7 +166,11 @@ TEST(GpuDevice, WorldTeardownIsCleanUnderValidation) {
   if (auto probe = gpu::GpuWorld::create(o, &error); !probe || !probe->device().validation)
     GTEST_SKIP() << "no device with VK_LAYER_KHRONOS_validation: " << error;
   const int before = gpu::validationErrorsInProcess();
-  ::setenv("PHYS_GPU_VALIDATION", "1", 1);
+  // The World opens its device with the environment's options; unset on every way out.
+  struct ValidationEnv {
+    ValidationEnv() { ::setenv("PHYS_GPU_VALIDATION", "1", 1); }
+    ~ValidationEnv() { ::unsetenv("PHYS_GPU_VALIDATION"); }
+  } env;
   {
     Scene sc;
     ASSERT_TRUE(
@@ -181,7 +185,6 @@ TEST(GpuDevice, WorldTeardownIsCleanUnderValidation) {
     EXPECT_EQ(w.backendState().active, Backend::Gpu) << w.backendState().note;
     EXPECT_EQ(w.backendState().cpuSteps, 0u) << w.backendState().lastFallback;
   }
-  ::unsetenv("PHYS_GPU_VALIDATION");
   EXPECT_EQ(gpu::validationErrorsInProcess(), before);
 }
 
