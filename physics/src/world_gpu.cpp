@@ -216,6 +216,7 @@ void World::Impl::openDevice() {
   gpu::DeviceOptions options;
   options.allowCpu = def.gpuAllowCpuDevice;
   options = gpu::deviceOptionsFromEnv(options);
+  backend.validationRequested = options.validation;
   std::string error;
   std::unique_ptr<gpu::GpuWorld> world = gpu::GpuWorld::create(options, &error);
   if (!world) {

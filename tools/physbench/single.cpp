@@ -2,8 +2,6 @@
 // The ctest scene tests rely on its output and exit status; keep both stable.
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
-#include <cstring>
 #include <fstream>
 #include <iostream>
 #include <memory>
@@ -29,12 +27,6 @@ std::string backendLabel(const World& world) {
 }
 
 namespace {
-
-/// An environment flag as phys_gpu reads it: set, not empty, not "0".
-bool envFlagSet(const char* name) {
-  const char* v = std::getenv(name);
-  return v && *v && std::strcmp(v, "0") != 0;
-}
 
 nlohmann::json optional(const std::optional<double>& v) {
   return v && std::isfinite(*v) ? nlohmann::json(*v) : nlohmann::json(nullptr);
@@ -122,8 +114,7 @@ int runSingle(SingleOptions opt) {
         validationErrors, validationErrors - b.validationErrors);
     return 1;
   }
-  if (opt.requireDevice && b.active == Backend::Gpu && envFlagSet("PHYS_GPU_VALIDATION") &&
-      !b.validation) {
+  if (opt.requireDevice && b.active == Backend::Gpu && b.validationRequested && !b.validation) {
     std::printf(
         "FAILED: --require-device with PHYS_GPU_VALIDATION=1, but the validation layer is not "
         "loaded (package vulkan-validationlayers)\n");

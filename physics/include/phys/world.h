@@ -208,7 +208,8 @@ struct BackendState {
   /// Errors the Vulkan validation layer reported on the world's device so far (only with
   /// PHYS_GPU_VALIDATION=1; tests and physbench --require-device fail on any).
   int validationErrors = 0;
-  bool validation = false;  ///< the validation layer is loaded on the world's device
+  bool validationRequested = false;  ///< PHYS_GPU_VALIDATION asked for the validation layer
+  bool validation = false;           ///< the validation layer is loaded on the world's device
 };
 
 /// Vulkan validation errors reported in this process so far, by every GPU world's device,
