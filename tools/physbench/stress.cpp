@@ -293,6 +293,7 @@ struct RunResult {
   double maxSpeed = 0, speedBound = 0, jointError = 0, energyRise = 0;
   unsigned long long guardEvents = 0;
   bool checkEnergy = true;
+  std::string firstFailure;  ///< when and where it first failed (replays of failed runs only)
   bool exploded() const {
     return maxSpeed > speedBound || (checkEnergy && energyRise > kEnergyRise);
   }
@@ -300,8 +301,112 @@ struct RunResult {
   bool failed() const { return !error.empty() || nan > 0 || exploded() || jointFailed(); }
 };
 
+/// The run's failure measures so far, from the recorder's summary.
+void takeSummary(const MetricsSummary& m, RunResult* res) {
+  res->nan = m.nan;
+  res->maxSpeed = m.maxSpeed;
+  res->jointError = m.jointErrorMax.value_or(0);
+  res->energyRise = m.energyRiseMax;
+}
+
+/// "pile/19 (3.14 kg)": a body's scene name and mass, for the failure report.
+std::string bodyLabel(const Scene& sc, const World& world, const std::vector<BodyId>& ids,
+                      BodyId id) {
+  if (id.isNull()) return "the world";
+  for (size_t i = 0; i < ids.size(); ++i) {
+    if (ids[i] != id) continue;
+    BodyState b;
+    world.getBody(id, &b);
+    const std::string name =
+        sc.bodies[i].name.empty() ? "body " + std::to_string(i) : sc.bodies[i].name;
+    char buf[160];
+    if (b.mass > 0)
+      std::snprintf(buf, sizeof buf, "%s (%.3g kg)", name.c_str(), b.mass);
+    else
+      std::snprintf(buf, sizeof buf, "%s (static)", name.c_str());
+    return buf;
+  }
+  return "an unknown body";
+}
+
+/// What touches `body` this step: "touching pile/10 (3.86 kg, 4.5 cm deep), ground (static)".
+std::string contactsOf(const Scene& sc, const World& world, const std::vector<BodyId>& ids,
+                       BodyId body) {
+  std::string out;
+  for (const ContactInfo& c : world.contacts()) {
+    if (c.bodyA != body && c.bodyB != body) continue;
+    float deepest = 0;
+    for (int k = 0; k < c.manifold.count; ++k)
+      deepest = std::min(deepest, c.manifold.points[k].separation);
+    std::string other = bodyLabel(sc, world, ids, c.bodyA == body ? c.bodyB : c.bodyA);
+    if (deepest < -0.0005f) {
+      char buf[48];
+      std::snprintf(buf, sizeof buf, ", %.1f cm deep", -100 * deepest);
+      other.insert(other.size() - 1, buf);
+    }
+    out += (out.empty() ? "touching " : ", ") + other;
+  }
+  return out.empty() ? "touching nothing" : out;
+}
+
+/// Names the criterion that `now` newly fails and the body or joint behind it at step
+/// `step`, with what touches it: how a failed run is first triaged.
+std::string describeFailure(const Scene& sc, const World& world, const std::vector<BodyId>& ids,
+                            const std::vector<JointId>& jointIds, const RunResult& now, int step) {
+  char buf[256];
+  std::snprintf(buf, sizeof buf,
+                "first at t = %.3f s (step %d): ", (step + 1) * double(sc.world.timeStep),
+                step + 1);
+  std::string out = buf;
+  if (now.nan > 0) return out + "a non-finite number in a body's state";
+  if (now.jointFailed()) {
+    JointId worst;
+    JointDef worstDef;
+    float worstError = -1;
+    for (JointId j : jointIds) {
+      JointDef d;
+      JointState js;
+      if (world.getJoint(j, &d, &js).ok() && js.positionError > worstError) {
+        worst = j;
+        worstDef = d;
+        worstError = js.positionError;
+      }
+    }
+    int index = 0;
+    while (index < int(jointIds.size()) && jointIds[index] != worst) ++index;
+    std::snprintf(buf, sizeof buf, "joint %d (%s) %.1f cm apart, between ", index,
+                  toString(worstDef.type), 100 * worstError);
+    out += buf;
+    out += bodyLabel(sc, world, ids, worstDef.bodyA) + " and " +
+           bodyLabel(sc, world, ids, worstDef.bodyB);
+    for (BodyId b : {worstDef.bodyA, worstDef.bodyB})
+      if (!b.isNull())
+        out += "; " + bodyLabel(sc, world, ids, b) + " " + contactsOf(sc, world, ids, b);
+    return out;
+  }
+  if (now.maxSpeed > now.speedBound) {
+    BodyId fastest;
+    float speed = -1;
+    for (BodyId id : ids) {
+      BodyState b;
+      world.getBody(id, &b);
+      if (b.type == BodyType::Dynamic && length(b.linearVelocity) > speed) {
+        speed = length(b.linearVelocity);
+        fastest = id;
+      }
+    }
+    std::snprintf(buf, sizeof buf, " at %.3g m/s, ", speed);
+    return out + bodyLabel(sc, world, ids, fastest) + buf + contactsOf(sc, world, ids, fastest);
+  }
+  std::snprintf(buf, sizeof buf, "the energy %.1f %% above its start", 100 * now.energyRise);
+  return out + buf;
+}
+
+/// Runs one seed with one preset. With `explain` (a replay of a failed run: runs are
+/// deterministic with one thread), the measures are checked after every step as well and the
+/// first step that fails is described in RunResult::firstFailure.
 RunResult runOne(uint64_t seed, const std::string& presetName, const SolverSettings& settings,
-                 double seconds) {
+                 double seconds, bool explain = false) {
   Scene sc = makeScene(seed);
   sc.world.solver = settings;
   sc.world.threads = 1;
@@ -317,7 +422,8 @@ RunResult runOne(uint64_t seed, const std::string& presetName, const SolverSetti
                                      : std::numeric_limits<double>::infinity();
   World world(sc.world);
   std::vector<BodyId> ids;
-  Status st = instantiateScene(sc, &world, &ids);
+  std::vector<JointId> jointIds;
+  Status st = instantiateScene(sc, &world, &ids, &jointIds);
   if (!st.ok()) {
     res.error = st.message;
     return res;
@@ -327,12 +433,13 @@ RunResult runOne(uint64_t seed, const std::string& presetName, const SolverSetti
   for (int i = 0; i < steps; ++i) {
     world.step();
     rec.afterStep(world);
+    if (explain && res.firstFailure.empty()) {
+      RunResult now = res;
+      takeSummary(rec.summary(), &now);
+      if (now.failed()) res.firstFailure = describeFailure(sc, world, ids, jointIds, now, i);
+    }
   }
-  MetricsSummary m = rec.summary();
-  res.nan = m.nan;
-  res.maxSpeed = m.maxSpeed;
-  res.jointError = m.jointErrorMax.value_or(0);
-  res.energyRise = m.energyRiseMax;
+  takeSummary(rec.summary(), &res);
   res.guardEvents = world.stats().guardEvents;
   return res;
 }
@@ -470,6 +577,10 @@ int runStress(const StressOptions& opt) {
     if (r.checkEnergy && r.energyRise > kEnergyRise) say(" energy rise %.3g", r.energyRise);
     if (r.jointFailed()) say(" joint error %.3g m", r.jointError);
     say("\n");
+    // Replayed step by step to say when it first failed, on what, and what touched it.
+    const RunResult replay =
+        runOne(r.seed, r.preset, presets[r.preset].settings, opt.seconds, /*explain=*/true);
+    if (!replay.firstFailure.empty()) say("    %s\n", replay.firstFailure.c_str());
   }
   if (shown > 20) say("  ... and %d more (see --csv)\n", shown - 20);
   std::fputs(out.c_str(), stdout);
