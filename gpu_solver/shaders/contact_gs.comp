@@ -98,10 +98,40 @@ void pushOne(uint i) {
   storePush(c.bodyB, vb, wb);
 }
 
+// The split push-out's pass over one joint: its equality rows hold the pseudo velocities as
+// they hold the real ones, rigid, without bias or warm start (Solver::pushoutGroup); with the
+// direct solve joint_ldl.comp's PHYS_GPU_LDL_PUSH does it instead.
+void pushJointOne(uint ji) {
+  if (k.ldlIslands != 0u) return;
+  GpuJoint j = joints[ji];
+  Side A = loadSide(j.bodyA), B = loadSide(j.bodyB);
+  vec3 va = vec3(0), wa = vec3(0), vb = vec3(0), wb = vec3(0);
+  if (j.bodyA >= 0) {
+    va = pushVelocity[2 * j.bodyA].xyz;
+    wa = pushVelocity[2 * j.bodyA + 1].xyz;
+  }
+  if (j.bodyB >= 0) {
+    vb = pushVelocity[2 * j.bodyB].xyz;
+    wb = pushVelocity[2 * j.bodyB + 1].xyz;
+  }
+  GpuJointRows J = jointRows[ji];
+  for (uint i = 0u; i < J.count; ++i) {
+    GpuJointRow r = J.rows[i];
+    if (r.info.x != PHYS_GPU_ROW_EQUALITY) continue;
+    float impulse = -r.linB.w * jrVelocity(r, va, wa, vb, wb);
+    if (impulse != 0) jrApply(r, impulse, A, B, va, wa, vb, wb);
+  }
+  storePush(j.bodyA, va, wa);
+  storePush(j.bodyB, vb, wb);
+}
+
 void solveOne(uint id) {
   bool push = k.mode == PHYS_GPU_PASS_PUSH_WARM || k.mode == PHYS_GPU_PASS_PUSHOUT;
   if (id < k.jointCount) {
-    if (!push) solveJointOne(id);  // the push-out is the contacts' alone
+    if (!push)
+      solveJointOne(id);
+    else if (k.mode == PHYS_GPU_PASS_PUSHOUT)
+      pushJointOne(id);
     return;
   }
   uint i = id - k.jointCount;

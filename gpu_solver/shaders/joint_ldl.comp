@@ -5,7 +5,9 @@
 //   PHYS_GPU_LDL_FACTOR  A = J M^-1 J^T from the rows now (plus the CPU's 1e-6 relative
 //                        regularization) as L D L^T, row by row (Davis' up-looking LDL);
 //   PHYS_GPU_LDL_SOLVE   d = -A^-1 (J v + jointBiasRate C) (the bias only with useBias),
-//                        added to the rows' impulses and applied to the bodies.
+//                        added to the rows' impulses and applied to the bodies;
+//   PHYS_GPU_LDL_PUSH    d = -A^-1 J v_push on the split push-out's pseudo velocities,
+//                        applied to them (EqualityLdl::solvePush: no bias, no impulse kept).
 // An island's bodies belong to it alone, so its thread writes their velocities directly.
 // Dispatched with jacobi = 0: the bodies' whole masses (loadSide splits none).
 #extension GL_GOOGLE_include_directive : require
@@ -25,6 +27,9 @@ layout(std430, binding = 8) readonly buffer ColumnRows { uint columnRows[]; };
 layout(std430, binding = 9) buffer Values { double values[]; };
 layout(std430, binding = 10) buffer Diagonal { double diagonal[]; };
 layout(std430, binding = 11) buffer Work { double work[]; };
+// The split push-out's pseudo velocities: body b's linear at 2b, angular at 2b + 1.
+layout(std430, binding = 12) buffer PushVelocities { vec4 pushVelocity[]; };
+layout(std430, binding = 13) readonly buffer Counters { uint counters[]; };
 layout(push_constant) uniform Push { GpuSolveConstants k; };
 #include "contact.glsl"
 #include "joint.glsl"
@@ -83,14 +88,38 @@ void factor(uvec4 island) {
   }
 }
 
-void solve(uvec4 island) {
+// Body b's velocities the solve works on: its own, or (push) its push-out pseudo velocities
+// (zero for the world and static bodies, which the push-out never writes).
+void velocitiesOf(int b, Side S, bool push, out vec3 v, out vec3 w) {
+  v = S.v;
+  w = S.w;
+  if (!push) return;
+  v = b >= 0 ? pushVelocity[2 * b].xyz : vec3(0);
+  w = b >= 0 ? pushVelocity[2 * b + 1].xyz : vec3(0);
+}
+
+void storeVelocities(int b, Side S, bool push, vec3 v, vec3 w) {
+  if (b < 0 || S.invMass <= 0) return;
+  if (push) {
+    pushVelocity[2 * b] = vec4(v, 0);
+    pushVelocity[2 * b + 1] = vec4(w, 0);
+  } else {
+    bodies[b].v.xyz = v;
+    bodies[b].w.xyz = w;
+  }
+}
+
+void solve(uvec4 island, bool push) {
   uint first = island.x, end = island.x + island.y;
-  bool useBias = k.useBias != 0u;
+  bool useBias = k.useBias != 0u && !push;
   for (uint r = first; r < end; ++r) {
     GpuJoint j = joints[ldlRows[r].joint];
     GpuJointRow row = rowOf(r);
     Side A = loadSide(j.bodyA), B = loadSide(j.bodyB);
-    double rhs = double(jrVelocity(row, A.v, A.w, B.v, B.w));
+    vec3 va, wa, vb, wb;
+    velocitiesOf(j.bodyA, A, push, va, wa);
+    velocitiesOf(j.bodyB, B, push, vb, wb);
+    double rhs = double(jrVelocity(row, va, wa, vb, wb));
     if (useBias) rhs += double(k.jointBiasRate) * double(jrError(row, A, B));
     work[r] = -rhs;
   }
@@ -113,27 +142,29 @@ void solve(uvec4 island) {
     float d = float(work[r]);
     if (isnan(d) || isinf(d) || d == 0) continue;
     GpuLdlRow R = ldlRows[r];
-    jointRows[R.joint].rows[R.row].angA.w += d;
+    if (!push) jointRows[R.joint].rows[R.row].angA.w += d;
     GpuJoint j = joints[R.joint];
     GpuJointRow row = rowOf(r);
     Side A = loadSide(j.bodyA), B = loadSide(j.bodyB);
-    jrApply(row, d, A, B, A.v, A.w, B.v, B.w);
-    if (j.bodyA >= 0 && A.invMass > 0) {
-      bodies[j.bodyA].v.xyz = A.v;
-      bodies[j.bodyA].w.xyz = A.w;
-    }
-    if (j.bodyB >= 0 && B.invMass > 0) {
-      bodies[j.bodyB].v.xyz = B.v;
-      bodies[j.bodyB].w.xyz = B.w;
-    }
+    vec3 va, wa, vb, wb;
+    velocitiesOf(j.bodyA, A, push, va, wa);
+    velocitiesOf(j.bodyB, B, push, vb, wb);
+    jrApply(row, d, A, B, va, wa, vb, wb);
+    storeVelocities(j.bodyA, A, push, va, wa);
+    storeVelocities(j.bodyB, B, push, vb, wb);
   }
 }
 
 void main() {
   uint island = globalIndex();
   if (island >= k.ldlIslands) return;
+  // The push-out's pass only in a step it runs in (contact_gs.comp's splitActive).
+  if (k.mode == PHYS_GPU_LDL_PUSH &&
+      !(k.splitPushout != 0u &&
+        uintBitsToFloat(counters[PHYS_GPU_COUNTER_DEEPEST]) > PHYS_GPU_SPLIT_DEPTH))
+    return;
   if (k.mode == PHYS_GPU_LDL_FACTOR)
     factor(islands[island]);
   else
-    solve(islands[island]);
+    solve(islands[island], k.mode == PHYS_GPU_LDL_PUSH);
 }

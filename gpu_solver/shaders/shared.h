@@ -298,6 +298,7 @@ struct GpuLdlRow {
 // GpuSolveConstants.mode of joint_ldl.comp.
 #define PHYS_GPU_LDL_FACTOR 0u  // assemble A from the rows now and factor it
 #define PHYS_GPU_LDL_SOLVE 1u   // solve every equality row at once (useBias: with the error)
+#define PHYS_GPU_LDL_PUSH 2u    // the same on the split push-out's pseudo velocities (no bias)
 
 // GpuSolveConstants.mode of the colored Gauss-Seidel pass.
 #define PHYS_GPU_PASS_WARM_START 0u

@@ -98,7 +98,7 @@ struct Kernels {
     prepareJoints = make("prepare_joints", 8, solve);
     jointJacobi = make("joint_jacobi", 6, solve);
     storeJoints = make("store_joints", 2, solve);
-    jointLdl = make("joint_ldl", 12, solve);
+    jointLdl = make("joint_ldl", 14, solve);
     applyPositions = make("apply_positions", 4, solve);
   }
 };
@@ -253,7 +253,8 @@ struct GpuWorld::Impl {
   /// Plans the joints' direct solve again if the joints or the dynamic bodies changed, and
   /// uploads the plan; returns the islands (0: nothing to solve directly).
   uint32_t syncLdl(Stream& s);
-  /// The joints' direct solve: factor (after the rows are built) or solve (after a pass).
+  /// The joints' direct solve: factor (after the rows are built), solve (after a pass) or the
+  /// same on the push-out's pseudo velocities (after a push-out pass).
   void recordLdl(Stream& s, GpuSolveConstants sc, uint32_t mode, bool useBias);
   /// Colors the contacts (no two of a color share a dynamic body) and sorts them by color.
   void recordColoring(Stream& s, const GpuSolveConstants& sc);
@@ -518,9 +519,9 @@ void GpuWorld::Impl::recordLdl(Stream& s, GpuSolveConstants sc, uint32_t mode, b
   sc.mode = mode;
   sc.useBias = useBias ? 1 : 0;
   sc.jacobi = 0;  // whole masses: the direct solve is not split among constraints
-  const Buffer* b[] = {&solverBuf,    &paramBuf,     &refBuf,     &jointBuf,
-                       &jointRowBuf,  &ldlIslandBuf, &ldlRowBuf,  &ldlPatternBuf,
-                       &ldlColumnBuf, &ldlValueBuf,  &ldlDiagBuf, &ldlWorkBuf};
+  const Buffer* b[] = {&solverBuf,    &paramBuf,   &refBuf,        &jointBuf,     &jointRowBuf,
+                       &ldlIslandBuf, &ldlRowBuf,  &ldlPatternBuf, &ldlColumnBuf, &ldlValueBuf,
+                       &ldlDiagBuf,   &ldlWorkBuf, &pushBuf,       &counterBuf};
   s.dispatch(*kernels().jointLdl, b, &sc, groupsFor(sc.ldlIslands));
 }
 
@@ -684,8 +685,11 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
           // The split push-out (the kernels do nothing in a step without deep contacts).
           s.fill(w.pushBuf, 0);
           w.recordColoredPass(s, sc, PHYS_GPU_PASS_PUSH_WARM);
-          for (int it = 0; it < in.contacts.iterations; ++it)
+          for (int it = 0; it < in.contacts.iterations; ++it) {
             w.recordColoredPass(s, sc, PHYS_GPU_PASS_PUSHOUT);
+            // The joints hold the pseudo velocities too (Solver::solvePushout).
+            w.recordLdl(s, sc, PHYS_GPU_LDL_PUSH, false);
+          }
         }
         const Buffer* positions[] = {&w.paramBuf, &w.solverBuf, &w.pushBuf};
         s.dispatch(*k.integratePositions, positions, &c, groupsFor(n));

@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <limits>
 
+#include "solver_ldl.h"
 #include "solver_wide.h"
 #include "thread_pool.h"
 
@@ -808,7 +809,7 @@ void Solver::integratePositions(float h) {
   pushActive = false;
 }
 
-void Solver::solvePushout(const SolverSettings& s, float h, int iterations) {
+void Solver::solvePushout(const SolverSettings& s, float h, int iterations, EqualityLdl* ldl) {
   push.assign(bodies.size(), Velocity{});
   pushActive = true;
   // Warm start from the last substep's push impulses (zero at the step's first substep).
@@ -826,9 +827,12 @@ void Solver::solvePushout(const SolverSettings& s, float h, int iterations) {
   p.invH = 1 / h;
   p.contactSoft = makeSoftness(cappedHertz(s.contactHertz, p.invH), s.contactDampingRatio, h);
   p.maxPushout = s.maxPushout;
-  for (int it = 0; it < iterations; ++it)
+  p.skipEquality = ldl != nullptr;
+  for (int it = 0; it < iterations; ++it) {
     forEachGroup([&](const Group& g, Velocity& A, Velocity& B) { return pushoutGroup(g, A, B, p); },
                  /*pushChannel=*/true);
+    if (ldl) ldl->solvePush(*this);
+  }
 }
 
 float Solver::pushoutGroup(const Group& g, Velocity& A, Velocity& B, const IterationParams& p) {
@@ -838,6 +842,13 @@ float Solver::pushoutGroup(const Group& g, Velocity& A, Velocity& B, const Itera
   groupRows(*this, g, &begin, &end);
   for (size_t i = begin; i < end; ++i) {
     Row& r = rows[i];
+    if (r.kind == RowKind::Equality && !p.skipEquality) {
+      // The joint holds the push-out's pseudo velocities as it holds the real ones: rigid, no
+      // bias (the velocity solve corrects the joint's own error), no warm start.
+      const float impulse = -r.effMass * rowVelocity(r, A, B);
+      if (impulse != 0) applyImpulse(r, impulse, A, B);
+      continue;
+    }
     if (r.kind != RowKind::ContactNormal) continue;
     const float C = rowError(r) + kSplitDepth;
     if (C >= 0 && r.pushLambda == 0) continue;

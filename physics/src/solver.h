@@ -20,6 +20,7 @@
 
 namespace phys {
 
+class EqualityLdl;
 class ThreadPool;
 class WideContacts;
 
@@ -192,8 +193,11 @@ class Solver {
   void positionPass(const SolverSettings& s, int iterations, bool jacobiPass);
   /// Split push-out: pseudo velocities from zero, warm-started with the rows' push impulses
   /// of the last substep, then `iterations` passes over the contact rows deeper than a
-  /// resting sag, on the pseudo velocities only.
-  void solvePushout(const SolverSettings& s, float h, int iterations);
+  /// resting sag, on the pseudo velocities only. The joints' equality rows hold there too
+  /// (J v_push = 0, no bias): a contact pushing a jointed body out moves what it is jointed
+  /// to instead of pulling the joint apart. With `ldl` they are solved exactly after each
+  /// pass (EqualityLdl::solvePush), else iterated with the contacts.
+  void solvePushout(const SolverSettings& s, float h, int iterations, EqualityLdl* ldl = nullptr);
   /// Advances positions by the velocities (plus the push-out velocities when split).
   void integratePositions(float h);
   void applyRestitution(float threshold);

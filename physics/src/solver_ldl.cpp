@@ -84,4 +84,21 @@ float EqualityLdl::solve(Solver& s, float biasRate, bool useBias) {
   return change;
 }
 
+void EqualityLdl::solvePush(Solver& s) {
+  if (!ok_) return;
+  const int n = int(rows_.size());
+  rhs_.resize(n);
+  for (int k = 0; k < n; ++k) {
+    const Row& r = s.rows[rows_[size_t(k)]];
+    rhs_[k] = -double(s.rowVelocity(r, s.push[size_t(r.a)], s.push[size_t(r.b)]));
+  }
+  x_ = ldlt_.solve(rhs_);
+  for (int k = 0; k < n; ++k) {
+    const Row& r = s.rows[rows_[size_t(k)]];
+    const float d = float(x_[k]);
+    if (!std::isfinite(d) || d == 0) continue;
+    s.applyImpulse(r, d, s.push[size_t(r.a)], s.push[size_t(r.b)]);
+  }
+}
+
 }  // namespace phys

@@ -24,6 +24,9 @@ class EqualityLdl {
   /// impulse softening), whose bias corrects position error at biasRate per second. Returns
   /// the largest velocity change it made to a row, |d| / effMass (the convergence measure).
   float solve(Solver& s, float biasRate, bool useBias);
+  /// The same projection on the split push-out's pseudo velocities (Solver::push), rigid and
+  /// without bias: J v_push = 0 for every equality row.
+  void solvePush(Solver& s);
   bool empty() const { return rows_.empty(); }
   size_t rowCount() const { return rows_.size(); }
 

@@ -869,7 +869,7 @@ void World::stepOnce(int substeps) {
     }
     {
       StageTimer t(&p.integratePositions);
-      if (s.splitPushout) solver.solvePushout(s, h, s.iterations);
+      if (s.splitPushout) solver.solvePushout(s, h, s.iterations, direct ? &w.ldl : nullptr);
       solver.integratePositions(h);
     }
     {

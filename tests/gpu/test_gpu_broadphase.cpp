@@ -140,7 +140,9 @@ TEST(GpuBroadPhase, SamePairsAsBruteForceOverTheSameBounds) {
     EXPECT_EQ(got, expected);
     EXPECT_EQ(world->pairCount(), uint32_t(expected.size()));
     EXPECT_GT(expected.size(), 10u);
-    if (c.axis < 3) EXPECT_EQ(world->sweepAxis(), c.axis);
+    if (c.axis < 3) {
+      EXPECT_EQ(world->sweepAxis(), c.axis);
+    }
   }
 }
 
