@@ -959,8 +959,8 @@ TEST(GpuContacts, SplitPushOutSeparatesBuriedBoxesAsTheCpu) {
 }
 
 TEST(GpuContacts, SplitPushOutMovesWhatAJointHoldsAsTheCpu) {
-  // A 1 kg box buried 8 cm (in x) in a static block, jointed at its top face to a 500 kg box
-  // above it, no gravity (the CPU's SplitPushout.PushOutMovesWhatAJointHolds), 45 steps: the
+  // test::addBuriedJointedPair without gravity (the CPU's
+  // SplitPushout.PushOutMovesWhatAJointHolds), 45 steps: the
   // push-out's pseudo velocities obey the joint on the device too, through joint_ldl.comp's
   // push mode (joints solved directly) or contact_gs.comp's pushJointOne (iterated).
   struct Run {
@@ -974,28 +974,16 @@ TEST(GpuContacts, SplitPushOutMovesWhatAJointHoldsAsTheCpu) {
     World w(d);
     Run r;
     r.onDevice = w.backendState().active == Backend::Gpu;
-    add(w, boxBody({0, 0, 0}, {0.5f, 0.5f, 0.2f}, BodyType::Static));
-    BodyDef light = boxBody({0.62f, 0, 0}, {0.2f, 0.2f, 0.2f});
-    light.shapes[0].material.density = 1 / 0.064f;
-    BodyDef heavy = boxBody({0.62f, 0, 0.71f});
-    heavy.shapes[0].material.density = 500;
-    const BodyId l = add(w, light), hv = add(w, heavy);
-    JointDef j;
-    j.type = type;
-    j.bodyA = l;
-    j.bodyB = hv;
-    j.anchorA = {0, 0, 0.205f};
-    j.anchorB = {0, 0, -0.505f};
-    j.axisA = j.axisB = {0, 1, 0};
-    JointId jid;
-    EXPECT_TRUE(w.createJoint(j, &jid).ok());
+    test::BuriedJointedPair pair;
+    const Status st = test::addBuriedJointedPair(w, type, &pair);
+    EXPECT_TRUE(st.ok()) << st.message;
     for (int i = 0; i < 45; ++i) {
       w.step();
       JointState js;
-      EXPECT_TRUE(w.getJoint(jid, nullptr, &js).ok());
+      EXPECT_TRUE(w.getJoint(pair.joint, nullptr, &js).ok());
       r.jointErrorMax = std::max(r.jointErrorMax, js.positionError);
     }
-    r.heavyX = state(w, hv).position.x;
+    r.heavyX = state(w, pair.heavy).position.x;
     r.cpuSteps = w.backendState().cpuSteps;
     return r;
   };

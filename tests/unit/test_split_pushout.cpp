@@ -138,10 +138,9 @@ TEST(SplitPushout, BuriedBodiesSeparateWithoutBeingLaunched) {
   EXPECT_LT(on.deepest, 0.01);   // separated within the second
 }
 
-/// A 1 kg box buried 8 cm (in x) in a static block and jointed at its top face to a 500 kg
-/// box above it, no gravity: the push-out has to move the light box out along x, and the
-/// joint has to take the heavy one with it. Returns the joint's largest position error over
-/// 90 steps, the deepest contact and the heavy box's x at the end.
+/// test::addBuriedJointedPair without gravity: the push-out has to move the 1 kg box out of
+/// the block along x, and the joint has to take the 500 kg one with it. Returns the joint's
+/// largest position error over 90 steps, the deepest contact and the heavy box's x at the end.
 struct JointedRun {
   double jointErrorMax = 0, finalPenetration = 0, heavyX = 0;
 };
@@ -154,32 +153,19 @@ JointedRun buriedJointedPair(bool split, SolverSettings::EqualitySolve equality,
   def.solver.equalitySolve = equality;
   def.solver.iterations = iterations;
   World w(def);
-  addBody(w, boxBody({0, 0, 0}, {0.5f, 0.5f, 0.2f}, BodyType::Static));
-  BodyDef light = boxBody({0.62f, 0, 0}, {0.2f, 0.2f, 0.2f});
-  light.shapes[0].material.density = 1 / 0.064f;  // 1 kg
-  BodyDef heavy = boxBody({0.62f, 0, 0.71f});
-  heavy.shapes[0].material.density = 500;  // 500 kg
-  const BodyId l = addBody(w, light), hv = addBody(w, heavy);
-  JointDef j;
-  j.type = type;
-  j.bodyA = l;
-  j.bodyB = hv;
-  j.anchorA = {0, 0, 0.205f};
-  j.anchorB = {0, 0, -0.505f};
-  j.axisA = j.axisB = {0, 1, 0};  // prismatic: free along y, the push is along x
-  JointId jid;
-  const Status st = w.createJoint(j, &jid);
+  test::BuriedJointedPair pair;
+  const Status st = test::addBuriedJointedPair(w, type, &pair);
   EXPECT_TRUE(st.ok()) << st.message;
   JointedRun r;
   for (int s = 0; s < 90; ++s) {
     w.step();
     JointDef d;
     JointState js;
-    EXPECT_TRUE(w.getJoint(jid, &d, &js).ok());
+    EXPECT_TRUE(w.getJoint(pair.joint, &d, &js).ok());
     r.jointErrorMax = std::max(r.jointErrorMax, double(js.positionError));
   }
   r.finalPenetration = w.stats().maxPenetration;
-  r.heavyX = stateOf(w, hv).position.x;
+  r.heavyX = stateOf(w, pair.heavy).position.x;
   return r;
 }
 

@@ -320,10 +320,11 @@ std::string bodyLabel(const Scene& sc, const World& world, const std::vector<Bod
     const std::string name =
         sc.bodies[i].name.empty() ? "body " + std::to_string(i) : sc.bodies[i].name;
     char buf[160];
-    if (b.mass > 0)
+    if (b.type == BodyType::Dynamic)
       std::snprintf(buf, sizeof buf, "%s (%.3g kg)", name.c_str(), b.mass);
     else
-      std::snprintf(buf, sizeof buf, "%s (static)", name.c_str());
+      std::snprintf(buf, sizeof buf, "%s (%s)", name.c_str(),
+                    b.type == BodyType::Static ? "static" : "kinematic");
     return buf;
   }
   return "an unknown body";
