@@ -64,12 +64,25 @@ bool EqualityLdl::factor(const Solver& s) {
 }
 
 float EqualityLdl::solve(Solver& s, float biasRate, bool useBias) {
+  return project(s, biasRate, useBias, /*push=*/false);
+}
+
+void EqualityLdl::solvePush(Solver& s) {
+  project(s, 0, false, /*push=*/true);
+}
+
+float EqualityLdl::project(Solver& s, float biasRate, bool useBias, bool push) {
   if (!ok_) return 0;
+  // The velocities solved on: the bodies' own, or their split push-out pseudo velocities.
+  auto velocity = [&](int32_t b) -> Velocity& {
+    return push ? s.push[size_t(b)] : static_cast<Velocity&>(s.bodies[size_t(b)]);
+  };
   const int n = int(rows_.size());
   rhs_.resize(n);
   for (int k = 0; k < n; ++k) {
     const Row& r = s.rows[rows_[size_t(k)]];
-    rhs_[k] = -(double(s.rowVelocity(r)) + (useBias ? double(biasRate) * s.rowError(r) : 0.0));
+    rhs_[k] = -(double(Solver::rowVelocity(r, velocity(r.a), velocity(r.b))) +
+                (useBias ? double(biasRate) * s.rowError(r) : 0.0));
   }
   x_ = ldlt_.solve(rhs_);
   float change = 0;
@@ -77,28 +90,11 @@ float EqualityLdl::solve(Solver& s, float biasRate, bool useBias) {
     Row& r = s.rows[rows_[size_t(k)]];
     float d = float(x_[k]);
     if (!std::isfinite(d) || d == 0) continue;
-    r.lambda += d;
-    s.applyImpulse(r, d);
+    if (!push) r.lambda += d;  // the push-out keeps no joint impulse
+    Solver::applyImpulse(r, d, velocity(r.a), velocity(r.b));
     if (r.effMass > 0) change = std::max(change, std::abs(d) / r.effMass);
   }
   return change;
-}
-
-void EqualityLdl::solvePush(Solver& s) {
-  if (!ok_) return;
-  const int n = int(rows_.size());
-  rhs_.resize(n);
-  for (int k = 0; k < n; ++k) {
-    const Row& r = s.rows[rows_[size_t(k)]];
-    rhs_[k] = -double(s.rowVelocity(r, s.push[size_t(r.a)], s.push[size_t(r.b)]));
-  }
-  x_ = ldlt_.solve(rhs_);
-  for (int k = 0; k < n; ++k) {
-    const Row& r = s.rows[rows_[size_t(k)]];
-    const float d = float(x_[k]);
-    if (!std::isfinite(d) || d == 0) continue;
-    s.applyImpulse(r, d, s.push[size_t(r.a)], s.push[size_t(r.b)]);
-  }
 }
 
 }  // namespace phys

@@ -32,6 +32,9 @@ class EqualityLdl {
 
  private:
   void assemble(const Solver& s);
+  /// solve and solvePush: d = -A^-1 (J v + biasRate C) on the bodies' velocities or (push)
+  /// their pseudo velocities, applied there (and kept in the rows' lambda unless push).
+  float project(Solver& s, float biasRate, bool useBias, bool push);
   std::vector<uint32_t> rows_;  ///< solver row indices of the equality rows
   std::vector<Eigen::Triplet<double>> triplets_;
   Eigen::SparseMatrix<double> A_;
