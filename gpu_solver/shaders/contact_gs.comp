@@ -69,6 +69,12 @@ void solveJointOne(uint ji) {
   store(j.bodyB, vb, wb);
 }
 
+// Body b's pseudo velocities (zero for the world).
+void loadPush(int b, out vec3 v, out vec3 w) {
+  v = b >= 0 ? pushVelocity[2 * b].xyz : vec3(0);
+  w = b >= 0 ? pushVelocity[2 * b + 1].xyz : vec3(0);
+}
+
 void storePush(int b, vec3 v, vec3 w) {
   if (b < 0 || (params[b].flags.x & PHYS_GPU_BODY_DYNAMIC) == 0u) return;
   pushVelocity[2 * b] = vec4(v, 0);
@@ -79,15 +85,9 @@ void storePush(int b, vec3 v, vec3 w) {
 void pushOne(uint i) {
   GpuContact c = contacts[i];
   Side A = loadSide(c.bodyA), B = loadSide(c.bodyB);
-  vec3 va = vec3(0), wa = vec3(0), vb = vec3(0), wb = vec3(0);
-  if (c.bodyA >= 0) {
-    va = pushVelocity[2 * c.bodyA].xyz;
-    wa = pushVelocity[2 * c.bodyA + 1].xyz;
-  }
-  if (c.bodyB >= 0) {
-    vb = pushVelocity[2 * c.bodyB].xyz;
-    wb = pushVelocity[2 * c.bodyB + 1].xyz;
-  }
+  vec3 va, wa, vb, wb;
+  loadPush(c.bodyA, va, wa);
+  loadPush(c.bodyB, vb, wb);
   if (k.mode == PHYS_GPU_PASS_PUSH_WARM) {
     pushWarmStartContact(c, A, B, va, wa, vb, wb);
   } else {
@@ -105,15 +105,9 @@ void pushJointOne(uint ji) {
   if (k.ldlIslands != 0u) return;
   GpuJoint j = joints[ji];
   Side A = loadSide(j.bodyA), B = loadSide(j.bodyB);
-  vec3 va = vec3(0), wa = vec3(0), vb = vec3(0), wb = vec3(0);
-  if (j.bodyA >= 0) {
-    va = pushVelocity[2 * j.bodyA].xyz;
-    wa = pushVelocity[2 * j.bodyA + 1].xyz;
-  }
-  if (j.bodyB >= 0) {
-    vb = pushVelocity[2 * j.bodyB].xyz;
-    wb = pushVelocity[2 * j.bodyB + 1].xyz;
-  }
+  vec3 va, wa, vb, wb;
+  loadPush(j.bodyA, va, wa);
+  loadPush(j.bodyB, vb, wb);
   GpuJointRows J = jointRows[ji];
   for (uint i = 0u; i < J.count; ++i) {
     GpuJointRow r = J.rows[i];

@@ -959,10 +959,10 @@ TEST(GpuContacts, SplitPushOutSeparatesBuriedBoxesAsTheCpu) {
 }
 
 TEST(GpuContacts, SplitPushOutMovesWhatAJointHoldsAsTheCpu) {
-  // test::addBuriedJointedPair without gravity (the CPU's
-  // SplitPushout.PushOutMovesWhatAJointHolds), 45 steps: the
-  // push-out's pseudo velocities obey the joint on the device too, through joint_ldl.comp's
-  // push mode (joints solved directly) or contact_gs.comp's pushJointOne (iterated).
+  // test::addBuriedJointedPair without gravity (the CPU's SplitPushout.PushOutMovesWhatAJoint-
+  // Holds), 45 steps: the push-out's pseudo velocities obey the joint on the device too,
+  // through joint_ldl.comp's push mode (joints solved directly) or contact_gs.comp's
+  // pushJointOne (iterated).
   struct Run {
     float jointErrorMax = 0, heavyX = 0;
     uint64_t cpuSteps = 0;
