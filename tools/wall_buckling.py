@@ -12,7 +12,7 @@ k = m_eff (2 pi f)^2 with the corner point's effective mass, m/8 between two cub
 
 Prints, per height N, the critical contact stiffness and frequency for unit cubes under
 9.81 m/s^2. They follow f ~ 0.2 N^1.5 Hz (0.4 N^1.5 sqrt(g/L) / 2 pi). The engine solves
-the same model for any stack (physics/src/stacks.h; tests/unit/test_stacks_model.cpp checks
+the same model for any stack (physics/dynamics/stacks.h; tests/unit/test_stacks_model.cpp checks
 it against the figures printed here) and takes SolverSettings::kStackMargin (1.2) times the
 critical frequency, the last column.
 

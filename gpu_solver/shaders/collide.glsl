@@ -1,4 +1,4 @@
-// The narrow phase of physics/src/narrowphase.cpp, collide_box.cpp and collide_poly.cpp for
+// The narrow phase of physics/collision/narrowphase.cpp, collide_box.cpp and collide_poly.cpp for
 // spheres, boxes, capsules, planes and convex hulls, routine for routine and formula for
 // formula, so the GPU finds the same points with the same feature ids (warm starting matches
 // points by id). Hull records come from binding 6 (layout in collide_hull.glsl); the includer

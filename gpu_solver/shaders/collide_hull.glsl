@@ -1,5 +1,5 @@
 // Convex hulls for the narrow phase: the hull records of binding 6 and PolyRef
-// (physics/src/collide_internal.h), a box or a hull in its local frame, through which
+// (physics/collision/collide_internal.h), a box or a hull in its local frame, through which
 // collide.glsl runs every box/hull routine of collide_poly.cpp (a box as the unit-box hull
 // scaled by its half extents, as on the CPU).
 //

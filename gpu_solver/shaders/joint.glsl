@@ -1,5 +1,5 @@
 // Joints on the device: their rows built from the bodies' current poses (the CPU's
-// buildJointRows / refreshJointRows, physics/src/joints.cpp) and the passes over them (the
+// buildJointRows / refreshJointRows, physics/dynamics/joints.cpp) and the passes over them (the
 // CPU's solveGroup and solveBlock for a joint's rows). Needs contact.glsl (Side, loadSide,
 // rowVelocity-like helpers), and the bindings `joints` (GpuJoint), `jointRows`
 // (GpuJointRows).

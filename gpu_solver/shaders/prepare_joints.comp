@@ -1,6 +1,6 @@
 #version 450
 // Prepare (joints), and again at every later substep: each joint's rows from its bodies'
-// current poses, as the CPU's buildJointRows and refreshJointRows (physics/src/joints.cpp):
+// current poses, as the CPU's buildJointRows and refreshJointRows (physics/dynamics/joints.cpp):
 // a point's three rows as one block, the hinge's two misalignment rows, the rotation lock,
 // limits and motors along the hinge or slider axis, the distance row or spring. C0 is set
 // so that the error from the bodies' accumulated deltas starts at the exact value now;

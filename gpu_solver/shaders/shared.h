@@ -101,7 +101,7 @@ struct GpuPair {
 struct GpuManifold {
   vec4 normal;       // xyz: unit normal from shape A to shape B; w: mixed friction
   vec4 points[4];    // xyz: world point midway between the surfaces; w: separation (m)
-  uvec4 featureIds;  // per point, the layout of physics/src/collide_internal.h
+  uvec4 featureIds;  // per point, the layout of physics/collision/collide_internal.h
   uint count;        // 0..4
   uint shapeA;       // = the pair's a
   uint shapeB;       // = the pair's b

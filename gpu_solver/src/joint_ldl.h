@@ -1,6 +1,6 @@
 // The joints' direct solve on the device: the host's half. The device factors
 // A = J M^-1 J^T of the joints' equality rows as L D L^T every substep and solves with it in
-// every iteration (joint_ldl.comp), as the CPU's EqualityLdl (physics/src/solver_ldl.h)
+// every iteration (joint_ldl.comp), as the CPU's EqualityLdl (physics/dynamics/solver_ldl.h)
 // does with Eigen. Everything that depends only on which rows couple (which joints share a
 // dynamic body) is planned here, once per change of the joints or of which bodies are
 // dynamic: the islands, a fill-reducing order of each island's rows (Eigen's AMD) and the

@@ -14,7 +14,7 @@
 #include <vector>
 
 #include "flatbuffers/flatbuffers.h"
-#include "phys/world.h"
+#include "phys/world/world.h"
 
 namespace phys::protocol {
 

@@ -15,7 +15,7 @@
 #include <string>
 
 #include "phys/protocol/convert.h"
-#include "phys/scene.h"
+#include "phys/scene/scene.h"
 #include "phys/server/core.h"
 
 namespace phys::server {

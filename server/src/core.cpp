@@ -6,7 +6,7 @@
 #include <string>
 
 #include "phys/protocol/convert.h"
-#include "phys/scene.h"
+#include "phys/scene/scene.h"
 
 namespace phys::server {
 

@@ -2,7 +2,7 @@
 // sphere, one ground plane, with the engine's defaults unless a test says otherwise.
 #pragma once
 
-#include "phys/world.h"
+#include "phys/world/world.h"
 
 namespace phys::test {
 

@@ -12,8 +12,8 @@
 
 #include "../common/bodies.h"
 #include "phys/gpu/gpu_world.h"
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 
 namespace phys {
 namespace {

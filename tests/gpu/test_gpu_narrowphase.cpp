@@ -24,7 +24,7 @@
 
 #include "phys/gpu/hull_pack.h"
 #include "phys/gpu/shared.h"
-#include "phys/shapes.h"
+#include "phys/collision/shapes.h"
 #include "shader_table.h"
 #include "vk_device.h"
 

@@ -8,7 +8,7 @@
 #include "peer_test_util.h"
 #include "peers/peer.h"
 #include "peers/runner.h"
-#include "phys/scene.h"
+#include "phys/scene/scene.h"
 
 using namespace phys;
 using namespace phys::peers;

@@ -9,7 +9,7 @@
 #include "peers/peer.h"
 #include "peers/peer_common.h"
 #include "peers/runner.h"
-#include "phys/scene.h"
+#include "phys/scene/scene.h"
 
 using namespace phys;
 using namespace phys::peers;

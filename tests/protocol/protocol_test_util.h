@@ -10,7 +10,7 @@
 #include "phys/protocol/builder.h"
 #include "phys/protocol/convert.h"
 #include "phys/protocol/decoder.h"
-#include "phys/world.h"
+#include "phys/world/world.h"
 
 namespace phys::protocol::test {
 

@@ -3,7 +3,7 @@
 #include <cstdlib>
 #include <optional>
 
-#include "phys/scene.h"
+#include "phys/scene/scene.h"
 #include "server_test_util.h"
 
 namespace phys::server::test {

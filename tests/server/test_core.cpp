@@ -4,7 +4,7 @@
 #include <limits>
 #include <set>
 
-#include "phys/scene.h"
+#include "phys/scene/scene.h"
 #include "server_test_util.h"
 
 namespace phys::server::test {

@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "phys/broadphase.h"
+#include "phys/collision/broadphase.h"
 
 namespace phys {
 namespace {

@@ -4,7 +4,7 @@
 
 #include <cmath>
 
-#include "../../physics/src/solver.h"
+#include "dynamics/solver.h"
 
 using namespace phys;
 

@@ -8,7 +8,7 @@
 #include <set>
 #include <vector>
 
-#include "phys/shapes.h"
+#include "phys/collision/shapes.h"
 
 namespace phys {
 namespace {

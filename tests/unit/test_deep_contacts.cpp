@@ -12,8 +12,8 @@
 #include <string>
 #include <vector>
 
-#include "phys/shapes.h"
-#include "phys/world.h"
+#include "phys/collision/shapes.h"
+#include "phys/world/world.h"
 
 namespace phys {
 namespace {

@@ -2,8 +2,8 @@
 // stopped, and the rest of the world is not poisoned by it.
 #include <gtest/gtest.h>
 
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 #include "test_util.h"
 
 using namespace phys;

@@ -1,4 +1,4 @@
-// Gauss-Seidel in halves (physics/src/solver_wide.h, "Halves"): the cut, the colour order of
+// Gauss-Seidel in halves (physics/dynamics/solver_wide.h, "Halves"): the cut, the colour order of
 // the contacts across it, a schedule whose halves share no dynamic body, and whole worlds
 // that give the same bits with any thread count and with the scalar rows.
 #include <gtest/gtest.h>
@@ -9,10 +9,10 @@
 #include <utility>
 #include <vector>
 
-#include "../../physics/src/solver.h"
-#include "../../physics/src/solver_wide.h"
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "dynamics/solver.h"
+#include "dynamics/solver_wide.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 #include "test_util.h"
 
 using namespace phys;

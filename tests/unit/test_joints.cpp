@@ -5,7 +5,7 @@
 
 #include <cmath>
 
-#include "phys/world.h"
+#include "phys/world/world.h"
 #include "test_util.h"
 
 using namespace phys;

@@ -4,9 +4,9 @@
 
 #include <string>
 
-#include "phys/presets.h"
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "phys/scene/presets.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 
 using namespace phys;
 

@@ -17,7 +17,7 @@
 #include <random>
 #include <vector>
 
-#include "../../physics/src/solver_ldl.h"
+#include "dynamics/solver_ldl.h"
 
 using namespace phys;
 

@@ -4,9 +4,9 @@
 
 #include <cmath>
 
-#include "phys/metrics.h"
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "phys/scene/metrics.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 #include "test_util.h"
 
 using namespace phys;

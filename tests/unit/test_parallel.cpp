@@ -7,10 +7,10 @@
 #include <string>
 #include <vector>
 
-#include "../../physics/src/solver.h"
-#include "../../physics/src/thread_pool.h"
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "dynamics/solver.h"
+#include "base/thread_pool.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 
 using namespace phys;
 

@@ -1,9 +1,9 @@
 // Solver presets file and criterion evaluation.
 #include <gtest/gtest.h>
 
-#include "phys/metrics.h"
-#include "phys/presets.h"
-#include "phys/scene.h"
+#include "phys/scene/metrics.h"
+#include "phys/scene/presets.h"
+#include "phys/scene/scene.h"
 
 using namespace phys;
 

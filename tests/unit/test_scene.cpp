@@ -12,9 +12,9 @@
 #include <string>
 #include <vector>
 
-#include "phys/metrics.h"
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "phys/scene/metrics.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 #include "test_util.h"
 
 namespace phys {

@@ -4,7 +4,7 @@
 #include <cmath>
 #include <vector>
 
-#include "phys/shapes.h"
+#include "phys/collision/shapes.h"
 
 namespace phys {
 namespace {

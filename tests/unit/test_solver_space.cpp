@@ -4,10 +4,10 @@
 
 #include <filesystem>
 
-#include "phys/metrics.h"
-#include "phys/presets.h"
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "phys/scene/metrics.h"
+#include "phys/scene/presets.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 #include "test_util.h"
 
 using namespace phys;

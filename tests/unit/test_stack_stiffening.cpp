@@ -10,8 +10,8 @@
 #include <string>
 #include <vector>
 
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 #include "test_util.h"
 
 namespace phys {

@@ -1,4 +1,4 @@
-// The buckling model of stack stiffening (physics/src/stacks.h) against its independent
+// The buckling model of stack stiffening (physics/dynamics/stacks.h) against its independent
 // Python implementation, tools/wall_buckling.py, whose pyramid-wall figures are quoted here
 // (unit cubes of 1000 kg, g = 9.81; a corner's effective mass is m/8 between two cubes and
 // m/4 on the ground). The World-level tests (test_stack_stiffening.cpp) check that the model
@@ -8,7 +8,7 @@
 #include <cmath>
 #include <vector>
 
-#include "stacks.h"
+#include "dynamics/stacks.h"
 
 namespace phys {
 namespace {

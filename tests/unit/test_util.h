@@ -6,8 +6,8 @@
 #include <string>
 
 #include "../common/bodies.h"
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 
 namespace phys::test {
 

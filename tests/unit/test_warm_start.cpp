@@ -4,8 +4,8 @@
 #include <map>
 #include <set>
 
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 
 using namespace phys;
 

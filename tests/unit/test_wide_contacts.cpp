@@ -1,4 +1,4 @@
-// The Gauss-Seidel scheme's vectorized contacts (physics/src/solver_wide.h): a schedule that
+// The Gauss-Seidel scheme's vectorized contacts (physics/dynamics/solver_wide.h): a schedule that
 // keeps every body's order of constraints, blocks whose lanes share no dynamic body, and
 // results and velocity residuals bit-identical to the scalar pass on every Gauss-Seidel preset.
 #include <gtest/gtest.h>
@@ -10,11 +10,11 @@
 #include <string>
 #include <vector>
 
-#include "../../physics/src/solver.h"
-#include "../../physics/src/solver_wide.h"
-#include "phys/presets.h"
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "dynamics/solver.h"
+#include "dynamics/solver_wide.h"
+#include "phys/scene/presets.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 #include "test_util.h"
 
 using namespace phys;

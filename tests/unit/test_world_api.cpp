@@ -4,7 +4,7 @@
 #include <cmath>
 #include <limits>
 
-#include "phys/world.h"
+#include "phys/world/world.h"
 #include "test_util.h"
 
 using namespace phys;

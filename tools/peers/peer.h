@@ -11,9 +11,9 @@
 #include <string>
 #include <vector>
 
-#include "phys/math.h"
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "phys/base/math.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 
 namespace phys::peers {
 

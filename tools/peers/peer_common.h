@@ -28,9 +28,9 @@
 #include <vector>
 
 #include "peers/peer.h"
-#include "phys/math.h"
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "phys/base/math.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 
 namespace phys::peers {
 

@@ -10,8 +10,8 @@
 #include <vector>
 
 #include "peers/peer.h"
-#include "phys/metrics.h"
-#include "phys/scene.h"
+#include "phys/scene/metrics.h"
+#include "phys/scene/scene.h"
 
 namespace phys::peers {
 

@@ -8,9 +8,9 @@
 #include <string>
 #include <vector>
 
-#include "phys/metrics.h"
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "phys/scene/metrics.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 
 namespace phys::bench {
 

@@ -35,7 +35,7 @@
 #include <string>
 
 #include "bench.h"
-#include "phys/presets.h"
+#include "phys/scene/presets.h"
 #include "suite.h"
 
 using namespace phys;

@@ -8,10 +8,10 @@
 #include <nlohmann/json.hpp>
 
 #include "bench.h"
-#include "phys/metrics.h"
-#include "phys/presets.h"
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "phys/scene/metrics.h"
+#include "phys/scene/presets.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 
 namespace phys::bench {
 

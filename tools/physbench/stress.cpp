@@ -24,10 +24,10 @@
 #include <thread>
 
 #include "bench.h"
-#include "phys/metrics.h"
-#include "phys/presets.h"
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "phys/scene/metrics.h"
+#include "phys/scene/presets.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 
 namespace phys::bench {
 

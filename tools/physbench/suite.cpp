@@ -23,10 +23,10 @@
 #include <stdexcept>
 #include <thread>
 
-#include "phys/metrics.h"
-#include "phys/presets.h"
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "phys/scene/metrics.h"
+#include "phys/scene/presets.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 #include "sweep.h"
 
 namespace phys::bench {

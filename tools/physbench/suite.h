@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "bench.h"
-#include "phys/metrics.h"
+#include "phys/scene/metrics.h"
 
 namespace phys::bench {
 

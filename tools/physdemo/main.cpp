@@ -9,9 +9,9 @@
 #include <cstdio>
 #include <thread>
 
-#include "phys/metrics.h"
-#include "phys/scene.h"
-#include "phys/world.h"
+#include "phys/scene/metrics.h"
+#include "phys/scene/scene.h"
+#include "phys/world/world.h"
 
 using namespace phys;
 

@@ -26,7 +26,7 @@
 
 #include "phys/client/error.h"
 #include "phys/protocol/builder.h"
-#include "phys/world.h"
+#include "phys/world/world.h"
 
 namespace phys::client {
 

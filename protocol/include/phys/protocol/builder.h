@@ -18,7 +18,7 @@
 #include "phys/protocol/limits.h"
 #include "phys/protocol/status.h"
 #include "phys/protocol/wire.h"
-#include "phys/world.h"
+#include "phys/world/world.h"
 
 namespace phys::protocol {
 

@@ -3,11 +3,11 @@
 // convex hulls, which is the one check the decoders leave to it.
 #pragma once
 
-#include "phys/math.h"
+#include "phys/base/math.h"
 #include "phys/protocol/builder.h"
 #include "phys/protocol/status.h"
 #include "phys/protocol/wire.h"
-#include "phys/world.h"
+#include "phys/world/world.h"
 
 namespace phys::protocol {
 

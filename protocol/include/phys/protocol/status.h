@@ -6,7 +6,7 @@
 #include <string>
 
 #include "phys/protocol/wire.h"
-#include "phys/world.h"
+#include "phys/world/world.h"
 
 namespace phys::protocol {
 

@@ -20,13 +20,13 @@
 #include <thread>
 #include <vector>
 
-#include "phys/presets.h"
+#include "phys/scene/presets.h"
 #include "phys/protocol/builder.h"
 #include "phys/protocol/decoder.h"
 #include "phys/protocol/limits.h"
 #include "phys/protocol/status.h"
 #include "phys/server/ring.h"
-#include "phys/world.h"
+#include "phys/world/world.h"
 
 namespace phys::server {
 

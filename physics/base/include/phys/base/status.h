@@ -1,0 +1,27 @@
+// Status: what every call that can fail returns (codes shared with the network protocol).
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <utility>
+
+namespace phys {
+
+/// Result codes shared with the network protocol.
+enum class StatusCode : uint8_t {
+  Ok = 0,
+  InvalidArgument,    ///< a number out of range, a NaN, a malformed definition
+  NotFound,           ///< unknown or stale id
+  IncorrectState,     ///< valid request, wrong moment (e.g. a plane on a dynamic body)
+  ResourceExhausted,  ///< a count limit
+};
+struct Status {
+  StatusCode code = StatusCode::Ok;
+  std::string message;
+  bool ok() const { return code == StatusCode::Ok; }
+  static Status Ok() { return {}; }
+  static Status Error(StatusCode c, std::string m) { return {c, std::move(m)}; }
+};
+const char* toString(StatusCode c);
+
+}  // namespace phys

@@ -1,0 +1,664 @@
+#include "dynamics/solver_wide.h"
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <cassert>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <type_traits>
+
+#include "base/thread_pool.h"
+
+#if defined(__SSE__)
+#include <immintrin.h>
+#endif
+
+#define PHYS_WIDE_INLINE inline __attribute__((always_inline))
+// The kernels come in an AVX2 clone, picked at load time where the CPU has it, and a
+// baseline one. AVX2 brings no FMA (and -ffp-contract=off): both give the same bits.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define PHYS_WIDE_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define PHYS_WIDE_CLONES
+#endif
+
+namespace phys {
+
+using wide::kLanes;
+using wide::Lanes;
+using wide::V3;
+using wide::vf;
+using wide::vm;
+
+namespace {
+
+// The scalar kernels' helpers, lane by lane, in the same operation order (math.h's dot is
+// (x*x + y*y) + z*z; std::max(a, b) is a < b ? b : a; std::min(a, b) is b < a ? b : a).
+PHYS_WIDE_INLINE vf dot(const V3& a, const V3& b) {
+  return a.x * b.x + a.y * b.y + a.z * b.z;
+}
+PHYS_WIDE_INLINE vf select(vm mask, vf a, vf b) {
+  return mask ? a : b;
+}
+PHYS_WIDE_INLINE vf vmax(vf a, vf b) {
+  return select(a < b, b, a);
+}
+PHYS_WIDE_INLINE vf vmin(vf a, vf b) {
+  return select(b < a, b, a);
+}
+PHYS_WIDE_INLINE vf vabs(vf a) {
+  return select(a < 0, -a, a);
+}
+PHYS_WIDE_INLINE vf vsqrt(vf a) {
+  vf r;
+#if defined(__SSE__)
+  // IEEE-exact, as std::sqrt; four lanes at a time in every clone.
+  static_assert(kLanes % 4 == 0);
+  for (int l = 0; l < kLanes; l += 4) {
+    __m128 q;
+    std::memcpy(&q, reinterpret_cast<const float*>(&a) + l, sizeof q);
+    q = _mm_sqrt_ps(q);
+    std::memcpy(reinterpret_cast<float*>(&r) + l, &q, sizeof q);
+  }
+#else
+  for (int l = 0; l < kLanes; ++l) r[l] = std::sqrt(a[l]);
+#endif
+  return r;
+}
+PHYS_WIDE_INLINE vf splat(float s) {
+  return vf{} + s;
+}
+/// v += m * impulse where mask (the scalar code skips zero impulses: no -0 + 0 = +0 flips).
+PHYS_WIDE_INLINE void addScaled(vm mask, V3& v, const V3& m, vf impulse) {
+  v.x = select(mask, v.x + m.x * impulse, v.x);
+  v.y = select(mask, v.y + m.y * impulse, v.y);
+  v.z = select(mask, v.z + m.z * impulse, v.z);
+}
+
+PHYS_WIDE_INLINE void setLane(V3& out, int l, Vec3 v) {
+  out.x[l] = v.x;
+  out.y[l] = v.y;
+  out.z[l] = v.z;
+}
+PHYS_WIDE_INLINE Vec3 lane(const V3& in, int l) {
+  return {in.x[l], in.y[l], in.z[l]};
+}
+
+PHYS_WIDE_INLINE void gatherVelocities(const std::vector<SolverBody>& bodies, const int32_t* a,
+                                       const int32_t* b, Lanes& s) {
+  for (int l = 0; l < kLanes; ++l) {
+    const SolverBody& A = bodies[size_t(a[l])];
+    const SolverBody& B = bodies[size_t(b[l])];
+    setLane(s.vA, l, A.v);
+    setLane(s.wA, l, A.w);
+    setLane(s.vB, l, B.v);
+    setLane(s.wB, l, B.w);
+  }
+}
+PHYS_WIDE_INLINE void gatherDeltas(const std::vector<SolverBody>& bodies, const int32_t* a,
+                                   const int32_t* b, V3& dpA, V3& dtA, V3& dpB, V3& dtB) {
+  for (int l = 0; l < kLanes; ++l) {
+    const SolverBody& A = bodies[size_t(a[l])];
+    const SolverBody& B = bodies[size_t(b[l])];
+    setLane(dpA, l, A.dp);
+    setLane(dtA, l, A.dtheta);
+    setLane(dpB, l, B.dp);
+    setLane(dtB, l, B.dtheta);
+  }
+}
+PHYS_WIDE_INLINE void scatterVelocities(std::vector<SolverBody>& bodies, const int32_t* a,
+                                        const int32_t* b, const bool* writeA, const bool* writeB,
+                                        const Lanes& s) {
+  for (int l = 0; l < kLanes; ++l) {
+    if (writeA[l]) {
+      SolverBody& A = bodies[size_t(a[l])];
+      A.v = lane(s.vA, l);
+      A.w = lane(s.wA, l);
+    }
+    if (writeB[l]) {
+      SolverBody& B = bodies[size_t(b[l])];
+      B.v = lane(s.vB, l);
+      B.w = lane(s.wB, l);
+    }
+  }
+}
+
+/// J v of one row direction at one point (Solver::rowVelocity).
+PHYS_WIDE_INLINE vf rowVelocity(const V3& linA, const V3& linB, const V3& angA, const V3& angB,
+                                const Lanes& s) {
+  return dot(linA, s.vA) + dot(angA, s.wA) + dot(linB, s.vB) + dot(angB, s.wB);
+}
+PHYS_WIDE_INLINE void applyImpulse(vm mask, const V3& mLinA, const V3& mLinB, const V3& mAngA,
+                                   const V3& mAngB, vf impulse, Lanes& s) {
+  addScaled(mask, s.vA, mLinA, impulse);
+  addScaled(mask, s.wA, mAngA, impulse);
+  addScaled(mask, s.vB, mLinB, impulse);
+  addScaled(mask, s.wB, mAngB, impulse);
+}
+
+/// How many levels past its own a manifold looks for a block with a free lane (build()).
+constexpr int32_t kLevelSearch = 4;
+
+}  // namespace
+
+void WideContacts::addLane(uint32_t block, const Solver& s, uint32_t index,
+                           const SolverManifold& m) {
+  Block& blk = blocks_[block];
+  const int l = blk.lanes++;
+  blk.manifold[l] = index;
+  blk.a[l] = m.a;
+  blk.b[l] = m.b;
+  blk.count[l] = uint8_t(m.count);
+  blk.points = std::max(blk.points, m.count);
+  const SolverBody& A = s.bodies[size_t(m.a)];
+  const SolverBody& B = s.bodies[size_t(m.b)];
+  blk.writeA[l] = A.dynamic;
+  blk.writeB[l] = B.dynamic;
+  // The rows' values as contactRow and Solver::finishRows make them (Gauss-Seidel: no mass
+  // splitting; x * 1 is exact), operation for operation.
+  const Vec3 axes[3] = {m.normal, m.t1, m.t2};
+  float linK[3][2];  // dot(linA, mLinA), dot(linB, mLinB)
+  for (int d = 0; d < 3; ++d) {
+    const Vec3 linA = -axes[d], linB = axes[d];
+    const Vec3 mLinA = linA * A.invMass, mLinB = linB * B.invMass;
+    setLane(blk.linA[d], l, linA);
+    setLane(blk.linB[d], l, linB);
+    setLane(blk.mLinA[d], l, mLinA);
+    setLane(blk.mLinB[d], l, mLinB);
+    linK[d][0] = dot(linA, mLinA);
+    linK[d][1] = dot(linB, mLinB);
+  }
+  // One row at arms (rA, rB) along axis d (the rows' angular parts are -rA x axis, rB x axis).
+  // A row with angular parts (angA, angB); linKA, linKB are its linear parts' share of
+  // J M^-1 J^T, summed in finishRows' order.
+  auto fill = [&](Dir& r, Vec3 angA, Vec3 angB, float linKA, float linKB, float lambda) {
+    const Vec3 mAngA = A.invI * angA, mAngB = B.invI * angB;
+    const float kk = linKA + dot(angA, mAngA) + linKB + dot(angB, mAngB);
+    setLane(r.angA, l, angA);
+    setLane(r.angB, l, angB);
+    setLane(r.mAngA, l, mAngA);
+    setLane(r.mAngB, l, mAngB);
+    r.effMass[l] = kk > 1e-12f ? 1 / kk : 0;
+    r.lambda[l] = lambda;
+  };
+  // A row along axis d at arms (rA, rB): angular parts -rA x axis and rB x axis.
+  auto row = [&](Dir& r, Vec3 rA, Vec3 rB, int d, float lambda) {
+    fill(r, -cross(rA, axes[d]), cross(rB, axes[d]), linK[d][0], linK[d][1], lambda);
+  };
+  if (m.patch) {
+    Patch& pa = patches_[block];
+    row(pa.t1, m.patchRA, m.patchRB, 1, m.patchImpulse[0]);
+    row(pa.t2, m.patchRA, m.patchRB, 2, m.patchImpulse[1]);
+    // The twist: no linear part (its share, dot(0, 0 * invMass), as finishRows sums it).
+    const Vec3 zero{};
+    fill(pa.twist, -m.normal, m.normal, dot(zero, zero * A.invMass), dot(zero, zero * B.invMass),
+         m.patchImpulse[2]);
+    pa.mu[l] = m.friction;
+    pa.twistMu[l] = m.friction * m.twistArm;
+  }
+  for (int k = 0; k < m.count; ++k) {
+    Point& p = blk.pt[k];
+    if (!m.patch) {
+      PointFriction& f = frictionOf(block)[k];
+      row(f.t1, m.rA[k], m.rB[k], 1, m.tangentImpulse[k][0]);
+      row(f.t2, m.rA[k], m.rB[k], 2, m.tangentImpulse[k][1]);
+      f.mu[l] = m.friction;
+    }
+    row(p.n, m.rA[k], m.rB[k], 0, m.normalImpulse[k]);
+    p.C0[l] = m.separation[k];
+    p.maxLambda[l] = 0;
+    p.relativeVelocity[l] = m.relativeVelocity[k];
+    p.restitution[l] = m.restitution;
+    p.accelN[l] = dot(-m.normal, A.linearAccel) + dot(m.normal, B.linearAccel);
+  }
+}
+
+void WideContacts::clear() {
+  schedule.clear();
+  blockCount_ = 0;  // the blocks' storage stays for the next step (see build)
+  halves_ = false;
+  laneOf_.clear();
+  active = false;
+  errorsCurrent = false;
+}
+
+template <class F>
+void WideContacts::forEachPart(F&& fn) const {
+  if (halves_ && pool_) {
+    // Each half's blocks on the thread that solves them (see build).
+    pool_->parallelFor(2, 1, [&](size_t begin, size_t end) {
+      for (size_t h = begin; h < end; ++h) fn(partBlock_[h], partBlock_[h + 1]);
+    });
+    fn(partBlock_[2], blockCount_);
+  } else {
+    fn(size_t(0), blockCount_);
+  }
+}
+
+void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& manifolds,
+                         const uint32_t* halfEnd) {
+  clear();
+  active = true;
+  halves_ = halfEnd != nullptr;
+  patch_ = !manifolds.empty() && manifolds.front().patch;
+#ifndef NDEBUG
+  for (const SolverManifold& m : manifolds) assert(m.patch == patch_);  // one setting per step
+#endif
+  // Levels: a constraint goes on the level after the last one that touched either of its
+  // dynamic bodies, so the constraints of a level share no dynamic body and a level's items
+  // may run in any order, while each body still meets its constraints in the serial order
+  // (the solver's row groups, the joints, then the manifolds). A manifold may also take a
+  // free lane of a block a few levels further on, which fills blocks at the price of
+  // pushing its bodies' later constraints back. With halves, each part (the row groups, the
+  // first half, the second, those between) starts on a level of its own (`floor`), so the
+  // parts follow one another in the schedule.
+  struct Level {
+    std::vector<Item> items;  ///< blocks numbered in the order they were opened
+    int32_t open = -1;        ///< a block of this level with a free lane
+  };
+  std::vector<Level> levels;
+  std::vector<int32_t> levelOf(s.bodies.size(), -1);  // last level touching a dynamic body
+  int32_t floor = 0;
+  auto place = [&](int32_t a, int32_t b) {
+    const bool da = s.bodies[size_t(a)].dynamic, db = s.bodies[size_t(b)].dynamic;
+    return std::max(floor,
+                    1 + std::max(da ? levelOf[size_t(a)] : -1, db ? levelOf[size_t(b)] : -1));
+  };
+  auto touch = [&](int32_t a, int32_t b, int32_t at) {
+    if (s.bodies[size_t(a)].dynamic) levelOf[size_t(a)] = at;
+    if (s.bodies[size_t(b)].dynamic) levelOf[size_t(b)] = at;
+    if (size_t(at) >= levels.size()) levels.resize(size_t(at) + 1);
+  };
+  for (uint32_t gi = 0; gi < s.groups.size(); ++gi) {
+    const Solver::Group& g = s.groups[gi];
+    const int32_t at = place(g.a, g.b);
+    touch(g.a, g.b, at);
+    levels[size_t(at)].items.push_back({gi, false});
+  }
+  std::vector<std::array<uint32_t, kLanes>> lanes;  // per opened block: its manifolds
+  std::vector<uint8_t> used;
+  laneOf_.resize(manifolds.size());
+  const uint32_t n = uint32_t(manifolds.size());
+  const uint32_t partEnd[3] = {halves_ ? halfEnd[0] : n, halves_ ? halfEnd[1] : n, n};
+  assert(partEnd[0] <= partEnd[1] && partEnd[1] <= n);
+  size_t partLevel[3] = {};  // the level each part of the manifolds begins on
+  uint32_t mi = 0;
+  for (int part = 0; part < 3; ++part) {
+    if (halves_) floor = int32_t(levels.size());
+    partLevel[part] = levels.size();
+    for (; mi < partEnd[part]; ++mi) {
+      const SolverManifold& m = manifolds[mi];
+      int32_t at = place(m.a, m.b);
+      for (int32_t lv = at; lv < at + kLevelSearch && size_t(lv) < levels.size(); ++lv) {
+        if (levels[size_t(lv)].open >= 0) {
+          at = lv;
+          break;
+        }
+      }
+      touch(m.a, m.b, at);
+      Level& level = levels[size_t(at)];
+      if (level.open < 0) {
+        level.open = int32_t(lanes.size());
+        level.items.push_back({uint32_t(lanes.size()), true});
+        lanes.emplace_back();
+        used.push_back(0);
+      }
+      const size_t blk = size_t(level.open);
+      lanes[blk][used[blk]++] = mi;
+      if (used[blk] == kLanes) level.open = -1;
+    }
+  }
+  // The schedule, level by level, and the blocks numbered in its order, so that the passes
+  // stream through them; then each block is filled in one go, by the thread that solves it
+  // (forEachPart). Without halves all on the caller: filling the blocks of one sweep on two
+  // cores made the step slower on this 2-core VM, the first pass then fetching every other
+  // block from the other core.
+  schedule.reserve(s.groups.size() + lanes.size());
+  std::vector<uint32_t> openedAs;  // per block in schedule order: its index as opened
+  openedAs.reserve(lanes.size());
+  auto startParts = [&](size_t level) {
+    for (int p = 0; p < 3; ++p) {
+      if (partLevel[p] != level) continue;
+      part_[p] = schedule.size();
+      partBlock_[p] = openedAs.size();
+    }
+  };
+  for (size_t li = 0; li < levels.size(); ++li) {
+    startParts(li);
+    for (Item item : levels[li].items) {
+      if (item.wide) {
+        openedAs.push_back(item.index);
+        item.index = uint32_t(openedAs.size() - 1);
+      }
+      schedule.push_back(item);
+    }
+  }
+  startParts(levels.size());  // empty parts at the end
+  // The storage only grows; each block is zeroed just before it is filled (empty lanes and
+  // points must read as zeros), while its cache lines are about to be written anyway.
+  // Zeroing all of it up front (vector::resize after clear) cost 0.1 ms on pyramid_40.
+  static_assert(std::is_trivially_copyable_v<Block> && std::is_trivially_copyable_v<Patch> &&
+                std::is_trivially_copyable_v<PointFriction>);
+  blockCount_ = lanes.size();
+  if (blocks_.size() < blockCount_) blocks_.resize(blockCount_);
+  if (patch_ && patches_.size() < blockCount_) patches_.resize(blockCount_);
+  if (!patch_ && friction_.size() < blockCount_ * Manifold::kMaxPoints)
+    friction_.resize(blockCount_ * Manifold::kMaxPoints);
+  auto fill = [&](size_t begin, size_t end) {
+    for (size_t b = begin; b < end; ++b) {
+      std::memset(static_cast<void*>(&blocks_[b]), 0, sizeof(Block));
+      if (patch_)
+        std::memset(static_cast<void*>(&patches_[b]), 0, sizeof(Patch));
+      else
+        std::memset(static_cast<void*>(frictionOf(uint32_t(b))), 0,
+                    sizeof(PointFriction) * Manifold::kMaxPoints);
+      const uint32_t opened = openedAs[b];
+      for (uint8_t l = 0; l < used[opened]; ++l) {
+        const uint32_t mi = lanes[opened][l];
+        laneOf_[mi] = {uint32_t(b), l};
+        addLane(uint32_t(b), s, mi, manifolds[mi]);
+      }
+    }
+  };
+  assert(!halves_ || partBlock_[0] == 0);  // the row groups' levels hold no blocks
+  pool_ = s.pool;
+  forEachPart(fill);
+}
+
+void splitHalves(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& com,
+                 const std::vector<std::pair<int32_t, int32_t>>& pairs,
+                 std::vector<uint8_t>& half) {
+  half.assign(bodies.size(), kNoHalf);
+  std::vector<uint32_t> dyn;
+  for (uint32_t i = 1; i < bodies.size(); ++i)
+    if (bodies[i].dynamic) dyn.push_back(i);
+  if (dyn.empty()) return;
+  // Each axis's median cut, by (coordinate, index): the same split whatever order the bodies
+  // came in. The cut that the fewest contacts cross wins (the first of equals).
+  std::vector<uint8_t> trial(bodies.size(), kNoHalf);
+  size_t fewest = SIZE_MAX;
+  for (int axis = 0; axis < 3; ++axis) {
+    // A total order even for a body gone non-finite (the guard rolls such steps back).
+    auto coord = [&](uint32_t i) {
+      const float c = axis == 0 ? com[i].x : axis == 1 ? com[i].y : com[i].z;
+      return std::isnan(c) ? std::numeric_limits<float>::infinity() : c;
+    };
+    const auto mid = dyn.begin() + std::ptrdiff_t(dyn.size() / 2);
+    std::nth_element(dyn.begin(), mid, dyn.end(), [&](uint32_t a, uint32_t b) {
+      const float ca = coord(a), cb = coord(b);
+      return ca < cb || (ca == cb && a < b);
+    });
+    for (auto it = dyn.begin(); it != dyn.end(); ++it) trial[*it] = it < mid ? 0 : 1;
+    size_t crossing = 0;
+    for (const auto& [a, b] : pairs) crossing += manifoldPart(trial, a, b) == 2;
+    if (crossing < fewest) {
+      fewest = crossing;
+      half.swap(trial);
+      trial.assign(bodies.size(), kNoHalf);
+    }
+  }
+}
+
+std::vector<uint32_t> colorOrder(const std::vector<SolverBody>& bodies,
+                                 const std::vector<std::pair<int32_t, int32_t>>& pairs) {
+  std::vector<uint32_t> colors(bodies.size(), 0);    // per body: the colours it has, as bits
+  std::vector<std::pair<uint32_t, uint32_t>> keyed;  // (colour, index)
+  keyed.reserve(pairs.size());
+  for (uint32_t i = 0; i < pairs.size(); ++i) {
+    const auto [a, b] = pairs[i];
+    const bool da = bodies[size_t(a)].dynamic, db = bodies[size_t(b)].dynamic;
+    const uint32_t used = (da ? colors[size_t(a)] : 0) | (db ? colors[size_t(b)] : 0);
+    // Past 32 colours (a body in 32 contacts across the cut) the last is shared: the order
+    // stays valid, only its blocks fill less.
+    const uint32_t color = std::min(31u, uint32_t(std::countr_one(used)));
+    if (da) colors[size_t(a)] |= 1u << color;
+    if (db) colors[size_t(b)] |= 1u << color;
+    keyed.push_back({color, i});
+  }
+  std::stable_sort(keyed.begin(), keyed.end(),
+                   [](const auto& x, const auto& y) { return x.first < y.first; });
+  std::vector<uint32_t> order;
+  order.reserve(keyed.size());
+  for (const auto& [color, i] : keyed) order.push_back(i);
+  return order;
+}
+
+size_t WideContacts::laneCount() const {
+  size_t n = 0;
+  for (size_t b = 0; b < blockCount_; ++b) n += size_t(blocks_[b].lanes);
+  return n;
+}
+
+std::vector<uint32_t> WideContacts::manifoldsOf(uint32_t block) const {
+  const Block& b = blocks_[block];
+  return std::vector<uint32_t>(b.manifold, b.manifold + b.lanes);
+}
+
+void WideContacts::store(std::vector<SolverManifold>& manifolds) {
+  forEachPart([&](size_t begin, size_t end) {
+    for (size_t b = begin; b < end; ++b) {
+      const Block& blk = blocks_[b];
+      for (int l = 0; l < blk.lanes; ++l) {
+        SolverManifold& m = manifolds[blk.manifold[l]];
+        for (int k = 0; k < m.count; ++k) {
+          m.normalImpulse[k] = blk.pt[k].n.lambda[l];
+          if (patch_) continue;
+          const PointFriction& f = frictionOf(uint32_t(b))[k];
+          m.tangentImpulse[k][0] = f.t1.lambda[l];
+          m.tangentImpulse[k][1] = f.t2.lambda[l];
+        }
+        if (patch_) {
+          const Patch& pa = patches_[b];
+          m.patchImpulse[0] = pa.t1.lambda[l];
+          m.patchImpulse[1] = pa.t2.lambda[l];
+          m.patchImpulse[2] = pa.twist.lambda[l];
+        }
+      }
+    }
+  });
+  active = false;
+}
+
+double WideContacts::residual(const std::vector<SolverBody>& bodies, float h, double sum) const {
+  // Solver::velocityResidual's contact rows: each point's term where its block lives, then
+  // the sum in the rows' order (friction rows add zero; so do the unused points, +0.0).
+  constexpr int kPoints = Manifold::kMaxPoints;
+  residualTerms_.resize(laneOf_.size() * kPoints);
+  forEachPart([&](size_t begin, size_t end) {
+    for (size_t b = begin; b < end; ++b) {
+      const Block& blk = blocks_[b];
+      for (int l = 0; l < blk.lanes; ++l) {
+        const SolverBody& A = bodies[size_t(blk.a[l])];
+        const SolverBody& B = bodies[size_t(blk.b[l])];
+        const Vec3 linA = lane(blk.linA[0], l), linB = lane(blk.linB[0], l);
+        double* terms = &residualTerms_[size_t(blk.manifold[l]) * kPoints];
+        for (int k = 0; k < kPoints; ++k) {
+          terms[k] = 0;
+          if (k >= blk.count[l]) continue;
+          const Dir& r = blk.pt[k].n;
+          const Vec3 angA = lane(r.angA, l), angB = lane(r.angB, l);
+          const float vn = dot(linA, A.v) + dot(angA, A.w) + dot(linB, B.v) + dot(angB, B.w);
+          const float C = blk.pt[k].C0[l] + dot(linA, A.dp) + dot(angA, A.dtheta) +
+                          dot(linB, B.dp) + dot(angB, B.dtheta);
+          const float gap = std::max(C, 0.0f) / h;
+          const double e = r.lambda[l] > 0 ? vn : std::min(0.0f, vn + gap);
+          terms[k] = e * e;
+        }
+      }
+    }
+  });
+  for (double t : residualTerms_) sum += t;
+  return sum;
+}
+
+PHYS_WIDE_INLINE void WideContacts::frictionPair(const Block& blk, Dir& r1, Dir& r2, vf bound,
+                                                 bool measure, vf& change, Lanes& s) {
+  vf l1 = r1.lambda - r1.effMass * rowVelocity(blk.linA[1], blk.linB[1], r1.angA, r1.angB, s);
+  vf l2 = r2.lambda - r2.effMass * rowVelocity(blk.linA[2], blk.linB[2], r2.angA, r2.angB, s);
+  const vf len2 = l1 * l1 + l2 * l2;
+  const vm outside = len2 > bound * bound;
+  const vf scale = select(len2 > 0, bound / vsqrt(len2), splat(0));
+  l1 = select(outside, l1 * scale, l1);
+  l2 = select(outside, l2 * scale, l2);
+  const vf d1 = l1 - r1.lambda, d2 = l2 - r2.lambda;
+  r1.lambda = l1;
+  r2.lambda = l2;
+  applyImpulse(d1 != 0, blk.mLinA[1], blk.mLinB[1], r1.mAngA, r1.mAngB, d1, s);
+  applyImpulse(d2 != 0, blk.mLinA[2], blk.mLinB[2], r2.mAngA, r2.mAngB, d2, s);
+  if (measure) {
+    vf c = select(r1.effMass > 0, vabs(d1) / r1.effMass, splat(0));
+    c = select(r2.effMass > 0, vmax(c, vabs(d2) / r2.effMass), c);
+    change = vmax(change, c);
+  }
+}
+
+PHYS_WIDE_CLONES void WideContacts::warmStart(uint32_t block, std::vector<SolverBody>& bodies) {
+  Block& blk = blocks_[block];
+  Lanes s;
+  gatherVelocities(bodies, blk.a, blk.b, s);
+  V3 dpA, dtA, dpB, dtB;
+  gatherDeltas(bodies, blk.a, blk.b, dpA, dtA, dpB, dtB);
+  // Solver::warmStartGroup: normal rows (recording the approach speed), then friction pairs.
+  for (int k = 0; k < blk.points; ++k) {
+    Point& p = blk.pt[k];
+    Dir& r = p.n;
+    vf vn = rowVelocity(blk.linA[0], blk.linB[0], r.angA, r.angB, s);
+    const vf C =
+        p.C0 + dot(blk.linA[0], dpA) + dot(r.angA, dtA) + dot(blk.linB[0], dpB) + dot(r.angB, dtB);
+    p.C = C;
+    const vm apart = (vn < 0) & (C > 0) & (p.accelN < 0);
+    vn = select(apart, -vsqrt(vn * vn - 2.0f * p.accelN * C), vn);
+    p.relativeVelocity = vmin(p.relativeVelocity, vn);
+    applyImpulse(r.lambda != 0, blk.mLinA[0], blk.mLinB[0], r.mAngA, r.mAngB, r.lambda, s);
+  }
+  if (patch_) {
+    Patch& pa = patches_[block];
+    applyImpulse(pa.t1.lambda != 0, blk.mLinA[1], blk.mLinB[1], pa.t1.mAngA, pa.t1.mAngB,
+                 pa.t1.lambda, s);
+    applyImpulse(pa.t2.lambda != 0, blk.mLinA[2], blk.mLinB[2], pa.t2.mAngA, pa.t2.mAngB,
+                 pa.t2.lambda, s);
+    const V3 zero{};
+    applyImpulse(pa.twist.lambda != 0, zero, zero, pa.twist.mAngA, pa.twist.mAngB, pa.twist.lambda,
+                 s);
+  } else {
+    PointFriction* fr = frictionOf(block);
+    for (int k = 0; k < blk.points; ++k) {
+      for (int d = 1; d < 3; ++d) {
+        Dir& r = d == 1 ? fr[k].t1 : fr[k].t2;
+        applyImpulse(r.lambda != 0, blk.mLinA[d], blk.mLinB[d], r.mAngA, r.mAngB, r.lambda, s);
+      }
+    }
+  }
+  scatterVelocities(bodies, blk.a, blk.b, blk.writeA, blk.writeB, s);
+}
+
+PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBody>& bodies,
+                                           const WideParams& prm) {
+  Block& blk = blocks_[block];
+  Lanes s;
+  gatherVelocities(bodies, blk.a, blk.b, s);
+  // The position errors: as the warm start left them while the bodies have not moved since
+  // (the iterations), else from the bodies' deltas (the relax pass after the positions).
+  V3 dpA, dtA, dpB, dtB;
+  const bool fresh = !errorsCurrent;
+  if (fresh) gatherDeltas(bodies, blk.a, blk.b, dpA, dtA, dpB, dtB);
+  vf change = splat(0);
+  // Solver::solveGroup's ContactNormal case, row by row.
+  const float slop = !prm.soft ? prm.linearSlop : 0;
+  for (int k = 0; k < blk.points; ++k) {
+    Point& p = blk.pt[k];
+    Dir& r = p.n;
+    const vf vn = rowVelocity(blk.linA[0], blk.linB[0], r.angA, r.angB, s);
+    const vf C = fresh ? p.C0 + dot(blk.linA[0], dpA) + dot(r.angA, dtA) + dot(blk.linB[0], dpB) +
+                             dot(r.angB, dtB)
+                       : p.C;
+    const vm speculative = C > 0;
+    vf bias = C * prm.invH;  // close exactly the gap this substep, no more
+    vf massScale = splat(1), impulseScale = splat(0);
+    if (prm.useBias) {
+      const vf Cs = vmin(splat(0), C + slop);
+      const vf soft = vmax(prm.biasRate * Cs, splat(-prm.maxPushout));
+      bias = select(speculative, bias, soft);
+      massScale = select(speculative, massScale, splat(prm.massScale));
+      impulseScale = select(speculative, impulseScale, splat(prm.impulseScale));
+    } else {
+      bias = select(speculative, bias, splat(0));
+    }
+    vf impulse = -r.effMass * massScale * (vn + bias) - impulseScale * r.lambda;
+    const vf next = vmax(r.lambda + impulse, splat(0));
+    impulse = next - r.lambda;
+    r.lambda = next;
+    p.maxLambda = vmax(p.maxLambda, next);
+    const vm moved = impulse != 0;
+    applyImpulse(moved, blk.mLinA[0], blk.mLinB[0], r.mAngA, r.mAngB, impulse, s);
+    if (prm.measure)
+      change = select(moved & (r.effMass > 0), vmax(change, vabs(impulse) / r.effMass), change);
+  }
+  // Solver::solveFrictionPair: both tangents clamped to the friction disc of mu times the
+  // point's normal impulse, or with patch friction the manifold's.
+  if (patch_) {
+    Patch& pa = patches_[block];
+    vf load = splat(0);
+    for (int k = 0; k < blk.points; ++k) load = load + blk.pt[k].n.lambda;
+    frictionPair(blk, pa.t1, pa.t2, pa.mu * load, prm.measure, change, s);
+    // Solver::solveGroup's Twist case.
+    Dir& r = pa.twist;
+    const V3 zero{};
+    const vf vn = rowVelocity(zero, zero, r.angA, r.angB, s);
+    const vf bound = pa.twistMu * load;
+    vf impulse = -r.effMass * vn;
+    const vf sum = r.lambda + impulse;
+    const vf next = select(sum < -bound, -bound, select(bound < sum, bound, sum));
+    impulse = next - r.lambda;
+    r.lambda = next;
+    const vm moved = impulse != 0;
+    applyImpulse(moved, zero, zero, r.mAngA, r.mAngB, impulse, s);
+    if (prm.measure)
+      change = select(moved & (r.effMass > 0), vmax(change, vabs(impulse) / r.effMass), change);
+  } else {
+    PointFriction* fr = frictionOf(block);
+    for (int k = 0; k < blk.points; ++k)
+      frictionPair(blk, fr[k].t1, fr[k].t2, fr[k].mu * blk.pt[k].n.lambda, prm.measure, change, s);
+  }
+  scatterVelocities(bodies, blk.a, blk.b, blk.writeA, blk.writeB, s);
+  if (!prm.measure) return 0;
+  float m = 0;
+  for (int l = 0; l < kLanes; ++l) m = std::max(m, change[l]);
+  return m;
+}
+
+PHYS_WIDE_CLONES void WideContacts::restitution(uint32_t block, std::vector<SolverBody>& bodies,
+                                                float threshold) {
+  Block& blk = blocks_[block];
+  // Solver::restitutionGroup: normal rows that approached fast and carried an impulse. Most
+  // blocks have none (resting contacts): they are left without touching their bodies.
+  vm bounces[Manifold::kMaxPoints];
+  vm any = vm{} != vm{};
+  for (int k = 0; k < blk.points; ++k) {
+    const Point& p = blk.pt[k];
+    bounces[k] = (p.restitution != 0) & ~(p.relativeVelocity > -threshold) & (p.maxLambda != 0);
+    any |= bounces[k];
+  }
+  bool none = true;
+  for (int l = 0; l < kLanes; ++l) none = none && any[l] == 0;
+  if (none) return;
+  Lanes s;
+  gatherVelocities(bodies, blk.a, blk.b, s);
+  for (int k = 0; k < blk.points; ++k) {
+    Point& p = blk.pt[k];
+    Dir& r = p.n;
+    const vm bounce = bounces[k];
+    const vf vn = rowVelocity(blk.linA[0], blk.linB[0], r.angA, r.angB, s);
+    vf impulse = -r.effMass * (vn + p.restitution * p.relativeVelocity);
+    const vf next = vmax(r.lambda + impulse, splat(0));
+    impulse = next - r.lambda;
+    r.lambda = select(bounce, next, r.lambda);
+    p.maxLambda = select(bounce, vmax(p.maxLambda, next), p.maxLambda);
+    applyImpulse(bounce & (impulse != 0), blk.mLinA[0], blk.mLinB[0], r.mAngA, r.mAngB, impulse, s);
+  }
+  scatterVelocities(bodies, blk.a, blk.b, blk.writeA, blk.writeB, s);
+}
+
+}  // namespace phys

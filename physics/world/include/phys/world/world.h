@@ -1,0 +1,293 @@
+// The world: bodies, shapes, joints, and the step. In-process API; no I/O.
+// Units are SI (m, kg, s, rad). z is up; the default gravity is (0, 0, -9.81).
+// Every create/edit call validates its input and returns a Status; a rejected call changes
+// nothing. Ids are generational handles: a stale id is reported as NotFound.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "phys/base/ids.h"
+#include "phys/base/math.h"
+#include "phys/base/status.h"
+#include "phys/collision/shapes.h"
+#include "phys/dynamics/joint_def.h"
+#include "phys/dynamics/solver_settings.h"
+
+namespace phys {
+
+/// Surface material. Mixing for a contact: friction = sqrt(fa * fb) (geometric mean, so a
+/// frictionless surface makes any contact frictionless), restitution = max(ea, eb) (so a
+/// bouncy ball bounces on any floor).
+struct Material {
+  float friction = 0.6f;     ///< Coulomb coefficient (static = dynamic), >= 0
+  float restitution = 0.0f;  ///< 0 (plastic) .. 1 (elastic)
+  float density = 1000.0f;   ///< kg/m^3, used when a body's mass comes from its shapes
+};
+
+enum class BodyType : uint8_t { Static = 0, Kinematic = 1, Dynamic = 2 };
+const char* toString(BodyType t);
+
+/// One shape on a body.
+struct ShapeDef {
+  ShapeGeom geom;
+  Transform local;  ///< shape frame relative to the body frame
+  Material material;
+};
+
+/// Everything needed to create a body. Defaults: a dynamic body at the origin, at rest.
+struct BodyDef {
+  BodyType type = BodyType::Dynamic;
+  Vec3 position;             ///< m, body frame origin in the world
+  Quat rotation;             ///< unit quaternion
+  Vec3 linearVelocity;       ///< m/s, of the centre of mass
+  Vec3 angularVelocity;      ///< rad/s, world frame
+  float linearDamping = 0;   ///< 1/s: v *= 1 / (1 + h * damping)
+  float angularDamping = 0;  ///< 1/s
+  float gravityScale = 1;
+  /// kg. 0 means: compute mass, centre of mass and inertia from the shapes' densities.
+  /// > 0 means: this mass; inertia scaled from the shapes' unless `inertia` is given.
+  float mass = 0;
+  Vec3 inertia;  ///< kg m^2, principal moments about the centre of mass in body axes; 0 = auto
+  bool gyroscopic = true;  ///< integrate the gyroscopic torque (implicitly)
+  std::string name;        ///< optional, for scenes and logs
+  std::vector<ShapeDef> shapes;
+};
+
+/// Where a world's step runs. `Gpu` and `Auto` open a Vulkan device (gpu_solver/): a
+/// discrete GPU first, then an integrated one; a CPU implementation (lavapipe) only with
+/// WorldDef::gpuAllowCpuDevice or PHYS_GPU_ALLOW_CPU=1. With no usable device both run on
+/// the CPU and World::backendState() says why. The GPU backend does not cover every stage
+/// yet: a step it cannot take is taken by the CPU backend (counted, with the reason).
+enum class Backend : uint8_t { Cpu = 0, Gpu = 1, Auto = 2 };
+const char* toString(Backend b);
+bool parseBackend(const std::string& text, Backend* out);  ///< "cpu", "gpu", "auto"
+
+/// Which backend a world runs on and how its steps were taken.
+struct BackendState {
+  Backend requested = Backend::Cpu;
+  Backend active = Backend::Cpu;  ///< Gpu when a device was opened
+  std::string device;             ///< the Vulkan device's name, when active is Gpu
+  std::string note;               ///< why the CPU runs a world that asked for the GPU
+  uint64_t gpuSteps = 0;          ///< steps taken on the device
+  uint64_t cpuSteps = 0;          ///< steps taken by the CPU backend (all of a CPU world's)
+  std::string lastFallback;       ///< why the last CPU step of a GPU world was not on the device
+  /// Errors the Vulkan validation layer reported on the world's device so far (only with
+  /// PHYS_GPU_VALIDATION=1; tests and physbench --require-device fail on any).
+  int validationErrors = 0;
+  bool validationRequested = false;  ///< PHYS_GPU_VALIDATION asked for the validation layer
+  bool validation = false;           ///< the validation layer is loaded on the world's device
+};
+
+/// Vulkan validation errors reported in this process so far, by every GPU world's device,
+/// including those raised while a device was destroyed (what a world's teardown left behind).
+/// 0 without validation (PHYS_GPU_VALIDATION=1) or without the GPU backend.
+int gpuValidationErrorsInProcess();
+
+struct WorldDef {
+  Vec3 gravity{0, 0, -9.81f};   ///< m/s^2
+  float timeStep = 1.0f / 60;   ///< s, the fixed step used by step()
+  float maxLinearSpeed = 1000;  ///< m/s, clamp
+  float maxAngularSpeed = 500;  ///< rad/s, clamp
+  /// m: every contact closer than this is solved (speculatively when apart); the margin also
+  /// grows with the bodies' speeds so fast bodies do not tunnel.
+  float speculativeDistance = 0.02f;
+  float aabbMargin = 0.05f;  ///< m, broad-phase fattening
+  SolverSettings solver;
+  /// Threads for the step's parallel loops, the caller included; 0: the machine's hardware
+  /// threads (at most 8). Results do not depend on it.
+  int threads = 0;
+  /// Guard rails: after every step, check for non-finite state, speeds at the clamp and
+  /// energy jumps; on a violation roll the step back and redo it with twice the substeps (up
+  /// to guardRetries times), then stop the bodies still at fault. Costs a copy of the
+  /// bodies' state and the contacts per step.
+  bool guard = true;
+  /// An energy gain in one step above guardEnergyJump * kinetic energy + the energy of
+  /// lifting every dynamic body by 0.1 m counts as an explosion.
+  float guardEnergyJump = 0.5f;
+  int guardRetries = 2;
+  Backend backend = Backend::Cpu;
+  bool gpuAllowCpuDevice = false;  ///< let the GPU backend run on a CPU Vulkan device (tests)
+};
+
+/// Wall time of each step stage in milliseconds. Stage names are used everywhere.
+/// On the GPU backend the stages are the device's timestamps, plus the uploads of edited
+/// bodies (syncToDevice) and the states' readback; total is the wall time.
+struct StepProfile {
+  double syncToDevice = 0, readback = 0;
+  double applyCommands = 0, updateBounds = 0, broadPhase = 0, narrowPhase = 0, buildIslands = 0,
+         prepare = 0, integrateVelocities = 0, warmStart = 0, solve = 0, integratePositions = 0,
+         relax = 0, restitution = 0, positionPass = 0, storeImpulses = 0, finalize = 0, total = 0;
+};
+
+/// What the last step did, for metrics and monitors (double precision).
+struct StepStats {
+  uint64_t step = 0;  ///< steps taken so far
+  int bodies = 0, awake = 0, contacts = 0, contactPoints = 0, joints = 0, pairs = 0;
+  int vectorizedManifolds = 0;  ///< contact manifolds solved in SIMD lanes (solver_wide.h)
+  /// Gauss-Seidel in halves (solver_wide.h): the contacts between the two halves, which run
+  /// after them on one thread; -1 when the step's contact order was not split (too few
+  /// contacts, another scheme, a step on the GPU backend). The halves run on two threads when
+  /// the contacts are solved in SIMD lanes (vectorizedManifolds > 0); otherwise the rows are
+  /// in the split order and solved serially.
+  int contactsBetweenHalves = -1;
+  double energyBefore = 0;      ///< J, kinetic + potential at step start
+  double energyAfter = 0;       ///< J, at step end
+  double velocityResidual = 0;  ///< norm of J v + bias over active rows after the solve
+  double maxPenetration = 0;    ///< m, deepest contact overlap at the start of the step
+  int iterationsUsed =
+      0;  ///< velocity iterations of the step (substeps x iterations, as redone by the guard)
+  int substeps = 0;  ///< substeps of the step (after stack stiffening and guard retries)
+  /// s, the substep length of the last CPU step: the unit of the warm-start impulses it
+  /// stored (0 after a device step, whose impulses stay on the device).
+  float substepTime = 0;
+  int stackDepth = 0;        ///< bodies in the deepest support chain (with stack stiffening on)
+  float stackHertz = 0;      ///< Hz, the contact frequency stack stiffening asks for (0: none)
+  int guardRetries = 0;      ///< times this step was rolled back and redone
+  uint64_t guardEvents = 0;  ///< steps redone so far
+  uint64_t guardQuarantined = 0;  ///< bodies stopped so far because retries did not help
+  std::string lastGuardEvent;     ///< what the last violation was, for logs
+};
+
+/// Read-only view of a body.
+struct BodyState {
+  BodyId id;
+  BodyType type = BodyType::Dynamic;
+  Vec3 position;  ///< body frame origin
+  Quat rotation;
+  Vec3 linearVelocity, angularVelocity;  ///< of the centre of mass; rad/s world frame
+  Vec3 centerOfMass;                     ///< world
+  float mass = 0;                        ///< kg (0 for static and kinematic bodies)
+  Mat3 inertia = Mat3::zero();           ///< kg m^2, world frame, about the centre of mass
+};
+
+/// A joint's state after the last step.
+struct JointState {
+  JointId id;
+  Vec3 reactionForce;  ///< N, applied to body B (world frame), last step
+  /// N m, applied to body B (world frame) by the joint's angular constraints (locks, hinge
+  /// axes, angular limits and motors), last step; the moment of reactionForce about B's
+  /// centre is not included (as Box2D's constraint torque).
+  Vec3 reactionTorque;
+  float positionError =
+      0;  ///< m, distance between the two world anchors (length error for distance joints)
+  float angleError = 0;  ///< rad, hinge axis misalignment or fixed-frame relative angle
+};
+
+/// A body's state computed elsewhere (a peer engine's step), for World::observe. Conventions
+/// as BodyState: body frame origin and rotation; centre-of-mass and angular velocity, world.
+struct ObservedBody {
+  Vec3 position;
+  Quat rotation;
+  Vec3 linearVelocity, angularVelocity;
+};
+
+/// A contact for inspection (metrics, debugging).
+struct ContactInfo {
+  BodyId bodyA, bodyB;
+  ShapeId shapeA, shapeB;
+  Manifold manifold;
+  float normalImpulse[Manifold::kMaxPoints] = {};
+};
+
+class World {
+ public:
+  explicit World(const WorldDef& def = WorldDef());
+  ~World();
+  World(const World&) = delete;
+  World& operator=(const World&) = delete;
+
+  const WorldDef& def() const;
+  Status setGravity(Vec3 g);
+  Status setTimeStep(float dt);
+  Status setSolverSettings(const SolverSettings& s);
+  /// Validates solver settings without applying them.
+  static Status validate(const SolverSettings& s);
+
+  // Bodies. createBody validates the whole definition (finite numbers, unit quaternion,
+  // positive sizes and masses, planes only on static bodies) and creates nothing on error.
+  Status createBody(const BodyDef& def, BodyId* out);
+  Status destroyBody(BodyId id);  ///< also destroys the body's shapes and joints
+  Status setTransform(BodyId id, Vec3 position, Quat rotation);
+  Status setVelocity(BodyId id, Vec3 linear, Vec3 angular);
+  Status setBodyType(BodyId id, BodyType type);
+  /// mass > 0; inertia 0 means scale the current inertia with the mass.
+  Status setMass(BodyId id, float mass, Vec3 inertia = {});
+  Status setMaterial(BodyId id, const Material& m);               ///< every shape of the body
+  Status applyForce(BodyId id, Vec3 force, Vec3 worldPoint);      ///< N, for the next step
+  Status applyTorque(BodyId id, Vec3 torque);                     ///< N m, for the next step
+  Status applyImpulse(BodyId id, Vec3 impulse, Vec3 worldPoint);  ///< N s, immediately
+  Status getBody(BodyId id, BodyState* out) const;
+  bool isValid(BodyId id) const;
+  std::vector<BodyId> bodies() const;  ///< live bodies in index order
+  int bodyCount() const;
+  /// Shapes of a body (ids), and a shape's definition.
+  std::vector<ShapeId> bodyShapes(BodyId id) const;
+  Status getShape(ShapeId id, ShapeDef* out, BodyId* body) const;
+  Status addShape(BodyId body, const ShapeDef& def, ShapeId* out);  ///< mass recomputed if auto
+  Status removeShape(ShapeId id);
+
+  // Joints.
+  Status createJoint(const JointDef& def, JointId* out);
+  Status destroyJoint(JointId id);
+  Status setMotor(JointId id, bool enable, float speed, float maxForce);
+  Status getJoint(JointId id, JointDef* def, JointState* state) const;
+  std::vector<JointId> joints() const;
+  int jointCount() const;
+
+  /// Advances by one fixed step of def().timeStep.
+  void step();
+  /// Measures states computed by someone else (a peer engine) as if this world had stepped to
+  /// them, so MetricsRecorder::afterStep reads them exactly as it reads a step: sets body
+  /// ids[i] to states[i] (velocities of static bodies are ignored), advances time() by one
+  /// time step and runs the collision stages only (bounds, broad phase, narrow phase: the
+  /// contacts and maxPenetration are those of the given states, as a step's are of its start
+  /// state). Nothing is solved or integrated. stats() gets energyBefore (the energy before the
+  /// update), energyAfter, the contact counts, velocityResidual 0 and the step count; the
+  /// joints' positionError and angleError are measured at the given poses (reactions 0);
+  /// profile() is all zero but total = stepMs (the other engine's wall time). All-or-nothing:
+  /// a size mismatch, a stale id or a non-finite or non-unit state changes nothing.
+  Status observe(const std::vector<BodyId>& ids, const std::vector<ObservedBody>& states,
+                 double stepMs);
+  const StepProfile& profile() const;
+  const StepStats& stats() const;
+  const BackendState& backendState() const;
+  /// Contacts after the last step (touching or speculative).
+  std::vector<ContactInfo> contacts() const;
+
+  /// Total energy (kinetic + gravitational potential), J, in double precision.
+  double energy() const;
+  /// 64-bit hash of every body's position and rotation bits, in id order (bit exact).
+  uint64_t stateHash() const;
+  double time() const;  ///< s, simulated time
+
+  /// Serializes the whole world state between steps, bit for bit: the definition (gravity,
+  /// time step, solver settings, guard; not `threads`, which results do not depend on),
+  /// bodies (with pending forces and torques), shapes (convex hulls included), joints
+  /// (motors, warm-start impulses, the last step's reactions that feed geometric stiffness),
+  /// persistent contacts with their warm-start impulses, the broad phase's fat boxes, the id
+  /// pools (generations and free lists, so ids created after a restore are the same),
+  /// simulated time and the step statistics. A world restored from it and stepped M times
+  /// has the same stateHash() as this one stepped M times. Fails (out cleared) only when the
+  /// state holds a non-finite number, which restoreSnapshot would reject. Format: see
+  /// docs/ARCHITECTURE.md "Snapshots".
+  Status saveSnapshot(std::vector<uint8_t>* out) const;
+  /// Replaces this world's whole state with a snapshot (this world's thread count is kept).
+  /// On any error (truncated, corrupted, wrong magic/version, counts over limits, non-finite
+  /// numbers, dangling ids) returns an InvalidArgument status whose message says what and
+  /// where, and leaves the world unchanged: the snapshot is parsed into a fresh state, which
+  /// is swapped in only once all of it has been checked.
+  Status restoreSnapshot(const uint8_t* data, size_t size);
+
+  struct Impl;
+
+ private:
+  /// The step itself, every stage in order, with `substeps` substeps.
+  void stepOnce(int substeps);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace phys

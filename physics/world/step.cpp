@@ -1,0 +1,841 @@
+// The step: World::step (guard rails around stepOnce) and World::stepOnce, which shows every
+// stage in order, then the stages' own code (bounds, pairs, contacts, solver bodies and rows,
+// impulses, finalize). The solver's passes are in physics/dynamics/, the collision
+// routines in physics/collision/, the device's step in world_gpu.cpp.
+#include "phys/world/world.h"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+
+#include "dynamics/joints.h"
+#include "world/world_impl.h"
+
+namespace phys {
+
+namespace {
+
+/// Contacts per chunk of the parallel narrow phase and manifold build (a box pair's narrow
+/// phase takes about 0.2 us).
+constexpr size_t kContactGrain = 256;
+
+double nowMs() {
+  return std::chrono::duration<double, std::milli>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+/// Times one stage into its profile field.
+class StageTimer {
+ public:
+  explicit StageTimer(double* field) : field_(field), start_(nowMs()) {}
+  ~StageTimer() { *field_ += nowMs() - start_; }
+
+ private:
+  double* field_;
+  double start_;
+};
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// The step
+
+namespace {
+std::atomic<bool> gVectorizedContacts{true};
+}  // namespace
+
+void setVectorizedContacts(bool on) {
+  gVectorizedContacts = on;
+}
+bool vectorizedContacts() {
+  return gVectorizedContacts;
+}
+
+void World::step() {
+  Impl& w = *impl_;
+  w.stats.guardRetries = 0;
+  if (!w.def.guard) {
+    stepOnce(w.def.solver.substeps);
+    return;
+  }
+  w.takeSnapshot();
+  int substeps = w.def.solver.substeps;
+  stepOnce(substeps);
+  std::string fault = w.checkHealth();
+  for (int retry = 0; !fault.empty() && retry < w.def.guardRetries; ++retry) {
+    // Roll back and redo with a safer setting: twice the substeps.
+    w.stats.guardRetries++;
+    w.stats.lastGuardEvent = "step " + std::to_string(w.stats.step) + ": " + fault;
+    w.restoreSnapshot();
+    // Twice what the failed attempt took (stack stiffening may have taken more than asked).
+    substeps = std::min(std::max(substeps, w.stats.substeps) * 2, 64);
+    stepOnce(substeps);
+    fault = w.checkHealth();
+  }
+  if (w.stats.guardRetries > 0) w.stats.guardEvents++;
+  if (!fault.empty()) w.quarantine();
+}
+
+void World::stepOnce(int substeps) {
+  Impl& w = *impl_;
+  const float dt = w.def.timeStep;
+  SolverSettings s = w.def.solver;
+  s.substeps = substeps;
+  StepProfile& p = w.profile;
+  p = StepProfile();
+  const double t0 = nowMs();
+  w.stats.energyBefore = energy();
+
+  {
+    StageTimer t(&p.applyCommands);
+    w.applyCommands();
+  }
+  // The GPU backend takes the whole step when it covers everything the step needs
+  // (world_gpu.cpp); otherwise the CPU stages below take it from the same host mirror.
+  if (w.device) w.rescaleWarmStarts(dt / float(substeps));  // joints' go up when stale
+  if (w.device && w.stepOnDevice(substeps)) {
+    // The device does not measure stacks: it runs the preset's substeps. Its joint impulses
+    // come back to the host in that unit.
+    w.stats.substeps = substeps;
+    w.stats.substepTime = dt / float(substeps);
+    w.stats.stackDepth = 0;
+    w.stats.stackHertz = 0;
+    w.stats.contactsBetweenHalves = -1;
+    w.time += dt;
+    w.stats.step++;
+    w.stats.energyAfter = energy();
+    p.total = nowMs() - t0;
+    return;
+  }
+  {
+    StageTimer t(&p.updateBounds);
+    w.updateBounds(dt);
+  }
+  {
+    StageTimer t(&p.broadPhase);
+    w.broadPhaseStage();
+  }
+  {
+    StageTimer t(&p.narrowPhase);
+    w.narrowPhase(dt);
+  }
+  {
+    // Islands and colors are not needed by the serial solver; the stacks' depth is.
+    StageTimer t(&p.buildIslands);
+    w.stiffenForStacks(dt, &s);
+  }
+  w.stats.substeps = s.substeps;
+  const float h = dt / float(s.substeps);
+  // The split push-out only where there is something to push out: a step whose contacts are
+  // all shallower than kSplitDepth is the unsplit solve (vectorized contacts, no pseudo
+  // velocities), the same bits as without the option.
+  if (s.splitPushout && !(w.stats.maxPenetration > SolverSettings::kSplitDepth))
+    s.splitPushout = false;
+  {
+    StageTimer t(&p.prepare);
+    w.rescaleWarmStarts(h);
+    w.buildSolverBodies(s);
+  }
+  Solver& solver = w.solver;
+  // Joints solved directly (LDL hybrid) or iterated with everything else.
+  bool direct = false;
+  if (s.equalitySolve == SolverSettings::EqualitySolve::DirectLdl) {
+    StageTimer t(&p.prepare);
+    w.ldl.analyze(solver);
+    direct = w.ldl.factor(solver);
+  }
+  const float equalityBias = Solver::equalityBiasRate(s, h);
+  auto iterate = [&](bool useBias) {
+    float change = solver.solveIteration(s, h, useBias, direct);
+    if (direct) change = std::max(change, w.ldl.solve(solver, equalityBias, useBias));
+    return change;
+  };
+  int iterationsUsed = 0;
+  for (int sub = 0; sub < s.substeps; ++sub) {
+    {
+      StageTimer t(&p.integrateVelocities);
+      solver.integrateVelocities(h, w.def.maxLinearSpeed, w.def.maxAngularSpeed);
+    }
+    if (sub > 0) {
+      StageTimer t(&p.prepare);
+      w.refreshJoints(h);
+      if (direct) direct = w.ldl.factor(solver);
+    }
+    {
+      StageTimer t(&p.warmStart);
+      solver.warmStart();
+    }
+    {
+      StageTimer t(&p.solve);
+      // Convergence control: stop once an iteration barely changes any row's velocity.
+      for (int it = 0; it < s.iterations; ++it) {
+        ++iterationsUsed;
+        if (iterate(true) <= s.tolerance && s.tolerance > 0) break;
+      }
+    }
+    {
+      StageTimer t(&p.integratePositions);
+      if (s.splitPushout) solver.solvePushout(s, h, s.iterations, direct ? &w.ldl : nullptr);
+      solver.integratePositions(h);
+    }
+    {
+      StageTimer t(&p.relax);
+      for (int it = 0; it < s.relaxIterations; ++it) iterate(false);
+    }
+  }
+  {
+    StageTimer t(&p.restitution);
+    if (s.restitution) solver.applyRestitution(s.restitutionThreshold);
+  }
+  if (w.wide.active) {
+    StageTimer t(&p.storeImpulses);
+    w.wide.store(w.manifolds);  // the step's contact impulses, for storeImpulses
+  }
+  if (s.positionPass != SolverSettings::PositionPass::None && s.positionIterations > 0) {
+    StageTimer t(&p.positionPass);
+    solver.positionPass(s, s.positionIterations,
+                        s.positionPass == SolverSettings::PositionPass::NonlinearJacobi);
+  }
+  {
+    StageTimer t(&p.storeImpulses);
+    w.stats.velocityResidual = solver.velocityResidual(h);
+    w.stats.iterationsUsed = iterationsUsed;
+    w.storeImpulses();
+    w.stats.substepTime = h;
+  }
+  {
+    StageTimer t(&p.finalize);
+    w.finalize(h);
+  }
+  w.backend.cpuSteps++;
+  w.deviceStale();  // the CPU moved the bodies: the device's copy is old
+
+  w.time += dt;
+  w.stats.step++;
+  w.stats.energyAfter = energy();
+  p.total = nowMs() - t0;
+}
+
+void World::Impl::rescaleWarmStarts(float h) {
+  // Warm starts are impulses per substep: the substeps just changed length (stack
+  // stiffening, a guard retry, a new time step), so last step's impulses are scaled to keep
+  // the forces they stand for.
+  const float before = stats.substepTime;
+  stats.substepTime = h;  // their unit from here on
+  if (!(before > 0) || before == h) return;
+  // Bounded, so that a corrupt or absurd unit cannot blow the impulses up.
+  const float k = std::clamp(h / before, 1e-4f, 1e4f);
+  for (Contact& c : contacts) {
+    for (float& f : c.normalImpulse) f *= k;
+    for (auto& t : c.tangentImpulse) t[0] *= k, t[1] *= k;
+  }
+  for (uint32_t i = 0; i < joints.capacity(); ++i)
+    if (joints.alive(i))
+      for (float& f : joints.at(i).impulses) f *= k;
+}
+
+void World::Impl::storeImpulses() {
+  // Hand each row's impulse back to its contact point or joint for the next warm start.
+  for (Contact& c : contacts) {
+    if (c.firstRow < 0) continue;
+    const int n = c.manifold.count;
+    for (int i = 0; i < n; ++i) c.normalImpulse[i] = solver.rows[size_t(c.firstRow + i)].lambda;
+    if (solver.rows[size_t(c.firstRow + n)].patchPoints > 0) {
+      for (int d = 0; d < 3; ++d)
+        c.patchImpulse(d) = solver.rows[size_t(c.firstRow + n + d)].lambda;
+      continue;
+    }
+    for (int i = 0; i < n; ++i) {
+      c.tangentImpulse[i][0] = solver.rows[size_t(c.firstRow + n + 2 * i)].lambda;
+      c.tangentImpulse[i][1] = solver.rows[size_t(c.firstRow + n + 2 * i + 1)].lambda;
+    }
+  }
+  for (size_t m = 0; m < manifolds.size(); ++m) {  // solved in wide blocks, without rows
+    const SolverManifold& sm = manifolds[m];
+    Contact& c = contacts[manifoldContact[m]];
+    std::memcpy(c.normalImpulse, sm.normalImpulse, sizeof(float) * size_t(sm.count));
+    if (sm.patch)
+      for (int d = 0; d < 3; ++d) c.patchImpulse(d) = sm.patchImpulse[d];
+    else
+      std::memcpy(c.tangentImpulse, sm.tangentImpulse, sizeof(float) * 2 * size_t(sm.count));
+  }
+  for (uint32_t i = 0; i < joints.capacity(); ++i) {
+    if (!joints.alive(i)) continue;
+    JointRec& j = joints.at(i);
+    j.impulseCount = std::min(j.rowCount, int32_t(JointRec::kMaxRows));
+    for (int32_t k = 0; k < j.impulseCount; ++k)
+      j.impulses[k] = solver.rows[size_t(j.firstRow + k)].lambda;
+  }
+}
+
+void World::Impl::takeSnapshot() {
+  snapshot.bodies.clear();
+  for (uint32_t i = 0; i < bodies.capacity(); ++i) {
+    if (!bodies.alive(i)) continue;
+    const BodyRec& b = bodies.at(i);
+    if (b.type == BodyType::Static) continue;
+    snapshot.bodies.push_back({i, b.xf, b.com, b.v, b.w, b.force, b.torque});
+  }
+  snapshot.contacts = contacts;
+  snapshot.jointImpulses.clear();
+  for (uint32_t i = 0; i < joints.capacity(); ++i) {
+    if (!joints.alive(i)) continue;
+    const JointRec& j = joints.at(i);
+    Snapshot::JointImpulses ji{i, j.impulseCount, {}};
+    std::copy(j.impulses, j.impulses + JointRec::kMaxRows, ji.impulses);
+    snapshot.jointImpulses.push_back(ji);
+  }
+  snapshot.time = time;
+  snapshot.step = stats.step;
+  snapshot.substepTime = stats.substepTime;
+  snapshot.kinetic = 0;
+  snapshot.liftEnergy = 1;
+  const double g = length(def.gravity);
+  for (const Snapshot::Body& s : snapshot.bodies) {
+    const BodyRec& b = bodies.at(s.index);
+    if (b.type != BodyType::Dynamic) continue;
+    snapshot.kinetic +=
+        0.5 * b.mass * double(lengthSquared(b.v)) +
+        0.5 * double(dot(invRotate(b.xf.q, b.w), b.inertiaLocal * invRotate(b.xf.q, b.w)));
+    snapshot.liftEnergy += 0.1 * g * b.mass;
+  }
+}
+
+void World::Impl::restoreSnapshot() {
+  for (const Snapshot::Body& s : snapshot.bodies) {
+    BodyRec& b = bodies.at(s.index);
+    b.xf = s.xf;
+    b.com = s.com;
+    b.v = s.v;
+    b.w = s.w;
+    b.force = s.force;
+    b.torque = s.torque;
+  }
+  contacts = snapshot.contacts;
+  for (const Snapshot::JointImpulses& ji : snapshot.jointImpulses) {
+    JointRec& j = joints.at(ji.index);
+    j.impulseCount = ji.count;
+    std::copy(ji.impulses, ji.impulses + JointRec::kMaxRows, j.impulses);
+  }
+  time = snapshot.time;
+  stats.step = snapshot.step;
+  stats.substepTime = snapshot.substepTime;
+  deviceStale();
+}
+
+const char* World::Impl::bodyFault(const BodyRec& b) const {
+  if (!isFinite(b.xf.p) || !isFinite(b.xf.q) || !isFinite(b.v) || !isFinite(b.w))
+    return "has a non-finite state";
+  // The speed clamp only bites when something has blown up.
+  if (length(b.v) >= 0.999f * def.maxLinearSpeed || length(b.w) >= 0.999f * def.maxAngularSpeed)
+    return "reached the speed limit";
+  return nullptr;
+}
+
+std::string World::Impl::checkHealth() const {
+  for (const Snapshot::Body& s : snapshot.bodies) {
+    if (const char* fault = bodyFault(bodies.at(s.index)))
+      return "body " + std::to_string(s.index) + " " + fault;
+  }
+  double gain = stats.energyAfter - stats.energyBefore;
+  double allowed = def.guardEnergyJump * snapshot.kinetic + snapshot.liftEnergy;
+  if (!(gain <= allowed))
+    return "energy rose " + std::to_string(gain) + " J in one step (allowed " +
+           std::to_string(allowed) + " J)";
+  return {};
+}
+
+void World::Impl::quarantine() {
+  // Retries did not help: put each body at fault back where it was, at rest, and let the
+  // rest of the world keep its step. A bad body never poisons the others.
+  for (const Snapshot::Body& s : snapshot.bodies) {
+    BodyRec& b = bodies.at(s.index);
+    if (!bodyFault(b)) continue;
+    b.xf = s.xf;
+    b.com = s.com;
+    b.v = b.w = {};
+    stats.guardQuarantined++;
+    stats.lastGuardEvent += "; body " + std::to_string(s.index) + " stopped";
+  }
+  deviceStale();
+  for (Contact& c : contacts) {  // impulses computed from the bad state are not reused
+    std::fill(std::begin(c.normalImpulse), std::end(c.normalImpulse), 0.0f);
+    for (auto& t : c.tangentImpulse) t[0] = t[1] = 0;
+  }
+}
+
+void World::Impl::applyCommands() {
+  // In-process edits are applied immediately (the world is single-threaded between steps);
+  // the server queues network commands and drains them here.
+}
+
+void World::Impl::updateBounds(float dt) {
+  // Tight boxes are swept by this step's motion and padded by half the speculative distance,
+  // so every pair that can touch during the step is found.
+  for (uint32_t i = 0; i < shapes.capacity(); ++i) {
+    if (!shapes.alive(i)) continue;
+    ShapeRec& s = shapes.at(i);
+    const BodyRec& b = *bodies.get(s.body);
+    if (b.type == BodyType::Static) continue;
+    AABB box = computeAABB(s.def.geom, shapeTransform(b, s));
+    Vec3 sweep = b.v * dt;
+    box.lo += vmin(sweep, {});
+    box.hi += vmax(sweep, {});
+    float pad = 0.5f * def.speculativeDistance + length(b.w) * dt * s.boundRadius;
+    box = inflate(box, pad);
+    broadPhase.moveProxy(s.proxy, box, def.aabbMargin);
+  }
+}
+
+void World::Impl::broadPhaseStage() {
+  broadPhase.computePairs(&pairs);
+  // Merge the sorted pair list with the sorted contact list: surviving contacts keep their
+  // impulses for warm starting, new pairs start cold, vanished pairs are dropped.
+  contactScratch.clear();
+  size_t ci = 0;
+  for (const ProxyPair& pr : pairs) {
+    const ShapeRec& sa = shapes.at(pr.a);
+    const ShapeRec& sb = shapes.at(pr.b);
+    if (sa.body == sb.body) continue;
+    const BodyRec& A = *bodies.get(sa.body);
+    const BodyRec& B = *bodies.get(sb.body);
+    if (A.type != BodyType::Dynamic && B.type != BodyType::Dynamic) continue;
+    if (!noCollide.empty() && noCollide.count(bodyPairKey(sa.body.index, sb.body.index))) continue;
+    while (ci < contacts.size() && (contacts[ci].shapeA < pr.a ||
+                                    (contacts[ci].shapeA == pr.a && contacts[ci].shapeB < pr.b)))
+      ++ci;
+    // Same slots, same shapes (generation), so a shape removed and another added in its
+    // slot since the last step does not inherit the old one's impulses.
+    if (ci < contacts.size() && contacts[ci].shapeA == pr.a && contacts[ci].shapeB == pr.b &&
+        contacts[ci].idA == shapes.idAt(pr.a) && contacts[ci].idB == shapes.idAt(pr.b)) {
+      contactScratch.push_back(contacts[ci]);
+    } else {
+      Contact c;
+      c.shapeA = pr.a;
+      c.shapeB = pr.b;
+      c.bodyA = sa.body;
+      c.bodyB = sb.body;
+      c.idA = shapes.idAt(pr.a);
+      c.idB = shapes.idAt(pr.b);
+      contactScratch.push_back(c);
+    }
+    Contact& c = contactScratch.back();
+    c.friction = std::sqrt(sa.def.material.friction * sb.def.material.friction);
+    c.restitution = std::max(sa.def.material.restitution, sb.def.material.restitution);
+  }
+  contacts.swap(contactScratch);
+  stats.pairs = int(pairs.size());
+}
+
+void World::Impl::narrowPhase(float dt) {
+  // Every contact on its own (reads bodies and shapes, writes only itself), in parallel;
+  // the statistics are a max and a sum, the same for any split.
+  std::atomic<int> points{0};
+  std::atomic<float> deepest{0};
+  auto collideRange = [&](size_t begin, size_t end) {
+    int chunkPoints = 0;
+    float chunkDeepest = 0;
+    for (size_t ci = begin; ci < end; ++ci) {
+      Contact& c = contacts[ci];
+      const ShapeRec& sa = shapes.at(c.shapeA);
+      const ShapeRec& sb = shapes.at(c.shapeB);
+      const BodyRec& A = *bodies.get(c.bodyA);
+      const BodyRec& B = *bodies.get(c.bodyB);
+      // The margin grows with the speeds so a fast body meets a speculative contact before
+      // it can pass through anything (no tunnelling without a separate continuous pass).
+      float reach = (length(A.v) + length(A.w) * sa.boundRadius + length(B.v) +
+                     length(B.w) * sb.boundRadius) *
+                    dt;
+      float margin = def.speculativeDistance + reach;
+      Manifold m;
+      collide(sa.def.geom, shapeTransform(A, sa), sb.def.geom, shapeTransform(B, sb), margin, &m);
+      // Carry impulses of points whose features persist (warm starting).
+      float ni[Manifold::kMaxPoints] = {}, ti[Manifold::kMaxPoints][2] = {};
+      for (int i = 0; i < m.count; ++i) {
+        const ContactPoint& cp = m.points[i];
+        for (int k = 0; k < c.manifold.count; ++k) {
+          if (c.manifold.points[k].featureId == cp.featureId) {
+            ni[i] = c.normalImpulse[k];
+            ti[i][0] = c.tangentImpulse[k][0];
+            ti[i][1] = c.tangentImpulse[k][1];
+            break;
+          }
+        }
+        chunkDeepest = std::max(chunkDeepest, -cp.separation);
+      }
+      // Patch friction keeps the manifold's friction impulses while any point persists.
+      if (def.solver.patchFriction) {
+        bool persists = false;
+        for (int i = 0; i < m.count && !persists; ++i)
+          for (int k = 0; k < c.manifold.count; ++k)
+            persists = persists || c.manifold.points[k].featureId == m.points[i].featureId;
+        if (persists) std::memcpy(ti, c.tangentImpulse, sizeof ti);
+      }
+      c.manifold = m;
+      std::memcpy(c.normalImpulse, ni, sizeof ni);
+      std::memcpy(c.tangentImpulse, ti, sizeof ti);
+      chunkPoints += m.count;
+    }
+    points += chunkPoints;
+    float seen = deepest.load();
+    while (chunkDeepest > seen && !deepest.compare_exchange_weak(seen, chunkDeepest)) {
+    }
+  };
+  if (pool)
+    pool->parallelFor(contacts.size(), kContactGrain, collideRange);
+  else
+    collideRange(0, contacts.size());
+  stats.contactPoints = points.load();
+  stats.maxPenetration = double(deepest.load());
+  stats.contacts = int(contacts.size());
+}
+
+SolverManifold World::Impl::solverManifold(const Contact& c, const SolverSettings& s) const {
+  SolverManifold m;
+  const BodyRec& A = *bodies.get(c.bodyA);
+  const BodyRec& B = *bodies.get(c.bodyB);
+  m.a = A.solverIndex;
+  m.b = B.solverIndex;
+  m.count = c.manifold.count;
+  m.normal = c.manifold.normal;
+  tangentBasis(m.normal, &m.t1, &m.t2);
+  m.friction = c.friction;
+  m.restitution = c.restitution;
+  for (int k = 0; k < m.count; ++k) {
+    const ContactPoint& cp = c.manifold.points[k];
+    m.rA[k] = cp.point - A.com;
+    m.rB[k] = cp.point - B.com;
+    m.separation[k] = cp.separation;
+    m.relativeVelocity[k] =
+        dot(m.normal, (B.v + cross(B.w, m.rB[k])) - (A.v + cross(A.w, m.rA[k])));
+    m.normalImpulse[k] = s.warmStart ? c.normalImpulse[k] : 0;
+    m.tangentImpulse[k][0] = s.warmStart ? c.tangentImpulse[k][0] : 0;
+    m.tangentImpulse[k][1] = s.warmStart ? c.tangentImpulse[k][1] : 0;
+  }
+  if (s.patchFriction && m.count > 0) {
+    m.patch = true;
+    Vec3 centroid;
+    for (int k = 0; k < m.count; ++k) centroid += c.manifold.points[k].point;
+    centroid = centroid * (1.0f / float(m.count));
+    m.patchRA = centroid - A.com;
+    m.patchRB = centroid - B.com;
+    float arm = 0;
+    for (int k = 0; k < m.count; ++k) arm += length(c.manifold.points[k].point - centroid);
+    m.twistArm = arm / float(m.count);
+    // Switching friction models between steps warm-starts one step from the other model's
+    // slots; the friction clamps bound what that can do.
+    for (int d = 0; d < 3; ++d) m.patchImpulse[d] = s.warmStart ? c.patchImpulse(d) : 0;
+  }
+  return m;
+}
+
+void World::Impl::contactRowsOf(const Contact& c, const SolverManifold& m) {
+  for (int k = 0; k < m.count; ++k) {
+    Row r = contactRow(m, RowKind::ContactNormal, m.normal, k);
+    r.C0 = m.separation[k];
+    r.lambda = m.normalImpulse[k];
+    r.restitution = m.restitution;
+    r.groupStart = k == 0;
+    r.relativeVelocity = m.relativeVelocity[k];
+    solver.rows.push_back(r);
+  }
+  if (m.patch) {
+    // Patch friction: a tangent pair at the centroid, then the twist row.
+    for (int d = 0; d < 2; ++d) {
+      const Vec3 t = d == 0 ? m.t1 : m.t2;
+      Row r;
+      r.kind = RowKind::Friction;
+      r.a = m.a;
+      r.b = m.b;
+      r.linA = -t;
+      r.angA = -cross(m.patchRA, t);
+      r.linB = t;
+      r.angB = cross(m.patchRB, t);
+      r.mu = m.friction;
+      r.parent = c.firstRow;
+      r.patchPoints = uint8_t(m.count);
+      r.lambda = m.patchImpulse[d];
+      solver.rows.push_back(r);
+    }
+    Row r;
+    r.kind = RowKind::Twist;
+    r.a = m.a;
+    r.b = m.b;
+    r.angA = -m.normal;
+    r.angB = m.normal;
+    r.mu = m.friction * m.twistArm;
+    r.parent = c.firstRow;
+    r.patchPoints = uint8_t(m.count);
+    r.lambda = m.patchImpulse[2];
+    solver.rows.push_back(r);
+    return;
+  }
+  for (int k = 0; k < m.count; ++k) {
+    for (int d = 0; d < 2; ++d) {
+      Row r = contactRow(m, RowKind::Friction, d == 0 ? m.t1 : m.t2, k);
+      r.mu = m.friction;
+      r.parent = c.firstRow + k;
+      r.lambda = m.tangentImpulse[k][d];
+      solver.rows.push_back(r);
+    }
+  }
+}
+
+std::vector<float> World::Impl::jointStiffness() const {
+  // Each joint's force |f| at each dynamic body's arm |r| (N m/rad), by body slot.
+  std::vector<float> k(bodies.capacity(), 0.0f);
+  for (uint32_t i = 0; i < joints.capacity(); ++i) {
+    if (!joints.alive(i)) continue;
+    const JointRec& j = joints.at(i);
+    const float f = length(j.state.reactionForce);
+    if (!(f > 0)) continue;
+    const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
+    const BodyRec& B = *bodies.get(j.def.bodyB);
+    BodyPose pa = A ? poseOf(*A) : BodyPose{}, pb = poseOf(B);
+    JointFrame fr = jointFrame(j, A ? &pa : nullptr, pb);
+    if (A && A->type == BodyType::Dynamic) k[j.def.bodyA.index] += f * length(fr.rA);
+    if (B.type == BodyType::Dynamic) k[j.def.bodyB.index] += f * length(fr.rB);
+  }
+  return k;
+}
+
+void World::Impl::addGeometricStiffness(float h) {
+  // Andrews, Teichmann and Kry 2017: a joint force f at arm r turns into a torque that
+  // changes as the body turns, a stiffness of about |f| |r| (N m/rad). Our Jacobians are
+  // frozen over a substep, so that stiffness is integrated explicitly and blows up once
+  // omega h > ~1: a 1 kg link between a 1000 kg ball and the anchor, at the bottom of the
+  // swing (tension 3e4 N), has omega of about 340 rad/s. Adding h^2 k to the inertia (the
+  // implicit-Euler term, from last step's joint forces) makes the link's rotation stable at
+  // any substep; a light body under a large load turns a little more slowly.
+  const std::vector<float> bySlot = jointStiffness();
+  std::vector<float> k(solver.bodies.size(), 0.0f);
+  for (uint32_t slot = 0; slot < bySlot.size(); ++slot)
+    if (bySlot[slot] > 0) k[size_t(bodies.at(slot).solverIndex)] = bySlot[slot];
+  for (size_t i = 1; i < solver.bodies.size(); ++i) {
+    if (!(k[i] > 0)) continue;
+    SolverBody& sb = solver.bodies[i];
+    const Mat3 R = toMat3(sb.q);
+    Mat3 I = R * sb.inertiaLocal * transpose(R);  // world inertia, as invI was made
+    const float add = h * h * k[i];
+    I.c0.x += add;
+    I.c1.y += add;
+    I.c2.z += add;
+    sb.invI = inverse(I);
+  }
+}
+
+void World::Impl::buildSolverBodies(const SolverSettings& s) {
+  // Prepare: the compact solver bodies (index 0 is the static world), then one row per
+  // joint axis and per contact normal and friction direction.
+  const float h = def.timeStep / float(s.substeps);
+  solver.bodies.clear();
+  solver.rows.clear();
+  solver.blockInvK.clear();
+  solver.contactK.clear();
+  solver.blockContacts = s.blockContacts;
+  solver.bodies.push_back(SolverBody{});
+  solverCom.assign(1, Vec3{});
+  int awake = 0;
+  for (uint32_t i = 0; i < bodies.capacity(); ++i) {
+    if (!bodies.alive(i)) continue;
+    BodyRec& b = bodies.at(i);
+    if (b.type == BodyType::Static) {
+      b.solverIndex = 0;
+      continue;
+    }
+    b.solverIndex = int32_t(solver.bodies.size());
+    SolverBody sb;
+    sb.v = b.v;
+    sb.w = b.w;
+    sb.q = b.xf.q;
+    sb.dynamic = b.type == BodyType::Dynamic;
+    if (sb.dynamic) {
+      Mat3 R = toMat3(b.xf.q);
+      sb.invMass = b.invMass;
+      sb.invI = R * b.invInertiaLocal * transpose(R);
+      sb.inertiaLocal = b.inertiaLocal;
+      sb.linearAccel = def.gravity * b.gravityScale + b.force * b.invMass;
+      sb.torque = b.torque;
+      sb.linearDamping = b.linearDamping;
+      sb.angularDamping = b.angularDamping;
+      // Equal principal moments (a cube, a sphere) have no gyroscopic torque (w x I w = 0):
+      // the plain rotation update of non-gyroscopic bodies serves, a quarter of the cost.
+      // It turns by 2 atan(|w| h / 2) instead of |w| h, an O((|w| h)^3) difference.
+      const Vec3 I = b.principalMoments;
+      const float spread = std::max({I.x, I.y, I.z}) - std::min({I.x, I.y, I.z});
+      sb.gyroscopic = b.gyroscopic && spread > 1e-5f * std::max({I.x, I.y, I.z});
+      sb.principal = b.principal;
+      sb.principalMoments = b.principalMoments;
+    }
+    solver.bodies.push_back(sb);
+    solverCom.push_back(b.com);
+    ++awake;
+  }
+  stats.bodies = int(bodies.size());
+  stats.awake = awake;
+  if (s.geometricStiffness) addGeometricStiffness(h);
+
+  // Joints first: the solver meets them before contacts in every iteration.
+  int jointsBuilt = 0;
+  for (uint32_t i = 0; i < joints.capacity(); ++i) {
+    if (!joints.alive(i)) continue;
+    JointRec& j = joints.at(i);
+    const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
+    const BodyRec& B = *bodies.get(j.def.bodyB);
+    BodyPose pa = A ? poseOf(*A) : BodyPose{}, pb = poseOf(B);
+    buildJointRows(j, A ? &pa : nullptr, pb, A ? A->solverIndex : 0, B.solverIndex, h, &solver);
+    // Warm start from last step's impulses when the joint still has the same rows.
+    if (s.warmStart && j.impulseCount == j.rowCount) {
+      for (int32_t k = 0; k < j.rowCount; ++k)
+        solver.rows[size_t(j.firstRow + k)].lambda = j.impulses[k];
+    }
+    ++jointsBuilt;
+  }
+  stats.joints = jointsBuilt;
+
+  // Contacts: 3 rows per point (normal, two friction directions), or with the vectorized
+  // Gauss-Seidel scheme no rows but a manifold each, which the wide blocks take (bit-identical
+  // to the rows; solver_wide.h). Not for the split push-out and the position pass, which
+  // read the contact rows between the iterations, nor for the contact block solve.
+  // Built serially: building them in parallel needs the vector sized first, and
+  // value-initializing 28,000 rows of 160 bytes (pyramid_40) cost more than the parallel
+  // build saved.
+  const bool vectorized =
+      vectorizedContacts() && s.scheme == SolverSettings::Scheme::GaussSeidel && !s.blockContacts &&
+      !s.splitPushout &&
+      (s.positionPass == SolverSettings::PositionPass::None || s.positionIterations == 0);
+  uint32_t halfEnd[2] = {};
+  const bool halves = orderContacts(s, halfEnd);
+  manifoldContact.clear();
+  for (uint32_t ci : contactOrder) {
+    Contact& c = contacts[ci];
+    if (vectorized) {
+      manifoldContact.push_back(ci);
+      continue;
+    }
+    c.firstRow = int32_t(solver.rows.size());
+    contactRowsOf(c, solverManifold(c, s));
+  }
+  // Every field of a manifold is assigned below: resizing without a clear spares zeroing
+  // the entries that were there last step.
+  manifolds.resize(manifoldContact.size());
+  auto makeManifolds = [&](size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i)
+      manifolds[i] = solverManifold(contacts[manifoldContact[i]], s);
+  };
+  if (pool)
+    pool->parallelFor(manifolds.size(), kContactGrain, makeManifolds);
+  else
+    makeManifolds(0, manifolds.size());
+  solver.scheme = s.scheme;
+  solver.indexUnits();
+  solver.finishRows(0, solver.rows.size());
+  solver.wide = &wide;
+  if (vectorized)
+    wide.build(solver, manifolds, halves ? halfEnd : nullptr);
+  else
+    wide.clear();
+  stats.vectorizedManifolds = int(manifolds.size());
+}
+
+bool World::Impl::orderContacts(const SolverSettings& s, uint32_t halfEnd[2]) {
+  // The Gauss-Seidel order of the touching contacts: with many contacts, the first half's, the
+  // second half's, then those between (solver_wide.h, "Halves"), so that the halves run on two
+  // threads; the same order with any thread count, and in the rows as in the wide blocks.
+  contactOrder.clear();
+  for (uint32_t ci = 0; ci < contacts.size(); ++ci) {
+    contacts[ci].firstRow = -1;
+    if (contacts[ci].manifold.count > 0) contactOrder.push_back(ci);
+  }
+  const bool halves =
+      s.scheme == SolverSettings::Scheme::GaussSeidel && contactOrder.size() >= kHalvesMinManifolds;
+  stats.contactsBetweenHalves = -1;
+  if (halves) {
+    std::vector<std::pair<int32_t, int32_t>> pairs;  // solver bodies
+    pairs.reserve(contactOrder.size());
+    for (uint32_t ci : contactOrder) {
+      const Contact& c = contacts[ci];
+      pairs.push_back({bodies.get(c.bodyA)->solverIndex, bodies.get(c.bodyB)->solverIndex});
+    }
+    splitHalves(solver.bodies, solverCom, pairs, solverHalf);
+    std::vector<uint32_t> byPart[3];  // indices into contactOrder and pairs
+    for (uint32_t k = 0; k < pairs.size(); ++k)
+      byPart[manifoldPart(solverHalf, pairs[k].first, pairs[k].second)].push_back(k);
+    // Between the halves: by colour (solver_wide.h), so that they fill blocks.
+    std::vector<std::pair<int32_t, int32_t>> betweenPairs;
+    for (uint32_t k : byPart[2]) betweenPairs.push_back(pairs[k]);
+    const std::vector<uint32_t> byColor = colorOrder(solver.bodies, betweenPairs);
+    std::vector<uint32_t> order;
+    order.reserve(contactOrder.size());
+    for (int part = 0; part < 2; ++part)
+      for (uint32_t k : byPart[part]) order.push_back(contactOrder[k]);
+    for (uint32_t i : byColor) order.push_back(contactOrder[byPart[2][i]]);
+    contactOrder.swap(order);
+    halfEnd[0] = uint32_t(byPart[0].size());
+    halfEnd[1] = halfEnd[0] + uint32_t(byPart[1].size());
+    stats.contactsBetweenHalves = int(byPart[2].size());
+  }
+  return halves;
+}
+
+void World::Impl::refreshJoints(float h) {
+  for (uint32_t i = 0; i < joints.capacity(); ++i) {
+    if (!joints.alive(i)) continue;
+    JointRec& j = joints.at(i);
+    const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
+    const BodyRec& B = *bodies.get(j.def.bodyB);
+    auto current = [&](const BodyRec& b) {
+      // Static bodies all share solver body 0 (the world): their pose is their own.
+      if (b.solverIndex == 0) return poseOf(b);
+      const SolverBody& sb = solver.bodies[size_t(b.solverIndex)];
+      return BodyPose{sb.q, b.com + sb.dp, b.localCenter};
+    };
+    BodyPose pa = A ? current(*A) : BodyPose{}, pb = current(B);
+    refreshJointRows(j, A ? &pa : nullptr, pb, A ? A->solverIndex : 0, B.solverIndex, h, &solver);
+  }
+}
+
+void World::Impl::finalize(float hSub) {
+  for (uint32_t i = 0; i < bodies.capacity(); ++i) {
+    if (!bodies.alive(i)) continue;
+    BodyRec& b = bodies.at(i);
+    b.force = b.torque = {};
+    if (b.type == BodyType::Static) continue;
+    const SolverBody& sb = solver.bodies[size_t(b.solverIndex)];
+    b.v = sb.v;
+    b.w = sb.w;
+    b.com += sb.dp;
+    b.xf.q = sb.q;
+    b.xf.p = b.com - rotate(b.xf.q, b.localCenter);
+  }
+  // Joint reactions (the rows' impulses per substep as forces on B) and errors at the new poses.
+  for (uint32_t i = 0; i < joints.capacity(); ++i) {
+    if (!joints.alive(i)) continue;
+    JointRec& j = joints.at(i);
+    Vec3 f, tq;
+    for (int32_t r = j.firstRow; r < j.firstRow + j.rowCount; ++r) {
+      const Row& row = solver.rows[size_t(r)];
+      f += row.linB * (row.lambda / hSub);
+      // Only rows that are pure rotation: the moment of the force above is not included.
+      if (row.linB == Vec3{}) tq += row.angB * (row.lambda / hSub);
+    }
+    j.state.reactionForce = f;
+    j.state.reactionTorque = tq;
+  }
+  measureJoints();
+}
+
+void World::Impl::measureJoints() {
+  for (uint32_t i = 0; i < joints.capacity(); ++i) {
+    if (!joints.alive(i)) continue;
+    JointRec& j = joints.at(i);
+    const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
+    BodyPose pa = A ? poseOf(*A) : BodyPose{}, pb = poseOf(*bodies.get(j.def.bodyB));
+    measureJoint(j, A ? &pa : nullptr, pb, &j.state.positionError, &j.state.angleError);
+  }
+}
+
+}  // namespace phys

@@ -1,0 +1,477 @@
+// The GPU backend's side of a World: opening the device, handing bodies and shapes to the
+// device world (gpu_solver/) as flat records, stepping it and copying the states back into
+// the host mirror (BodyRec), which is what getBody, the metrics and publishing read.
+//
+// The device takes the whole step for every shape (hulls packed once per structure change),
+// joint and preset, with these differences (docs/ARCHITECTURE.md, "The GPU backend"): the
+// Gauss-Seidel schemes run on colors, direct_ldl joints by the device's own sparse
+// L D L^T (joint_ldl.comp; double precision, one thread per joint island), a few settings
+// (contactsOffDevice) are the CPU's alone. A world that needs one of those has each step
+// with a contact or joint taken by the CPU backend from the same host mirror, counted in
+// BackendState::cpuSteps with the reason; the device's copy is refreshed before its next
+// step.
+#include <algorithm>
+#include <bit>
+#include <cstdio>
+#include <cstring>
+#include <unordered_map>
+
+#include "world/world_impl.h"
+
+#ifdef PHYS_WITH_GPU
+#include "phys/gpu/gpu_world.h"
+#include "phys/gpu/hull_pack.h"
+#endif
+
+namespace phys {
+
+const char* toString(Backend b) {
+  switch (b) {
+    case Backend::Cpu:
+      return "cpu";
+    case Backend::Gpu:
+      return "gpu";
+    case Backend::Auto:
+      return "auto";
+  }
+  return "?";
+}
+
+bool parseBackend(const std::string& text, Backend* out) {
+  for (Backend b : {Backend::Cpu, Backend::Gpu, Backend::Auto}) {
+    if (text == toString(b)) {
+      *out = b;
+      return true;
+    }
+  }
+  return false;
+}
+
+const BackendState& World::backendState() const {
+  return impl_->backend;
+}
+
+#ifndef PHYS_WITH_GPU
+
+struct DeviceWorld {};
+void DeviceWorldDeleter::operator()(DeviceWorld* d) const {
+  delete d;
+}
+void World::Impl::openDevice() {
+  backend.note = "built without the GPU backend (PHYS_WITH_GPU=OFF)";
+}
+int gpuValidationErrorsInProcess() {
+  return 0;
+}
+void World::Impl::deviceEdited(uint32_t) {}
+void World::Impl::deviceStale() {}
+bool World::Impl::stepOnDevice(int) {
+  return false;
+}
+
+#else
+
+// The device's split depth is the CPU's (shared.h's is a GLSL literal).
+static_assert(float(PHYS_GPU_SPLIT_DEPTH) == SolverSettings::kSplitDepth);
+
+struct DeviceWorld {
+  std::unique_ptr<gpu::GpuWorld> world;
+  bool hulls = false;                ///< a hull the device cannot take (hull_pack.h's limits)
+  std::vector<uint32_t> jointSlots;  ///< device joint index -> joint slot
+  std::vector<float> stiffness;      ///< body slot -> joints' geometric stiffness this step
+  std::vector<uint32_t> slots;       ///< device body index -> body slot
+  std::vector<uint32_t> edited;      ///< body slots edited since the last upload
+  bool stale = true;                 ///< bodies or shapes changed: upload everything
+};
+
+void DeviceWorldDeleter::operator()(DeviceWorld* d) const {
+  delete d;
+}
+
+namespace {
+
+gpu::vec4 v4(Vec3 v, float w = 0) {
+  return {v.x, v.y, v.z, w};
+}
+gpu::vec4 q4(Quat q) {
+  return {q.x, q.y, q.z, q.w};
+}
+
+gpu::GpuBodyState stateOf(const BodyRec& b) {
+  return {v4(b.com), q4(b.xf.q), v4(b.v), v4(b.w)};
+}
+
+gpu::GpuBodyParams paramsOf(const BodyRec& b, Vec3 gravity, float stiffness) {
+  gpu::GpuBodyParams p;
+  const bool dynamic = b.type == BodyType::Dynamic;
+  p.accel = v4(dynamic ? gravity * b.gravityScale + b.force * b.invMass : Vec3{}, b.invMass);
+  p.torque = v4(dynamic ? b.torque : Vec3{}, b.linearDamping);
+  p.principal = q4(b.principal);
+  p.moments = v4(b.principalMoments, b.angularDamping);
+  for (int r = 0; r < 3; ++r) p.invInertia[r] = v4(b.invInertiaLocal.row(r));
+  p.localCenter = v4(b.localCenter, dynamic ? stiffness : 0.0f);
+  // The same rule as Solver bodies (buildSolverBodies): equal moments need no splitting.
+  const Vec3 I = b.principalMoments;
+  const float spread = std::max({I.x, I.y, I.z}) - std::min({I.x, I.y, I.z});
+  const bool gyroscopic = b.gyroscopic && spread > 1e-5f * std::max({I.x, I.y, I.z});
+  p.flags.x = (dynamic ? PHYS_GPU_BODY_DYNAMIC : 0u) |
+              (dynamic && gyroscopic ? PHYS_GPU_BODY_GYROSCOPIC : 0u);
+  return p;
+}
+
+gpu::GpuJoint jointOf(const JointRec& j, const BodyRec* A, const BodyRec& B) {
+  const JointDef& d = j.def;
+  gpu::GpuJoint g;
+  g.type = uint32_t(d.type);
+  g.flags =
+      (d.enableLimit ? PHYS_GPU_JOINT_LIMIT : 0u) | (d.enableMotor ? PHYS_GPU_JOINT_MOTOR : 0u);
+  g.qA = {0, 0, 0, 1};
+  if (A && A->deviceIndex >= 0) {
+    g.bodyA = A->deviceIndex;
+    g.anchorA = v4(d.anchorA - A->localCenter, j.length);
+  } else {
+    // The world, or a static body: its anchor and orientation in the world (jointFrame).
+    g.bodyA = -1;
+    g.anchorA = v4(A ? apply(A->xf, d.anchorA) : d.anchorA, j.length);
+    if (A) g.qA = q4(A->xf.q);
+  }
+  g.qB = {0, 0, 0, 1};
+  g.bodyB = B.deviceIndex;
+  if (B.deviceIndex >= 0) {
+    g.anchorB = v4(d.anchorB - B.localCenter, d.lower);
+  } else {  // a static body B: its anchor and orientation in the world
+    g.anchorB = v4(apply(B.xf, d.anchorB), d.lower);
+    g.qB = q4(B.xf.q);
+  }
+  g.axisA = v4(normalize(d.axisA), d.upper);
+  g.axisB = v4(normalize(d.axisB), d.motorSpeed);
+  g.relRot0 = q4(j.relRot0);
+  g.refA = v4(j.refA, d.maxMotorForce);
+  g.refB = v4(j.refB, d.springHertz);
+  const bool rigid = !d.enableLimit && d.springHertz <= 0;
+  g.spring = {d.springDampingRatio, rigid ? 1.0f : 0.0f, 0, 0};
+  return g;
+}
+
+gpu::GpuJointOut jointImpulses(const JointRec& j) {
+  gpu::GpuJointOut o;
+  for (int k = 0; k < j.impulseCount && k < JointRec::kMaxRows; ++k)
+    (k < 4 ? (&o.impulses[0].x)[k] : (&o.impulses[1].x)[k - 4]) = j.impulses[k];
+  const uint32_t count = uint32_t(j.impulseCount);
+  std::memcpy(&o.force.w, &count, 4);
+  return o;
+}
+
+gpu::GpuShape shapeOf(const ShapeRec& s, const BodyRec& b, const Transform& world,
+                      uint32_t hullOffset) {
+  gpu::GpuShape g;
+  const bool fixed = b.type == BodyType::Static;
+  const Transform& xf = fixed ? world : s.def.local;
+  g.localP = v4(xf.p, s.boundRadius);
+  g.localQ = q4(xf.q);
+  g.body = fixed ? -1 : b.deviceIndex;
+  g.friction = s.def.material.friction;
+  g.restitution = s.def.material.restitution;
+  const ShapeGeom& geom = s.def.geom;
+  g.type = uint32_t(geom.type);
+  switch (geom.type) {
+    case ShapeType::Sphere:
+      g.size = {geom.radius, 0, 0, 0};
+      break;
+    case ShapeType::Box:
+      g.size = v4(geom.halfExtents);
+      break;
+    case ShapeType::Capsule:
+      g.size = {geom.radius, geom.halfHeight, 0, 0};
+      break;
+    case ShapeType::Plane: {
+      // In the world frame: dot(n, x) = offset + dot(n, p).
+      const Vec3 n = rotate(world.q, geom.normal);
+      g.size = v4(n, geom.offset + dot(n, world.p));
+      break;
+    }
+    case ShapeType::Hull:
+      // The record's offset as float bits (no arithmetic on it); a static hull's bound is a
+      // sphere about the shape's position: its farthest vertex.
+      g.size = {std::bit_cast<float>(hullOffset), 0, 0, 0};
+      if (fixed && geom.hull) {
+        float r = 0;
+        for (const Vec3& v : geom.hull->vertices) r = std::max(r, length(v));
+        g.localP.w = r;
+      }
+      break;
+  }
+  return g;
+}
+
+}  // namespace
+
+int gpuValidationErrorsInProcess() {
+  return gpu::validationErrorsInProcess();
+}
+
+void World::Impl::openDevice() {
+  backend.requested = def.backend;
+  if (def.backend == Backend::Cpu) return;
+  gpu::DeviceOptions options;
+  options.allowCpu = def.gpuAllowCpuDevice;
+  options = gpu::deviceOptionsFromEnv(options);
+  backend.validationRequested = options.validation;
+  std::string error;
+  std::unique_ptr<gpu::GpuWorld> world = gpu::GpuWorld::create(options, &error);
+  if (!world) {
+    backend.note = "no GPU device, running on the CPU: " + error;
+    // Said once per process: a server opening many worlds need not repeat it.
+    static bool said = false;
+    if (!said) std::fprintf(stderr, "phys: %s\n", backend.note.c_str());
+    said = true;
+    return;
+  }
+  device.reset(new DeviceWorld);
+  backend.device = world->device().name;
+  backend.validation = world->device().validation;
+  backend.active = Backend::Gpu;
+  device->world = std::move(world);
+}
+
+void World::Impl::deviceEdited(uint32_t slot) {
+  if (!device || device->stale) return;
+  if (bodies.at(slot).deviceIndex < 0) {
+    device->stale = true;  // a static body moved: its shapes are held in world coordinates
+    return;
+  }
+  device->edited.push_back(slot);
+}
+
+void World::Impl::deviceStale() {
+  if (device) device->stale = true;
+}
+
+/// Why the device cannot solve this world's contacts (empty: it can).
+static std::string contactsOffDevice(const SolverSettings& s, bool hulls, bool narrowPhase) {
+  if (!narrowPhase) return "this build has no narrow phase on the GPU";
+  if (hulls) return "a hull shape is beyond the GPU backend's hull limits (hull_pack.h)";
+  // The device pairs the position pass's form with the scheme (as the presets do).
+  const bool jacobi = s.scheme == SolverSettings::Scheme::Jacobi;
+  if (s.positionIterations > 0 &&
+      ((s.positionPass == SolverSettings::PositionPass::NonlinearJacobi && !jacobi) ||
+       (s.positionPass == SolverSettings::PositionPass::NonlinearGaussSeidel && jacobi)))
+    return "the position pass's form differs from the scheme's (the GPU backend pairs "
+           "nonlinear_jacobi with jacobi and nonlinear_gauss_seidel with the Gauss-Seidel "
+           "schemes)";
+  if (s.blockContacts) return "the contact block solve is not on the GPU backend yet";
+  if (s.splitPushout && (jacobi || s.stabilization != SolverSettings::Stabilization::Soft))
+    return "the GPU backend has the split push-out with soft Gauss-Seidel only";
+  return {};
+}
+
+static gpu::ContactSettings contactSettings(const SolverSettings& s) {
+  gpu::ContactSettings c;
+  // Both Gauss-Seidel schemes run on colors on the device (the CPU's gauss_seidel runs the
+  // contacts in one fixed order: the results differ in rounding and order).
+  c.jacobi = s.scheme == SolverSettings::Scheme::Jacobi;
+  c.patchFriction = s.patchFriction;
+  c.iterations = s.iterations;
+  c.relaxIterations = s.relaxIterations;
+  c.soft = s.stabilization == SolverSettings::Stabilization::Soft;
+  c.contactHertz = s.contactHertz;
+  c.contactDampingRatio = s.contactDampingRatio;
+  c.jointHertz = s.jointHertz;
+  c.jointDampingRatio = s.jointDampingRatio;
+  c.baumgarte = s.baumgarte;
+  c.linearSlop = s.linearSlop;
+  c.maxPushout = s.maxPushout;
+  c.warmStart = s.warmStart;
+  c.restitution = s.restitution;
+  c.restitutionThreshold = s.restitutionThreshold;
+  // The position pass: nonlinear Jacobi with the Jacobi scheme, nonlinear Gauss-Seidel on
+  // colors with the others (contactsOffDevice sends other pairings to the CPU).
+  c.positionIterations =
+      s.positionPass == SolverSettings::PositionPass::None ? 0 : s.positionIterations;
+  c.positionBaumgarte = s.positionBaumgarte;
+  c.maxPositionCorrection = s.maxPositionCorrection;
+  c.directJoints = s.equalitySolve == SolverSettings::EqualitySolve::DirectLdl;
+  c.splitPushout = s.splitPushout;
+  return c;
+}
+
+bool World::Impl::stepOnDevice(int substeps) {
+  DeviceWorld& d = *device;
+  const float dt = def.timeStep;
+  // Joints' geometric stiffness from last step's forces (addGeometricStiffness): it goes up
+  // in the bodies' parameters, so a body that has or had some goes up again.
+  if (def.solver.geometricStiffness && joints.size() > 0) {
+    std::vector<float> k = jointStiffness();
+    for (uint32_t i = 0; i < k.size(); ++i)
+      if (k[i] > 0 || (i < d.stiffness.size() && d.stiffness[i] > 0)) d.edited.push_back(i);
+    d.stiffness.swap(k);
+  } else if (!d.stiffness.empty()) {
+    for (uint32_t i = 0; i < d.stiffness.size(); ++i)
+      if (d.stiffness[i] > 0) d.edited.push_back(i);
+    d.stiffness.clear();
+  }
+  gpu::GpuWorld& g = *d.world;
+  if (d.stale) {
+    d.slots.clear();
+    std::vector<gpu::GpuBodyState> states;
+    std::vector<gpu::GpuBodyParams> params;
+    for (uint32_t i = 0; i < bodies.capacity(); ++i) {
+      if (!bodies.alive(i)) continue;
+      BodyRec& b = bodies.at(i);
+      b.deviceIndex = -1;
+      if (b.type == BodyType::Static) continue;
+      b.deviceIndex = int32_t(d.slots.size());
+      d.slots.push_back(i);
+      states.push_back(stateOf(b));
+      params.push_back(paramsOf(b, def.gravity, d.stiffness.empty() ? 0.0f : d.stiffness[i]));
+    }
+    g.setBodies(states, params);
+    std::vector<gpu::GpuShape> shapeRecs;
+    std::vector<uint32_t> owners;
+    std::vector<uint32_t> hullWords(4, 0);  // no record at offset 0
+    std::unordered_map<const ConvexHull*, uint32_t> packed;
+    d.hulls = false;
+    for (uint32_t i = 0; i < shapes.capacity(); ++i) {
+      if (!shapes.alive(i)) continue;
+      const ShapeRec& s = shapes.at(i);
+      uint32_t hull = gpu::kNoHull;
+      if (s.def.geom.type == ShapeType::Hull && s.def.geom.hull) {
+        const ConvexHull* h = s.def.geom.hull.get();
+        auto it = packed.find(h);
+        if (it == packed.end()) {
+          std::string error;
+          it = packed.emplace(h, gpu::packHull(gpu::hullInputOf(*h), &hullWords, &error)).first;
+          d.hulls |= it->second == gpu::kNoHull;  // unusable on the device: the CPU takes it
+        }
+        hull = it->second;
+      }
+      const BodyRec& b = *bodies.get(s.body);
+      shapeRecs.push_back(shapeOf(s, b, shapeTransform(b, s), hull));
+      owners.push_back(s.body.index);
+    }
+    g.setShapes(shapeRecs, owners);
+    g.setHulls(std::move(hullWords));
+    std::vector<std::pair<uint32_t, uint32_t> > apart;
+    for (uint64_t key : noCollide) apart.push_back({uint32_t(key >> 32), uint32_t(key)});
+    g.setNoCollide(std::move(apart));
+    std::vector<gpu::GpuJoint> jointRecs;
+    std::vector<gpu::GpuJointOut> jointWarm;
+    d.jointSlots.clear();
+    for (uint32_t i = 0; i < joints.capacity(); ++i) {
+      if (!joints.alive(i)) continue;
+      const JointRec& j = joints.at(i);
+      const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
+      const BodyRec& B = *bodies.get(j.def.bodyB);
+
+      d.jointSlots.push_back(i);
+      jointRecs.push_back(jointOf(j, A, B));
+      jointWarm.push_back(jointImpulses(j));
+    }
+    g.setJoints(jointRecs, jointWarm);
+  } else {
+    for (uint32_t slot : d.edited) {
+      if (!bodies.alive(slot)) continue;
+      const BodyRec& b = bodies.at(slot);
+      if (b.deviceIndex >= 0)
+        g.setBody(uint32_t(b.deviceIndex), stateOf(b),
+                  paramsOf(b, def.gravity, d.stiffness.empty() ? 0.0f : d.stiffness[slot]));
+    }
+  }
+  d.edited.clear();
+  d.stale = false;
+
+  // A world whose contacts or joints the device cannot solve yet steps on the device only
+  // while it has none (the CPU's broad phase tells).
+  std::string why = contactsOffDevice(def.solver, d.hulls, d.world->hasNarrowPhase());
+  const bool solveOnDevice = why.empty();
+  if (!solveOnDevice && joints.size() == 0) {
+    updateBounds(dt);
+    broadPhaseStage();
+    if (contacts.empty()) why.clear();
+  }
+  if (!why.empty()) {
+    backend.lastFallback = why;
+    return false;
+  }
+
+  gpu::StepInput in;
+  in.dt = dt;
+  in.substeps = substeps;
+  in.maxLinearSpeed = def.maxLinearSpeed;
+  in.maxAngularSpeed = def.maxAngularSpeed;
+  in.speculativeDistance = def.speculativeDistance;
+  in.solveContacts = solveOnDevice;
+  in.contacts = contactSettings(def.solver);
+  std::string error;
+  if (!g.step(in, &error)) {
+    backend.lastFallback = "the device step failed: " + error;
+    d.stale = true;
+    return false;
+  }
+
+  // The host mirror. Forces last one step: a body that had some goes up again without.
+  std::span<const gpu::GpuBodyState> out = g.states();
+  for (size_t i = 0; i < d.slots.size(); ++i) {
+    BodyRec& b = bodies.at(d.slots[i]);
+    const gpu::GpuBodyState& s = out[i];
+    b.com = {s.com.x, s.com.y, s.com.z};
+    b.xf.q = {s.q.x, s.q.y, s.q.z, s.q.w};
+    b.xf.p = b.com - rotate(b.xf.q, b.localCenter);
+    b.v = {s.v.x, s.v.y, s.v.z};
+    b.w = {s.w.x, s.w.y, s.w.z};
+    if (b.force != Vec3{} || b.torque != Vec3{}) {
+      b.force = b.torque = {};
+      d.edited.push_back(d.slots[i]);
+    }
+  }
+
+  // Joints: impulses (next step's warm start on either backend, snapshots), reactions, and
+  // their errors at the new poses.
+  std::span<const gpu::GpuJointOut> jout = g.jointResults();
+  for (size_t k = 0; k < d.jointSlots.size() && k < jout.size(); ++k) {
+    JointRec& j = joints.at(d.jointSlots[k]);
+    uint32_t count;
+    std::memcpy(&count, &jout[k].force.w, 4);
+    j.impulseCount = int32_t(std::min<uint32_t>(count, JointRec::kMaxRows));
+    for (int r = 0; r < j.impulseCount; ++r)
+      j.impulses[r] = r < 4 ? (&jout[k].impulses[0].x)[r] : (&jout[k].impulses[1].x)[r - 4];
+    j.state.reactionForce = {jout[k].force.x, jout[k].force.y, jout[k].force.z};
+    j.state.reactionTorque = {jout[k].torque.x, jout[k].torque.y, jout[k].torque.z};
+  }
+  if (!d.jointSlots.empty()) measureJoints();
+
+  std::span<const double> ms = g.stageMs();
+  auto stage = [&](gpu::Stage s) { return ms[size_t(s)]; };
+  profile.syncToDevice = stage(gpu::Stage::SyncToDevice);
+  profile.updateBounds = stage(gpu::Stage::UpdateBounds);
+  profile.broadPhase = stage(gpu::Stage::BroadPhase);
+  profile.narrowPhase = stage(gpu::Stage::NarrowPhase);
+  profile.prepare = stage(gpu::Stage::Prepare);
+  profile.integrateVelocities = stage(gpu::Stage::IntegrateVelocities);
+  profile.integratePositions = stage(gpu::Stage::IntegratePositions);
+  profile.warmStart = stage(gpu::Stage::WarmStart);
+  profile.solve = stage(gpu::Stage::Solve);
+  profile.relax = stage(gpu::Stage::Relax);
+  profile.restitution = stage(gpu::Stage::Restitution);
+  profile.positionPass = stage(gpu::Stage::PositionPass);
+  profile.storeImpulses = stage(gpu::Stage::StoreImpulses);
+  profile.finalize = stage(gpu::Stage::Finalize);
+  profile.readback = stage(gpu::Stage::Readback);
+  stats.bodies = int(bodies.size());
+  stats.awake = int(d.slots.size());
+  const gpu::ContactStats cs = g.contactStats();
+  stats.pairs = int(cs.pairs);
+  stats.contacts = int(cs.manifolds);
+  stats.contactPoints = int(cs.points);
+  stats.joints = int(d.jointSlots.size());
+  stats.maxPenetration = cs.deepest;
+  stats.velocityResidual = 0;
+  stats.iterationsUsed = 0;
+  backend.validationErrors = g.validationErrors();
+  backend.gpuSteps++;
+  return true;
+}
+
+#endif
+
+}  // namespace phys

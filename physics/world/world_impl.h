@@ -1,0 +1,205 @@
+// Private state of a World, shared by world.cpp (the API), step.cpp (the step and its
+// stages), snapshot.cpp, world_gpu.cpp (the device's side) and, from physics/dynamics/,
+// joints.cpp (joint rows from the body records) and stacks.cpp (stack stiffening).
+#pragma once
+
+#include <cstdint>
+#include <unordered_set>
+#include <vector>
+
+#include "phys/collision/broadphase.h"
+#include "phys/world/world.h"
+#include "dynamics/solver.h"
+#include "dynamics/solver_ldl.h"
+#include "dynamics/solver_wide.h"
+#include "dynamics/stacks.h"
+#include "base/thread_pool.h"
+
+namespace phys {
+
+struct ShapeRec {
+  BodyId body;
+  ShapeDef def;
+  int32_t proxy = -1;
+  float boundRadius = 0;  ///< m, max distance of the shape's surface from the body's centre of mass
+};
+
+struct BodyRec {
+  BodyType type = BodyType::Dynamic;
+  Transform xf;      ///< body frame
+  Vec3 localCenter;  ///< centre of mass in the body frame
+  Vec3 com;          ///< centre of mass in the world
+  Vec3 v, w;         ///< m/s, rad/s (world)
+  float mass = 0, invMass = 0;
+  Mat3 inertiaLocal = Mat3::zero();  ///< about the centre of mass, body axes
+  Mat3 invInertiaLocal = Mat3::zero();
+  Quat principal;                  ///< principal axes frame -> body frame
+  Vec3 principalMoments{1, 1, 1};  ///< kg m^2, eigenvalues of inertiaLocal
+  float linearDamping = 0, angularDamping = 0, gravityScale = 1;
+  bool gyroscopic = true;
+  bool autoMass = true;  ///< mass from shapes
+  float givenMass = 0;   ///< when !autoMass
+  Vec3 givenInertia;     ///< when nonzero
+  Vec3 force, torque;    ///< accumulated for the next step
+  std::vector<ShapeId> shapes;
+  std::vector<JointId> joints;
+  std::string name;
+  int32_t solverIndex = -1;  ///< this step's index into the solver body array, -1 if static
+  int32_t deviceIndex = -1;  ///< index among the GPU backend's bodies, -1 if static or none
+};
+
+struct JointRec {
+  JointDef def;
+  Quat relRot0;      ///< fixed/prismatic: conj(qA) * qB at creation
+  Vec3 refA, refB;   ///< hinge: local reference vectors perpendicular to the axis
+  float length = 0;  ///< distance: rest length
+  JointState state;
+  int32_t firstRow = 0, rowCount = 0;  ///< this step's rows
+  static constexpr int kMaxRows = 8;
+  float impulses[kMaxRows] = {};  ///< last step's row impulses, for warm starting
+  int32_t impulseCount = 0;
+};
+
+/// Persistent contact between two shapes (keyed by their shape indices, a < b).
+struct Contact {
+  uint32_t shapeA = 0, shapeB = 0;  ///< shape slots (broad-phase user values)
+  ShapeId idA, idB;                 ///< the shapes themselves, generation included
+  BodyId bodyA, bodyB;
+  Manifold manifold;
+  float normalImpulse[Manifold::kMaxPoints] = {};
+  /// Per point: the friction pair's impulses. With patch friction the manifold's three
+  /// (tangent 1, tangent 2, twist) in the first three slots instead: patchImpulse(d).
+  float tangentImpulse[Manifold::kMaxPoints][2] = {};
+  float friction = 0, restitution = 0;
+  int32_t firstRow = -1;  ///< this step's first normal row
+
+  float& patchImpulse(int d) { return tangentImpulse[d / 2][d % 2]; }
+  float patchImpulse(int d) const { return tangentImpulse[d / 2][d % 2]; }
+};
+
+/// What a step changes, kept to roll it back (guard rails).
+struct Snapshot {
+  struct Body {
+    uint32_t index;
+    Transform xf;
+    Vec3 com, v, w, force, torque;
+  };
+  struct JointImpulses {
+    uint32_t index;
+    int32_t count;
+    float impulses[JointRec::kMaxRows];
+  };
+  std::vector<Body> bodies;  ///< non-static bodies
+  std::vector<Contact> contacts;
+  std::vector<JointImpulses> jointImpulses;
+  double time = 0;
+  uint64_t step = 0;
+  float substepTime = 0;  ///< StepStats::substepTime: the contacts' impulses' unit
+  double kinetic = 0;     ///< J, kinetic energy at the step start
+  double liftEnergy = 0;  ///< J, lifting every dynamic body by 0.1 m (the jump floor)
+};
+
+/// The GPU backend's part of a world (world_gpu.cpp).
+struct DeviceWorld;
+struct DeviceWorldDeleter {
+  void operator()(DeviceWorld* d) const;
+};
+
+struct World::Impl {
+  WorldDef def;
+  Pool<BodyRec, BodyTag> bodies;
+  Pool<ShapeRec, ShapeTag> shapes;
+  Pool<JointRec, JointTag> joints;
+  BroadPhase broadPhase;
+  std::vector<ProxyPair> pairs;
+  std::vector<Contact> contacts;  ///< sorted by (shapeA, shapeB)
+  std::vector<Contact> contactScratch;
+  std::unordered_set<uint64_t> noCollide;  ///< body index pairs joined without collideConnected
+  std::unique_ptr<ThreadPool> pool;        ///< null with one thread
+  Solver solver;
+  WideContacts wide;  ///< the Gauss-Seidel scheme's contacts in SIMD lanes (solver_wide.h)
+  /// With wide contacts: this step's manifolds (instead of contact rows) and their contacts.
+  std::vector<SolverManifold> manifolds;
+  std::vector<uint32_t> manifoldContact;
+  /// The Gauss-Seidel order of this step's touching contacts (halves: solver_wide.h), and per
+  /// solver body its centre of mass and half.
+  std::vector<uint32_t> contactOrder;
+  std::vector<Vec3> solverCom;
+  std::vector<uint8_t> solverHalf;
+  EqualityLdl ldl;  ///< the joints' direct solve (equality = direct_ldl)
+  Snapshot snapshot;
+  StepProfile profile;
+  StepStats stats;
+  double time = 0;
+  // The GPU backend (world_gpu.cpp): null on the CPU backend.
+  BackendState backend;
+  std::unique_ptr<DeviceWorld, DeviceWorldDeleter> device;
+
+  // Helpers shared by the source files.
+  void updateMass(BodyRec& b);
+  void syncProxies(BodyId id, bool moved);
+  Transform shapeTransform(const BodyRec& b, const ShapeRec& s) const { return b.xf * s.def.local; }
+  static uint64_t bodyPairKey(uint32_t a, uint32_t b) {
+    return a < b ? (uint64_t(a) << 32 | b) : (uint64_t(b) << 32 | a);
+  }
+  void rebuildNoCollide();
+
+  // Step stages (in step.cpp), in order.
+  void applyCommands();
+  void updateBounds(float h);
+  void broadPhaseStage();
+  void narrowPhase(float h);
+  /// Stack stiffening (SolverSettings::stackStiffening): the contact frequency and substeps
+  /// this step's stacks need, into `s`; measureStacks finds the frequency (StepStats).
+  void stiffenForStacks(float dt, SolverSettings* s);
+  void measureStacks(float dt, const SolverSettings& s);
+  /// The measured stacks are for other settings (gravity, time step, contact frequency,
+  /// substeps): the preset's until the next measuring step (deterministic: StepStats).
+  void forgetStacks() {
+    stats.stackDepth = 0;
+    stats.stackHertz = 0;
+  }
+  /// Scales the stored warm-start impulses (per substep) to substeps of length h.
+  void rescaleWarmStarts(float h);
+  /// Its scratch: per body (index) its support depth, adjacency head, union-find parent and
+  /// (for a root) its stack's index; per contact whether it supports and its adjacency
+  /// links; per stack its deepest level and its first level in stackLevels.
+  std::vector<int32_t> stackDepth, stackHead, stackNext, stackQueue, stackRoot, stackIndex,
+      stackDeepest, stackFirstLevel;
+  std::vector<uint8_t> stackSupport;
+  std::vector<float> stackRise;
+  struct LevelSums {
+    double mass = 0, rise = 0, w = 0, wx = 0, wy = 0, wxx = 0, wxy = 0, wyy = 0;
+    int bodies = 0;
+  };
+  std::vector<LevelSums> stackLevels;
+  std::vector<StackLevel> stackModel;
+  /// Fills contactOrder; with halves (solver_wide.h) returns true and where the halves' end.
+  bool orderContacts(const SolverSettings& s, uint32_t halfEnd[2]);
+  void buildSolverBodies(const SolverSettings& s);  ///< s: this step's (substeps may differ)
+  /// Joints' geometric stiffness added to the solver bodies' inertia (substep h).
+  void addGeometricStiffness(float h);
+  /// Joints' geometric stiffness per body slot, from last step's joint forces.
+  std::vector<float> jointStiffness() const;
+  /// A contact in the solver's terms (its points relative to the centres of mass, warm start).
+  SolverManifold solverManifold(const Contact& c, const SolverSettings& s) const;
+  void contactRowsOf(const Contact& c, const SolverManifold& m);  ///< appended
+  void refreshJoints(float h);
+  void storeImpulses();  ///< rows' impulses back to contacts and joints (warm starting)
+  // GPU backend (world_gpu.cpp).
+  void openDevice();                 ///< at construction, for Backend::Gpu and Auto
+  void deviceEdited(uint32_t slot);  ///< a body's pose, velocity or forces changed
+  void deviceStale();                ///< anything else changed: everything goes up again
+  /// The step on the device; false (the CPU takes it) when the device cannot take it.
+  bool stepOnDevice(int substeps);
+  // Guard rails (step.cpp).
+  void takeSnapshot();
+  void restoreSnapshot();
+  std::string checkHealth() const;                ///< empty when the step was healthy
+  const char* bodyFault(const BodyRec& b) const;  ///< what is wrong with a body, or null
+  void quarantine();  ///< joint rows at the current poses, inside the substep loop
+  void finalize(float hSub);
+  void measureJoints();  ///< joints' position and angle errors at the bodies' poses
+};
+
+}  // namespace phys
