@@ -111,16 +111,25 @@ struct SharedDevice {
 };
 
 std::shared_ptr<SharedDevice> openShared(const DeviceOptions& o, std::string* error) {
+  using Key = std::tuple<bool, bool, std::string>;
   static std::mutex mutex;
-  static std::map<std::tuple<bool, bool, std::string>, std::weak_ptr<SharedDevice>> cache;
+  static std::map<Key, std::weak_ptr<SharedDevice>> cache;
+  // Once opened, a device stays open until the process exits, so the next world opened
+  // after the last one was destroyed finds it (physd and the tests open world after world).
+  // Opening one and building its kernels takes seconds on lavapipe (the narrow phase's
+  // pipeline alone about 2 s) and tens of milliseconds on a GPU. Not with validation: such
+  // a device is destroyed with its last world, so what a world's teardown leaves behind is
+  // reported then (gpuValidationErrorsInProcess).
+  static std::map<Key, std::shared_ptr<SharedDevice>> kept;
   std::lock_guard<std::mutex> lock(mutex);
-  auto key = std::make_tuple(o.allowCpu, o.validation, o.nameContains);
+  const Key key = std::make_tuple(o.allowCpu, o.validation, o.nameContains);
   if (auto s = cache[key].lock()) return s;
   auto s = std::make_shared<SharedDevice>();
   s->device = Device::open(o, error);
   if (!s->device) return nullptr;
   s->kernels = std::make_unique<Kernels>(s->device);
   cache[key] = s;
+  if (!o.validation) kept[key] = s;
   return s;
 }
 
