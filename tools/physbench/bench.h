@@ -20,6 +20,10 @@ struct SingleOptions {
   int threads = 0;         ///< the world's threads; 0: the machine's
   std::string backend;     ///< "cpu", "gpu", "auto"; empty: the scene's
   bool requireDevice = false;  ///< fail unless every step ran on the GPU backend
+  /// Also run the scene on the CPU backend for the same steps and judge the run by the
+  /// comparison (--against-cpu): see CpuComparison.
+  bool againstCpu = false;
+  double parity = -1;  ///< m; >= 0: a body ending further than this from its CPU twin fails
   std::string peer;        ///< run the scene in this peer engine instead (--peer)
   int peerIterations = 0;  ///< the peer's solver iterations; 0: the engine's default
 };
@@ -32,12 +36,26 @@ int runSingle(SingleOptions opt);
 /// device and the CPU took (and why the CPU did).
 std::string backendLabel(const World& world);
 
+/// --against-cpu: the same scene, preset and steps on the CPU backend beside the run. A
+/// criterion is judged by what the CPU makes of it at the same length: one the CPU run
+/// passes must pass on the device too; one both fail is reported and not counted (a
+/// CI-sized run is often too short for a whole-scene criterion, e.g. the bridge's cars).
+struct CpuComparison {
+  MetricsSummary cpu;
+  std::vector<CriterionResult> cpuCriteria;  ///< the scene's criteria on the CPU run
+  double maxPositionDifference = 0;          ///< m, largest |p_device - p_cpu| over bodies
+  double maxVelocityDifference = 0;          ///< m/s, largest |v_device - v_cpu|
+  std::string worstBody;                     ///< the body of maxPositionDifference
+  double parity = -1;                        ///< the bound on maxPositionDifference, if any
+};
+
 /// What runSingle prints (and writes as JSON) about one finished run.
 struct SingleResult {
   std::string preset;   ///< "scene", a preset name or a peer's label
   std::string backend;  ///< "cpu" or the peer engine and its version
   int threads = 0, bodies = 0, joints = 0, steps = 0;
   MetricsSummary metrics;
+  std::optional<CpuComparison> againstCpu;
 };
 /// Prints a run's metrics and criteria and writes opt.jsonOut; returns runSingle's status.
 int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResult& r);
@@ -86,6 +104,10 @@ struct SuiteOptions {
   /// How sweep.md's text links the plots directory (default "plots", i.e. beside it).
   std::string sweepPlotLink = "plots";
   std::string* sweepMarkdownOut = nullptr;  ///< when set, also gets sweep.md's text
+  /// Pinned state hashes (--expect-hashes FILE): every run of our engine must end with the
+  /// state hash the file gives for its scene and preset after the same steps, and every
+  /// line of the file must be run; else exit 1. --write-hashes FILE writes such a file.
+  std::string expectHashes, writeHashes;
 };
 
 inline constexpr double kQuickSeconds = 3;

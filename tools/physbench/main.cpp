@@ -2,9 +2,12 @@
 //   physbench --scene FILE [--preset NAME] [--seconds S] [--json OUT]
 //     one scene; exit status 0 when every criterion of the scene passed, 1 when one failed,
 //     2 on bad input.
+//   physbench --scene FILE --backend gpu [--require-device] --against-cpu [--parity M]
+//     the same on the device and on the CPU backend for the same steps: exit status 1 when a
+//     criterion the CPU run passes fails on the device (or a body ends > M m from its twin).
 //   physbench --suite [--presets a,b] [--scenes x,y] [--seconds-scale F] [--max-seconds S]
 //             [--quick] [--jobs N] [--csv OUT] [--markdown OUT] [--update-doc FILE]
-//             [--fail-on-criteria] [--fail-on-nan]
+//             [--fail-on-criteria] [--fail-on-nan] [--expect-hashes F] [--write-hashes F]
 //     every preset on every scene (see suite.cpp); exit status 2 when a run could not be
 //     executed, 1 with --fail-on-criteria when a run failed its criteria, else 0.
 //   physbench --scene FILE --peer NAME [--peer-iterations N] [--seconds S] [--json OUT]
@@ -99,6 +102,15 @@ int main(int argc, char** argv) {
   app.add_flag("--require-device", single.requireDevice,
                "with --backend gpu or auto: fail (exit 1) unless every step ran on the device "
                "(and, with PHYS_GPU_VALIDATION=1, the validation layer reported nothing)");
+  CLI::Option* againstCpuOpt = app.add_flag(
+      "--against-cpu", single.againstCpu,
+      "with --backend gpu or auto: run the scene on the CPU backend too, for the same steps; "
+      "the run passes when every criterion the CPU run passes at this length passes here (and "
+      "with --parity, every body ends within that distance of its CPU twin)");
+  app.add_option("--parity", single.parity,
+                 "with --against-cpu: the largest position difference (m) a body may end with")
+      ->check(CLI::NonNegativeNumber)
+      ->needs(againstCpuOpt);
   bool scalarContacts = false;
   app.add_flag("--scalar-contacts", scalarContacts,
                "solve Gauss-Seidel contacts one manifold at a time instead of in SIMD lanes "
@@ -115,6 +127,8 @@ int main(int argc, char** argv) {
           ->delimiter(',')
           ->check(CLI::Range(1, 100000));
   peerOpt->excludes(presetOpt);
+  peerOpt->excludes(againstCpuOpt);
+  againstCpuOpt->needs(sceneOpt);
 
   // Suite mode.
   CLI::Option* suiteFlag =
@@ -147,6 +161,11 @@ int main(int argc, char** argv) {
       app.add_flag("--fail-on-criteria", suite.failOnCriteria,
                    "exit 1 when a run fails its scene's criteria"),
       app.add_flag("--fail-on-nan", suite.failOnNan, "exit 1 when a run goes NaN"),
+      app.add_option("--expect-hashes", suite.expectHashes,
+                     "pinned state hashes (scene,preset,steps,state_hash): exit 1 when a run "
+                     "ends with another hash, or a pinned run is not run, or a run not pinned"),
+      app.add_option("--write-hashes", suite.writeHashes,
+                     "write every run's state hash to this file (for --expect-hashes)"),
       app.add_option("--peers", suite.peers,
                      "peer engines to run beside the presets, comma-separated, or all")
           ->delimiter(','),

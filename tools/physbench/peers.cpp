@@ -154,7 +154,8 @@ int runSinglePeer(const SingleOptions& opt) {
                  int(scene.bodies.size()),
                  int(scene.joints.size()),
                  run.summary.steps,
-                 run.summary};
+                 run.summary,
+                 {}};
   return reportSingle(opt, scene, r);
 }
 

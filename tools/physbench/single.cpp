@@ -42,6 +42,57 @@ nlohmann::json toJson(const MetricsSummary& m) {
   return j;
 }
 
+/// A scene run from its instantiation for a number of steps, its world kept for a look at
+/// the bodies afterwards.
+struct SceneRun {
+  std::unique_ptr<World> world;
+  std::vector<BodyId> ids;  ///< ids[i]: scene.bodies[i]
+  MetricsSummary metrics;   ///< state hash included
+};
+
+Status runScene(const Scene& scene, int steps, SceneRun* out) {
+  out->world = std::make_unique<World>(scene.world);
+  Status st = instantiateScene(scene, out->world.get(), &out->ids);
+  if (!st.ok()) return st;
+  MetricsRecorder rec(scene, *out->world, out->ids);
+  for (int i = 0; i < steps; ++i) {
+    out->world->step();
+    rec.afterStep(*out->world);
+  }
+  out->metrics = rec.summary();
+  out->metrics.stateHash = out->world->stateHash();
+  return Status::Ok();
+}
+
+CpuComparison compare(const Scene& scene, const SceneRun& run, const SceneRun& cpu,
+                      double parity) {
+  CpuComparison c;
+  c.cpu = cpu.metrics;
+  c.cpuCriteria = evaluate(cpu.metrics, scene.criteria);
+  c.parity = parity;
+  for (size_t i = 0; i < run.ids.size(); ++i) {
+    BodyState a, b;
+    if (!run.world->getBody(run.ids[i], &a).ok() || !cpu.world->getBody(cpu.ids[i], &b).ok())
+      continue;
+    const double dp = length(a.position - b.position);
+    if (!(dp <= c.maxPositionDifference)) {  // a NaN on either side is the worst
+      c.maxPositionDifference = dp;
+      c.worstBody = scene.bodies[i].name.empty() ? "#" + std::to_string(i) : scene.bodies[i].name;
+    }
+    const double dv = length(a.linearVelocity - b.linearVelocity);
+    if (!(dv <= c.maxVelocityDifference)) c.maxVelocityDifference = dv;
+  }
+  return c;
+}
+
+/// "<= 0.01", ">= 1", ">= 1, <= 2".
+std::string bounds(const CriterionResult& c) {
+  std::string out = c.min ? ">= " + fmtNumber(c.min) : "";
+  if (c.min && c.max) out += ", ";
+  if (c.max) out += "<= " + fmtNumber(c.max);
+  return out;
+}
+
 }  // namespace
 
 std::string fmtNumber(const std::optional<double>& v) {
@@ -84,23 +135,28 @@ int runSingle(SingleOptions opt) {
   scene.world.threads = opt.threads;
   if (!opt.backend.empty()) parseBackend(opt.backend, &scene.world.backend);
   const int validationBefore = gpuValidationErrorsInProcess();
-  auto world = std::make_unique<World>(scene.world);
-  std::vector<BodyId> ids;
-  st = instantiateScene(scene, world.get(), &ids);
+  const int steps = int(std::lround(seconds / scene.world.timeStep));
+  SceneRun run;
+  st = runScene(scene, steps, &run);
   if (!st.ok()) {
     std::cerr << "physbench: " << opt.scenePath << ": " << st.message << "\n";
     return 2;
   }
-  MetricsRecorder rec(scene, *world, ids);
-  const int steps = int(std::lround(seconds / scene.world.timeStep));
-  for (int i = 0; i < steps; ++i) {
-    world->step();
-    rec.afterStep(*world);
-  }
+  std::unique_ptr<World>& world = run.world;
   SingleResult result{usedPreset,         backendLabel(*world), world->def().threads,
                       world->bodyCount(), world->jointCount(),  steps,
-                      rec.summary()};
-  result.metrics.stateHash = world->stateHash();
+                      run.metrics,        {}};
+  if (opt.againstCpu) {
+    Scene onCpu = scene;
+    onCpu.world.backend = Backend::Cpu;
+    SceneRun cpu;
+    st = runScene(onCpu, steps, &cpu);
+    if (!st.ok()) {
+      std::cerr << "physbench: " << opt.scenePath << " on the CPU: " << st.message << "\n";
+      return 2;
+    }
+    result.againstCpu = compare(scene, run, cpu, opt.parity);
+  }
   const int code = reportSingle(opt, scene, result);
   const BackendState b = world->backendState();
   // The world's teardown under validation: what it leaves behind is reported when its device
@@ -154,11 +210,37 @@ int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResul
     if (v > 0.0005) std::printf(" %s %.3f", k.c_str(), v);
   std::printf("\n");
   for (const CriterionResult& c : results) {
-    std::printf("  [%s] %s = %s (%s%s%s)\n", c.passed ? "PASS" : "FAIL", c.name.c_str(),
-                fmtNumber(c.value).c_str(), c.min ? (">= " + fmtNumber(c.min)).c_str() : "",
-                c.min && c.max ? ", " : "", c.max ? ("<= " + fmtNumber(c.max)).c_str() : "");
+    std::printf("  [%s] %s = %s (%s)\n", c.passed ? "PASS" : "FAIL", c.name.c_str(),
+                fmtNumber(c.value).c_str(), bounds(c).c_str());
   }
-  std::printf("%s\n", results.empty() ? "no criteria" : passed ? "PASSED" : "FAILED");
+  if (r.againstCpu) {
+    // The run is judged against the CPU backend's at the same length (CpuComparison).
+    const CpuComparison& c = *r.againstCpu;
+    std::printf("  against the CPU backend (the same preset, %d steps):\n", steps);
+    passed = true;
+    for (size_t i = 0; i < results.size(); ++i) {
+      const CriterionResult& d = results[i];
+      const CriterionResult& h = c.cpuCriteria[i];
+      const char* verdict = d.passed ? "PASS" : h.passed ? "FAIL" : "BOTH FAIL";
+      passed &= d.passed || !h.passed;
+      std::printf("  [%s] %s: device %s, cpu %s (%s)\n", verdict, d.name.c_str(),
+                  fmtNumber(d.value).c_str(), fmtNumber(h.value).c_str(), bounds(d).c_str());
+    }
+    const bool parityFailed = c.parity >= 0 && !(c.maxPositionDifference <= c.parity);
+    passed &= !parityFailed;
+    std::printf("  %s largest position difference %.3g m (%s), velocity %.3g m/s", 
+                parityFailed ? "[FAIL]" : c.parity >= 0 ? "[PASS]" : "      ",
+                c.maxPositionDifference, c.worstBody.empty() ? "-" : c.worstBody.c_str(),
+                c.maxVelocityDifference);
+    if (c.parity >= 0) std::printf(" (<= %.3g m)", c.parity);
+    std::printf("\n  state hash: device %016llx, cpu %016llx%s\n",
+                static_cast<unsigned long long>(m.stateHash),
+                static_cast<unsigned long long>(c.cpu.stateHash),
+                m.stateHash == c.cpu.stateHash ? " (the same bits)" : "");
+    std::printf("%s\n", passed ? "PASSED" : "FAILED");
+  } else {
+    std::printf("%s\n", results.empty() ? "no criteria" : passed ? "PASSED" : "FAILED");
+  }
 
   if (!opt.jsonOut.empty()) {
     nlohmann::json j;
@@ -175,6 +257,20 @@ int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResul
       c["kind"] = cr.max ? "max" : "min";
       if (cr.min && cr.max) c["min"] = *cr.min;
       j["criteria"].push_back(c);
+    }
+    if (r.againstCpu) {
+      const CpuComparison& c = *r.againstCpu;
+      nlohmann::json a;
+      a["metrics"] = toJson(c.cpu);
+      a["criteria"] = nlohmann::json::array();
+      for (const CriterionResult& cr : c.cpuCriteria)
+        a["criteria"].push_back(
+            {{"name", cr.name}, {"value", optional(cr.value)}, {"passed", cr.passed}});
+      a["max_position_difference"] = optional(c.maxPositionDifference);
+      a["max_velocity_difference"] = optional(c.maxVelocityDifference);
+      a["worst_body"] = c.worstBody;
+      if (c.parity >= 0) a["parity"] = c.parity;
+      j["against_cpu"] = a;
     }
     j["passed"] = passed;
     nlohmann::json stages;

@@ -332,6 +332,77 @@ std::string wallLimitMessage(double limitSeconds, int stepsDone, int stepsPlanne
   return buf;
 }
 
+namespace {
+
+/// Our engine's runs, keyed "scene,preset" (peers have no state hash of ours).
+std::map<std::string, const RunResult*> engineRuns(const SuiteReport& rep) {
+  std::map<std::string, const RunResult*> out;
+  for (const RunResult& r : rep.runs)
+    if (r.engine == "phys") out[r.scene + "," + r.preset] = &r;
+  return out;
+}
+
+std::string hashText(uint64_t h) {
+  char b[17];
+  std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(h));
+  return b;
+}
+
+}  // namespace
+
+std::string writeHashes(const SuiteReport& rep, const std::string& path) {
+  std::string text =
+      "# State hashes pinned by physbench --expect-hashes: each run's World::stateHash() after\n"
+      "# the given steps on the CPU backend. Written by physbench --write-hashes.\n"
+      "scene,preset,steps,state_hash\n";
+  for (const auto& [key, r] : engineRuns(rep))
+    if (r->status != RunStatus::Error)
+      text += key + "," + std::to_string(r->steps) + "," + hashText(r->metrics.stateHash) + "\n";
+  return writeAtomically(path, text);
+}
+
+int checkHashes(const SuiteReport& rep, const std::string& path, std::string* err) {
+  std::ifstream in(path);
+  if (!in) {
+    *err = "cannot read pinned hashes " + path;
+    return 0;
+  }
+  std::map<std::string, const RunResult*> runs = engineRuns(rep);
+  int mismatches = 0, pinned = 0;
+  auto mismatch = [&](const std::string& what) {
+    std::fprintf(stderr, "physbench: pinned hash: %s\n", what.c_str());
+    mismatches++;
+  };
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.empty() || line[0] == '#' || line.rfind("scene,", 0) == 0) continue;
+    std::vector<std::string> f;
+    std::stringstream ss(line);
+    for (std::string field; std::getline(ss, field, ',');) f.push_back(field);
+    if (f.size() != 4) {
+      *err = path + ": not scene,preset,steps,state_hash: " + line;
+      return mismatches;
+    }
+    pinned++;
+    const std::string key = f[0] + "," + f[1];
+    auto it = runs.find(key);
+    if (it == runs.end()) {
+      mismatch(key + " is pinned but was not run");
+      continue;
+    }
+    const RunResult& r = *it->second;
+    runs.erase(it);
+    if (std::to_string(r.steps) != f[2])
+      mismatch(key + ": " + std::to_string(r.steps) + " steps, pinned after " + f[2]);
+    else if (hashText(r.metrics.stateHash) != f[3])
+      mismatch(key + ": state hash " + hashText(r.metrics.stateHash) + ", pinned " + f[3]);
+  }
+  for (const auto& [key, r] : runs) mismatch(key + " was run but has no pinned hash");
+  std::fprintf(stderr, "physbench: %d pinned state hashes, %d differ or are missing (%s)\n",
+               pinned, mismatches, path.c_str());
+  return mismatches;
+}
+
 int runSuite(const SuiteOptions& opt) {
   const Clock::time_point t0 = Clock::now();
   SuiteReport rep;
@@ -595,9 +666,17 @@ int runSuite(const SuiteOptions& opt) {
   if (!peerColumns.empty())
     std::fprintf(stderr, ", %d peer runs could not build their scene", cannot);
   std::fprintf(stderr, "\n");
+  if (!opt.writeHashes.empty()) report(writeHashes(rep, opt.writeHashes));
+  int hashMismatches = 0;
+  if (!opt.expectHashes.empty()) {
+    std::string hashErr;
+    hashMismatches = checkHashes(rep, opt.expectHashes, &hashErr);
+    if (!hashErr.empty()) report(hashErr);
+  }
   if (rep.errors > 0 || reportErrors > 0) return 2;
   if (opt.failOnCriteria && fail + nan > 0) return 1;
   if (opt.failOnNan && nan > 0) return 1;
+  if (hashMismatches > 0) return 1;
   return 0;
 }
 

@@ -89,6 +89,13 @@ std::string writeAtomically(const std::string& path, const std::string& text);
 std::string markdownReport(const SuiteReport& r, bool table = true);
 /// Writes one CSV row per run. Returns an error message, empty on success.
 std::string writeCsv(const SuiteReport& r, const std::string& path);
+/// Writes the state hash of every run of our engine (scene,preset,steps,state_hash) for
+/// --expect-hashes. Returns an error message, empty on success.
+std::string writeHashes(const SuiteReport& r, const std::string& path);
+/// Compares the runs with the pinned hashes of `path` and prints each difference: a hash or
+/// step count that differs, a pinned run not run, a run not pinned. Returns how many; *err
+/// gets why the file could not be read.
+int checkHashes(const SuiteReport& r, const std::string& path, std::string* err);
 /// Replaces the region between the `<!-- suite:begin -->` and `<!-- suite:end -->` lines of
 /// `path` by `block`, appending the region under "## Every preset on every scene" when the
 /// file has no markers. Returns an error message, empty on success.
