@@ -780,8 +780,9 @@ TEST(GpuJoints, DirectSolveMatchesTheCpuForEveryJointType) {
 TEST(GpuJoints, DirectSolveHoldsAThousandToOneChain) {
   // SCENES.md's ball_and_chain in small: 20 links of 1 kg and a 1000 kg ball, released
   // horizontally. The LDL hybrid keeps every joint within 1 cm on the device as on the CPU,
-  // and the ball follows the CPU's. (The full scene, 40 links for 10 s, where iterated joints
-  // stretch 25 cm, is ctest's scene.gpu.ball_and_chain.)
+  // and the ball follows the CPU's. (The scene itself, 40 links, where iterated joints
+  // stretch 25 cm: ctest's scene.gpu.ball_and_chain for 1 s, tools/device_scenes.sh for its
+  // 60 s.)
   auto run = [](SolverSettings::EqualitySolve eq, Backend backend) {
     SolverSettings s;
     s.equalitySolve = eq;
