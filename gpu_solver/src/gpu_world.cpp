@@ -1,7 +1,9 @@
 #include "phys/gpu/gpu_world.h"
 
 #include <algorithm>
+#include <cstdlib>
 #include <cstring>
+#include <iterator>
 #include <map>
 #include <mutex>
 #include <stdexcept>
@@ -110,27 +112,61 @@ struct SharedDevice {
   ~SharedDevice() { kernels.reset(); }  // the kernels before the device
 };
 
-std::shared_ptr<SharedDevice> openShared(const DeviceOptions& o, std::string* error) {
+/// The devices open in this process. Once opened, a device stays open until the process
+/// exits (`kept`), so the next world opened after the last one was destroyed finds it (physd
+/// and the tests open world after world). Opening one and building its kernels takes seconds
+/// on lavapipe (the narrow phase's pipeline alone about 2 s) and tens of milliseconds on a
+/// GPU. Not with validation: such a device is destroyed with its last world, so what a world's
+/// teardown leaves behind is reported then (gpuValidationErrorsInProcess). A device whose
+/// submit failed (lost, out of memory) is let go too: the next world opens a new one.
+struct DeviceRegistry {
   using Key = std::tuple<bool, bool, std::string>;
-  static std::mutex mutex;
-  static std::map<Key, std::weak_ptr<SharedDevice>> cache;
-  // Once opened, a device stays open until the process exits, so the next world opened
-  // after the last one was destroyed finds it (physd and the tests open world after world).
-  // Opening one and building its kernels takes seconds on lavapipe (the narrow phase's
-  // pipeline alone about 2 s) and tens of milliseconds on a GPU. Not with validation: such
-  // a device is destroyed with its last world, so what a world's teardown leaves behind is
-  // reported then (gpuValidationErrorsInProcess).
-  static std::map<Key, std::shared_ptr<SharedDevice>> kept;
-  std::lock_guard<std::mutex> lock(mutex);
-  const Key key = std::make_tuple(o.allowCpu, o.validation, o.nameContains);
-  if (auto s = cache[key].lock()) return s;
+  std::mutex mutex;
+  std::map<Key, std::weak_ptr<SharedDevice>> open;
+  std::map<Key, std::shared_ptr<SharedDevice>> kept;
+  bool releaseAtExit = false;
+
+  static DeviceRegistry& get() {
+    static DeviceRegistry r;
+    return r;
+  }
+  /// Destroys the kept devices before the driver's own exit handlers run: Mesa finishes
+  /// its shader cache writes when a device goes, and its atexit handler, registered when
+  /// the first device was opened, would stop them unfinished. Registered after that
+  /// device, so it runs first.
+  static void releaseKept() {
+    DeviceRegistry& r = get();
+    std::map<Key, std::shared_ptr<SharedDevice>> kept;
+    {
+      std::lock_guard<std::mutex> lock(r.mutex);
+      kept.swap(r.kept);
+    }
+  }
+};
+
+std::shared_ptr<SharedDevice> openShared(const DeviceOptions& o, std::string* error) {
+  DeviceRegistry& r = DeviceRegistry::get();
+  std::lock_guard<std::mutex> lock(r.mutex);
+  const DeviceRegistry::Key key = std::make_tuple(o.allowCpu, o.validation, o.nameContains);
+  if (auto s = r.open[key].lock()) return s;
   auto s = std::make_shared<SharedDevice>();
   s->device = Device::open(o, error);
   if (!s->device) return nullptr;
   s->kernels = std::make_unique<Kernels>(s->device);
-  cache[key] = s;
-  if (!o.validation) kept[key] = s;
+  r.open[key] = s;
+  if (!o.validation) {
+    r.kept[key] = s;
+    if (!r.releaseAtExit) r.releaseAtExit = std::atexit(DeviceRegistry::releaseKept) == 0;
+  }
   return s;
+}
+
+/// A device that failed a submit is no longer kept for later worlds.
+void forgetShared(const std::shared_ptr<SharedDevice>& s) {
+  DeviceRegistry& r = DeviceRegistry::get();
+  std::lock_guard<std::mutex> lock(r.mutex);
+  for (auto it = r.kept.begin(); it != r.kept.end();)
+    it = it->second == s ? r.kept.erase(it) : std::next(it);
 }
 
 /// A row's stabilization as (bias rate, mass scale, impulse scale): Catto's soft constraint
@@ -765,8 +801,9 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
       }
       s.mark(int(Stage::Readback));
       if (!s.submit(error)) {
-        // What went up is not to be trusted.
+        // What went up is not to be trusted, nor the device for the next world.
         w.allBodiesDirty = w.shapesDirty = w.jointsDirty = w.ldlDirty = true;
+        forgetShared(w.shared);
         return false;
       }
     } catch (const std::exception& e) {

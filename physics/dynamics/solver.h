@@ -16,7 +16,7 @@
 #include <vector>
 
 #include "phys/base/math.h"
-#include "phys/world/world.h"
+#include "phys/dynamics/solver_settings.h"
 
 namespace phys {
 

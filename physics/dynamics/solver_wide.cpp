@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <bit>
 #include <cassert>
 #include <cmath>
@@ -25,6 +26,17 @@
 #endif
 
 namespace phys {
+
+namespace {
+std::atomic<bool> gVectorizedContacts{true};
+}  // namespace
+
+void setVectorizedContacts(bool on) {
+  gVectorizedContacts = on;
+}
+bool vectorizedContacts() {
+  return gVectorizedContacts;
+}
 
 using wide::kLanes;
 using wide::Lanes;

@@ -28,6 +28,7 @@
 #include <vector>
 
 #include "dynamics/solver.h"
+#include "phys/collision/shapes.h"
 
 namespace phys {
 

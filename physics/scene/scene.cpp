@@ -466,7 +466,7 @@ struct MetricInfo {
   std::vector<const char*> params = {};
 };
 
-// Generic metrics are physbench's (phys/metrics.h); the scene-specific ones are computed by
+// Generic metrics are physbench's (phys/scene/metrics.h); the scene-specific ones are computed by
 // the hooks of scene_metrics.cpp from the groups named here.
 const std::vector<MetricInfo>& metricTable() {
   static const std::vector<MetricInfo> table = {

@@ -5,7 +5,6 @@
 #include "phys/world/world.h"
 
 #include <algorithm>
-#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -42,17 +41,6 @@ class StageTimer {
 
 // ---------------------------------------------------------------------------------------------
 // The step
-
-namespace {
-std::atomic<bool> gVectorizedContacts{true};
-}  // namespace
-
-void setVectorizedContacts(bool on) {
-  gVectorizedContacts = on;
-}
-bool vectorizedContacts() {
-  return gVectorizedContacts;
-}
 
 void World::step() {
   Impl& w = *impl_;
@@ -368,8 +356,9 @@ void World::Impl::quarantine() {
 }
 
 void World::Impl::applyCommands() {
-  // In-process edits are applied immediately (the world is single-threaded between steps);
-  // the server queues network commands and drains them here.
+  // In-process edits are applied immediately (the world is single-threaded between steps),
+  // and physd applies its commands between ticks (server/src/commands.cpp): nothing is
+  // queued for the step yet.
 }
 
 void World::Impl::updateBounds(float dt) {

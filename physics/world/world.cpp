@@ -4,8 +4,6 @@
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
-#include <atomic>
-#include <chrono>
 #include <cmath>
 #include <cstring>
 
@@ -17,21 +15,6 @@ namespace phys {
 // ---------------------------------------------------------------------------------------------
 // Names
 
-const char* toString(StatusCode c) {
-  switch (c) {
-    case StatusCode::Ok:
-      return "OK";
-    case StatusCode::InvalidArgument:
-      return "INVALID_ARGUMENT";
-    case StatusCode::NotFound:
-      return "NOT_FOUND";
-    case StatusCode::IncorrectState:
-      return "INCORRECT_STATE";
-    case StatusCode::ResourceExhausted:
-      return "RESOURCE_EXHAUSTED";
-  }
-  return "?";
-}
 const char* toString(BodyType t) {
   switch (t) {
     case BodyType::Static:
@@ -43,22 +26,6 @@ const char* toString(BodyType t) {
   }
   return "?";
 }
-const char* toString(JointType t) {
-  switch (t) {
-    case JointType::Ball:
-      return "ball";
-    case JointType::Hinge:
-      return "hinge";
-    case JointType::Fixed:
-      return "fixed";
-    case JointType::Distance:
-      return "distance";
-    case JointType::Prismatic:
-      return "prismatic";
-  }
-  return "?";
-}
-
 // ---------------------------------------------------------------------------------------------
 // Validation: every public edit checks its input completely before changing anything.
 

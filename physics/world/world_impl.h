@@ -144,7 +144,7 @@ struct World::Impl {
   }
   void rebuildNoCollide();
 
-  // Step stages (in step.cpp), in order.
+  // Step stages (in step.cpp; the stacks' in physics/dynamics/stacks.cpp), in order.
   void applyCommands();
   void updateBounds(float h);
   void broadPhaseStage();

@@ -351,10 +351,18 @@ std::string hashText(uint64_t h) {
 }  // namespace
 
 std::string writeHashes(const SuiteReport& rep, const std::string& path) {
-  std::string text =
-      "# State hashes pinned by physbench --expect-hashes: each run's World::stateHash() after\n"
-      "# the given steps on the CPU backend. Written by physbench --write-hashes.\n"
-      "scene,preset,steps,state_hash\n";
+  // The comment lines an existing file opens with are kept (they say what pins it).
+  std::string header;
+  {
+    std::ifstream old(path);
+    for (std::string line; std::getline(old, line) && line.rfind('#', 0) == 0;)
+      header += line + "\n";
+  }
+  if (header.empty())
+    header =
+        "# State hashes pinned by physbench --expect-hashes: each run's World::stateHash() after\n"
+        "# the given steps on the CPU backend. Written by physbench --write-hashes.\n";
+  std::string text = header + "scene,preset,steps,state_hash\n";
   for (const auto& [key, r] : engineRuns(rep))
     if (r->status != RunStatus::Error)
       text += key + "," + std::to_string(r->steps) + "," + hashText(r->metrics.stateHash) + "\n";
@@ -375,6 +383,7 @@ int checkHashes(const SuiteReport& rep, const std::string& path, std::string* er
   };
   std::string line;
   while (std::getline(in, line)) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
     if (line.empty() || line[0] == '#' || line.rfind("scene,", 0) == 0) continue;
     std::vector<std::string> f;
     std::stringstream ss(line);
