@@ -46,7 +46,6 @@ struct CpuComparison {
   double maxPositionDifference = 0;          ///< m, largest |p_device - p_cpu| over bodies
   double maxVelocityDifference = 0;          ///< m/s, largest |v_device - v_cpu|
   std::string worstBody;                     ///< the body of maxPositionDifference
-  double parity = -1;                        ///< the bound on maxPositionDifference, if any
 };
 
 /// What runSingle prints (and writes as JSON) about one finished run.
@@ -140,5 +139,7 @@ int runStress(const StressOptions& opt);
 
 /// "%.6g", or "-" when empty.
 std::string fmtNumber(const std::optional<double>& v);
+/// A state hash as the reports write it: 16 hex digits.
+std::string hashText(uint64_t h);
 
 }  // namespace phys::bench

@@ -36,11 +36,21 @@ nlohmann::json optional(const std::optional<double>& v) {
 nlohmann::json toJson(const MetricsSummary& m) {
   nlohmann::json j;
   for (const std::string& name : metricNames()) j[name] = optional(m.value(name));
-  char hash[17];
-  std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(m.stateHash));
-  j["state_hash"] = hash;
+  j["state_hash"] = hashText(m.stateHash);
   for (const auto& [k, v] : m.extra) j[k] = std::isfinite(v) ? nlohmann::json(v) : nullptr;
   return j;
+}
+
+nlohmann::json toJson(const std::vector<CriterionResult>& results) {
+  nlohmann::json out = nlohmann::json::array();
+  for (const CriterionResult& cr : results) {
+    nlohmann::json c{{"name", cr.name}, {"value", optional(cr.value)}, {"passed", cr.passed}};
+    c["limit"] = cr.max ? nlohmann::json(*cr.max) : optional(cr.min);
+    c["kind"] = cr.max ? "max" : "min";
+    if (cr.min && cr.max) c["min"] = *cr.min;
+    out.push_back(c);
+  }
+  return out;
 }
 
 /// A scene run from its instantiation for a number of steps, its world kept for a look at
@@ -65,12 +75,10 @@ Status runScene(const Scene& scene, int steps, SceneRun* out) {
   return Status::Ok();
 }
 
-CpuComparison compare(const Scene& scene, const SceneRun& run, const SceneRun& cpu,
-                      double parity) {
+CpuComparison compare(const Scene& scene, const SceneRun& run, const SceneRun& cpu) {
   CpuComparison c;
   c.cpu = cpu.metrics;
   c.cpuCriteria = evaluate(cpu.metrics, scene.criteria);
-  c.parity = parity;
   for (size_t i = 0; i < run.ids.size(); ++i) {
     BodyState a, b;
     if (!run.world->getBody(run.ids[i], &a).ok() || !cpu.world->getBody(cpu.ids[i], &b).ok())
@@ -97,6 +105,12 @@ std::string bounds(const CriterionResult& c) {
 }
 
 }  // namespace
+
+std::string hashText(uint64_t h) {
+  char b[17];
+  std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(h));
+  return b;
+}
 
 std::string fmtNumber(const std::optional<double>& v) {
   if (!v) return "-";
@@ -161,7 +175,7 @@ int runSingle(SingleOptions opt) {
       std::cerr << "physbench: " << opt.scenePath << " on the CPU: " << st.message << "\n";
       return 2;
     }
-    result.againstCpu = compare(scene, run, cpu, opt.parity);
+    result.againstCpu = compare(scene, run, cpu);
   }
   const int code = reportSingle(opt, scene, result);
   const BackendState b = world->backendState();
@@ -233,18 +247,18 @@ int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResul
       std::printf("  [%s] %s: device %s, cpu %s (%s)\n", verdict, d.name.c_str(),
                   fmtNumber(d.value).c_str(), fmtNumber(h.value).c_str(), bounds(d).c_str());
     }
-    const bool parityFailed = c.parity >= 0 && !(c.maxPositionDifference <= c.parity);
+    const bool parityFailed = opt.parity >= 0 && !(c.maxPositionDifference <= opt.parity);
     passed &= !parityFailed;
     std::printf("  %s largest position difference %.3g m (%s), velocity %.3g m/s",
-                parityFailed ? "[FAIL]" : c.parity >= 0 ? "[PASS]" : "      ",
+                parityFailed ? "[FAIL]" : opt.parity >= 0 ? "[PASS]" : "      ",
                 c.maxPositionDifference, c.worstBody.empty() ? "-" : c.worstBody.c_str(),
                 c.maxVelocityDifference);
-    if (c.parity >= 0) std::printf(" (<= %.3g m)", c.parity);
+    if (opt.parity >= 0) std::printf(" (<= %.3g m)", opt.parity);
     std::printf("\n  state hash: device %016llx, cpu %016llx%s\n",
                 static_cast<unsigned long long>(m.stateHash),
                 static_cast<unsigned long long>(c.cpu.stateHash),
                 m.stateHash == c.cpu.stateHash ? " (the same bits)" : "");
-    std::printf("%s\n", results.empty() && c.parity < 0 ? "no criteria"
+    std::printf("%s\n", results.empty() && opt.parity < 0 ? "no criteria"
                          : passed                            ? "PASSED"
                                                              : "FAILED");
   } else {
@@ -259,26 +273,16 @@ int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResul
     j["threads"] = r.threads;
     j["steps"] = steps;
     j["metrics"] = toJson(m);
-    j["criteria"] = nlohmann::json::array();
-    for (const CriterionResult& cr : results) {
-      nlohmann::json c{{"name", cr.name}, {"value", optional(cr.value)}, {"passed", cr.passed}};
-      c["limit"] = cr.max ? nlohmann::json(*cr.max) : optional(cr.min);
-      c["kind"] = cr.max ? "max" : "min";
-      if (cr.min && cr.max) c["min"] = *cr.min;
-      j["criteria"].push_back(c);
-    }
+    j["criteria"] = toJson(results);
     if (r.againstCpu) {
       const CpuComparison& c = *r.againstCpu;
       nlohmann::json a;
       a["metrics"] = toJson(c.cpu);
-      a["criteria"] = nlohmann::json::array();
-      for (const CriterionResult& cr : c.cpuCriteria)
-        a["criteria"].push_back(
-            {{"name", cr.name}, {"value", optional(cr.value)}, {"passed", cr.passed}});
+      a["criteria"] = toJson(c.cpuCriteria);
       a["max_position_difference"] = optional(c.maxPositionDifference);
       a["max_velocity_difference"] = optional(c.maxVelocityDifference);
       a["worst_body"] = c.worstBody;
-      if (c.parity >= 0) a["parity"] = c.parity;
+      if (opt.parity >= 0) a["parity"] = opt.parity;
       j["against_cpu"] = a;
     }
     j["passed"] = passed;

@@ -342,12 +342,6 @@ std::map<std::string, const RunResult*> engineRuns(const SuiteReport& rep) {
   return out;
 }
 
-std::string hashText(uint64_t h) {
-  char b[17];
-  std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(h));
-  return b;
-}
-
 }  // namespace
 
 std::string writeHashes(const SuiteReport& rep, const std::string& path) {

@@ -304,11 +304,7 @@ std::string writeCsv(const SuiteReport& r, const std::string& path) {
         << (ran ? csvNumber(run.mainValue) : "") << "," << csvField(failed);
     for (const std::string& m : metricNames())
       out << "," << (ran ? csvNumber(run.metrics.value(m)) : "");
-    char hash[17] = "";
-    if (ran)
-      std::snprintf(hash, sizeof hash, "%016llx",
-                    static_cast<unsigned long long>(run.metrics.stateHash));
-    out << "," << hash;
+    out << "," << (ran ? hashText(run.metrics.stateHash) : "");
     for (const std::string& m : extras) {
       auto it = run.metrics.extra.find(m);
       out << "," << (it != run.metrics.extra.end() ? csvNumber(it->second) : "");
