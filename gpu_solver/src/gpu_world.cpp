@@ -1,6 +1,7 @@
 #include "phys/gpu/gpu_world.h"
 
 #include <algorithm>
+#include <bit>
 #include <cstdlib>
 #include <cstring>
 #include <iterator>
@@ -653,6 +654,17 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
   Kernels& k = w.kernels();
   const uint32_t n = uint32_t(w.states.size()), m = uint32_t(w.shapes.size());
   const int substeps = std::max(in.substeps, 1);
+  // The pair buffers' bound (a power of two: the pair keys are sorted bitonically).
+  const uint32_t maxCapacity = std::bit_floor(std::max(in.maxPairs, 64u));
+  auto capped = [&](uint64_t want) {
+    const uint32_t slots = Primitives::pow2(uint32_t(std::min<uint64_t>(want, 1u << 31)));
+    return std::min(slots, maxCapacity);
+  };
+  if (w.pairCapacity > maxCapacity) {
+    // A lower bound than the buffers were grown for: fewer slots, laid out again.
+    w.pairCapacity = maxCapacity;
+    w.allBodiesDirty = w.shapesDirty = w.jointsDirty = w.ldlDirty = true;
+  }
   for (int attempt = 0;; ++attempt) {
     GpuStepConstants c{};
     c.h = in.dt / float(substeps);
@@ -811,12 +823,14 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
       w.allBodiesDirty = w.shapesDirty = w.jointsDirty = w.ldlDirty = true;
       return false;
     }
-    const uint32_t found =
-        w.counters[PHYS_GPU_COUNTER_PAIRS] + w.counters[PHYS_GPU_COUNTER_OVERFLOW];
-    if (w.counters[PHYS_GPU_COUNTER_OVERFLOW] > 0 && attempt == 0) {
-      // More pairs than the buffers hold: grow them and take the step again from the
-      // states before it (the host mirror), which all go up again.
-      w.pairCapacity = Primitives::pow2(found + found / 2);
+    const uint64_t found =
+        uint64_t(w.counters[PHYS_GPU_COUNTER_PAIRS]) + w.counters[PHYS_GPU_COUNTER_OVERFLOW];
+    if (w.counters[PHYS_GPU_COUNTER_OVERFLOW] > 0 && attempt == 0 &&
+        capped(found + found / 2) > w.pairCapacity) {
+      // More pairs than the buffers hold: grow them (up to the bound) and take the step
+      // again from the states before it (the host mirror), which all go up again. At the
+      // bound the step stands, without the pairs past it.
+      w.pairCapacity = capped(found + found / 2);
       w.allBodiesDirty = w.shapesDirty = w.jointsDirty = w.ldlDirty = true;
       continue;
     }
@@ -828,7 +842,7 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
     // serial overflow, still solved).
     w.colorLimit = std::clamp(w.counters[PHYS_GPU_COUNTER_COLORS] + 4, 8u, PHYS_GPU_MAX_COLORS);
     // Room to grow without a retry next time (the buffers never shrink).
-    if (found * 3 > w.pairCapacity * 2) w.pairCapacity = Primitives::pow2(found * 2);
+    if (found * 3 > uint64_t(w.pairCapacity) * 2) w.pairCapacity = capped(found * 2);
     w.states.swap(result);
     if (solve && !w.joints.empty()) w.jointOut.swap(jointResults);
     w.current ^= 1;
@@ -863,7 +877,7 @@ ContactStats GpuWorld::contactStats() const {
   float deepest;
   std::memcpy(&deepest, &c[PHYS_GPU_COUNTER_DEEPEST], 4);
   return {c[PHYS_GPU_COUNTER_PAIRS], c[PHYS_GPU_COUNTER_CONTACTS], c[PHYS_GPU_COUNTER_POINTS],
-          deepest};
+          deepest, c[PHYS_GPU_COUNTER_OVERFLOW]};
 }
 bool GpuWorld::hasNarrowPhase() const {
   return impl_->kernels().narrowPhase != nullptr;

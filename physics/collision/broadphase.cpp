@@ -36,6 +36,14 @@
 // Everything is ordered by user values or by the call sequence (free lists are LIFO, trees
 // built by fixed rules), never by addresses or hash order: same calls, same output. Buffers
 // are kept between calls, so the steady state does not allocate.
+//
+// The bound (computePairs with maxPairs): a pile of n coincident boxes has n^2 / 2 pairs, so
+// both ways of finding pairs stop as soon as they hold more than the bound, and the list is
+// then found again as its first maxPairs entries (findFirstPairs: proxies in user order, one
+// query each, at a cost proportional to what it keeps). Which pairs those are depends only on
+// the fat boxes, as the full list does, so a world restored from a snapshot keeps the same
+// ones. A cut list is not updated incrementally: the next call with anything dirty starts
+// from scratch, and returns to the incremental path once the pairs fit again.
 #include "phys/collision/broadphase.h"
 
 #include <algorithm>
@@ -43,6 +51,7 @@
 #include <cassert>
 #include <cfloat>
 #include <new>
+#include <type_traits>
 
 namespace phys {
 namespace {
@@ -126,6 +135,18 @@ struct CacheLineAllocator {
   friend bool operator==(const CacheLineAllocator&, const CacheLineAllocator&) { return true; }
 };
 
+// Calls a traversal's callback; true when it asks to stop (a callback returning void never
+// does).
+template <class F, class... A>
+inline bool callStops(F& f, A... args) {
+  if constexpr (std::is_void_v<std::invoke_result_t<F&, A...>>) {
+    f(args...);
+    return false;
+  } else {
+    return bool(f(args...));
+  }
+}
+
 // The part of a node that traversals read, 32 bytes so two share a cache line.
 struct alignas(32) Node {
   AABB box;
@@ -173,14 +194,12 @@ class Tree {
     }
   }
 
-  /// Calls f(proxy, user) for every leaf whose box overlaps `box`.
+  /// Calls f(proxy, user) for every leaf whose box overlaps `box`. f may return bool: true
+  /// stops the query (then query returns false; otherwise true).
   template <class F>
-  void query(const AABB& box, F&& f) const {
-    if (root_ == kNull || !touches(nodes_[root_].box, box)) return;
-    if (nodes_[root_].isLeaf()) {
-      f(nodes_[root_].proxy(), nodes_[root_].user());
-      return;
-    }
+  bool query(const AABB& box, F&& f) const {
+    if (root_ == kNull || !touches(nodes_[root_].box, box)) return true;
+    if (nodes_[root_].isLeaf()) return !callStops(f, nodes_[root_].proxy(), nodes_[root_].user());
     // The stack holds internal nodes known to overlap; children are tested from the parent
     // (siblings usually share a cache line).
     SmallStack<int32_t> stack;
@@ -191,18 +210,20 @@ class Tree {
         const Node& child = nodes_[c];
         if (!touches(child.box, box)) continue;
         if (child.isLeaf()) {
-          f(child.proxy(), child.user());
+          if (callStops(f, child.proxy(), child.user())) return false;
         } else {
           stack.push(c);
         }
       }
     }
+    return true;
   }
 
   /// Calls f(proxyA, userA, proxyB, userB) once for every overlapping pair of leaves, one
   /// from this tree and one from `other`, or, with other == this, two distinct leaves of it.
+  /// As in query, f may return true to stop (then the call returns false).
   template <class F>
-  void overlappingPairs(const Tree& other, F&& f) const;
+  bool overlappingPairs(const Tree& other, F&& f) const;
 
  private:
   int32_t allocNode();
@@ -589,9 +610,9 @@ void Tree::rebuild(std::vector<LeafRef>* refsPtr) {
 }
 
 template <class F>
-void Tree::overlappingPairs(const Tree& other, F&& f) const {
+bool Tree::overlappingPairs(const Tree& other, F&& f) const {
   const bool self = &other == this;
-  if (root_ == kNull || other.root_ == kNull) return;
+  if (root_ == kNull || other.root_ == kNull) return true;
   const Node* bNodes = other.nodes_.data();
   // Items are (a in this tree, b in other) whose boxes are known to overlap and which are
   // not both leaves, or (a, kNull): all pairs inside a's subtree (a internal). As in query,
@@ -600,11 +621,12 @@ void Tree::overlappingPairs(const Tree& other, F&& f) const {
     int32_t a, b;
   };
   SmallStack<Item> stack;
+  bool stop = false;
   auto found = [&](int32_t a, int32_t b) {
     const Node& A = nodes_[a];
     const Node& B = bNodes[b];
     if (A.isLeaf() && B.isLeaf()) {
-      f(A.proxy(), A.user(), B.proxy(), B.user());
+      stop |= callStops(f, A.proxy(), A.user(), B.proxy(), B.user());
     } else {
       stack.push({a, b});
     }
@@ -615,6 +637,7 @@ void Tree::overlappingPairs(const Tree& other, F&& f) const {
     found(root_, other.root_);
   }
   while (!stack.empty()) {
+    if (stop) return false;
     const Item it = stack.pop();
     const Node& A = nodes_[it.a];
     if (it.b == kNull) {
@@ -635,6 +658,7 @@ void Tree::overlappingPairs(const Tree& other, F&& f) const {
       }
     }
   }
+  return !stop;
 }
 
 struct Proxy {
@@ -729,6 +753,15 @@ struct BroadPhase::Impl {
   uint32_t maxUser = 0;
   std::vector<LeafRef> refs;
   std::vector<uint64_t> queryOrder;  // (leaf, proxy) of the live dirty proxies
+  // The pair bound (computePairs with maxPairs). `truncated`: pairs[0, pairCount) is the
+  // first `truncLimit` pairs of a longer list, so the next call with anything dirty (or
+  // another bound) recomputes from scratch; `dropped` is what that call reported. `stale`:
+  // the list is not to be trusted (a call in progress, one an exception left halfway,
+  // forgetPairs), so the next call recomputes it from scratch.
+  bool truncated = false, stale = false;
+  size_t truncLimit = 0;
+  uint64_t dropped = 0;
+  std::vector<uint32_t> batch;  // findFirstPairs: one proxy's higher neighbours
 
   Tree& treeOf(const Proxy& p) { return trees[p.isStatic ? kStaticTree : kDynamicTree]; }
   void markDirty(int32_t p) {
@@ -742,9 +775,14 @@ struct BroadPhase::Impl {
   void removePending(int32_t p);
   void flushPending();
   void rebuildTree(int t);
-  void findNewPairs();
-  void findAllPairs();
+  // Each returns false, leaving the pair list as it was, once it knows the pairs are more
+  // than maxPairs.
+  bool findNewPairs(size_t maxPairs);
+  bool findAllPairs(size_t maxPairs);
   void mergePairs(std::vector<ProxyPair>* result);
+  /// The first maxPairs pairs of the full list, found in that order; returns how many pairs
+  /// were left out, counted with a work budget (at least 1).
+  uint64_t findFirstPairs(size_t maxPairs);
 };
 
 void BroadPhase::Impl::addPending(int32_t p) {
@@ -805,7 +843,7 @@ void BroadPhase::Impl::rebuildTree(int t) {
 // New pairs of every live dirty proxy, by one query each. A pair of two dirty proxies is
 // found by both queries (overlap is symmetric and a static proxy still sees the dynamic
 // tree), so only the lower index keeps it.
-void BroadPhase::Impl::findNewPairs() {
+bool BroadPhase::Impl::findNewPairs(size_t maxPairs) {
   // In leaf-node order, so queries of nearby proxies meet warm cache lines more often.
   queryOrder.clear();
   for (int32_t p : dirty) {
@@ -816,30 +854,79 @@ void BroadPhase::Impl::findNewPairs() {
   for (uint64_t order : queryOrder) {
     const int32_t p = int32_t(uint32_t(order));
     const Proxy& P = proxies[p];
+    // Every new pair is in the result: past maxPairs of them, stop.
     auto visit = [&](int32_t q, uint32_t uq) {
       if (q != p && !(dirtyFlag[q] && q < p)) fresh.push_back(makePair(P.user, uq));
+      return fresh.size() > maxPairs;
     };
-    trees[kDynamicTree].query(P.fat, visit);
-    if (!P.isStatic) trees[kStaticTree].query(P.fat, visit);
+    if (!trees[kDynamicTree].query(P.fat, visit)) return false;
+    if (!P.isStatic && !trees[kStaticTree].query(P.fat, visit)) return false;
   }
   sortPairs(&fresh, &pairsBack);
+  return true;
 }
 
 // Every pair from scratch: dynamic-dynamic and dynamic-static by simultaneous traversal.
-void BroadPhase::Impl::findAllPairs() {
+bool BroadPhase::Impl::findAllPairs(size_t maxPairs) {
   fresh.clear();
   // Room for a dense pile up front: reserving only maps address space, and it saves the
   // copies of repeated growth.
-  fresh.reserve(std::max(pairCount, size_t(count) * 16));
+  fresh.reserve(std::min(std::max(pairCount, size_t(count) * 16), maxPairs));
   auto visit = [&](int32_t, uint32_t up, int32_t, uint32_t uq) {
     fresh.push_back(makePair(up, uq));
+    return fresh.size() > maxPairs;
   };
   const Tree& dyn = trees[kDynamicTree];
-  dyn.overlappingPairs(dyn, visit);
-  dyn.overlappingPairs(trees[kStaticTree], visit);
+  if (!dyn.overlappingPairs(dyn, visit) || !dyn.overlappingPairs(trees[kStaticTree], visit))
+    return false;
   sortPairs(&fresh, &pairsBack);
   pairs.swap(fresh);
   pairCount = pairs.size();
+  return true;
+}
+
+// More pairs than the bound: the first maxPairs of the sorted list, without building the
+// rest. Proxies are taken in user order and each query keeps its neighbours of higher user
+// value, so the pairs come out in list order and each is found once; a static proxy asks
+// only the dynamic tree, as in the full list. The work is a query per proxy taken: the
+// neighbours it visits are kept pairs, either found now or (lower neighbours) already, but
+// for the last proxy's cut-off ones, so it is proportional to maxPairs plus the proxies.
+// The pairs depend only on the fat boxes and static flags, like the full list.
+uint64_t BroadPhase::Impl::findFirstPairs(size_t maxPairs) {
+  queryOrder.clear();
+  for (size_t p = 0; p < proxies.size(); ++p)
+    if (proxies[p].alive) queryOrder.push_back((uint64_t(proxies[p].user) << 32) | p);
+  std::sort(queryOrder.begin(), queryOrder.end());
+  fresh.clear();
+  uint64_t left = 0;
+  // After the bound, the pairs left out are counted on, by the same queries, until they
+  // visited as many neighbours as the bound: a lower bound for the price of the pairs kept.
+  size_t budget = maxPairs;
+  for (uint64_t order : queryOrder) {
+    const Proxy& P = proxies[uint32_t(order)];
+    const uint32_t u = P.user;
+    batch.clear();
+    size_t visited = 0;
+    auto visit = [&](int32_t, uint32_t uq) {
+      ++visited;
+      if (uq > u) batch.push_back(uq);
+    };
+    trees[kDynamicTree].query(P.fat, visit);
+    if (!P.isStatic) trees[kStaticTree].query(P.fat, visit);
+    if (fresh.size() < maxPairs) {
+      std::sort(batch.begin(), batch.end());
+      const size_t take = std::min(batch.size(), maxPairs - fresh.size());
+      for (size_t i = 0; i < take; ++i) fresh.push_back({u, batch[i]});
+      left += batch.size() - take;
+    } else {
+      left += batch.size();
+      budget -= std::min(budget, visited);
+      if (budget == 0) break;
+    }
+  }
+  pairs.swap(fresh);
+  pairCount = pairs.size();
+  return std::max<uint64_t>(left, 1);
 }
 
 // Kept old pairs (neither user dirty) merged with the sorted new ones, written both to the
@@ -1008,24 +1095,58 @@ const AABB& BroadPhase::fatAABB(int32_t proxy) const {
 }
 
 void BroadPhase::computePairs(std::vector<ProxyPair>* out) {
+  computePairs(out, SIZE_MAX);
+}
+
+uint64_t BroadPhase::computePairs(std::vector<ProxyPair>* out, size_t maxPairs) {
   Impl& m = *impl_;
   m.flushPending();
-  if (m.dirty.empty()) {
+  // Nothing moved: the same list (complete, or cut at the same bound).
+  if (!m.stale && m.dirty.empty() &&
+      (m.truncated ? m.truncLimit == maxPairs : m.pairCount <= maxPairs)) {
     out->assign(m.pairs.begin(), m.pairs.begin() + ptrdiff_t(m.pairCount));
-    return;
+    return m.truncated ? m.dropped : 0;
   }
+  // A cut list cannot be updated incrementally (pairs of clean proxies are missing from it):
+  // the next list is found from scratch, and found cut again only when it is still over.
+  const bool incremental =
+      !m.stale && !m.truncated && m.pairCount <= maxPairs && 3 * m.dirty.size() < size_t(m.count);
+  m.stale = true;  // until this call completes
+  bool complete = false;
   // Per-proxy queries find each pair of two dirty proxies twice and pay a root-to-leaf
   // descent each; past about a third of the proxies one joint traversal is cheaper.
-  if (3 * m.dirty.size() >= size_t(m.count)) {
-    m.findAllPairs();
+  if (incremental) {
+    if (m.findNewPairs(maxPairs)) {
+      m.mergePairs(out);
+      complete = m.pairCount <= maxPairs;
+    }
+  } else if (m.findAllPairs(maxPairs)) {
     out->assign(m.pairs.begin(), m.pairs.begin() + ptrdiff_t(m.pairCount));
-  } else {
-    m.findNewPairs();
-    m.mergePairs(out);
+    complete = true;
+  }
+  m.dropped = 0;
+  if (!complete) {
+    m.dropped = m.findFirstPairs(maxPairs);
+    out->assign(m.pairs.begin(), m.pairs.begin() + ptrdiff_t(m.pairCount));
   }
   for (int32_t p : m.dirty) m.dirtyFlag[p] = 0;
   m.dirty.clear();
   m.dirtyUsers.clear();
+  m.truncated = !complete;
+  m.truncLimit = maxPairs;
+  m.stale = false;
+  return m.dropped;
+}
+
+void BroadPhase::forgetPairs() {
+  Impl& m = *impl_;
+  m.stale = true;
+  m.truncated = false;
+  m.pairCount = 0;
+  std::vector<ProxyPair>().swap(m.pairs);
+  std::vector<ProxyPair>().swap(m.pairsBack);
+  std::vector<ProxyPair>().swap(m.fresh);
+  std::vector<uint32_t>().swap(m.batch);
 }
 
 void BroadPhase::queryImpl(const AABB& box, void (*cb)(void*, uint32_t), void* ctx) const {

@@ -10,6 +10,7 @@
 #include <limits>
 #include <set>
 #include <sstream>
+#include <string_view>
 #include <system_error>
 
 #include "scene_internal.h"
@@ -22,11 +23,111 @@ namespace scene_detail {
 // Paths, errors and value readers.
 
 void fail(const std::string& path, const std::string& reason) {
-  throw LoadError{path, reason};
+  throw LoadError{path, reason, StatusCode::InvalidArgument};
+}
+
+void failExhausted(const std::string& path, const std::string& reason) {
+  throw LoadError{path, reason, StatusCode::ResourceExhausted};
 }
 
 std::string member(const std::string& path, const std::string& key) {
-  return path.empty() ? key : path + "." + key;
+  std::string k = keyText(key);
+  return path.empty() ? k : path + "." + k;
+}
+
+bool validUtf8(const std::string& s, bool* control) {
+  *control = false;
+  const auto* p = reinterpret_cast<const unsigned char*>(s.data());
+  const size_t n = s.size();
+  for (size_t i = 0; i < n;) {
+    unsigned c = p[i];
+    if (c < 0x80) {
+      if (c < 0x20 || c == 0x7F) *control = true;
+      ++i;
+      continue;
+    }
+    size_t len;
+    unsigned lo = 0x80, hi = 0xBF;  // range of the second byte
+    if (c >= 0xC2 && c <= 0xDF) {
+      len = 2;
+    } else if (c >= 0xE0 && c <= 0xEF) {
+      len = 3;
+      if (c == 0xE0) lo = 0xA0;  // overlong
+      if (c == 0xED) hi = 0x9F;  // surrogates
+    } else if (c >= 0xF0 && c <= 0xF4) {
+      len = 4;
+      if (c == 0xF0) lo = 0x90;  // overlong
+      if (c == 0xF4) hi = 0x8F;  // > U+10FFFF
+    } else {
+      return false;
+    }
+    if (n - i < len) return false;
+    if (p[i + 1] < lo || p[i + 1] > hi) return false;
+    for (size_t k = 2; k < len; ++k) {
+      if (p[i + k] < 0x80 || p[i + k] > 0xBF) return false;
+    }
+    i += len;
+  }
+  return true;
+}
+
+std::string keyText(const std::string& s) {
+  bool plain = s.size() <= kShownBytes;
+  for (size_t i = 0; plain && i < s.size(); ++i) {
+    unsigned char c = static_cast<unsigned char>(s[i]);
+    plain = c >= 0x20 && c != 0x7F;
+  }
+  if (plain) return s;
+  // Cut at kShownBytes, backing off to the start of a UTF-8 sequence.
+  size_t end = std::min(s.size(), kShownBytes);
+  if (end < s.size()) {
+    while (end > 0 && (static_cast<unsigned char>(s[end]) & 0xC0) == 0x80) --end;
+  }
+  std::string out;
+  out.reserve(end + 32);
+  static const char* kHex = "0123456789abcdef";
+  for (size_t i = 0; i < end; ++i) {
+    unsigned char c = static_cast<unsigned char>(s[i]);
+    if (c < 0x20 || c == 0x7F) {
+      out += "\\x";
+      out += kHex[c >> 4];
+      out += kHex[c & 15];
+    } else {
+      out += char(c);
+    }
+  }
+  if (end < s.size()) out += "...(" + std::to_string(s.size()) + " bytes)";
+  return out;
+}
+
+std::string quote(const std::string& s) {
+  return "\"" + keyText(s) + "\"";
+}
+
+void checkName(const std::string& name, const std::string& path, const SceneBudget& budget,
+               const char* what) {
+  if (name.size() > budget.maxNameBytes) {  // a size limit, as in the protocol
+    failExhausted(path, std::string("a ") + what + " must be at most " +
+                   std::to_string(budget.maxNameBytes) + " bytes long (got " +
+                   std::to_string(name.size()) + " bytes: " + quote(name) + ")");
+  }
+  bool control = false;
+  if (!validUtf8(name, &control)) {
+    fail(path, std::string("a ") + what + " must be valid UTF-8 (got " + quote(name) + ")");
+  }
+  if (control) {
+    fail(path, std::string("a ") + what + " must not contain control characters (got " +
+                   quote(name) + ")");
+  }
+}
+
+uint64_t addSat(uint64_t a, uint64_t b) {
+  return a > UINT64_MAX - b ? UINT64_MAX : a + b;
+}
+
+uint64_t mulSat(uint64_t a, uint64_t b) {
+  if (a == 0 || b == 0) return 0;
+  return a > UINT64_MAX / b ? UINT64_MAX : a * b;
 }
 
 std::string element(const std::string& path, size_t index) {
@@ -100,7 +201,7 @@ std::string formatNumber(double v) {
   return s.str();
 }
 
-// Edit distance, for "did you mean" hints on unknown keys.
+// Edit distance, for "did you mean" hints on unknown keys (quadratic: short keys only).
 size_t editDistance(const std::string& a, const std::string& b) {
   std::vector<size_t> row(b.size() + 1);
   for (size_t j = 0; j <= b.size(); ++j) row[j] = j;
@@ -236,6 +337,7 @@ Object::Object(const Json& j, std::string path, std::initializer_list<const char
         known = true;
         break;
       }
+      if (key.size() > kShownBytes) continue;  // no hint for a huge key
       size_t d = editDistance(key, a);
       if (d < bestDistance) {
         bestDistance = d;
@@ -355,7 +457,7 @@ std::string invalidBody(const BodyDef& d) {
 
 int Builder::addBody(BodyDef def, const std::string& path) {
   if (std::string why = invalidBody(def); !why.empty()) {
-    fail(path, "the body \"" + def.name + "\" would be invalid: " + why +
+    fail(path, "the body " + quote(def.name) + " would be invalid: " + why +
                    " (check the sizes, spacing and positions)");
   }
   // Generators add many bodies from one path: store each distinct path once.
@@ -363,23 +465,92 @@ int Builder::addBody(BodyDef def, const std::string& path) {
   if (!def.name.empty()) {
     auto [it, inserted] = bodyIndex.emplace(def.name, int(bodies->size()));
     if (!inserted) {
-      fail(path, "duplicate body name \"" + def.name + "\" (already used by " +
+      fail(path, "duplicate body name " + quote(def.name) + " (already used by " +
                      sourcePaths[bodySource[size_t(it->second)]] + ")");
     }
   }
+  nameBytes += def.name.size();
   bodySource.push_back(uint32_t(sourcePaths.size() - 1));
   bodies->push_back(std::move(def));
   return int(bodies->size()) - 1;
 }
 
-void Builder::reserve(int64_t count, const std::string& path) {
-  if (int64_t(bodies->size()) + count > kMaxBodies) {
-    fail(path, "would make the scene have more than " + std::to_string(kMaxBodies) +
-                   " bodies (it has " + std::to_string(bodies->size()) + ", this adds " +
-                   std::to_string(count) + ")");
+namespace {
+
+// Adds `count` to *total; fails at `path` when that passes `limit`.
+void planCount(uint64_t* total, uint64_t count, uint64_t limit, const char* what,
+               const std::string& path) {
+  uint64_t after = addSat(*total, count);
+  if (after > limit) {
+    std::string has = *total == 0 ? "" : ", " + std::to_string(*total) + " before it";
+    failExhausted(path, "would make the scene have " +
+                            (after == UINT64_MAX ? std::string("over 2^64") : std::to_string(after)) +
+                            " " + what + ", more than the limit of " + std::to_string(limit) +
+                            " (this adds " +
+                            (count == UINT64_MAX ? std::string("over 2^64") : std::to_string(count)) +
+                            has + ")");
   }
-  bodies->reserve(bodies->size() + size_t(count));
-  bodyIndex.reserve(bodies->size() + size_t(count));
+  *total = after;
+}
+
+}  // namespace
+
+void Builder::planBodies(uint64_t count, const std::string& path) {
+  // Body indices are ints.
+  uint64_t limit = std::min<uint64_t>(budget->maxBodies, uint64_t(INT32_MAX));
+  planCount(&plannedBodies, count, limit, "bodies", path);
+}
+
+void Builder::planJoints(uint64_t count, const std::string& path, bool generated) {
+  planCount(&plannedJoints, count, budget->maxJoints, "joints", path);
+  if (generated) plannedGeneratedJoints += count;
+}
+
+void Builder::planShapes(uint64_t count, const std::string& path) {
+  planCount(&plannedShapes, count, budget->maxShapes, "shapes", path);
+}
+
+void Builder::planHullPoints(uint64_t count, const std::string& path) {
+  planCount(&plannedHullPoints, count, budget->maxHullPointsTotal, "hull points", path);
+}
+
+bool Builder::plan(const Object& o, const std::string& prefix, const GeneratorCounts& c) {
+  if (!planning) return true;
+  const std::string& path = o.path();
+  // The names it makes: the prefix's own content, then its length with the longest suffix.
+  std::string namePath = o.has("name") ? o.path("name") : path;
+  checkName(prefix, namePath, *budget, "generator name");
+  if (prefix.size() + c.longestSuffix > budget->maxNameBytes) {
+    failExhausted(namePath, "the names this generator makes would be up to " +
+                       std::to_string(prefix.size() + c.longestSuffix) +
+                       " bytes long, more than the limit of " +
+                       std::to_string(budget->maxNameBytes) + " (the prefix " + quote(prefix) +
+                       " has " + std::to_string(prefix.size()) + " bytes, the suffixes up to " +
+                       std::to_string(c.longestSuffix) + ")");
+  }
+  if (c.maxShapesPerBody > budget->maxShapesPerBody) {
+    failExhausted(path, "would make a body with " + std::to_string(c.maxShapesPerBody) +
+                            " shapes, more than the limit of " +
+                            std::to_string(budget->maxShapesPerBody) + " per body");
+  }
+  planBodies(c.bodies, path);
+  planJoints(c.joints, path, true);
+  planShapes(c.shapes, path);
+  return false;
+}
+
+void Builder::chargePattern(size_t patternBytes, const std::string& path) {
+  // A pattern costs its length (split into pieces once) plus, for every named body, the
+  // name's length + 1 (the match is linear in the name).
+  uint64_t cost = addSat(addSat(patternBytes, nameBytes), bodies->size());
+  uint64_t after = addSat(patternWork, cost);
+  if (after > budget->maxPatternWork) {
+    failExhausted(path, "matching the pattern against " + std::to_string(bodies->size()) +
+                            " bodies exceeds the work budget (" + std::to_string(cost) +
+                            " character comparisons, " + std::to_string(patternWork) +
+                            " before it, limit " + std::to_string(budget->maxPatternWork) + ")");
+  }
+  patternWork = after;
 }
 
 Material readMaterial(const Json& j, const std::string& path) {
@@ -397,9 +568,17 @@ Material Builder::material(const Json& j, const std::string& path) const {
     auto it = materials.find(name);
     if (it == materials.end()) {
       std::string known;
-      for (const auto& [k, v] : materials) known += (known.empty() ? "" : ", ") + k;
-      fail(path, "unknown material \"" + name +
-                     "\" (defined in \"materials\": " + (known.empty() ? "none" : known) + ")");
+      size_t shown = 0;
+      for (const auto& [k, v] : materials) {
+        if (shown == 8) {
+          known += ", ... (" + std::to_string(materials.size()) + " in all)";
+          break;
+        }
+        known += (known.empty() ? "" : ", ") + keyText(k);
+        ++shown;
+      }
+      fail(path, "unknown material " + quote(name) +
+                     " (defined in \"materials\": " + (known.empty() ? "none" : known) + ")");
     }
     return it->second;
   }
@@ -514,7 +693,7 @@ BodyType readBodyType(const Json& j, const std::string& path) {
   if (s == "static") return BodyType::Static;
   if (s == "kinematic") return BodyType::Kinematic;
   if (s == "dynamic") return BodyType::Dynamic;
-  fail(path, "must be \"static\", \"kinematic\" or \"dynamic\" (got \"" + s + "\")");
+  fail(path, "must be \"static\", \"kinematic\" or \"dynamic\" (got " + quote(s) + ")");
 }
 
 // A rotation from "rotation" (quaternion) or "rotation_axis_angle"; identity when neither.
@@ -541,7 +720,7 @@ ShapeDef readShape(const Json& j, const std::string& path, const Builder& b,
          {"radius", "half_extents", "half_height", "normal", "offset", "points"}) {
       bool isUsed = false;
       for (const char* u : used) isUsed = isUsed || std::strcmp(u, key) == 0;
-      if (!isUsed) o.forbid(key, "is not a field of a " + type);
+      if (!isUsed) o.forbid(key, "is not a field of a " + keyText(type));
     }
   };
   ShapeDef s;
@@ -570,6 +749,12 @@ ShapeDef readShape(const Json& j, const std::string& path, const Builder& b,
     if (!pts.is_array() || pts.size() < 4) {
       fail(ppath, "must be an array of at least four points [x, y, z]" + got(pts));
     }
+    // Counted in the planning pass already; checked again before the (costly) hull build.
+    if (pts.size() > b.budget->maxHullPoints) {
+      failExhausted(ppath, "has " + std::to_string(pts.size()) +
+                               " points, more than the limit of " +
+                               std::to_string(b.budget->maxHullPoints) + " per hull");
+    }
     std::vector<Vec3> points;
     points.reserve(pts.size());
     for (size_t i = 0; i < pts.size(); ++i) points.push_back(readVec3(pts[i], element(ppath, i)));
@@ -579,7 +764,8 @@ ShapeDef readShape(const Json& j, const std::string& path, const Builder& b,
     s.geom = ShapeGeom::convexHull(std::move(hull));
   } else {
     fail(o.path("type"),
-         "must be \"sphere\", \"box\", \"capsule\", \"plane\" or \"hull\" (got \"" + type + "\")");
+         "must be \"sphere\", \"box\", \"capsule\", \"plane\" or \"hull\" (got " + quote(type) +
+             ")");
   }
   s.local.p = o.vec3("position", Vec3{});
   s.local.q = readRotation(o);
@@ -598,6 +784,7 @@ BodyDef readBody(const Json& j, const std::string& path, const Builder& b) {
             "inertia", "gyroscopic", "material", "shapes"});
   BodyDef d;
   d.name = o.string("name", "");
+  checkName(d.name, o.path("name"), *b.budget, "body name");
   if (const Json* t = o.find("type")) d.type = readBodyType(*t, o.path("type"));
   d.position = o.vec3("position", Vec3{});
   d.rotation = readRotation(o);
@@ -618,6 +805,11 @@ BodyDef readBody(const Json& j, const std::string& path, const Builder& b) {
   if (const Json* shapes = o.find("shapes")) {
     std::string spath = o.path("shapes");
     if (!shapes->is_array()) fail(spath, "must be an array of shapes" + got(*shapes));
+    if (shapes->size() > b.budget->maxShapesPerBody) {
+      failExhausted(spath, "has " + std::to_string(shapes->size()) +
+                               " shapes, more than the limit of " +
+                               std::to_string(b.budget->maxShapesPerBody) + " per body");
+    }
     d.shapes.reserve(shapes->size());
     for (size_t i = 0; i < shapes->size(); ++i) {
       d.shapes.push_back(readShape((*shapes)[i], element(spath, i), b, bodyMaterial, d.type));
@@ -635,7 +827,7 @@ int readBodyRef(const Json& j, const std::string& path, const Builder& b) {
   if (j.is_string()) {
     std::string name = j.get<std::string>();
     auto it = b.bodyIndex.find(name);
-    if (it == b.bodyIndex.end()) fail(path, "unknown body \"" + name + "\"");
+    if (it == b.bodyIndex.end()) fail(path, "unknown body " + quote(name));
     return it->second;
   }
   if (j.is_number_integer()) {
@@ -652,7 +844,8 @@ JointType readJointType(const Json& j, const std::string& path) {
   if (s == "distance") return JointType::Distance;
   if (s == "prismatic") return JointType::Prismatic;
   fail(path,
-       "must be \"ball\", \"hinge\", \"fixed\", \"distance\" or \"prismatic\" (got \"" + s + "\")");
+       "must be \"ball\", \"hinge\", \"fixed\", \"distance\" or \"prismatic\" (got " + quote(s) +
+           ")");
 }
 
 Transform bodyPose(const Builder& b, int index) {
@@ -670,6 +863,7 @@ SceneJoint readJoint(const Json& j, const std::string& path, const Builder& b) {
   JointDef& d = sj.def;
   d.type = readJointType(o.require("type"), o.path("type"));
   d.name = o.string("name", "");
+  checkName(d.name, o.path("name"), *b.budget, "joint name");
   std::string typeName = toString(d.type);
   bool hasAxis = d.type == JointType::Hinge || d.type == JointType::Prismatic;
   bool hasLimit = hasAxis || d.type == JointType::Distance;
@@ -739,20 +933,131 @@ SceneJoint readJoint(const Json& j, const std::string& path, const Builder& b) {
   return sj;
 }
 
-// '*' matches any run of characters other than '/'.
-bool globMatch(const char* pattern, const char* name) {
-  if (*pattern == 0) return *name == 0;
-  if (*pattern == '*') {
-    for (const char* n = name;; ++n) {
-      if (globMatch(pattern + 1, n)) return true;
-      if (*n == 0 || *n == '/') return false;
+// A '*' pattern over body names: '*' matches any run of characters other than '/'. The
+// pattern and a name are split at '/' into segments, which must be as many; each pattern
+// segment is pieces of literal text between '*'s: the first piece must start the name's
+// segment, the last must end it, and the middle ones are found left to right, each with
+// Knuth-Morris-Pratt (the leftmost match of each is the right one). Matching one name is
+// linear in its length, whatever the pattern; nothing recurses or backtracks.
+class GlobPattern {
+ public:
+  explicit GlobPattern(const std::string& pattern) : pattern_(pattern) {
+    std::string_view p = pattern_;
+    size_t start = 0;
+    for (;;) {
+      size_t slash = p.find('/', start);
+      size_t end = slash == std::string_view::npos ? p.size() : slash;
+      addSegment(start, end);
+      if (slash == std::string_view::npos) break;
+      start = slash + 1;
     }
   }
-  return *pattern == *name && globMatch(pattern + 1, name + 1);
-}
+
+  bool match(std::string_view name) const {
+    size_t start = 0;
+    for (size_t k = 0; k < segments_.size(); ++k) {
+      size_t slash = name.find('/', start);
+      bool last = k + 1 == segments_.size();
+      if ((slash == std::string_view::npos) != last) return false;  // segment counts differ
+      size_t end = last ? name.size() : slash;
+      if (!matchSegment(segments_[k], name.substr(start, end - start))) return false;
+      start = end + 1;
+    }
+    return true;
+  }
+
+ private:
+  // Everything in flat arrays: a pattern of a million '*' or '/' is a few allocations.
+  struct Piece {
+    size_t begin, size;  ///< in pattern_
+    size_t next;         ///< its KMP failure function: next_[next, next + size)
+  };
+  struct Segment {
+    bool star = false;        ///< has a '*'; else pieces_[first] is the whole segment
+    size_t first = 0, count = 0;  ///< pieces_[first, first + count): first, middles, last
+    size_t literalBytes = 0;  ///< sum of the pieces' sizes
+  };
+
+  std::string_view text(const Piece& p) const {
+    return std::string_view(pattern_).substr(p.begin, p.size);
+  }
+
+  void addPiece(Segment* s, size_t begin, size_t end, bool middle) {
+    Piece piece{begin, end - begin, next_.size()};
+    if (middle) {
+      // KMP failure function of the piece.
+      std::string_view p = text(piece);
+      next_.resize(next_.size() + p.size(), 0);
+      uint32_t* f = next_.data() + piece.next;
+      uint32_t k = 0;
+      for (size_t i = 1; i < p.size(); ++i) {
+        while (k > 0 && p[i] != p[k]) k = f[k - 1];
+        if (p[i] == p[k]) ++k;
+        f[i] = k;
+      }
+    }
+    pieces_.push_back(piece);
+    ++s->count;
+    s->literalBytes += piece.size;
+  }
+
+  void addSegment(size_t begin, size_t end) {
+    std::string_view seg = std::string_view(pattern_).substr(begin, end - begin);
+    Segment s;
+    s.first = pieces_.size();
+    size_t star = seg.find('*');
+    if (star == std::string_view::npos) {
+      addPiece(&s, begin, end, false);
+    } else {
+      s.star = true;
+      size_t lastStar = seg.rfind('*');
+      addPiece(&s, begin, begin + star, false);
+      for (size_t at = star + 1; at <= lastStar;) {
+        size_t nextStar = seg.find('*', at);
+        if (nextStar > at) addPiece(&s, begin + at, begin + nextStar, true);  // skip "**"
+        at = nextStar + 1;
+      }
+      addPiece(&s, begin + lastStar + 1, end, false);
+    }
+    segments_.push_back(s);
+  }
+
+  // The end of the leftmost occurrence of the middle piece `piece` in t[from, to), or npos.
+  size_t find(const Piece& piece, std::string_view t, size_t from, size_t to) const {
+    std::string_view p = text(piece);
+    const uint32_t* f = next_.data() + piece.next;
+    size_t k = 0;
+    for (size_t i = from; i < to; ++i) {
+      while (k > 0 && t[i] != p[k]) k = f[k - 1];
+      if (t[i] == p[k]) ++k;
+      if (k == p.size()) return i + 1;
+    }
+    return std::string_view::npos;
+  }
+
+  bool matchSegment(const Segment& s, std::string_view t) const {
+    const Piece& firstPiece = pieces_[s.first];
+    if (!s.star) return t == text(firstPiece);
+    if (t.size() < s.literalBytes) return false;
+    std::string_view first = text(firstPiece), last = text(pieces_[s.first + s.count - 1]);
+    if (t.substr(0, first.size()) != first) return false;
+    if (t.substr(t.size() - last.size()) != last) return false;
+    size_t at = first.size(), to = t.size() - last.size();
+    for (size_t i = s.first + 1; i + 1 < s.first + s.count; ++i) {
+      at = find(pieces_[i], t, at, to);
+      if (at == std::string_view::npos) return false;
+    }
+    return true;
+  }
+
+  const std::string& pattern_;
+  std::vector<Segment> segments_;
+  std::vector<Piece> pieces_;
+  std::vector<uint32_t> next_;
+};
 
 // A list of bodies: names, '*' patterns over names, or indices.
-std::vector<int> readBodyList(const Json& j, const std::string& path, const Builder& b) {
+std::vector<int> readBodyList(const Json& j, const std::string& path, Builder& b) {
   if (!j.is_array()) fail(path, "must be an array of body names, patterns or indices" + got(j));
   std::vector<int> out;
   std::set<int> seen;
@@ -763,19 +1068,21 @@ std::vector<int> readBodyList(const Json& j, const std::string& path, const Buil
     std::string epath = element(path, i);
     const Json& e = j[i];
     if (e.is_string()) {
-      std::string name = e.get<std::string>();
+      const std::string& name = e.get_ref<const std::string&>();
       auto it = b.bodyIndex.find(name);
       if (it != b.bodyIndex.end()) {
         add(it->second);
         continue;
       }
-      if (name.find('*') == std::string::npos) fail(epath, "unknown body \"" + name + "\"");
+      if (name.find('*') == std::string::npos) fail(epath, "unknown body " + quote(name));
+      b.chargePattern(name.size(), epath);  // before any work
+      GlobPattern pattern(name);
       size_t before = out.size();
       for (size_t k = 0; k < b.bodies->size(); ++k) {
         const std::string& n = (*b.bodies)[k].name;
-        if (!n.empty() && globMatch(name.c_str(), n.c_str())) add(int(k));
+        if (!n.empty() && pattern.match(n)) add(int(k));
       }
-      if (out.size() == before) fail(epath, "the pattern \"" + name + "\" matches no body");
+      if (out.size() == before) fail(epath, "the pattern " + quote(name) + " matches no body");
     } else {
       add(readBodyRef(e, epath, b));
     }
@@ -789,7 +1096,7 @@ void readSolver(const Json& j, const std::string& path, SolverSettings* s) {
   if (!st.ok()) fail("", st.message);
 }
 
-void readMetrics(const Json& j, const std::string& path, const Builder& b, SceneMetrics* m) {
+void readMetrics(const Json& j, const std::string& path, Builder& b, SceneMetrics* m) {
   Object o(j, path, {"top_bodies", "settle_time", "conserves_energy", "groups", "params"});
   if (const Json* t = o.find("top_bodies"))
     m->topBodies = readBodyList(*t, o.path("top_bodies"), b);
@@ -799,6 +1106,7 @@ void readMetrics(const Json& j, const std::string& path, const Builder& b, Scene
     std::string gpath = o.path("groups");
     if (!g->is_object()) fail(gpath, "must be an object {group name: [bodies]}" + got(*g));
     for (auto it = g->begin(); it != g->end(); ++it) {
+      checkName(it.key(), member(gpath, it.key()), *b.budget, "group name");
       m->groups[it.key()] = readBodyList(it.value(), member(gpath, it.key()), b);
     }
   }
@@ -806,6 +1114,7 @@ void readMetrics(const Json& j, const std::string& path, const Builder& b, Scene
     std::string ppath = o.path("params");
     if (!p->is_object()) fail(ppath, "must be an object {name: number}" + got(*p));
     for (auto it = p->begin(); it != p->end(); ++it) {
+      checkName(it.key(), member(ppath, it.key()), *b.budget, "param name");
       m->params[it.key()] = readDouble(it.value(), member(ppath, it.key()));
     }
   }
@@ -822,7 +1131,7 @@ void readCriteria(const Json& j, const std::string& path, Scene* s) {
       std::string known;
       for (const MetricInfo& mi : metricTable())
         known += (known.empty() ? "" : ", ") + std::string(mi.name);
-      fail(o.path("metric"), "unknown metric \"" + c.metric + "\" (known: " + known + ")");
+      fail(o.path("metric"), "unknown metric " + quote(c.metric) + " (known: " + known + ")");
     }
     if (const Json* v = o.find("min")) c.min = readDouble(*v, o.path("min"));
     if (const Json* v = o.find("max")) c.max = readDouble(*v, o.path("max"));
@@ -849,11 +1158,51 @@ void readCriteria(const Json& j, const std::string& path, Scene* s) {
   }
 }
 
-void loadScene(const Json& root, Scene* s) {
+// The planning pass over the explicit bodies and joints: their counts, the shapes of each
+// body and the points of each hull, from the sizes of the JSON arrays (their contents are
+// checked when they are read).
+void planExplicit(const Object& top, Builder* b) {
+  const SceneBudget& budget = *b->budget;
+  if (const Json* bodies = top.find("bodies"); bodies && bodies->is_array()) {
+    b->planBodies(bodies->size(), "bodies");
+    for (size_t i = 0; i < bodies->size(); ++i) {
+      const Json& body = (*bodies)[i];
+      if (!body.is_object()) continue;
+      auto shapes = body.find("shapes");
+      if (shapes == body.end() || !shapes->is_array()) continue;
+      std::string spath = member(element("bodies", i), "shapes");
+      if (shapes->size() > budget.maxShapesPerBody) {
+        failExhausted(spath, "has " + std::to_string(shapes->size()) +
+                                 " shapes, more than the limit of " +
+                                 std::to_string(budget.maxShapesPerBody) + " per body");
+      }
+      b->planShapes(shapes->size(), spath);
+      for (size_t k = 0; k < shapes->size(); ++k) {
+        const Json& shape = (*shapes)[k];
+        if (!shape.is_object()) continue;
+        auto points = shape.find("points");
+        if (points == shape.end() || !points->is_array()) continue;
+        std::string ppath = member(element(spath, k), "points");
+        if (points->size() > budget.maxHullPoints) {
+          failExhausted(ppath, "has " + std::to_string(points->size()) +
+                                   " points, more than the limit of " +
+                                   std::to_string(budget.maxHullPoints) + " per hull");
+        }
+        b->planHullPoints(points->size(), ppath);
+      }
+    }
+  }
+  if (const Json* joints = top.find("joints"); joints && joints->is_array()) {
+    b->planJoints(joints->size(), "joints", false);
+  }
+}
+
+void loadScene(const Json& root, const SceneBudget& budget, Scene* s) {
   Object top(root, "",
              {"name", "description", "gravity", "time_step", "duration", "solver", "world",
               "materials", "bodies", "joints", "generators", "metrics", "criteria"});
   s->name = top.string("name", "");
+  checkName(s->name, "name", budget, "scene name");
   s->description = top.string("description", "");
   s->world.gravity = top.vec3("gravity", s->world.gravity);
   s->world.timeStep = top.number("time_step", s->world.timeStep, Range::Positive);
@@ -872,29 +1221,49 @@ void loadScene(const Json& root, Scene* s) {
     wd.aabbMargin = o.number("aabb_margin", wd.aabbMargin, Range::NonNegative);
     const std::string backend = o.string("backend", toString(wd.backend));
     if (!parseBackend(backend, &wd.backend))
-      fail(o.path("backend"), "must be \"cpu\", \"gpu\" or \"auto\", got \"" + backend + "\"");
+      fail(o.path("backend"), "must be \"cpu\", \"gpu\" or \"auto\", got " + quote(backend));
   }
 
   Builder b;
+  b.budget = &budget;
   b.bodies = &s->bodies;
   if (const Json* mats = top.find("materials")) {
     if (!mats->is_object()) fail("materials", "must be an object {name: material}" + got(*mats));
     for (auto it = mats->begin(); it != mats->end(); ++it) {
+      checkName(it.key(), member("materials", it.key()), budget, "material name");
       b.materials[it.key()] = readMaterial(it.value(), member("materials", it.key()));
     }
     auto def = b.materials.find("default");
     if (def != b.materials.end()) b.defaultMaterial = def->second;
   }
-  if (const Json* bodies = top.find("bodies")) {
-    if (!bodies->is_array()) fail("bodies", "must be an array of bodies" + got(*bodies));
-    b.reserve(int64_t(bodies->size()), "bodies");
+  const Json* bodies = top.find("bodies");
+  if (bodies && !bodies->is_array()) fail("bodies", "must be an array of bodies" + got(*bodies));
+  const Json* gens = top.find("generators");
+  if (gens && !gens->is_array()) fail("generators", "must be an array of generators" + got(*gens));
+  if (const Json* joints = top.find("joints"); joints && !joints->is_array()) {
+    fail("joints", "must be an array of joints" + got(*joints));
+  }
+
+  // Planning: every count against the budget before anything is built.
+  b.planning = true;
+  planExplicit(top, &b);
+  if (gens) {
+    for (size_t i = 0; i < gens->size(); ++i) runGenerator((*gens)[i], element("generators", i), &b);
+  }
+  b.planning = false;
+  s->bodies.reserve(size_t(b.plannedBodies));
+  b.bodyIndex.reserve(size_t(b.plannedBodies));
+  b.bodySource.reserve(size_t(b.plannedBodies));
+  b.generatedJoints.reserve(size_t(b.plannedGeneratedJoints));
+  s->joints.reserve(size_t(b.plannedJoints));
+
+  if (bodies) {
     for (size_t i = 0; i < bodies->size(); ++i) {
       std::string path = element("bodies", i);
       b.addBody(readBody((*bodies)[i], path, b), path);
     }
   }
-  if (const Json* gens = top.find("generators")) {
-    if (!gens->is_array()) fail("generators", "must be an array of generators" + got(*gens));
+  if (gens) {
     for (size_t i = 0; i < gens->size(); ++i) {
       size_t before = b.generatedJoints.size();
       runGenerator((*gens)[i], element("generators", i), &b);
@@ -902,7 +1271,7 @@ void loadScene(const Json& root, Scene* s) {
         const JointDef& d = b.generatedJoints[k].def;
         if (!isFinite(d.anchorA) || !isFinite(d.anchorB)) {
           fail(element("generators", i),
-               "the joint \"" + d.name + "\" would have anchors that are not finite");
+               "the joint " + quote(d.name) + " would have anchors that are not finite");
         }
       }
     }
@@ -923,64 +1292,133 @@ void loadScene(const Json& root, Scene* s) {
     if (!inserted) {
       std::string where = i < explicitJoints ? element("joints", i) : "generators";
       fail(i < explicitJoints ? member(where, "name") : where,
-           "duplicate joint name \"" + n + "\"");
+           "duplicate joint name " + quote(n));
     }
   }
   if (const Json* m = top.find("metrics")) readMetrics(*m, "metrics", b, &s->metrics);
   if (const Json* c = top.find("criteria")) readCriteria(*c, "criteria", s);
 }
 
-// Tracks the JSON path while nlohmann parses, to report duplicate keys (which the DOM
-// parser would silently collapse, last one winning).
-class DuplicateKeyCheck {
+// Reads JSON text into a Json document through nlohmann's SAX interface, noting the first
+// duplicate key (which a DOM would silently collapse, last one winning) and refusing deep
+// nesting. Not nlohmann's callback parser: that one scans the parent container at the end
+// of every object (quadratic for an array of many objects). Each open container keeps only
+// whether it is an array, its element count and its current key; a JSON path is built only
+// for an error, so the cost is linear in the input whatever its keys.
+class SceneJsonReader {
  public:
-  bool operator()(int, Json::parse_event_t event, Json& parsed) {
-    switch (event) {
-      case Json::parse_event_t::object_start:
-      case Json::parse_event_t::array_start:
-        // Scenes nest a few levels; a deep input is hostile (paths would grow quadratically).
-        if (frames_.size() >= kMaxDepth) {
-          fail(frames_.back().path, "nested deeper than " + std::to_string(kMaxDepth) + " levels");
-        }
-        frames_.push_back({event == Json::parse_event_t::array_start, childPath(), 0, {}, {}});
-        break;
-      case Json::parse_event_t::object_end:
-      case Json::parse_event_t::array_end:
-        if (!frames_.empty()) frames_.pop_back();
-        break;
-      case Json::parse_event_t::key:
-        if (!frames_.empty() && parsed.is_string()) {
-          Frame& f = frames_.back();
-          f.key = parsed.get<std::string>();
-          if (!f.keys.insert(f.key).second && duplicate.empty()) {
-            duplicatePath = member(f.path, f.key);
-            duplicate = f.key;
-          }
-        }
-        break;
-      case Json::parse_event_t::value:
-        if (!frames_.empty() && frames_.back().isArray) ++frames_.back().index;
-        break;
+  explicit SceneJsonReader(Json* root) : root_(root) {}
+
+  bool null() { return value(Json(nullptr)); }
+  bool boolean(bool v) { return value(Json(v)); }
+  bool number_integer(Json::number_integer_t v) { return value(Json(v)); }
+  bool number_unsigned(Json::number_unsigned_t v) { return value(Json(v)); }
+  bool number_float(Json::number_float_t v, const Json::string_t&) { return value(Json(v)); }
+  bool string(Json::string_t& v) { return value(Json(std::move(v))); }
+  bool binary(Json::binary_t& v) { return value(Json(std::move(v))); }
+
+  bool start_object(std::size_t) { return open(false); }
+  bool start_array(std::size_t) { return open(true); }
+  bool end_object() { return close(); }
+  bool end_array() { return close(); }
+
+  bool key(Json::string_t& k) {
+    Frame& f = frames_.back();
+    auto& object = f.json->get_ref<Json::object_t&>();
+    auto [it, inserted] = object.emplace(std::move(k), nullptr);
+    if (!inserted) {
+      if (duplicate.empty()) {
+        duplicatePath = member(path(frames_.size()), it->first);
+        duplicate = it->first;
+      }
+      it->second = nullptr;  // the last one wins, as in a DOM
     }
+    f.slot = &it->second;
+    f.key = &it->first;  // map nodes do not move
     return true;
   }
+
+  template <class Exception>
+  bool parse_error(std::size_t, const std::string&, const Exception& e) {
+    throw e;
+  }
+
   std::string duplicate, duplicatePath;
 
  private:
   static constexpr size_t kMaxDepth = 64;
   struct Frame {
-    bool isArray;
-    std::string path;
-    size_t index;
-    std::string key;
-    std::set<std::string> keys;
+    bool isArray = false;
+    Json* json = nullptr;
+    size_t index = 0;                          ///< elements so far (arrays)
+    Json* slot = nullptr;                      ///< the current key's value (objects)
+    const std::string* key = nullptr;          ///< the current key (objects)
+    size_t indexInParent = 0;                  ///< where it is in its parent array
+    const std::string* keyInParent = nullptr;  ///< or under which key of its parent object
   };
-  std::string childPath() {
-    if (frames_.empty()) return "";
+
+  // Stores a value where the parser is; returns where it went.
+  Json* place(Json&& v) {
+    if (frames_.empty()) {
+      *root_ = std::move(v);
+      return root_;
+    }
     Frame& f = frames_.back();
-    if (f.isArray) return element(f.path, f.index++);
-    return member(f.path, f.key);
+    if (f.isArray) {
+      auto& array = f.json->get_ref<Json::array_t&>();
+      array.push_back(std::move(v));
+      ++f.index;
+      return &array.back();
+    }
+    *f.slot = std::move(v);
+    return f.slot;
   }
+
+  bool value(Json&& v) {
+    place(std::move(v));
+    return true;
+  }
+
+  bool open(bool isArray) {
+    // Scenes nest a few levels; a deep input is hostile.
+    if (frames_.size() >= kMaxDepth) {
+      fail(path(frames_.size()), "nested deeper than " + std::to_string(kMaxDepth) + " levels");
+    }
+    Frame f;
+    f.isArray = isArray;
+    if (!frames_.empty()) {
+      const Frame& parent = frames_.back();
+      if (parent.isArray) {
+        f.indexInParent = parent.index;
+      } else {
+        f.keyInParent = parent.key;
+      }
+    }
+    // The parent's element (a pointer into its array) stays put while this one is open.
+    f.json = place(Json(isArray ? Json::value_t::array : Json::value_t::object));
+    frames_.push_back(f);
+    return true;
+  }
+
+  bool close() {
+    if (!frames_.empty()) frames_.pop_back();
+    return true;
+  }
+
+  // The path of the container frames_[n - 1] ("" for the top level).
+  std::string path(size_t n) const {
+    std::string p;
+    for (size_t i = 1; i < n && i < frames_.size(); ++i) {
+      if (frames_[i - 1].isArray) {
+        p = element(p, frames_[i].indexInParent);
+      } else {
+        p = member(p, frames_[i].keyInParent ? *frames_[i].keyInParent : std::string());
+      }
+    }
+    return p;
+  }
+
+  Json* root_;
   std::vector<Frame> frames_;
 };
 
@@ -1006,6 +1444,17 @@ std::string stripJsonPrefix(const char* what) {
     if (end != std::string::npos) s = s.substr(end + 2);
   }
   return s;
+}
+
+// nlohmann quotes the input in its messages ("... last read: '<token>'"): the text between
+// `opening` and the message's last '\'' is shown as keyText shows it; *token gets it whole.
+std::string clipQuotedToken(const std::string& msg, const char* opening, std::string* token) {
+  size_t q1 = msg.find(opening), q2 = msg.rfind('\'');
+  if (q1 == std::string::npos) return msg;
+  q1 += std::strlen(opening);
+  if (q2 == std::string::npos || q2 < q1) return msg;
+  *token = msg.substr(q1, q2 - q1);
+  return msg.substr(0, q1) + keyText(*token) + msg.substr(q2);
 }
 
 Status invalid(const std::string& message) {
@@ -1142,44 +1591,61 @@ const std::vector<std::string>& knownSceneMetrics() {
   return names;
 }
 
-Status parseScene(const std::string& json, const std::string& source, Scene* out) {
+// A message's text after the source: at most kMaxDetail bytes (cut at a UTF-8 boundary), so
+// a reply stays small whatever the input (nlohmann's parse errors quote the input too).
+std::string capped(std::string detail) {
+  constexpr size_t kMaxDetail = 960;
+  if (detail.size() <= kMaxDetail) return detail;
+  size_t end = kMaxDetail;
+  while (end > 0 && (static_cast<unsigned char>(detail[end]) & 0xC0) == 0x80) --end;
+  detail.resize(end);
+  return detail + "...";
+}
+
+Status parseScene(const std::string& json, const std::string& source, Scene* out,
+                  const SceneBudget& budget) {
   if (!out) return invalid(source + ": no output scene given");
+  auto invalid = [&](const std::string& detail) {
+    return Status::Error(StatusCode::InvalidArgument, source + ": " + capped(detail));
+  };
   try {
     Json root;
-    DuplicateKeyCheck dup;
+    SceneJsonReader dup(&root);
     try {
-      root = Json::parse(json, std::ref(dup), /*allow_exceptions=*/true,
-                         /*ignore_comments=*/true);
+      Json::sax_parse(json, &dup, Json::input_format_t::json, /*strict=*/true,
+                      /*ignore_comments=*/true);
     } catch (const Json::parse_error& e) {
-      return invalid(source + ": " + stripJsonPrefix(e.what()));
+      std::string token;
+      return invalid(clipQuotedToken(stripJsonPrefix(e.what()), "last read: '", &token));
     } catch (const Json::exception& e) {
-      // Number overflow (e.g. 1e999) carries no position: find the token in the text.
-      std::string msg = stripJsonPrefix(e.what());
-      size_t q1 = msg.find('\''), q2 = msg.rfind('\'');
-      if (q1 != std::string::npos && q2 > q1) {
-        size_t at = json.find(msg.substr(q1 + 1, q2 - q1 - 1));
+      // Number overflow (e.g. 1e999) carries no position: find the token in the text (a
+      // short one only: the search is linear in the text times the token's length).
+      std::string token;
+      std::string msg = clipQuotedToken(stripJsonPrefix(e.what()), "'", &token);
+      if (!token.empty() && token.size() <= kShownBytes) {
+        size_t at = json.find(token);
         if (at != std::string::npos) msg = lineColumn(json, at) + ": " + msg;
       }
-      return invalid(source + ": " + msg + " (numbers must be finite)");
+      return invalid(msg + " (numbers must be finite)");
     }
     if (!dup.duplicate.empty()) {
-      return invalid(source + ": " + dup.duplicatePath + ": duplicate key \"" + dup.duplicate +
-                     "\"");
+      return invalid(dup.duplicatePath + ": duplicate key " + quote(dup.duplicate));
     }
     Scene s;
-    loadScene(root, &s);
+    loadScene(root, budget, &s);
     *out = std::move(s);
     return Status::Ok();
   } catch (const LoadError& e) {
-    return invalid(source + ": " + (e.path.empty() ? "" : e.path + ": ") + e.reason);
+    return Status::Error(e.code,
+                         source + ": " + capped((e.path.empty() ? "" : e.path + ": ") + e.reason));
   } catch (const std::bad_alloc&) {
     return Status::Error(StatusCode::ResourceExhausted, source + ": out of memory");
   } catch (const std::exception& e) {
-    return invalid(source + ": " + e.what());
+    return invalid(e.what());
   }
 }
 
-Status loadSceneFile(const std::string& path, Scene* out) {
+Status loadSceneFile(const std::string& path, Scene* out, const SceneBudget& budget) {
   std::ifstream f(path, std::ios::binary);
   if (!f) {
     return Status::Error(StatusCode::NotFound,
@@ -1188,7 +1654,7 @@ Status loadSceneFile(const std::string& path, Scene* out) {
   std::ostringstream text;
   text << f.rdbuf();
   if (f.bad()) return invalid(path + ": read error");
-  return parseScene(text.str(), path, out);
+  return parseScene(text.str(), path, out, budget);
 }
 
 std::string sceneToJson(const Scene& s) {

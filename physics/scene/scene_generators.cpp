@@ -76,6 +76,18 @@ Material genMaterial(const Object& o, const Builder& b, const char* key = "mater
   return m ? b.material(*m, o.path(key)) : b.defaultMaterial;
 }
 
+/// Decimal digits of n (>= 1): the length of the longest index suffix "/<n>".
+size_t digits(uint64_t n) {
+  size_t d = 1;
+  while (n >= 10) n /= 10, ++d;
+  return d;
+}
+
+/// Length of the largest index i in [0, count): "/" + digits(count - 1).
+size_t indexSuffix(uint64_t count) {
+  return 1 + digits(count == 0 ? 0 : count - 1);
+}
+
 std::string typeOf(const Json& j, const std::string& path) {
   if (!j.is_object()) fail(path, "must be an object with a \"type\"");
   auto it = j.find("type");
@@ -128,7 +140,10 @@ void genPyramid(const Json& j, const std::string& path, Builder* b) {
            {"type", "name", "material", "base", "half_extent", "gap", "overlap", "origin"});
   std::string prefix = o.string("name", "pyramid");
   PyramidParams p = readPyramidParams(o);
-  b->reserve(pyramidCount(p.base), path);
+  GeneratorCounts c;
+  c.bodies = c.shapes = uint64_t(pyramidCount(p.base));
+  c.longestSuffix = indexSuffix(c.bodies);
+  if (!b->plan(o, prefix, c)) return;
   addPyramid(b, prefix, p, o.vec3("origin", Vec3{}), genMaterial(o, *b), path);
 }
 
@@ -140,7 +155,11 @@ void genPyramidGrid(const Json& j, const std::string& path, Builder* b) {
   std::string prefix = o.string("name", "pyramid_grid");
   PyramidParams p = readPyramidParams(o);
   int64_t rows = o.integer("rows", 1, 10000), cols = o.integer("cols", 1, 10000);
-  b->reserve(rows * cols * pyramidCount(p.base), path);
+  GeneratorCounts c;
+  uint64_t perPyramid = uint64_t(pyramidCount(p.base));
+  c.bodies = c.shapes = mulSat(mulSat(uint64_t(rows), uint64_t(cols)), perPyramid);
+  c.longestSuffix = indexSuffix(uint64_t(rows * cols)) + indexSuffix(perPyramid);
+  if (!b->plan(o, prefix, c)) return;
   double width = double(p.base) * (2 * p.halfExtent + p.gap);
   Vec3 spacing = v3(width + 2 * p.halfExtent, 4 * p.halfExtent, 0);
   if (const Json* s = o.find("spacing")) {
@@ -169,7 +188,10 @@ void genStack(const Json& j, const std::string& path, Builder* b) {
   double gap = o.number("gap", 0.0f, Range::NonNegative);
   Vec3 origin = o.vec3("origin", Vec3{});
   Material m = genMaterial(o, *b);
-  b->reserve(n, path);
+  GeneratorCounts c;
+  c.bodies = c.shapes = uint64_t(n);
+  c.longestSuffix = indexSuffix(c.bodies);
+  if (!b->plan(o, prefix, c)) return;
   for (int64_t i = 0; i < n; ++i) {
     double z = origin.z + h + double(i) * (2 * h + gap);
     b->addBody(boxBody(prefix + "/" + std::to_string(i), v3(origin.x, origin.y, z), v3(h, h, h), m),
@@ -204,7 +226,10 @@ void genGrid(const Json& j, const std::string& path, Builder* b) {
   }
   Vec3 origin = o.vec3("origin", Vec3{});
   Material m = genMaterial(o, *b);
-  b->reserve(nx * ny * nz, path);
+  GeneratorCounts c;
+  c.bodies = c.shapes = mulSat(mulSat(uint64_t(nx), uint64_t(ny)), uint64_t(nz));
+  c.longestSuffix = indexSuffix(c.bodies);
+  if (!b->plan(o, prefix, c)) return;
   int64_t k = 0;
   for (int64_t iz = 0; iz < nz; ++iz) {
     for (int64_t iy = 0; iy < ny; ++iy) {
@@ -230,13 +255,18 @@ void genChain(const Json& j, const std::string& path, Builder* b) {
   double r = o.number("link_radius", float(0.1 * len), Range::Positive);
   std::string shape = o.string("link_shape", "capsule");
   if (shape != "capsule" && shape != "box") {
-    fail(o.path("link_shape"), "must be \"capsule\" or \"box\" (got \"" + shape + "\")");
+    fail(o.path("link_shape"), "must be \"capsule\" or \"box\" (got " + quote(shape) + ")");
   }
   Vec3 anchor = readVec3(o.require("anchor"), o.path("anchor"));
   Vec3 dir = o.direction("direction", Vec3{1, 0, 0});
   Material m = genMaterial(o, *b);
   float linkMass = o.has("link_mass") ? o.number("link_mass", Range::Positive) : 0.0f;
-  b->reserve(n + 1, path);
+  const bool endBall = o.has("end_ball");
+  GeneratorCounts c;
+  c.bodies = c.shapes = c.joints = uint64_t(n) + (endBall ? 1 : 0);
+  // "/<link>", "/joint/<k>" (k up to n with the ball), "/ball".
+  c.longestSuffix = std::max({indexSuffix(uint64_t(n)), 6 + indexSuffix(c.joints), size_t(5)});
+  if (!b->plan(o, prefix, c)) return;
 
   // Each link's local z runs along the chain; the joints sit at the segment ends (+-len/2),
   // so neighbouring capsules' caps overlap there (connected bodies do not collide).
@@ -301,7 +331,7 @@ void genPile(const Json& j, const std::string& path, Builder* b) {
            {"type", "name", "material", "count", "seed", "mix", "size", "center", "half_extents",
             "spacing", "orientation", "walls"});
   std::string prefix = o.string("name", "pile");
-  int64_t count = o.integer("count", 1, Builder::kMaxBodies);
+  int64_t count = o.integer("count", 1, INT32_MAX);
   uint64_t seed = uint64_t(o.integer("seed", 1, 0, INT64_MAX));
   double wBox = 1, wSphere = 1, wCapsule = 1;
   if (const Json* mix = o.find("mix")) {
@@ -327,7 +357,7 @@ void genPile(const Json& j, const std::string& path, Builder* b) {
   double hy = readFloat(hj[1], element(hp, 1), Range::Positive);
   std::string orientation = o.string("orientation", "random");
   if (orientation != "random" && orientation != "aligned") {
-    fail(o.path("orientation"), "must be \"random\" or \"aligned\" (got \"" + orientation + "\")");
+    fail(o.path("orientation"), "must be \"random\" or \"aligned\" (got " + quote(orientation) + ")");
   }
   // Bounding radius of the largest body of each enabled kind; the default lattice spacing
   // keeps any two bodies apart whatever their orientation.
@@ -338,7 +368,12 @@ void genPile(const Json& j, const std::string& path, Builder* b) {
   double spacing = o.number("spacing", float(2.1 * bound), Range::Positive);
   Material m = genMaterial(o, *b);
   bool walls = o.has("walls");
-  b->reserve(count + (walls ? 1 : 0), path);
+  GeneratorCounts c;
+  c.bodies = uint64_t(count) + (walls ? 1 : 0);
+  c.shapes = uint64_t(count) + (walls ? 4 : 0);
+  c.maxShapesPerBody = walls ? 4 : 1;
+  c.longestSuffix = std::max(indexSuffix(uint64_t(count)), size_t(walls ? 4 : 0));  // "/bin"
+  if (!b->plan(o, prefix, c)) return;
 
   int64_t nx = std::max<int64_t>(1, int64_t(std::floor(2 * hx / spacing)));
   int64_t ny = std::max<int64_t>(1, int64_t(std::floor(2 * hy / spacing)));
@@ -412,13 +447,19 @@ void genBridge(const Json& j, const std::string& path, Builder* b) {
   }
   std::string jointType = o.string("joint", "hinge");
   if (jointType != "hinge" && jointType != "ball") {
-    fail(o.path("joint"), "must be \"hinge\" or \"ball\" (got \"" + jointType + "\")");
+    fail(o.path("joint"), "must be \"hinge\" or \"ball\" (got " + quote(jointType) + ")");
   }
   float plankMass = o.has("plank_mass") ? o.number("plank_mass", Range::Positive) : 0.0f;
   double bankLength = o.number("bank_length", 20.0f, Range::Positive);
   Material m = genMaterial(o, *b);
   Material bankMaterial = o.has("bank_material") ? genMaterial(o, *b, "bank_material") : m;
-  b->reserve(n + 2, path);
+  GeneratorCounts c;
+  c.bodies = c.shapes = uint64_t(n) + 2;
+  c.joints = uint64_t(n) + 1;
+  // "/bank/0", "/plank/<k>", "/joint/<k>" (k up to n).
+  c.longestSuffix =
+      std::max({size_t(7), 6 + indexSuffix(uint64_t(n)), 6 + indexSuffix(uint64_t(n) + 1)});
+  if (!b->plan(o, prefix, c)) return;
 
   // Joint points P_k, k = 0..n, on the catenary z = a cosh(x / a) through both pins, spaced
   // by equal arc length `link` (x(s) = a asinh(s / a) for arc length s from the low point).
@@ -525,7 +566,11 @@ void genCar(const Json& j, const std::string& path, Builder* b) {
   float torque = o.number("max_torque", 500.0f, Range::NonNegative);
   Material m = genMaterial(o, *b);
   Material wm = o.has("wheel_material") ? genMaterial(o, *b, "wheel_material") : m;
-  b->reserve(5, path);
+  GeneratorCounts counts;
+  counts.bodies = counts.shapes = 5;
+  counts.joints = 4;
+  counts.longestSuffix = 8;  // "/chassis", "/wheel/3", "/axle/3"
+  if (!b->plan(o, prefix, counts)) return;
 
   Quat q = Quat::fromAxisAngle(Vec3{0, 0, 1}, yaw);
   BodyDef chassis = boxBody(prefix + "/chassis", pos, che, m, q);
@@ -574,7 +619,11 @@ void genWindmill(const Json& j, const std::string& path, Builder* b) {
   float speed = o.number("motor_speed", 1.0f);
   float torque = o.number("max_torque", 1e5f, Range::NonNegative);
   Material m = genMaterial(o, *b);
-  b->reserve(1, path);
+  GeneratorCounts c;
+  c.bodies = c.joints = 1;
+  c.shapes = c.maxShapesPerBody = 1 + uint64_t(blades);  // the hub and the blades
+  c.longestSuffix = 6;                                   // "/rotor", "/hinge"
+  if (!b->plan(o, prefix, c)) return;
 
   // Blade i points along cos(phi) u + sin(phi) v, phi = start + 2 pi i / blades, with
   // u = axis x z (horizontal for a horizontal axis) and v = axis x u.
@@ -622,8 +671,8 @@ void runGenerator(const Json& j, const std::string& path, Builder* b) {
   if (type == "car") return genCar(j, path, b);
   if (type == "windmill") return genWindmill(j, path, b);
   fail(member(path, "type"),
-       "unknown generator \"" + type +
-           "\" (known: pyramid, pyramid_grid, stack, grid, chain, pile, bridge, car, windmill)");
+       "unknown generator " + quote(type) +
+           " (known: pyramid, pyramid_grid, stack, grid, chain, pile, bridge, car, windmill)");
 }
 
 }  // namespace phys::scene_detail

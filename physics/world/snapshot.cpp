@@ -8,8 +8,10 @@
 //            FNV-1a 64 of the payload (u64)
 //   payload  sections in this fixed order, each a 4-character tag, its content's length in
 //            bytes (u64), then the content:
-//     WDEF   the world definition (gravity, time step, clamps, margins, solver settings, guard)
-//     STAT   simulated time and StepStats (step count, guard counters, last guard event, ...)
+//     WDEF   the world definition (gravity, time step, clamps, margins, pair bound, solver
+//            settings, guard)
+//     STAT   simulated time and StepStats (step count, guard counters, last guard event, pair
+//            bound counters, failed steps, ...)
 //     HULL   the convex hulls, each once (shapes refer to them by index)
 //     BODY   \  the three id pools: capacity (u32), then per slot its generation (u32), alive
 //     SHAP    > flag (u8) and, if alive, the record; then the free list (u32 count, indices)
@@ -54,8 +56,8 @@ static_assert(std::numeric_limits<float>::is_iec559 && std::numeric_limits<doubl
 static_assert(sizeof(SolverSettings) == 84, "SolverSettings changed: update snapshot.cpp");
 // WorldDef's backend and gpuAllowCpuDevice are not saved: where a world runs is the
 // restoring process's choice.
-static_assert(sizeof(WorldDef) == 136, "WorldDef changed: update snapshot.cpp");
-static_assert(sizeof(StepStats) == 144, "StepStats changed: update snapshot.cpp");
+static_assert(sizeof(WorldDef) == 144, "WorldDef changed: update snapshot.cpp");
+static_assert(sizeof(StepStats) == 184, "StepStats changed: update snapshot.cpp");
 static_assert(sizeof(BodyRec) == 336, "BodyRec changed: update snapshot.cpp");
 static_assert(sizeof(ShapeGeom) == 56, "ShapeGeom changed: update snapshot.cpp");
 static_assert(sizeof(ShapeRec) == 112, "ShapeRec changed: update snapshot.cpp");
@@ -66,7 +68,9 @@ static_assert(sizeof(ConvexHull) == 112, "ConvexHull changed: update snapshot.cp
 #endif
 
 constexpr char kMagic[8] = {'P', 'H', 'Y', 'S', 'N', 'A', 'P', '\0'};
-constexpr uint32_t kVersion = 3;  // 2: SolverSettings::patchFriction; 3: stackStiffening
+// 2: SolverSettings::patchFriction; 3: stackStiffening; 4: WorldDef::maxContactPairs and
+// pairOverflow, and the pair bound's, failed and refused steps' StepStats.
+constexpr uint32_t kVersion = 4;
 constexpr size_t kHeaderSize = 8 + 4 + 8 + 8;
 constexpr int kMaxGuardRetries = 1000;
 
@@ -465,6 +469,8 @@ void ioWorldDef(Ar& ar, D& d) {
   ar.f32(d.maxAngularSpeed);
   ar.f32(d.speculativeDistance);
   ar.f32(d.aabbMargin);
+  ar.u32(d.maxContactPairs);
+  ar.e8(d.pairOverflow, WorldDef::PairOverflow::Refuse);
   ioSolver(ar, d.solver);
   // d.threads: the host's, not the simulation's (results do not depend on it).
   ar.flag(d.guard);
@@ -495,6 +501,11 @@ void ioStats(Ar& ar, D& s) {
   ar.u64(s.guardEvents);
   ar.u64(s.guardQuarantined);
   ar.str(s.lastGuardEvent);
+  ar.u32(s.pairLimit);
+  ar.u64(s.pairsDropped);
+  ar.u64(s.pairLimitSteps);
+  ar.u64(s.stepFailures);
+  ar.u64(s.stepsRefused);
 }
 
 template <class Ar, class D>

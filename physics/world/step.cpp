@@ -5,9 +5,11 @@
 #include "phys/world/world.h"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <new>
 
 #include "dynamics/joints.h"
 #include "world/world_impl.h"
@@ -44,31 +46,42 @@ class StageTimer {
 
 void World::step() {
   Impl& w = *impl_;
-  w.stats.guardRetries = 0;
-  if (!w.def.guard) {
-    stepOnce(w.def.solver.substeps);
-    return;
+  // Nothing thrown inside a step leaves it (a daemon steps worlds built from its clients'
+  // messages): the step is undone instead (stepFailed).
+  w.snapshotValid = w.stepTouched = false;
+  try {
+    w.stats.guardRetries = 0;
+    if (!w.def.guard) {
+      stepOnce(w.def.solver.substeps);
+    } else {
+      w.takeSnapshot();
+      int substeps = w.def.solver.substeps;
+      stepOnce(substeps);
+      std::string fault = w.checkHealth();
+      for (int retry = 0; !fault.empty() && retry < w.def.guardRetries; ++retry) {
+        // Roll back and redo with a safer setting: twice the substeps.
+        w.stats.guardRetries++;
+        w.stats.lastGuardEvent = "step " + std::to_string(w.stats.step) + ": " + fault;
+        w.restoreSnapshot();
+        // Twice what the failed attempt took (stack stiffening may have taken more than asked).
+        substeps = std::min(std::max(substeps, w.stats.substeps) * 2, 64);
+        stepOnce(substeps);
+        fault = w.checkHealth();
+      }
+      if (w.stats.guardRetries > 0) w.stats.guardEvents++;
+      if (!fault.empty()) w.quarantine();
+    }
+    if (w.stats.pairsDropped > 0) w.stats.pairLimitSteps++;
+  } catch (const PairLimitReached&) {  // PairOverflow::Refuse
+    w.stepRefused();
+  } catch (const std::exception& e) {  // std::bad_alloc, std::length_error: all the step throws
+    w.stepFailed(e.what());
   }
-  w.takeSnapshot();
-  int substeps = w.def.solver.substeps;
-  stepOnce(substeps);
-  std::string fault = w.checkHealth();
-  for (int retry = 0; !fault.empty() && retry < w.def.guardRetries; ++retry) {
-    // Roll back and redo with a safer setting: twice the substeps.
-    w.stats.guardRetries++;
-    w.stats.lastGuardEvent = "step " + std::to_string(w.stats.step) + ": " + fault;
-    w.restoreSnapshot();
-    // Twice what the failed attempt took (stack stiffening may have taken more than asked).
-    substeps = std::min(std::max(substeps, w.stats.substeps) * 2, 64);
-    stepOnce(substeps);
-    fault = w.checkHealth();
-  }
-  if (w.stats.guardRetries > 0) w.stats.guardEvents++;
-  if (!fault.empty()) w.quarantine();
 }
 
 void World::stepOnce(int substeps) {
   Impl& w = *impl_;
+  w.stepTouched = true;
   const float dt = w.def.timeStep;
   SolverSettings s = w.def.solver;
   s.substeps = substeps;
@@ -132,8 +145,10 @@ void World::stepOnce(int substeps) {
   bool direct = false;
   if (s.equalitySolve == SolverSettings::EqualitySolve::DirectLdl) {
     StageTimer t(&p.prepare);
-    w.ldl.analyze(solver);
-    direct = w.ldl.factor(solver);
+    if (w.directSolveFits()) {
+      w.ldl.analyze(solver);
+      direct = w.ldl.factor(solver);
+    }
   }
   const float equalityBias = Solver::equalityBiasRate(s, h);
   auto iterate = [&](bool useBias) {
@@ -290,6 +305,116 @@ void World::Impl::takeSnapshot() {
         0.5 * double(dot(invRotate(b.xf.q, b.w), b.inertiaLocal * invRotate(b.xf.q, b.w)));
     snapshot.liftEnergy += 0.1 * g * b.mass;
   }
+  snapshotValid = true;
+}
+
+bool World::Impl::directSolveFits() {
+  // The direct solve couples every two equality rows that share a dynamic body
+  // (solver_ldl.cpp): K rows on one body make a dense K x K block, K^2 memory and K^3 work
+  // per substep (1,000 distance joints on one body took 0.8 s a step, 10,000 would take
+  // minutes). Past kMaxDirectRowsPerBody the joints are iterated with everything else, as
+  // when the factorization fails: bit for bit the iterative equality solve.
+  if (joints.size() == 0) return true;
+  equalityRowsAt.assign(solver.bodies.size(), 0);
+  for (const Row& r : solver.rows) {
+    if (r.kind != RowKind::Equality) continue;
+    for (int32_t b : {r.a, r.b}) {
+      if (b == 0 || !(solver.bodies[size_t(b)].invMass > 0)) continue;
+      if (++equalityRowsAt[size_t(b)] > kMaxDirectRowsPerBody) return false;
+    }
+  }
+  return true;
+}
+
+uint32_t World::Impl::pairLimit() const {
+  if (def.maxContactPairs > 0) return def.maxContactPairs;
+  const uint64_t perShape = uint64_t(WorldDef::kAutoContactPairsPerShape) * shapes.size();
+  return uint32_t(std::clamp<uint64_t>(perShape, WorldDef::kMinAutoContactPairs, UINT32_MAX));
+}
+
+void World::Impl::stepFailed(const char* what) noexcept {
+  // Back to the state before the step. The guard's copy has it. Without one (guard off) the
+  // bodies are as they were anyway, since only finalize writes them and nothing after it
+  // allocates, but the contacts may be halfway through the step (matched, rescaled,
+  // collided): they go, and the next step starts them cold. When the guard's copy itself
+  // failed, nothing had been touched yet.
+  if (snapshotValid) {
+    for (const Snapshot::Body& s : snapshot.bodies) {
+      BodyRec& b = bodies.at(s.index);
+      b.xf = s.xf;
+      b.com = s.com;
+      b.v = s.v;
+      b.w = s.w;
+      b.force = s.force;
+      b.torque = s.torque;
+    }
+    contacts.swap(snapshot.contacts);  // no copy: that could fail too
+    for (const Snapshot::JointImpulses& ji : snapshot.jointImpulses) {
+      JointRec& j = joints.at(ji.index);
+      j.impulseCount = ji.count;
+      std::copy(ji.impulses, ji.impulses + JointRec::kMaxRows, j.impulses);
+    }
+    time = snapshot.time;
+    stats.step = snapshot.step;
+    stats.substepTime = snapshot.substepTime;
+  } else if (stepTouched) {
+    std::vector<Contact>().swap(contacts);
+  }
+  snapshotValid = stepTouched = false;
+  // The step's buffers (what a failed allocation was most likely growing) go back.
+  std::vector<Contact>().swap(snapshot.contacts);
+  std::vector<Contact>().swap(contactScratch);
+  std::vector<ProxyPair>().swap(pairs);
+  std::vector<SolverManifold>().swap(manifolds);
+  std::vector<uint32_t>().swap(manifoldContact);
+  std::vector<uint32_t>().swap(contactOrder);
+  std::vector<Row>().swap(solver.rows);
+  wide.clear();
+  // The broad phase may have failed inside a tree update: built again from the proxies' fat
+  // boxes, which are always current (the pairs depend on nothing else), or at least made to
+  // find its pairs from scratch.
+  broadPhase.forgetPairs();
+  try {
+    rebuildBroadPhase();
+  } catch (...) {
+  }
+  deviceStale();
+  stats.stepFailures++;
+  try {
+    stats.lastGuardEvent = "step " + std::to_string(stats.step) + " failed (" + what +
+                           ") and was not taken: the world is as it was before it";
+  } catch (...) {
+    // Out of memory even for the message: the counter says it.
+  }
+}
+
+void World::Impl::stepRefused() noexcept {
+  const uint64_t failures = stats.stepFailures;
+  stepFailed("refused");
+  stats.stepFailures = failures;
+  stats.stepsRefused++;
+  try {
+    stats.lastGuardEvent = "step " + std::to_string(stats.step) + " was not taken: its bodies make more than " +
+                           std::to_string(stats.pairLimit) + " contact pairs (at least " +
+                           std::to_string(stats.pairsDropped) +
+                           " more); separate or remove the crowded bodies";
+  } catch (...) {
+  }
+}
+
+void World::Impl::rebuildBroadPhase() {
+  // Aside, then swapped in: a failure leaves the old one in place.
+  BroadPhase fresh;
+  std::vector<int32_t> proxyOf(shapes.capacity(), -1);
+  for (uint32_t i = 0; i < shapes.capacity(); ++i) {
+    if (!shapes.alive(i) || shapes.at(i).proxy < 0) continue;
+    const ShapeRec& s = shapes.at(i);
+    proxyOf[i] = fresh.createProxyWithFatBox(broadPhase.fatAABB(s.proxy), i,
+                                             bodies.get(s.body)->type == BodyType::Static);
+  }
+  broadPhase = std::move(fresh);
+  for (uint32_t i = 0; i < shapes.capacity(); ++i)
+    if (proxyOf[i] >= 0) shapes.at(i).proxy = proxyOf[i];
 }
 
 void World::Impl::restoreSnapshot() {
@@ -380,7 +505,12 @@ void World::Impl::updateBounds(float dt) {
 }
 
 void World::Impl::broadPhaseStage() {
-  broadPhase.computePairs(&pairs);
+  // At most pairLimit() pairs (WorldDef::maxContactPairs): the contacts, manifolds and rows
+  // below are at most that many too (per pair: one contact, one manifold, 12 rows).
+  stats.pairLimit = pairLimit();
+  stats.pairsDropped = broadPhase.computePairs(&pairs, stats.pairLimit);
+  if (stats.pairsDropped > 0 && def.pairOverflow == WorldDef::PairOverflow::Refuse)
+    throw PairLimitReached();
   // Merge the sorted pair list with the sorted contact list: surviving contacts keep their
   // impulses for warm starting, new pairs start cold, vanished pairs are dropped.
   contactScratch.clear();
@@ -473,10 +603,23 @@ void World::Impl::narrowPhase(float dt) {
     while (chunkDeepest > seen && !deepest.compare_exchange_weak(seen, chunkDeepest)) {
     }
   };
+  // Hull collisions grow per-thread scratch (collide_poly.cpp): an allocation that fails
+  // there must neither leave a worker (std::terminate) nor leave the caller's chunk while the
+  // workers still run the loop. It is noted, and thrown once the loop is over (World::step
+  // undoes the step).
+  std::atomic<bool> failed{false};
+  auto collideOrNote = [&](size_t begin, size_t end) {
+    try {
+      collideRange(begin, end);
+    } catch (...) {
+      failed.store(true);
+    }
+  };
   if (pool)
-    pool->parallelFor(contacts.size(), kContactGrain, collideRange);
+    pool->parallelFor(contacts.size(), kContactGrain, collideOrNote);
   else
-    collideRange(0, contacts.size());
+    collideOrNote(0, contacts.size());
+  if (failed.load()) throw std::bad_alloc();
   stats.contactPoints = points.load();
   stats.maxPenetration = double(deepest.load());
   stats.contacts = int(contacts.size());

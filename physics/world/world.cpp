@@ -206,6 +206,10 @@ Status World::setSolverSettings(const SolverSettings& s) {
   impl_->def.solver = s;
   return st;
 }
+void World::setContactBudget(uint32_t maxContactPairs, WorldDef::PairOverflow overflow) {
+  impl_->def.maxContactPairs = maxContactPairs;
+  impl_->def.pairOverflow = overflow;
+}
 const StepProfile& World::profile() const {
   return impl_->profile;
 }

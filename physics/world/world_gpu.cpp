@@ -402,6 +402,7 @@ bool World::Impl::stepOnDevice(int substeps) {
   in.speculativeDistance = def.speculativeDistance;
   in.solveContacts = solveOnDevice;
   in.contacts = contactSettings(def.solver);
+  in.maxPairs = pairLimit();
   std::string error;
   if (!g.step(in, &error)) {
     backend.lastFallback = "the device step failed: " + error;
@@ -461,6 +462,12 @@ bool World::Impl::stepOnDevice(int substeps) {
   stats.awake = int(d.slots.size());
   const gpu::ContactStats cs = g.contactStats();
   stats.pairs = int(cs.pairs);
+  stats.pairLimit = in.maxPairs;
+  stats.pairsDropped = cs.dropped;
+  // The device took the step whole; under PairOverflow::Refuse it is undone like a failed one
+  // (the guard's copy; the device is marked stale).
+  if (cs.dropped > 0 && def.pairOverflow == WorldDef::PairOverflow::Refuse)
+    throw PairLimitReached();
   stats.contacts = int(cs.manifolds);
   stats.contactPoints = int(cs.points);
   stats.joints = int(d.jointSlots.size());

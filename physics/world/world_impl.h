@@ -3,6 +3,8 @@
 // joints.cpp (joint rows from the body records) and stacks.cpp (stack stiffening).
 #pragma once
 
+#include <exception>
+
 #include <cstdint>
 #include <unordered_set>
 #include <vector>
@@ -16,6 +18,12 @@
 #include "base/thread_pool.h"
 
 namespace phys {
+
+/// Thrown by a step's broad phase (CPU or device) when its pairs pass the bound under
+/// WorldDef::PairOverflow::Refuse; World::step undoes the step (Impl::stepRefused).
+struct PairLimitReached : std::exception {
+  const char* what() const noexcept override { return "contact pair bound reached"; }
+};
 
 struct ShapeRec {
   BodyId body;
@@ -192,7 +200,25 @@ struct World::Impl {
   void deviceStale();                ///< anything else changed: everything goes up again
   /// The step on the device; false (the CPU takes it) when the device cannot take it.
   bool stepOnDevice(int substeps);
+  /// The contact pair bound this step runs under (WorldDef::maxContactPairs resolved).
+  uint32_t pairLimit() const;
+  /// Whether the joints' direct solve (DirectLdl) stays small this step: no dynamic body in
+  /// more than kMaxDirectRowsPerBody equality rows (a body's rows make a dense block).
+  bool directSolveFits();
+  static constexpr uint32_t kMaxDirectRowsPerBody = 512;
+  std::vector<uint32_t> equalityRowsAt;  ///< its scratch: equality rows per solver body
   // Guard rails (step.cpp).
+  /// A step threw: put the world back as it was before it, free the step's buffers and count
+  /// it (StepStats::stepFailures).
+  void stepFailed(const char* what) noexcept;
+  /// The step passed the pair bound under PairOverflow::Refuse: undone like a failed step,
+  /// counted as refused.
+  void stepRefused() noexcept;
+  bool snapshotValid = false;  ///< `snapshot` holds this step's start (takeSnapshot finished)
+  bool stepTouched = false;    ///< this step's stepOnce has begun changing the world
+  /// The broad phase built again from its proxies' fat boxes (the same pairs), aside and
+  /// swapped in; the shapes get their new proxies.
+  void rebuildBroadPhase();
   void takeSnapshot();
   void restoreSnapshot();
   std::string checkHealth() const;                ///< empty when the step was healthy

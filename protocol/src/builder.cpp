@@ -200,7 +200,9 @@ Offset<wire::LimitsInfo> writeLimits(Fbb& fbb, const Limits& l) {
   return wire::CreateLimitsInfo(fbb, l.maxMessageBytes, l.maxBodiesPerCommand, l.maxShapesPerBody,
                                 l.maxHullPoints, l.maxJointsPerCommand, l.maxIdsPerCommand,
                                 l.maxItemsPerCommand, l.maxBatchCommands, l.maxStepsPerCommand,
-                                l.maxBodiesPerFrame);
+                                l.maxBodiesPerFrame, l.maxShapesPerCommand,
+                                l.maxHullPointsPerCommand, l.maxBodyStepsPerCommand,
+                                maxIdsPerReply(l));
 }
 
 }  // namespace detail

@@ -15,7 +15,8 @@ namespace {
 
 const wire::Vec3 kZ(0, 0, 1);
 
-Status toShapeDef(const wire::ShapeDef& in, phys::ShapeDef* out, const std::string& path) {
+Status toShapeDef(const wire::ShapeDef& in, phys::ShapeDef* out, const std::string& path,
+                  HullCache* cache) {
   phys::ShapeDef s;
   switch (in.geom_type()) {
     case wire::Shape::Sphere:
@@ -37,6 +38,14 @@ Status toShapeDef(const wire::ShapeDef& in, phys::ShapeDef* out, const std::stri
       break;
     }
     case wire::Shape::ConvexHull: {
+      const void* key = in.geom_as_ConvexHull();
+      if (cache) {
+        auto it = cache->find(key);
+        if (it != cache->end()) {
+          s.geom = phys::ShapeGeom::convexHull(it->second);
+          break;
+        }
+      }
       std::vector<phys::Vec3> points;
       if (auto* pts = in.geom_as_ConvexHull()->points()) {
         points.reserve(pts->size());
@@ -47,6 +56,7 @@ Status toShapeDef(const wire::ShapeDef& in, phys::ShapeDef* out, const std::stri
       if (!hull)
         return Status::Error(Code::InvalidArgument,
                              path + ".convex_hull.points do not make a hull: " + error);
+      if (cache) (*cache)[key] = hull;
       s.geom = phys::ShapeGeom::convexHull(std::move(hull));
       break;
     }
@@ -61,7 +71,8 @@ Status toShapeDef(const wire::ShapeDef& in, phys::ShapeDef* out, const std::stri
 
 }  // namespace
 
-Status toBodyDef(const wire::BodyDef& in, phys::BodyDef* out, std::string_view path) {
+Status toBodyDef(const wire::BodyDef& in, phys::BodyDef* out, std::string_view path,
+                 HullCache* cache) {
   phys::BodyDef d;
   d.type = phys::BodyType(in.motion());
   if (in.pose()) {
@@ -82,7 +93,7 @@ Status toBodyDef(const wire::BodyDef& in, phys::BodyDef* out, std::string_view p
     d.shapes.resize(shapes->size());
     for (uint32_t i = 0; i < shapes->size(); ++i) {
       Status st = toShapeDef(*shapes->Get(i), &d.shapes[i],
-                             std::string(path) + ".shapes[" + std::to_string(i) + "]");
+                             std::string(path) + ".shapes[" + std::to_string(i) + "]", cache);
       if (!st.ok()) return st;
     }
   }
@@ -213,13 +224,15 @@ Status toSnapshotData(const wire::Snapshot& in, SnapshotData* out) {
   s.time = in.time();
   if (auto* e = in.engine_state()) s.engineState.assign(e->begin(), e->end());
   if (auto* bv = in.bodies()) {
+    HullCache hulls;  // a hull table shared by many shapes is built once
     s.bodies.resize(bv->size());
     for (uint32_t i = 0; i < bv->size(); ++i) {
       const wire::BodyEntry* e = bv->Get(i);
       s.bodies[i].id = e->id();
       if (!e->def()) continue;
       Status st =
-          toBodyDef(*e->def(), &s.bodies[i].def, "snapshot.bodies[" + std::to_string(i) + "].def");
+          toBodyDef(*e->def(), &s.bodies[i].def, "snapshot.bodies[" + std::to_string(i) + "].def",
+                    &hulls);
       if (!st.ok()) return st;
     }
   }

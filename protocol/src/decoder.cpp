@@ -10,11 +10,13 @@
 #include <cstring>
 #include <string>
 #include <string_view>
+#include <unordered_set>
 #include <utility>
 #include <vector>
 
 #include "flatbuffers/flatbuffers.h"
 #include "phys/world/world.h"
+#include "phys/protocol/validate.h"
 
 namespace phys::protocol {
 
@@ -41,42 +43,6 @@ std::string hexId(uint64_t v) {
   return buf;
 }
 
-/// Whether s is well-formed UTF-8 (no overlongs, no surrogates, <= U+10FFFF).
-bool validUtf8(std::string_view s) {
-  size_t i = 0, n = s.size();
-  while (i < n) {
-    unsigned char c = static_cast<unsigned char>(s[i]);
-    if (c < 0x80) {
-      ++i;
-      continue;
-    }
-    int len;
-    uint32_t cp;
-    if ((c & 0xE0) == 0xC0) {
-      len = 2;
-      cp = c & 0x1F;
-    } else if ((c & 0xF0) == 0xE0) {
-      len = 3;
-      cp = c & 0x0F;
-    } else if ((c & 0xF8) == 0xF0) {
-      len = 4;
-      cp = c & 0x07;
-    } else {
-      return false;
-    }
-    if (i + len > n) return false;
-    for (int k = 1; k < len; ++k) {
-      unsigned char cc = static_cast<unsigned char>(s[i + k]);
-      if ((cc & 0xC0) != 0x80) return false;
-      cp = (cp << 6) | (cc & 0x3F);
-    }
-    if ((len == 2 && cp < 0x80) || (len == 3 && cp < 0x800) || (len == 4 && cp < 0x10000) ||
-        cp > 0x10FFFF || (cp >= 0xD800 && cp <= 0xDFFF))
-      return false;
-    i += len;
-  }
-  return true;
-}
 
 constexpr std::array<const char*, 25> kRequestNames = {"none",
                                                        "hello",
@@ -117,8 +83,10 @@ class Checker {
 
   const Limits& lim;
   Status status;
-  // Totals over the whole message: a Batch's commands share one budget.
-  uint64_t bodies = 0, joints = 0, ids = 0, items = 0;
+  // Totals over the whole message: a Batch's commands share one budget. Shapes and hull
+  // points count every use of a shared table.
+  uint64_t bodies = 0, joints = 0, ids = 0, items = 0, shapeUses = 0, hullPointUses = 0;
+  bool inSnapshot = false;  ///< shapes and hull points against the snapshot budgets
 
   void push(const char* name, int64_t index) {
     if (depth_ < path_.size()) path_[depth_] = {name, index};
@@ -270,6 +238,13 @@ class Checker {
     return true;
   }
   bool id(uint64_t v, std::string_view f) { return v != 0 || invalid(f, "must be a non-zero id"); }
+  /// A time step: > 0, within [minTimeStep, maxTimeStep].
+  bool timeStep(float v, std::string_view f) {
+    if (!positive(v, lim.maxTimeStep, f)) return false;
+    if (v < lim.minTimeStep)
+      return invalid(f, "must be >= " + num(lim.minTimeStep) + ", got " + num(v));
+    return true;
+  }
   /// Adds n to a message-wide total and checks it against its limit.
   bool budget(uint64_t* total, size_t n, uint32_t max, std::string_view f, const char* limit) {
     *total += n;
@@ -342,6 +317,11 @@ class Checker {
   };
   std::array<Segment, 24> path_{};
   size_t depth_ = 0;
+  /// Hull tables already checked: a table shared by many shapes is read once.
+  std::unordered_set<const void*> checkedHulls_;
+
+ public:
+  bool hullChecked(const void* hull) { return !checkedHulls_.insert(hull).second; }
 };
 
 /// Pushes a path segment for its lifetime.
@@ -404,8 +384,19 @@ bool Checker::shape(const wire::ShapeDef& s, wire::MotionType motion) {
         return fail(Code::ResourceExhausted, "points",
                     "has " + std::to_string(n) + " points, the limit is " +
                         std::to_string(lim.maxHullPoints) + " (max_hull_points)");
-      for (uint32_t i = 0; i < n; ++i)
-        if (!vec(*pts->Get(i), lim.maxSize, "points[" + std::to_string(i) + "]")) return false;
+      if (!budget(&hullPointUses, n,
+                  inSnapshot ? lim.maxSnapshotHullPoints : lim.maxHullPointsPerCommand, "points",
+                  inSnapshot ? "max_snapshot_hull_points" : "max_hull_points_per_command"))
+        return false;
+      if (hullChecked(s.geom_as_ConvexHull())) break;  // a shared table, checked at its first use
+      for (uint32_t i = 0; i < n; ++i) {
+        const wire::Vec3& p = *pts->Get(i);
+        // The common case without building a path string per point.
+        if (std::fabs(p.x()) <= lim.maxSize && std::fabs(p.y()) <= lim.maxSize &&
+            std::fabs(p.z()) <= lim.maxSize)
+          continue;
+        if (!vec(p, lim.maxSize, "points[" + std::to_string(i) + "]")) return false;
+      }
       break;
     }
     default:
@@ -449,6 +440,9 @@ bool Checker::body(const wire::BodyDef& b) {
     return fail(Code::ResourceExhausted, "shapes",
                 "has " + std::to_string(n) + " shapes, the limit is " +
                     std::to_string(lim.maxShapesPerBody) + " (max_shapes_per_body)");
+  if (n > 0 && !budget(&shapeUses, n, inSnapshot ? lim.maxSnapshotShapes : lim.maxShapesPerCommand,
+                       "shapes", inSnapshot ? "max_snapshot_shapes" : "max_shapes_per_command"))
+    return false;
   bool volume = false;
   for (uint32_t i = 0; i < n; ++i) {
     Scope sc(*this, "shapes", i);
@@ -580,7 +574,7 @@ bool Checker::request(wire::Request type, const void* table) {
       if (!text(r->name(), lim.maxNameBytes, "name", true) ||
           !fileName(r->preset(), "preset", false) || !vec(r->gravity(), lim.maxGravity, "gravity"))
         return false;
-      if (r->time_step() != 0 && !positive(r->time_step(), lim.maxTimeStep, "time_step"))
+      if (r->time_step() != 0 && !timeStep(r->time_step(), "time_step"))
         return false;
       return backend(r->backend(), "backend");
     }
@@ -772,6 +766,7 @@ bool Checker::request(wire::Request type, const void* table) {
 
 bool Checker::snapshot(const wire::Snapshot& s) {
   Scope sc(*this, "snapshot");
+  inSnapshot = true;
   if (s.format_version() != 1)
     return fail(Code::Unsupported, "format_version",
                 "is " + std::to_string(s.format_version()) + "; this codec reads 1");
@@ -786,7 +781,7 @@ bool Checker::snapshot(const wire::Snapshot& s) {
   if (!text(s.name(), lim.maxNameBytes, "name", false) ||
       !vec(s.gravity(), lim.maxGravity, "gravity") || !finite(float(s.time()), "time"))
     return false;
-  if ((!engine || s.time_step() != 0) && !positive(s.time_step(), lim.maxTimeStep, "time_step"))
+  if ((!engine || s.time_step() != 0) && !timeStep(s.time_step(), "time_step"))
     return false;
   if (s.solver()) {
     Scope ss(*this, "solver");

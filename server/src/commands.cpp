@@ -7,6 +7,7 @@
 // (e.g. engine validation of a body definition, or a batch item that refers to a body an
 // earlier item removed) the world is restored from it, so nothing changes.
 #include <cinttypes>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -15,6 +16,7 @@
 #include <string>
 
 #include "phys/protocol/convert.h"
+#include "phys/protocol/validate.h"
 #include "phys/scene/scene.h"
 #include "phys/server/core.h"
 
@@ -153,6 +155,11 @@ struct ServerCore::Context {
   ServerCore& core;
   ReplyHeader header;
   CreatedIds ids;
+  /// Hulls built for this message (a hull table that many shapes share is built once) and
+  /// the body definitions converted by the check pass, by SpawnBodies table, for the apply
+  /// pass.
+  protocol::HullCache hulls;
+  std::map<const void*, std::vector<phys::BodyDef>> converted;
 
   Status checkBodies(const phys::World& w, const flatbuffers::Vector<uint64_t>* v,
                      const std::string& path) {
@@ -208,18 +215,24 @@ struct ServerCore::Context {
       case wire::Request::SpawnBodies: {
         auto* r = static_cast<const wire::SpawnBodies*>(table);
         auto* v = r->bodies();
-        std::vector<phys::BodyDef> defs(v ? v->size() : 0);
-        for (uint32_t i = 0; i < defs.size(); ++i) {
-          Status s =
-              protocol::toBodyDef(*v->Get(i), &defs[i], p + ".bodies[" + std::to_string(i) + "]");
-          if (!s.ok()) return s;
+        if (dryRun) {
+          std::vector<phys::BodyDef> defs(v ? v->size() : 0);
+          for (uint32_t i = 0; i < defs.size(); ++i) {
+            const std::string bp = p + ".bodies[" + std::to_string(i) + "]";
+            Status s = protocol::toBodyDef(*v->Get(i), &defs[i], bp, &hulls);
+            if (s.ok()) s = protocol::checkBodyDef(defs[i], core.config_.limits, bp);
+            if (!s.ok()) return s;
+          }
+          converted[table] = std::move(defs);
+          return Status::Ok();
         }
-        if (dryRun) return Status::Ok();
+        // Copied, not moved: a batch may hold the same SpawnBodies table twice.
+        const std::vector<phys::BodyDef>& defs = converted.at(table);
         for (uint32_t i = 0; i < defs.size(); ++i) {
           phys::BodyId id;
           phys::Status s = w.createBody(defs[i], &id);
           if (!s.ok()) return fromPhys(s, p + ".bodies[" + std::to_string(i) + "]");
-          sw.bodyDefs[id.packed()] = std::move(defs[i]);
+          sw.bodyDefs[id.packed()] = defs[i];
           ids.bodies.push_back(id.packed());
         }
         sw.infoDirty = true;
@@ -251,6 +264,8 @@ struct ServerCore::Context {
           if (!w.isValid(phys::BodyId::fromPacked(j->body_b())))
             return err(Code::NotFound, jp + ".body_b " + hex(j->body_b()) + " is not a live body");
           defs.push_back(protocol::toJointDef(*j));
+          Status s = protocol::checkJointDef(defs.back(), core.config_.limits, jp);
+          if (!s.ok()) return s;
         }
         if (dryRun) return Status::Ok();
         for (size_t i = 0; i < defs.size(); ++i) {
@@ -389,8 +404,17 @@ struct ServerCore::Context {
   /// Edits all-or-nothing: check every item, snapshot, apply, roll back on failure.
   Status editAll(ServerWorld& sw, const std::vector<std::pair<wire::Request, const void*>>& items,
                  const std::vector<std::string>& paths) {
+    uint64_t newBodies = 0, newJoints = 0;
     for (size_t i = 0; i < items.size(); ++i) {
       Status s = edit(sw, items[i].first, items[i].second, paths[i], true);
+      if (!s.ok()) return s;
+      if (items[i].first == wire::Request::SpawnBodies)
+        newBodies += static_cast<const wire::SpawnBodies*>(items[i].second)->bodies()->size();
+      if (items[i].first == wire::Request::AddJoints)
+        newJoints += static_cast<const wire::AddJoints*>(items[i].second)->joints()->size();
+    }
+    if (newBodies + newJoints > 0) {
+      Status s = core.checkGrowth(&sw, newBodies, newJoints, paths[0] + "this command");
       if (!s.ok()) return s;
     }
     // One engine call either applies or changes nothing: no snapshot needed (the common
@@ -450,8 +474,28 @@ Bytes ServerCore::apply(const Incoming& in) {
 }
 
 Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey) {
+  // No exception leaves a command: the engine and the codec report failures as statuses, so
+  // one that escapes anyway is answered here and the daemon goes on.
+  try {
+    return applyChecked(c, envelopeKey);
+  } catch (const std::bad_alloc&) {
+    ++counters_.errors;
+    return protocol::encodeReply(protocol::replyTo(
+        c, Status::Error(Code::ResourceExhausted,
+                         std::string(protocol::requestName(c.request_type())) +
+                             ": out of memory; the command may be partly applied")));
+  } catch (const std::exception& e) {
+    ++counters_.errors;
+    return protocol::encodeReply(protocol::replyTo(
+        c, Status::Error(Code::Internal, std::string(protocol::requestName(c.request_type())) +
+                                             ": " + e.what() +
+                                             "; the command may be partly applied")));
+  }
+}
+
+Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
   ++counters_.commands;
-  Context ctx{*this, protocol::replyTo(c), {}};
+  Context ctx{*this, protocol::replyTo(c), {}, {}, {}};
   Status& st = ctx.header.status;
   const wire::Request type = c.request_type();
   ServerWorld* sw = nullptr;
@@ -520,6 +564,8 @@ Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey) {
                  "this server holds at most " + std::to_string(config_.maxWorlds) + " worlds");
         return finish();
       }
+      st = checkGrowth(nullptr, 0, 0, "create_world");
+      if (!st.ok()) return finish();
       std::string preset = r->preset() && r->preset()->size() ? r->preset()->str() : defaultPreset_;
       auto it = presets_.find(preset);
       if (it == presets_.end()) {
@@ -573,67 +619,40 @@ Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey) {
       return finish();
     }
     case wire::Request::LoadScene: {
-      auto* r = c.request_as_LoadScene();
-      phys::Scene scene;
-      phys::Status ps;
-      if (r->scene_name() && r->scene_name()->size()) {
-        const std::string path = underDir(config_.scenesDir, r->scene_name()->str(), ".json");
-        if (config_.scenesDir.empty() || !fs::exists(path)) {
-          st = err(Code::NotFound, "load_scene.scene_name '" + r->scene_name()->str() +
-                                       "' is not a scene of this server");
-          return finish();
-        }
-        ps = phys::loadSceneFile(path, &scene);
-      } else if (r->json()) {
-        ps = phys::parseScene(r->json()->str(), "load_scene.json", &scene);
-      } else {
-        st = err(Code::Malformed, "load_scene needs json or scene_name");
-        return finish();
-      }
-      if (!ps.ok()) {
-        st = fromPhys(ps, "load_scene");
-        if (st.code == Code::NotFound) st.code = Code::InvalidArgument;
-        return finish();
-      }
-      phys::WorldDef def = scene.world;
-      def.threads = config_.threads;
-      def.gpuAllowCpuDevice = config_.gpuAllowCpuDevice;
-      // A scene that asks for the GPU (or auto) gets it; else the world keeps its setting.
-      if (def.backend == phys::Backend::Cpu) def.backend = sw->world->def().backend;
-      auto fresh = std::make_unique<phys::World>(def);
-      std::vector<phys::BodyId> bodyIds;
-      std::vector<phys::JointId> jointIds;
-      ps = phys::instantiateScene(scene, fresh.get(), &bodyIds, &jointIds);
-      if (!ps.ok()) {
-        st = fromPhys(ps, "load_scene");
-        return finish();
-      }
-      sw->world = std::move(fresh);
-      sw->bodyDefs.clear();
-      sw->jointDefs.clear();
-      for (size_t i = 0; i < bodyIds.size(); ++i) {
-        sw->bodyDefs[bodyIds[i].packed()] = scene.bodies[i];
-        ctx.ids.bodies.push_back(bodyIds[i].packed());
-      }
-      for (size_t i = 0; i < jointIds.size(); ++i) {
-        phys::JointDef d = scene.joints[i].def;
-        d.bodyA =
-            scene.joints[i].bodyA >= 0 ? bodyIds[size_t(scene.joints[i].bodyA)] : phys::BodyId{};
-        d.bodyB =
-            scene.joints[i].bodyB >= 0 ? bodyIds[size_t(scene.joints[i].bodyB)] : phys::BodyId{};
-        sw->jointDefs[jointIds[i].packed()] = d;
-        ctx.ids.joints.push_back(jointIds[i].packed());
-      }
-      sw->tick = 0;
-      sw->accumulator = 0;
-      ++sw->revision;
-      sw->infoDirty = sw->frameDirty = true;
+      st = loadScene(*sw, c.request_as_LoadScene(), "", /*forReply=*/true, &ctx.ids.bodies,
+                     &ctx.ids.joints);
+      if (!st.ok()) ctx.ids = {};
       return finish();
     }
     case wire::Request::Step: {
-      st = stepWorld(sw->id, c.request_as_Step()->count());
-      ctx.header.tick = sw->tick;
-      return finish();
+      const uint64_t n = c.request_as_Step()->count();
+      const uint64_t bodies = std::max<uint64_t>(1, uint64_t(sw->world->bodyCount()));
+      if (n * bodies > config_.limits.maxBodyStepsPerCommand) {
+        st = err(Code::ResourceExhausted,
+                 "step.count " + std::to_string(n) + " x " + std::to_string(bodies) +
+                     " bodies is " + std::to_string(n * bodies) +
+                     " body steps, the limit is " +
+                     std::to_string(config_.limits.maxBodyStepsPerCommand) +
+                     " (max_body_steps_per_command); step in smaller counts");
+        return finish();
+      }
+      if (!current_) {  // applied directly (tests, start-up): all steps now
+        st = stepWorld(sw->id, n);
+        ctx.header.tick = sw->tick;
+        return finish();
+      }
+      // From the queue: a slice now; what is left runs a slice per tick, between other
+      // commands and worlds, and answers when done (or when a Pause ends it).
+      ServerWorld::StepJob job;
+      job.requested = job.remaining = n;
+      job.header = ctx.header;
+      job.envelopeKey = current_->envelopeKey;
+      job.envelopeSeq = current_->envelopeSeq;
+      job.bytes = current_->bytes;
+      sw->job = job;
+      continueJob(*sw);
+      deferred_ = true;  // continueJob answered if it finished
+      return {};
     }
     case wire::Request::Run: {
       float rate = c.request_as_Run()->rate_hz();
@@ -717,9 +736,41 @@ Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey) {
         std::error_code ec;
         fs::create_directories(config_.snapshotDir, ec);
         const std::string path = underDir(config_.snapshotDir, file, "");
-        std::ofstream f(path, std::ios::binary | std::ios::trunc);
-        f.write(reinterpret_cast<const char*>(snap.data()), std::streamsize(snap.size()));
-        if (!f) {
+        // The directory's quota: files and bytes after this save (a file of the same name is
+        // replaced, so it does not count).
+        uint64_t files = 1, bytes = snap.size();
+        for (const auto& e : fs::directory_iterator(config_.snapshotDir, ec)) {
+          std::error_code fe;
+          if (!e.is_regular_file(fe) || e.path().filename() == file) continue;
+          ++files;
+          bytes += e.file_size(fe);
+        }
+        if (files > config_.maxSnapshotFiles || bytes > config_.maxSnapshotBytes) {
+          st = err(Code::ResourceExhausted,
+                   "save_snapshot.file: the snapshot directory would hold " +
+                       std::to_string(files) + " files and " + std::to_string(bytes) +
+                       " bytes, the limits are " + std::to_string(config_.maxSnapshotFiles) +
+                       " files (server.max_snapshot_files) and " +
+                       std::to_string(config_.maxSnapshotBytes) +
+                       " bytes (server.max_snapshot_mb); overwrite an old file instead");
+          return finish();
+        }
+        // Written aside and renamed: a failed write never leaves a torn snapshot.
+        const std::string tmp = path + ".partial";
+        {
+          std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
+          f.write(reinterpret_cast<const char*>(snap.data()), std::streamsize(snap.size()));
+          f.flush();
+          if (!f) {
+            f.close();
+            fs::remove(tmp, ec);
+            st = err(Code::Internal, "save_snapshot.file: cannot write '" + file + "'");
+            return finish();
+          }
+        }
+        fs::rename(tmp, path, ec);
+        if (ec) {
+          fs::remove(tmp, ec);
           st = err(Code::Internal, "save_snapshot.file: cannot write '" + file + "'");
           return finish();
         }
@@ -740,9 +791,24 @@ Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey) {
                    "restore_snapshot.file '" + r->file()->str() + "' is not a snapshot file");
           return finish();
         }
+        std::error_code ec;
+        const uintmax_t size = fs::file_size(path, ec);
+        if (ec || size > config_.maxSnapshotBytes) {
+          st = err(ec ? Code::NotFound : Code::ResourceExhausted,
+                   "restore_snapshot.file '" + r->file()->str() + "' " +
+                       (ec ? "cannot be read"
+                           : "is " + std::to_string(size) + " bytes, more than " +
+                                 std::to_string(config_.maxSnapshotBytes) +
+                                 " (server.max_snapshot_mb)"));
+          return finish();
+        }
         std::ifstream f(path, std::ios::binary);
-        std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(f)),
-                                   std::istreambuf_iterator<char>());
+        std::vector<uint8_t> bytes(size);
+        f.read(reinterpret_cast<char*>(bytes.data()), std::streamsize(size));
+        if (!f) {
+          st = err(Code::NotFound, "restore_snapshot.file '" + r->file()->str() + "' cannot be read");
+          return finish();
+        }
         decoded = protocol::decodeSnapshot(std::move(bytes), config_.limits);
         if (!decoded.ok()) {
           st = decoded.status;
@@ -764,14 +830,45 @@ Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey) {
       st = protocol::toSnapshotData(*decoded, &data);
       if (!st.ok()) return finish();
       if (!data.engineState.empty()) {
-        phys::Status ps =
-            sw->world->restoreSnapshot(data.engineState.data(), data.engineState.size());
+        // Restored aside and checked by the codec's rules before it replaces the world.
+        auto scratch = std::make_unique<phys::World>(sw->world->def());
+        phys::Status ps = scratch->restoreSnapshot(data.engineState.data(), data.engineState.size());
         if (!ps.ok()) {
           st = fromPhys(ps, "restore_snapshot.snapshot.engine_state");
           return finish();
         }
+        applyPolicy(*scratch);  // the server's contact budget, whatever the snapshot says
+        st = checkRestored(*scratch, "restore_snapshot.snapshot.engine_state");
+        if (!st.ok()) return finish();
+        st = checkGrowth(nullptr, uint64_t(scratch->bodyCount()), uint64_t(scratch->jointCount()),
+                         "restore_snapshot");
+        if (!st.ok()) return finish();
+        cancelJob(*sw, "replaced by restore_snapshot");
+        sw->world = std::move(scratch);
         rebuildDefs(*sw);
       } else {
+        const uint64_t nb = data.bodies.size(), nj = data.joints.size();
+        if (nb + nj > protocol::maxIdsPerReply(config_.limits)) {
+          st = err(Code::ResourceExhausted,
+                   "restore_snapshot: the snapshot has " + std::to_string(nb) + " bodies and " +
+                       std::to_string(nj) + " joints; one reply lists at most " +
+                       std::to_string(protocol::maxIdsPerReply(config_.limits)) +
+                       " new ids (max_ids_per_reply): save it with engine state instead");
+          return finish();
+        }
+        st = checkGrowth(nullptr, nb, nj, "restore_snapshot");
+        if (!st.ok()) return finish();
+        st = protocol::checkWorldParams(data.gravity, data.timeStep, config_.limits,
+                                        "restore_snapshot.snapshot");
+        for (size_t i = 0; st.ok() && i < data.bodies.size(); ++i)
+          st = protocol::checkBodyDef(data.bodies[i].def, config_.limits,
+                                      "restore_snapshot.snapshot.bodies[" + std::to_string(i) +
+                                          "].def");
+        for (size_t i = 0; st.ok() && i < data.joints.size(); ++i)
+          st = protocol::checkJointDef(data.joints[i].def, config_.limits,
+                                       "restore_snapshot.snapshot.joints[" + std::to_string(i) +
+                                           "].def");
+        if (!st.ok()) return finish();
         // Portable form: a fresh world from the definitions, saved ids mapped to new ones.
         phys::WorldDef def = sw->world->def();
         def.gravity = data.gravity;
@@ -805,6 +902,7 @@ Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey) {
           jointDefs[id.packed()] = d;
           ctx.ids.joints.push_back(id.packed());
         }
+        cancelJob(*sw, "replaced by restore_snapshot");
         sw->world = std::move(fresh);
         sw->bodyDefs = std::move(bodyDefs);
         sw->jointDefs = std::move(jointDefs);
@@ -846,6 +944,144 @@ Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey) {
                std::string("request ") + protocol::requestName(type) + " is not supported");
       return finish();
   }
+}
+
+Status ServerCore::loadScene(ServerWorld& sw, const wire::LoadScene* r,
+                             const std::string& sceneName, bool forReply,
+                             std::vector<uint64_t>* bodyIds, std::vector<uint64_t>* jointIds) {
+  const protocol::Limits& lim = config_.limits;
+  Status st = checkGrowth(nullptr, 0, 0, "load_scene");
+  if (!st.ok()) return st;
+  // The scene's budget, checked by the parser before it builds anything: the world's and the
+  // server's body counts (the scene replaces this world's bodies), what one reply can list,
+  // and the codec's limits on shapes, hulls and names.
+  const uint64_t others = totalBodies() - uint64_t(sw.world->bodyCount());
+  const uint64_t idsPerReply = forReply ? protocol::maxIdsPerReply(lim) : UINT64_MAX;
+  phys::SceneBudget budget;
+  budget.maxBodies = std::min<uint64_t>(
+      {config_.maxBodiesPerWorld,
+       config_.maxBodiesTotal > others ? config_.maxBodiesTotal - others : 0, idsPerReply});
+  budget.maxJoints = std::min<uint64_t>(config_.maxJointsPerWorld, idsPerReply);
+  budget.maxShapesPerBody = lim.maxShapesPerBody;
+  budget.maxHullPoints = lim.maxHullPoints;
+  budget.maxNameBytes = lim.maxNameBytes;
+  const char* limitNames =
+      " (server.max_bodies_per_world, server.max_bodies_total, server.max_joints_per_world and, "
+      "for LoadScene, the ids one reply lists: max_ids_per_reply)";
+
+  phys::Scene scene;
+  phys::Status ps;
+  const std::string name = r && r->scene_name() ? r->scene_name()->str() : sceneName;
+  if (!name.empty()) {
+    const std::string path = underDir(config_.scenesDir, name, ".json");
+    if (config_.scenesDir.empty() || !fs::exists(path))
+      return err(Code::NotFound, "load_scene.scene_name '" + name + "' is not a scene of this server");
+    ps = phys::loadSceneFile(path, &scene, budget);
+  } else if (r && r->json()) {
+    ps = phys::parseScene(r->json()->str(), "load_scene.json", &scene, budget);
+  } else {
+    return err(Code::Malformed, "load_scene needs json or scene_name");
+  }
+  if (!ps.ok()) {
+    st = fromPhys(ps, "load_scene");
+    if (st.code == Code::NotFound) st.code = Code::InvalidArgument;
+    if (st.code == Code::ResourceExhausted) st.message += limitNames;
+    return st;
+  }
+  if (forReply && scene.bodies.size() + scene.joints.size() > idsPerReply)
+    return err(Code::ResourceExhausted,
+               "load_scene: the scene has " + std::to_string(scene.bodies.size()) +
+                   " bodies and " + std::to_string(scene.joints.size()) +
+                   " joints; one reply lists at most " + std::to_string(idsPerReply) +
+                   " new ids (max_ids_per_reply): load it as a start-up world or in parts");
+  // The codec's rules, so that every client can decode the world's description.
+  st = protocol::checkWorldParams(scene.world.gravity, scene.world.timeStep, lim, "load_scene:");
+  if (!st.ok()) return st;
+  for (size_t i = 0; i < scene.bodies.size(); ++i) {
+    st = protocol::checkBodyDef(scene.bodies[i], lim,
+                                "load_scene: body " + std::to_string(i) +
+                                    (scene.bodies[i].name.empty()
+                                         ? std::string()
+                                         : " " + protocol::shortQuote(scene.bodies[i].name)));
+    if (!st.ok()) return st;
+  }
+  for (size_t i = 0; i < scene.joints.size(); ++i) {
+    st = protocol::checkJointDef(scene.joints[i].def, lim,
+                                 "load_scene: joint " + std::to_string(i) +
+                                     (scene.joints[i].def.name.empty()
+                                          ? std::string()
+                                          : " " + protocol::shortQuote(scene.joints[i].def.name)));
+    if (!st.ok()) return st;
+  }
+
+  phys::WorldDef def = scene.world;
+  def.threads = config_.threads;
+  def.gpuAllowCpuDevice = config_.gpuAllowCpuDevice;
+  applyPolicy(&def);
+  // A scene that asks for the GPU (or auto) gets it; else the world keeps its setting.
+  if (def.backend == phys::Backend::Cpu) def.backend = sw.world->def().backend;
+  auto fresh = std::make_unique<phys::World>(def);
+  std::vector<phys::BodyId> bids;
+  std::vector<phys::JointId> jids;
+  ps = phys::instantiateScene(scene, fresh.get(), &bids, &jids);
+  if (!ps.ok()) return fromPhys(ps, "load_scene");
+  cancelJob(sw, "replaced by load_scene");
+  sw.world = std::move(fresh);
+  sw.bodyDefs.clear();
+  sw.jointDefs.clear();
+  for (size_t i = 0; i < bids.size(); ++i) {
+    sw.bodyDefs[bids[i].packed()] = std::move(scene.bodies[i]);
+    bodyIds->push_back(bids[i].packed());
+  }
+  for (size_t i = 0; i < jids.size(); ++i) {
+    phys::JointDef d = scene.joints[i].def;
+    d.bodyA = scene.joints[i].bodyA >= 0 ? bids[size_t(scene.joints[i].bodyA)] : phys::BodyId{};
+    d.bodyB = scene.joints[i].bodyB >= 0 ? bids[size_t(scene.joints[i].bodyB)] : phys::BodyId{};
+    sw.jointDefs[jids[i].packed()] = d;
+    jointIds->push_back(jids[i].packed());
+  }
+  sw.tick = 0;
+  sw.accumulator = 0;
+  ++sw.revision;
+  sw.infoDirty = sw.frameDirty = true;
+  return Status::Ok();
+}
+
+Status ServerCore::checkRestored(const phys::World& w, const std::string& path) const {
+  const protocol::Limits& lim = config_.limits;
+  Status st = protocol::checkWorldParams(w.def().gravity, w.def().timeStep, lim, path);
+  if (!st.ok()) return st;
+  phys::Status ps = phys::World::validate(w.def().solver);
+  if (!ps.ok()) return fromPhys(ps, path + ".solver");
+  for (phys::BodyId id : w.bodies()) {
+    const std::string bp = path + ": body " + hex(id.packed());
+    st = protocol::checkBodyDef(defFromWorld(w, id), lim, bp);
+    if (!st.ok()) return st;
+    // Mass and inertia are not in the definition rebuilt from the engine: checked here.
+    phys::BodyState s;
+    w.getBody(id, &s);
+    if (!std::isfinite(s.mass) || s.mass < 0 || s.mass > lim.maxMass)
+      return err(Code::InvalidArgument, bp + ".mass must be in [0, " +
+                                            std::to_string(lim.maxMass) + "], got " +
+                                            std::to_string(s.mass));
+    const phys::Vec3 cols[3] = {s.inertia.c0, s.inertia.c1, s.inertia.c2};
+    for (int c = 0; c < 3; ++c)
+      for (int r = 0; r < 3; ++r) {
+        const float v = cols[c][r];
+        if (!std::isfinite(v) || std::fabs(v) > lim.maxInertia || (r == c && v < 0))
+          return err(Code::InvalidArgument,
+                     bp + ".inertia must be finite, with moments in [0, " +
+                         std::to_string(lim.maxInertia) + "]");
+      }
+  }
+  for (phys::JointId id : w.joints()) {
+    phys::JointDef d;
+    phys::JointState js;
+    if (!w.getJoint(id, &d, &js).ok()) continue;
+    st = protocol::checkJointDef(d, lim, path + ": joint " + hex(id.packed()));
+    if (!st.ok()) return st;
+  }
+  return Status::Ok();
 }
 
 }  // namespace phys::server

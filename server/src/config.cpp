@@ -97,7 +97,10 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     s = checkKeys(*t,
                   {"name", "id", "log_level", "threads", "default_rate_hz", "max_catch_up_steps",
                    "status_period_s", "bodies_per_chunk", "frame_ring", "max_worlds",
-                   "realtime_priority", "backend", "gpu_allow_cpu_device"},
+                   "realtime_priority", "backend", "gpu_allow_cpu_device",
+                   "max_bodies_per_world", "max_joints_per_world", "max_bodies_total",
+                   "memory_budget_mb", "max_snapshot_files", "max_snapshot_mb",
+                   "max_queued_per_client", "max_queued_mb", "step_slice_ms", "max_contact_pairs"},
                   "server");
     if (!s.ok()) return s;
     PHYS_GET(*t, "name", "server", &c.core.serverName);
@@ -114,6 +117,33 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     s = getBackend(*t, "server", nullptr, &c.core.backend);
     if (!s.ok()) return s;
     PHYS_GET(*t, "gpu_allow_cpu_device", "server", &c.core.gpuAllowCpuDevice);
+    // Budgets (docs/SERVER.md "Budgets").
+    PHYS_GET(*t, "max_bodies_per_world", "server", &c.core.maxBodiesPerWorld);
+    PHYS_GET(*t, "max_joints_per_world", "server", &c.core.maxJointsPerWorld);
+    PHYS_GET(*t, "max_bodies_total", "server", &c.core.maxBodiesTotal);
+    PHYS_GET(*t, "max_snapshot_files", "server", &c.core.maxSnapshotFiles);
+    PHYS_GET(*t, "max_queued_per_client", "server", &c.core.maxQueuedPerClient);
+    PHYS_GET(*t, "max_contact_pairs", "server", &c.core.maxContactPairs);
+    uint64_t mb = 0;
+    if (t->get("memory_budget_mb")) {
+      PHYS_GET(*t, "memory_budget_mb", "server", &mb);
+      c.core.memoryBudgetBytes = mb << 20;
+    }
+    if (t->get("max_snapshot_mb")) {
+      PHYS_GET(*t, "max_snapshot_mb", "server", &mb);
+      c.core.maxSnapshotBytes = mb << 20;
+    }
+    if (t->get("max_queued_mb")) {
+      PHYS_GET(*t, "max_queued_mb", "server", &mb);
+      c.core.maxQueuedBytes = mb << 20;
+    }
+    double sliceMs = c.core.stepSliceSeconds * 1000;
+    PHYS_GET(*t, "step_slice_ms", "server", &sliceMs);
+    if (!(sliceMs >= 1 && sliceMs <= 1000))
+      return Status::Error(Code::InvalidArgument, "server.step_slice_ms must be in [1, 1000]");
+    c.core.stepSliceSeconds = sliceMs / 1000;
+    if (c.core.maxQueuedPerClient == 0)
+      return Status::Error(Code::InvalidArgument, "server.max_queued_per_client must be >= 1");
   }
   if (auto* t = root["dds"].as_table()) {
     s = checkKeys(*t, {"domain", "config"}, "dds");
@@ -136,7 +166,8 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     protocol::Limits& l = c.core.limits;
     s = checkKeys(*t,
                   {"max_bodies_per_command", "max_joints_per_command", "max_ids_per_command",
-                   "max_items_per_command", "max_batch_commands", "max_steps_per_command"},
+                   "max_items_per_command", "max_batch_commands", "max_steps_per_command",
+                   "max_body_steps_per_command"},
                   "limits");
     if (!s.ok()) return s;
     PHYS_GET(*t, "max_bodies_per_command", "limits", &l.maxBodiesPerCommand);
@@ -145,6 +176,7 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     PHYS_GET(*t, "max_items_per_command", "limits", &l.maxItemsPerCommand);
     PHYS_GET(*t, "max_batch_commands", "limits", &l.maxBatchCommands);
     PHYS_GET(*t, "max_steps_per_command", "limits", &l.maxStepsPerCommand);
+    PHYS_GET(*t, "max_body_steps_per_command", "limits", &l.maxBodyStepsPerCommand);
   }
   if (const toml::node* wn = root.get("worlds")) {
     const toml::array* arr = wn->as_array();

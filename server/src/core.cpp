@@ -3,12 +3,16 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <unistd.h>
 #include <string>
 
 #include "phys/protocol/convert.h"
 #include "phys/scene/scene.h"
 
 namespace phys::server {
+
+using protocol::ReplyHeader;
 
 ServerCore::ServerCore(CoreConfig config)
     : config_(std::move(config)),
@@ -30,6 +34,14 @@ Status ServerCore::init() {
   return Status::Ok();
 }
 
+void ServerCore::applyPolicy(phys::WorldDef* def) const {
+  def->maxContactPairs = config_.maxContactPairs;
+  def->pairOverflow = phys::WorldDef::PairOverflow::Refuse;
+}
+void ServerCore::applyPolicy(phys::World& w) const {
+  w.setContactBudget(config_.maxContactPairs, phys::WorldDef::PairOverflow::Refuse);
+}
+
 std::unique_ptr<ServerWorld> ServerCore::makeWorld(const std::string& name,
                                                    const std::string& preset,
                                                    const phys::WorldDef& def) {
@@ -39,6 +51,7 @@ std::unique_ptr<ServerWorld> ServerCore::makeWorld(const std::string& name,
   phys::WorldDef d = def;
   d.threads = config_.threads;
   d.gpuAllowCpuDevice = config_.gpuAllowCpuDevice;
+  applyPolicy(&d);
   w->world = std::make_unique<phys::World>(d);
   w->rateHz = config_.defaultRateHz;
   return w;
@@ -63,13 +76,11 @@ Status ServerCore::createWorld(const std::string& name, const std::string& prese
   }
   uint32_t wid = d->world();
   if (!scene.empty()) {
-    Bytes r2 = applyBytes(
-        protocol::CommandBuilder().loadSceneNamed(scene).finish({config_.serverId, 0, wid}),
-        config_.serverId, 0);
-    auto d2 = protocol::decodeReply(std::move(r2), config_.limits);
-    if (!d2.ok() || d2->status() != Code::Ok) {
-      Status s = d2.ok() ? Status::Error(d2->status(), d2->message() ? d2->message()->str() : "")
-                         : d2.status;
+    // Not through a LoadScene reply: a start-up world may hold more bodies than one reply
+    // can list (pile_1m).
+    std::vector<uint64_t> bodies, joints;
+    Status s = loadScene(*worlds_.at(wid), nullptr, scene, /*forReply=*/false, &bodies, &joints);
+    if (!s.ok()) {
       worlds_.erase(wid);
       counters_.commands = saved.commands;
       counters_.errors = saved.errors;
@@ -114,11 +125,58 @@ void ServerCore::setSubscribers(uint32_t world, uint32_t n) {
 // Inbox
 
 void ServerCore::submit(Incoming in) {
+  std::string refused;
   {
     std::lock_guard<std::mutex> lock(inboxMutex_);
-    inbox_.push_back(std::move(in));
+    uint32_t& pending = pendingPerClient_[in.envelopeKey];
+    if (pending >= config_.maxQueuedPerClient)
+      refused = "client " + std::to_string(in.envelopeKey) + " has " + std::to_string(pending) +
+                " commands waiting to be applied, the limit is " +
+                std::to_string(config_.maxQueuedPerClient) +
+                " (server.max_queued_per_client); wait for replies";
+    else if (pendingBytes_ + in.bytes > config_.maxQueuedBytes)
+      refused = "the server's command queue holds " + std::to_string(pendingBytes_) +
+                " bytes, the limit is " + std::to_string(config_.maxQueuedBytes) +
+                " (server.max_queued_bytes); retry later";
+    if (refused.empty()) {
+      ++pending;
+      pendingBytes_ += in.bytes;
+      inbox_.push_back(std::move(in));
+    } else if (pending == 0) {
+      pendingPerClient_.erase(in.envelopeKey);
+    }
+  }
+  if (!refused.empty()) {
+    // Answered at once (the tick thread may be busy), to the envelope's correlation.
+    refusedAtSubmit_.fetch_add(1);
+    ReplyHeader h;
+    h.clientId = in.envelopeKey;
+    h.seq = in.envelopeSeq;
+    if (in.command.ok()) {
+      h.seq = in.command->seq();
+      h.world = in.command->world();
+    }
+    h.status = Status::Error(Code::ResourceExhausted, refused);
+    pushReply(in.envelopeKey, in.envelopeSeq, protocol::encodeReply(h));
+    return;
   }
   inboxCv_.notify_one();
+}
+
+void ServerCore::release(uint64_t envelopeKey, size_t bytes) {
+  std::lock_guard<std::mutex> lock(inboxMutex_);
+  auto it = pendingPerClient_.find(envelopeKey);
+  if (it != pendingPerClient_.end() && --it->second == 0) pendingPerClient_.erase(it);
+  pendingBytes_ -= std::min<uint64_t>(pendingBytes_, bytes);
+}
+
+void ServerCore::pushReply(uint64_t key, uint64_t seq, Bytes reply) {
+  ReliableMessage m;
+  m.type = ReliableMessage::Type::Reply;
+  m.key = key;
+  m.seq = seq;
+  m.chunks.push_back(std::move(reply));
+  out_.pushReliable(std::move(m));
 }
 
 void ServerCore::waitForCommands(std::chrono::microseconds timeout) {
@@ -132,16 +190,179 @@ size_t ServerCore::processPending() {
     std::lock_guard<std::mutex> lock(inboxMutex_);
     batch.swap(inbox_);
   }
-  for (Incoming& in : batch) {
-    ReliableMessage m;
-    m.type = ReliableMessage::Type::Reply;
-    m.key = in.envelopeKey;
-    m.seq = in.envelopeSeq;
-    m.chunks.push_back(apply(in));
-    out_.pushReliable(std::move(m));
-  }
+  // Commands that waited for a Step job which has ended go first, in their order.
+  for (uint32_t id : worldIds())
+    if (ServerWorld* w = world(id); w && !w->busy() && !w->waiting.empty()) drainWaiting(*w);
+  for (Incoming& in : batch) dispatch(std::move(in));
   if (!batch.empty()) publishWorldInfo();
   return batch.size();
+}
+
+namespace {
+/// The world a decoded command targets (0: none or undecodable).
+uint32_t targetWorld(const Incoming& in) {
+  if (!in.command.ok() || !protocol::needsWorld(in.command->request_type())) return 0;
+  return in.command->world();
+}
+/// Requests that end a world's running Step job instead of waiting for it.
+bool endsJob(const Incoming& in) {
+  if (!in.command.ok()) return false;
+  const wire::Request t = in.command->request_type();
+  return t == wire::Request::Pause || t == wire::Request::ResetWorld ||
+         t == wire::Request::DestroyWorld;
+}
+}  // namespace
+
+void ServerCore::dispatch(Incoming in) {
+  if (ServerWorld* w = world(targetWorld(in)); w && w->busy()) {
+    if (!endsJob(in)) {
+      w->waiting.push_back(std::move(in));
+      return;
+    }
+    const std::string name = protocol::requestName(in.command->request_type());
+    cancelJob(*w, "stopped by " + name + " (client " + std::to_string(in.envelopeKey) + ")");
+    drainWaiting(*w);  // what came before the Pause still applies first, in order
+    if (w->busy()) {   // a waiting Step started a new job: the Pause ends it too
+      cancelJob(*w, "stopped by " + name + " (client " + std::to_string(in.envelopeKey) + ")");
+    }
+  }
+  current_ = &in;
+  deferred_ = false;
+  Bytes reply = apply(in);
+  current_ = nullptr;
+  if (deferred_) return;  // a Step job answers when it ends
+  pushReply(in.envelopeKey, in.envelopeSeq, std::move(reply));
+  release(in.envelopeKey, in.bytes);
+}
+
+void ServerCore::drainWaiting(ServerWorld& w) {
+  const uint32_t id = w.id;
+  while (ServerWorld* sw = world(id)) {
+    if (sw->busy() || sw->waiting.empty()) return;
+    Incoming in = std::move(sw->waiting.front());
+    sw->waiting.pop_front();
+    dispatch(std::move(in));  // may destroy the world: looked up again
+  }
+}
+
+void ServerCore::continueJob(ServerWorld& w) {
+  ServerWorld::StepJob& job = *w.job;
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto until = t0 + std::chrono::duration<double>(config_.stepSliceSeconds);
+  uint64_t n = 0;
+  bool failed = false;
+  while (job.remaining > 0) {
+    const uint64_t failures = counters_.stepFailures;
+    stepTimed(w, 1);
+    if (counters_.stepFailures != failures) {
+      failed = true;
+      break;
+    }
+    --job.remaining;
+    ++n;
+    if (std::chrono::steady_clock::now() >= until) break;
+  }
+  const double ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  job.ms += ms;
+  if (n > 0) {
+    w.tickMs = float(ms / double(n));
+    w.tickMsMax = std::max(w.tickMsMax, w.tickMs);
+    w.frameDirty = true;
+  }
+  if (failed) {
+    const Status why = stepProblem_;
+    ServerWorld::StepJob done = *w.job;
+    w.job.reset();
+    ReplyHeader h = done.header;
+    h.tick = w.tick;
+    h.status = Status::Error(why.code, why.message + " after " +
+                                           std::to_string(done.requested - done.remaining) +
+                                           " of " + std::to_string(done.requested) + " steps");
+    ++counters_.errors;
+    pushReply(done.envelopeKey, done.envelopeSeq, protocol::encodeReply(h));
+    release(done.envelopeKey, done.bytes);
+    return;
+  }
+  if (job.remaining > 0) return;
+  ReplyHeader h = job.header;
+  h.tick = w.tick;
+  const uint64_t key = job.envelopeKey, seq = job.envelopeSeq;
+  const size_t bytes = job.bytes;
+  w.job.reset();
+  pushReply(key, seq, protocol::encodeReply(h));
+  release(key, bytes);
+}
+
+void ServerCore::cancelJob(ServerWorld& w, const std::string& why) {
+  if (!w.job) return;
+  ServerWorld::StepJob job = *w.job;
+  w.job.reset();
+  ReplyHeader h = job.header;
+  h.tick = w.tick;
+  h.status = Status::Error(Code::IncorrectState,
+                           "step: " + why + " after " +
+                               std::to_string(job.requested - job.remaining) + " of " +
+                               std::to_string(job.requested) + " steps");
+  ++counters_.errors;
+  pushReply(job.envelopeKey, job.envelopeSeq, protocol::encodeReply(h));
+  release(job.envelopeKey, job.bytes);
+}
+
+uint64_t ServerCore::totalBodies() const {
+  uint64_t n = 0;
+  for (auto& [id, w] : worlds_) n += uint64_t(w->world->bodyCount());
+  return n;
+}
+
+namespace {
+/// Resident set size of this process, bytes (0 when unknown).
+uint64_t residentBytes() {
+  std::FILE* f = std::fopen("/proc/self/statm", "r");
+  if (!f) return 0;
+  unsigned long long pages = 0, resident = 0;
+  const int got = std::fscanf(f, "%llu %llu", &pages, &resident);
+  std::fclose(f);
+  return got == 2 ? resident * uint64_t(sysconf(_SC_PAGESIZE)) : 0;
+}
+uint64_t defaultMemoryBudget() {
+  const long pages = sysconf(_SC_PHYS_PAGES), size = sysconf(_SC_PAGESIZE);
+  return pages > 0 && size > 0 ? uint64_t(pages) * uint64_t(size) / 4 * 3 : (8ull << 30);
+}
+}  // namespace
+
+Status ServerCore::checkGrowth(const ServerWorld* w, uint64_t bodies, uint64_t joints,
+                               const std::string& what) const {
+  const uint64_t worldBodies = w ? uint64_t(w->world->bodyCount()) : 0;
+  const uint64_t worldJoints = w ? uint64_t(w->world->jointCount()) : 0;
+  if (worldBodies + bodies > config_.maxBodiesPerWorld)
+    return Status::Error(Code::ResourceExhausted,
+                         what + " would make " + std::to_string(worldBodies + bodies) +
+                             " bodies in the world, the limit is " +
+                             std::to_string(config_.maxBodiesPerWorld) +
+                             " (server.max_bodies_per_world)");
+  if (worldJoints + joints > config_.maxJointsPerWorld)
+    return Status::Error(Code::ResourceExhausted,
+                         what + " would make " + std::to_string(worldJoints + joints) +
+                             " joints in the world, the limit is " +
+                             std::to_string(config_.maxJointsPerWorld) +
+                             " (server.max_joints_per_world)");
+  const uint64_t total = totalBodies();
+  if (total + bodies > config_.maxBodiesTotal)
+    return Status::Error(Code::ResourceExhausted,
+                         what + " would make " + std::to_string(total + bodies) +
+                             " bodies in this server, the limit is " +
+                             std::to_string(config_.maxBodiesTotal) +
+                             " (server.max_bodies_total)");
+  const uint64_t budget =
+      config_.memoryBudgetBytes ? config_.memoryBudgetBytes : defaultMemoryBudget();
+  const uint64_t rss = residentBytes();
+  if (rss > budget)
+    return Status::Error(Code::ResourceExhausted,
+                         what + ": the server uses " + std::to_string(rss >> 20) +
+                             " MiB, over its memory budget of " + std::to_string(budget >> 20) +
+                             " MiB (server.memory_budget_mb); remove bodies or worlds first");
+  return Status::Ok();
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -151,11 +372,48 @@ double ServerCore::stepTimed(ServerWorld& w, uint64_t n) {
   const uint64_t redone = w.world->stats().guardEvents;
   const uint64_t stopped = w.world->stats().guardQuarantined;
   auto t0 = std::chrono::steady_clock::now();
-  for (uint64_t i = 0; i < n; ++i) w.world->step();
+  uint64_t taken = 0;
+  std::string failure, code;
+  stepProblem_ = Status::Ok();
+  for (; taken < n; ++taken) {
+    const phys::StepStats& before = w.world->stats();
+    const uint64_t refused = before.stepsRefused, failed = before.stepFailures;
+    try {
+      w.world->step();
+    } catch (const std::bad_alloc&) {  // the engine catches its own; this is a last resort
+      failure = "out of memory";
+    } catch (const std::exception& e) {
+      failure = e.what();
+    }
+    const phys::StepStats& after = w.world->stats();
+    if (failure.empty() && after.stepsRefused != refused) {
+      code = "contact_budget";
+      failure = after.lastGuardEvent;
+      stepProblem_ = Status::Error(Code::ResourceExhausted,
+                                   "step: " + failure +
+                                       " (server.max_contact_pairs); the world is paused");
+    } else if (failure.empty() && after.stepFailures != failed) {
+      failure = after.lastGuardEvent;
+    }
+    if (!failure.empty()) break;
+  }
   double ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-  w.tick += n;
-  counters_.steps += n;
+  w.tick += taken;
+  counters_.steps += taken;
+  if (!failure.empty()) {
+    // A step that was not taken (refused at the contact budget, or failed inside the engine):
+    // the world stops here, as it was before that step, rather than trying again every tick.
+    if (code.empty()) {
+      code = "step_failed";
+      stepProblem_ = Status::Error(Code::ResourceExhausted, "step: " + failure + "; the world is paused");
+    }
+    ++counters_.stepFailures;
+    w.mode = RunMode::Paused;
+    w.accumulator = 0;
+    queueEvent(w, wire::Severity::Error, code,
+               failure + "; the world is paused at tick " + std::to_string(w.tick));
+  }
   // The engine's guard rails acted: every client hears of it (phys/events).
   const phys::StepStats& st = w.world->stats();
   if (st.guardEvents > redone)
@@ -185,6 +443,10 @@ Status ServerCore::stepWorld(uint32_t id, uint64_t n) {
   ServerWorld* w = world(id);
   if (!w) return Status::Error(Code::NotFound, "no world " + std::to_string(id));
   const double ms = stepTimed(*w, n);
+  if (!stepProblem_.ok()) {
+    w->frameDirty = true;
+    return stepProblem_;
+  }
   if (n > 0) {
     w->tickMs = float(ms / double(n));
     w->tickMsMax = std::max(w->tickMsMax, w->tickMs);
@@ -198,6 +460,13 @@ uint64_t ServerCore::advance(double wallSeconds) {
   for (auto& [id, wp] : worlds_) {
     ServerWorld& w = *wp;
     uint64_t n = 0;
+    if (w.busy()) {
+      // A Step job owns the world's time: one slice per tick, a frame after it.
+      continueJob(w);
+      w.accumulator = 0;
+      if (w.frameDirty) queueFrame(w);
+      continue;
+    }
     if (w.mode == RunMode::RealTime) {
       w.accumulator += std::max(0.0, wallSeconds) * w.rateHz;
       n = uint64_t(std::floor(w.accumulator));
@@ -236,7 +505,7 @@ uint64_t ServerCore::advance(double wallSeconds) {
 double ServerCore::secondsUntilDue(double idle) const {
   double best = idle;
   for (auto& [id, w] : worlds_) {
-    if (w->mode == RunMode::AsFastAsPossible) return 0;
+    if (w->mode == RunMode::AsFastAsPossible || w->busy()) return 0;
     if (w->mode == RunMode::RealTime) {
       double s = std::max(0.0, (1.0 - w->accumulator) / w->rateHz);
       best = std::min(best, s);
@@ -341,8 +610,8 @@ protocol::ServerStatusInfo ServerCore::status() const {
   s.serverName = config_.serverName;
   s.serverVersion = PHYSD_VERSION;
   s.uptimeS = std::chrono::duration<double>(std::chrono::steady_clock::now() - started_).count();
-  s.commands = counters_.commands;
-  s.errors = counters_.errors;
+  s.commands = counters_.commands + refusedAtSubmit_.load();
+  s.errors = counters_.errors + refusedAtSubmit_.load();
   s.worlds = summaries();
   s.framesDropped = out_.framesDropped();
   return s;

@@ -64,6 +64,7 @@ void DdsEndpoint::readLoop() {
       Incoming in;
       in.envelopeKey = env.key;
       in.envelopeSeq = env.seq;
+      in.bytes = env.bytes._length;
       Status s = protocol::checkEnvelope(env, PayloadKind::Command, limits);
       if (s.ok()) {
         auto bytes = protocol::envelopeBytes(env);

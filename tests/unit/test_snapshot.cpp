@@ -520,7 +520,7 @@ TEST(Snapshot, RejectsWrongMagicAndVersion) {
   bad[0] = 'X';
   EXPECT_NE(t.expectRejected(bad, "magic").find("magic"), std::string::npos);
   bad = snap;
-  bad[8] = 2;  // version 2 (this build writes 3)
+  bad[8] = 3;  // version 3 (this build writes 4)
   EXPECT_NE(t.expectRejected(bad, "version").find("version"), std::string::npos);
   bad = snap;
   bad[11] = 0x80;

@@ -7,6 +7,7 @@
 // dirty records go up and only the body states (and the bounds when asked) come down.
 #pragma once
 
+#include <cstdint>
 #include <memory>
 #include <span>
 #include <string>
@@ -82,11 +83,16 @@ struct StepInput {
   /// each other and only the collision stages run.
   bool solveContacts = true;
   ContactSettings contacts;
+  /// Bound on the broad phase's pairs (WorldDef::maxContactPairs): the pair buffers grow to
+  /// the largest power of two within it (at least 64) and no further; pairs past them are
+  /// left out (ContactStats::dropped).
+  uint32_t maxPairs = UINT32_MAX;
 };
 
 struct ContactStats {
   uint32_t pairs = 0, manifolds = 0, points = 0;
   float deepest = 0;
+  uint32_t dropped = 0;  ///< pairs left out for want of room (StepInput::maxPairs)
 };
 
 class GpuWorld {

@@ -3,6 +3,9 @@
 // convex hulls, which is the one check the decoders leave to it.
 #pragma once
 
+#include <memory>
+#include <unordered_map>
+
 #include "phys/base/math.h"
 #include "phys/protocol/builder.h"
 #include "phys/protocol/status.h"
@@ -40,9 +43,15 @@ inline phys::Material toPhys(const wire::Material& m) {
 /// A published state record of a body.
 wire::BodyState toWire(const phys::BodyState& s);
 
+/// Hulls built from wire tables, by table address: a message whose shapes share one hull
+/// table (FlatBuffers allows it) builds that hull once. Valid for one message's buffer.
+using HullCache = std::unordered_map<const void*, std::shared_ptr<const phys::ConvexHull>>;
+
 /// A body definition for World::createBody. Fails (InvalidArgument, message prefixed with
-/// `path`) only when hull points span no volume.
-Status toBodyDef(const wire::BodyDef& in, phys::BodyDef* out, std::string_view path = "body");
+/// `path`) only when hull points span no volume. With a cache, hulls of tables already built
+/// are shared.
+Status toBodyDef(const wire::BodyDef& in, phys::BodyDef* out, std::string_view path = "body",
+                 HullCache* cache = nullptr);
 /// A joint definition for World::createJoint (ids unpacked; absent axes are (0, 0, 1)).
 phys::JointDef toJointDef(const wire::JointDef& in);
 /// Overwrites the fields present in `in`.

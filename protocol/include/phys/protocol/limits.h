@@ -33,6 +33,11 @@ struct Limits {
   uint32_t maxBodiesPerCommand = 20000;   ///< SpawnBodies (summed over a batch), WorldInfo chunk
   uint32_t maxShapesPerBody = 64;         ///< BodyDef.shapes
   uint32_t maxHullPoints = 256;           ///< ConvexHull.points (at least 4)
+  /// Shapes of all bodies of a message, and hull points of all its hull shapes. A table that
+  /// several bodies or shapes share (FlatBuffers allows it) counts at every use, so a small
+  /// message cannot stand for a huge world.
+  uint32_t maxShapesPerCommand = 100000;
+  uint32_t maxHullPointsPerCommand = 1u << 20;
   uint32_t maxJointsPerCommand = 10000;   ///< AddJoints (summed over a batch)
   uint32_t maxIdsPerCommand = 100000;     ///< RemoveBodies/Joints, SetMaterial, QueryState ids
   uint32_t maxItemsPerCommand = 100000;   ///< SetBodyPose/Velocity, ApplyForce/Impulse/Torque
@@ -40,6 +45,11 @@ struct Limits {
   uint32_t maxBodiesPerFrame = 16384;     ///< StateFrame.bodies, StateResult.bodies
   uint32_t maxWorlds = 4096;              ///< WorldList / ServerStatus entries
   uint32_t maxSnapshotBodies = 1000000;   ///< Snapshot.bodies (and joints)
+  uint32_t maxSnapshotShapes = 4000000;   ///< shapes of all bodies of a snapshot (each use)
+  uint32_t maxSnapshotHullPoints = 16u << 20;  ///< hull points of a snapshot (each use)
+  /// Step.count times the world's bodies (at least 1): what one Step may cost. 10^8 body
+  /// steps is of the order of a minute of one core.
+  uint64_t maxBodyStepsPerCommand = 100000000;
 
   // Numbers (InvalidArgument when outside; NaN and infinities always are).
   float quatTolerance = 1e-3f;   ///< | |q| - 1 | must be below this; decoders then normalize
@@ -56,8 +66,16 @@ struct Limits {
   float maxGravityScale = 100.0f;
   float maxGravity = 1e4f;   ///< m/s^2 per component
   float maxForce = 1e12f;    ///< N, N s, N m per component (forces, impulses, torques)
-  float maxTimeStep = 1.0f;  ///< s
+  float minTimeStep = 1e-6f;  ///< s; a smaller step only produces rounding noise
+  float maxTimeStep = 1.0f;   ///< s
   float maxRateHz = 10000;   ///< Run.rate_hz
 };
+
+/// Ids one reply can list (bodies and joints together): what fits in max_message_bytes with
+/// room for the reply's other fields. A command that would create more is refused before it
+/// changes anything.
+inline uint32_t maxIdsPerReply(const Limits& l) {
+  return l.maxMessageBytes > 4096 ? (l.maxMessageBytes - 4096) / 8 : 0;
+}
 
 }  // namespace phys::protocol

@@ -15,6 +15,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <span>
 #include <string>
 #include <thread>
@@ -43,12 +44,40 @@ struct CoreConfig {
   int threads = 1;          ///< WorldDef::threads of every world
   int maxCatchUpSteps = 4;  ///< steps one tick may take to catch up with real time
   uint32_t maxWorlds = 64;  ///< worlds per daemon
+  // Daemon-wide budgets (docs/SERVER.md "Budgets"): a command that would pass one is
+  // refused with ResourceExhausted before it changes anything.
+  uint32_t maxBodiesPerWorld = 1u << 20;
+  uint32_t maxJointsPerWorld = 1u << 20;
+  uint64_t maxBodiesTotal = 4u << 20;  ///< over all worlds
+  /// Resident memory (bytes) above which commands that add bodies, joints or worlds are
+  /// refused; 0: three quarters of the machine's memory.
+  uint64_t memoryBudgetBytes = 0;
+  uint32_t maxSnapshotFiles = 256;            ///< files in snapshotDir
+  uint64_t maxSnapshotBytes = 4ull << 30;     ///< bytes of all files in snapshotDir
+  uint32_t maxQueuedPerClient = 256;          ///< commands a client has waiting
+  uint64_t maxQueuedBytes = 64ull << 20;      ///< payload bytes waiting, all clients
+  /// Contact pairs per step of a world (WorldDef::maxContactPairs; 0: the engine's automatic
+  /// bound). A step past it is not taken (PairOverflow::Refuse): the world pauses and a
+  /// contact_budget event says why.
+  uint32_t maxContactPairs = 0;
+  /// A Step runs at most this long per tick; the rest continues at the next ticks (other
+  /// commands and worlds are served between), and the reply goes out when it is done.
+  double stepSliceSeconds = 0.02;
   uint32_t bodiesPerChunk = protocol::kDefaultBodiesPerChunk;
   size_t frameRingCapacity = 4;  ///< state frame sets queued for the publisher
   double defaultRateHz = 60;     ///< Run without a rate
   /// Backend of worlds whose CreateWorld names none (start-up worlds: their `backend`).
   phys::Backend backend = phys::Backend::Cpu;
   bool gpuAllowCpuDevice = false;  ///< WorldDef::gpuAllowCpuDevice of every world
+};
+
+/// A command as it arrived: the envelope's key and seq, and the decoded payload (or why it
+/// could not be decoded).
+struct Incoming {
+  uint64_t envelopeKey = 0;
+  uint64_t envelopeSeq = 0;
+  size_t bytes = 0;  ///< payload size, for the queue's budget
+  protocol::Decoded<wire::Command> command;
 };
 
 /// Time control of a world.
@@ -77,20 +106,27 @@ struct ServerWorld {
   uint64_t framesProduced = 0;
   bool infoDirty = true;   ///< world info to publish
   bool frameDirty = true;  ///< a state frame to publish even without a step
+  /// A Step longer than one slice (CoreConfig::stepSliceSeconds): its remaining steps run a
+  /// slice per tick, its reply goes out when the last is taken.
+  struct StepJob {
+    uint64_t requested = 0, remaining = 0;
+    protocol::ReplyHeader header;  ///< the Step's reply header
+    uint64_t envelopeKey = 0, envelopeSeq = 0;
+    size_t bytes = 0;  ///< the command's payload size (queue budget)
+    double ms = 0;     ///< wall time spent so far
+  };
+  std::optional<StepJob> job;
+  /// Commands for this world that arrived during its StepJob, applied in order after it.
+  std::deque<Incoming> waiting;
+  bool busy() const { return job.has_value(); }
 };
 
-/// A command as it arrived: the envelope's key and seq, and the decoded payload (or why it
-/// could not be decoded).
-struct Incoming {
-  uint64_t envelopeKey = 0;
-  uint64_t envelopeSeq = 0;
-  protocol::Decoded<wire::Command> command;
-};
 
 struct CoreCounters {
   uint64_t commands = 0;  ///< received
   uint64_t errors = 0;    ///< rejected (reply status not Ok)
   uint64_t steps = 0;     ///< world steps, all worlds
+  uint64_t stepFailures = 0;  ///< steps that threw (world paused, event sent)
 };
 
 class ServerCore {
@@ -123,7 +159,9 @@ class ServerCore {
   /// The reply for an Incoming (decoded or not).
   Bytes apply(const Incoming& in);
 
-  /// Thread-safe: queues a command for the next tick boundary.
+  /// Thread-safe: queues a command for the next tick boundary. A client with
+  /// maxQueuedPerClient commands waiting, or a queue holding maxQueuedBytes, gets a
+  /// ResourceExhausted reply at once instead.
   void submit(Incoming in);
   /// Applies every queued command in arrival order, pushing the replies (and changed world
   /// info) to out(). Returns the number applied.
@@ -161,10 +199,40 @@ class ServerCore {
 
  private:
   friend struct Context;
+  Bytes applyChecked(const wire::Command& command, uint64_t envelopeKey);
+  /// A world restored from engine state, against the codec's rules (the engine's own checks
+  /// guard its invariants, not the protocol's ranges).
+  Status checkRestored(const phys::World& w, const std::string& path) const;
   Status queueFrame(ServerWorld& w);
+  /// Applies one queued command: a reply is pushed now, or (a Step too long for one slice)
+  /// when its job ends. Commands for a busy world wait for its job.
+  void dispatch(Incoming in);
+  void pushReply(uint64_t key, uint64_t seq, Bytes reply);
+  /// Runs a slice of a world's StepJob; at its end pushes the Step's reply.
+  void continueJob(ServerWorld& w);
+  /// Ends a world's job early (Pause, ResetWorld, DestroyWorld): the Step's reply says so.
+  void cancelJob(ServerWorld& w, const std::string& why);
+  /// Applies the commands that waited for a world's job, until one starts a new job.
+  void drainWaiting(ServerWorld& w);
+  /// Bodies in every world.
+  uint64_t totalBodies() const;
+  /// Why a command adding `bodies` bodies and `joints` joints to world w (null: a new world)
+  /// may not, or Ok: per-world and daemon-wide counts, the memory budget.
+  Status checkGrowth(const ServerWorld* w, uint64_t bodies, uint64_t joints,
+                     const std::string& what) const;
+  /// Loads a scene into a world (LoadScene, start-up worlds). forReply: the ids must fit in
+  /// one reply.
+  Status loadScene(ServerWorld& w, const wire::LoadScene* request, const std::string& sceneName,
+                   bool forReply, std::vector<uint64_t>* bodyIds, std::vector<uint64_t>* jointIds);
   /// Steps a world n times (tick, counters); returns the wall time in ms. What the engine's
   /// guard rails did in those steps goes out as events.
   double stepTimed(ServerWorld& w, uint64_t n);
+  /// Why the last stepTimed stopped early (a step refused at the contact budget, or failed):
+  /// Ok when every step was taken.
+  Status stepProblem_;
+  /// The server's step policy on a world's engine (contact budget, refuse past it).
+  void applyPolicy(phys::World& w) const;
+  void applyPolicy(phys::WorldDef* def) const;
   void queueEvent(const ServerWorld& w, wire::Severity severity, std::string_view code,
                   std::string_view message);
   std::unique_ptr<ServerWorld> makeWorld(const std::string& name, const std::string& preset,
@@ -182,6 +250,16 @@ class ServerCore {
   std::mutex inboxMutex_;
   std::condition_variable inboxCv_;
   std::deque<Incoming> inbox_;
+  // Commands submitted and not yet answered (queued, waiting for a world, or a Step job),
+  // per client and in bytes; guarded by inboxMutex_.
+  std::map<uint64_t, uint32_t> pendingPerClient_;
+  uint64_t pendingBytes_ = 0;
+  std::atomic<uint64_t> refusedAtSubmit_{0};
+  void release(uint64_t envelopeKey, size_t bytes);  ///< a submitted command was answered
+  // The command dispatch() is applying: a Step too long for one slice becomes a job that
+  // answers it later (apply() then returns no reply and sets deferred_).
+  const Incoming* current_ = nullptr;
+  bool deferred_ = false;
 
   mutable std::mutex subscribersMutex_;
   std::map<uint32_t, uint32_t> subscribers_;

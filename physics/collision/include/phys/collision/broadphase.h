@@ -4,6 +4,7 @@
 // its fat box. Static proxies never pair with each other.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <memory>
 #include <type_traits>
@@ -48,6 +49,17 @@ class BroadPhase {
   /// Every pair of proxies whose fat boxes overlap, excluding static-static pairs, as user
   /// values with a < b, sorted ascending and without duplicates. Deterministic.
   void computePairs(std::vector<ProxyPair>* out);
+  /// The same list, but at most `maxPairs` of it: when more pairs overlap, the first
+  /// `maxPairs` of the list (the smallest (a, b)), which again depend only on the live
+  /// proxies' fat boxes and static flags. Production stops at the bound: the work and the
+  /// memory are proportional to maxPairs plus the proxies, never to the pairs there are.
+  /// Returns 0 when the list is complete; otherwise how many pairs were left out, at least
+  /// 1 and counted only as far as a work budget of maxPairs allows (a lower bound). A list
+  /// under the bound is exactly what computePairs(out) gives.
+  uint64_t computePairs(std::vector<ProxyPair>* out, size_t maxPairs);
+  /// Drops the pair list and its buffers (memory back after a failed step); the next
+  /// computePairs finds every pair from scratch. The proxies stay.
+  void forgetPairs();
 
   /// Calls visit(user) for every proxy whose fat box overlaps `box` (ray/region queries).
   template <class F>

@@ -96,6 +96,25 @@ struct WorldDef {
   /// grows with the bodies' speeds so fast bodies do not tunnel.
   float speculativeDistance = 0.02f;
   float aabbMargin = 0.05f;  ///< m, broad-phase fattening
+  /// Bound on the broad phase's candidate pairs per step, and so on what a step builds from
+  /// them (contacts, manifolds, solver rows: its memory and time). 0: automatic,
+  /// max(kMinAutoContactPairs, kAutoContactPairsPerShape x shapes). Past the bound the step
+  /// keeps the first pairs in shape order (deterministic: they depend only on the bodies'
+  /// bounds), leaves the others out, so those bodies may interpenetrate this step, still
+  /// completes, and says so in StepStats (pairsDropped, pairLimitSteps). Scenes stay well
+  /// below the automatic bound: a lattice of touching boxes has 13 pairs per box, the pile
+  /// scenes at most 12.2 per shape; what reaches it is something like thousands of bodies
+  /// spawned into one place (20,000 coincident boxes make 200 million pairs).
+  uint32_t maxContactPairs = 0;
+  static constexpr uint32_t kMinAutoContactPairs = 65536;
+  static constexpr uint32_t kAutoContactPairsPerShape = 32;
+  /// What a step does when the broad phase finds more pairs than maxContactPairs. Drop: the
+  /// pairs past the bound are left out and the step goes on (as above). Refuse: the step is
+  /// not taken; the world stays exactly as it was (StepStats::stepsRefused), having cost only
+  /// the broad phase, until something moves or removes the crowded bodies. physd uses Refuse,
+  /// so that one crowded world costs neither seconds nor gigabytes per tick.
+  enum class PairOverflow : uint8_t { Drop, Refuse };
+  PairOverflow pairOverflow = PairOverflow::Drop;
   SolverSettings solver;
   /// Threads for the step's parallel loops, the caller included; 0: the machine's hardware
   /// threads (at most 8). Results do not depend on it.
@@ -149,7 +168,26 @@ struct StepStats {
   int guardRetries = 0;      ///< times this step was rolled back and redone
   uint64_t guardEvents = 0;  ///< steps redone so far
   uint64_t guardQuarantined = 0;  ///< bodies stopped so far because retries did not help
-  std::string lastGuardEvent;     ///< what the last violation was, for logs
+  /// What the last violation was, or the last failed step (stepFailures), for logs.
+  std::string lastGuardEvent;
+  /// The contact pair bound (WorldDef::maxContactPairs, resolved) the last step ran under.
+  uint32_t pairLimit = 0;
+  /// Broad-phase pairs the last step left out at the bound: 0 when every pair fit;
+  /// otherwise at least 1, and a lower bound (counting stops after a work budget of
+  /// pairLimit). The bodies of those pairs were not collided with each other this step.
+  uint64_t pairsDropped = 0;
+  uint64_t pairLimitSteps = 0;  ///< steps so far that reached the pair bound
+  /// Steps so far that failed with an exception inside the step (std::bad_alloc,
+  /// std::length_error): World::step catches it and does not take the step. The bodies, the
+  /// time and the step count are as before it; so are the contacts and their warm starts
+  /// with the guard on (its copy), while without it they are dropped (the next step starts
+  /// them cold). The step's buffers are freed, the broad phase is built again from its fat
+  /// boxes, and lastGuardEvent says what happened; the other fields are the failed attempt's.
+  uint64_t stepFailures = 0;
+  /// Steps so far not taken because their pairs passed the bound under
+  /// WorldDef::PairOverflow::Refuse (the world is as before each; pairsDropped says by how
+  /// many at least, lastGuardEvent says so in words).
+  uint64_t stepsRefused = 0;
 };
 
 /// Read-only view of a body.
@@ -204,6 +242,9 @@ class World {
   Status setGravity(Vec3 g);
   Status setTimeStep(float dt);
   Status setSolverSettings(const SolverSettings& s);
+  /// WorldDef::maxContactPairs and pairOverflow (a server's policy, also over a restored
+  /// snapshot's).
+  void setContactBudget(uint32_t maxContactPairs, WorldDef::PairOverflow overflow);
   /// Validates solver settings without applying them.
   static Status validate(const SolverSettings& s);
 
@@ -238,7 +279,8 @@ class World {
   std::vector<JointId> joints() const;
   int jointCount() const;
 
-  /// Advances by one fixed step of def().timeStep.
+  /// Advances by one fixed step of def().timeStep. Never throws: a step that fails inside
+  /// (out of memory) is not taken and is counted in StepStats::stepFailures.
   void step();
   /// Measures states computed by someone else (a peer engine) as if this world had stepped to
   /// them, so MetricsRecorder::afterStep reads them exactly as it reads a step: sets body
