@@ -654,8 +654,10 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
   Kernels& k = w.kernels();
   const uint32_t n = uint32_t(w.states.size()), m = uint32_t(w.shapes.size());
   const int substeps = std::max(in.substeps, 1);
-  // The pair buffers' bound (a power of two: the pair keys are sorted bitonically).
-  const uint32_t maxCapacity = std::bit_floor(std::max(in.maxPairs, 64u));
+  // The pair buffers' bound: the power of two at or above the pair bound (the pair keys are
+  // sorted bitonically), so every pair the CPU would keep has room; between the bound and
+  // the capacity pairs are kept but ContactStats lets the caller tell (pairs > maxPairs).
+  const uint32_t maxCapacity = std::bit_ceil(std::clamp(in.maxPairs, 64u, 1u << 31));
   auto capped = [&](uint64_t want) {
     const uint32_t slots = Primitives::pow2(uint32_t(std::min<uint64_t>(want, 1u << 31)));
     return std::min(slots, maxCapacity);

@@ -785,6 +785,20 @@ void readBodies(Reader& r, Parsed* st) {
     ioBody(rr, b);
     if (rr.ok() && !unitQuat(b.xf.q)) rr.fail("rotation is not a unit quaternion");
     if (rr.ok() && !unitQuat(b.principal)) rr.fail("principal axes are not a unit quaternion");
+    if (!rr.ok()) return;
+    // What the step assumes of a body (its API never makes anything else).
+    const bool dynamic = b.type == BodyType::Dynamic;
+    if (b.mass < 0 || b.invMass < 0 || b.givenMass < 0) return rr.fail("negative mass");
+    if (dynamic && !(b.mass > 0 && std::fabs(b.invMass * b.mass - 1) < 1e-3f))
+      return rr.fail("a dynamic body's mass and inverse mass disagree");
+    if (!dynamic && b.invMass != 0) return rr.fail("a static or kinematic body with a mass");
+    if (b.linearDamping < 0 || b.angularDamping < 0) return rr.fail("negative damping");
+    if (b.principalMoments.x < 0 || b.principalMoments.y < 0 || b.principalMoments.z < 0 ||
+        b.givenInertia.x < 0 || b.givenInertia.y < 0 || b.givenInertia.z < 0)
+      return rr.fail("negative moment of inertia");
+    const Mat3& ii = b.invInertiaLocal;
+    if (ii.c0.x < 0 || ii.c1.y < 0 || ii.c2.z < 0)
+      return rr.fail("negative inverse moment of inertia");
   });
 }
 
@@ -796,6 +810,9 @@ void readShapes(Reader& r, Parsed* st) {
     if (!b) return rr.fail("belongs to a body that does not exist");
     std::string e = checkShapeGeom(s.def.geom, b->type);
     if (!e.empty()) return rr.fail(e);
+    const Material& m = s.def.material;
+    if (m.friction < 0 || m.restitution < 0 || m.restitution > 1 || !(m.density > 0))
+      return rr.fail("material out of range (friction >= 0, restitution in [0, 1], density > 0)");
     if (!unitQuat(s.def.local.q)) rr.fail("local rotation is not a unit quaternion");
   });
   if (!r.ok()) return;

@@ -410,6 +410,19 @@ bool World::Impl::stepOnDevice(int substeps) {
     return false;
   }
 
+  // Past the pair bound under PairOverflow::Refuse the step is not taken: refused before the
+  // host mirror is written (the device's copy is marked stale by the refusal), so the world
+  // is as it was even without the guard.
+  {
+    const gpu::ContactStats cs = g.contactStats();
+    const uint64_t found = uint64_t(cs.pairs) + cs.dropped;
+    if (def.pairOverflow == WorldDef::PairOverflow::Refuse && found > in.maxPairs) {
+      stats.pairLimit = in.maxPairs;
+      stats.pairsDropped = found - in.maxPairs;
+      throw PairLimitReached();
+    }
+  }
+
   // The host mirror. Forces last one step: a body that had some goes up again without.
   std::span<const gpu::GpuBodyState> out = g.states();
   for (size_t i = 0; i < d.slots.size(); ++i) {
@@ -464,10 +477,6 @@ bool World::Impl::stepOnDevice(int substeps) {
   stats.pairs = int(cs.pairs);
   stats.pairLimit = in.maxPairs;
   stats.pairsDropped = cs.dropped;
-  // The device took the step whole; under PairOverflow::Refuse it is undone like a failed one
-  // (the guard's copy; the device is marked stale).
-  if (cs.dropped > 0 && def.pairOverflow == WorldDef::PairOverflow::Refuse)
-    throw PairLimitReached();
   stats.contacts = int(cs.manifolds);
   stats.contactPoints = int(cs.points);
   stats.joints = int(d.jointSlots.size());

@@ -648,10 +648,9 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       job.header = ctx.header;
       job.envelopeKey = current_->envelopeKey;
       job.envelopeSeq = current_->envelopeSeq;
-      job.bytes = current_->bytes;
+      job.charge = queueCharge(*current_);
       sw->job = job;
-      continueJob(*sw);
-      deferred_ = true;  // continueJob answered if it finished
+      deferred_ = true;  // advance() runs its slices, the first one right after this command
       return {};
     }
     case wire::Request::Run: {
@@ -809,7 +808,12 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
           st = err(Code::NotFound, "restore_snapshot.file '" + r->file()->str() + "' cannot be read");
           return finish();
         }
-        decoded = protocol::decodeSnapshot(std::move(bytes), config_.limits);
+        // A file is not a message: its own size bound (server.max_snapshot_mb).
+        protocol::Limits fileLimits = config_.limits;
+        fileLimits.maxMessageBytes =
+            uint32_t(std::min<uint64_t>(config_.maxSnapshotBytes, UINT32_MAX));
+        fileLimits.maxTables = UINT32_MAX;  // then bytes / 8 + 16, as for any payload
+        decoded = protocol::decodeSnapshot(std::move(bytes), fileLimits);
         if (!decoded.ok()) {
           st = decoded.status;
           st.message = "restore_snapshot.file: " + st.message;
@@ -826,6 +830,21 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
           return finish();
         }
       }
+      if (!decoded->engine_state()) {
+        // The portable form's counts, before anything is converted or built.
+        const uint64_t nb = decoded->bodies() ? decoded->bodies()->size() : 0;
+        const uint64_t nj = decoded->joints() ? decoded->joints()->size() : 0;
+        if (nb + nj > protocol::maxIdsPerReply(config_.limits)) {
+          st = err(Code::ResourceExhausted,
+                   "restore_snapshot: the snapshot has " + std::to_string(nb) + " bodies and " +
+                       std::to_string(nj) + " joints; one reply lists at most " +
+                       std::to_string(protocol::maxIdsPerReply(config_.limits)) +
+                       " new ids (max_ids_per_reply): save it with engine state instead");
+          return finish();
+        }
+        st = checkGrowth(nullptr, nb, nj, "restore_snapshot", uint64_t(sw->world->bodyCount()));
+        if (!st.ok()) return finish();
+      }
       protocol::SnapshotData data;
       st = protocol::toSnapshotData(*decoded, &data);
       if (!st.ok()) return finish();
@@ -841,23 +860,12 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
         st = checkRestored(*scratch, "restore_snapshot.snapshot.engine_state");
         if (!st.ok()) return finish();
         st = checkGrowth(nullptr, uint64_t(scratch->bodyCount()), uint64_t(scratch->jointCount()),
-                         "restore_snapshot");
+                         "restore_snapshot", uint64_t(sw->world->bodyCount()));
         if (!st.ok()) return finish();
         cancelJob(*sw, "replaced by restore_snapshot");
         sw->world = std::move(scratch);
         rebuildDefs(*sw);
       } else {
-        const uint64_t nb = data.bodies.size(), nj = data.joints.size();
-        if (nb + nj > protocol::maxIdsPerReply(config_.limits)) {
-          st = err(Code::ResourceExhausted,
-                   "restore_snapshot: the snapshot has " + std::to_string(nb) + " bodies and " +
-                       std::to_string(nj) + " joints; one reply lists at most " +
-                       std::to_string(protocol::maxIdsPerReply(config_.limits)) +
-                       " new ids (max_ids_per_reply): save it with engine state instead");
-          return finish();
-        }
-        st = checkGrowth(nullptr, nb, nj, "restore_snapshot");
-        if (!st.ok()) return finish();
         st = protocol::checkWorldParams(data.gravity, data.timeStep, config_.limits,
                                         "restore_snapshot.snapshot");
         for (size_t i = 0; st.ok() && i < data.bodies.size(); ++i)
@@ -965,6 +973,9 @@ Status ServerCore::loadScene(ServerWorld& sw, const wire::LoadScene* r,
   budget.maxShapesPerBody = lim.maxShapesPerBody;
   budget.maxHullPoints = lim.maxHullPoints;
   budget.maxNameBytes = lim.maxNameBytes;
+  // Shapes and hull points as for a snapshot (a scene is the other bulk way in).
+  budget.maxShapes = lim.maxSnapshotShapes;
+  budget.maxHullPointsTotal = std::min<uint64_t>(budget.maxHullPointsTotal, lim.maxSnapshotHullPoints);
   const char* limitNames =
       " (server.max_bodies_per_world, server.max_bodies_total, server.max_joints_per_world and, "
       "for LoadScene, the ids one reply lists: max_ids_per_reply)";
@@ -1055,23 +1066,28 @@ Status ServerCore::checkRestored(const phys::World& w, const std::string& path) 
   if (!ps.ok()) return fromPhys(ps, path + ".solver");
   for (phys::BodyId id : w.bodies()) {
     const std::string bp = path + ": body " + hex(id.packed());
-    st = protocol::checkBodyDef(defFromWorld(w, id), lim, bp);
-    if (!st.ok()) return st;
-    // Mass and inertia are not in the definition rebuilt from the engine: checked here.
     phys::BodyState s;
     w.getBody(id, &s);
-    if (!std::isfinite(s.mass) || s.mass < 0 || s.mass > lim.maxMass)
-      return err(Code::InvalidArgument, bp + ".mass must be in [0, " +
-                                            std::to_string(lim.maxMass) + "], got " +
-                                            std::to_string(s.mass));
+    phys::BodyDef d = defFromWorld(w, id);
+    // A dynamic body without a shape of volume had an explicit mass (the rest derive theirs
+    // from densities, which may exceed max_mass legitimately: not an input here).
+    bool volume = false;
+    for (const phys::ShapeDef& sd : d.shapes) volume |= sd.geom.type != phys::ShapeType::Plane;
+    if (d.type == phys::BodyType::Dynamic && !volume) d.mass = s.mass;
+    st = protocol::checkBodyDef(d, lim, bp);
+    if (!st.ok()) return st;
+    // Mass and inertia as the engine holds them: finite, not negative, some for a dynamic body.
+    if (!std::isfinite(s.mass) || s.mass < 0 ||
+        (s.type == phys::BodyType::Dynamic && !(s.mass > 0)))
+      return err(Code::InvalidArgument,
+                 bp + ".mass must be finite and > 0 for a dynamic body, got " +
+                     std::to_string(s.mass));
     const phys::Vec3 cols[3] = {s.inertia.c0, s.inertia.c1, s.inertia.c2};
     for (int c = 0; c < 3; ++c)
       for (int r = 0; r < 3; ++r) {
         const float v = cols[c][r];
-        if (!std::isfinite(v) || std::fabs(v) > lim.maxInertia || (r == c && v < 0))
-          return err(Code::InvalidArgument,
-                     bp + ".inertia must be finite, with moments in [0, " +
-                         std::to_string(lim.maxInertia) + "]");
+        if (!std::isfinite(v) || (r == c && v < 0))
+          return err(Code::InvalidArgument, bp + ".inertia must be finite with moments >= 0");
       }
   }
   for (phys::JointId id : w.joints()) {

@@ -100,7 +100,8 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
                    "realtime_priority", "backend", "gpu_allow_cpu_device",
                    "max_bodies_per_world", "max_joints_per_world", "max_bodies_total",
                    "memory_budget_mb", "max_snapshot_files", "max_snapshot_mb",
-                   "max_queued_per_client", "max_queued_mb", "step_slice_ms", "max_contact_pairs"},
+                   "max_queued_per_client", "max_queued_mb", "max_queued_mb_per_client",
+                   "step_slice_ms", "max_contact_pairs"},
                   "server");
     if (!s.ok()) return s;
     PHYS_GET(*t, "name", "server", &c.core.serverName);
@@ -136,6 +137,10 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     if (t->get("max_queued_mb")) {
       PHYS_GET(*t, "max_queued_mb", "server", &mb);
       c.core.maxQueuedBytes = mb << 20;
+    }
+    if (t->get("max_queued_mb_per_client")) {
+      PHYS_GET(*t, "max_queued_mb_per_client", "server", &mb);
+      c.core.maxQueuedBytesPerClient = mb << 20;
     }
     double sliceMs = c.core.stepSliceSeconds * 1000;
     PHYS_GET(*t, "step_slice_ms", "server", &sliceMs);

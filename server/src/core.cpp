@@ -128,21 +128,29 @@ void ServerCore::submit(Incoming in) {
   std::string refused;
   {
     std::lock_guard<std::mutex> lock(inboxMutex_);
-    uint32_t& pending = pendingPerClient_[in.envelopeKey];
-    if (pending >= config_.maxQueuedPerClient)
-      refused = "client " + std::to_string(in.envelopeKey) + " has " + std::to_string(pending) +
+    Pending& p = pendingPerClient_[in.envelopeKey];
+    const uint64_t bytes = queueCharge(in);
+    if (p.commands >= config_.maxQueuedPerClient)
+      refused = "client " + std::to_string(in.envelopeKey) + " has " +
+                std::to_string(p.commands) +
                 " commands waiting to be applied, the limit is " +
                 std::to_string(config_.maxQueuedPerClient) +
                 " (server.max_queued_per_client); wait for replies";
-    else if (pendingBytes_ + in.bytes > config_.maxQueuedBytes)
+    else if (p.bytes + bytes > config_.maxQueuedBytesPerClient)
+      refused = "client " + std::to_string(in.envelopeKey) + " has " + std::to_string(p.bytes) +
+                " bytes of commands waiting, the limit is " +
+                std::to_string(config_.maxQueuedBytesPerClient) +
+                " (server.max_queued_mb_per_client); wait for replies";
+    else if (pendingBytes_ + bytes > config_.maxQueuedBytes)
       refused = "the server's command queue holds " + std::to_string(pendingBytes_) +
                 " bytes, the limit is " + std::to_string(config_.maxQueuedBytes) +
-                " (server.max_queued_bytes); retry later";
+                " (server.max_queued_mb); retry later";
     if (refused.empty()) {
-      ++pending;
-      pendingBytes_ += in.bytes;
+      ++p.commands;
+      p.bytes += bytes;
+      pendingBytes_ += bytes;
       inbox_.push_back(std::move(in));
-    } else if (pending == 0) {
+    } else if (p.commands == 0) {
       pendingPerClient_.erase(in.envelopeKey);
     }
   }
@@ -163,11 +171,18 @@ void ServerCore::submit(Incoming in) {
   inboxCv_.notify_one();
 }
 
-void ServerCore::release(uint64_t envelopeKey, size_t bytes) {
+void ServerCore::release(const Incoming& in) {
+  release(in.envelopeKey, queueCharge(in));
+}
+
+void ServerCore::release(uint64_t envelopeKey, uint64_t bytes) {
   std::lock_guard<std::mutex> lock(inboxMutex_);
   auto it = pendingPerClient_.find(envelopeKey);
-  if (it != pendingPerClient_.end() && --it->second == 0) pendingPerClient_.erase(it);
-  pendingBytes_ -= std::min<uint64_t>(pendingBytes_, bytes);
+  if (it != pendingPerClient_.end()) {
+    it->second.bytes -= std::min(it->second.bytes, bytes);
+    if (--it->second.commands == 0) pendingPerClient_.erase(it);
+  }
+  pendingBytes_ -= std::min(pendingBytes_, bytes);
 }
 
 void ServerCore::pushReply(uint64_t key, uint64_t seq, Bytes reply) {
@@ -191,8 +206,7 @@ size_t ServerCore::processPending() {
     batch.swap(inbox_);
   }
   // Commands that waited for a Step job which has ended go first, in their order.
-  for (uint32_t id : worldIds())
-    if (ServerWorld* w = world(id); w && !w->busy() && !w->waiting.empty()) drainWaiting(*w);
+  for (uint32_t id : worldIds()) drainWaiting(id);
   for (Incoming& in : batch) dispatch(std::move(in));
   if (!batch.empty()) publishWorldInfo();
   return batch.size();
@@ -211,50 +225,71 @@ bool endsJob(const Incoming& in) {
   return t == wire::Request::Pause || t == wire::Request::ResetWorld ||
          t == wire::Request::DestroyWorld;
 }
+bool isStep(const Incoming& in) {
+  return in.command.ok() && in.command->request_type() == wire::Request::Step;
+}
 }  // namespace
 
 void ServerCore::dispatch(Incoming in) {
-  if (ServerWorld* w = world(targetWorld(in)); w && w->busy()) {
-    if (!endsJob(in)) {
+  ServerWorld* w = world(targetWorld(in));
+  if (w && (w->busy() || !w->waiting.empty())) {
+    if (!endsJob(in)) {  // after the job and what waits for it, in order
       w->waiting.push_back(std::move(in));
       return;
     }
-    const std::string name = protocol::requestName(in.command->request_type());
-    cancelJob(*w, "stopped by " + name + " (client " + std::to_string(in.envelopeKey) + ")");
-    drainWaiting(*w);  // what came before the Pause still applies first, in order
-    if (w->busy()) {   // a waiting Step started a new job: the Pause ends it too
-      cancelJob(*w, "stopped by " + name + " (client " + std::to_string(in.envelopeKey) + ")");
+    // Pause, ResetWorld, DestroyWorld end the job. What waited for it came first: it applies
+    // now, in order, except Steps, which end like the job without starting.
+    const std::string why = std::string("stopped by ") +
+                            protocol::requestName(in.command->request_type()) + " (client " +
+                            std::to_string(in.envelopeKey) + ")";
+    cancelJob(*w, why);
+    const uint32_t id = w->id;
+    while ((w = world(id)) && !w->waiting.empty()) {
+      Incoming waited = std::move(w->waiting.front());
+      w->waiting.pop_front();
+      if (isStep(waited)) {
+        ReplyHeader h = protocol::replyTo(*waited.command);
+        h.tick = w->tick;
+        h.status = Status::Error(Code::IncorrectState, "step: " + why + " before it started");
+        ++counters_.commands;
+        ++counters_.errors;
+        pushReply(waited.envelopeKey, waited.envelopeSeq, protocol::encodeReply(h));
+        release(waited);
+      } else {
+        applyNow(waited);
+      }
     }
   }
+  applyNow(in);
+}
+
+void ServerCore::applyNow(const Incoming& in) {
   current_ = &in;
   deferred_ = false;
   Bytes reply = apply(in);
   current_ = nullptr;
   if (deferred_) return;  // a Step job answers when it ends
   pushReply(in.envelopeKey, in.envelopeSeq, std::move(reply));
-  release(in.envelopeKey, in.bytes);
+  release(in);
 }
 
-void ServerCore::drainWaiting(ServerWorld& w) {
-  const uint32_t id = w.id;
-  while (ServerWorld* sw = world(id)) {
-    if (sw->busy() || sw->waiting.empty()) return;
-    Incoming in = std::move(sw->waiting.front());
-    sw->waiting.pop_front();
-    dispatch(std::move(in));  // may destroy the world: looked up again
+void ServerCore::drainWaiting(uint32_t id) {
+  for (ServerWorld* w; (w = world(id)) && !w->busy() && !w->waiting.empty();) {
+    Incoming in = std::move(w->waiting.front());
+    w->waiting.pop_front();
+    applyNow(in);  // may destroy the world: looked up again
   }
 }
 
-void ServerCore::continueJob(ServerWorld& w) {
+void ServerCore::continueJob(ServerWorld& w, double seconds) {
   ServerWorld::StepJob& job = *w.job;
   const auto t0 = std::chrono::steady_clock::now();
-  const auto until = t0 + std::chrono::duration<double>(config_.stepSliceSeconds);
+  const auto until = t0 + std::chrono::duration<double>(seconds);
   uint64_t n = 0;
   bool failed = false;
-  while (job.remaining > 0) {
-    const uint64_t failures = counters_.stepFailures;
+  while (job.remaining > 0) {  // at least one step
     stepTimed(w, 1);
-    if (counters_.stepFailures != failures) {
+    if (!stepProblem_.ok()) {
       failed = true;
       break;
     }
@@ -271,42 +306,30 @@ void ServerCore::continueJob(ServerWorld& w) {
     w.frameDirty = true;
   }
   if (failed) {
-    const Status why = stepProblem_;
-    ServerWorld::StepJob done = *w.job;
-    w.job.reset();
-    ReplyHeader h = done.header;
-    h.tick = w.tick;
-    h.status = Status::Error(why.code, why.message + " after " +
-                                           std::to_string(done.requested - done.remaining) +
-                                           " of " + std::to_string(done.requested) + " steps");
-    ++counters_.errors;
-    pushReply(done.envelopeKey, done.envelopeSeq, protocol::encodeReply(h));
-    release(done.envelopeKey, done.bytes);
+    endJob(w, stepProblem_);
     return;
   }
-  if (job.remaining > 0) return;
+  if (job.remaining == 0) endJob(w, Status::Ok());
+}
+
+void ServerCore::endJob(ServerWorld& w, Status status) {
+  if (!w.job) return;
+  const ServerWorld::StepJob job = *w.job;
+  w.job.reset();
   ReplyHeader h = job.header;
   h.tick = w.tick;
-  const uint64_t key = job.envelopeKey, seq = job.envelopeSeq;
-  const size_t bytes = job.bytes;
-  w.job.reset();
-  pushReply(key, seq, protocol::encodeReply(h));
-  release(key, bytes);
+  if (!status.ok()) {
+    status.message += " after " + std::to_string(job.requested - job.remaining) + " of " +
+                      std::to_string(job.requested) + " steps";
+    ++counters_.errors;
+  }
+  h.status = std::move(status);
+  pushReply(job.envelopeKey, job.envelopeSeq, protocol::encodeReply(h));
+  release(job.envelopeKey, job.charge);
 }
 
 void ServerCore::cancelJob(ServerWorld& w, const std::string& why) {
-  if (!w.job) return;
-  ServerWorld::StepJob job = *w.job;
-  w.job.reset();
-  ReplyHeader h = job.header;
-  h.tick = w.tick;
-  h.status = Status::Error(Code::IncorrectState,
-                           "step: " + why + " after " +
-                               std::to_string(job.requested - job.remaining) + " of " +
-                               std::to_string(job.requested) + " steps");
-  ++counters_.errors;
-  pushReply(job.envelopeKey, job.envelopeSeq, protocol::encodeReply(h));
-  release(job.envelopeKey, job.bytes);
+  endJob(w, Status::Error(Code::IncorrectState, "step: " + why));
 }
 
 uint64_t ServerCore::totalBodies() const {
@@ -332,7 +355,7 @@ uint64_t defaultMemoryBudget() {
 }  // namespace
 
 Status ServerCore::checkGrowth(const ServerWorld* w, uint64_t bodies, uint64_t joints,
-                               const std::string& what) const {
+                               const std::string& what, uint64_t replaced) const {
   const uint64_t worldBodies = w ? uint64_t(w->world->bodyCount()) : 0;
   const uint64_t worldJoints = w ? uint64_t(w->world->jointCount()) : 0;
   if (worldBodies + bodies > config_.maxBodiesPerWorld)
@@ -347,7 +370,7 @@ Status ServerCore::checkGrowth(const ServerWorld* w, uint64_t bodies, uint64_t j
                              " joints in the world, the limit is " +
                              std::to_string(config_.maxJointsPerWorld) +
                              " (server.max_joints_per_world)");
-  const uint64_t total = totalBodies();
+  const uint64_t all = totalBodies(), total = all - std::min(all, replaced);
   if (total + bodies > config_.maxBodiesTotal)
     return Status::Error(Code::ResourceExhausted,
                          what + " would make " + std::to_string(total + bodies) +
@@ -384,6 +407,8 @@ double ServerCore::stepTimed(ServerWorld& w, uint64_t n) {
       failure = "out of memory";
     } catch (const std::exception& e) {
       failure = e.what();
+    } catch (...) {
+      failure = "an unknown exception";
     }
     const phys::StepStats& after = w.world->stats();
     if (failure.empty() && after.stepsRefused != refused) {
@@ -393,7 +418,8 @@ double ServerCore::stepTimed(ServerWorld& w, uint64_t n) {
                                    "step: " + failure +
                                        " (server.max_contact_pairs); the world is paused");
     } else if (failure.empty() && after.stepFailures != failed) {
-      failure = after.lastGuardEvent;
+      failure = after.lastGuardEvent.empty() ? "a step failed inside the engine"
+                                             : after.lastGuardEvent;
     }
     if (!failure.empty()) break;
   }
@@ -406,7 +432,7 @@ double ServerCore::stepTimed(ServerWorld& w, uint64_t n) {
     // the world stops here, as it was before that step, rather than trying again every tick.
     if (code.empty()) {
       code = "step_failed";
-      stepProblem_ = Status::Error(Code::ResourceExhausted, "step: " + failure + "; the world is paused");
+      stepProblem_ = Status::Error(Code::Internal, "step: " + failure + "; the world is paused");
     }
     ++counters_.stepFailures;
     w.mode = RunMode::Paused;
@@ -457,12 +483,21 @@ Status ServerCore::stepWorld(uint32_t id, uint64_t n) {
 
 uint64_t ServerCore::advance(double wallSeconds) {
   uint64_t total = 0;
+  size_t busy = 0;
+  for (auto& [id, w] : worlds_) busy += w->busy();
   for (auto& [id, wp] : worlds_) {
     ServerWorld& w = *wp;
     uint64_t n = 0;
     if (w.busy()) {
-      // A Step job owns the world's time: one slice per tick, a frame after it.
-      continueJob(w);
+      // A Step job owns the world's time: a slice per tick (the busy worlds share
+      // step_slice_ms), a frame after it.
+      const uint64_t before = w.tick;
+      try {
+        continueJob(w, config_.stepSliceSeconds / double(busy));
+        total += w.tick - before;
+      } catch (const std::exception& e) {
+        endJob(w, Status::Error(Code::Internal, std::string("step: ") + e.what()));
+      }
       w.accumulator = 0;
       if (w.frameDirty) queueFrame(w);
       continue;
@@ -486,10 +521,13 @@ uint64_t ServerCore::advance(double wallSeconds) {
       // Every step of real time is a tick its subscribers see: steps taken to catch up
       // (at most maxCatchUpSteps) get a frame each, not only the last one.
       double ms = 0;
-      for (uint64_t i = 0; i < n; ++i) {
+      uint64_t taken = 0;
+      for (; taken < n; ++taken) {
         ms += stepTimed(w, 1);
-        if (i + 1 < n) queueFrame(w);
+        if (!stepProblem_.ok()) break;  // not taken: the world is paused (an event says why)
+        if (taken + 1 < n) queueFrame(w);
       }
+      n = taken;
       total += n;
       w.tickMs = float(ms);
       w.tickMsMax = std::max(w.tickMsMax, w.tickMs);
@@ -651,15 +689,23 @@ void TickThread::run() {
   auto last = Clock::now();
   auto lastStatus = last - statusPeriod_;
   while (!stop_) {
-    core_->processPending();
     auto now = Clock::now();
-    double dt = std::chrono::duration<double>(now - last).count();
-    last = now;
-    core_->advance(dt);
-    core_->publishWorldInfo();
-    if (now - lastStatus >= statusPeriod_) {
-      core_->publishStatus();
-      lastStatus = now;
+    // Commands and steps answer their own failures; this is the last resort that keeps the
+    // tick thread alive (out of memory while publishing, say): the tick is skipped.
+    try {
+      core_->processPending();
+      now = Clock::now();
+      double dt = std::chrono::duration<double>(now - last).count();
+      last = now;
+      core_->advance(dt);
+      core_->publishWorldInfo();
+      if (now - lastStatus >= statusPeriod_) {
+        core_->publishStatus();
+        lastStatus = now;
+      }
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "physd: tick failed: %s\n", e.what());
+      last = Clock::now();
     }
     ticks_.fetch_add(1);
     // Sleep until a world owes a step (at most 20 ms, so stop and status stay responsive),

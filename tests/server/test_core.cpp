@@ -536,6 +536,11 @@ TEST_F(CoreTest, ProcessPendingInArrivalOrder) {
     core.submit(std::move(in));
   }
   EXPECT_EQ(core.processPending(), 3u);
+  // Queued Steps run in the tick's advance (a slice each, the later ones waiting in order).
+  for (int i = 0; i < 100 && core.world(world)->tick < 6; ++i) {
+    core.advance(0);
+    core.processPending();
+  }
   EXPECT_EQ(core.world(world)->tick, 6u);
   std::vector<uint64_t> ticks;
   for (;;) {

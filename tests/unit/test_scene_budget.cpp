@@ -348,7 +348,7 @@ TEST(SceneBudget, NamesAreBoundedAndClean) {
               StatusCode::InvalidArgument, "metrics.groups.g\\x0a", "a group name must not");
   SceneBudget small;
   small.maxNameBytes = 3;
-  expectError(parse(body("abcd"), small), StatusCode::InvalidArgument, "bodies[0].name",
+  expectError(parse(body("abcd"), small), StatusCode::ResourceExhausted, "bodies[0].name",
               "at most 3 bytes");
 }
 

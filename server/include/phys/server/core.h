@@ -56,6 +56,7 @@ struct CoreConfig {
   uint64_t maxSnapshotBytes = 4ull << 30;     ///< bytes of all files in snapshotDir
   uint32_t maxQueuedPerClient = 256;          ///< commands a client has waiting
   uint64_t maxQueuedBytes = 64ull << 20;      ///< payload bytes waiting, all clients
+  uint64_t maxQueuedBytesPerClient = 16ull << 20;  ///< payload bytes one client has waiting
   /// Contact pairs per step of a world (WorldDef::maxContactPairs; 0: the engine's automatic
   /// bound). A step past it is not taken (PairOverflow::Refuse): the world pauses and a
   /// contact_budget event says why.
@@ -112,7 +113,7 @@ struct ServerWorld {
     uint64_t requested = 0, remaining = 0;
     protocol::ReplyHeader header;  ///< the Step's reply header
     uint64_t envelopeKey = 0, envelopeSeq = 0;
-    size_t bytes = 0;  ///< the command's payload size (queue budget)
+    uint64_t charge = 0;  ///< what the command holds of the queue's byte budgets
     double ms = 0;     ///< wall time spent so far
   };
   std::optional<StepJob> job;
@@ -208,18 +209,24 @@ class ServerCore {
   /// when its job ends. Commands for a busy world wait for its job.
   void dispatch(Incoming in);
   void pushReply(uint64_t key, uint64_t seq, Bytes reply);
-  /// Runs a slice of a world's StepJob; at its end pushes the Step's reply.
-  void continueJob(ServerWorld& w);
+  /// Applies a command now (no queue): pushes its reply, unless it became a Step job.
+  void applyNow(const Incoming& in);
+  /// Runs about `seconds` (at least one step) of a world's StepJob; at its end pushes the
+  /// Step's reply.
+  void continueJob(ServerWorld& w, double seconds);
+  /// Ends a world's job with `status` (its reply: the tick reached, steps done if not Ok).
+  void endJob(ServerWorld& w, Status status);
   /// Ends a world's job early (Pause, ResetWorld, DestroyWorld): the Step's reply says so.
   void cancelJob(ServerWorld& w, const std::string& why);
   /// Applies the commands that waited for a world's job, until one starts a new job.
-  void drainWaiting(ServerWorld& w);
+  void drainWaiting(uint32_t world);
   /// Bodies in every world.
   uint64_t totalBodies() const;
-  /// Why a command adding `bodies` bodies and `joints` joints to world w (null: a new world)
-  /// may not, or Ok: per-world and daemon-wide counts, the memory budget.
+  /// Why a command adding `bodies` bodies and `joints` joints to world w (null: a new world,
+  /// or one whose `replaced` bodies it replaces) may not, or Ok: per-world and daemon-wide
+  /// counts, the memory budget.
   Status checkGrowth(const ServerWorld* w, uint64_t bodies, uint64_t joints,
-                     const std::string& what) const;
+                     const std::string& what, uint64_t replaced = 0) const;
   /// Loads a scene into a world (LoadScene, start-up worlds). forReply: the ids must fit in
   /// one reply.
   Status loadScene(ServerWorld& w, const wire::LoadScene* request, const std::string& sceneName,
@@ -252,10 +259,19 @@ class ServerCore {
   std::deque<Incoming> inbox_;
   // Commands submitted and not yet answered (queued, waiting for a world, or a Step job),
   // per client and in bytes; guarded by inboxMutex_.
-  std::map<uint64_t, uint32_t> pendingPerClient_;
+  struct Pending {
+    uint32_t commands = 0;
+    uint64_t bytes = 0;
+  };
+  std::map<uint64_t, Pending> pendingPerClient_;
   uint64_t pendingBytes_ = 0;
   std::atomic<uint64_t> refusedAtSubmit_{0};
-  void release(uint64_t envelopeKey, size_t bytes);  ///< a submitted command was answered
+  /// Bytes a queued command holds of the queue's budgets: its payload and what holding it
+  /// costs beside.
+  static uint64_t queueCharge(const Incoming& in) { return uint64_t(in.bytes) + 256; }
+  /// A submitted command was answered: its place in the queue's budgets is free.
+  void release(const Incoming& in);
+  void release(uint64_t envelopeKey, uint64_t chargedBytes);
   // The command dispatch() is applying: a Step too long for one slice becomes a job that
   // answers it later (apply() then returns no reply and sets deferred_).
   const Incoming* current_ = nullptr;
