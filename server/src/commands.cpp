@@ -619,10 +619,30 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       return finish();
     }
     case wire::Request::LoadScene: {
-      st = loadScene(*sw, c.request_as_LoadScene(), "", /*forReply=*/true, &ctx.ids.bodies,
-                     &ctx.ids.joints);
-      if (!st.ok()) ctx.ids = {};
-      return finish();
+      auto* r = c.request_as_LoadScene();
+      if (!current_) {  // applied directly (tests): loaded now
+        st = loadScene(*sw, r, "", /*forReply=*/true, &ctx.ids.bodies, &ctx.ids.joints);
+        if (!st.ok()) ctx.ids = {};
+        return finish();
+      }
+      // From the queue: parsed, checked and built on a loader thread while the other worlds
+      // tick; the world waits for it (as for a Step job), advance() swaps it in and answers.
+      st = checkGrowth(nullptr, 0, 0, "load_scene");
+      if (st.ok() && !r->json() && !(r->scene_name() && r->scene_name()->size()))
+        st = err(Code::Malformed, "load_scene needs json or scene_name");
+      if (!st.ok()) return finish();
+      auto task = std::make_shared<LoadTask>();
+      task->request = sceneRequest(*sw, r, "", /*forReply=*/true);
+      ServerWorld::LoadJob job;
+      job.task = task;
+      job.header = ctx.header;
+      job.envelopeKey = current_->envelopeKey;
+      job.envelopeSeq = current_->envelopeSeq;
+      job.charge = queueCharge(*current_);
+      sw->load = std::move(job);
+      startLoad(task);
+      deferred_ = true;
+      return {};
     }
     case wire::Request::Step: {
       const uint64_t n = c.request_as_Step()->count();
@@ -954,107 +974,139 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
   }
 }
 
-Status ServerCore::loadScene(ServerWorld& sw, const wire::LoadScene* r,
-                             const std::string& sceneName, bool forReply,
-                             std::vector<uint64_t>* bodyIds, std::vector<uint64_t>* jointIds) {
+SceneLoad ServerCore::prepareScene(const SceneRequest& req) const {
+  // Runs on the tick thread or a loader thread: reads only the configuration and `req`.
+  SceneLoad out;
   const protocol::Limits& lim = config_.limits;
-  Status st = checkGrowth(nullptr, 0, 0, "load_scene");
-  if (!st.ok()) return st;
   // The scene's budget, checked by the parser before it builds anything: the world's and the
   // server's body counts (the scene replaces this world's bodies), what one reply can list,
   // and the codec's limits on shapes, hulls and names.
-  const uint64_t others = totalBodies() - uint64_t(sw.world->bodyCount());
-  const uint64_t idsPerReply = forReply ? protocol::maxIdsPerReply(lim) : UINT64_MAX;
+  const uint64_t idsPerReply = req.forReply ? protocol::maxIdsPerReply(lim) : UINT64_MAX;
   phys::SceneBudget budget;
   budget.maxBodies = std::min<uint64_t>(
       {config_.maxBodiesPerWorld,
-       config_.maxBodiesTotal > others ? config_.maxBodiesTotal - others : 0, idsPerReply});
+       config_.maxBodiesTotal > req.otherBodies ? config_.maxBodiesTotal - req.otherBodies : 0,
+       idsPerReply});
   budget.maxJoints = std::min<uint64_t>(config_.maxJointsPerWorld, idsPerReply);
   budget.maxShapesPerBody = lim.maxShapesPerBody;
   budget.maxHullPoints = lim.maxHullPoints;
   budget.maxNameBytes = lim.maxNameBytes;
   // Shapes and hull points as for a snapshot (a scene is the other bulk way in).
   budget.maxShapes = lim.maxSnapshotShapes;
-  budget.maxHullPointsTotal = std::min<uint64_t>(budget.maxHullPointsTotal, lim.maxSnapshotHullPoints);
+  budget.maxHullPointsTotal =
+      std::min<uint64_t>(budget.maxHullPointsTotal, lim.maxSnapshotHullPoints);
   const char* limitNames =
       " (server.max_bodies_per_world, server.max_bodies_total, server.max_joints_per_world and, "
       "for LoadScene, the ids one reply lists: max_ids_per_reply)";
 
-  phys::Scene scene;
   phys::Status ps;
-  const std::string name = r && r->scene_name() ? r->scene_name()->str() : sceneName;
-  if (!name.empty()) {
-    const std::string path = underDir(config_.scenesDir, name, ".json");
-    if (config_.scenesDir.empty() || !fs::exists(path))
-      return err(Code::NotFound, "load_scene.scene_name '" + name + "' is not a scene of this server");
-    ps = phys::loadSceneFile(path, &scene, budget);
-  } else if (r && r->json()) {
-    ps = phys::parseScene(r->json()->str(), "load_scene.json", &scene, budget);
+  if (!req.sceneName.empty()) {
+    const std::string path = underDir(config_.scenesDir, req.sceneName, ".json");
+    if (config_.scenesDir.empty() || !fs::exists(path)) {
+      out.status = err(Code::NotFound, "load_scene.scene_name '" + req.sceneName +
+                                           "' is not a scene of this server");
+      return out;
+    }
+    ps = phys::loadSceneFile(path, &out.scene, budget);
   } else {
-    return err(Code::Malformed, "load_scene needs json or scene_name");
+    ps = phys::parseScene(req.json, "load_scene.json", &out.scene, budget);
   }
   if (!ps.ok()) {
-    st = fromPhys(ps, "load_scene");
-    if (st.code == Code::NotFound) st.code = Code::InvalidArgument;
-    if (st.code == Code::ResourceExhausted) st.message += limitNames;
-    return st;
+    out.status = fromPhys(ps, "load_scene");
+    if (out.status.code == Code::NotFound) out.status.code = Code::InvalidArgument;
+    if (out.status.code == Code::ResourceExhausted) out.status.message += limitNames;
+    return out;
   }
-  if (forReply && scene.bodies.size() + scene.joints.size() > idsPerReply)
-    return err(Code::ResourceExhausted,
-               "load_scene: the scene has " + std::to_string(scene.bodies.size()) +
-                   " bodies and " + std::to_string(scene.joints.size()) +
-                   " joints; one reply lists at most " + std::to_string(idsPerReply) +
-                   " new ids (max_ids_per_reply): load it as a start-up world or in parts");
+  const phys::Scene& scene = out.scene;
+  if (req.forReply && scene.bodies.size() + scene.joints.size() > idsPerReply) {
+    out.status = err(Code::ResourceExhausted,
+                     "load_scene: the scene has " + std::to_string(scene.bodies.size()) +
+                         " bodies and " + std::to_string(scene.joints.size()) +
+                         " joints; one reply lists at most " + std::to_string(idsPerReply) +
+                         " new ids (max_ids_per_reply): load it as a start-up world or in parts");
+    return out;
+  }
   // The codec's rules, so that every client can decode the world's description.
-  st = protocol::checkWorldParams(scene.world.gravity, scene.world.timeStep, lim, "load_scene:");
-  if (!st.ok()) return st;
-  for (size_t i = 0; i < scene.bodies.size(); ++i) {
+  Status st = protocol::checkWorldParams(scene.world.gravity, scene.world.timeStep, lim, "load_scene:");
+  for (size_t i = 0; st.ok() && i < scene.bodies.size(); ++i)
     st = protocol::checkBodyDef(scene.bodies[i], lim,
                                 "load_scene: body " + std::to_string(i) +
                                     (scene.bodies[i].name.empty()
                                          ? std::string()
                                          : " " + protocol::shortQuote(scene.bodies[i].name)));
-    if (!st.ok()) return st;
-  }
-  for (size_t i = 0; i < scene.joints.size(); ++i) {
+  for (size_t i = 0; st.ok() && i < scene.joints.size(); ++i)
     st = protocol::checkJointDef(scene.joints[i].def, lim,
                                  "load_scene: joint " + std::to_string(i) +
                                      (scene.joints[i].def.name.empty()
                                           ? std::string()
                                           : " " + protocol::shortQuote(scene.joints[i].def.name)));
-    if (!st.ok()) return st;
+  if (!st.ok()) {
+    out.status = st;
+    return out;
   }
-
   phys::WorldDef def = scene.world;
   def.threads = config_.threads;
   def.gpuAllowCpuDevice = config_.gpuAllowCpuDevice;
   applyPolicy(&def);
   // A scene that asks for the GPU (or auto) gets it; else the world keeps its setting.
-  if (def.backend == phys::Backend::Cpu) def.backend = sw.world->def().backend;
-  auto fresh = std::make_unique<phys::World>(def);
-  std::vector<phys::BodyId> bids;
-  std::vector<phys::JointId> jids;
-  ps = phys::instantiateScene(scene, fresh.get(), &bids, &jids);
-  if (!ps.ok()) return fromPhys(ps, "load_scene");
+  if (def.backend == phys::Backend::Cpu) def.backend = req.backend;
+  out.world = std::make_unique<phys::World>(def);
+  ps = phys::instantiateScene(scene, out.world.get(), &out.bodyIds, &out.jointIds);
+  if (!ps.ok()) {
+    out.status = fromPhys(ps, "load_scene");
+    out.world.reset();
+  }
+  return out;
+}
+
+void ServerCore::commitScene(ServerWorld& sw, SceneLoad&& load, std::vector<uint64_t>* bodyIds,
+                             std::vector<uint64_t>* jointIds) {
   cancelJob(sw, "replaced by load_scene");
-  sw.world = std::move(fresh);
+  sw.world = std::move(load.world);
   sw.bodyDefs.clear();
   sw.jointDefs.clear();
+  phys::Scene& scene = load.scene;
+  const std::vector<phys::BodyId>& bids = load.bodyIds;
   for (size_t i = 0; i < bids.size(); ++i) {
     sw.bodyDefs[bids[i].packed()] = std::move(scene.bodies[i]);
     bodyIds->push_back(bids[i].packed());
   }
-  for (size_t i = 0; i < jids.size(); ++i) {
+  for (size_t i = 0; i < load.jointIds.size(); ++i) {
     phys::JointDef d = scene.joints[i].def;
     d.bodyA = scene.joints[i].bodyA >= 0 ? bids[size_t(scene.joints[i].bodyA)] : phys::BodyId{};
     d.bodyB = scene.joints[i].bodyB >= 0 ? bids[size_t(scene.joints[i].bodyB)] : phys::BodyId{};
-    sw.jointDefs[jids[i].packed()] = d;
-    jointIds->push_back(jids[i].packed());
+    sw.jointDefs[load.jointIds[i].packed()] = d;
+    jointIds->push_back(load.jointIds[i].packed());
   }
   sw.tick = 0;
   sw.accumulator = 0;
   ++sw.revision;
   sw.infoDirty = sw.frameDirty = true;
+}
+
+SceneRequest ServerCore::sceneRequest(const ServerWorld& sw, const wire::LoadScene* r,
+                                                  const std::string& sceneName,
+                                                  bool forReply) const {
+  SceneRequest req;
+  req.sceneName = r && r->scene_name() ? r->scene_name()->str() : sceneName;
+  if (req.sceneName.empty() && r && r->json()) req.json = r->json()->str();
+  req.forReply = forReply;
+  req.otherBodies = totalBodies() - uint64_t(sw.world->bodyCount());
+  req.backend = sw.world->def().backend;
+  return req;
+}
+
+Status ServerCore::loadScene(ServerWorld& sw, const wire::LoadScene* r,
+                             const std::string& sceneName, bool forReply,
+                             std::vector<uint64_t>* bodyIds, std::vector<uint64_t>* jointIds) {
+  Status st = checkGrowth(nullptr, 0, 0, "load_scene");
+  if (!st.ok()) return st;
+  if (!r && sceneName.empty()) return err(Code::Malformed, "load_scene needs json or scene_name");
+  if (r && !r->json() && !(r->scene_name() && r->scene_name()->size()))
+    return err(Code::Malformed, "load_scene needs json or scene_name");
+  SceneLoad load = prepareScene(sceneRequest(sw, r, sceneName, forReply));
+  if (!load.status.ok()) return load.status;
+  commitScene(sw, std::move(load), bodyIds, jointIds);
   return Status::Ok();
 }
 

@@ -19,7 +19,54 @@ ServerCore::ServerCore(CoreConfig config)
       started_(std::chrono::steady_clock::now()),
       out_(config_.frameRingCapacity) {}
 
-ServerCore::~ServerCore() = default;
+ServerCore::~ServerCore() {
+  // A loader still building a scene finishes first (its world is then dropped).
+  for (auto& [thread, task] : loaders_)
+    if (thread.joinable()) thread.join();
+}
+
+void ServerCore::startLoad(std::shared_ptr<LoadTask> task) {
+  // Loaders that finished are joined here, so the list stays short.
+  std::erase_if(loaders_, [](auto& l) {
+    if (!l.second->done.load()) return false;
+    l.first.join();
+    return true;
+  });
+  loaders_.emplace_back(std::thread([this, task] {
+    try {
+      task->result = prepareScene(task->request);
+    } catch (const std::bad_alloc&) {
+      task->result = SceneLoad{};
+      task->result.status = Status::Error(Code::ResourceExhausted, "load_scene: out of memory");
+    } catch (const std::exception& e) {
+      task->result = SceneLoad{};
+      task->result.status = Status::Error(Code::Internal, std::string("load_scene: ") + e.what());
+    }
+    task->done.store(true);
+  }), task);
+}
+
+void ServerCore::finishLoad(ServerWorld& w) {
+  if (!w.load || !w.load->task->done.load()) return;
+  ServerWorld::LoadJob job = std::move(*w.load);
+  w.load.reset();
+  ReplyHeader h = job.header;
+  std::vector<uint64_t> bodies, joints;
+  Status st = std::move(job.task->result.status);
+  // What the world holds may have changed meanwhile only through this load (commands
+  // waited), but other worlds may have grown: the daemon-wide count is checked again.
+  if (st.ok())
+    st = checkGrowth(nullptr, uint64_t(job.task->result.bodyIds.size()), 0, "load_scene",
+                     uint64_t(w.world->bodyCount()));
+  if (st.ok()) commitScene(w, std::move(job.task->result), &bodies, &joints);
+  job.task->result = SceneLoad{};  // the unused world goes now, not with the thread
+  h.tick = w.tick;
+  if (!st.ok()) ++counters_.errors;
+  h.status = st;
+  pushReply(job.envelopeKey, job.envelopeSeq,
+            st.ok() ? protocol::encodeIdsReply(h, bodies, joints) : protocol::encodeReply(h));
+  release(job.envelopeKey, job.charge);
+}
 
 Status ServerCore::init() {
   std::string path = config_.presetsFile.empty() ? phys::defaultPresetsPath() : config_.presetsFile;
@@ -330,6 +377,17 @@ void ServerCore::endJob(ServerWorld& w, Status status) {
 
 void ServerCore::cancelJob(ServerWorld& w, const std::string& why) {
   endJob(w, Status::Error(Code::IncorrectState, "step: " + why));
+  if (w.load) {
+    // The loader thread cannot be stopped: it finishes, and its world is dropped.
+    ServerWorld::LoadJob job = std::move(*w.load);
+    w.load.reset();
+    ReplyHeader h = job.header;
+    h.tick = w.tick;
+    h.status = Status::Error(Code::IncorrectState, "load_scene: " + why);
+    ++counters_.errors;
+    pushReply(job.envelopeKey, job.envelopeSeq, protocol::encodeReply(h));
+    release(job.envelopeKey, job.charge);
+  }
 }
 
 uint64_t ServerCore::totalBodies() const {
@@ -484,10 +542,15 @@ Status ServerCore::stepWorld(uint32_t id, uint64_t n) {
 uint64_t ServerCore::advance(double wallSeconds) {
   uint64_t total = 0;
   size_t busy = 0;
-  for (auto& [id, w] : worlds_) busy += w->busy();
+  for (auto& [id, w] : worlds_) busy += w->job.has_value();
   for (auto& [id, wp] : worlds_) {
     ServerWorld& w = *wp;
     uint64_t n = 0;
+    if (w.load) {
+      finishLoad(w);  // when the loader is done; the world's time waits for it
+      if (w.frameDirty && !w.busy()) queueFrame(w);
+      continue;
+    }
     if (w.busy()) {
       // A Step job owns the world's time: a slice per tick (the busy worlds share
       // step_slice_ms), a frame after it.
@@ -543,7 +606,8 @@ uint64_t ServerCore::advance(double wallSeconds) {
 double ServerCore::secondsUntilDue(double idle) const {
   double best = idle;
   for (auto& [id, w] : worlds_) {
-    if (w->mode == RunMode::AsFastAsPossible || w->busy()) return 0;
+    if (w->mode == RunMode::AsFastAsPossible || w->job) return 0;
+    if (w->load) best = std::min(best, 0.001);  // look for the loader's result soon
     if (w->mode == RunMode::RealTime) {
       double s = std::max(0.0, (1.0 - w->accumulator) / w->rateHz);
       best = std::min(best, s);

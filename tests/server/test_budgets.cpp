@@ -10,9 +10,11 @@
 #include <cstring>
 #include <fstream>
 #include <string>
+#include <thread>
 
 #include "attacks.h"
 #include "phys/protocol/validate.h"
+#include "phys/scene/scene.h"
 #include "server_test_util.h"
 
 namespace phys::server::test {
@@ -328,6 +330,55 @@ TEST_F(SliceTest, DestroyingABusyWorldAnswersItsStep) {
   EXPECT_EQ(r[0]->status(), Code::IncorrectState);
   EXPECT_EQ(r[1]->status(), Code::Ok);
   EXPECT_EQ(core->world(world), nullptr);
+}
+
+TEST_F(SliceTest, SceneLoadsBesideTheTick) {
+  constexpr uint64_t kA = 0xA, kB = 0xB;
+  submit(kA, CommandBuilder().loadSceneNamed("pile_10k"), world);
+  core->processPending();
+  ASSERT_TRUE(core->world(world)->busy()) << "the load runs on a loader thread";
+  // Meanwhile: another client, another world, and a command for the loading world (waits).
+  submit(kB, CommandBuilder().listWorlds(), 0);
+  submit(kB, CommandBuilder().step(1), other);
+  submit(kB, CommandBuilder().queryState({}, 0, 10), world);
+  core->processPending();
+  std::vector<Reply> got = replies();
+  for (int i = 0; i < 20000 && got.size() < 4; ++i) {
+    core->advance(0);
+    core->processPending();
+    for (Reply& r : replies()) got.push_back(std::move(r));
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  ASSERT_EQ(got.size(), 4u);
+  EXPECT_EQ(got[0]->client_id(), kB);  // ListWorlds first, while loading
+  size_t load = 4, query = 4;
+  for (size_t i = 0; i < got.size(); ++i) {
+    if (got[i]->client_id() == kA) load = i;
+    if (got[i]->result_as_StateResult()) query = i;
+  }
+  ASSERT_LT(load, 4u);
+  ASSERT_LT(query, 4u);
+  EXPECT_LT(load, query) << "the query waited for the load";
+  phys::Scene scene;
+  ASSERT_TRUE(phys::loadSceneFile(core->config().scenesDir + "/pile_10k.json", &scene).ok());
+  EXPECT_EQ(got[load]->status(), Code::Ok) << message(got[load]);
+  EXPECT_EQ(bodyIds(got[load]).size(), scene.bodies.size());
+  EXPECT_EQ(got[query]->result_as_StateResult()->total(), scene.bodies.size());
+}
+
+TEST_F(SliceTest, PauseEndsALoad) {
+  const uint64_t hash = core->world(world)->world->stateHash();
+  submit(0xA, CommandBuilder().loadSceneNamed("pile_10k"), world);
+  core->processPending();
+  submit(0xB, CommandBuilder().pause(), world);
+  core->processPending();
+  std::vector<Reply> r = replies();
+  ASSERT_EQ(r.size(), 2u);
+  EXPECT_EQ(r[0]->status(), Code::IncorrectState) << message(r[0]);
+  EXPECT_NE(message(r[0]).find("load_scene: stopped by pause"), std::string::npos);
+  EXPECT_EQ(r[1]->status(), Code::Ok);
+  EXPECT_EQ(core->world(world)->world->stateHash(), hash);
+  EXPECT_EQ(core->world(world)->world->bodyCount(), 200);
 }
 
 TEST_F(SliceTest, QueueIsBoundedPerClient) {

@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "phys/scene/presets.h"
+#include "phys/scene/scene.h"
 #include "phys/protocol/builder.h"
 #include "phys/protocol/decoder.h"
 #include "phys/protocol/limits.h"
@@ -81,6 +82,30 @@ struct Incoming {
   protocol::Decoded<wire::Command> command;
 };
 
+/// What a LoadScene asks for, captured on the tick thread (a loader thread reads only this
+/// and the configuration).
+struct SceneRequest {
+  std::string sceneName;  ///< a scene of scenes_dir, or
+  std::string json;       ///< inline JSON
+  bool forReply = true;   ///< the new ids must fit in one reply
+  uint64_t otherBodies = 0;  ///< bodies of the other worlds
+  phys::Backend backend = phys::Backend::Cpu;  ///< the world's, unless the scene asks for more
+};
+/// A scene parsed, checked and built into a fresh world, not yet swapped in.
+struct SceneLoad {
+  Status status;
+  phys::Scene scene;
+  std::unique_ptr<phys::World> world;
+  std::vector<phys::BodyId> bodyIds;
+  std::vector<phys::JointId> jointIds;
+};
+/// A LoadScene run on a loader thread; `done` once `result` is set.
+struct LoadTask {
+  SceneRequest request;
+  SceneLoad result;
+  std::atomic<bool> done{false};
+};
+
 /// Time control of a world.
 enum class RunMode : uint8_t { Paused, RealTime, AsFastAsPossible };
 
@@ -117,9 +142,18 @@ struct ServerWorld {
     double ms = 0;     ///< wall time spent so far
   };
   std::optional<StepJob> job;
-  /// Commands for this world that arrived during its StepJob, applied in order after it.
+  /// A LoadScene building on a loader thread: swapped in and answered by advance().
+  struct LoadJob {
+    std::shared_ptr<LoadTask> task;
+    protocol::ReplyHeader header;
+    uint64_t envelopeKey = 0, envelopeSeq = 0;
+    uint64_t charge = 0;
+  };
+  std::optional<LoadJob> load;
+  /// Commands for this world that arrived during its StepJob or LoadJob, applied in order
+  /// after it.
   std::deque<Incoming> waiting;
-  bool busy() const { return job.has_value(); }
+  bool busy() const { return job.has_value() || load.has_value(); }
 };
 
 
@@ -227,10 +261,21 @@ class ServerCore {
   /// counts, the memory budget.
   Status checkGrowth(const ServerWorld* w, uint64_t bodies, uint64_t joints,
                      const std::string& what, uint64_t replaced = 0) const;
-  /// Loads a scene into a world (LoadScene, start-up worlds). forReply: the ids must fit in
-  /// one reply.
+  /// Loads a scene into a world now (LoadScene applied directly, start-up worlds). forReply:
+  /// the ids must fit in one reply.
   Status loadScene(ServerWorld& w, const wire::LoadScene* request, const std::string& sceneName,
                    bool forReply, std::vector<uint64_t>* bodyIds, std::vector<uint64_t>* jointIds);
+  SceneRequest sceneRequest(const ServerWorld& w, const wire::LoadScene* request,
+                            const std::string& sceneName, bool forReply) const;
+  /// Parses, checks and builds a scene (thread-safe: reads the configuration only).
+  SceneLoad prepareScene(const SceneRequest& request) const;
+  /// Swaps a prepared scene into a world (tick thread).
+  void commitScene(ServerWorld& w, SceneLoad&& load, std::vector<uint64_t>* bodyIds,
+                   std::vector<uint64_t>* jointIds);
+  /// Starts a loader thread for a task.
+  void startLoad(std::shared_ptr<LoadTask> task);
+  /// Swaps in and answers a world's LoadJob when its task is done.
+  void finishLoad(ServerWorld& w);
   /// Steps a world n times (tick, counters); returns the wall time in ms. What the engine's
   /// guard rails did in those steps goes out as events.
   double stepTimed(ServerWorld& w, uint64_t n);
@@ -276,6 +321,8 @@ class ServerCore {
   // answers it later (apply() then returns no reply and sets deferred_).
   const Incoming* current_ = nullptr;
   bool deferred_ = false;
+  /// Loader threads (LoadScene from the queue), joined when done and at destruction.
+  std::vector<std::pair<std::thread, std::shared_ptr<LoadTask>>> loaders_;
 
   mutable std::mutex subscribersMutex_;
   std::map<uint32_t, uint32_t> subscribers_;
