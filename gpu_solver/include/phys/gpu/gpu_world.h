@@ -84,8 +84,9 @@ struct StepInput {
   bool solveContacts = true;
   ContactSettings contacts;
   /// Bound on the broad phase's pairs (WorldDef::maxContactPairs): the pair buffers grow to
-  /// the largest power of two within it (at least 64) and no further; pairs past them are
-  /// left out (ContactStats::dropped).
+  /// the power of two at or above it (at least 64, at most 2^31) and no further; pairs past
+  /// them are left out (ContactStats::dropped). Between the bound and the buffers' size
+  /// pairs are kept: pairs + dropped is what the broad phase found, to compare with it.
   uint32_t maxPairs = UINT32_MAX;
 };
 
