@@ -630,6 +630,15 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       st = checkGrowth(nullptr, 0, 0, "load_scene");
       if (st.ok() && !r->json() && !(r->scene_name() && r->scene_name()->size()))
         st = err(Code::Malformed, "load_scene needs json or scene_name");
+      // Each loader may build a world as large as the budgets allow: how many build at once
+      // bounds the memory of loads in flight.
+      reapLoaders();
+      if (st.ok() && loaders_.size() >= config_.maxConcurrentLoads)
+        st = err(Code::ResourceExhausted,
+                 "load_scene: " + std::to_string(loaders_.size()) +
+                     " scenes are being loaded already, the limit is " +
+                     std::to_string(config_.maxConcurrentLoads) +
+                     " (server.max_concurrent_loads); retry after their replies");
       if (!st.ok()) return finish();
       auto task = std::make_shared<LoadTask>();
       task->request = sceneRequest(*sw, r, "", /*forReply=*/true);

@@ -101,7 +101,7 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
                    "max_bodies_per_world", "max_joints_per_world", "max_bodies_total",
                    "memory_budget_mb", "max_snapshot_files", "max_snapshot_mb",
                    "max_queued_per_client", "max_queued_mb", "max_queued_mb_per_client",
-                   "step_slice_ms", "max_contact_pairs"},
+                   "step_slice_ms", "max_contact_pairs", "max_concurrent_loads"},
                   "server");
     if (!s.ok()) return s;
     PHYS_GET(*t, "name", "server", &c.core.serverName);
@@ -125,6 +125,7 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     PHYS_GET(*t, "max_snapshot_files", "server", &c.core.maxSnapshotFiles);
     PHYS_GET(*t, "max_queued_per_client", "server", &c.core.maxQueuedPerClient);
     PHYS_GET(*t, "max_contact_pairs", "server", &c.core.maxContactPairs);
+    PHYS_GET(*t, "max_concurrent_loads", "server", &c.core.maxConcurrentLoads);
     uint64_t mb = 0;
     if (t->get("memory_budget_mb")) {
       PHYS_GET(*t, "memory_budget_mb", "server", &mb);
@@ -149,6 +150,8 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     c.core.stepSliceSeconds = sliceMs / 1000;
     if (c.core.maxQueuedPerClient == 0)
       return Status::Error(Code::InvalidArgument, "server.max_queued_per_client must be >= 1");
+    if (c.core.maxConcurrentLoads == 0)
+      return Status::Error(Code::InvalidArgument, "server.max_concurrent_loads must be >= 1");
   }
   if (auto* t = root["dds"].as_table()) {
     s = checkKeys(*t, {"domain", "config"}, "dds");

@@ -25,13 +25,16 @@ ServerCore::~ServerCore() {
     if (thread.joinable()) thread.join();
 }
 
-void ServerCore::startLoad(std::shared_ptr<LoadTask> task) {
-  // Loaders that finished are joined here, so the list stays short.
+void ServerCore::reapLoaders() {
+  // Loaders that finished are joined, and what a cancelled one built is freed.
   std::erase_if(loaders_, [](auto& l) {
     if (!l.second->done.load()) return false;
     l.first.join();
     return true;
   });
+}
+
+void ServerCore::startLoad(std::shared_ptr<LoadTask> task) {
   loaders_.emplace_back(std::thread([this, task] {
     try {
       task->result = prepareScene(task->request);
@@ -543,6 +546,7 @@ uint64_t ServerCore::advance(double wallSeconds) {
   uint64_t total = 0;
   size_t busy = 0;
   for (auto& [id, w] : worlds_) busy += w->job.has_value();
+  if (!loaders_.empty()) reapLoaders();
   for (auto& [id, wp] : worlds_) {
     ServerWorld& w = *wp;
     uint64_t n = 0;

@@ -366,6 +366,29 @@ TEST_F(SliceTest, SceneLoadsBesideTheTick) {
   EXPECT_EQ(got[query]->result_as_StateResult()->total(), scene.bodies.size());
 }
 
+TEST_F(SliceTest, LoadsInFlightAreBounded) {
+  CoreConfig c = testConfig();
+  c.maxConcurrentLoads = 1;
+  makeCore(c);
+  Reply r = send(CommandBuilder().createWorld({"second", "", std::nullopt, 0}), 0);
+  const uint32_t second = r->world();
+  submit(0xA, CommandBuilder().loadSceneNamed("pile_10k"), world);
+  submit(0xB, CommandBuilder().loadSceneNamed("pile_10k"), second);
+  core->processPending();
+  std::vector<Reply> got = replies();
+  ASSERT_EQ(got.size(), 1u);
+  EXPECT_EQ(got[0]->client_id(), 0xBu);
+  EXPECT_EQ(got[0]->status(), Code::ResourceExhausted) << message(got[0]);
+  EXPECT_NE(message(got[0]).find("server.max_concurrent_loads"), std::string::npos);
+  for (int i = 0; i < 20000 && got.size() < 2; ++i) {
+    core->advance(0);
+    for (Reply& x : replies()) got.push_back(std::move(x));
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  ASSERT_EQ(got.size(), 2u);
+  EXPECT_EQ(got[1]->status(), Code::Ok) << message(got[1]);
+}
+
 TEST_F(SliceTest, PauseEndsALoad) {
   const uint64_t hash = core->world(world)->world->stateHash();
   submit(0xA, CommandBuilder().loadSceneNamed("pile_10k"), world);

@@ -65,6 +65,9 @@ struct CoreConfig {
   /// A Step runs at most this long per tick; the rest continues at the next ticks (other
   /// commands and worlds are served between), and the reply goes out when it is done.
   double stepSliceSeconds = 0.02;
+  /// LoadScenes built at once on loader threads (each may build a world as large as the
+  /// budgets allow); past it: ResourceExhausted.
+  uint32_t maxConcurrentLoads = 2;
   uint32_t bodiesPerChunk = protocol::kDefaultBodiesPerChunk;
   size_t frameRingCapacity = 4;  ///< state frame sets queued for the publisher
   double defaultRateHz = 60;     ///< Run without a rate
@@ -274,6 +277,8 @@ class ServerCore {
                    std::vector<uint64_t>* jointIds);
   /// Starts a loader thread for a task.
   void startLoad(std::shared_ptr<LoadTask> task);
+  /// Joins loader threads that are done (a cancelled load's world is freed with its task).
+  void reapLoaders();
   /// Swaps in and answers a world's LoadJob when its task is done.
   void finishLoad(ServerWorld& w);
   /// Steps a world n times (tick, counters); returns the wall time in ms. What the engine's
