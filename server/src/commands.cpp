@@ -418,13 +418,27 @@ struct ServerCore::Context {
       if (!s.ok()) return s;
     }
     // One engine call either applies or changes nothing: no snapshot needed (the common
-    // interactive case: one force, one pose). Otherwise save the world to roll back to.
+    // interactive case: one force, one pose). Nor for motion edits alone (poses, velocities,
+    // forces, impulses, torques), which cannot fail once checked: their bodies stay live and
+    // their values were validated. Otherwise save the world to roll back to; a small edit of
+    // a large world then costs a copy of it, so only edits that need it pay.
     size_t calls = 0;
-    for (auto& [type, table] : items) calls += engineCalls(type, table);
+    bool motionOnly = true;
+    for (auto& [type, table] : items) {
+      calls += engineCalls(type, table);
+      motionOnly &= type == wire::Request::SetBodyPose || type == wire::Request::SetBodyVelocity ||
+                    type == wire::Request::ApplyForce || type == wire::Request::ApplyImpulse ||
+                    type == wire::Request::ApplyTorque;
+    }
+    const bool rollback = calls > 1 && !motionOnly;
     std::vector<uint8_t> saved;
-    phys::Status snap = calls > 1 ? sw.world->saveSnapshot(&saved) : phys::Status::Ok();
-    auto bodyDefs = sw.bodyDefs;
-    auto jointDefs = sw.jointDefs;
+    phys::Status snap = rollback ? sw.world->saveSnapshot(&saved) : phys::Status::Ok();
+    std::map<uint64_t, phys::BodyDef> bodyDefs;
+    std::map<uint64_t, phys::JointDef> jointDefs;
+    if (rollback) {
+      bodyDefs = sw.bodyDefs;
+      jointDefs = sw.jointDefs;
+    }
     const std::string preset = sw.preset;
     const bool infoDirty = sw.infoDirty;
     for (size_t i = 0; i < items.size(); ++i) {
@@ -432,6 +446,9 @@ struct ServerCore::Context {
       if (s.ok()) continue;
       ids = {};
       if (calls <= 1) return s;  // nothing was applied
+      if (!rollback)
+        return err(Code::Internal, s.message + " (a motion edit failed after its checks; the " +
+                                       "items before it were applied)");
       if (!snap.ok())
         return err(Code::Internal, s.message + " (and the world could not be saved before the " +
                                        "command, so it may be partly applied: " + snap.message +
