@@ -665,8 +665,8 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       job.envelopeKey = current_->envelopeKey;
       job.envelopeSeq = current_->envelopeSeq;
       job.charge = queueCharge(*current_);
+      startLoad(task);  // first: if the thread cannot start, nothing waits for it
       sw->load = std::move(job);
-      startLoad(task);
       deferred_ = true;
       return {};
     }
