@@ -836,6 +836,8 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
                    "restore_snapshot.file '" + r->file()->str() + "' is not a snapshot file");
           return finish();
         }
+        st = checkGrowth(nullptr, 0, 0, "restore_snapshot");  // the memory budget, before reading
+        if (!st.ok()) return finish();
         std::error_code ec;
         const uintmax_t size = fs::file_size(path, ec);
         if (ec || size > config_.maxSnapshotBytes) {
