@@ -275,8 +275,11 @@ bool endsJob(const Incoming& in) {
   return t == wire::Request::Pause || t == wire::Request::ResetWorld ||
          t == wire::Request::DestroyWorld;
 }
-bool isStep(const Incoming& in) {
-  return in.command.ok() && in.command->request_type() == wire::Request::Step;
+/// Requests that become a job of their world when applied from the queue.
+bool startsJob(const Incoming& in) {
+  if (!in.command.ok()) return false;
+  const wire::Request t = in.command->request_type();
+  return t == wire::Request::Step || t == wire::Request::LoadScene;
 }
 }  // namespace
 
@@ -288,7 +291,8 @@ void ServerCore::dispatch(Incoming in) {
       return;
     }
     // Pause, ResetWorld, DestroyWorld end the job. What waited for it came first: it applies
-    // now, in order, except Steps, which end like the job without starting.
+    // now, in order, except Steps and LoadScenes, which end like the job without starting
+    // (started, they would make the world busy again ahead of the commands after them).
     const std::string why = std::string("stopped by ") +
                             protocol::requestName(in.command->request_type()) + " (client " +
                             std::to_string(in.envelopeKey) + ")";
@@ -297,10 +301,13 @@ void ServerCore::dispatch(Incoming in) {
     while ((w = world(id)) && !w->waiting.empty()) {
       Incoming waited = std::move(w->waiting.front());
       w->waiting.pop_front();
-      if (isStep(waited)) {
+      if (startsJob(waited)) {
         ReplyHeader h = protocol::replyTo(*waited.command);
         h.tick = w->tick;
-        h.status = Status::Error(Code::IncorrectState, "step: " + why + " before it started");
+        h.status = Status::Error(Code::IncorrectState,
+                                 std::string(protocol::requestName(
+                                     waited.command->request_type())) +
+                                     ": " + why + " before it started");
         ++counters_.commands;
         ++counters_.errors;
         pushReply(waited.envelopeKey, waited.envelopeSeq, protocol::encodeReply(h));

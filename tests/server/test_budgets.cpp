@@ -320,6 +320,29 @@ TEST_F(SliceTest, PauseEndsAStepJob) {
   EXPECT_LT(core->world(world)->tick, 100000u);
 }
 
+TEST_F(SliceTest, PauseEndsWaitingJobsAndKeepsTheOrderOfTheRest) {
+  submit(0xA, CommandBuilder().step(100000), world);
+  core->processPending();
+  ASSERT_TRUE(core->world(world)->busy());
+  submit(0xA, CommandBuilder().loadSceneNamed("pile_10k"), world);
+  submit(0xA, CommandBuilder().step(5), world);
+  submit(0xA, CommandBuilder().queryState({}, 0, 1), world);
+  submit(0xB, CommandBuilder().pause(), world);
+  core->processPending();
+  std::vector<Reply> r = replies();
+  ASSERT_EQ(r.size(), 5u);
+  EXPECT_EQ(r[0]->status(), Code::IncorrectState) << message(r[0]);  // the running Step
+  EXPECT_NE(message(r[1]).find("load_scene: stopped by pause"), std::string::npos)
+      << message(r[1]);
+  EXPECT_NE(message(r[2]).find("step: stopped by pause"), std::string::npos) << message(r[2]);
+  EXPECT_NE(message(r[2]).find("before it started"), std::string::npos) << message(r[2]);
+  EXPECT_TRUE(r[3]->result_as_StateResult());  // the query, then the Pause
+  EXPECT_EQ(r[3]->result_as_StateResult()->total(), 200u);
+  EXPECT_EQ(r[4]->client_id(), 0xBu);
+  EXPECT_EQ(r[4]->status(), Code::Ok);
+  EXPECT_FALSE(core->world(world)->busy());
+}
+
 TEST_F(SliceTest, DestroyingABusyWorldAnswersItsStep) {
   submit(0xA, CommandBuilder().step(100000), world);
   core->processPending();
