@@ -339,24 +339,7 @@ void World::Impl::stepFailed(const char* what) noexcept {
   // collided): they go, and the next step starts them cold. When the guard's copy itself
   // failed, nothing had been touched yet.
   if (snapshotValid) {
-    for (const Snapshot::Body& s : snapshot.bodies) {
-      BodyRec& b = bodies.at(s.index);
-      b.xf = s.xf;
-      b.com = s.com;
-      b.v = s.v;
-      b.w = s.w;
-      b.force = s.force;
-      b.torque = s.torque;
-    }
-    contacts.swap(snapshot.contacts);  // no copy: that could fail too
-    for (const Snapshot::JointImpulses& ji : snapshot.jointImpulses) {
-      JointRec& j = joints.at(ji.index);
-      j.impulseCount = ji.count;
-      std::copy(ji.impulses, ji.impulses + JointRec::kMaxRows, j.impulses);
-    }
-    time = snapshot.time;
-    stats.step = snapshot.step;
-    stats.substepTime = snapshot.substepTime;
+    restoreSnapshot(/*moveContacts=*/true);  // no copy: that could fail too
   } else if (stepTouched) {
     std::vector<Contact>().swap(contacts);
   }
@@ -417,7 +400,7 @@ void World::Impl::rebuildBroadPhase() {
     if (proxyOf[i] >= 0) shapes.at(i).proxy = proxyOf[i];
 }
 
-void World::Impl::restoreSnapshot() {
+void World::Impl::restoreSnapshot(bool moveContacts) {
   for (const Snapshot::Body& s : snapshot.bodies) {
     BodyRec& b = bodies.at(s.index);
     b.xf = s.xf;
@@ -427,7 +410,10 @@ void World::Impl::restoreSnapshot() {
     b.force = s.force;
     b.torque = s.torque;
   }
-  contacts = snapshot.contacts;
+  if (moveContacts)
+    contacts.swap(snapshot.contacts);
+  else
+    contacts = snapshot.contacts;
   for (const Snapshot::JointImpulses& ji : snapshot.jointImpulses) {
     JointRec& j = joints.at(ji.index);
     j.impulseCount = ji.count;

@@ -220,7 +220,9 @@ struct World::Impl {
   /// swapped in; the shapes get their new proxies.
   void rebuildBroadPhase();
   void takeSnapshot();
-  void restoreSnapshot();
+  /// Back to the guard's copy. moveContacts: the copy's contacts are swapped in rather than
+  /// copied (nothing allocates: a failed step's undo), leaving the copy without them.
+  void restoreSnapshot(bool moveContacts = false);
   std::string checkHealth() const;                ///< empty when the step was healthy
   const char* bodyFault(const BodyRec& b) const;  ///< what is wrong with a body, or null
   void quarantine();  ///< joint rows at the current poses, inside the substep loop

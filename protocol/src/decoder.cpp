@@ -17,6 +17,7 @@
 #include "flatbuffers/flatbuffers.h"
 #include "phys/world/world.h"
 #include "phys/protocol/validate.h"
+#include "value_rules.h"
 
 namespace phys::protocol {
 
@@ -24,18 +25,15 @@ namespace {
 
 using flatbuffers::Vector;
 
+using detail::kMaxDampingRatio;
+using detail::kMaxHertz;
+using detail::num;
+using detail::ValueRules;
+
 /// Bounds with no Limits field of their own (documented in docs/PROTOCOL.md).
-constexpr float kMaxHertz = 1e6f;         ///< spring, contact and joint stiffness, Hz
-constexpr float kMaxDampingRatio = 1e6f;  ///< spring, contact and joint damping ratios
 constexpr int kMaxSolverIterations = 1000;
 constexpr int kMaxSubsteps = 64;
 constexpr uint32_t kMaxEventMessageBytes = 64u << 10;
-
-std::string num(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%g", v);
-  return buf;
-}
 
 std::string hexId(uint64_t v) {
   char buf[24];
@@ -77,7 +75,7 @@ static_assert(kRequestNames.size() == size_t(wire::Request::MAX) + 1,
 // check returns false after recording the first failure, so callers write `if (!x) return
 // false;` and the message names the field that failed.
 
-class Checker {
+class Checker : public ValueRules<Checker> {
  public:
   explicit Checker(const Limits& limits) : lim(limits) {}
 
@@ -116,72 +114,26 @@ class Checker {
     return fail(Code::InvalidArgument, field, what);
   }
 
-  // Numbers -----------------------------------------------------------------------------------
+  // Numbers (value_rules.h, shared with validate.cpp) --------------------------------------
 
-  bool finite(float v, std::string_view f) {
-    return std::isfinite(v) || invalid(f, "must be finite, got " + num(v));
-  }
-  /// lo <= v <= hi.
-  bool range(float v, float lo, float hi, std::string_view f) {
-    if (!finite(v, f)) return false;
-    if (v < lo || v > hi)
-      return invalid(f, "must be in [" + num(lo) + ", " + num(hi) + "], got " + num(v));
-    return true;
-  }
+  using ValueRules<Checker>::range;
   bool range(int64_t v, int64_t lo, int64_t hi, std::string_view f) {
     if (v < lo || v > hi)
       return invalid(f, "must be in [" + std::to_string(lo) + ", " + std::to_string(hi) +
                             "], got " + std::to_string(v));
     return true;
   }
-  /// 0 < v <= max.
-  bool positive(float v, float max, std::string_view f) {
-    if (!finite(v, f)) return false;
-    if (!(v > 0)) return invalid(f, "must be > 0, got " + num(v));
-    if (v > max) return invalid(f, "must be <= " + num(max) + ", got " + num(v));
-    return true;
-  }
-  /// 0 <= v <= max.
-  bool nonNegative(float v, float max, std::string_view f) {
-    if (!finite(v, f)) return false;
-    if (v < 0) return invalid(f, "must be >= 0, got " + num(v));
-    if (v > max) return invalid(f, "must be <= " + num(max) + ", got " + num(v));
-    return true;
-  }
-  /// A length of a shape: > 0, >= minSize, <= maxSize.
-  bool size(float v, std::string_view f) {
-    if (!positive(v, lim.maxSize, f)) return false;
-    if (v < lim.minSize) return invalid(f, "must be >= " + num(lim.minSize) + ", got " + num(v));
-    return true;
-  }
   /// Every component finite and within [-maxAbs, maxAbs].
   bool vec(const wire::Vec3& v, float maxAbs, std::string_view f) {
-    const float c[3] = {v.x(), v.y(), v.z()};
-    static constexpr const char* kAxis[3] = {".x", ".y", ".z"};
-    for (int i = 0; i < 3; ++i)
-      if (!range(c[i], -maxAbs, maxAbs, std::string(f) + kAxis[i])) return false;
-    return true;
+    return vec3(v.x(), v.y(), v.z(), maxAbs, f);
   }
   bool vec(const wire::Vec3* v, float maxAbs, std::string_view f) {
     return !v || vec(*v, maxAbs, f);
   }
   bool nonZeroDirection(const wire::Vec3& v, std::string_view f) {
-    if (!vec(v, lim.maxSize, f)) return false;
-    double l2 = double(v.x()) * v.x() + double(v.y()) * v.y() + double(v.z()) * v.z();
-    return l2 >= 1e-12 || invalid(f, "must be a non-zero direction");
+    return direction3(v.x(), v.y(), v.z(), f);
   }
-  bool quat(const wire::Quat& q, std::string_view f) {
-    const float c[4] = {q.x(), q.y(), q.z(), q.w()};
-    static constexpr const char* kComp[4] = {".x", ".y", ".z", ".w"};
-    for (int i = 0; i < 4; ++i)
-      if (!finite(c[i], std::string(f) + kComp[i])) return false;
-    double n = std::sqrt(double(c[0]) * c[0] + double(c[1]) * c[1] + double(c[2]) * c[2] +
-                         double(c[3]) * c[3]);
-    if (!(std::fabs(n - 1.0) < lim.quatTolerance))
-      return invalid(f, "must be a unit quaternion (| |q| - 1 | < " + num(lim.quatTolerance) +
-                            "), got |q| = " + num(n));
-    return true;
-  }
+  bool quat(const wire::Quat& q, std::string_view f) { return quat4(q.x(), q.y(), q.z(), q.w(), f); }
   bool pose(const wire::Pose* p, std::string_view f) {
     if (!p) return true;
     return vec(p->position(), lim.maxCoordinate, std::string(f) + ".position") &&

@@ -4,93 +4,47 @@
 #include <cmath>
 #include <cstdio>
 
+#include "value_rules.h"
+
 namespace phys::protocol {
 
 namespace {
 
-// The same bounds as the decoder's (decoder.cpp).
-constexpr float kMaxHertz = 1e6f;
-constexpr float kMaxDampingRatio = 1e6f;
+using detail::kMaxDampingRatio;
+using detail::kMaxHertz;
+using detail::num;
+using detail::ValueRules;
 
-std::string num(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%g", v);
-  return buf;
-}
-
-/// Check helpers in the decoder's words: each returns false after recording the first failure.
-struct V {
+/// Check helpers in the decoder's words (value_rules.h): each returns false after recording
+/// the first failure.
+struct V : ValueRules<V> {
+  V(const Limits& limits, std::string path) : lim(limits), base(std::move(path)) {}
   const Limits& lim;
   std::string base;
   Status status = Status::Ok();
 
-  bool fail(Code code, std::string_view field, const std::string& what) {
+  std::string path(std::string_view field) const {
     std::string p = base;
     if (!field.empty()) p += (p.empty() ? "" : ".") + std::string(field);
-    status = Status::Error(code, p + " " + what);
+    return p;
+  }
+  bool fail(Code code, std::string_view field, const std::string& what) {
+    status = Status::Error(code, path(field) + " " + what);
     return false;
   }
   bool invalid(std::string_view f, const std::string& what) {
     return fail(Code::InvalidArgument, f, what);
   }
-  bool finite(float v, std::string_view f) {
-    return std::isfinite(v) || invalid(f, "must be finite, got " + num(v));
-  }
-  bool range(float v, float lo, float hi, std::string_view f) {
-    if (!finite(v, f)) return false;
-    if (v < lo || v > hi)
-      return invalid(f, "must be in [" + num(lo) + ", " + num(hi) + "], got " + num(v));
-    return true;
-  }
-  bool positive(float v, float max, std::string_view f) {
-    if (!finite(v, f)) return false;
-    if (!(v > 0)) return invalid(f, "must be > 0, got " + num(v));
-    if (v > max) return invalid(f, "must be <= " + num(max) + ", got " + num(v));
-    return true;
-  }
-  bool nonNegative(float v, float max, std::string_view f) {
-    if (!finite(v, f)) return false;
-    if (v < 0) return invalid(f, "must be >= 0, got " + num(v));
-    if (v > max) return invalid(f, "must be <= " + num(max) + ", got " + num(v));
-    return true;
-  }
-  bool size(float v, std::string_view f) {
-    if (!positive(v, lim.maxSize, f)) return false;
-    if (v < lim.minSize) return invalid(f, "must be >= " + num(lim.minSize) + ", got " + num(v));
-    return true;
-  }
-  bool vec(Vec3 v, float maxAbs, std::string_view f) {
-    const float c[3] = {v.x, v.y, v.z};
-    static constexpr const char* kAxis[3] = {".x", ".y", ".z"};
-    for (int i = 0; i < 3; ++i)
-      if (!range(c[i], -maxAbs, maxAbs, std::string(f) + kAxis[i])) return false;
-    return true;
-  }
-  bool direction(Vec3 v, std::string_view f) {
-    if (!vec(v, lim.maxSize, f)) return false;
-    double l2 = double(v.x) * v.x + double(v.y) * v.y + double(v.z) * v.z;
-    return l2 >= 1e-12 || invalid(f, "must be a non-zero direction");
-  }
-  bool quat(Quat q, std::string_view f) {
-    const float c[4] = {q.x, q.y, q.z, q.w};
-    static constexpr const char* kComp[4] = {".x", ".y", ".z", ".w"};
-    for (int i = 0; i < 4; ++i)
-      if (!finite(c[i], std::string(f) + kComp[i])) return false;
-    double n = std::sqrt(double(c[0]) * c[0] + double(c[1]) * c[1] + double(c[2]) * c[2] +
-                         double(c[3]) * c[3]);
-    if (!(std::fabs(n - 1.0) < lim.quatTolerance))
-      return invalid(f, "must be a unit quaternion (| |q| - 1 | < " + num(lim.quatTolerance) +
-                            "), got |q| = " + num(n));
-    return true;
-  }
+  bool vec(Vec3 v, float maxAbs, std::string_view f) { return vec3(v.x, v.y, v.z, maxAbs, f); }
+  bool direction(Vec3 v, std::string_view f) { return direction3(v.x, v.y, v.z, f); }
+  bool quat(Quat q, std::string_view f) { return quat4(q.x, q.y, q.z, q.w, f); }
   bool pose(Vec3 p, Quat q, std::string_view f) {
     return vec(p, lim.maxCoordinate, std::string(f) + ".position") &&
            quat(q, std::string(f) + ".rotation");
   }
   bool name(std::string_view s, std::string_view f) {
-    Status st = checkName(s, lim.maxNameBytes, "");
-    if (st.ok()) return true;
-    return fail(st.code, f, st.message.substr(st.message.empty() || st.message[0] != ' ' ? 0 : 1));
+    status = checkName(s, lim.maxNameBytes, path(f));
+    return status.ok();
   }
   bool material(const Material& m, std::string_view f) {
     std::string p(f);

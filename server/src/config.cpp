@@ -79,6 +79,21 @@ Status getBackend(const toml::table& t, const std::string& where, std::string* t
     if (!s_.ok()) return s_;             \
   } while (0)
 
+/// A size given in MiB at where.key, if the key is there, as bytes.
+Status getMiB(const toml::table& t, const char* key, const std::string& where, uint64_t* bytes) {
+  if (!t.get(key)) return Status::Ok();
+  uint64_t mb = 0;
+  Status s = get(t, key, where, &mb);
+  if (s.ok()) *bytes = mb << 20;
+  return s;
+}
+
+#define PHYS_GET_MIB(t, key, where, out)    \
+  do {                                      \
+    Status s_ = getMiB(t, key, where, out); \
+    if (!s_.ok()) return s_;                \
+  } while (0)
+
 }  // namespace
 
 Status parseDaemonConfig(const std::string& text, const std::string& baseDir, DaemonConfig* out) {
@@ -126,23 +141,10 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     PHYS_GET(*t, "max_queued_per_client", "server", &c.core.maxQueuedPerClient);
     PHYS_GET(*t, "max_contact_pairs", "server", &c.core.maxContactPairs);
     PHYS_GET(*t, "max_concurrent_loads", "server", &c.core.maxConcurrentLoads);
-    uint64_t mb = 0;
-    if (t->get("memory_budget_mb")) {
-      PHYS_GET(*t, "memory_budget_mb", "server", &mb);
-      c.core.memoryBudgetBytes = mb << 20;
-    }
-    if (t->get("max_snapshot_mb")) {
-      PHYS_GET(*t, "max_snapshot_mb", "server", &mb);
-      c.core.maxSnapshotBytes = mb << 20;
-    }
-    if (t->get("max_queued_mb")) {
-      PHYS_GET(*t, "max_queued_mb", "server", &mb);
-      c.core.maxQueuedBytes = mb << 20;
-    }
-    if (t->get("max_queued_mb_per_client")) {
-      PHYS_GET(*t, "max_queued_mb_per_client", "server", &mb);
-      c.core.maxQueuedBytesPerClient = mb << 20;
-    }
+    PHYS_GET_MIB(*t, "memory_budget_mb", "server", &c.core.memoryBudgetBytes);
+    PHYS_GET_MIB(*t, "max_snapshot_mb", "server", &c.core.maxSnapshotBytes);
+    PHYS_GET_MIB(*t, "max_queued_mb", "server", &c.core.maxQueuedBytes);
+    PHYS_GET_MIB(*t, "max_queued_mb_per_client", "server", &c.core.maxQueuedBytesPerClient);
     double sliceMs = c.core.stepSliceSeconds * 1000;
     PHYS_GET(*t, "step_slice_ms", "server", &sliceMs);
     if (!(sliceMs >= 1 && sliceMs <= 1000))

@@ -424,27 +424,24 @@ uint64_t defaultMemoryBudget() {
 
 Status ServerCore::checkGrowth(const ServerWorld* w, uint64_t bodies, uint64_t joints,
                                const std::string& what, uint64_t replaced) const {
+  // A count past its limit, in one sentence for every count.
+  auto over = [&](uint64_t would, uint64_t limit, const char* things, const char* key) {
+    return Status::Error(Code::ResourceExhausted, what + " would make " + std::to_string(would) +
+                                                      " " + things + ", the limit is " +
+                                                      std::to_string(limit) + " (" + key + ")");
+  };
   const uint64_t worldBodies = w ? uint64_t(w->world->bodyCount()) : 0;
   const uint64_t worldJoints = w ? uint64_t(w->world->jointCount()) : 0;
   if (worldBodies + bodies > config_.maxBodiesPerWorld)
-    return Status::Error(Code::ResourceExhausted,
-                         what + " would make " + std::to_string(worldBodies + bodies) +
-                             " bodies in the world, the limit is " +
-                             std::to_string(config_.maxBodiesPerWorld) +
-                             " (server.max_bodies_per_world)");
+    return over(worldBodies + bodies, config_.maxBodiesPerWorld, "bodies in the world",
+                "server.max_bodies_per_world");
   if (worldJoints + joints > config_.maxJointsPerWorld)
-    return Status::Error(Code::ResourceExhausted,
-                         what + " would make " + std::to_string(worldJoints + joints) +
-                             " joints in the world, the limit is " +
-                             std::to_string(config_.maxJointsPerWorld) +
-                             " (server.max_joints_per_world)");
+    return over(worldJoints + joints, config_.maxJointsPerWorld, "joints in the world",
+                "server.max_joints_per_world");
   const uint64_t all = totalBodies(), total = all - std::min(all, replaced);
   if (total + bodies > config_.maxBodiesTotal)
-    return Status::Error(Code::ResourceExhausted,
-                         what + " would make " + std::to_string(total + bodies) +
-                             " bodies in this server, the limit is " +
-                             std::to_string(config_.maxBodiesTotal) +
-                             " (server.max_bodies_total)");
+    return over(total + bodies, config_.maxBodiesTotal, "bodies in this server",
+                "server.max_bodies_total");
   const uint64_t budget =
       config_.memoryBudgetBytes ? config_.memoryBudgetBytes : defaultMemoryBudget();
   const uint64_t rss = residentBytes();

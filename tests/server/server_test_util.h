@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <filesystem>
+#include <fstream>
 #include <string>
 #include <vector>
 
@@ -58,6 +59,25 @@ inline std::vector<uint64_t> jointIds(const Reply& r) {
     if (ids->joints())
       for (uint64_t id : *ids->joints()) v.push_back(id);
   return v;
+}
+
+/// A size field of /proc/<pid>/status ("VmRSS", "VmHWM"), bytes; -1 when absent. pid 0: this
+/// process.
+inline int64_t procStatusBytes(pid_t pid, const char* field) {
+  std::ifstream f("/proc/" + (pid ? std::to_string(pid) : std::string("self")) + "/status");
+  std::string line;
+  const std::string key = std::string(field) + ":";
+  while (std::getline(f, line))
+    if (line.rfind(key, 0) == 0) return std::stoll(line.substr(key.size())) * 1024;
+  return -1;
+}
+/// Resets the process's peak resident size (VmHWM); false where the kernel does not let us
+/// (then peaks are not checked). pid 0: this process.
+inline bool resetPeakMemory(pid_t pid) {
+  std::ofstream f("/proc/" + (pid ? std::to_string(pid) : std::string("self")) + "/clear_refs");
+  f << "5";
+  f.flush();
+  return bool(f);
 }
 
 }  // namespace phys::server::test

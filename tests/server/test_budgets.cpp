@@ -27,29 +27,6 @@ double secondsSince(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-/// Peak resident memory since the last resetPeak(), bytes; -1 where the kernel does not let
-/// this process reset its peak (then memory bounds are not checked).
-bool resetPeak() {
-  std::ofstream f("/proc/self/clear_refs");
-  f << "5";
-  f.flush();
-  return bool(f);
-}
-int64_t peakBytes() {
-  std::ifstream f("/proc/self/status");
-  std::string line;
-  while (std::getline(f, line))
-    if (line.rfind("VmHWM:", 0) == 0) return std::stoll(line.substr(6)) * 1024;
-  return -1;
-}
-int64_t residentBytes() {
-  std::ifstream f("/proc/self/status");
-  std::string line;
-  while (std::getline(f, line))
-    if (line.rfind("VmRSS:", 0) == 0) return std::stoll(line.substr(6)) * 1024;
-  return -1;
-}
-
 class BudgetTest : public ::testing::Test {
  protected:
   void SetUp() override { makeCore(testConfig()); }
@@ -76,8 +53,8 @@ class BudgetTest : public ::testing::Test {
   void expectRefused(const protocol::Bytes& bytes, Code code, const std::string& needle) {
     const uint64_t hash = core->world(world)->world->stateHash();
     const int bodies = core->world(world)->world->bodyCount();
-    const bool peak = resetPeak();
-    const int64_t before = residentBytes();
+    const bool peak = resetPeakMemory(0);
+    const int64_t before = procStatusBytes(0, "VmRSS");
     const auto t0 = Clock::now();
     Reply r = send(bytes);
     const double s = secondsSince(t0);
@@ -87,7 +64,7 @@ class BudgetTest : public ::testing::Test {
     EXPECT_LT(message(r).size(), 2048u) << "an error message stays short";
     EXPECT_LT(s, 1.0) << message(r);
     if (peak && before > 0) {
-      EXPECT_LT(peakBytes() - before, 100ll << 20) << message(r);
+      EXPECT_LT(procStatusBytes(0, "VmHWM") - before, 100ll << 20) << message(r);
     }
     EXPECT_EQ(core->world(world)->world->stateHash(), hash);
     EXPECT_EQ(core->world(world)->world->bodyCount(), bodies);

@@ -37,21 +37,6 @@ double msSince(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
-int64_t statusField(pid_t pid, const char* field) {
-  std::ifstream f("/proc/" + std::to_string(pid) + "/status");
-  std::string line;
-  const std::string key = std::string(field) + ":";
-  while (std::getline(f, line))
-    if (line.rfind(key, 0) == 0) return std::stoll(line.substr(key.size())) * 1024;
-  return -1;
-}
-bool resetPeak(pid_t pid) {
-  std::ofstream f("/proc/" + std::to_string(pid) + "/clear_refs");
-  f << "5";
-  f.flush();
-  return bool(f);
-}
-
 /// physd as a child process with a raw DDS client (any bytes can be sent).
 class Daemon {
  public:
@@ -245,11 +230,11 @@ TEST(PhysdAttacks, EachIsAnsweredQuicklyWhileOthersAreServed) {
     std::fflush(stdout);
   };
   for (const Row& row : rows) {
-    const bool peak = resetPeak(d.pid());
-    const int64_t before = statusField(d.pid(), "VmRSS");
+    const bool peak = resetPeakMemory(d.pid());
+    const int64_t before = procStatusBytes(d.pid(), "VmRSS");
     const uint64_t seq = d.nextSeqA();
     Daemon::Result r = d.attack(row.bytes(seq), seq);
-    const int64_t grew = peak ? statusField(d.pid(), "VmHWM") - before : -1;
+    const int64_t grew = peak ? procStatusBytes(d.pid(), "VmHWM") - before : -1;
     report(row.what, r, grew);
     ASSERT_TRUE(r.reply) << row.what << ": no reply";
     EXPECT_EQ((*r.reply)->status(), row.expected) << row.what << ": " << message(*r.reply);
@@ -270,12 +255,12 @@ TEST(PhysdAttacks, EachIsAnsweredQuicklyWhileOthersAreServed) {
                     seq);
     ASSERT_TRUE(r);
     ASSERT_EQ((*r)->status(), Code::Ok) << message(*r);
-    resetPeak(d.pid());
-    const int64_t before = statusField(d.pid(), "VmRSS");
+    resetPeakMemory(d.pid());
+    const int64_t before = procStatusBytes(d.pid(), "VmRSS");
     seq = d.nextSeqA();
     Daemon::Result s =
         d.attack(CommandBuilder().step(100000).finish({Daemon::kA, seq, target}), seq);
-    report("Step 100,000 on 20,000 bodies", s, statusField(d.pid(), "VmHWM") - before);
+    report("Step 100,000 on 20,000 bodies", s, procStatusBytes(d.pid(), "VmHWM") - before);
     ASSERT_TRUE(s.reply);
     EXPECT_EQ((*s.reply)->status(), Code::ResourceExhausted) << message(*s.reply);
     EXPECT_LT(s.ms, 1000);
@@ -286,21 +271,21 @@ TEST(PhysdAttacks, EachIsAnsweredQuicklyWhileOthersAreServed) {
     auto r = d.call(Daemon::kA, CommandBuilder().resetWorld().finish({Daemon::kA, seq, target}),
                     seq);
     ASSERT_TRUE(r);
-    resetPeak(d.pid());
-    int64_t before = statusField(d.pid(), "VmRSS");
+    resetPeakMemory(d.pid());
+    int64_t before = procStatusBytes(d.pid(), "VmRSS");
     seq = d.nextSeqA();
     Daemon::Result s = d.attack(CommandBuilder()
                                     .spawnBodies(attacks::coincidentBoxes(20000))
                                     .finish({Daemon::kA, seq, target}),
                                 seq);
-    report("SpawnBodies: 20,000 coincident boxes", s, statusField(d.pid(), "VmHWM") - before);
+    report("SpawnBodies: 20,000 coincident boxes", s, procStatusBytes(d.pid(), "VmHWM") - before);
     ASSERT_TRUE(s.reply);
     EXPECT_EQ((*s.reply)->status(), Code::Ok) << message(*s.reply);
-    resetPeak(d.pid());
-    before = statusField(d.pid(), "VmRSS");
+    resetPeakMemory(d.pid());
+    before = procStatusBytes(d.pid(), "VmRSS");
     seq = d.nextSeqA();
     s = d.attack(CommandBuilder().step(1).finish({Daemon::kA, seq, target}), seq);
-    const int64_t grew = statusField(d.pid(), "VmHWM") - before;
+    const int64_t grew = procStatusBytes(d.pid(), "VmHWM") - before;
     report("  then Step 1", s, grew);
     ASSERT_TRUE(s.reply) << "physd did not answer (or died)";
     // Past the contact budget: the step is not taken, the world pauses.
