@@ -18,6 +18,9 @@
 //     JOIN   /  in its order (the next id handed out is its back)
 //     CONT   the persistent contacts, sorted by shape pair, with manifolds and impulses
 //     BRPH   the broad phase's fat box of every live shape, in shape index order
+//     ISLE   the sleeping islands: capacity (u32), per slot its body slots (u32s), the
+//            substep length of its impulses, its potential energy and its touching contacts
+//            (as CONT), then the free list; bodies name their island (BODY)
 // Variable-length parts are a u32 count then the elements; a count is rejected when the bytes
 // left could not hold that many elements, so a corrupted count never makes a restore allocate
 // more than a small multiple of the snapshot's size.
@@ -56,9 +59,9 @@ static_assert(std::numeric_limits<float>::is_iec559 && std::numeric_limits<doubl
 static_assert(sizeof(SolverSettings) == 84, "SolverSettings changed: update snapshot.cpp");
 // WorldDef's backend and gpuAllowCpuDevice are not saved: where a world runs is the
 // restoring process's choice.
-static_assert(sizeof(WorldDef) == 144, "WorldDef changed: update snapshot.cpp");
-static_assert(sizeof(StepStats) == 184, "StepStats changed: update snapshot.cpp");
-static_assert(sizeof(BodyRec) == 336, "BodyRec changed: update snapshot.cpp");
+static_assert(sizeof(WorldDef) == 160, "WorldDef changed: update snapshot.cpp");
+static_assert(sizeof(StepStats) == 200, "StepStats changed: update snapshot.cpp");
+static_assert(sizeof(BodyRec) == 352, "BodyRec changed: update snapshot.cpp");
 static_assert(sizeof(ShapeGeom) == 56, "ShapeGeom changed: update snapshot.cpp");
 static_assert(sizeof(ShapeRec) == 112, "ShapeRec changed: update snapshot.cpp");
 static_assert(sizeof(JointDef) == 144, "JointDef changed: update snapshot.cpp");
@@ -70,7 +73,7 @@ static_assert(sizeof(ConvexHull) == 112, "ConvexHull changed: update snapshot.cp
 constexpr char kMagic[8] = {'P', 'H', 'Y', 'S', 'N', 'A', 'P', '\0'};
 // 2: SolverSettings::patchFriction; 3: stackStiffening; 4: WorldDef::maxContactPairs and
 // pairOverflow, and the pair bound's, failed and refused steps' StepStats.
-constexpr uint32_t kVersion = 4;
+constexpr uint32_t kVersion = 5;
 constexpr size_t kHeaderSize = 8 + 4 + 8 + 8;
 constexpr int kMaxGuardRetries = 1000;
 
@@ -476,6 +479,10 @@ void ioWorldDef(Ar& ar, D& d) {
   ar.flag(d.guard);
   ar.f32(d.guardEnergyJump);
   ar.i32(d.guardRetries);
+  ar.flag(d.sleep.enabled);
+  ar.f32(d.sleep.time);
+  ar.f32(d.sleep.linearSpeed);
+  ar.f32(d.sleep.angularSpeed);
 }
 
 template <class Ar, class D>
@@ -506,6 +513,9 @@ void ioStats(Ar& ar, D& s) {
   ar.u64(s.pairLimitSteps);
   ar.u64(s.stepFailures);
   ar.u64(s.stepsRefused);
+  ar.i32(s.sleepingBodies);
+  ar.i32(s.awakeIslands);
+  ar.i32(s.sleepingIslands);
 }
 
 template <class Ar, class D>
@@ -535,6 +545,9 @@ void ioBody(Ar& ar, D& b) {
   ar.ids(b.joints);
   ar.str(b.name);
   ar.i32(b.solverIndex);
+  ar.flag(b.allowSleep);
+  ar.f32(b.sleepTime);
+  ar.i32(b.island);
 }
 
 template <class Ar, class D>
@@ -747,6 +760,8 @@ struct Parsed {
   Pool<JointRec, JointTag> joints;
   std::vector<Contact> contacts;
   BroadPhase broadPhase;
+  std::vector<SleepingIsland> islands;
+  std::vector<uint32_t> freeIslands;
 };
 
 void readWorldDef(Reader& r, Parsed* st) {
@@ -890,18 +905,17 @@ bool contactShapeOk(const Pool<ShapeRec, ShapeTag>& shapes, uint32_t slot, Shape
   return id.generation < g;
 }
 
-void readContacts(Reader& r, Parsed* st) {
-  r.where("contact list");
+void readContactList(Reader& r, Parsed* st, std::vector<Contact>* list) {
   const uint32_t n = r.count(196, "contact");
-  st->contacts.resize(n);
+  list->resize(n);
   for (uint32_t i = 0; i < n && r.ok(); ++i) {
     r.where("contact", i);
-    Contact& c = st->contacts[i];
+    Contact& c = (*list)[i];
     ioContact(r, c);
     if (!r.ok()) return;
     if (!(c.shapeA < c.shapeB)) return r.fail("shape slots are not in order");
     if (i > 0) {
-      const Contact& p = st->contacts[i - 1];
+      const Contact& p = (*list)[i - 1];
       if (!(p.shapeA < c.shapeA || (p.shapeA == c.shapeA && p.shapeB < c.shapeB)))
         return r.fail("contacts are not sorted by shape pair");
     }
@@ -910,6 +924,65 @@ void readContacts(Reader& r, Parsed* st) {
       return r.fail("refers to a shape that never existed or to another body's");
     if (c.manifold.count < 0 || c.manifold.count > Manifold::kMaxPoints)
       return r.fail("manifold point count out of range");
+  }
+}
+
+void readContacts(Reader& r, Parsed* st) {
+  r.where("contact list");
+  readContactList(r, st, &st->contacts);
+}
+
+void readIslands(Reader& r, Parsed* st) {
+  r.where("sleeping islands");
+  const uint32_t n = r.count(4 + 4 + 8 + 4, "island");
+  st->islands.resize(n);
+  // Every sleeping body in exactly the island it names, and every island's body asleep in it.
+  std::vector<uint8_t> listed(st->bodies.capacity(), 0);
+  for (uint32_t k = 0; k < n && r.ok(); ++k) {
+    r.where("island", k);
+    SleepingIsland& is = st->islands[k];
+    r.u32s(is.bodies);
+    r.f32(is.substepTime);
+    r.f64(is.potential);
+    if (!r.ok()) return;
+    if (!(is.substepTime >= 0 && is.substepTime <= 1))
+      return r.fail("the substep length is not in [0, 1] s");
+    for (size_t i = 0; i < is.bodies.size(); ++i) {
+      const uint32_t slot = is.bodies[i];
+      if (slot >= st->bodies.capacity() || !st->bodies.alive(slot) || listed[slot] ||
+          (i > 0 && !(is.bodies[i - 1] < slot)))
+        return r.fail("lists body slot " + std::to_string(slot) +
+                      ", which is gone, listed twice or out of order");
+      const BodyRec& b = st->bodies.at(slot);
+      if (b.island != int32_t(k) || b.type != BodyType::Dynamic)
+        return r.fail("lists body slot " + std::to_string(slot) +
+                      ", which is not a dynamic body asleep in it");
+      listed[slot] = 1;
+    }
+    readContactList(r, st, &is.contacts);
+  }
+  if (!r.ok()) return;
+  r.where("sleeping islands");
+  r.u32s(st->freeIslands);
+  if (!r.ok()) return;
+  std::vector<uint8_t> isFree(n, 0);
+  for (uint32_t k : st->freeIslands) {
+    if (k >= n || isFree[k] || !st->islands[k].bodies.empty())
+      return r.fail("the free list names island " + std::to_string(k) +
+                    ", which is out of range, listed twice or holds bodies");
+    isFree[k] = 1;
+  }
+  for (uint32_t i = 0; i < st->bodies.capacity(); ++i) {
+    if (!st->bodies.alive(i)) continue;
+    const BodyRec& b = st->bodies.at(i);
+    if (b.island < -1 || (b.island >= 0 && !listed[i])) {
+      r.where("body slot", i);
+      return r.fail("names sleeping island " + std::to_string(b.island) + ", which does not list it");
+    }
+    if (!(b.sleepTime >= 0)) {
+      r.where("body slot", i);
+      return r.fail("negative rest time");
+    }
   }
 }
 
@@ -932,7 +1005,8 @@ void readBroadPhase(Reader& r, Parsed* st) {
     if (!(fat.lo.x <= fat.hi.x && fat.lo.y <= fat.hi.y && fat.lo.z <= fat.hi.z))
       return r.fail("fat box is inverted");
     ShapeRec& s = st->shapes.at(slot);
-    const bool isStatic = st->bodies.get(s.body)->type == BodyType::Static;
+    const BodyRec& b = *st->bodies.get(s.body);
+    const bool isStatic = b.type == BodyType::Static || b.asleep();  // proxyStatic
     s.proxy = st->broadPhase.createProxyWithFatBox(fat, slot, isStatic);
     ++next;
   }
@@ -1007,6 +1081,21 @@ Status World::saveSnapshot(std::vector<uint8_t>* out) const {
   }
   w.endSection(at);
 
+  at = w.beginSection("ISLE");
+  w.where("sleeping islands");
+  w.u32(uint32_t(m.islands.size()));
+  for (size_t k = 0; k < m.islands.size(); ++k) {
+    w.where("island", int64_t(k));
+    const SleepingIsland& is = m.islands[k];
+    w.u32s(is.bodies);
+    w.f32(is.substepTime);
+    w.f64(is.potential);
+    w.u32(uint32_t(is.contacts.size()));
+    for (const Contact& c : is.contacts) ioContact(w, c);
+  }
+  w.u32s(m.freeIslands);
+  w.endSection(at);
+
   const std::string& error = !w.error().empty() ? w.error() : ws.error();
   if (!error.empty()) {
     out->clear();
@@ -1067,6 +1156,7 @@ Status World::restoreSnapshot(const uint8_t* data, size_t size) {
   run("JOIN", readJoints);
   run("CONT", readContacts);
   run("BRPH", readBroadPhase);
+  run("ISLE", readIslands);
   if (r.ok() && r.remaining() != 0) {
     r.where("payload");
     r.fail(std::to_string(r.remaining()) + " bytes after the last section");
@@ -1088,10 +1178,13 @@ Status World::restoreSnapshot(const uint8_t* data, size_t size) {
   w.pairs.clear();
   w.contacts = std::move(st->contacts);
   w.contactScratch.clear();
+  w.islands = std::move(st->islands);
+  w.freeIslands = std::move(st->freeIslands);
   w.rebuildNoCollide();
   w.snapshot = {};  // the guard's rollback copy: taken again at the next step's start
   w.stats = st->stats;
   w.time = st->time;
+  w.rebuildAwake();
   w.deviceStale();
   return Status::Ok();
 }

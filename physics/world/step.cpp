@@ -72,6 +72,15 @@ void World::step() {
       if (!fault.empty()) w.quarantine();
     }
     if (w.stats.pairsDropped > 0) w.stats.pairLimitSteps++;
+    // Islands and sleeping, once the step is accepted (islands.cpp): rest timers, and the
+    // islands that rested long enough fall asleep. Part of the step's time.
+    if (w.lastStepOnCpu) {
+      const double t0 = nowMs();
+      w.updateSleep(w.def.timeStep);
+      const double ms = nowMs() - t0;
+      w.profile.buildIslands += ms;
+      w.profile.total += ms;
+    }
   } catch (const PairLimitReached&) {  // PairOverflow::Refuse
     w.stepRefused();
   } catch (const std::exception& e) {  // std::bad_alloc, std::length_error: all the step throws
@@ -94,6 +103,7 @@ void World::stepOnce(int substeps) {
     StageTimer t(&p.applyCommands);
     w.applyCommands();
   }
+  w.lastStepOnCpu = false;
   // The GPU backend takes the whole step when it covers everything the step needs
   // (world_gpu.cpp); otherwise the CPU stages below take it from the same host mirror.
   if (w.device) w.rescaleWarmStarts(dt / float(substeps));  // joints' go up when stale
@@ -122,6 +132,11 @@ void World::stepOnce(int substeps) {
   {
     StageTimer t(&p.narrowPhase);
     w.narrowPhase(dt);
+  }
+  {
+    // Sleeping islands that an awake body now touches join this step (islands.cpp).
+    StageTimer t(&p.buildIslands);
+    w.wakeTouched();
   }
   {
     // Islands and colors are not needed by the serial solver; the stacks' depth is.
@@ -214,6 +229,7 @@ void World::stepOnce(int substeps) {
     w.finalize(h);
   }
   w.backend.cpuSteps++;
+  w.lastStepOnCpu = true;
   w.deviceStale();  // the CPU moved the bodies: the device's copy is old
 
   w.time += dt;
@@ -265,8 +281,7 @@ void World::Impl::storeImpulses() {
     else
       std::memcpy(c.tangentImpulse, sm.tangentImpulse, sizeof(float) * 2 * size_t(sm.count));
   }
-  for (uint32_t i = 0; i < joints.capacity(); ++i) {
-    if (!joints.alive(i)) continue;
+  for (uint32_t i : stepJoints) {
     JointRec& j = joints.at(i);
     j.impulseCount = std::min(j.rowCount, int32_t(JointRec::kMaxRows));
     for (int32_t k = 0; k < j.impulseCount; ++k)
@@ -275,17 +290,17 @@ void World::Impl::storeImpulses() {
 }
 
 void World::Impl::takeSnapshot() {
+  // The awake bodies and their contacts and joints: a sleeping island does not change in a
+  // step (one woken inside it is added by wakeIsland).
   snapshot.bodies.clear();
-  for (uint32_t i = 0; i < bodies.capacity(); ++i) {
-    if (!bodies.alive(i)) continue;
+  for (uint32_t i : awakeBodies) {
     const BodyRec& b = bodies.at(i);
-    if (b.type == BodyType::Static) continue;
     snapshot.bodies.push_back({i, b.xf, b.com, b.v, b.w, b.force, b.torque});
   }
   snapshot.contacts = contacts;
   snapshot.jointImpulses.clear();
-  for (uint32_t i = 0; i < joints.capacity(); ++i) {
-    if (!joints.alive(i)) continue;
+  collectStepJoints();
+  for (uint32_t i : stepJoints) {
     const JointRec& j = joints.at(i);
     Snapshot::JointImpulses ji{i, j.impulseCount, {}};
     std::copy(j.impulses, j.impulses + JointRec::kMaxRows, ji.impulses);
@@ -393,7 +408,7 @@ void World::Impl::rebuildBroadPhase() {
     if (!shapes.alive(i) || shapes.at(i).proxy < 0) continue;
     const ShapeRec& s = shapes.at(i);
     proxyOf[i] = fresh.createProxyWithFatBox(broadPhase.fatAABB(s.proxy), i,
-                                             bodies.get(s.body)->type == BodyType::Static);
+                                             proxyStatic(*bodies.get(s.body)));
   }
   broadPhase = std::move(fresh);
   for (uint32_t i = 0; i < shapes.capacity(); ++i)
@@ -475,11 +490,10 @@ void World::Impl::applyCommands() {
 void World::Impl::updateBounds(float dt) {
   // Tight boxes are swept by this step's motion and padded by half the speculative distance,
   // so every pair that can touch during the step is found.
-  for (uint32_t i = 0; i < shapes.capacity(); ++i) {
-    if (!shapes.alive(i)) continue;
-    ShapeRec& s = shapes.at(i);
-    const BodyRec& b = *bodies.get(s.body);
-    if (b.type == BodyType::Static) continue;
+  for (uint32_t slot : awakeBodies) {
+    const BodyRec& b = bodies.at(slot);
+    for (ShapeId sid : b.shapes) {
+    ShapeRec& s = *shapes.get(sid);
     AABB box = computeAABB(s.def.geom, shapeTransform(b, s));
     Vec3 sweep = b.v * dt;
     box.lo += vmin(sweep, {});
@@ -487,6 +501,7 @@ void World::Impl::updateBounds(float dt) {
     float pad = 0.5f * def.speculativeDistance + length(b.w) * dt * s.boundRadius;
     box = inflate(box, pad);
     broadPhase.moveProxy(s.proxy, box, def.aabbMargin);
+    }
   }
 }
 
@@ -728,6 +743,7 @@ void World::Impl::addGeometricStiffness(float h) {
   // swing (tension 3e4 N), has omega of about 340 rad/s. Adding h^2 k to the inertia (the
   // implicit-Euler term, from last step's joint forces) makes the link's rotation stable at
   // any substep; a light body under a large load turns a little more slowly.
+  if (stepJoints.empty()) return;
   const std::vector<float> bySlot = jointStiffness();
   std::vector<float> k(solver.bodies.size(), 0.0f);
   for (uint32_t slot = 0; slot < bySlot.size(); ++slot)
@@ -757,13 +773,9 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   solver.bodies.push_back(SolverBody{});
   solverCom.assign(1, Vec3{});
   int awake = 0;
-  for (uint32_t i = 0; i < bodies.capacity(); ++i) {
-    if (!bodies.alive(i)) continue;
+  // The awake bodies (static and sleeping ones are solver body 0, the world).
+  for (uint32_t i : awakeBodies) {
     BodyRec& b = bodies.at(i);
-    if (b.type == BodyType::Static) {
-      b.solverIndex = 0;
-      continue;
-    }
     b.solverIndex = int32_t(solver.bodies.size());
     SolverBody sb;
     sb.v = b.v;
@@ -794,12 +806,12 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   }
   stats.bodies = int(bodies.size());
   stats.awake = awake;
+  collectStepJoints();
   if (s.geometricStiffness) addGeometricStiffness(h);
 
   // Joints first: the solver meets them before contacts in every iteration.
   int jointsBuilt = 0;
-  for (uint32_t i = 0; i < joints.capacity(); ++i) {
-    if (!joints.alive(i)) continue;
+  for (uint32_t i : stepJoints) {
     JointRec& j = joints.at(i);
     const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
     const BodyRec& B = *bodies.get(j.def.bodyB);
@@ -865,8 +877,13 @@ bool World::Impl::orderContacts(const SolverSettings& s, uint32_t halfEnd[2]) {
   // threads; the same order with any thread count, and in the rows as in the wide blocks.
   contactOrder.clear();
   for (uint32_t ci = 0; ci < contacts.size(); ++ci) {
-    contacts[ci].firstRow = -1;
-    if (contacts[ci].manifold.count > 0) contactOrder.push_back(ci);
+    Contact& c = contacts[ci];
+    c.firstRow = -1;
+    // Not between a sleeping body and a resting kinematic one (wakeTouched woke the others).
+    if (c.manifold.count > 0 &&
+        (sleepingBodyCount == 0 ||
+         (!bodies.at(c.bodyA.index).asleep() && !bodies.at(c.bodyB.index).asleep())))
+      contactOrder.push_back(ci);
   }
   const bool halves =
       s.scheme == SolverSettings::Scheme::GaussSeidel && contactOrder.size() >= kHalvesMinManifolds;
@@ -900,8 +917,7 @@ bool World::Impl::orderContacts(const SolverSettings& s, uint32_t halfEnd[2]) {
 }
 
 void World::Impl::refreshJoints(float h) {
-  for (uint32_t i = 0; i < joints.capacity(); ++i) {
-    if (!joints.alive(i)) continue;
+  for (uint32_t i : stepJoints) {
     JointRec& j = joints.at(i);
     const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
     const BodyRec& B = *bodies.get(j.def.bodyB);
@@ -917,11 +933,9 @@ void World::Impl::refreshJoints(float h) {
 }
 
 void World::Impl::finalize(float hSub) {
-  for (uint32_t i = 0; i < bodies.capacity(); ++i) {
-    if (!bodies.alive(i)) continue;
+  for (uint32_t i : awakeBodies) {
     BodyRec& b = bodies.at(i);
     b.force = b.torque = {};
-    if (b.type == BodyType::Static) continue;
     const SolverBody& sb = solver.bodies[size_t(b.solverIndex)];
     b.v = sb.v;
     b.w = sb.w;
@@ -930,8 +944,7 @@ void World::Impl::finalize(float hSub) {
     b.xf.p = b.com - rotate(b.xf.q, b.localCenter);
   }
   // Joint reactions (the rows' impulses per substep as forces on B) and errors at the new poses.
-  for (uint32_t i = 0; i < joints.capacity(); ++i) {
-    if (!joints.alive(i)) continue;
+  for (uint32_t i : stepJoints) {
     JointRec& j = joints.at(i);
     Vec3 f, tq;
     for (int32_t r = j.firstRow; r < j.firstRow + j.rowCount; ++r) {
@@ -947,8 +960,7 @@ void World::Impl::finalize(float hSub) {
 }
 
 void World::Impl::measureJoints() {
-  for (uint32_t i = 0; i < joints.capacity(); ++i) {
-    if (!joints.alive(i)) continue;
+  for (uint32_t i : stepJoints) {
     JointRec& j = joints.at(i);
     const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
     BodyPose pa = A ? poseOf(*A) : BodyPose{}, pb = poseOf(*bodies.get(j.def.bodyB));

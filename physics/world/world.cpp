@@ -185,14 +185,20 @@ const WorldDef& World::def() const {
 
 Status World::setGravity(Vec3 g) {
   if (!isFinite(g)) return invalid("gravity must be finite");
-  if (!(g == impl_->def.gravity)) impl_->forgetStacks();
+  if (!(g == impl_->def.gravity)) {
+    impl_->forgetStacks();
+    impl_->wakeAll();
+  }
   impl_->def.gravity = g;
   impl_->deviceStale();
   return Status::Ok();
 }
 Status World::setTimeStep(float dt) {
   if (!(finite(dt) && dt > 0 && dt <= 1)) return invalid("time step must be in (0, 1] s");
-  if (dt != impl_->def.timeStep) impl_->forgetStacks();
+  if (dt != impl_->def.timeStep) {
+    impl_->forgetStacks();
+    impl_->wakeAll();
+  }
   impl_->def.timeStep = dt;
   return Status::Ok();
 }
@@ -203,6 +209,7 @@ Status World::setSolverSettings(const SolverSettings& s) {
   if (s.stackStiffening != old.stackStiffening || s.contactHertz != old.contactHertz ||
       s.substeps != old.substeps)
     impl_->forgetStacks();
+  if (std::memcmp(&s, &old, sizeof s) != 0) impl_->wakeAll();
   impl_->def.solver = s;
   return st;
 }
@@ -348,6 +355,8 @@ Status World::createBody(const BodyDef& in, BodyId* out) {
   rec.angularDamping = def.angularDamping;
   rec.gravityScale = def.gravityScale;
   rec.gyroscopic = def.gyroscopic;
+  rec.allowSleep = def.allowSleep;
+  if (def.type == BodyType::Static) rec.solverIndex = 0;
   rec.autoMass = def.mass == 0;
   rec.givenMass = def.mass;
   rec.givenInertia = def.inertia;
@@ -362,6 +371,8 @@ Status World::createBody(const BodyDef& in, BodyId* out) {
   }
   w.updateMass(b);
   w.syncProxies(id, false);
+  if (b.type != BodyType::Static) w.awakeInsert(id.index);
+  w.wakeNeighbours(id.index);  // a body made inside a sleeping pile
   w.deviceStale();
   if (out) *out = id;
   return Status::Ok();
@@ -371,6 +382,9 @@ Status World::destroyBody(BodyId id) {
   Impl& w = *impl_;
   BodyRec* b = w.bodies.get(id);
   if (!b) return notFound("body");
+  w.wake(id.index);
+  w.wakeNeighbours(id.index);  // what it held or touched
+  w.awakeErase(id.index);
   std::vector<JointId> joints = b->joints;
   for (JointId j : joints) destroyJoint(j);
   for (ShapeId sid : b->shapes) {
@@ -402,9 +416,12 @@ Status World::setTransform(BodyId id, Vec3 position, Quat rotation) {
   if (!isFinite(position)) return invalid("set transform: position is not finite");
   Status st = checkRotation(&rotation, "set transform");
   if (!st.ok()) return st;
+  impl_->wake(id.index);
+  impl_->wakeNeighbours(id.index);  // where it was
   b->xf = {position, rotation};
   b->com = apply(b->xf, b->localCenter);
   impl_->syncProxies(id, true);
+  impl_->wakeNeighbours(id.index);  // where it is
   impl_->deviceEdited(id.index);
   return Status::Ok();
 }
@@ -415,6 +432,7 @@ Status World::setVelocity(BodyId id, Vec3 linear, Vec3 angular) {
   if (!isFinite(linear) || !isFinite(angular)) return invalid("set velocity: not finite");
   if (b->type == BodyType::Static)
     return Status::Error(StatusCode::IncorrectState, "set velocity: the body is static");
+  impl_->wake(id.index);
   b->v = linear;
   b->w = angular;
   impl_->deviceEdited(id.index);
@@ -436,8 +454,16 @@ Status World::setBodyType(BodyId id, BodyType type) {
     bool volume = !b->shapes.empty();
     if (!volume) return invalid("set body type: a dynamic body needs a shape or a mass");
   }
+  w.wake(id.index);
+  w.wakeNeighbours(id.index);
   b->type = type;
-  if (type == BodyType::Static) b->v = b->w = {};
+  if (type == BodyType::Static) {
+    b->v = b->w = {};
+    b->solverIndex = 0;
+    w.awakeErase(id.index);
+  } else {
+    w.awakeInsert(id.index);
+  }
   w.updateMass(*b);
   for (ShapeId sid : b->shapes) {
     ShapeRec* s = w.shapes.get(sid);
@@ -455,6 +481,7 @@ Status World::setMass(BodyId id, float mass, Vec3 inertia) {
     return invalid("set mass: inertia must be three positive moments, or all 0");
   if (b->type != BodyType::Dynamic)
     return Status::Error(StatusCode::IncorrectState, "set mass: the body is not dynamic");
+  impl_->wake(id.index);
   b->autoMass = false;
   b->givenMass = mass;
   b->givenInertia = inertia;
@@ -468,6 +495,8 @@ Status World::setMaterial(BodyId id, const Material& m) {
   if (!b) return notFound("body");
   Status st = checkMaterial(m, "set material");
   if (!st.ok()) return st;
+  impl_->wake(id.index);
+  impl_->wakeNeighbours(id.index);  // what rests on it (a floor made slippery)
   for (ShapeId sid : b->shapes) impl_->shapes.get(sid)->def.material = m;
   impl_->updateMass(*b);
   impl_->deviceStale();
@@ -479,6 +508,7 @@ Status World::applyForce(BodyId id, Vec3 force, Vec3 point) {
   if (!b) return notFound("body");
   if (!isFinite(force) || !isFinite(point)) return invalid("apply force: not finite");
   if (b->type != BodyType::Dynamic) return Status::Ok();
+  impl_->wake(id.index);
   b->force += force;
   b->torque += cross(point - b->com, force);
   impl_->deviceEdited(id.index);
@@ -489,7 +519,10 @@ Status World::applyTorque(BodyId id, Vec3 torque) {
   BodyRec* b = impl_->bodies.get(id);
   if (!b) return notFound("body");
   if (!isFinite(torque)) return invalid("apply torque: not finite");
-  if (b->type == BodyType::Dynamic) b->torque += torque;
+  if (b->type == BodyType::Dynamic) {
+    impl_->wake(id.index);
+    b->torque += torque;
+  }
   impl_->deviceEdited(id.index);
   return Status::Ok();
 }
@@ -499,6 +532,7 @@ Status World::applyImpulse(BodyId id, Vec3 impulse, Vec3 point) {
   if (!b) return notFound("body");
   if (!isFinite(impulse) || !isFinite(point)) return invalid("apply impulse: not finite");
   if (b->type != BodyType::Dynamic) return Status::Ok();
+  impl_->wake(id.index);
   Mat3 R = toMat3(b->xf.q);
   Mat3 invI = R * b->invInertiaLocal * transpose(R);
   b->v += impulse * b->invMass;
@@ -520,6 +554,8 @@ Status World::getBody(BodyId id, BodyState* out) const {
   out->mass = b->mass;
   Mat3 R = toMat3(b->xf.q);
   out->inertia = R * b->inertiaLocal * transpose(R);
+  out->sleeping = b->asleep();
+  out->allowSleep = b->allowSleep;
   return Status::Ok();
 }
 
@@ -543,6 +579,7 @@ Status World::addShape(BodyId id, const ShapeDef& in, ShapeId* out) {
   ShapeDef def = in;
   Status st = checkShape(&def, b->type, "add shape");
   if (!st.ok()) return st;
+  w.wake(id.index);
   ShapeRec sr;
   sr.body = id;
   sr.def = def;
@@ -550,6 +587,7 @@ Status World::addShape(BodyId id, const ShapeDef& in, ShapeId* out) {
   b->shapes.push_back(sid);
   w.updateMass(*b);
   w.syncProxies(id, false);
+  w.wakeNeighbours(id.index);
   w.deviceStale();
   if (out) *out = sid;
   return Status::Ok();
@@ -563,6 +601,8 @@ Status World::removeShape(ShapeId id) {
   if (b->type == BodyType::Dynamic && b->autoMass && b->shapes.size() == 1)
     return Status::Error(StatusCode::IncorrectState,
                          "remove shape: the last shape of a dynamic body carries its mass");
+  w.wake(s->body.index);
+  w.wakeNeighbours(s->body.index);
   if (s->proxy >= 0) w.broadPhase.destroyProxy(s->proxy);
   b->shapes.erase(std::find(b->shapes.begin(), b->shapes.end(), id));
   w.shapes.remove(id);
@@ -623,6 +663,8 @@ Status World::createJoint(const JointDef& in, JointId* out) {
       !(rec.length >= kMinDistanceLength))
     return invalid("joint: a distance joint needs a rest length of at least 1 mm (got " +
                    std::to_string(rec.length) + " m); a ball joint pins two points together");
+  if (A) w.wake(def.bodyA.index);
+  w.wake(def.bodyB.index);
   JointId id = w.joints.add(std::move(rec));
   w.joints.get(id)->state.id = id;
   if (A) A->joints.push_back(id);
@@ -638,6 +680,8 @@ Status World::destroyJoint(JointId id) {
   Impl& w = *impl_;
   JointRec* j = w.joints.get(id);
   if (!j) return notFound("joint");
+  for (BodyId bid : {j->def.bodyA, j->def.bodyB})
+    if (w.bodies.get(bid)) w.wake(bid.index);
   for (BodyId bid : {j->def.bodyA, j->def.bodyB}) {
     if (BodyRec* b = w.bodies.get(bid)) {
       auto it = std::find(b->joints.begin(), b->joints.end(), id);
@@ -658,6 +702,8 @@ Status World::setMotor(JointId id, bool enable, float speed, float maxForce) {
   if (j->def.type != JointType::Hinge && j->def.type != JointType::Prismatic)
     return Status::Error(StatusCode::IncorrectState,
                          "set motor: only hinges and sliders have motors");
+  for (BodyId bid : {j->def.bodyA, j->def.bodyB})
+    if (impl_->bodies.get(bid)) impl_->wake(bid.index);
   j->def.enableMotor = enable;
   j->def.motorSpeed = speed;
   j->def.maxMotorForce = maxForce;
@@ -700,6 +746,7 @@ Status World::observe(const std::vector<BodyId>& ids, const std::vector<Observed
     if (!st.ok()) return st;
   }
 
+  w.wakeAll();  // every body observed moves
   w.stats.energyBefore = energy();
   for (size_t i = 0; i < ids.size(); ++i) {
     BodyRec& b = *w.bodies.get(ids[i]);
@@ -718,9 +765,9 @@ Status World::observe(const std::vector<BodyId>& ids, const std::vector<Observed
   w.updateBounds(dt);
   w.broadPhaseStage();
   w.narrowPhase(dt);
-  for (uint32_t i = 0; i < w.joints.capacity(); ++i)
-    if (w.joints.alive(i))
-      w.joints.at(i).state.reactionForce = w.joints.at(i).state.reactionTorque = {};
+  w.collectStepJoints();
+  for (uint32_t i : w.stepJoints)
+    w.joints.at(i).state.reactionForce = w.joints.at(i).state.reactionTorque = {};
   w.measureJoints();
 
   w.time += dt;
@@ -746,7 +793,13 @@ Status World::observe(const std::vector<BodyId>& ids, const std::vector<Observed
 
 std::vector<ContactInfo> World::contacts() const {
   std::vector<ContactInfo> out;
-  for (const Contact& c : impl_->contacts) {
+  // The awake contacts, then the sleeping islands' (at rest, as they were when they slept).
+  std::vector<const Contact*> all;
+  for (const Contact& c : impl_->contacts) all.push_back(&c);
+  for (const SleepingIsland& is : impl_->islands)
+    for (const Contact& c : is.contacts) all.push_back(&c);
+  for (const Contact* cp : all) {
+    const Contact& c = *cp;
     if (c.manifold.count == 0) continue;
     // Shapes removed since the last step leave their contacts until the next broad phase.
     if (!impl_->shapes.valid(c.idA) || !impl_->shapes.valid(c.idB)) continue;
@@ -766,8 +819,8 @@ double World::energy() const {
   const Impl& w = *impl_;
   double e = 0;
   const Vec3 g = w.def.gravity;
-  for (uint32_t i = 0; i < w.bodies.capacity(); ++i) {
-    if (!w.bodies.alive(i)) continue;
+  // The awake bodies, then the sleeping ones (at rest: their islands' potential energy).
+  for (uint32_t i : w.awakeBodies) {
     const BodyRec& b = w.bodies.at(i);
     if (b.type != BodyType::Dynamic) continue;
     Vec3 wb = invRotate(b.xf.q, b.w);
@@ -779,6 +832,7 @@ double World::energy() const {
                 (double(g.x) * b.com.x + double(g.y) * b.com.y + double(g.z) * b.com.z);
     e += ke + pe;
   }
+  if (w.sleepingBodyCount > 0) e += w.sleepingPotential();
   return e;
 }
 

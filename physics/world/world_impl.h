@@ -52,8 +52,14 @@ struct BodyRec {
   std::vector<ShapeId> shapes;
   std::vector<JointId> joints;
   std::string name;
-  int32_t solverIndex = -1;  ///< this step's index into the solver body array, -1 if static
+  int32_t solverIndex = -1;  ///< this step's index into the solver body array, 0 if static or asleep
   int32_t deviceIndex = -1;  ///< index among the GPU backend's bodies, -1 if static or none
+  bool allowSleep = true;
+  float sleepTime = 0;  ///< s, how long the body has been slow enough to sleep
+  int32_t island = -1;  ///< its sleeping island (World::Impl::islands), -1 when awake
+  bool asleep() const { return island >= 0; }
+  /// In the step: not static and not asleep (World::Impl::awakeBodies).
+  bool awake() const { return type != BodyType::Static && island < 0; }
 };
 
 struct JointRec {
@@ -83,6 +89,14 @@ struct Contact {
 
   float& patchImpulse(int d) { return tangentImpulse[d / 2][d % 2]; }
   float patchImpulse(int d) const { return tangentImpulse[d / 2][d % 2]; }
+};
+
+/// Dynamic bodies asleep together (islands.cpp): they woke together and sleep together.
+struct SleepingIsland {
+  std::vector<uint32_t> bodies;   ///< body slots, ascending; empty: a free slot
+  std::vector<Contact> contacts;  ///< their touching contacts, sorted by shape pair
+  float substepTime = 0;          ///< the contacts' impulses' unit (StepStats::substepTime)
+  double potential = 0;           ///< J, the bodies' potential energy (they are at rest)
 };
 
 /// What a step changes, kept to roll it back (guard rails).
@@ -136,6 +150,39 @@ struct World::Impl {
   std::vector<uint8_t> solverHalf;
   EqualityLdl ldl;  ///< the joints' direct solve (equality = direct_ldl)
   Snapshot snapshot;
+  // Islands and sleeping (islands.cpp).
+  /// Slots of the bodies the step moves (not static, not asleep), ascending: every per-body
+  /// stage walks this list, so a world's cost follows its awake bodies.
+  std::vector<uint32_t> awakeBodies;
+  std::vector<SleepingIsland> islands;  ///< by island index (BodyRec::island)
+  std::vector<uint32_t> freeIslands;    ///< empty island slots; the next one is the back
+  int sleepingBodyCount = 0;
+  bool lastStepOnCpu = false;  ///< the last stepOnce ran the CPU stages (not the device)
+  /// Joint slots the step solves (not asleep), ascending: collectStepJoints.
+  std::vector<uint32_t> stepJoints;
+  std::vector<int32_t> islandParent;  ///< updateSleep's scratch: union-find over awakeBodies
+  std::vector<uint32_t> wakeList;     ///< wakeTouched's scratch: islands to wake
+  void awakeInsert(uint32_t slot);    ///< a body became awake (created, woken, made non-static)
+  void awakeErase(uint32_t slot);     ///< a body left the step (destroyed, made static)
+  void rebuildAwake();                ///< awakeBodies and the counts from the bodies (restore)
+  bool sleepActive() const { return def.sleep.enabled && !device; }
+  /// Wakes island k: its bodies join the step with their timers reset, their proxies move
+  /// again, their contacts rejoin the list. Inside a step the guard's copy gets them too.
+  void wakeIsland(int32_t k);
+  void wakeAll();
+  /// An edit of body `slot`: wakes its island and resets its timer.
+  void wake(uint32_t slot);
+  /// ... and wakes whatever its shapes' fat boxes overlap and whatever is jointed to it (the
+  /// edit may change what holds them: a moved, removed or reshaped body).
+  void wakeNeighbours(uint32_t slot);
+  /// After the narrow phase: islands touched by an awake body or a moving kinematic body
+  /// (contacts with points, joints) wake.
+  void wakeTouched();
+  /// After an accepted CPU step: rest timers, islands of the awake dynamic bodies, and the
+  /// islands whose bodies all rested long enough fall asleep.
+  void updateSleep(float dt);
+  void collectStepJoints();
+  double sleepingPotential() const;
   StepProfile profile;
   StepStats stats;
   double time = 0;
@@ -145,6 +192,9 @@ struct World::Impl {
 
   // Helpers shared by the source files.
   void updateMass(BodyRec& b);
+  /// What the broad phase takes for static: static bodies and sleeping ones (no pairs with
+  /// each other).
+  bool proxyStatic(const BodyRec& b) const { return b.type == BodyType::Static || b.asleep(); }
   void syncProxies(BodyId id, bool moved);
   Transform shapeTransform(const BodyRec& b, const ShapeRec& s) const { return b.xf * s.def.local; }
   static uint64_t bodyPairKey(uint32_t a, uint32_t b) {

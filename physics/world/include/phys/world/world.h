@@ -53,6 +53,9 @@ struct BodyDef {
   float mass = 0;
   Vec3 inertia;  ///< kg m^2, principal moments about the centre of mass in body axes; 0 = auto
   bool gyroscopic = true;  ///< integrate the gyroscopic torque (implicitly)
+  /// May sleep when the world sleeps (WorldDef::sleep): false keeps this body, and every body
+  /// in an island with it, awake (a body a client watches closely, a sensor).
+  bool allowSleep = true;
   std::string name;        ///< optional, for scenes and logs
   std::vector<ShapeDef> shapes;
 };
@@ -86,6 +89,23 @@ struct BackendState {
 /// including those raised while a device was destroyed (what a world's teardown left behind).
 /// 0 without validation (PHYS_GPU_VALIDATION=1) or without the GPU backend.
 int gpuValidationErrorsInProcess();
+
+/// Sleeping (islands): bodies that have rested long enough stop costing anything. Islands
+/// are the dynamic bodies joined by touching contacts and joints (static and kinematic
+/// bodies do not join them). A body is ready to sleep once, for `time` seconds in a row,
+/// |v| <= linearSpeed and |w| <= min(angularSpeed, linearSpeed / r), r its shapes' largest
+/// reach from its centre of mass (so a large body must turn more slowly); an island sleeps
+/// when every body in it is ready and allows it. A sleeping body is not integrated, solved or
+/// collided with static or other sleeping bodies, and its broad-phase proxies stop moving;
+/// its velocities are zero. It wakes, with its whole island, when an awake body (or a moving
+/// kinematic body) touches it, and on every edit of it or of what holds it (World's edits
+/// wake what they touch: see docs/ARCHITECTURE.md "Islands and sleeping").
+struct SleepSettings {
+  bool enabled = false;       ///< off by default in code; scenes and physd turn it on
+  float time = 0.5f;          ///< s, at rest this long before sleeping
+  float linearSpeed = 0.05f;  ///< m/s
+  float angularSpeed = 0.5f;  ///< rad/s, the cap for small bodies
+};
 
 struct WorldDef {
   Vec3 gravity{0, 0, -9.81f};   ///< m/s^2
@@ -130,6 +150,9 @@ struct WorldDef {
   int guardRetries = 2;
   Backend backend = Backend::Cpu;
   bool gpuAllowCpuDevice = false;  ///< let the GPU backend run on a CPU Vulkan device (tests)
+  /// Islands and sleeping. A world stepped on the device does not sleep yet: its bodies
+  /// stay awake (BackendState::note says so when sleeping was asked for).
+  SleepSettings sleep;
 };
 
 /// Wall time of each step stage in milliseconds. Stage names are used everywhere.
@@ -145,7 +168,13 @@ struct StepProfile {
 /// What the last step did, for metrics and monitors (double precision).
 struct StepStats {
   uint64_t step = 0;  ///< steps taken so far
+  /// bodies: all of them; awake: the non-static bodies the last step moved (the solver's);
+  /// joints: the joints it solved; contacts: the contacts it collided (not those of sleeping
+  /// islands).
   int bodies = 0, awake = 0, contacts = 0, contactPoints = 0, joints = 0, pairs = 0;
+  /// After the last step: dynamic bodies asleep, islands of awake dynamic bodies (as the
+  /// last step found them) and sleeping islands.
+  int sleepingBodies = 0, awakeIslands = 0, sleepingIslands = 0;
   int vectorizedManifolds = 0;  ///< contact manifolds solved in SIMD lanes (solver_wide.h)
   /// Gauss-Seidel in halves (solver_wide.h): the contacts between the two halves, which run
   /// after them on one thread; -1 when the step's contact order was not split (too few
@@ -200,6 +229,8 @@ struct BodyState {
   Vec3 centerOfMass;                     ///< world
   float mass = 0;                        ///< kg (0 for static and kinematic bodies)
   Mat3 inertia = Mat3::zero();           ///< kg m^2, world frame, about the centre of mass
+  bool sleeping = false;                 ///< asleep (SleepSettings): at rest, not stepped
+  bool allowSleep = true;
 };
 
 /// A joint's state after the last step.
@@ -247,6 +278,10 @@ class World {
   void setContactBudget(uint32_t maxContactPairs, WorldDef::PairOverflow overflow);
   /// Validates solver settings without applying them.
   static Status validate(const SolverSettings& s);
+  /// Sleeping on or off and its thresholds (time > 0, speeds >= 0, finite). Turning it off,
+  /// or changing a threshold, wakes every sleeping body.
+  Status setSleepSettings(const SleepSettings& s);
+  static Status validate(const SleepSettings& s);
 
   // Bodies. createBody validates the whole definition (finite numbers, unit quaternion,
   // positive sizes and masses, planes only on static bodies) and creates nothing on error.
@@ -261,6 +296,11 @@ class World {
   Status applyForce(BodyId id, Vec3 force, Vec3 worldPoint);      ///< N, for the next step
   Status applyTorque(BodyId id, Vec3 torque);                     ///< N m, for the next step
   Status applyImpulse(BodyId id, Vec3 impulse, Vec3 worldPoint);  ///< N s, immediately
+  /// Whether a body may sleep (BodyDef::allowSleep); false wakes it.
+  Status setAllowSleep(BodyId id, bool allow);
+  /// Wakes a body's island (and resets its rest timer); a no-op for an awake body.
+  Status wakeBody(BodyId id);
+  bool isSleeping(BodyId id) const;  ///< false for an unknown id
   Status getBody(BodyId id, BodyState* out) const;
   bool isValid(BodyId id) const;
   std::vector<BodyId> bodies() const;  ///< live bodies in index order
