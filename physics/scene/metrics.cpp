@@ -50,7 +50,7 @@ struct MetricsRecorder::Impl {
   const Scene* scene = nullptr;
   std::vector<BodyId> ids;
   std::vector<std::pair<BodyId, Vec3>> tops;  ///< top bodies and where they started
-  std::vector<double> stepMs;
+  std::vector<double> stepMs, settledStepMs;
   std::map<std::string, double> stageSum;
   double energyStart = 0, energyEnd = 0;
   std::optional<double> energySettled;  ///< energy at the first step past the settle time
@@ -100,7 +100,9 @@ void MetricsRecorder::afterStep(const World& world) {
   }
   if (st.contactPoints > 0) m.sawContacts = true;
   m.penMax = std::max(m.penMax, st.maxPenetration);
+  s.awakeBodiesFinal = st.awake;
   if (world.time() > m.scene->metrics.settleTime) {
+    m.settledStepMs.push_back(p.total);
     m.settled = true;
     m.penSettledMax = std::max(m.penSettledMax, st.maxPenetration);
   }
@@ -139,6 +141,7 @@ MetricsSummary MetricsRecorder::summary() const {
   MetricsSummary s = m.s;
   s.msPerStepMedian = percentile(m.stepMs, 0.5);
   s.msPerStepP99 = percentile(m.stepMs, 0.99);
+  if (!m.settledStepMs.empty()) s.msPerStepSettledMedian = percentile(m.settledStepMs, 0.5);
   if (m.jointSamples > 0) {
     s.jointErrorMax = m.jointErrMax;
     s.jointErrorRms = std::sqrt(m.jointErrSq / double(m.jointSamples));

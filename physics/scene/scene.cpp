@@ -777,11 +777,25 @@ ShapeDef readShape(const Json& j, const std::string& path, const Builder& b,
   return s;
 }
 
+void readSleep(const Json& j, const std::string& path, SleepSettings* out) {
+  if (j.is_boolean()) {
+    out->enabled = j.get<bool>();
+    return;
+  }
+  Object o(j, path, {"enabled", "time", "linear_speed", "angular_speed"});
+  out->enabled = o.boolean("enabled", true);
+  out->time = o.number("time", out->time, Range::Positive);
+  out->linearSpeed = o.number("linear_speed", out->linearSpeed, Range::NonNegative);
+  out->angularSpeed = o.number("angular_speed", out->angularSpeed, Range::NonNegative);
+  Status st = World::validate(*out);
+  if (!st.ok()) fail(path, st.message);
+}
+
 BodyDef readBody(const Json& j, const std::string& path, const Builder& b) {
   Object o(j, path,
            {"name", "type", "position", "rotation", "rotation_axis_angle", "linear_velocity",
             "angular_velocity", "linear_damping", "angular_damping", "gravity_scale", "mass",
-            "inertia", "gyroscopic", "material", "shapes"});
+            "inertia", "gyroscopic", "allow_sleep", "material", "shapes"});
   BodyDef d;
   d.name = o.string("name", "");
   checkName(d.name, o.path("name"), *b.budget, "body name");
@@ -794,6 +808,7 @@ BodyDef readBody(const Json& j, const std::string& path, const Builder& b) {
   d.angularDamping = o.number("angular_damping", 0.0f, Range::NonNegative);
   d.gravityScale = o.number("gravity_scale", 1.0f);
   d.gyroscopic = o.boolean("gyroscopic", true);
+  d.allowSleep = o.boolean("allow_sleep", true);
   if (d.type != BodyType::Dynamic) {
     o.forbid("mass", "only a dynamic body has a mass");
     o.forbid("inertia", "only a dynamic body has an inertia");
@@ -1200,7 +1215,7 @@ void planExplicit(const Object& top, Builder* b) {
 void loadScene(const Json& root, const SceneBudget& budget, Scene* s) {
   Object top(root, "",
              {"name", "description", "gravity", "time_step", "duration", "solver", "world",
-              "materials", "bodies", "joints", "generators", "metrics", "criteria"});
+              "sleep", "materials", "bodies", "joints", "generators", "metrics", "criteria"});
   s->name = top.string("name", "");
   checkName(s->name, "name", budget, "scene name");
   s->description = top.string("description", "");
@@ -1209,6 +1224,9 @@ void loadScene(const Json& root, const SceneBudget& budget, Scene* s) {
   if (const Json* d = top.find("duration"))
     s->duration = readDouble(*d, "duration", Range::Positive);
   if (const Json* sv = top.find("solver")) readSolver(*sv, "solver", &s->world.solver);
+  // Scene files sleep unless they say otherwise: "sleep": false, or an object of settings.
+  s->world.sleep.enabled = true;
+  if (const Json* sl = top.find("sleep")) readSleep(*sl, "sleep", &s->world.sleep);
   if (const Json* w = top.find("world")) {
     Object o(*w, "world",
              {"max_linear_speed", "max_angular_speed", "speculative_distance", "aabb_margin",
@@ -1674,6 +1692,10 @@ std::string sceneToJson(const Scene& s) {
                         {"speculative_distance", jsonNumber(s.world.speculativeDistance)},
                         {"aabb_margin", jsonNumber(s.world.aabbMargin)}};
   if (s.world.backend != Backend::Cpu) root["world"]["backend"] = toString(s.world.backend);
+  root["sleep"] = OJson{{"enabled", s.world.sleep.enabled},
+                        {"time", jsonNumber(s.world.sleep.time)},
+                        {"linear_speed", jsonNumber(s.world.sleep.linearSpeed)},
+                        {"angular_speed", jsonNumber(s.world.sleep.angularSpeed)}};
 
   // Materials other than the default are written once and referred to by name.
   std::vector<Material> materials;
@@ -1701,6 +1723,7 @@ std::string sceneToJson(const Scene& s) {
     if (d.type == BodyType::Dynamic && d.mass != 0) b["mass"] = jsonNumber(d.mass);
     if (d.type == BodyType::Dynamic && !isZero(d.inertia)) b["inertia"] = jsonVec3(d.inertia);
     if (!d.gyroscopic) b["gyroscopic"] = false;
+    if (!d.allowSleep) b["allow_sleep"] = false;
     OJson shapes = OJson::array();
     for (const ShapeDef& sd : d.shapes) {
       OJson sh;

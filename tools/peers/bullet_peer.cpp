@@ -1,6 +1,7 @@
 // Bullet 3.24 adapter (docs/PEERS.md): btDiscreteDynamicsWorld with Bullet's sequential
 // impulse solver at its defaults (10 iterations, split impulse on, warm starting), sleeping
-// off, the scene's masses, inertias and centres of mass from peer_common.h.
+// (deactivation) as the scene's sleep switch says, at Bullet's own defaults (2 s below
+// 0.8 m/s and 1 rad/s), the scene's masses, inertias and centres of mass from peer_common.h.
 #include <BulletCollision/CollisionDispatch/btManifoldResult.h>
 #include <BulletDynamics/ConstraintSolver/btFixedConstraint.h>
 #include <btBulletDynamicsCommon.h>
@@ -71,6 +72,7 @@ class BulletPeer : public PeerEngine {
     }();
     (void)hooked;
     dt_ = scene.world.timeStep;
+    sleep_ = scene.world.sleep.enabled;
     substeps_ = std::max(budget.substeps, 1);
     config_ = std::make_unique<btDefaultCollisionConfiguration>();
     dispatcher_ = std::make_unique<btCollisionDispatcher>(config_.get());
@@ -185,7 +187,8 @@ class BulletPeer : public PeerEngine {
     auto body = std::make_unique<btRigidBody>(info);
     if (def.type == BodyType::Kinematic)
       body->setCollisionFlags(body->getCollisionFlags() | btCollisionObject::CF_KINEMATIC_OBJECT);
-    body->setActivationState(DISABLE_DEACTIVATION);
+    // Deactivation (Bullet's sleeping) when the scene sleeps; its thresholds are Bullet's.
+    if (!sleep_) body->setActivationState(DISABLE_DEACTIVATION);
     body->setLinearVelocity(bt(def.linearVelocity));
     body->setAngularVelocity(bt(def.angularVelocity));
     body->setFlags(def.gyroscopic ? BT_ENABLE_GYROSCOPIC_FORCE_IMPLICIT_BODY : 0);
@@ -286,6 +289,7 @@ class BulletPeer : public PeerEngine {
 
   std::vector<PeerBodyMass> mass_;
   float dt_ = 1.0f / 60;
+  bool sleep_ = false;  ///< deactivation on (the scene sleeps)
   int substeps_ = 1;
   std::unique_ptr<btDefaultCollisionConfiguration> config_;
   std::unique_ptr<btCollisionDispatcher> dispatcher_;

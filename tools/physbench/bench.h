@@ -19,6 +19,7 @@ struct SingleOptions {
   double seconds = -1;     ///< < 0: the scene's duration
   int threads = 0;         ///< the world's threads; 0: the machine's
   std::string backend;     ///< "cpu", "gpu", "auto"; empty: the scene's
+  std::string sleep;       ///< "on", "off"; empty: the scene's (--sleep; a peer's too)
   bool requireDevice = false;  ///< fail unless every step ran on the GPU backend
   /// Also run the scene on the CPU backend for the same steps and judge the run by the
   /// comparison (--against-cpu): see CpuComparison.

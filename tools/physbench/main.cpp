@@ -99,6 +99,10 @@ int main(int argc, char** argv) {
                  "Vulkan device gpu and auto run on the CPU; PHYS_GPU_ALLOW_CPU=1 lets them use "
                  "a CPU implementation such as lavapipe")
       ->check(CLI::IsMember({"cpu", "gpu", "auto"}));
+  app.add_option("--sleep", single.sleep,
+                 "islands and sleeping on or off, overriding the scene's \"sleep\" (scenes "
+                 "sleep unless they say otherwise; with --peer bullet, Bullet's deactivation)")
+      ->check(CLI::IsMember({"on", "off"}));
   app.add_flag("--require-device", single.requireDevice,
                "with --backend gpu or auto: fail (exit 1) unless every step ran on the device "
                "(and, with PHYS_GPU_VALIDATION=1, the validation layer reported nothing)");

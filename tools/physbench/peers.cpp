@@ -139,6 +139,7 @@ int runSinglePeer(const SingleOptions& opt) {
     std::cerr << "physbench: " << st.message << "\n";
     return 2;
   }
+  if (!opt.sleep.empty()) scene.world.sleep.enabled = opt.sleep == "on";
   std::unique_ptr<peers::PeerEngine> peer = peers::makePeer(names[0]);
   peers::PeerRun run = peers::runPeer(scene, *peer, {opt.peerIterations, 1},
                                       opt.seconds < 0 ? scene.duration : opt.seconds);

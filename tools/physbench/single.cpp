@@ -37,6 +37,8 @@ nlohmann::json toJson(const MetricsSummary& m) {
   nlohmann::json j;
   for (const std::string& name : metricNames()) j[name] = optional(m.value(name));
   j["state_hash"] = hashText(m.stateHash);
+  j["ms_per_step_settled_median"] = optional(m.msPerStepSettledMedian);
+  j["awake_bodies_final"] = m.awakeBodiesFinal;
   for (const auto& [k, v] : m.extra) j[k] = std::isfinite(v) ? nlohmann::json(v) : nullptr;
   return j;
 }
@@ -151,6 +153,7 @@ int runSingle(SingleOptions opt) {
 
   scene.world.threads = opt.threads;
   if (!opt.backend.empty()) parseBackend(opt.backend, &scene.world.backend);
+  if (!opt.sleep.empty()) scene.world.sleep.enabled = opt.sleep == "on";
   const int validationBefore = gpuValidationErrorsInProcess();
   const int steps = int(std::lround(seconds / scene.world.timeStep));
   SceneRun run;
@@ -218,7 +221,9 @@ int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResul
       "scene %s, preset %s, backend %s, %d threads, %d bodies, %d joints, %d steps (%.2f s)\n",
       scene.name.c_str(), r.preset.c_str(), r.backend.c_str(), r.threads, r.bodies, r.joints, steps,
       steps * double(scene.world.timeStep));
-  std::printf("  ms/step median %.3f  p99 %.3f\n", m.msPerStepMedian, m.msPerStepP99);
+  std::printf("  ms/step median %.3f  p99 %.3f  settled median %s  (awake bodies at the end: %d)\n",
+              m.msPerStepMedian, m.msPerStepP99, fmtNumber(m.msPerStepSettledMedian).c_str(),
+              m.awakeBodiesFinal);
   for (const std::string& name : metricNames()) {
     if (name.rfind("ms_per_step", 0) == 0) continue;
     std::printf("  %-26s %s\n", name.c_str(), fmtNumber(m.value(name)).c_str());

@@ -17,6 +17,10 @@ namespace phys {
 struct MetricsSummary {
   int steps = 0;
   double msPerStepMedian = 0, msPerStepP99 = 0;
+  /// Median ms per step of the steps after the scene's settle time (empty if none): what a
+  /// world costs once it has come to rest (sleeping).
+  std::optional<double> msPerStepSettledMedian;
+  int awakeBodiesFinal = 0;  ///< StepStats::awake after the last step
   std::optional<double> jointErrorMax, jointErrorRms, jointAngleErrorMax;
   std::optional<double> penetrationMax, penetrationSettledMax;
   double energySolveDeltaMax = 0;     ///< J, largest energy increase across one step
