@@ -84,6 +84,10 @@ Status World::wakeBody(BodyId id) {
   return Status::Ok();
 }
 
+int World::awakeBodyCount() const {
+  return int(impl_->awakeBodies.size());
+}
+
 bool World::isSleeping(BodyId id) const {
   const BodyRec* b = impl_->bodies.get(id);
   return b && b->asleep();

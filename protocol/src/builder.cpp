@@ -122,6 +122,7 @@ Offset<wire::BodyDef> writeBodyDef(Fbb& fbb, const phys::BodyDef& def) {
   b.add_mass(def.mass);
   if (!isZero(def.inertia)) b.add_inertia(&inertia);
   b.add_gyroscopic(def.gyroscopic);
+  if (!def.allowSleep) b.add_allow_sleep(false);
   b.add_name(name);
   b.add_shapes(shapesVec);
   return b.Finish();
@@ -193,7 +194,7 @@ Offset<wire::WorldSummary> writeWorldSummary(Fbb& fbb, const WorldSummary& w) {
   return wire::CreateWorldSummary(fbb, w.world, name, preset, w.bodies, w.joints, w.tick, w.time,
                                   w.running, w.rateHz, w.tickMs, w.tickMsMax, w.overruns,
                                   w.subscribers, w.frames, backend, device, note, w.gpuSteps,
-                                  w.cpuSteps);
+                                  w.cpuSteps, w.awakeBodies, w.sleepingBodies);
 }
 
 Offset<wire::LimitsInfo> writeLimits(Fbb& fbb, const Limits& l) {
@@ -281,7 +282,7 @@ CommandBuilder& CommandBuilder::createWorld(const CreateWorldArgs& args) {
   wire::Vec3 g = toWire(args.gravity.value_or(phys::Vec3{}));
   return add(wire::Request::CreateWorld,
              wire::CreateCreateWorld(fbb_, name, preset, args.gravity ? &g : nullptr, args.timeStep,
-                                     backend)
+                                     backend, args.sleep)
                  .Union());
 }
 

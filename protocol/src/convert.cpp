@@ -88,6 +88,7 @@ Status toBodyDef(const wire::BodyDef& in, phys::BodyDef* out, std::string_view p
   d.mass = in.mass();
   if (in.inertia()) d.inertia = toPhys(*in.inertia());
   d.gyroscopic = in.gyroscopic();
+  d.allowSleep = in.allow_sleep();
   if (in.name()) d.name = in.name()->str();
   if (auto* shapes = in.shapes()) {
     d.shapes.resize(shapes->size());
@@ -211,6 +212,8 @@ WorldSummary toWorldSummary(const wire::WorldSummary& in) {
   s.backendNote = str(in.backend_note());
   s.gpuSteps = in.gpu_steps();
   s.cpuSteps = in.cpu_steps();
+  s.awakeBodies = in.awake_bodies();
+  s.sleepingBodies = in.sleeping_bodies();
   return s;
 }
 

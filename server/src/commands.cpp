@@ -603,6 +603,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       def.solver = it->second.settings;
       if (r->gravity()) def.gravity = protocol::toPhys(*r->gravity());
       if (r->time_step() > 0) def.timeStep = r->time_step();
+      def.sleep.enabled = r->sleep();
       auto w = makeWorld(name, preset, def);
       w->id = nextWorldId_++;
       ctx.header.world = w->id;

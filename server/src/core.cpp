@@ -708,6 +708,8 @@ std::vector<protocol::WorldSummary> ServerCore::summaries() const {
     s.backendNote = b.note.empty() && b.cpuSteps > 0 ? b.lastFallback : b.note;
     s.gpuSteps = b.gpuSteps;
     s.cpuSteps = b.cpuSteps;
+    s.awakeBodies = uint32_t(w->world->awakeBodyCount());
+    s.sleepingBodies = uint32_t(w->world->stats().sleepingBodies);
     auto it = subscribers_.find(id);
     s.subscribers = it == subscribers_.end() ? 0 : it->second;
     out.push_back(std::move(s));

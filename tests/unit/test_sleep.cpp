@@ -308,7 +308,9 @@ std::vector<uint64_t> wakeAndSleepRun(int threads, int steps, World* into = null
   addBody(w, ball);
   std::vector<uint64_t> hashes;
   for (int i = 0; i < steps; ++i) {
-    if (i == snapshotAt) EXPECT_TRUE(w.saveSnapshot(snapshot).ok());
+    if (i == snapshotAt) {
+      EXPECT_TRUE(w.saveSnapshot(snapshot).ok());
+    }
     w.step();
     hashes.push_back(w.stateHash());
   }

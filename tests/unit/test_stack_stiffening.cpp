@@ -24,7 +24,7 @@ using test::stateOf;
 
 /// A pyramid wall (one box thick, in the x-z plane) of `base` cubes of half-extent `he`.
 Scene wallScene(int base, float he, bool stiffening) {
-  const std::string json = R"({"name": "wall", "duration": 10,
+  const std::string json = R"({"name": "wall", "duration": 10, "sleep": false,
     "bodies": [{"name": "ground", "type": "static", "shapes": [{"type": "plane"}]}],
     "generators": [{"type": "pyramid", "name": "wall", "base": )" +
                            std::to_string(base) + R"(, "half_extent": )" + std::to_string(he) +

@@ -64,14 +64,14 @@ pc::WorldHandle resolve(pc::Client& c, const std::string& world) {
 /// The worlds, one a line; a world's backend (and device) after its numbers, and below it
 /// why the CPU runs a world that asked for the GPU.
 void printWorlds(const std::vector<pc::WorldSummary>& worlds) {
-  std::printf("%6s  %-20s %-12s %8s %7s %10s %10s %8s %6s %8s %10s  %s\n", "id", "name", "preset",
-              "bodies", "joints", "tick", "time s", "state", "rate", "overruns", "frames",
+  std::printf("%6s  %-20s %-12s %8s %8s %7s %10s %10s %8s %6s %8s %10s  %s\n", "id", "name",
+              "preset", "awake", "bodies", "joints", "tick", "time s", "state", "rate", "overruns", "frames",
               "backend");
   for (const auto& w : worlds) {
     std::string backend = w.backend.empty() ? "cpu" : w.backend;  // servers before backends
     if (!w.device.empty()) backend += " (" + w.device + ")";
-    std::printf("%6u  %-20s %-12s %8u %7u %10llu %10.2f %8s %6.0f %8llu %10llu  %s\n", w.world,
-                w.name.c_str(), w.preset.c_str(), w.bodies, w.joints, (unsigned long long)w.tick,
+    std::printf("%6u  %-20s %-12s %8u %8u %7u %10llu %10.2f %8s %6.0f %8llu %10llu  %s\n", w.world,
+                w.name.c_str(), w.preset.c_str(), w.awakeBodies, w.bodies, w.joints, (unsigned long long)w.tick,
                 w.time, w.running ? "running" : "paused", double(w.rateHz),
                 (unsigned long long)w.overruns, (unsigned long long)w.frames, backend.c_str());
     if (!w.backendNote.empty()) std::printf("%6s  note: %s\n", "", w.backendNote.c_str());
@@ -119,9 +119,9 @@ int watch(pc::Client& c, const std::string& only) {
                     status->serverName.c_str(), status->serverVersion.c_str(), status->uptimeS,
                     (unsigned long long)status->commands, (unsigned long long)status->errors);
       out += line;
-      std::snprintf(line, sizeof line, "%5s  %-18s %10s %10s %8s %8s %7s %8s %6s %5s\n", "id",
-                    "world", "tick", "sim time", "tick ms", "max ms", "bodies", "state", "frm/s",
-                    "subs");
+      std::snprintf(line, sizeof line, "%5s  %-18s %10s %10s %8s %8s %15s %8s %6s %5s\n", "id",
+                    "world", "tick", "sim time", "tick ms", "max ms", "awake/bodies", "state",
+                    "frm/s", "subs");
       out += line;
       for (const auto& w : worlds) {
         Live& l = live[w.world];
@@ -138,9 +138,10 @@ int watch(pc::Client& c, const std::string& only) {
         const uint64_t frames = l.sub.framesReceived();
         l.fps = dt > 0 ? double(frames - l.lastFrames) / dt : 0;
         l.lastFrames = frames;
-        std::snprintf(line, sizeof line, "%5u  %-18s %10llu %10.2f %8.3f %8.3f %7u %8s %6.1f %5u\n",
+        const std::string awake = std::to_string(w.awakeBodies) + "/" + std::to_string(bodies);
+        std::snprintf(line, sizeof line, "%5u  %-18s %10llu %10.2f %8.3f %8.3f %15s %8s %6.1f %5u\n",
                       w.world, w.name.c_str(), (unsigned long long)tick, time, double(w.tickMs),
-                      double(w.tickMsMax), bodies, w.running ? "running" : "paused", l.fps,
+                      double(w.tickMsMax), awake.c_str(), w.running ? "running" : "paused", l.fps,
                       w.subscribers);
         out += line;
       }

@@ -41,6 +41,9 @@ struct CreateWorldArgs {
   float timeStep = 0;                 ///< s; 0: 1/60
   /// "cpu", "gpu" or "auto" (phys::toString(Backend)); empty: the server's default.
   std::string backend = {};
+  /// Islands and sleeping (phys::SleepSettings, the default thresholds); worlds sleep unless
+  /// this says otherwise.
+  bool sleep = true;
 };
 
 /// Solver settings to change; unset fields keep the world's current value.
@@ -185,6 +188,8 @@ struct WorldSummary {
   /// CPU-taken step of a GPU world was not on the device; empty when there is nothing to say.
   std::string backendNote;
   uint64_t gpuSteps = 0, cpuSteps = 0;  ///< steps taken on the device / by the CPU backend
+  uint32_t awakeBodies = 0;     ///< bodies the world steps (not static, not asleep)
+  uint32_t sleepingBodies = 0;  ///< dynamic bodies asleep
 };
 
 /// A reply without a result (errors; Pause, DestroyWorld, ...).

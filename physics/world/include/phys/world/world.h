@@ -301,6 +301,7 @@ class World {
   /// Wakes a body's island (and resets its rest timer); a no-op for an awake body.
   Status wakeBody(BodyId id);
   bool isSleeping(BodyId id) const;  ///< false for an unknown id
+  int awakeBodyCount() const;        ///< bodies the step moves: not static, not asleep
   Status getBody(BodyId id, BodyState* out) const;
   bool isValid(BodyId id) const;
   std::vector<BodyId> bodies() const;  ///< live bodies in index order
