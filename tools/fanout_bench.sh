@@ -42,16 +42,17 @@ ctl list > "$out/after.txt"
 wait $(jobs -p | grep -v "^$daemon$") 2>/dev/null || true
 
 echo "fanout: $subs subscribers, $seconds s measured after ${warmup} s warm-up, $(nproc) cores, $(date -u +%F)"
-# Columns of physctl list: id name preset bodies joints tick time state rate overruns frames
-# backend [(device)].
-read -r _ _ _ bodies _ tick0 _ _ _ over0 frames0 _ < <(grep ' fanout ' "$out/before.txt")
-read -r _ _ _ _ _ tick1 _ _ _ over1 frames1 _ < <(grep ' fanout ' "$out/after.txt")
-echo "physd: $bodies bodies, $((tick1 - tick0)) ticks, $((over1 - over0)) overruns, $((frames1 - frames0)) frames published in the window"
+# Columns of physctl list: id name preset awake bodies joints tick time state rate overruns
+# frames backend [(device)].
+read -r _ _ _ _ bodies _ tick0 _ _ _ over0 frames0 _ < <(grep ' fanout ' "$out/before.txt")
+read -r _ _ _ awake _ _ tick1 _ _ _ over1 frames1 _ < <(grep ' fanout ' "$out/after.txt")
+echo "physd: $bodies bodies ($awake awake at the end), $((tick1 - tick0)) ticks, $((over1 - over0)) overruns, $((frames1 - frames0)) frames published in the window"
 cat "$out"/sub*.txt
 awk '/delivered/ {
        for (i = 1; i <= NF; i++) { if ($i == "delivered") d = $(i + 1); if ($i == "p99") p = $(i + 1) }
-       sub("%", "", d); d += 0; p += 0; n++; if (n == 1 || d < dmin) dmin = d; if (p > pmax) pmax = p }
-     END { if (n) printf "all %d subscribers: worst delivered %.3f%%, worst p99 latency %.3f ms\n", n, dmin, pmax
+       sub("%", "", d); d += 0; p += 0; n++; if (n == 1 || d < dmin) dmin = d; if (p > pmax) pmax = p
+       for (i = 1; i <= NF; i++) if ($i == "bytes_per_tick") { b += $(i + 1); nb++ } }
+     END { if (n) printf "all %d subscribers: worst delivered %.3f%%, worst p99 latency %.3f ms, mean %.0f bytes per tick received\n", n, dmin, pmax, nb ? b / nb : 0
            else print "no subscriber reported" }' "$out"/sub*.txt
 # Per tick: when the last subscriber had it (over the ticks every subscriber received).
 cat "$out"/lat*.txt 2>/dev/null |

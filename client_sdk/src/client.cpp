@@ -4,6 +4,8 @@
 // when the daemon goes away or a new one appears.
 #include "phys/client/client.h"
 
+#include "phys/protocol/compact.h"
+
 #include <algorithm>
 #include <atomic>
 #include <condition_variable>
@@ -112,17 +114,28 @@ struct Subscription::State {
   std::mutex ownerMutex;
   Client::Impl* owner = nullptr;
 
-  // Reassembly (SDK thread only).
+  uint64_t skipped = 0;
+
+  // Reassembly (SDK thread only): the chunks of a tick, then the tick applied to the full
+  // state (a keyframe replaces it, a delta on the tick it holds changes it).
   struct Partial {
     uint32_t chunkCount = 0;
     std::set<uint32_t> got;
-    StateFrame frame;
+    StateFrame frame;  ///< what the chunks carried (bodies changed this tick)
+    std::vector<uint64_t> removed;
+    uint64_t baseTick = 0;
   };
   std::map<uint64_t, Partial> partial;
   uint64_t lastComplete = 0;
   bool any = false;
+  /// The full state at tick `fullTick`, by body index then generation (the world's order).
+  std::map<uint64_t, BodyState> full;
+  uint64_t fullTick = 0;
+  bool haveFull = false;
 
-  void onChunk(const wire::StateFrame& f) {
+  static uint64_t order(uint64_t id) { return (id << 32) | (id >> 32); }  // index, generation
+
+  void onChunk(const wire::StateFrame& f, size_t bytes) {
     const uint64_t t = f.tick();
     if (any && t <= lastComplete) return;
     Partial& p = partial[t];
@@ -133,19 +146,39 @@ struct Subscription::State {
       p.frame.time = f.time();
       p.frame.total = f.total_bodies();
       p.frame.stampNs = f.stamp_ns();
-      p.frame.bodies.reserve(f.total_bodies());
+      p.frame.keyframe = f.keyframe();
+      p.baseTick = f.base_tick();
     }
     if (!p.got.insert(f.chunk_index()).second) return;
+    p.frame.bytes += bytes;
     if (f.bodies())
       for (const wire::BodyState* s : *f.bodies()) p.frame.bodies.push_back(toState(*s));
+    if (f.compact() && f.bounds_min() && f.bounds_max()) {
+      const protocol::CompactBounds b{protocol::toPhys(*f.bounds_min()),
+                                      protocol::toPhys(*f.bounds_max())};
+      for (const wire::CompactBodyState* c : *f.compact())
+        p.frame.bodies.push_back(toState(protocol::expandState(*c, b)));
+    }
+    if (f.removed()) p.removed.insert(p.removed.end(), f.removed()->begin(), f.removed()->end());
     if (p.got.size() < p.chunkCount) {
       while (partial.size() > 8) partial.erase(partial.begin());  // superseded ticks
       return;
     }
-    StateFrame frame = std::move(p.frame);
+    Partial done = std::move(p);
     any = true;
     lastComplete = t;
     partial.erase(partial.begin(), partial.upper_bound(t));
+    if (!apply(done)) {
+      std::lock_guard<std::mutex> lk(m);
+      ++skipped;
+      return;
+    }
+    StateFrame frame = std::move(done.frame);
+    frame.changed = uint32_t(frame.bodies.size());
+    frame.bodies.clear();
+    frame.bodies.reserve(full.size());
+    for (const auto& [key, s] : full) frame.bodies.push_back(s);
+    for (auto& [key, s] : full) s.changed = false;  // until a later tick carries it
     {
       std::lock_guard<std::mutex> lk(m);
       latest = frame;
@@ -153,6 +186,32 @@ struct Subscription::State {
     }
     cv.notify_all();
     if (fn) fn(frame);
+  }
+
+  /// A complete tick onto the full state; false (and the state dropped until the next
+  /// keyframe) when it cannot be: a delta on another tick than the one held, or one that
+  /// does not add up to the world's count.
+  bool apply(const Partial& p) {
+    if (p.frame.keyframe) {
+      full.clear();
+    } else if (!haveFull || p.baseTick != fullTick) {
+      haveFull = false;
+      return false;
+    }
+    for (uint64_t id : p.removed) full.erase(order(id));
+    for (const BodyState& s : p.frame.bodies) {
+      BodyState& slot = full[order(s.id)];
+      slot = s;
+      slot.changed = true;
+    }
+    if (full.size() != p.frame.total) {
+      haveFull = false;
+      full.clear();
+      return false;
+    }
+    haveFull = true;
+    fullTick = p.frame.tick;
+    return true;
   }
 };
 
@@ -409,8 +468,9 @@ struct Client::Impl {
     for (auto& s : copy)
       s->reader.take([&](const phys_wire_Envelope& env) {
         if (!protocol::checkEnvelope(env, protocol::PayloadKind::StateFrame).ok()) return;
-        auto f = protocol::decodeStateFrame(protocol::envelopeBytes(env));
-        if (f.ok() && f->world() == s->world) s->onChunk(*f);
+        const std::span<const uint8_t> bytes = protocol::envelopeBytes(env);
+        auto f = protocol::decodeStateFrame(bytes);
+        if (f.ok() && f->world() == s->world) s->onChunk(*f, bytes.size());
       });
   }
 
@@ -556,6 +616,12 @@ std::optional<StateFrame> Subscription::waitForFrame(uint64_t afterTick,
                       [&] { return state_->latest && state_->latest->tick > afterTick; });
   if (state_->latest && state_->latest->tick > afterTick) return state_->latest;
   return std::nullopt;
+}
+
+uint64_t Subscription::framesSkipped() const {
+  if (!state_) return 0;
+  std::lock_guard<std::mutex> lk(state_->m);
+  return state_->skipped;
 }
 
 uint64_t Subscription::framesReceived() const {

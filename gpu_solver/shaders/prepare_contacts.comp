@@ -71,7 +71,16 @@ void main() {
     float arm = 0;
     for (uint p = 0u; p < m.count; ++p) arm += length(m.points[p].xyz - patchCenter);
     vec3 pa = patchCenter - comA, pb = patchCenter - comB;
-    c.patchRA = vec4(pa, arm / float(m.count));
+    arm = arm / float(m.count);
+    if (m.count == 1u) {
+      // A Hertz patch's 2a/3 (World::Impl::solverManifold, pointPatchArm).
+      float k = 0.0;
+      GpuShape sa = shapes[m.shapeA], sb = shapes[m.shapeB];
+      if (sa.type == PHYS_GPU_SHAPE_SPHERE || sa.type == PHYS_GPU_SHAPE_CAPSULE) k += 1.0 / sa.size.x;
+      if (sb.type == PHYS_GPU_SHAPE_SPHERE || sb.type == PHYS_GPU_SHAPE_CAPSULE) k += 1.0 / sb.size.x;
+      arm = k > 0.0 ? (2.0 / 3.0) * sqrt(float(PHYS_GPU_POINT_PATCH_DEPTH) / k) : 0.0;
+    }
+    c.patchRA = vec4(pa, arm);
     c.patchRB = vec4(pb, 1);
     c.massT1 = c.massT2 = vec4(0);
     c.massT1[0] = effectiveMass(t1, pa, pb, A, B);

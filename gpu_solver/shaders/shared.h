@@ -310,6 +310,9 @@ struct GpuLdlRow {
 // Split push-out (SolverSettings::kSplitDepth): the contacts' own bias corrects penetration
 // up to this depth (m), the pseudo velocities the rest.
 #define PHYS_GPU_SPLIT_DEPTH 0.01
+// A one-point manifold's twist arm: a Hertz patch pressed this deep (SolverSettings::
+// kPointPatchDepth, m).
+#define PHYS_GPU_POINT_PATCH_DEPTH 0.005
 // Graph coloring: a contact not colored yet, and one with nothing to solve.
 #define PHYS_GPU_UNCOLORED 0xFFFFFFFFu
 #define PHYS_GPU_NO_COLOR 0xFFFFFFFEu

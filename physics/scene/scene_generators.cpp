@@ -199,11 +199,12 @@ void genStack(const Json& j, const std::string& path, Builder* b) {
   }
 }
 
-// grid: nx x ny x nz boxes, centred on origin in x and y, the bottom layer resting on origin.z.
+// grid: nx x ny x nz boxes, centred on origin in x and y, the bottom layer resting on origin.z;
+// optionally all of them moving at linear_velocity.
 void genGrid(const Json& j, const std::string& path, Builder* b) {
   Object o(j, path,
            {"type", "name", "material", "nx", "ny", "nz", "half_extent", "half_extents", "spacing",
-            "origin"});
+            "origin", "linear_velocity"});
   std::string prefix = o.string("name", "grid");
   int64_t nx = o.integer("nx", 1, 10000), ny = o.integer("ny", 1, 10000),
           nz = o.integer("nz", 1, 10000);
@@ -225,6 +226,7 @@ void genGrid(const Json& j, const std::string& path, Builder* b) {
     }
   }
   Vec3 origin = o.vec3("origin", Vec3{});
+  const Vec3 velocity = o.vec3("linear_velocity", Vec3{});
   Material m = genMaterial(o, *b);
   GeneratorCounts c;
   c.bodies = c.shapes = mulSat(mulSat(uint64_t(nx), uint64_t(ny)), uint64_t(nz));
@@ -237,7 +239,9 @@ void genGrid(const Json& j, const std::string& path, Builder* b) {
         Vec3 p = v3(origin.x + (double(ix) - 0.5 * double(nx - 1)) * spacing.x,
                     origin.y + (double(iy) - 0.5 * double(ny - 1)) * spacing.y,
                     origin.z + he.z + double(iz) * spacing.z);
-        b->addBody(boxBody(prefix + "/" + std::to_string(k++), p, he, m), path);
+        BodyDef d = boxBody(prefix + "/" + std::to_string(k++), p, he, m);
+        d.linearVelocity = velocity;
+        b->addBody(std::move(d), path);
       }
     }
   }

@@ -88,6 +88,12 @@ int World::awakeBodyCount() const {
   return int(impl_->awakeBodies.size());
 }
 
+void World::awakeBodies(std::vector<BodyId>* out) const {
+  out->clear();
+  out->reserve(impl_->awakeBodies.size());
+  for (uint32_t slot : impl_->awakeBodies) out->push_back(impl_->bodies.idAt(slot));
+}
+
 bool World::isSleeping(BodyId id) const {
   const BodyRec* b = impl_->bodies.get(id);
   return b && b->asleep();

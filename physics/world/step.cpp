@@ -28,6 +28,17 @@ double nowMs() {
       .count();
 }
 
+/// The twist arm of a one-point manifold (SolverSettings::patchFriction): 2a/3 of a Hertz
+/// patch, a = sqrt(R kPointPatchDepth), R the reduced radius of curvature (0: two flat shapes).
+float pointPatchArm(const ShapeGeom& a, const ShapeGeom& b) {
+  auto curvature = [](const ShapeGeom& g) {  // 1 / R
+    return g.type == ShapeType::Sphere || g.type == ShapeType::Capsule ? 1 / g.radius : 0.0f;
+  };
+  const float k = curvature(a) + curvature(b);
+  if (!(k > 0)) return 0;
+  return (2.0f / 3.0f) * std::sqrt(SolverSettings::kPointPatchDepth / k);
+}
+
 /// Times one stage into its profile field.
 class StageTimer {
  public:
@@ -658,6 +669,7 @@ SolverManifold World::Impl::solverManifold(const Contact& c, const SolverSetting
     float arm = 0;
     for (int k = 0; k < m.count; ++k) arm += length(c.manifold.points[k].point - centroid);
     m.twistArm = arm / float(m.count);
+    if (m.count == 1) m.twistArm = pointPatchArm(shapes.at(c.shapeA).def.geom, shapes.at(c.shapeB).def.geom);
     // Switching friction models between steps warm-starts one step from the other model's
     // slots; the friction clamps bound what that can do.
     for (int d = 0; d < 3; ++d) m.patchImpulse[d] = s.warmStart ? c.patchImpulse(d) : 0;

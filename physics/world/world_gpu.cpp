@@ -73,6 +73,7 @@ bool World::Impl::stepOnDevice(int) {
 
 // The device's split depth is the CPU's (shared.h's is a GLSL literal).
 static_assert(float(PHYS_GPU_SPLIT_DEPTH) == SolverSettings::kSplitDepth);
+static_assert(float(PHYS_GPU_POINT_PATCH_DEPTH) == SolverSettings::kPointPatchDepth);
 
 struct DeviceWorld {
   std::unique_ptr<gpu::GpuWorld> world;

@@ -3,6 +3,7 @@
 
 #include <algorithm>
 
+#include "phys/protocol/compact.h"
 #include "phys/protocol/convert.h"
 #include "write.h"
 
@@ -194,7 +195,7 @@ Offset<wire::WorldSummary> writeWorldSummary(Fbb& fbb, const WorldSummary& w) {
   return wire::CreateWorldSummary(fbb, w.world, name, preset, w.bodies, w.joints, w.tick, w.time,
                                   w.running, w.rateHz, w.tickMs, w.tickMsMax, w.overruns,
                                   w.subscribers, w.frames, backend, device, note, w.gpuSteps,
-                                  w.cpuSteps, w.awakeBodies, w.sleepingBodies);
+                                  w.cpuSteps, w.awakeBodies, w.sleepingBodies, w.frameBytes);
 }
 
 Offset<wire::LimitsInfo> writeLimits(Fbb& fbb, const Limits& l) {
@@ -535,25 +536,63 @@ Bytes encodeSnapshotReply(const ReplyHeader& header, std::span<const uint8_t> sn
 
 Bytes encodeStateFrame(const FrameHeader& header, uint32_t chunkIndex, uint32_t chunkCount,
                        uint32_t totalBodies, std::span<const wire::BodyState> bodies) {
-  Fbb fbb(128 + sizeof(wire::BodyState) * bodies.size());
-  auto v = fbb.CreateVectorOfStructs(bodies.data(), bodies.size());
-  auto root = wire::CreateStateFrame(fbb, header.world, header.tick, header.time, chunkIndex,
-                                     chunkCount, totalBodies, v, header.stampNs);
-  return finishBytes(fbb, root, wire::kStateFrameId);
+  return encodeStateFrame(header, chunkIndex, chunkCount, totalBodies, bodies, {});
+}
+
+Bytes encodeStateFrame(const FrameHeader& header, uint32_t chunkIndex, uint32_t chunkCount,
+                       uint32_t totalBodies, std::span<const wire::BodyState> bodies,
+                       std::span<const uint64_t> removed) {
+  Fbb fbb(160 + sizeof(wire::BodyState) * bodies.size() + 8 * removed.size());
+  Offset<flatbuffers::Vector<const wire::BodyState*>> full;
+  Offset<flatbuffers::Vector<const wire::CompactBodyState*>> compact;
+  wire::Vec3 lo{}, hi{};
+  if (header.compact) {
+    const CompactBounds b = compactBounds(bodies);
+    lo = toWire(b.lo);
+    hi = toWire(b.hi);
+    wire::CompactBodyState* out = nullptr;
+    compact = fbb.CreateUninitializedVectorOfStructs(bodies.size(), &out);
+    for (size_t i = 0; i < bodies.size(); ++i) out[i] = compactState(bodies[i], b);
+  } else {
+    full = fbb.CreateVectorOfStructs(bodies.data(), bodies.size());
+  }
+  auto gone = removed.empty() ? 0 : fbb.CreateVector(removed.data(), removed.size());
+  wire::StateFrameBuilder f(fbb);
+  f.add_world(header.world);
+  f.add_tick(header.tick);
+  f.add_time(header.time);
+  f.add_chunk_index(chunkIndex);
+  f.add_chunk_count(chunkCount);
+  f.add_total_bodies(totalBodies);
+  if (!header.compact) f.add_bodies(full);
+  f.add_stamp_ns(header.stampNs);
+  if (!header.keyframe) {
+    f.add_keyframe(false);
+    f.add_base_tick(header.baseTick);
+  }
+  if (!removed.empty()) f.add_removed(gone);
+  if (header.compact) {
+    f.add_compact(compact);
+    f.add_bounds_min(&lo);
+    f.add_bounds_max(&hi);
+  }
+  return finishBytes(fbb, f.Finish(), wire::kStateFrameId);
 }
 
 std::vector<Bytes> encodeStateFrames(const FrameHeader& header,
                                      std::span<const wire::BodyState> bodies,
-                                     uint32_t bodiesPerChunk) {
+                                     uint32_t bodiesPerChunk, std::span<const uint64_t> removed,
+                                     uint32_t totalBodies) {
   size_t per = std::max<uint32_t>(bodiesPerChunk, 1);
   uint32_t count = uint32_t(std::max<size_t>(1, (bodies.size() + per - 1) / per));
+  if (totalBodies == UINT32_MAX) totalBodies = uint32_t(bodies.size());
   std::vector<Bytes> out;
   out.reserve(count);
   for (uint32_t c = 0; c < count; ++c) {
     size_t begin = std::min(c * per, bodies.size());  // an empty world: one empty chunk
     size_t n = std::min(per, bodies.size() - begin);
-    out.push_back(
-        encodeStateFrame(header, c, count, uint32_t(bodies.size()), bodies.subspan(begin, n)));
+    out.push_back(encodeStateFrame(header, c, count, totalBodies, bodies.subspan(begin, n),
+                                   c == 0 ? removed : std::span<const uint64_t>{}));
   }
   return out;
 }

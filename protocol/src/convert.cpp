@@ -214,6 +214,7 @@ WorldSummary toWorldSummary(const wire::WorldSummary& in) {
   s.cpuSteps = in.cpu_steps();
   s.awakeBodies = in.awake_bodies();
   s.sleepingBodies = in.sleeping_bodies();
+  s.frameBytes = in.frame_bytes();
   return s;
 }
 

@@ -984,8 +984,20 @@ Decoded<wire::StateFrame> decodeStateFrame(std::span<const uint8_t> bytes, const
       bytes, limits, wire::kStateFrameId, "state frame", [](Checker& c, const wire::StateFrame& f) {
         Scope sc(c, "state_frame");
         if (!checkChunk(c, f.chunk_index(), f.chunk_count())) return false;
-        if (!c.aligned8(f.bodies(), "bodies")) return false;
-        size_t n = f.bodies() ? f.bodies()->size() : 0;
+        if (!c.aligned8(f.bodies(), "bodies") || !c.aligned8(f.compact(), "compact") ||
+            !c.aligned8(f.removed(), "removed"))
+          return false;
+        if (f.bodies() && f.compact())
+          return c.invalid("compact", "and bodies are both present (one or the other)");
+        if (f.compact() && (!f.bounds_min() || !f.bounds_max()))
+          return c.invalid("compact", "needs bounds_min and bounds_max");
+        if (f.keyframe() && f.removed() && f.removed()->size() > 0)
+          return c.invalid("removed", "is only for deltas (keyframe false)");
+        if (f.removed() && f.removed()->size() > c.lim.maxBodiesPerFrame)
+          return c.fail(Code::ResourceExhausted, "removed",
+                        "has " + std::to_string(f.removed()->size()) + " entries, the limit is " +
+                            std::to_string(c.lim.maxBodiesPerFrame) + " (max_bodies_per_frame)");
+        size_t n = f.bodies() ? f.bodies()->size() : f.compact() ? f.compact()->size() : 0;
         if (n > c.lim.maxBodiesPerFrame)
           return c.fail(Code::ResourceExhausted, "bodies",
                         "has " + std::to_string(n) + " entries, the limit is " +

@@ -234,6 +234,7 @@ struct ServerCore::Context {
           if (!s.ok()) return fromPhys(s, p + ".bodies[" + std::to_string(i) + "]");
           sw.bodyDefs[id.packed()] = defs[i];
           ids.bodies.push_back(id.packed());
+          sw.published.touched.push_back(id.packed());
         }
         sw.infoDirty = true;
         return Status::Ok();
@@ -246,6 +247,7 @@ struct ServerCore::Context {
           phys::Status st = w.destroyBody(phys::BodyId::fromPacked(v->Get(i)));
           if (!st.ok()) return fromPhys(st, p + ".bodies[" + std::to_string(i) + "]");
           sw.bodyDefs.erase(v->Get(i));
+          sw.published.touched.push_back(v->Get(i));
         }
         // Their joints went with them.
         for (auto it = sw.jointDefs.begin(); it != sw.jointDefs.end();)
@@ -302,6 +304,7 @@ struct ServerCore::Context {
           phys::Transform t = protocol::toPhys(it->pose());
           phys::Status st = w.setTransform(phys::BodyId::fromPacked(it->id()), t.p, t.q);
           if (!st.ok()) return fromPhys(st, p + ".items[" + std::to_string(i) + "]");
+          sw.published.touched.push_back(it->id());
         }
         return Status::Ok();
       }
@@ -628,6 +631,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       sw->tick = 0;
       sw->accumulator = 0;
       ++sw->revision;
+      sw->published.valid = false;  // a new world: subscribers start from a keyframe
       sw->infoDirty = sw->frameDirty = true;
       return finish();
     }
@@ -966,6 +970,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
         ctx.header.tick = data.tick;
         sw->tick = data.tick;
         ++sw->revision;
+      sw->published.valid = false;  // a new world: subscribers start from a keyframe
         sw->infoDirty = sw->frameDirty = true;
         reply = protocol::encodeIdsReply(ctx.header, ctx.ids.bodies, ctx.ids.joints);
         return finish();
@@ -973,6 +978,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       sw->tick = data.tick;
       sw->accumulator = 0;
       ++sw->revision;
+      sw->published.valid = false;  // a new world: subscribers start from a keyframe
       sw->infoDirty = sw->frameDirty = true;
       ctx.header.tick = sw->tick;
       return finish();
@@ -1110,6 +1116,7 @@ void ServerCore::commitScene(ServerWorld& sw, SceneLoad&& load, std::vector<uint
   sw.tick = 0;
   sw.accumulator = 0;
   ++sw.revision;
+  sw.published.valid = false;  // a new world: subscribers start from a keyframe
   sw.infoDirty = sw.frameDirty = true;
 }
 

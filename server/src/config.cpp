@@ -111,7 +111,8 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
   if (auto* t = root["server"].as_table()) {
     s = checkKeys(*t,
                   {"name", "id", "log_level", "threads", "default_rate_hz", "max_catch_up_steps",
-                   "status_period_s", "bodies_per_chunk", "frame_ring", "max_worlds",
+                   "status_period_s", "bodies_per_chunk", "keyframe_ticks", "state_encoding",
+                   "frame_ring", "max_worlds",
                    "realtime_priority", "backend", "gpu_allow_cpu_device",
                    "max_bodies_per_world", "max_joints_per_world", "max_bodies_total",
                    "memory_budget_mb", "max_snapshot_files", "max_snapshot_mb",
@@ -127,6 +128,17 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     PHYS_GET(*t, "max_catch_up_steps", "server", &c.core.maxCatchUpSteps);
     PHYS_GET(*t, "status_period_s", "server", &c.statusPeriodS);
     PHYS_GET(*t, "bodies_per_chunk", "server", &c.core.bodiesPerChunk);
+    PHYS_GET(*t, "keyframe_ticks", "server", &c.core.keyframeTicks);
+    if (c.core.keyframeTicks < 1)
+      return Status::Error(Code::InvalidArgument,
+                           "physd config: server.keyframe_ticks must be >= 1 (1: every frame a keyframe)");
+    std::string encoding = c.core.compactStates ? "compact" : "full";
+    PHYS_GET(*t, "state_encoding", "server", &encoding);
+    if (encoding != "full" && encoding != "compact")
+      return Status::Error(Code::InvalidArgument,
+                           "physd config: server.state_encoding must be \"full\" or \"compact\", got \"" +
+                               encoding + "\"");
+    c.core.compactStates = encoding == "compact";
     PHYS_GET(*t, "frame_ring", "server", &c.core.frameRingCapacity);
     PHYS_GET(*t, "max_worlds", "server", &c.core.maxWorlds);
     PHYS_GET(*t, "realtime_priority", "server", &c.realtimePriority);

@@ -625,21 +625,87 @@ double ServerCore::secondsUntilDue(double idle) const {
 }
 
 Status ServerCore::queueFrame(ServerWorld& w) {
+  // State frames (docs/PROTOCOL.md "State frames"): a keyframe holds every body, a delta the
+  // bodies whose state changed since the last frame: those awake now or at the last frame
+  // (a body that fell asleep sends its final state once), and those edited outside the step
+  // (static poses, spawned, removed). A world at rest costs a keyframe every keyframeTicks
+  // frames and an empty delta between; one nobody subscribes to costs nothing.
   w.frameDirty = false;
+  ServerWorld::Published& pub = w.published;
+  uint32_t subscribers = 0;
+  {
+    std::lock_guard<std::mutex> lock(subscribersMutex_);
+    auto it = subscribers_.find(w.id);
+    subscribers = it == subscribers_.end() ? 0 : it->second;
+  }
+  if (subscribers == 0 && !config_.framesWithoutSubscribers) {
+    pub = ServerWorld::Published();  // the next subscriber starts from a keyframe
+    return Status::Ok();
+  }
+  // Frames the publisher dropped (a stalled writer) break the chain of deltas.
+  const uint64_t dropped = out_.framesDropped();
+  const bool keyframe = !pub.valid || subscribers > pub.subscribers ||
+                        dropped != pub.droppedSeen || pub.sinceKeyframe + 1 >= config_.keyframeTicks;
+  phys::World& world = *w.world;
+  std::vector<phys::BodyId> awake;
+  world.awakeBodies(&awake);
+  std::vector<uint64_t> awakeIds(awake.size());
+  for (size_t i = 0; i < awake.size(); ++i) awakeIds[i] = awake[i].packed();
+  std::sort(awakeIds.begin(), awakeIds.end());
   std::vector<wire::BodyState> states;
-  std::vector<phys::BodyId> ids = w.world->bodies();
-  states.reserve(ids.size());
+  std::vector<uint64_t> removed;
   phys::BodyState s;
-  for (phys::BodyId id : ids)
-    if (w.world->getBody(id, &s).ok()) states.push_back(protocol::toWire(s));
+  if (keyframe) {
+    const std::vector<phys::BodyId> ids = world.bodies();
+    states.reserve(ids.size());
+    pub.sent.clear();
+    pub.sent.reserve(ids.size());
+    for (phys::BodyId id : ids) {
+      if (!world.getBody(id, &s).ok()) continue;
+      states.push_back(protocol::toWire(s));
+      pub.sent[id.packed()] = states.back();
+    }
+    pub.sinceKeyframe = 0;
+  } else {
+    std::vector<uint64_t> candidates;
+    candidates.reserve(awakeIds.size() + pub.awake.size() + pub.touched.size());
+    std::set_union(awakeIds.begin(), awakeIds.end(), pub.awake.begin(), pub.awake.end(),
+                   std::back_inserter(candidates));
+    candidates.insert(candidates.end(), pub.touched.begin(), pub.touched.end());
+    std::sort(candidates.begin(), candidates.end());
+    candidates.erase(std::unique(candidates.begin(), candidates.end()), candidates.end());
+    for (uint64_t id : candidates) {
+      if (world.getBody(phys::BodyId::fromPacked(id), &s).ok()) {
+        const wire::BodyState ws = protocol::toWire(s);
+        auto [it, added] = pub.sent.try_emplace(id, ws);
+        if (!added && std::memcmp(&it->second, &ws, sizeof ws) == 0) continue;  // unchanged
+        it->second = ws;
+        states.push_back(ws);
+      } else if (pub.sent.erase(id) > 0) {
+        removed.push_back(id);
+      }
+    }
+    ++pub.sinceKeyframe;
+  }
   StateFrameSet f;
   f.world = w.id;
   f.tick = w.tick;
   const auto stamp = std::chrono::system_clock::now().time_since_epoch();
-  f.chunks = protocol::encodeStateFrames(
-      {w.id, w.tick, w.world->time(),
-       uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(stamp).count())},
-      states, std::max<uint32_t>(1, config_.bodiesPerChunk));
+  protocol::FrameHeader h{w.id, w.tick, world.time(),
+                          uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(stamp).count())};
+  h.keyframe = keyframe;
+  h.baseTick = pub.lastTick;
+  h.compact = config_.compactStates;
+  f.chunks = protocol::encodeStateFrames(h, states, std::max<uint32_t>(1, config_.bodiesPerChunk),
+                                         removed, uint32_t(world.bodyCount()));
+  pub.awake = std::move(awakeIds);
+  pub.touched.clear();
+  pub.valid = true;
+  pub.lastTick = w.tick;
+  pub.subscribers = subscribers;
+  pub.droppedSeen = dropped;
+  pub.bytes = 0;
+  for (const protocol::Bytes& c : f.chunks) pub.bytes += c.size();
   ++w.framesProduced;
   out_.pushFrame(std::move(f));
   return Status::Ok();
@@ -710,6 +776,7 @@ std::vector<protocol::WorldSummary> ServerCore::summaries() const {
     s.cpuSteps = b.cpuSteps;
     s.awakeBodies = uint32_t(w->world->awakeBodyCount());
     s.sleepingBodies = uint32_t(w->world->stats().sleepingBodies);
+    s.frameBytes = uint32_t(std::min<uint64_t>(w->published.bytes, UINT32_MAX));
     auto it = subscribers_.find(id);
     s.subscribers = it == subscribers_.end() ? 0 : it->second;
     out.push_back(std::move(s));

@@ -114,6 +114,9 @@ void DdsEndpoint::publish(ReliableMessage& m) {
       break;
     case ReliableMessage::Type::WorldInfo: {
       if (removed_.count(m.world)) break;
+      // The state writer exists from the world's first info on, so that its subscribers are
+      // counted before any frame is encoded (a world without subscribers encodes none).
+      stateTopic(m.world);
       for (uint32_t i = 0; i < m.chunks.size() && rc == DDS_RETCODE_OK; ++i)
         rc = infoWriter_.write(protocol::worldInfoKey(m.world, i), m.chunks[i]);
       // Chunks the world no longer has.
@@ -143,21 +146,28 @@ void DdsEndpoint::publish(ReliableMessage& m) {
   }
 }
 
-void DdsEndpoint::publish(StateFrameSet& f) {
-  if (removed_.count(f.world)) return;  // queued before its world was destroyed
-  auto it = state_.find(f.world);
+DdsEndpoint::StateTopic* DdsEndpoint::stateTopic(uint32_t world) {
+  if (removed_.count(world)) return nullptr;  // queued before its world was destroyed
+  auto it = state_.find(world);
   if (it == state_.end()) {
     auto st = std::make_unique<StateTopic>();
     std::string err;
-    if (!st->topic.create(participant_, protocol::stateTopic(f.world), &err) ||
+    if (!st->topic.create(participant_, protocol::stateTopic(world), &err) ||
         !st->writer.create(participant_, st->topic, protocol::kStateQos, PayloadKind::StateFrame,
                            &err)) {
       counters_.writeErrors.fetch_add(1);
-      spdlog::error("state topic for world {}: {}", f.world, err);
-      return;
+      spdlog::error("state topic for world {}: {}", world, err);
+      return nullptr;
     }
-    it = state_.emplace(f.world, std::move(st)).first;
+    it = state_.emplace(world, std::move(st)).first;
   }
+  return it->second.get();
+}
+
+void DdsEndpoint::publish(StateFrameSet& f) {
+  StateTopic* st = stateTopic(f.world);
+  if (!st) return;
+  auto it = state_.find(f.world);
   for (uint32_t i = 0; i < f.chunks.size(); ++i) {
     dds_return_t rc = it->second->writer.write(i, f.chunks[i], f.tick);
     if (rc == DDS_RETCODE_OK) {

@@ -3,6 +3,7 @@
 // tests/server and tests/protocol; 232 is avoided: its ports overflow 65535 for high participant
 // indices) and a Cyclone discovery tag made from its process id, so tests running in parallel never
 // see each other's daemons.
+#include <cstring>
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -301,6 +302,93 @@ TEST(ClientSdk, SubscriptionDeliversEveryBodyOfATick) {
   std::lock_guard<std::mutex> lk(m);
   EXPECT_FALSE(seen.empty());
   for (auto& [tick, n] : seen) EXPECT_EQ(n, ids.size()) << "tick " << tick;
+}
+
+// Issue 22: the server sends keyframes and deltas; the SDK rebuilds every tick's full state.
+// Over 10 s of a world where some bodies fall, some drift and most fall asleep, every frame the
+// subscription delivers equals the world's state at its tick, bit for bit (full encoding).
+TEST(ClientSdk, RebuiltStateEqualsTheWorldsEveryTick) {
+  Env env;
+  Client& c = env.client;
+  c.connect();
+  WorldHandle w = c.createWorld({"delta", "", std::nullopt, 0}).get();  // sleeps by default
+  std::vector<phys::BodyDef> defs = grid(60);  // the ground and 60 boxes resting on it
+  for (int i = 0; i < 10; ++i) {
+    phys::BodyDef d = boxBody({float(i) * 3, 40, 5});
+    d.gravityScale = 0;
+    d.linearVelocity = {0, 0.3f, 0};  // drifting for good
+    defs.push_back(d);
+    defs.push_back(boxBody({float(i) * 3, -20, 2 + float(i)}));  // falling, then asleep
+  }
+  const auto ids = w.spawn(defs).get();
+  std::mutex m;
+  std::map<uint64_t, StateFrame> got;
+  Subscription sub = w.subscribe([&](const StateFrame& f) {
+    std::lock_guard<std::mutex> lk(m);
+    got[f.tick] = f;
+  });
+  // Until the subscription is matched and has its first keyframe.
+  uint64_t tick = 0;
+  ASSERT_TRUE(waitFor([&] {
+    tick = w.step(1).get().tick;
+    return waitFor([&] { std::lock_guard<std::mutex> lk(m); return got.count(tick) > 0; }, 300ms);
+  }));
+  size_t deltas = 0, changedInDeltas = 0;
+  for (int i = 0; i < 600; ++i) {
+    tick = w.step(1).get().tick;
+    ASSERT_TRUE(waitFor([&] { std::lock_guard<std::mutex> lk(m); return got.count(tick) > 0; }))
+        << "tick " << tick;
+    const StateFrame truth = w.queryState().get();
+    ASSERT_EQ(truth.tick, tick);
+    StateFrame f;
+    {
+      std::lock_guard<std::mutex> lk(m);
+      f = got[tick];
+      got.clear();
+    }
+    ASSERT_EQ(f.bodies.size(), ids.size());
+    ASSERT_EQ(truth.bodies.size(), ids.size());
+    std::map<uint64_t, BodyState> want;
+    for (const BodyState& b : truth.bodies) want[b.id] = b;
+    for (const BodyState& b : f.bodies) {
+      const BodyState& t = want.at(b.id);
+      ASSERT_TRUE(std::memcmp(&b.position, &t.position, sizeof t.position) == 0 &&
+                  std::memcmp(&b.rotation, &t.rotation, sizeof t.rotation) == 0 &&
+                  std::memcmp(&b.linearVelocity, &t.linearVelocity, sizeof t.linearVelocity) == 0 &&
+                  std::memcmp(&b.angularVelocity, &t.angularVelocity, sizeof t.angularVelocity) == 0)
+          << "body " << b.id << " at tick " << tick;
+    }
+    if (!f.keyframe) {
+      ++deltas;
+      changedInDeltas += f.changed;
+    }
+  }
+  // Most frames were deltas, and once the boxes slept they carried the drifting ones only.
+  EXPECT_GT(deltas, 500u);
+  EXPECT_LT(double(changedInDeltas) / double(deltas), 0.5 * double(ids.size()));
+}
+
+// A subscriber that comes while the world runs has every body within a keyframe's time.
+TEST(ClientSdk, LateSubscriberHasTheFullStateWithinAKeyframe) {
+  Env env;
+  Client& c = env.client;
+  c.connect();
+  WorldHandle w = c.createWorld({"late", "", std::nullopt, 0}).get();
+  const auto ids = w.spawn(grid(300)).get();
+  w.run(60).get();
+  std::this_thread::sleep_for(1500ms);  // everything asleep; deltas are empty now
+  const auto start = std::chrono::steady_clock::now();
+  Subscription sub = w.subscribe();
+  auto frame = sub.waitForFrame(0, kTimeout);
+  const double waited =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  ASSERT_TRUE(frame);
+  EXPECT_EQ(frame->bodies.size(), ids.size());
+  EXPECT_EQ(frame->total, ids.size());
+  // Matching plus the server's look at its subscribers (every 250 ms) plus a keyframe every
+  // 60 ticks (1 s): well under 2 s.
+  EXPECT_LT(waited, 2.0);
+  w.pause().get();
 }
 
 TEST(ClientSdk, EightSubscribersReceiveEveryBodyOfEveryTick) {

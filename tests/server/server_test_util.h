@@ -27,6 +27,7 @@ inline CoreConfig testConfig() {
                    ("physd_test_snapshots_" + std::to_string(getpid())))
                       .string();
   c.threads = 1;
+  c.framesWithoutSubscribers = true;  // no DDS here: frames are read from the queue
   return c;
 }
 

@@ -119,9 +119,9 @@ int watch(pc::Client& c, const std::string& only) {
                     status->serverName.c_str(), status->serverVersion.c_str(), status->uptimeS,
                     (unsigned long long)status->commands, (unsigned long long)status->errors);
       out += line;
-      std::snprintf(line, sizeof line, "%5s  %-18s %10s %10s %8s %8s %15s %8s %6s %5s\n", "id",
-                    "world", "tick", "sim time", "tick ms", "max ms", "awake/bodies", "state",
-                    "frm/s", "subs");
+      std::snprintf(line, sizeof line, "%5s  %-18s %10s %10s %8s %8s %15s %10s %8s %6s %5s\n",
+                    "id", "world", "tick", "sim time", "tick ms", "max ms", "awake/bodies",
+                    "bytes/tick", "state", "frm/s", "subs");
       out += line;
       for (const auto& w : worlds) {
         Live& l = live[w.world];
@@ -139,9 +139,12 @@ int watch(pc::Client& c, const std::string& only) {
         l.fps = dt > 0 ? double(frames - l.lastFrames) / dt : 0;
         l.lastFrames = frames;
         const std::string awake = std::to_string(w.awakeBodies) + "/" + std::to_string(bodies);
-        std::snprintf(line, sizeof line, "%5u  %-18s %10llu %10.2f %8.3f %8.3f %15s %8s %6.1f %5u\n",
+        // What the last frame cost on the wire: the server's count, or what this watch got.
+        uint64_t bytes = w.frameBytes;
+        if (auto f = l.sub.latest(); f && f->bytes > 0) bytes = f->bytes;
+        std::snprintf(line, sizeof line, "%5u  %-18s %10llu %10.2f %8.3f %8.3f %15s %10llu %8s %6.1f %5u\n",
                       w.world, w.name.c_str(), (unsigned long long)tick, time, double(w.tickMs),
-                      double(w.tickMsMax), awake.c_str(), w.running ? "running" : "paused", l.fps,
+                      double(w.tickMsMax), awake.c_str(), (unsigned long long)bytes, w.running ? "running" : "paused", l.fps,
                       w.subscribers);
         out += line;
       }
@@ -184,6 +187,7 @@ int subscribe(pc::Client& c, const std::string& world, double warmup, double sec
     uint64_t tick;
     double latencyMs;
     uint32_t bodies;
+    uint64_t bytes;  ///< what the server sent for the tick (keyframe or delta)
   };
   std::mutex m;
   std::vector<Record> records;
@@ -196,7 +200,7 @@ int subscribe(pc::Client& c, const std::string& world, double warmup, double sec
                       1e6;
     if (!measuring.load()) return;
     std::lock_guard<std::mutex> lk(m);
-    records.push_back({f.tick, ms, uint32_t(f.bodies.size())});
+    records.push_back({f.tick, ms, uint32_t(f.bodies.size()), f.bytes});
   });
   auto sleepFor = [](double s) {
     const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(s);
@@ -217,9 +221,11 @@ int subscribe(pc::Client& c, const std::string& world, double warmup, double sec
   const uint64_t expected = last - first + 1;
   std::vector<double> lat;
   uint32_t minBodies = UINT32_MAX;
+  double bytes = 0;
   for (const Record& r : records) {
     lat.push_back(r.latencyMs);
     minBodies = std::min(minBodies, r.bodies);
+    bytes += double(r.bytes);
   }
   if (log) {
     for (const Record& r : records)
@@ -231,10 +237,10 @@ int subscribe(pc::Client& c, const std::string& world, double warmup, double sec
   };
   std::printf(
       "subscriber %d: world %u ticks %llu..%llu received %zu expected %llu delivered %.3f%% "
-      "bodies_min %u latency_ms p50 %.3f p99 %.3f max %.3f\n",
+      "bodies_min %u latency_ms p50 %.3f p99 %.3f max %.3f bytes_per_tick %.0f\n",
       int(getpid()), w.id(), (unsigned long long)first, (unsigned long long)last, records.size(),
       (unsigned long long)expected, 100.0 * double(records.size()) / double(expected), minBodies,
-      pct(0.5), pct(0.99), lat.back());
+      pct(0.5), pct(0.99), lat.back(), bytes / double(records.size()));
   return 0;
 }
 

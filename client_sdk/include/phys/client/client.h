@@ -72,15 +72,26 @@ struct BodyState {
   phys::Quat rotation;  ///< as physd sent it: unit length to float rounding, not re-normalized
   phys::Vec3 linearVelocity;
   phys::Vec3 angularVelocity;
+  /// In a subscription's frame: this tick's frame carried the body (its state changed since
+  /// the previous frame, or the frame is a keyframe); otherwise the state is the one it last
+  /// carried. Always true in a QueryState answer.
+  bool changed = true;
 };
 
-/// One complete tick of a world (every chunk reassembled), or a QueryState answer.
+/// One complete tick of a world, or a QueryState answer. A subscription rebuilds every tick's
+/// full state from the server's keyframes and deltas (docs/PROTOCOL.md "State frames"): its
+/// frames hold every body of the world at that one tick, in index order, never a mix of
+/// ticks; a tick whose delta cannot be applied (one was lost) is skipped until the next
+/// keyframe.
 struct StateFrame {
   uint32_t world = 0;
   uint64_t tick = 0;
   double time = 0;
   uint32_t total = 0;  ///< bodies in the world (QueryState: matching the query)
   std::vector<BodyState> bodies;
+  bool keyframe = true;  ///< the server sent every body (else a delta: see BodyState::changed)
+  uint32_t changed = 0;  ///< bodies the server sent for this tick
+  uint64_t bytes = 0;    ///< the encoded size of what the server sent for this tick
   /// The server's wall clock (ns since the Unix epoch) when it read these states; 0 for
   /// QueryState. Now minus this is the tick-to-subscriber latency (same host or synced clocks).
   uint64_t stampNs = 0;
@@ -130,6 +141,9 @@ class Subscription {
   /// Waits for a complete frame with tick > afterTick.
   std::optional<StateFrame> waitForFrame(uint64_t afterTick, std::chrono::milliseconds timeout);
   uint64_t framesReceived() const;  ///< complete frames
+  /// Ticks skipped because a delta arrived without the frame it applies to (a lost chunk, a
+  /// subscription started between keyframes): each is repaired by the next keyframe.
+  uint64_t framesSkipped() const;
   void reset();                     ///< unsubscribes
 
   struct State;

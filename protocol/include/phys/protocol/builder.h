@@ -190,6 +190,7 @@ struct WorldSummary {
   uint64_t gpuSteps = 0, cpuSteps = 0;  ///< steps taken on the device / by the CPU backend
   uint32_t awakeBodies = 0;     ///< bodies the world steps (not static, not asleep)
   uint32_t sleepingBodies = 0;  ///< dynamic bodies asleep
+  uint32_t frameBytes = 0;      ///< bytes of the last state frame (0: none encoded)
 };
 
 /// A reply without a result (errors; Pause, DestroyWorld, ...).
@@ -212,13 +213,23 @@ struct FrameHeader {
   uint64_t tick = 0;
   double time = 0;       ///< s, simulated
   uint64_t stampNs = 0;  ///< wall clock (ns since the Unix epoch) when the states were read
+  bool keyframe = true;  ///< every body; false: a delta on the frame of baseTick
+  uint64_t baseTick = 0;
+  bool compact = false;  ///< CompactBodyState instead of BodyState (compact.h)
 };
+/// One chunk. A delta's chunk 0 carries `removed`; totalBodies is the world's count.
+Bytes encodeStateFrame(const FrameHeader& header, uint32_t chunkIndex, uint32_t chunkCount,
+                       uint32_t totalBodies, std::span<const wire::BodyState> bodies,
+                       std::span<const uint64_t> removed);
 Bytes encodeStateFrame(const FrameHeader& header, uint32_t chunkIndex, uint32_t chunkCount,
                        uint32_t totalBodies, std::span<const wire::BodyState> bodies);
 /// One tick's states split into chunks of at most bodiesPerChunk (>= 1); at least one chunk.
+/// A keyframe's totalBodies is bodies.size(); a delta's is given (the world's count).
 std::vector<Bytes> encodeStateFrames(const FrameHeader& header,
                                      std::span<const wire::BodyState> bodies,
-                                     uint32_t bodiesPerChunk = kDefaultBodiesPerChunk);
+                                     uint32_t bodiesPerChunk = kDefaultBodiesPerChunk,
+                                     std::span<const uint64_t> removed = {},
+                                     uint32_t totalBodies = UINT32_MAX);
 
 /// A body or joint with its id, as WorldInfo and Snapshot carry them.
 struct BodyEntry {

@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <deque>
 #include <map>
+#include <unordered_map>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -69,6 +70,15 @@ struct CoreConfig {
   /// budgets allow); past it: ResourceExhausted.
   uint32_t maxConcurrentLoads = 2;
   uint32_t bodiesPerChunk = protocol::kDefaultBodiesPerChunk;
+  /// State frames: a keyframe (every body) every keyframeTicks frames, at once for a new
+  /// subscriber and after a world is replaced (load, reset, restore); deltas (the bodies
+  /// whose state changed) in between. 1: every frame a keyframe.
+  uint32_t keyframeTicks = 60;
+  /// CompactBodyState (40 bytes, bounded error: protocol/compact.h) instead of BodyState.
+  bool compactStates = false;
+  /// Encode state frames for worlds nobody subscribes to (in-process tests without DDS);
+  /// physd encodes none for them.
+  bool framesWithoutSubscribers = false;
   size_t frameRingCapacity = 4;  ///< state frame sets queued for the publisher
   double defaultRateHz = 60;     ///< Run without a rate
   /// Backend of worlds whose CreateWorld names none (start-up worlds: their `backend`).
@@ -135,6 +145,19 @@ struct ServerWorld {
   uint64_t framesProduced = 0;
   bool infoDirty = true;   ///< world info to publish
   bool frameDirty = true;  ///< a state frame to publish even without a step
+  /// What the world's subscribers hold (ServerCore::queueFrame): the states of its last
+  /// frames by body id, the bodies awake at the last frame, the bodies edited since
+  /// (touched: poses, velocities, impulses, spawned, removed), when the last keyframe was.
+  struct Published {
+    std::unordered_map<uint64_t, phys::wire::BodyState> sent;
+    std::vector<uint64_t> awake;
+    std::vector<uint64_t> touched;
+    bool valid = false;   ///< a keyframe went out and every frame since
+    uint64_t lastTick = 0, sinceKeyframe = 0;
+    uint32_t subscribers = 0;  ///< at the last frame
+    uint64_t droppedSeen = 0;  ///< the publisher's dropped frames at the last frame
+    uint64_t bytes = 0;        ///< of the last frame
+  } published;
   /// A Step longer than one slice (CoreConfig::stepSliceSeconds): its remaining steps run a
   /// slice per tick, its reply goes out when the last is taken.
   struct StepJob {

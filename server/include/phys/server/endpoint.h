@@ -58,6 +58,7 @@ class DdsEndpoint {
     dds::Writer writer;
   };
   std::map<uint32_t, std::unique_ptr<StateTopic>> state_;  ///< publisher thread only
+  StateTopic* stateTopic(uint32_t world);  ///< made on first use; null for a removed world
   std::map<uint32_t, uint32_t> infoChunks_;                ///< world -> chunks last written
   std::set<uint32_t> removed_;  ///< destroyed worlds (ids are never reused): late frames dropped
   std::atomic<bool> stop_{false};

@@ -87,7 +87,13 @@ struct SolverSettings {
   /// and a twist row about the normal, bounded by mu times the manifold's total normal
   /// impulse (and the points' mean distance from the centroid, for the twist), instead of a
   /// tangent pair at every point: 3 friction rows instead of 8 for a face contact.
+  /// A manifold of one point (a sphere or a capsule's end on something) has no spread to
+  /// measure; its twist arm is a Hertz contact patch's: radius a = sqrt(R kPointPatchDepth),
+  /// R the reduced radius of curvature of the curved shapes (boxes, hulls and planes count as
+  /// flat; two flat ones leave the arm 0), and the twist friction of a uniformly loaded disc
+  /// acts at 2a/3. Without it a sphere spinning about the contact normal never stops.
   bool patchFriction = true;
+  static constexpr float kPointPatchDepth = 0.005f;  ///< m
 };
 
 /// The Gauss-Seidel scheme solves contact manifolds eight at a time in SIMD lanes, in an

@@ -302,6 +302,7 @@ class World {
   Status wakeBody(BodyId id);
   bool isSleeping(BodyId id) const;  ///< false for an unknown id
   int awakeBodyCount() const;        ///< bodies the step moves: not static, not asleep
+  void awakeBodies(std::vector<BodyId>* out) const;  ///< those bodies, in index order
   Status getBody(BodyId id, BodyState* out) const;
   bool isValid(BodyId id) const;
   std::vector<BodyId> bodies() const;  ///< live bodies in index order

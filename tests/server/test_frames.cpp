@@ -1,0 +1,209 @@
+// State frames that publish only what changed (issue 22): keyframes every keyframe_ticks
+// frames, at once for a new subscriber and after the world is replaced; deltas in between
+// with the bodies whose state changed (moving ones, one that fell asleep, a static body moved,
+// spawned ones) and the removed ones; nothing encoded for a world without subscribers; compact
+// states on request. The SDK's side (rebuilding every tick) is tests/client/test_client.cpp.
+#include <cstring>
+#include <map>
+
+#include "../common/bodies.h"
+#include "phys/protocol/compact.h"
+#include "server_test_util.h"
+
+namespace phys::server::test {
+namespace {
+
+using protocol::CommandBuilder;
+
+struct Frame {
+  uint64_t tick = 0, baseTick = 0;
+  bool keyframe = true;
+  uint32_t total = 0;
+  std::map<uint64_t, wire::BodyState> bodies;
+  std::vector<uint64_t> removed;
+};
+
+class FramesTest : public ::testing::Test {
+ protected:
+  void start(CoreConfig c) {
+    core = std::make_unique<ServerCore>(std::move(c));
+    ASSERT_TRUE(core->init().ok());
+    Reply r = send(CommandBuilder().createWorld({"w", "", std::nullopt, 0}), 0);
+    ASSERT_EQ(r->status(), Code::Ok) << message(r);
+    world = r->world();
+  }
+  void TearDown() override {
+    std::error_code ec;
+    if (core) std::filesystem::remove_all(core->config().snapshotDir, ec);
+  }
+  Reply send(CommandBuilder& b, uint32_t w) {
+    return decode(core->applyBytes(b.finish({kClient, ++seq, w}), kClient, seq));
+  }
+  Reply send(CommandBuilder& b) { return send(b, world); }
+  /// Every frame set queued since the last call, decoded.
+  std::vector<Frame> frames() {
+    std::vector<Frame> out;
+    for (;;) {
+      PublishQueue::Item item = core->out().pop(std::chrono::milliseconds(0));
+      if (!item.reliable && !item.frame) break;
+      if (!item.frame) continue;
+      Frame f;
+      for (protocol::Bytes& bytes : item.frame->chunks) {
+        auto d = protocol::decodeStateFrame(std::move(bytes));
+        EXPECT_TRUE(d.ok()) << d.status.message;
+        f.tick = d->tick();
+        f.keyframe = d->keyframe();
+        f.baseTick = d->base_tick();
+        f.total = d->total_bodies();
+        if (d->bodies())
+          for (const wire::BodyState* s : *d->bodies()) f.bodies[s->id()] = *s;
+        if (d->compact()) {
+          const protocol::CompactBounds b{protocol::toPhys(*d->bounds_min()),
+                                          protocol::toPhys(*d->bounds_max())};
+          for (const wire::CompactBodyState* c : *d->compact())
+            f.bodies[c->id()] = protocol::expandState(*c, b);
+        }
+        if (d->removed()) f.removed.assign(d->removed()->begin(), d->removed()->end());
+      }
+      out.push_back(std::move(f));
+    }
+    return out;
+  }
+  Frame step(uint32_t n = 1) {
+    EXPECT_EQ(send(CommandBuilder().step(n))->status(), Code::Ok);
+    core->advance(0);
+    std::vector<Frame> f = frames();
+    EXPECT_EQ(f.size(), 1u);
+    return f.empty() ? Frame() : f.back();
+  }
+  std::vector<uint64_t> spawn(std::vector<BodyDef> defs) {
+    Reply r = send(CommandBuilder().spawnBodies(defs));
+    EXPECT_EQ(r->status(), Code::Ok) << message(r);
+    return bodyIds(r);
+  }
+
+  std::unique_ptr<ServerCore> core;
+  uint32_t world = 0;
+  uint64_t seq = 0;
+};
+
+CoreConfig withSubscribersOnly() {
+  CoreConfig c = testConfig();
+  c.framesWithoutSubscribers = false;
+  c.keyframeTicks = 10;
+  return c;
+}
+
+TEST_F(FramesTest, NoSubscribersNoFramesThenAKeyframeForTheFirstOne) {
+  start(withSubscribersOnly());
+  spawn({phys::test::groundBody(), phys::test::boxBody({0, 0, 3})});
+  frames();
+  for (int i = 0; i < 5; ++i) {
+    send(CommandBuilder().step(1));
+    core->advance(0);
+  }
+  EXPECT_TRUE(frames().empty()) << "a world nobody subscribes to encodes no frames";
+  EXPECT_EQ(core->world(world)->framesProduced, 0u);
+  core->setSubscribers(world, 1);
+  Frame f = step();
+  EXPECT_TRUE(f.keyframe);
+  EXPECT_EQ(f.bodies.size(), 2u);
+  EXPECT_EQ(f.total, 2u);
+  // The next one is a delta on it: the falling box only (the ground does not move).
+  Frame d = step();
+  EXPECT_FALSE(d.keyframe);
+  EXPECT_EQ(d.baseTick, f.tick);
+  EXPECT_EQ(d.bodies.size(), 1u);
+  EXPECT_EQ(d.total, 2u);
+  // A second subscriber gets a keyframe at once.
+  core->setSubscribers(world, 2);
+  EXPECT_TRUE(step().keyframe);
+}
+
+TEST_F(FramesTest, DeltasCarryWhatChangedAndKeyframesComeOnTime) {
+  start(withSubscribersOnly());
+  core->setSubscribers(world, 1);
+  // A box resting on the ground (asleep after 0.5 s) and a free one drifting in the air.
+  BodyDef drifting = phys::test::boxBody({5, 0, 10});
+  drifting.gravityScale = 0;
+  drifting.linearVelocity = {0.5f, 0, 0};
+  const auto ids = spawn({phys::test::groundBody(), phys::test::boxBody({0, 0, 0.5f}), drifting});
+  const uint64_t ground = ids[0], resting = ids[1], moving = ids[2];
+  frames();
+  std::map<uint64_t, wire::BodyState> state;  // rebuilt from the frames, as a subscriber does
+  uint64_t held = 0;
+  int keyframes = 0;
+  for (int i = 0; i < 61; ++i) {
+    Frame f = step();
+    if (f.keyframe) {
+      ++keyframes;
+      state.clear();
+    } else {
+      ASSERT_EQ(f.baseTick, held) << "a delta applies to the previous frame";
+      if (i > 45) {  // the resting box is asleep by now: only the moving one changes
+        EXPECT_EQ(f.bodies.size(), 1u) << "tick " << f.tick;
+        EXPECT_TRUE(f.bodies.count(moving));
+      }
+    }
+    for (auto& [id, s] : f.bodies) state[id] = s;
+    held = f.tick;
+    // The rebuilt state is the world's, bit for bit.
+    ASSERT_EQ(state.size(), 3u);
+    for (uint64_t id : ids) {
+      BodyState b;
+      ASSERT_TRUE(core->world(world)->world->getBody(BodyId::fromPacked(id), &b).ok());
+      const wire::BodyState w = protocol::toWire(b);
+      ASSERT_EQ(std::memcmp(&state[id], &w, sizeof w), 0) << "body " << id << " tick " << f.tick;
+    }
+  }
+  EXPECT_EQ(keyframes, 7);  // every 10th frame: 0, 10, ..., 60
+  EXPECT_TRUE(core->world(world)->world->isSleeping(BodyId::fromPacked(resting)));
+  // A static body moved, a body spawned and one removed: all in the next delta.
+  ASSERT_EQ(send(CommandBuilder().setBodyPose(ground, {0, 0, -0.1f}, {}))->status(), Code::Ok);
+  const uint64_t added = spawn({phys::test::sphereBody({-5, 0, 5}, 0.2f)})[0];
+  ASSERT_EQ(send(CommandBuilder().removeBodies(std::vector<uint64_t>{moving}))->status(), Code::Ok);
+  Frame f = step();
+  ASSERT_FALSE(f.keyframe);
+  EXPECT_TRUE(f.bodies.count(ground));
+  EXPECT_TRUE(f.bodies.count(added));
+  EXPECT_TRUE(f.bodies.count(resting));  // moving the ground under it woke it
+  EXPECT_EQ(f.removed, std::vector<uint64_t>{moving});
+  EXPECT_EQ(f.total, 3u);
+}
+
+TEST_F(FramesTest, LoadResetAndRestoreStartFromAKeyframe) {
+  start(withSubscribersOnly());
+  core->setSubscribers(world, 1);
+  spawn({phys::test::groundBody(), phys::test::boxBody({0, 0, 3})});
+  step();
+  EXPECT_FALSE(step().keyframe);
+  ASSERT_EQ(send(CommandBuilder().resetWorld())->status(), Code::Ok);
+  spawn({phys::test::groundBody()});
+  EXPECT_TRUE(step().keyframe);
+}
+
+TEST_F(FramesTest, CompactStatesAreWithinTheirBounds) {
+  CoreConfig c = withSubscribersOnly();
+  c.compactStates = true;
+  start(c);
+  core->setSubscribers(world, 1);
+  const auto ids = spawn({phys::test::groundBody(), phys::test::boxBody({0, 0, 3}), phys::test::boxBody({40, -20, 7})});
+  Frame f = step();
+  ASSERT_TRUE(f.keyframe);
+  ASSERT_EQ(f.bodies.size(), 3u);
+  for (uint64_t id : ids) {
+    BodyState b;
+    ASSERT_TRUE(core->world(world)->world->getBody(BodyId::fromPacked(id), &b).ok());
+    const wire::BodyState& s = f.bodies[id];
+    // The frame's box is 40 x 20 x 7 m: half a 24-bit step is under 1.3 um.
+    EXPECT_NEAR(s.position().x(), b.position.x, 40.0 / (1 << 24) + 1e-5);
+    EXPECT_NEAR(s.position().y(), b.position.y, 20.0 / (1 << 24) + 1e-5);
+    EXPECT_NEAR(s.position().z(), b.position.z, 7.0 / (1 << 24) + 1e-5);
+    EXPECT_NEAR(std::fabs(s.rotation().w()), std::fabs(b.rotation.w), 1e-5);
+    EXPECT_NEAR(s.linear_velocity().z(), b.linearVelocity.z,
+                std::fabs(b.linearVelocity.z) / 2048 + 1e-7);
+  }
+}
+
+}  // namespace
+}  // namespace phys::server::test

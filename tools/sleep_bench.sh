@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# Islands and sleeping (issue 22), side by side in one run: many_pyramids and pile_10k with
+# sleeping on (their files' default), Bullet with its deactivation on (the same scene switch),
+# and our steps with sleeping off as the baseline. Prints one line per run: the median ms per
+# step over the whole run and after the scene's settle time, and the bodies awake at the end.
+#   tools/sleep_bench.sh [build dir]     (the pile runs 25 simulated seconds: minutes)
+set -euo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+build=${1:-$root/build}
+bench=$build/tools/physbench
+out=$(mktemp -d)
+trap 'rm -rf "$out"' EXIT
+row() {  # label json
+  python3 - "$1" "$2" <<'PY'
+import json, sys
+j = json.load(open(sys.argv[2]))
+m = j["metrics"]
+s = m.get("ms_per_step_settled_median")
+print(f"{sys.argv[1]:<44} steps {j['steps']:>5}  ms/step median {m['ms_per_step_median']:9.3f}"
+      f"  settled median {'-' if s is None else f'{s:9.4f}'}  awake at the end {m.get('awake_bodies_final', '-')}")
+PY
+}
+for scene in many_pyramids pile_10k; do
+  file=$root/configs/scenes/$scene.json
+  seconds=$([ "$scene" = pile_10k ] && echo 25 || echo 10)
+  "$bench" --scene "$file" --seconds "$seconds" --threads 2 --json "$out/ours.json" > /dev/null || true
+  row "$scene: phys, sleeping on, 2 threads" "$out/ours.json"
+  if "$bench" --scene "$file" --seconds "$seconds" --peer bullet --sleep on --json "$out/bullet.json" > /dev/null 2>&1 ||
+     [ -s "$out/bullet.json" ]; then
+    row "$scene: Bullet, deactivation on, 1 thread" "$out/bullet.json"
+  else
+    echo "$scene: Bullet not compiled in (PHYS_WITH_PEERS)"
+  fi
+  "$bench" --scene "$file" --seconds 3 --threads 2 --sleep off --json "$out/off.json" > /dev/null || true
+  row "$scene: phys, sleeping off, 3 s, 2 threads" "$out/off.json"
+done
