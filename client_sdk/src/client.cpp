@@ -102,6 +102,7 @@ Ids ids(const wire::Reply& r) {
 
 struct Subscription::State {
   uint32_t world = 0;
+  uint32_t interest = 0;  ///< 0: the world's own stream
   dds::Topic topic;
   dds::Reader reader;
   std::function<void(const StateFrame&)> fn;
@@ -470,7 +471,8 @@ struct Client::Impl {
         if (!protocol::checkEnvelope(env, protocol::PayloadKind::StateFrame).ok()) return;
         const std::span<const uint8_t> bytes = protocol::envelopeBytes(env);
         auto f = protocol::decodeStateFrame(bytes);
-        if (f.ok() && f->world() == s->world) s->onChunk(*f, bytes.size());
+        if (f.ok() && f->world() == s->world && f->interest() == s->interest)
+          s->onChunk(*f, bytes.size());
       });
   }
 
@@ -548,13 +550,15 @@ struct Client::Impl {
     }
   }
 
-  Subscription subscribe(uint32_t world, std::function<void(const StateFrame&)> fn) {
+  Subscription subscribe(uint32_t world, std::function<void(const StateFrame&)> fn,
+                         uint32_t interest = 0) {
     auto s = std::make_shared<Subscription::State>();
     s->world = world;
+    s->interest = interest;
     s->fn = std::move(fn);
     s->owner = this;
     std::string err;
-    if (!s->topic.create(participant, protocol::stateTopic(world), &err) ||
+    if (!s->topic.create(participant, protocol::stateTopic(world, interest), &err) ||
         !s->reader.create(participant, s->topic, protocol::kStateReaderQos, &err))
       fail("state subscription", err);
     {
@@ -567,9 +571,17 @@ struct Client::Impl {
   }
 
   void unsubscribe(const std::shared_ptr<Subscription::State>& s) {
-    std::lock_guard<std::mutex> lk(subsMutex);
-    waitset.detach(s->reader);
-    subs.erase(std::remove(subs.begin(), subs.end(), s), subs.end());
+    {
+      std::lock_guard<std::mutex> lk(subsMutex);
+      waitset.detach(s->reader);
+      subs.erase(std::remove(subs.begin(), subs.end(), s), subs.end());
+    }
+    if (s->interest != 0) {
+      // physd drops the interest's stream; nobody waits for the answer.
+      CommandBuilder b;
+      b.unsubscribe(s->interest);
+      send(b, s->world, options.requestTimeout, [](const wire::Reply*, const Error*) {});
+    }
   }
 };
 
@@ -861,6 +873,24 @@ std::future<Ack> WorldHandle::restoreSnapshotFile(std::string_view file, CallOpt
 
 Subscription WorldHandle::subscribe(std::function<void(const StateFrame&)> fn) {
   return client_->subscribe(id_, std::move(fn));
+}
+
+Subscription WorldHandle::subscribe(const Interest& interest,
+                                    std::function<void(const StateFrame&)> fn, CallOptions o) {
+  if (interest.all()) return subscribe(std::move(fn));
+  CommandBuilder b;
+  if (interest.region)
+    b.subscribeRegion(interest.region->first, interest.region->second);
+  else
+    b.subscribeBodies(interest.bodies);
+  const uint32_t id =
+      client_->impl_->request<uint32_t>(b, id_, o, [](const wire::Reply& r) {
+        auto* i = r.result_as_InterestResult();
+        if (!i || i->interest() == 0)
+          throw Error(ErrorCode::BadReply, "subscribe reply without an interest");
+        return i->interest();
+      }).get();
+  return client_->impl_->subscribe(id_, std::move(fn), id);
 }
 
 }  // namespace phys::client

@@ -424,6 +424,20 @@ CommandBuilder& CommandBuilder::queryState(std::span<const uint64_t> ids, uint32
   return add(wire::Request::QueryState, wire::CreateQueryState(fbb_, v, first, maxCount).Union());
 }
 
+CommandBuilder& CommandBuilder::subscribeBodies(std::span<const uint64_t> ids) {
+  auto v = fbb_.CreateVector(ids.data(), ids.size());
+  return add(wire::Request::Subscribe, wire::CreateSubscribe(fbb_, v).Union());
+}
+
+CommandBuilder& CommandBuilder::subscribeRegion(phys::Vec3 lo, phys::Vec3 hi) {
+  const wire::Vec3 a = toWire(lo), b = toWire(hi);
+  return add(wire::Request::Subscribe, wire::CreateSubscribe(fbb_, 0, &a, &b).Union());
+}
+
+CommandBuilder& CommandBuilder::unsubscribe(uint32_t interest) {
+  return add(wire::Request::Unsubscribe, wire::CreateUnsubscribe(fbb_, interest).Union());
+}
+
 CommandBuilder& CommandBuilder::saveSnapshot(std::string_view file, bool returnBytes) {
   auto f = optString(fbb_, file);
   return add(wire::Request::SaveSnapshot, wire::CreateSaveSnapshot(fbb_, f, returnBytes).Union());
@@ -521,6 +535,13 @@ Bytes encodeStateReply(const ReplyHeader& header, double time, uint32_t total,
   return finishReply(fbb, header, wire::Result::StateResult, r.Union());
 }
 
+Bytes encodeInterestReply(const ReplyHeader& header, uint32_t interest, std::string_view topic) {
+  Fbb fbb(128 + topic.size());
+  auto t = optString(fbb, topic);
+  auto r = wire::CreateInterestResult(fbb, interest, t);
+  return finishReply(fbb, header, wire::Result::InterestResult, r.Union());
+}
+
 Bytes encodeSnapshotReply(const ReplyHeader& header, std::span<const uint8_t> snapshot,
                           std::string_view file) {
   Fbb fbb(256 + snapshot.size());
@@ -576,6 +597,7 @@ Bytes encodeStateFrame(const FrameHeader& header, uint32_t chunkIndex, uint32_t 
     f.add_bounds_min(&lo);
     f.add_bounds_max(&hi);
   }
+  if (header.interest != 0) f.add_interest(header.interest);
   return finishBytes(fbb, f.Finish(), wire::kStateFrameId);
 }
 

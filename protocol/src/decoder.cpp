@@ -42,7 +42,7 @@ std::string hexId(uint64_t v) {
 }
 
 
-constexpr std::array<const char*, 25> kRequestNames = {"none",
+constexpr std::array<const char*, 27> kRequestNames = {"none",
                                                        "hello",
                                                        "create_world",
                                                        "destroy_world",
@@ -66,7 +66,9 @@ constexpr std::array<const char*, 25> kRequestNames = {"none",
                                                        "query_state",
                                                        "save_snapshot",
                                                        "restore_snapshot",
-                                                       "batch"};
+                                                       "batch",
+                                                       "subscribe",
+                                                       "unsubscribe"};
 static_assert(kRequestNames.size() == size_t(wire::Request::MAX) + 1,
               "a request kind without a name");
 
@@ -534,6 +536,26 @@ bool Checker::request(wire::Request type, const void* table) {
     case wire::Request::ResetWorld:
     case wire::Request::ListWorlds:
     case wire::Request::Pause:
+      return true;
+    case wire::Request::Subscribe: {
+      auto* r = static_cast<const wire::Subscribe*>(table);
+      const bool region = r->region_min() || r->region_max();
+      if (region && (!r->region_min() || !r->region_max()))
+        return invalid("region_min", "and region_max go together");
+      if (region == (r->bodies() != nullptr))
+        return invalid("bodies", "or a region (region_min, region_max): give exactly one");
+      if (r->bodies()) return idList(r->bodies(), "bodies", true, true);
+      if (!vec(r->region_min(), lim.maxCoordinate, "region_min") ||
+          !vec(r->region_max(), lim.maxCoordinate, "region_max"))
+        return false;
+      const wire::Vec3 &a = *r->region_min(), &b = *r->region_max();
+      if (!(a.x() <= b.x() && a.y() <= b.y() && a.z() <= b.z()))
+        return invalid("region_max", "must be >= region_min on every axis");
+      return true;
+    }
+    case wire::Request::Unsubscribe:
+      if (static_cast<const wire::Unsubscribe*>(table)->interest() == 0)
+        return invalid("interest", "must be non-zero (an id Subscribe returned)");
       return true;
     case wire::Request::LoadScene: {
       auto* r = static_cast<const wire::LoadScene*>(table);

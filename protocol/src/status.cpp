@@ -34,6 +34,10 @@ std::string stateTopic(uint32_t world) {
   return std::string(kStateTopicPrefix) + std::to_string(world);
 }
 
+std::string stateTopic(uint32_t world, uint32_t interest) {
+  return interest == 0 ? stateTopic(world) : stateTopic(world) + "/" + std::to_string(interest);
+}
+
 const char* toString(PayloadKind k) {
   switch (k) {
     case PayloadKind::Command:

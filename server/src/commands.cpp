@@ -15,6 +15,7 @@
 #include <set>
 #include <string>
 
+#include "phys/protocol/topics.h"
 #include "phys/protocol/convert.h"
 #include "phys/protocol/validate.h"
 #include "phys/scene/scene.h"
@@ -234,7 +235,7 @@ struct ServerCore::Context {
           if (!s.ok()) return fromPhys(s, p + ".bodies[" + std::to_string(i) + "]");
           sw.bodyDefs[id.packed()] = defs[i];
           ids.bodies.push_back(id.packed());
-          sw.published.touched.push_back(id.packed());
+          sw.touched.push_back(id.packed());
         }
         sw.infoDirty = true;
         return Status::Ok();
@@ -247,7 +248,7 @@ struct ServerCore::Context {
           phys::Status st = w.destroyBody(phys::BodyId::fromPacked(v->Get(i)));
           if (!st.ok()) return fromPhys(st, p + ".bodies[" + std::to_string(i) + "]");
           sw.bodyDefs.erase(v->Get(i));
-          sw.published.touched.push_back(v->Get(i));
+          sw.touched.push_back(v->Get(i));
         }
         // Their joints went with them.
         for (auto it = sw.jointDefs.begin(); it != sw.jointDefs.end();)
@@ -304,7 +305,7 @@ struct ServerCore::Context {
           phys::Transform t = protocol::toPhys(it->pose());
           phys::Status st = w.setTransform(phys::BodyId::fromPacked(it->id()), t.p, t.q);
           if (!st.ok()) return fromPhys(st, p + ".items[" + std::to_string(i) + "]");
-          sw.published.touched.push_back(it->id());
+          sw.touched.push_back(it->id());
         }
         return Status::Ok();
       }
@@ -631,7 +632,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       sw->tick = 0;
       sw->accumulator = 0;
       ++sw->revision;
-      sw->published.valid = false;  // a new world: subscribers start from a keyframe
+      sw->framesReplaced();  // a new world: subscribers start from a keyframe
       sw->infoDirty = sw->frameDirty = true;
       return finish();
     }
@@ -709,6 +710,53 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       sw->mode = rate > 0 ? RunMode::RealTime : RunMode::AsFastAsPossible;
       if (rate > 0) sw->rateHz = rate;
       sw->accumulator = 0;
+      return finish();
+    }
+    case wire::Request::Subscribe: {
+      auto* r = c.request_as_Subscribe();
+      if (sw->interests.size() >= ServerWorld::kMaxInterests) {
+        st = err(Code::ResourceExhausted,
+                 "subscribe: this world has " + std::to_string(sw->interests.size()) +
+                     " interests, the most it keeps (unsubscribe one first)");
+        return finish();
+      }
+      ServerWorld::Interest in;
+      in.owner = envelopeKey;
+      if (r->bodies()) {
+        in.ids.assign(r->bodies()->begin(), r->bodies()->end());
+        std::sort(in.ids.begin(), in.ids.end());
+      } else if (r->region_min() && r->region_max()) {
+        in.region = true;
+        in.lo = protocol::toPhys(*r->region_min());
+        in.hi = protocol::toPhys(*r->region_max());
+      } else {  // the codec refuses it first
+        st = err(Code::InvalidArgument, "subscribe: give bodies or a region");
+        return finish();
+      }
+      const uint32_t id = sw->nextInterest++;
+      sw->interests.emplace(id, std::move(in));
+      ReliableMessage m;
+      m.type = ReliableMessage::Type::InterestAdded;
+      m.world = sw->id;
+      m.key = id;
+      out_.pushReliable(std::move(m));
+      sw->frameDirty = true;
+      ctx.header.tick = sw->tick;
+      reply = protocol::encodeInterestReply(ctx.header, id, protocol::stateTopic(sw->id, id));
+      return finish();
+    }
+    case wire::Request::Unsubscribe: {
+      const uint32_t id = c.request_as_Unsubscribe()->interest();
+      if (!sw->interests.erase(id)) {
+        st = err(Code::NotFound, "unsubscribe.interest " + std::to_string(id) +
+                                     " is not an interest of this world");
+        return finish();
+      }
+      ReliableMessage m;
+      m.type = ReliableMessage::Type::InterestRemoved;
+      m.world = sw->id;
+      m.key = id;
+      out_.pushReliable(std::move(m));
       return finish();
     }
     case wire::Request::Pause: {
@@ -970,7 +1018,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
         ctx.header.tick = data.tick;
         sw->tick = data.tick;
         ++sw->revision;
-      sw->published.valid = false;  // a new world: subscribers start from a keyframe
+      sw->framesReplaced();  // a new world: subscribers start from a keyframe
         sw->infoDirty = sw->frameDirty = true;
         reply = protocol::encodeIdsReply(ctx.header, ctx.ids.bodies, ctx.ids.joints);
         return finish();
@@ -978,7 +1026,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       sw->tick = data.tick;
       sw->accumulator = 0;
       ++sw->revision;
-      sw->published.valid = false;  // a new world: subscribers start from a keyframe
+      sw->framesReplaced();  // a new world: subscribers start from a keyframe
       sw->infoDirty = sw->frameDirty = true;
       ctx.header.tick = sw->tick;
       return finish();
@@ -1116,7 +1164,7 @@ void ServerCore::commitScene(ServerWorld& sw, SceneLoad&& load, std::vector<uint
   sw.tick = 0;
   sw.accumulator = 0;
   ++sw.revision;
-  sw.published.valid = false;  // a new world: subscribers start from a keyframe
+  sw.framesReplaced();  // a new world: subscribers start from a keyframe
   sw.infoDirty = sw.frameDirty = true;
 }
 

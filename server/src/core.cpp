@@ -167,8 +167,11 @@ std::vector<uint32_t> ServerCore::worldIds() const {
 }
 
 void ServerCore::setSubscribers(uint32_t world, uint32_t n) {
+  setSubscribers(world, 0, n);
+}
+void ServerCore::setSubscribers(uint32_t world, uint32_t interest, uint32_t n) {
   std::lock_guard<std::mutex> lock(subscribersMutex_);
-  subscribers_[world] = n;
+  subscribers_[uint64_t(world) << 32 | interest] = n;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -625,70 +628,94 @@ double ServerCore::secondsUntilDue(double idle) const {
 }
 
 Status ServerCore::queueFrame(ServerWorld& w) {
-  // State frames (docs/PROTOCOL.md "State frames"): a keyframe holds every body, a delta the
-  // bodies whose state changed since the last frame: those awake now or at the last frame
-  // (a body that fell asleep sends its final state once), and those edited outside the step
-  // (static poses, spawned, removed). A world at rest costs a keyframe every keyframeTicks
-  // frames and an empty delta between; one nobody subscribes to costs nothing.
+  // State frames (docs/PROTOCOL.md "State frames"): the world's stream and each interest's,
+  // keyframes and deltas. What changed is found once for all of them: the bodies awake now
+  // (and, per stream, those awake at its last frame) and those edited outside the step.
   w.frameDirty = false;
-  ServerWorld::Published& pub = w.published;
+  std::vector<phys::BodyId> awake;
+  w.world->awakeBodies(&awake);
+  std::vector<uint64_t> awakeIds(awake.size());
+  for (size_t i = 0; i < awake.size(); ++i) awakeIds[i] = awake[i].packed();
+  std::sort(awakeIds.begin(), awakeIds.end());
+  std::sort(w.touched.begin(), w.touched.end());
+  w.touched.erase(std::unique(w.touched.begin(), w.touched.end()), w.touched.end());
+  // framesProduced counts the world's own stream's frames (WorldSummary.frames).
+  if (queueStream(w, 0, nullptr, &w.published, awakeIds)) ++w.framesProduced;
+  for (auto& [id, in] : w.interests) queueStream(w, id, &in, &in.published, awakeIds);
+  w.touched.clear();
+  return Status::Ok();
+}
+
+bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorld::Interest* filter,
+                             ServerWorld::Published* streamState,
+                             const std::vector<uint64_t>& awakeIds) {
+  // A keyframe holds every body of the stream; a delta the bodies whose state changed among
+  // those awake now, awake at the last frame (one that just fell asleep sends its final state
+  // once) and edited since, and those gone (removed, or out of the interest's region). A
+  // stream nobody subscribes to encodes nothing.
+  ServerWorld::Published& pub = *streamState;
   uint32_t subscribers = 0;
   {
     std::lock_guard<std::mutex> lock(subscribersMutex_);
-    auto it = subscribers_.find(w.id);
+    auto it = subscribers_.find(uint64_t(w.id) << 32 | interest);
     subscribers = it == subscribers_.end() ? 0 : it->second;
   }
   if (subscribers == 0 && !config_.framesWithoutSubscribers) {
     pub = ServerWorld::Published();  // the next subscriber starts from a keyframe
-    return Status::Ok();
+    return false;
   }
   // Frames the publisher dropped (a stalled writer) break the chain of deltas.
   const uint64_t dropped = out_.framesDropped();
   const bool keyframe = !pub.valid || subscribers > pub.subscribers ||
                         dropped != pub.droppedSeen || pub.sinceKeyframe + 1 >= config_.keyframeTicks;
   phys::World& world = *w.world;
-  std::vector<phys::BodyId> awake;
-  world.awakeBodies(&awake);
-  std::vector<uint64_t> awakeIds(awake.size());
-  for (size_t i = 0; i < awake.size(); ++i) awakeIds[i] = awake[i].packed();
-  std::sort(awakeIds.begin(), awakeIds.end());
   std::vector<wire::BodyState> states;
   std::vector<uint64_t> removed;
   phys::BodyState s;
   if (keyframe) {
-    const std::vector<phys::BodyId> ids = world.bodies();
-    states.reserve(ids.size());
+    std::vector<phys::BodyId> ids;
+    if (filter && !filter->region) {
+      for (uint64_t id : filter->ids)
+        if (world.isValid(phys::BodyId::fromPacked(id))) ids.push_back(phys::BodyId::fromPacked(id));
+    } else {
+      ids = world.bodies();
+    }
     pub.sent.clear();
     pub.sent.reserve(ids.size());
     for (phys::BodyId id : ids) {
-      if (!world.getBody(id, &s).ok()) continue;
+      if (!world.getBody(id, &s).ok() || (filter && !filter->contains(id.packed(), s))) continue;
       states.push_back(protocol::toWire(s));
       pub.sent[id.packed()] = states.back();
     }
     pub.sinceKeyframe = 0;
   } else {
     std::vector<uint64_t> candidates;
-    candidates.reserve(awakeIds.size() + pub.awake.size() + pub.touched.size());
+    candidates.reserve(awakeIds.size() + pub.awake.size() + w.touched.size());
     std::set_union(awakeIds.begin(), awakeIds.end(), pub.awake.begin(), pub.awake.end(),
                    std::back_inserter(candidates));
-    candidates.insert(candidates.end(), pub.touched.begin(), pub.touched.end());
-    std::sort(candidates.begin(), candidates.end());
-    candidates.erase(std::unique(candidates.begin(), candidates.end()), candidates.end());
-    for (uint64_t id : candidates) {
-      if (world.getBody(phys::BodyId::fromPacked(id), &s).ok()) {
+    std::vector<uint64_t> all;
+    all.reserve(candidates.size() + w.touched.size());
+    std::set_union(candidates.begin(), candidates.end(), w.touched.begin(), w.touched.end(),
+                   std::back_inserter(all));
+    for (uint64_t id : all) {
+      if (filter && !filter->region && !std::binary_search(filter->ids.begin(), filter->ids.end(), id))
+        continue;
+      if (world.getBody(phys::BodyId::fromPacked(id), &s).ok() &&
+          (!filter || filter->contains(id, s))) {
         const wire::BodyState ws = protocol::toWire(s);
         auto [it, added] = pub.sent.try_emplace(id, ws);
         if (!added && std::memcmp(&it->second, &ws, sizeof ws) == 0) continue;  // unchanged
         it->second = ws;
         states.push_back(ws);
       } else if (pub.sent.erase(id) > 0) {
-        removed.push_back(id);
+        removed.push_back(id);  // gone, or out of the region
       }
     }
     ++pub.sinceKeyframe;
   }
   StateFrameSet f;
   f.world = w.id;
+  f.interest = interest;
   f.tick = w.tick;
   const auto stamp = std::chrono::system_clock::now().time_since_epoch();
   protocol::FrameHeader h{w.id, w.tick, world.time(),
@@ -696,19 +723,18 @@ Status ServerCore::queueFrame(ServerWorld& w) {
   h.keyframe = keyframe;
   h.baseTick = pub.lastTick;
   h.compact = config_.compactStates;
+  h.interest = interest;
   f.chunks = protocol::encodeStateFrames(h, states, std::max<uint32_t>(1, config_.bodiesPerChunk),
-                                         removed, uint32_t(world.bodyCount()));
-  pub.awake = std::move(awakeIds);
-  pub.touched.clear();
+                                         removed, uint32_t(pub.sent.size()));
+  pub.awake = awakeIds;
   pub.valid = true;
   pub.lastTick = w.tick;
   pub.subscribers = subscribers;
   pub.droppedSeen = dropped;
   pub.bytes = 0;
   for (const protocol::Bytes& c : f.chunks) pub.bytes += c.size();
-  ++w.framesProduced;
   out_.pushFrame(std::move(f));
-  return Status::Ok();
+  return true;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -777,7 +803,7 @@ std::vector<protocol::WorldSummary> ServerCore::summaries() const {
     s.awakeBodies = uint32_t(w->world->awakeBodyCount());
     s.sleepingBodies = uint32_t(w->world->stats().sleepingBodies);
     s.frameBytes = uint32_t(std::min<uint64_t>(w->published.bytes, UINT32_MAX));
-    auto it = subscribers_.find(id);
+    auto it = subscribers_.find(uint64_t(id) << 32);
     s.subscribers = it == subscribers_.end() ? 0 : it->second;
     out.push_back(std::move(s));
   }

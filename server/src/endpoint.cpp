@@ -92,7 +92,8 @@ void DdsEndpoint::publishLoop() {
     if (item.frame) publish(*item.frame);
     auto now = std::chrono::steady_clock::now();
     if (now - lastSubscribers > std::chrono::milliseconds(250)) {
-      for (auto& [world, st] : state_) core_->setSubscribers(world, st->writer.matched());
+      for (auto& [key, st] : state_)
+        core_->setSubscribers(uint32_t(key >> 32), uint32_t(key), st->writer.matched());
       lastSubscribers = now;
     }
     if (stop_ && !item.reliable && !item.frame) break;
@@ -126,6 +127,12 @@ void DdsEndpoint::publish(ReliableMessage& m) {
       last = uint32_t(m.chunks.size());
       break;
     }
+    case ReliableMessage::Type::InterestAdded:
+      stateTopic(m.world, uint32_t(m.key));  // its readers are counted before any frame
+      break;
+    case ReliableMessage::Type::InterestRemoved:
+      state_.erase(uint64_t(m.world) << 32 | uint32_t(m.key));
+      break;
     case ReliableMessage::Type::WorldRemoved: {
       auto it = infoChunks_.find(m.world);
       if (it != infoChunks_.end()) {
@@ -133,7 +140,8 @@ void DdsEndpoint::publish(ReliableMessage& m) {
           infoWriter_.dispose(protocol::worldInfoKey(m.world, i));
         infoChunks_.erase(it);
       }
-      state_.erase(m.world);
+      state_.erase(state_.lower_bound(uint64_t(m.world) << 32),
+                   state_.lower_bound(uint64_t(m.world + 1) << 32));
       removed_.insert(m.world);
       core_->setSubscribers(m.world, 0);
       spdlog::info("world {} destroyed", m.world);
@@ -146,28 +154,31 @@ void DdsEndpoint::publish(ReliableMessage& m) {
   }
 }
 
-DdsEndpoint::StateTopic* DdsEndpoint::stateTopic(uint32_t world) {
+DdsEndpoint::StateTopic* DdsEndpoint::stateTopic(uint32_t world, uint32_t interest) {
   if (removed_.count(world)) return nullptr;  // queued before its world was destroyed
-  auto it = state_.find(world);
+  const uint64_t key = uint64_t(world) << 32 | interest;
+  auto it = state_.find(key);
   if (it == state_.end()) {
     auto st = std::make_unique<StateTopic>();
     std::string err;
-    if (!st->topic.create(participant_, protocol::stateTopic(world), &err) ||
+    if (!st->topic.create(participant_, protocol::stateTopic(world, interest), &err) ||
         !st->writer.create(participant_, st->topic, protocol::kStateQos, PayloadKind::StateFrame,
                            &err)) {
       counters_.writeErrors.fetch_add(1);
       spdlog::error("state topic for world {}: {}", world, err);
       return nullptr;
     }
-    it = state_.emplace(world, std::move(st)).first;
+    it = state_.emplace(key, std::move(st)).first;
   }
   return it->second.get();
 }
 
 void DdsEndpoint::publish(StateFrameSet& f) {
-  StateTopic* st = stateTopic(f.world);
+  // An interest's writer is made when it is added; a frame queued after it was removed goes.
+  if (f.interest != 0 && !state_.count(uint64_t(f.world) << 32 | f.interest)) return;
+  StateTopic* st = stateTopic(f.world, f.interest);
   if (!st) return;
-  auto it = state_.find(f.world);
+  auto it = state_.find(uint64_t(f.world) << 32 | f.interest);
   for (uint32_t i = 0; i < f.chunks.size(); ++i) {
     dds_return_t rc = it->second->writer.write(i, f.chunks[i], f.tick);
     if (rc == DDS_RETCODE_OK) {

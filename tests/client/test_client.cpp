@@ -391,6 +391,44 @@ TEST(ClientSdk, LateSubscriberHasTheFullStateWithinAKeyframe) {
   w.pause().get();
 }
 
+// An interest: a subscription to some bodies (or a box) gets exactly those, rebuilt every
+// tick, on its own topic.
+TEST(ClientSdk, AnInterestDeliversExactlyTheBodiesAskedFor) {
+  Env env;
+  Client& c = env.client;
+  c.connect();
+  WorldHandle w = c.createWorld({"interest", "", std::nullopt, 0}).get();
+  const auto ids = w.spawn(grid(200)).get();  // ground + 200 boxes on a 50 x 4 grid, 2 m apart
+  const std::set<uint64_t> picked = {ids[5], ids[17], ids[150]};
+  std::mutex m;
+  std::vector<std::set<uint64_t>> byIds, byRegion;
+  Subscription a = w.subscribe(Interest{{ids[5], ids[17], ids[150]}, std::nullopt},
+                               [&](const StateFrame& f) {
+                                 std::lock_guard<std::mutex> lk(m);
+                                 std::set<uint64_t> got;
+                                 for (const BodyState& b : f.bodies) got.insert(b.id);
+                                 byIds.push_back(got);
+                               });
+  // The box x in [-1, 5], y in [-1, 1]: the boxes at x = 0, 2, 4 of the first row.
+  Subscription r = w.subscribe(
+      Interest{{}, std::make_pair(phys::Vec3{-1, -1, 0.25f}, phys::Vec3{5, 1, 3})},
+      [&](const StateFrame& f) {
+        std::lock_guard<std::mutex> lk(m);
+        std::set<uint64_t> got;
+        for (const BodyState& b : f.bodies) got.insert(b.id);
+        byRegion.push_back(got);
+      });
+  ASSERT_TRUE(waitFor([&] {
+    w.step(1).get();
+    std::lock_guard<std::mutex> lk(m);
+    return byIds.size() >= 3 && byRegion.size() >= 3;
+  }));
+  std::lock_guard<std::mutex> lk(m);
+  for (const auto& got : byIds) EXPECT_EQ(got, picked);
+  const std::set<uint64_t> inBox = {ids[1], ids[2], ids[3]};  // not the ground (z = 0)
+  for (const auto& got : byRegion) EXPECT_EQ(got, inBox);
+}
+
 TEST(ClientSdk, EightSubscribersReceiveEveryBodyOfEveryTick) {
   constexpr int kSubscribers = 8;
   constexpr int kTicks = 4;

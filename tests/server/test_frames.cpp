@@ -8,6 +8,7 @@
 
 #include "../common/bodies.h"
 #include "phys/protocol/compact.h"
+#include "phys/protocol/topics.h"
 #include "server_test_util.h"
 
 namespace phys::server::test {
@@ -16,6 +17,7 @@ namespace {
 using protocol::CommandBuilder;
 
 struct Frame {
+  uint32_t interest = 0;
   uint64_t tick = 0, baseTick = 0;
   bool keyframe = true;
   uint32_t total = 0;
@@ -52,6 +54,8 @@ class FramesTest : public ::testing::Test {
         auto d = protocol::decodeStateFrame(std::move(bytes));
         EXPECT_TRUE(d.ok()) << d.status.message;
         f.tick = d->tick();
+        f.interest = d->interest();
+        EXPECT_EQ(item.frame->interest, f.interest);
         f.keyframe = d->keyframe();
         f.baseTick = d->base_tick();
         f.total = d->total_bodies();
@@ -70,11 +74,15 @@ class FramesTest : public ::testing::Test {
     return out;
   }
   Frame step(uint32_t n = 1) {
-    EXPECT_EQ(send(CommandBuilder().step(n))->status(), Code::Ok);
-    core->advance(0);
-    std::vector<Frame> f = frames();
+    std::vector<Frame> f = stepAll(n);
     EXPECT_EQ(f.size(), 1u);
     return f.empty() ? Frame() : f.back();
+  }
+  /// Every stream's frame of the step (the world's first, then the interests' in order).
+  std::vector<Frame> stepAll(uint32_t n = 1) {
+    EXPECT_EQ(send(CommandBuilder().step(n))->status(), Code::Ok);
+    core->advance(0);
+    return frames();
   }
   std::vector<uint64_t> spawn(std::vector<BodyDef> defs) {
     Reply r = send(CommandBuilder().spawnBodies(defs));
@@ -203,6 +211,71 @@ TEST_F(FramesTest, CompactStatesAreWithinTheirBounds) {
     EXPECT_NEAR(s.linear_velocity().z(), b.linearVelocity.z,
                 std::fabs(b.linearVelocity.z) / 2048 + 1e-7);
   }
+}
+
+TEST_F(FramesTest, AnInterestDeliversExactlyTheBodiesAskedFor) {
+  start(withSubscribersOnly());
+  // Ten boxes drifting along x at 1 m/s in zero gravity, 2 m apart along y, staggered by
+  // 9 cm along x (they enter and leave the region on different ticks, all inside at once).
+  std::vector<BodyDef> defs;
+  for (int i = 0; i < 10; ++i) {
+    BodyDef d = phys::test::boxBody({-2 - 0.09f * float(i), float(i) * 2, 5}, {0.2f, 0.2f, 0.2f});
+    d.gravityScale = 0;
+    d.linearVelocity = {1, 0, 0};
+    defs.push_back(d);
+  }
+  const auto ids = spawn(defs);
+  // By ids: bodies 3 and 7; by region: x in [0, 1] (every body passes through it).
+  Reply a = send(CommandBuilder().subscribeBodies(std::vector<uint64_t>{ids[7], ids[3]}));
+  ASSERT_EQ(a->status(), Code::Ok) << message(a);
+  const uint32_t byIds = a->result_as_InterestResult()->interest();
+  EXPECT_EQ(a->result_as_InterestResult()->topic()->str(), protocol::stateTopic(world, byIds));
+  Reply b = send(CommandBuilder().subscribeRegion({0, -1, 0}, {1, 100, 10}));
+  ASSERT_EQ(b->status(), Code::Ok) << message(b);
+  const uint32_t byRegion = b->result_as_InterestResult()->interest();
+  frames();
+  core->setSubscribers(world, byIds, 1);
+  core->setSubscribers(world, byRegion, 1);  // and nobody on the world's own stream
+  std::map<uint64_t, wire::BodyState> inRegion;
+  bool sawAllInside = false, sawLeave = false;
+  for (int i = 0; i < 240; ++i) {  // 4 s: the boxes cross x = 0..1 between 2 s and 3 s
+    std::vector<Frame> f = stepAll();
+    ASSERT_EQ(f.size(), 2u) << "two interests, no frame for the world's own stream";
+    const Frame& idf = f[0].interest == byIds ? f[0] : f[1];
+    const Frame& rf = f[0].interest == byRegion ? f[0] : f[1];
+    // The id interest: always exactly bodies 3 and 7 (they move, so every delta has both).
+    EXPECT_EQ(idf.total, 2u);
+    EXPECT_EQ(idf.bodies.size(), 2u);
+    EXPECT_TRUE(idf.bodies.count(ids[3]) && idf.bodies.count(ids[7]));
+    // The region: rebuilt, it holds exactly the bodies inside the box.
+    if (rf.keyframe) inRegion.clear();
+    for (uint64_t id : rf.removed) {
+      EXPECT_TRUE(inRegion.erase(id)) << "removed a body it did not hold";
+      sawLeave = true;
+    }
+    for (auto& [id, st] : rf.bodies) inRegion[id] = st;
+    ASSERT_EQ(inRegion.size(), rf.total);
+    int inside = 0;
+    for (uint64_t id : ids) {
+      BodyState bs;
+      ASSERT_TRUE(core->world(world)->world->getBody(BodyId::fromPacked(id), &bs).ok());
+      const bool in = bs.position.x >= 0 && bs.position.x <= 1;
+      inside += in;
+      EXPECT_EQ(inRegion.count(id) > 0, in) << "body " << id << " x " << bs.position.x;
+    }
+    sawAllInside |= inside == 10;
+  }
+  EXPECT_TRUE(sawAllInside);
+  EXPECT_TRUE(sawLeave);
+  // Unsubscribed, its stream stops; unknown interests are refused.
+  ASSERT_EQ(send(CommandBuilder().unsubscribe(byIds))->status(), Code::Ok);
+  EXPECT_EQ(stepAll().size(), 1u);
+  EXPECT_EQ(send(CommandBuilder().unsubscribe(byIds))->status(), Code::NotFound);
+  // Bad requests: a region upside down, ids and a region together, a repeated id.
+  EXPECT_EQ(send(CommandBuilder().subscribeRegion({1, 1, 1}, {0, 0, 0}))->status(),
+            Code::InvalidArgument);
+  EXPECT_EQ(send(CommandBuilder().subscribeBodies(std::vector<uint64_t>{ids[1], ids[1]}))->status(),
+            Code::InvalidArgument);
 }
 
 }  // namespace

@@ -97,6 +97,16 @@ struct StateFrame {
   uint64_t stampNs = 0;
 };
 
+/// What a subscription asks for (docs/PROTOCOL.md "Interests"): every body (the default),
+/// these bodies, or the bodies whose position is inside a box. A filtered subscription's
+/// frames hold just those bodies (`total` is their count); a body leaving the box leaves the
+/// frames, one entering it joins them.
+struct Interest {
+  std::vector<uint64_t> bodies;
+  std::optional<std::pair<phys::Vec3, phys::Vec3>> region;  ///< min and max corners
+  bool all() const { return bodies.empty() && !region; }
+};
+
 /// The latest phys/status sample.
 struct ServerStatus {
   std::string serverName;
@@ -206,6 +216,11 @@ class WorldHandle {
   /// State frames of this world: fn (if any) runs on the SDK's thread for every complete
   /// tick; Subscription::latest() holds the newest.
   Subscription subscribe(std::function<void(const StateFrame&)> fn = {});
+  /// Only what `interest` names: physd keeps a stream of it on its own topic until the
+  /// subscription ends. Throws Error like a request (e.g. ResourceExhausted past 64
+  /// interests on a world).
+  Subscription subscribe(const Interest& interest, std::function<void(const StateFrame&)> fn = {},
+                         CallOptions o = {});
 
  private:
   Client* client_ = nullptr;

@@ -127,6 +127,10 @@ class CommandBuilder {
   CommandBuilder& run(float rateHz);
   CommandBuilder& pause();
   /// ids empty: every body, paged by first / maxCount (0: as many as fit).
+  /// An interest (docs/PROTOCOL.md "Interests"): these bodies, or those inside the box.
+  CommandBuilder& subscribeBodies(std::span<const uint64_t> ids);
+  CommandBuilder& subscribeRegion(phys::Vec3 lo, phys::Vec3 hi);
+  CommandBuilder& unsubscribe(uint32_t interest);
   CommandBuilder& queryState(std::span<const uint64_t> ids = {}, uint32_t first = 0,
                              uint32_t maxCount = 0);
   /// file: also (or only, with returnBytes false) written on the server under that name.
@@ -202,6 +206,7 @@ Bytes encodeWorldListReply(const ReplyHeader& header, std::span<const WorldSumma
 Bytes encodeStateReply(const ReplyHeader& header, double time, uint32_t total,
                        std::span<const wire::BodyState> bodies);
 /// snapshot: a Snapshot buffer (encodeSnapshot), may be empty; file: where it was saved.
+Bytes encodeInterestReply(const ReplyHeader& header, uint32_t interest, std::string_view topic);
 Bytes encodeSnapshotReply(const ReplyHeader& header, std::span<const uint8_t> snapshot,
                           std::string_view file = {});
 
@@ -216,6 +221,7 @@ struct FrameHeader {
   bool keyframe = true;  ///< every body; false: a delta on the frame of baseTick
   uint64_t baseTick = 0;
   bool compact = false;  ///< CompactBodyState instead of BodyState (compact.h)
+  uint32_t interest = 0;  ///< 0: the whole world; else an interest's stream
 };
 /// One chunk. A delta's chunk 0 carries `removed`; totalBodies is the world's count.
 Bytes encodeStateFrame(const FrameHeader& header, uint32_t chunkIndex, uint32_t chunkCount,

@@ -17,6 +17,8 @@ inline constexpr std::string_view kEventsTopic = "phys/events";         ///< opt
 
 /// "phys/state/<world>" (decimal world id).
 std::string stateTopic(uint32_t world);
+/// An interest's state stream (Subscribe): phys/state/<world>/<interest>.
+std::string stateTopic(uint32_t world, uint32_t interest);
 
 /// Envelope.kind: what Envelope.bytes holds.
 enum class PayloadKind : uint16_t {

@@ -7,6 +7,7 @@
 // the test's own thread).
 #pragma once
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
@@ -151,13 +152,34 @@ struct ServerWorld {
   struct Published {
     std::unordered_map<uint64_t, phys::wire::BodyState> sent;
     std::vector<uint64_t> awake;
-    std::vector<uint64_t> touched;
     bool valid = false;   ///< a keyframe went out and every frame since
     uint64_t lastTick = 0, sinceKeyframe = 0;
     uint32_t subscribers = 0;  ///< at the last frame
     uint64_t droppedSeen = 0;  ///< the publisher's dropped frames at the last frame
     uint64_t bytes = 0;        ///< of the last frame
   } published;
+  std::vector<uint64_t> touched;  ///< bodies edited outside the step since the last frame
+  /// Interests (Subscribe): streams of some of the world's bodies, each on its own topic.
+  struct Interest {
+    std::vector<uint64_t> ids;  ///< sorted; empty for a region
+    bool region = false;
+    phys::Vec3 lo, hi;          ///< the region
+    uint64_t owner = 0;         ///< the client that asked
+    Published published;
+    bool contains(uint64_t id, const phys::BodyState& s) const {
+      if (!region) return std::binary_search(ids.begin(), ids.end(), id);
+      return s.position.x >= lo.x && s.position.y >= lo.y && s.position.z >= lo.z &&
+             s.position.x <= hi.x && s.position.y <= hi.y && s.position.z <= hi.z;
+    }
+  };
+  std::map<uint32_t, Interest> interests;
+  uint32_t nextInterest = 1;
+  static constexpr size_t kMaxInterests = 64;
+  /// The world was replaced (load, reset, restore): every stream starts from a keyframe.
+  void framesReplaced() {
+    published.valid = false;
+    for (auto& [id, in] : interests) in.published.valid = false;
+  }
   /// A Step longer than one slice (CoreConfig::stepSliceSeconds): its remaining steps run a
   /// slice per tick, its reply goes out when the last is taken.
   struct StepJob {
@@ -255,6 +277,8 @@ class ServerCore {
   std::vector<uint32_t> worldIds() const;
   /// Thread-safe: matched state readers of a world (set by the publisher).
   void setSubscribers(uint32_t world, uint32_t n);
+  /// An interest's stream (Subscribe); interest 0 is the world's own.
+  void setSubscribers(uint32_t world, uint32_t interest, uint32_t n);
 
   struct Context;  // per-command state (commands.cpp)
 
@@ -265,6 +289,10 @@ class ServerCore {
   /// guard its invariants, not the protocol's ranges).
   Status checkRestored(const phys::World& w, const std::string& path) const;
   Status queueFrame(ServerWorld& w);
+  /// One stream of a world's frames (interest 0: the world's own); false when nobody
+  /// subscribes to it (nothing encoded).
+  bool queueStream(ServerWorld& w, uint32_t interest, const ServerWorld::Interest* filter,
+                   ServerWorld::Published* streamState, const std::vector<uint64_t>& awakeIds);
   /// Applies one queued command: a reply is pushed now, or (a Step too long for one slice)
   /// when its job ends. Commands for a busy world wait for its job.
   void dispatch(Incoming in);
@@ -353,7 +381,7 @@ class ServerCore {
   std::vector<std::pair<std::thread, std::shared_ptr<LoadTask>>> loaders_;
 
   mutable std::mutex subscribersMutex_;
-  std::map<uint32_t, uint32_t> subscribers_;
+  std::map<uint64_t, uint32_t> subscribers_;  ///< by world << 32 | interest
 };
 
 /// The tick thread: at each boundary applies queued commands, advances time, publishes

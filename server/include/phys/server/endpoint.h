@@ -57,8 +57,10 @@ class DdsEndpoint {
     dds::Topic topic;
     dds::Writer writer;
   };
-  std::map<uint32_t, std::unique_ptr<StateTopic>> state_;  ///< publisher thread only
-  StateTopic* stateTopic(uint32_t world);  ///< made on first use; null for a removed world
+  /// By world << 32 | interest (0: the world's own stream); publisher thread only.
+  std::map<uint64_t, std::unique_ptr<StateTopic>> state_;
+  /// Made on first use; null for a removed world.
+  StateTopic* stateTopic(uint32_t world, uint32_t interest = 0);
   std::map<uint32_t, uint32_t> infoChunks_;                ///< world -> chunks last written
   std::set<uint32_t> removed_;  ///< destroyed worlds (ids are never reused): late frames dropped
   std::atomic<bool> stop_{false};

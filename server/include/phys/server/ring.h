@@ -53,6 +53,7 @@ struct StateFrameSet {
   uint32_t world = 0;
   uint64_t tick = 0;
   std::vector<Bytes> chunks;
+  uint32_t interest = 0;  ///< 0: the world's stream; else an interest's (Subscribe)
 };
 
 /// A message that must not be dropped.
@@ -63,6 +64,8 @@ struct ReliableMessage {
     WorldRemoved,  ///< dispose the world's world_info instances, drop its state writer
     Status,        ///< phys/status, key = server id
     Event,         ///< phys/events, key = world id
+    InterestAdded,    ///< make phys/state/<world>/<key>'s writer (its readers are counted)
+    InterestRemoved,  ///< drop it
   };
   Type type = Type::Reply;
   uint64_t key = 0;  ///< Reply: client id; Status: server id; Event: world id

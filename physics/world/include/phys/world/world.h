@@ -150,8 +150,8 @@ struct WorldDef {
   int guardRetries = 2;
   Backend backend = Backend::Cpu;
   bool gpuAllowCpuDevice = false;  ///< let the GPU backend run on a CPU Vulkan device (tests)
-  /// Islands and sleeping. A world stepped on the device does not sleep yet: its bodies
-  /// stay awake (BackendState::note says so when sleeping was asked for).
+  /// Islands and sleeping. A world with a device (Backend::Gpu or Auto with a device open)
+  /// does not sleep yet: its bodies stay awake whatever this says.
   SleepSettings sleep;
 };
 
