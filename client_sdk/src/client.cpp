@@ -129,12 +129,15 @@ struct Subscription::State {
   std::map<uint64_t, Partial> partial;
   uint64_t lastComplete = 0;
   bool any = false;
-  /// The full state at tick `fullTick`, by body index then generation (the world's order).
-  std::map<uint64_t, BodyState> full;
+  /// The full state at tick `fullTick`, sorted by body index then generation (the world's
+  /// order): a sorted vector, so that applying a delta is a binary search per carried body
+  /// and handing the frame out one copy.
+  std::vector<BodyState> full;
   uint64_t fullTick = 0;
   bool haveFull = false;
 
   static uint64_t order(uint64_t id) { return (id << 32) | (id >> 32); }  // index, generation
+  static bool before(const BodyState& a, const BodyState& b) { return order(a.id) < order(b.id); }
 
   void onChunk(const wire::StateFrame& f, size_t bytes) {
     const uint64_t t = f.tick();
@@ -176,10 +179,7 @@ struct Subscription::State {
     }
     StateFrame frame = std::move(done.frame);
     frame.changed = uint32_t(frame.bodies.size());
-    frame.bodies.clear();
-    frame.bodies.reserve(full.size());
-    for (const auto& [key, s] : full) frame.bodies.push_back(s);
-    for (auto& [key, s] : full) s.changed = false;  // until a later tick carries it
+    frame.bodies = full;
     {
       std::lock_guard<std::mutex> lk(m);
       latest = frame;
@@ -193,23 +193,53 @@ struct Subscription::State {
   /// keyframe) when it cannot be: a delta on another tick than the one held, or one that
   /// does not add up to the world's count.
   bool apply(const Partial& p) {
+    auto fail = [&] {
+      haveFull = false;
+      full.clear();
+      return false;
+    };
     if (p.frame.keyframe) {
-      full.clear();
-    } else if (!haveFull || p.baseTick != fullTick) {
-      haveFull = false;
-      return false;
+      full = p.frame.bodies;
+      if (!std::is_sorted(full.begin(), full.end(), before))
+        std::sort(full.begin(), full.end(), before);
+      for (BodyState& s : full) s.changed = true;
+    } else {
+      if (!haveFull || p.baseTick != fullTick) return fail();
+      for (BodyState& s : full) s.changed = false;
+      // The body with this id among full's first n (sorted) entries, or null.
+      auto find = [&](size_t n, uint64_t id) -> BodyState* {
+        BodyState key;
+        key.id = id;
+        const auto end = full.begin() + std::ptrdiff_t(n);
+        auto it = std::lower_bound(full.begin(), end, key, before);
+        return it != end && it->id == id ? &*it : nullptr;
+      };
+      bool erase = false;
+      for (uint64_t id : p.removed) {
+        if (BodyState* b = find(full.size(), id)) {
+          b->id = 0;  // erased below (0 is never a body's id)
+          erase = true;
+        }
+      }
+      if (erase)
+        full.erase(std::remove_if(full.begin(), full.end(), [](const BodyState& s) { return s.id == 0; }),
+                   full.end());
+      const size_t old = full.size();
+      for (const BodyState& s : p.frame.bodies) {
+        if (BodyState* b = find(old, s.id)) {
+          *b = s;
+          b->changed = true;
+        } else {
+          full.push_back(s);  // a new body: sorted in below
+          full.back().changed = true;
+        }
+      }
+      if (full.size() != old) {
+        std::sort(full.begin() + std::ptrdiff_t(old), full.end(), before);
+        std::inplace_merge(full.begin(), full.begin() + std::ptrdiff_t(old), full.end(), before);
+      }
     }
-    for (uint64_t id : p.removed) full.erase(order(id));
-    for (const BodyState& s : p.frame.bodies) {
-      BodyState& slot = full[order(s.id)];
-      slot = s;
-      slot.changed = true;
-    }
-    if (full.size() != p.frame.total) {
-      haveFull = false;
-      full.clear();
-      return false;
-    }
+    if (full.size() != p.frame.total) return fail();
     haveFull = true;
     fullTick = p.frame.tick;
     return true;

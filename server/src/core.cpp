@@ -639,16 +639,21 @@ Status ServerCore::queueFrame(ServerWorld& w) {
   std::sort(awakeIds.begin(), awakeIds.end());
   std::sort(w.touched.begin(), w.touched.end());
   w.touched.erase(std::unique(w.touched.begin(), w.touched.end()), w.touched.end());
+  // An edit between ticks (a paused world) changes the world at the tick subscribers already
+  // hold: a delta for the same tick would be ignored by them, so its changes wait for the next
+  // tick's delta (touched is kept until then); a stream that needs a keyframe sends it now.
+  const bool newTick = w.tick != w.lastFrameTick;
   // framesProduced counts the world's own stream's frames (WorldSummary.frames).
-  if (queueStream(w, 0, nullptr, &w.published, awakeIds)) ++w.framesProduced;
-  for (auto& [id, in] : w.interests) queueStream(w, id, &in, &in.published, awakeIds);
-  w.touched.clear();
+  if (queueStream(w, 0, nullptr, &w.published, awakeIds, newTick)) ++w.framesProduced;
+  for (auto& [id, in] : w.interests) queueStream(w, id, &in, &in.published, awakeIds, newTick);
+  if (newTick) w.touched.clear();
+  w.lastFrameTick = w.tick;
   return Status::Ok();
 }
 
 bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorld::Interest* filter,
                              ServerWorld::Published* streamState,
-                             const std::vector<uint64_t>& awakeIds) {
+                             const std::vector<uint64_t>& awakeIds, bool newTick) {
   // A keyframe holds every body of the stream; a delta the bodies whose state changed among
   // those awake now, awake at the last frame (one that just fell asleep sends its final state
   // once) and edited since, and those gone (removed, or out of the interest's region). A
@@ -664,10 +669,11 @@ bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorl
     pub = ServerWorld::Published();  // the next subscriber starts from a keyframe
     return false;
   }
-  // Frames the publisher dropped (a stalled writer) break the chain of deltas.
-  const uint64_t dropped = out_.framesDropped();
+  // This stream's frames the publisher dropped (a stalled writer) break its chain of deltas.
+  const uint64_t dropped = out_.framesDropped(w.id, interest);
   const bool keyframe = !pub.valid || subscribers > pub.subscribers ||
                         dropped != pub.droppedSeen || pub.sinceKeyframe + 1 >= config_.keyframeTicks;
+  if (!keyframe && !newTick) return false;  // the same tick again: in the next tick's delta
   phys::World& world = *w.world;
   std::vector<wire::BodyState> states;
   std::vector<uint64_t> removed;

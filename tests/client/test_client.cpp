@@ -335,6 +335,11 @@ TEST(ClientSdk, RebuiltStateEqualsTheWorldsEveryTick) {
   }));
   size_t deltas = 0, changedInDeltas = 0;
   for (int i = 0; i < 600; ++i) {
+    if (i == 300) {  // a body removed and one spawned: both in the next delta
+      const std::vector<uint64_t> gone = {ids[5]};
+      w.removeBodies(gone).get();
+      w.spawn(boxBody({-30, 0, 3})).get();
+    }
     tick = w.step(1).get().tick;
     ASSERT_TRUE(waitFor([&] { std::lock_guard<std::mutex> lk(m); return got.count(tick) > 0; }))
         << "tick " << tick;
@@ -346,8 +351,8 @@ TEST(ClientSdk, RebuiltStateEqualsTheWorldsEveryTick) {
       f = got[tick];
       got.clear();
     }
-    ASSERT_EQ(f.bodies.size(), ids.size());
-    ASSERT_EQ(truth.bodies.size(), ids.size());
+    ASSERT_EQ(truth.bodies.size(), ids.size());  // one removed, one spawned at 300
+    ASSERT_EQ(f.bodies.size(), truth.bodies.size());
     std::map<uint64_t, BodyState> want;
     for (const BodyState& b : truth.bodies) want[b.id] = b;
     for (const BodyState& b : f.bodies) {

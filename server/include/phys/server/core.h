@@ -159,6 +159,7 @@ struct ServerWorld {
     uint64_t bytes = 0;        ///< of the last frame
   } published;
   std::vector<uint64_t> touched;  ///< bodies edited outside the step since the last frame
+  uint64_t lastFrameTick = UINT64_MAX;  ///< the tick of the last queueFrame
   /// Interests (Subscribe): streams of some of the world's bodies, each on its own topic.
   struct Interest {
     std::vector<uint64_t> ids;  ///< sorted; empty for a region
@@ -292,7 +293,8 @@ class ServerCore {
   /// One stream of a world's frames (interest 0: the world's own); false when nobody
   /// subscribes to it (nothing encoded).
   bool queueStream(ServerWorld& w, uint32_t interest, const ServerWorld::Interest* filter,
-                   ServerWorld::Published* streamState, const std::vector<uint64_t>& awakeIds);
+                   ServerWorld::Published* streamState, const std::vector<uint64_t>& awakeIds,
+                   bool newTick);
   /// Applies one queued command: a reply is pushed now, or (a Step too long for one slice)
   /// when its job ends. Commands for a busy world wait for its job.
   void dispatch(Incoming in);

@@ -7,6 +7,7 @@
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
+#include <map>
 #include <mutex>
 #include <optional>
 #include <vector>
@@ -39,6 +40,8 @@ class DropOldestRing {
   }
   size_t size() const { return items_.size(); }
   bool empty() const { return items_.empty(); }
+  bool full() const { return items_.size() >= capacity_; }
+  const T& front() const { return items_.front(); }  ///< the next to go; not when empty
   size_t capacity() const { return capacity_; }
   uint64_t dropped() const { return dropped_; }
 
@@ -82,6 +85,7 @@ class PublishQueue {
   void pushFrame(StateFrameSet f) {
     {
       std::lock_guard<std::mutex> lock(mutex_);
+      if (frames_.full()) ++droppedByStream_[streamKey(frames_.front())];
       frames_.push(std::move(f));
     }
     cv_.notify_one();
@@ -127,6 +131,13 @@ class PublishQueue {
     std::lock_guard<std::mutex> lock(mutex_);
     return frames_.dropped();
   }
+  /// Frames of one stream (a world's, or one of its interests') dropped so far: a gap in its
+  /// chain of deltas, repaired by a keyframe.
+  uint64_t framesDropped(uint32_t world, uint32_t interest) const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    auto it = droppedByStream_.find(uint64_t(world) << 32 | interest);
+    return it == droppedByStream_.end() ? 0 : it->second;
+  }
   size_t framesQueued() const {
     std::lock_guard<std::mutex> lock(mutex_);
     return frames_.size();
@@ -137,6 +148,8 @@ class PublishQueue {
   }
 
  private:
+  static uint64_t streamKey(const StateFrameSet& f) { return uint64_t(f.world) << 32 | f.interest; }
+  std::map<uint64_t, uint64_t> droppedByStream_;
   mutable std::mutex mutex_;
   std::condition_variable cv_;
   DropOldestRing<StateFrameSet> frames_;
