@@ -133,7 +133,8 @@ struct Subscription::State {
   /// order): a sorted vector, so that applying a delta is a binary search per carried body
   /// and handing the frame out one copy.
   std::vector<BodyState> full;
-  uint64_t fullTick = 0;
+  uint64_t fullTick = 0;   ///< the last tick applied
+  uint64_t stateTick = 0;  ///< the last tick applied that carried something (deltas' base)
   bool haveFull = false;
 
   static uint64_t order(uint64_t id) { return (id << 32) | (id >> 32); }  // index, generation
@@ -204,7 +205,7 @@ struct Subscription::State {
         std::sort(full.begin(), full.end(), before);
       for (BodyState& s : full) s.changed = true;
     } else {
-      if (!haveFull || p.baseTick != fullTick) return fail();
+      if (!haveFull || p.baseTick != stateTick) return fail();
       for (BodyState& s : full) s.changed = false;
       // The body with this id among full's first n (sorted) entries, or null.
       auto find = [&](size_t n, uint64_t id) -> BodyState* {
@@ -242,6 +243,7 @@ struct Subscription::State {
     if (full.size() != p.frame.total) return fail();
     haveFull = true;
     fullTick = p.frame.tick;
+    if (p.frame.keyframe || !p.frame.bodies.empty() || !p.removed.empty()) stateTick = fullTick;
     return true;
   }
 };

@@ -122,14 +122,19 @@ void World::Impl::rebuildAwake() {
     if (b.asleep()) ++sleepingBodyCount;
   }
   stats.sleepingBodies = sleepingBodyCount;
+  sleepingPotentialValid = false;
   stats.sleepingIslands = 0;
   for (const SleepingIsland& is : islands) stats.sleepingIslands += !is.bodies.empty();
 }
 
 double World::Impl::sleepingPotential() const {
-  double e = 0;
-  for (const SleepingIsland& is : islands) e += is.potential;
-  return e;
+  if (!sleepingPotentialValid) {
+    double e = 0;
+    for (const SleepingIsland& is : islands) e += is.potential;
+    sleepingPotentialSum = e;
+    sleepingPotentialValid = true;
+  }
+  return sleepingPotentialSum;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -177,6 +182,7 @@ void World::Impl::wakeIsland(int32_t k) {
   std::vector<Contact>().swap(is.contacts);
   is.potential = 0;
   freeIslands.push_back(uint32_t(k));
+  sleepingPotentialValid = false;
   stats.sleepingIslands--;
   stats.sleepingBodies = sleepingBodyCount;
 }
@@ -371,6 +377,7 @@ void World::Impl::updateSleep(float dt) {
     ++sleepingBodyCount;
   }
   for (int32_t k : sleepers) islands[size_t(k)].substepTime = stats.substepTime;
+  sleepingPotentialValid = false;
   // Their contacts: those with points go with their island; the others between two bodies
   // that no longer move are dropped (the broad phase will not report them again).
   contactScratch.clear();

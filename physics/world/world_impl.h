@@ -182,7 +182,11 @@ struct World::Impl {
   /// islands whose bodies all rested long enough fall asleep.
   void updateSleep(float dt);
   void collectStepJoints();
+  /// The sleeping islands' potential energy, summed in island order; cached until an island
+  /// sleeps or wakes (a world of 10,000 one-body islands would sum them twice a step).
   double sleepingPotential() const;
+  mutable double sleepingPotentialSum = 0;
+  mutable bool sleepingPotentialValid = false;
   StepProfile profile;
   StepStats stats;
   double time = 0;

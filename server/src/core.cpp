@@ -671,8 +671,13 @@ bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorl
   }
   // This stream's frames the publisher dropped (a stalled writer) break its chain of deltas.
   const uint64_t dropped = out_.framesDropped(w.id, interest);
+  // The periodic keyframe repairs what a subscriber lost; a stream at rest since its last
+  // keyframe has had nothing to lose but empty deltas, so it comes quietKeyframeFactor times
+  // less often (an idle world costs a tenth).
+  const uint64_t period = uint64_t(config_.keyframeTicks) *
+                          (pub.changedSinceKeyframe ? 1 : std::max<uint32_t>(1, config_.quietKeyframeFactor));
   const bool keyframe = !pub.valid || subscribers > pub.subscribers ||
-                        dropped != pub.droppedSeen || pub.sinceKeyframe + 1 >= config_.keyframeTicks;
+                        dropped != pub.droppedSeen || pub.sinceKeyframe + 1 >= period;
   if (!keyframe && !newTick) return false;  // the same tick again: in the next tick's delta
   phys::World& world = *w.world;
   std::vector<wire::BodyState> states;
@@ -727,7 +732,7 @@ bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorl
   protocol::FrameHeader h{w.id, w.tick, world.time(),
                           uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(stamp).count())};
   h.keyframe = keyframe;
-  h.baseTick = pub.lastTick;
+  h.baseTick = pub.baseTick;
   h.compact = config_.compactStates;
   h.interest = interest;
   f.chunks = protocol::encodeStateFrames(h, states, std::max<uint32_t>(1, config_.bodiesPerChunk),
@@ -735,6 +740,9 @@ bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorl
   pub.awake = awakeIds;
   pub.valid = true;
   pub.lastTick = w.tick;
+  const bool carried = keyframe || !states.empty() || !removed.empty();
+  if (carried) pub.baseTick = w.tick;
+  pub.changedSinceKeyframe = !keyframe && (pub.changedSinceKeyframe || carried);
   pub.subscribers = subscribers;
   pub.droppedSeen = dropped;
   pub.bytes = 0;

@@ -75,6 +75,9 @@ struct CoreConfig {
   /// subscriber and after a world is replaced (load, reset, restore); deltas (the bodies
   /// whose state changed) in between. 1: every frame a keyframe.
   uint32_t keyframeTicks = 60;
+  /// A stream whose deltas have carried nothing since its last keyframe (a world at rest)
+  /// sends its periodic keyframe this many times less often.
+  uint32_t quietKeyframeFactor = 10;
   /// CompactBodyState (40 bytes, bounded error: protocol/compact.h) instead of BodyState.
   bool compactStates = false;
   /// Encode state frames for worlds nobody subscribes to (in-process tests without DDS);
@@ -154,6 +157,10 @@ struct ServerWorld {
     std::vector<uint64_t> awake;
     bool valid = false;   ///< a keyframe went out and every frame since
     uint64_t lastTick = 0, sinceKeyframe = 0;
+    /// The tick of the last frame that carried something (a keyframe, a body, a removal):
+    /// deltas apply to the state as of then, so losing an empty delta costs nothing.
+    uint64_t baseTick = 0;
+    bool changedSinceKeyframe = false;
     uint32_t subscribers = 0;  ///< at the last frame
     uint64_t droppedSeen = 0;  ///< the publisher's dropped frames at the last frame
     uint64_t bytes = 0;        ///< of the last frame
