@@ -15,16 +15,7 @@ while [[ $# -gt 0 ]]; do
     *) echo "usage: $0 [--seconds S] [--build DIR] [--config TOML]" >&2; exit 2 ;;
   esac
 done
-physd="$build/server/physd" physctl="$build/tools/physctl"
-domain="$(sed -n 's/^domain *= *\([0-9]*\).*/\1/p' "$config" | head -1)"
-ctl() { "$physctl" --domain "$domain" "$@"; }
-out="$(mktemp -d)"
-cleanup() { [[ -n "${daemon:-}" ]] && kill "$daemon" 2>/dev/null; wait 2>/dev/null || true; rm -rf "$out"; }
-trap cleanup EXIT
-
-"$physd" --config "$config" > "$out/physd.log" 2>&1 &
-daemon=$!
-for _ in $(seq 300); do ctl --timeout 500 list > /dev/null 2>&1 && break; sleep 0.2; done
+source "$root/tools/physd_bench.sh"
 worlds=$(ctl list | awk '$2 ~ /^idle/ {print $2}')
 warmup=5
 for w in $worlds; do

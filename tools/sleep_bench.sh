@@ -16,8 +16,10 @@ import json, sys
 j = json.load(open(sys.argv[2]))
 m = j["metrics"]
 s = m.get("ms_per_step_settled_median")
+# A peer's run reports our mirror world's count, not the engine's: left out.
+awake = '-' if j.get('backend', '').startswith(('Bullet', 'bullet')) else m.get('awake_bodies_final', '-')
 print(f"{sys.argv[1]:<44} steps {j['steps']:>5}  ms/step median {m['ms_per_step_median']:9.3f}"
-      f"  settled median {'-' if s is None else f'{s:9.4f}'}  awake at the end {m.get('awake_bodies_final', '-')}")
+      f"  settled median {'-' if s is None else f'{s:9.4f}'}  awake at the end {awake}")
 PY
 }
 for scene in many_pyramids pile_10k; do
