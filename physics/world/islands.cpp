@@ -79,7 +79,8 @@ Status World::setAllowSleep(BodyId id, bool allow) {
 }
 
 Status World::wakeBody(BodyId id) {
-  if (!impl_->bodies.get(id)) return Status::Error(StatusCode::NotFound, "body id is unknown or stale");
+  if (!impl_->bodies.get(id))
+    return Status::Error(StatusCode::NotFound, "body id is unknown or stale");
   impl_->wake(id.index);
   return Status::Ok();
 }
@@ -282,7 +283,8 @@ void World::Impl::updateSleep(float dt) {
     if (b.type != BodyType::Dynamic) continue;
     float reach = 0;
     for (ShapeId sid : b.shapes) reach = std::max(reach, shapes.get(sid)->boundRadius);
-    const float angular = reach > 0 ? std::min(z.angularSpeed, z.linearSpeed / reach) : z.angularSpeed;
+    const float angular =
+        reach > 0 ? std::min(z.angularSpeed, z.linearSpeed / reach) : z.angularSpeed;
     const bool slow = b.allowSleep && lengthSquared(b.v) <= z.linearSpeed * z.linearSpeed &&
                       lengthSquared(b.w) <= angular * angular;
     b.sleepTime = slow ? b.sleepTime + dt : 0;

@@ -504,14 +504,14 @@ void World::Impl::updateBounds(float dt) {
   for (uint32_t slot : awakeBodies) {
     const BodyRec& b = bodies.at(slot);
     for (ShapeId sid : b.shapes) {
-    ShapeRec& s = *shapes.get(sid);
-    AABB box = computeAABB(s.def.geom, shapeTransform(b, s));
-    Vec3 sweep = b.v * dt;
-    box.lo += vmin(sweep, {});
-    box.hi += vmax(sweep, {});
-    float pad = 0.5f * def.speculativeDistance + length(b.w) * dt * s.boundRadius;
-    box = inflate(box, pad);
-    broadPhase.moveProxy(s.proxy, box, def.aabbMargin);
+      ShapeRec& s = *shapes.get(sid);
+      AABB box = computeAABB(s.def.geom, shapeTransform(b, s));
+      Vec3 sweep = b.v * dt;
+      box.lo += vmin(sweep, {});
+      box.hi += vmax(sweep, {});
+      float pad = 0.5f * def.speculativeDistance + length(b.w) * dt * s.boundRadius;
+      box = inflate(box, pad);
+      broadPhase.moveProxy(s.proxy, box, def.aabbMargin);
     }
   }
 }
@@ -669,7 +669,8 @@ SolverManifold World::Impl::solverManifold(const Contact& c, const SolverSetting
     float arm = 0;
     for (int k = 0; k < m.count; ++k) arm += length(c.manifold.points[k].point - centroid);
     m.twistArm = arm / float(m.count);
-    if (m.count == 1) m.twistArm = pointPatchArm(shapes.at(c.shapeA).def.geom, shapes.at(c.shapeB).def.geom);
+    if (m.count == 1)
+      m.twistArm = pointPatchArm(shapes.at(c.shapeA).def.geom, shapes.at(c.shapeB).def.geom);
     // Switching friction models between steps warm-starts one step from the other model's
     // slots; the friction clamps bound what that can do.
     for (int d = 0; d < 3; ++d) m.patchImpulse[d] = s.warmStart ? c.patchImpulse(d) : 0;

@@ -116,10 +116,9 @@ wire::CompactBodyState compactState(const wire::BodyState& s, const CompactBound
   const wire::Vec3& w = s.angular_velocity();
   const uint16_t lin[3] = {toHalf(v.x()), toHalf(v.y()), toHalf(v.z())};
   const uint16_t ang[3] = {toHalf(w.x()), toHalf(w.y()), toHalf(w.z())};
-  return wire::CompactBodyState(s.id(), packRotation(s.rotation()),
-                                flatbuffers::span<const uint8_t, 9>(position),
-                                flatbuffers::span<const uint16_t, 3>(lin),
-                                flatbuffers::span<const uint16_t, 3>(ang));
+  return wire::CompactBodyState(
+      s.id(), packRotation(s.rotation()), flatbuffers::span<const uint8_t, 9>(position),
+      flatbuffers::span<const uint16_t, 3>(lin), flatbuffers::span<const uint16_t, 3>(ang));
 }
 
 wire::BodyState expandState(const wire::CompactBodyState& c, const CompactBounds& b) {
@@ -130,8 +129,7 @@ wire::BodyState expandState(const wire::CompactBodyState& c, const CompactBounds
                      unfraction24(q[2], b.lo.z, b.hi.z));
   const wire::Vec3 v(fromHalf(c.linear_velocity()->Get(0)), fromHalf(c.linear_velocity()->Get(1)),
                      fromHalf(c.linear_velocity()->Get(2)));
-  const wire::Vec3 w(fromHalf(c.angular_velocity()->Get(0)),
-                     fromHalf(c.angular_velocity()->Get(1)),
+  const wire::Vec3 w(fromHalf(c.angular_velocity()->Get(0)), fromHalf(c.angular_velocity()->Get(1)),
                      fromHalf(c.angular_velocity()->Get(2)));
   return wire::BodyState(c.id(), p, unpackRotation(c.rotation()), v, w);
 }

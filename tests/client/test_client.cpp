@@ -3,12 +3,12 @@
 // tests/server and tests/protocol; 232 is avoided: its ports overflow 65535 for high participant
 // indices) and a Cyclone discovery tag made from its process id, so tests running in parallel never
 // see each other's daemons.
-#include <cstring>
 #include <gtest/gtest.h>
 #include <unistd.h>
 
 #include <atomic>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <future>
@@ -331,7 +331,12 @@ TEST(ClientSdk, RebuiltStateEqualsTheWorldsEveryTick) {
   uint64_t tick = 0;
   ASSERT_TRUE(waitFor([&] {
     tick = w.step(1).get().tick;
-    return waitFor([&] { std::lock_guard<std::mutex> lk(m); return got.count(tick) > 0; }, 300ms);
+    return waitFor(
+        [&] {
+          std::lock_guard<std::mutex> lk(m);
+          return got.count(tick) > 0;
+        },
+        300ms);
   }));
   size_t deltas = 0, changedInDeltas = 0;
   for (int i = 0; i < 600; ++i) {
@@ -341,8 +346,11 @@ TEST(ClientSdk, RebuiltStateEqualsTheWorldsEveryTick) {
       w.spawn(boxBody({-30, 0, 3})).get();
     }
     tick = w.step(1).get().tick;
-    ASSERT_TRUE(waitFor([&] { std::lock_guard<std::mutex> lk(m); return got.count(tick) > 0; }))
-        << "tick " << tick;
+    ASSERT_TRUE(waitFor([&] {
+      std::lock_guard<std::mutex> lk(m);
+      return got.count(tick) > 0;
+    })) << "tick "
+        << tick;
     const StateFrame truth = w.queryState().get();
     ASSERT_EQ(truth.tick, tick);
     StateFrame f;
@@ -360,7 +368,8 @@ TEST(ClientSdk, RebuiltStateEqualsTheWorldsEveryTick) {
       ASSERT_TRUE(std::memcmp(&b.position, &t.position, sizeof t.position) == 0 &&
                   std::memcmp(&b.rotation, &t.rotation, sizeof t.rotation) == 0 &&
                   std::memcmp(&b.linearVelocity, &t.linearVelocity, sizeof t.linearVelocity) == 0 &&
-                  std::memcmp(&b.angularVelocity, &t.angularVelocity, sizeof t.angularVelocity) == 0)
+                  std::memcmp(&b.angularVelocity, &t.angularVelocity, sizeof t.angularVelocity) ==
+                      0)
           << "body " << b.id << " at tick " << tick;
     }
     if (!f.keyframe) {
@@ -407,22 +416,22 @@ TEST(ClientSdk, AnInterestDeliversExactlyTheBodiesAskedFor) {
   const std::set<uint64_t> picked = {ids[5], ids[17], ids[150]};
   std::mutex m;
   std::vector<std::set<uint64_t>> byIds, byRegion;
-  Subscription a = w.subscribe(Interest{{ids[5], ids[17], ids[150]}, std::nullopt},
-                               [&](const StateFrame& f) {
-                                 std::lock_guard<std::mutex> lk(m);
-                                 std::set<uint64_t> got;
-                                 for (const BodyState& b : f.bodies) got.insert(b.id);
-                                 byIds.push_back(got);
-                               });
-  // The box x in [-1, 5], y in [-1, 1]: the boxes at x = 0, 2, 4 of the first row.
-  Subscription r = w.subscribe(
-      Interest{{}, std::make_pair(phys::Vec3{-1, -1, 0.25f}, phys::Vec3{5, 1, 3})},
-      [&](const StateFrame& f) {
+  Subscription a =
+      w.subscribe(Interest{{ids[5], ids[17], ids[150]}, std::nullopt}, [&](const StateFrame& f) {
         std::lock_guard<std::mutex> lk(m);
         std::set<uint64_t> got;
         for (const BodyState& b : f.bodies) got.insert(b.id);
-        byRegion.push_back(got);
+        byIds.push_back(got);
       });
+  // The box x in [-1, 5], y in [-1, 1]: the boxes at x = 0, 2, 4 of the first row.
+  Subscription r =
+      w.subscribe(Interest{{}, std::make_pair(phys::Vec3{-1, -1, 0.25f}, phys::Vec3{5, 1, 3})},
+                  [&](const StateFrame& f) {
+                    std::lock_guard<std::mutex> lk(m);
+                    std::set<uint64_t> got;
+                    for (const BodyState& b : f.bodies) got.insert(b.id);
+                    byRegion.push_back(got);
+                  });
   ASSERT_TRUE(waitFor([&] {
     w.step(1).get();
     std::lock_guard<std::mutex> lk(m);

@@ -19,7 +19,7 @@ TEST(Compact, HalfFloatsAreIeeeBinary16) {
   EXPECT_EQ(toHalf(1.0f), 0x3C00);
   EXPECT_EQ(toHalf(-2.0f), 0xC000);
   EXPECT_EQ(toHalf(65504.0f), 0x7BFF);
-  EXPECT_EQ(toHalf(1e6f), 0x7C00);  // past the largest: infinity
+  EXPECT_EQ(toHalf(1e6f), 0x7C00);                // past the largest: infinity
   EXPECT_EQ(toHalf(1.0f + 1.0f / 4096), 0x3C00);  // a quarter step: down
   EXPECT_EQ(toHalf(1.0f + 3.0f / 2048), 0x3C02);  // a half step from odd 0x3C01: to even
   EXPECT_TRUE(std::isnan(fromHalf(toHalf(NAN))));
@@ -27,9 +27,11 @@ TEST(Compact, HalfFloatsAreIeeeBinary16) {
   std::mt19937 rng(7);
   std::uniform_real_distribution<float> e(-20, 15);
   for (int i = 0; i < 100000; ++i) {
-    const float f = std::ldexp(1.0f + float(rng() % 1000000) / 1e6f, int(e(rng))) * (i % 2 ? -1 : 1);
+    const float f =
+        std::ldexp(1.0f + float(rng() % 1000000) / 1e6f, int(e(rng))) * (i % 2 ? -1 : 1);
     const float back = fromHalf(toHalf(f));
-    const float bound = std::fabs(f) >= 6.103515625e-05f ? std::fabs(f) / 2048 : std::ldexp(1.0f, -25);
+    const float bound =
+        std::fabs(f) >= 6.103515625e-05f ? std::fabs(f) / 2048 : std::ldexp(1.0f, -25);
     ASSERT_LE(std::fabs(back - f), bound) << f;
   }
 }
@@ -56,14 +58,12 @@ TEST(Compact, StatesAreWithinTheDocumentedBounds) {
     EXPECT_LE(std::fabs(r.position().y() - s.position().y()), extent.y / 2 / 16777215 + 4e-6);
     EXPECT_LE(std::fabs(r.position().z() - s.position().z()), extent.z / 2 / 16777215 + 1e-6);
     // Rotation: the angle between the two, 2 |q1 - q2| for small angles (q or -q).
-    const double dm[4] = {double(r.rotation().x()) - s.rotation().x(),
-                          double(r.rotation().y()) - s.rotation().y(),
-                          double(r.rotation().z()) - s.rotation().z(),
-                          double(r.rotation().w()) - s.rotation().w()};
-    const double dp[4] = {double(r.rotation().x()) + s.rotation().x(),
-                          double(r.rotation().y()) + s.rotation().y(),
-                          double(r.rotation().z()) + s.rotation().z(),
-                          double(r.rotation().w()) + s.rotation().w()};
+    const double dm[4] = {
+        double(r.rotation().x()) - s.rotation().x(), double(r.rotation().y()) - s.rotation().y(),
+        double(r.rotation().z()) - s.rotation().z(), double(r.rotation().w()) - s.rotation().w()};
+    const double dp[4] = {
+        double(r.rotation().x()) + s.rotation().x(), double(r.rotation().y()) + s.rotation().y(),
+        double(r.rotation().z()) + s.rotation().z(), double(r.rotation().w()) + s.rotation().w()};
     auto norm = [](const double* v) {
       return std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2] + v[3] * v[3]);
     };

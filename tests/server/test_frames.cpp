@@ -195,7 +195,8 @@ TEST_F(FramesTest, CompactStatesAreWithinTheirBounds) {
   c.compactStates = true;
   start(c);
   core->setSubscribers(world, 1);
-  const auto ids = spawn({phys::test::groundBody(), phys::test::boxBody({0, 0, 3}), phys::test::boxBody({40, -20, 7})});
+  const auto ids = spawn({phys::test::groundBody(), phys::test::boxBody({0, 0, 3}),
+                          phys::test::boxBody({40, -20, 7})});
   Frame f = step();
   ASSERT_TRUE(f.keyframe);
   ASSERT_EQ(f.bodies.size(), 3u);

@@ -34,7 +34,8 @@ class SleepServerTest : public ::testing::Test {
   std::vector<uint64_t> groundAndBox(uint32_t w, bool allowSleep = true) {
     BodyDef box = phys::test::boxBody({0, 0, 0.5f});
     box.allowSleep = allowSleep;
-    Reply r = send(CommandBuilder().spawnBodies(std::vector<BodyDef>{phys::test::groundBody(), box}), w);
+    Reply r =
+        send(CommandBuilder().spawnBodies(std::vector<BodyDef>{phys::test::groundBody(), box}), w);
     EXPECT_EQ(r->status(), Code::Ok) << message(r);
     return bodyIds(r);
   }
@@ -63,7 +64,8 @@ TEST_F(SleepServerTest, WorldsSleepByDefaultAndCreateWorldCanSayOtherwise) {
     EXPECT_EQ(s.sleepingBodies, s.world == on ? 1u : 0u) << s.name;
   }
   // The default CreateWorldArgs sleep.
-  const uint32_t plain = send(CommandBuilder().createWorld({"plain", "", std::nullopt, 0}), 0)->world();
+  const uint32_t plain =
+      send(CommandBuilder().createWorld({"plain", "", std::nullopt, 0}), 0)->world();
   EXPECT_TRUE(engine(plain).def().sleep.enabled);
 }
 
@@ -83,19 +85,35 @@ TEST_F(SleepServerTest, EveryEditingCommandWakesItsBody) {
     std::function<CommandBuilder(const std::vector<uint64_t>&)> command;
   };
   const std::vector<Edit> edits = {
-      {"SetBodyPose", [](auto& ids) { return std::move(CommandBuilder().setBodyPose(ids[1], {0, 0, 0.6f}, {})); }},
+      {"SetBodyPose",
+       [](auto& ids) {
+         return std::move(CommandBuilder().setBodyPose(ids[1], {0, 0, 0.6f}, {}));
+       }},
       {"SetBodyVelocity",
-       [](auto& ids) { return std::move(CommandBuilder().setBodyVelocity(ids[1], {0.1f, 0, 0}, {})); }},
-      {"ApplyForce", [](auto& ids) { return std::move(CommandBuilder().applyForce(ids[1], {10, 0, 0})); }},
-      {"ApplyImpulse", [](auto& ids) { return std::move(CommandBuilder().applyImpulse(ids[1], {10, 0, 0})); }},
-      {"ApplyTorque", [](auto& ids) { return std::move(CommandBuilder().applyTorque(ids[1], {0, 0, 10})); }},
+       [](auto& ids) {
+         return std::move(CommandBuilder().setBodyVelocity(ids[1], {0.1f, 0, 0}, {}));
+       }},
+      {"ApplyForce",
+       [](auto& ids) {
+         return std::move(CommandBuilder().applyForce(ids[1], {10, 0, 0}));
+       }},
+      {"ApplyImpulse",
+       [](auto& ids) {
+         return std::move(CommandBuilder().applyImpulse(ids[1], {10, 0, 0}));
+       }},
+      {"ApplyTorque",
+       [](auto& ids) {
+         return std::move(CommandBuilder().applyTorque(ids[1], {0, 0, 10}));
+       }},
       {"SetMaterial (the box)",
        [](auto& ids) {
-         return std::move(CommandBuilder().setMaterial(std::vector<uint64_t>{ids[1]}, Material{0.2f, 0, 800}));
+         return std::move(
+             CommandBuilder().setMaterial(std::vector<uint64_t>{ids[1]}, Material{0.2f, 0, 800}));
        }},
       {"SetMaterial (the ground under it)",
        [](auto& ids) {
-         return std::move(CommandBuilder().setMaterial(std::vector<uint64_t>{ids[0]}, Material{0.1f, 0, 1000}));
+         return std::move(
+             CommandBuilder().setMaterial(std::vector<uint64_t>{ids[0]}, Material{0.1f, 0, 1000}));
        }},
       {"AddJoints",
        [](auto& ids) {
@@ -107,7 +125,9 @@ TEST_F(SleepServerTest, EveryEditingCommandWakesItsBody) {
          return std::move(CommandBuilder().addJoints(std::vector<JointDef>{j}));
        }},
       {"RemoveBodies (the ground under it)",
-       [](auto& ids) { return std::move(CommandBuilder().removeBodies(std::vector<uint64_t>{ids[0]})); }},
+       [](auto& ids) {
+         return std::move(CommandBuilder().removeBodies(std::vector<uint64_t>{ids[0]}));
+       }},
       {"SetSolver", [](auto&) { return std::move(CommandBuilder().setSolver("ldl_pgs")); }},
   };
   for (const Edit& e : edits) {

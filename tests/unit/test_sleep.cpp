@@ -133,8 +133,8 @@ TEST(Sleep, ABoxSlidingSlowlyDownASlopeNeverSleeps) {
   const Vec3 start = stateOf(w, box).position;
   for (int i = 0; i < 180; ++i) {
     w.step();
-    ASSERT_FALSE(w.isSleeping(box)) << "asleep at step " << i + 1 << ", speed "
-                                    << length(stateOf(w, box).linearVelocity);
+    ASSERT_FALSE(w.isSleeping(box))
+        << "asleep at step " << i + 1 << ", speed " << length(stateOf(w, box).linearVelocity);
   }
   // It slid (0.18 m/s^2 for 3 s is 0.83 m).
   EXPECT_GT(length(stateOf(w, box).position - start), 0.5f);
@@ -202,13 +202,31 @@ TEST(Sleep, EveryEditWakesItsBody) {
     std::function<Status(World&, BodyId)> apply;
   };
   const std::vector<Edit> edits = {
-      {"setTransform", [](World& w, BodyId b) { return w.setTransform(b, {0, 0, 0.6f}, {}); }},
-      {"setVelocity", [](World& w, BodyId b) { return w.setVelocity(b, {0.1f, 0, 0}, {}); }},
-      {"applyForce", [](World& w, BodyId b) { return w.applyForce(b, {1, 0, 0}, {0, 0, 0.5f}); }},
-      {"applyTorque", [](World& w, BodyId b) { return w.applyTorque(b, {0, 0, 1}); }},
-      {"applyImpulse", [](World& w, BodyId b) { return w.applyImpulse(b, {1, 0, 0}, {0, 0, 0.5f}); }},
+      {"setTransform",
+       [](World& w, BodyId b) {
+         return w.setTransform(b, {0, 0, 0.6f}, {});
+       }},
+      {"setVelocity",
+       [](World& w, BodyId b) {
+         return w.setVelocity(b, {0.1f, 0, 0}, {});
+       }},
+      {"applyForce",
+       [](World& w, BodyId b) {
+         return w.applyForce(b, {1, 0, 0}, {0, 0, 0.5f});
+       }},
+      {"applyTorque",
+       [](World& w, BodyId b) {
+         return w.applyTorque(b, {0, 0, 1});
+       }},
+      {"applyImpulse",
+       [](World& w, BodyId b) {
+         return w.applyImpulse(b, {1, 0, 0}, {0, 0, 0.5f});
+       }},
       {"setMass", [](World& w, BodyId b) { return w.setMass(b, 2); }},
-      {"setMaterial", [](World& w, BodyId b) { return w.setMaterial(b, Material{0.2f, 0, 500}); }},
+      {"setMaterial",
+       [](World& w, BodyId b) {
+         return w.setMaterial(b, Material{0.2f, 0, 500});
+       }},
       {"setBodyType", [](World& w, BodyId b) { return w.setBodyType(b, BodyType::Dynamic); }},
       {"addShape",
        [](World& w, BodyId b) {
@@ -228,7 +246,10 @@ TEST(Sleep, EveryEditWakesItsBody) {
        }},
       {"setAllowSleep", [](World& w, BodyId b) { return w.setAllowSleep(b, false); }},
       {"wakeBody", [](World& w, BodyId b) { return w.wakeBody(b); }},
-      {"setGravity", [](World& w, BodyId) { return w.setGravity({0, 0, -9.8f}); }},
+      {"setGravity",
+       [](World& w, BodyId) {
+         return w.setGravity({0, 0, -9.8f});
+       }},
       {"setTimeStep", [](World& w, BodyId) { return w.setTimeStep(1.0f / 120); }},
       {"setSolverSettings",
        [](World& w, BodyId) {
@@ -272,7 +293,8 @@ TEST(Sleep, APyramidSleepsAndStandsAsWellAsAwake) {
     std::vector<BodyId> ids;
     for (int row = 0; row < 10; ++row)
       for (int i = 0; i < 10 - row; ++i)
-        ids.push_back(addBody(w, boxBody({float(i) - 0.5f * float(9 - row), 0, 0.5f + float(row)})));
+        ids.push_back(
+            addBody(w, boxBody({float(i) - 0.5f * float(9 - row), 0, 0.5f + float(row)})));
     const Vec3 top0 = stateOf(w, ids.back()).position;
     *pen = 0;
     for (int i = 0; i < 240; ++i) {
@@ -297,7 +319,8 @@ TEST(Sleep, APyramidSleepsAndStandsAsWellAsAwake) {
 
 /// Two columns and a ball thrown into one: wakes, sleeps, a ball at rest; its hashes per step.
 std::vector<uint64_t> wakeAndSleepRun(int threads, int steps, World* into = nullptr,
-                                      int snapshotAt = -1, std::vector<uint8_t>* snapshot = nullptr) {
+                                      int snapshotAt = -1,
+                                      std::vector<uint8_t>* snapshot = nullptr) {
   World local(sleepy(threads));
   World& w = into ? *into : local;
   addGround(w);
