@@ -11,7 +11,9 @@
 //   physctl snapshot restore WORLD FILE
 //   physctl ping [--count N]           # command round trip percentiles (a benchmark)
 //   physctl subscribe WORLD [--seconds S] [--warmup W] [--latency-log FILE]
-//                                      # receive state frames; print delivery and latency
+//                   [--bodies ID,ID,... | --region X0,Y0,Z0,X1,Y1,Z1]
+//                                      # receive state frames (of an interest); print
+//                                      # delivery, latency and bytes per tick
 //
 // WORLD is a world id or name. Errors print the server's code and message and exit 1.
 #include <unistd.h>
@@ -172,7 +174,7 @@ int watch(pc::Client& c, const std::string& only) {
 /// the SDK has reassembled the tick). A benchmark (tools/fanout_bench.sh runs eight).
 /// latencyLog: when not empty, a file that gets one line per tick received, "tick latency_ms".
 int subscribe(pc::Client& c, const std::string& world, double warmup, double seconds,
-              const std::string& latencyLog) {
+              const std::string& latencyLog, const pc::Interest& interest) {
   std::unique_ptr<std::FILE, int (*)(std::FILE*)> log(nullptr, &std::fclose);
   if (!latencyLog.empty()) {
     log.reset(std::fopen(latencyLog.c_str(), "w"));
@@ -193,7 +195,7 @@ int subscribe(pc::Client& c, const std::string& world, double warmup, double sec
   std::vector<Record> records;
   records.reserve(size_t(seconds * 240) + 16);
   std::atomic<bool> measuring{false};
-  pc::Subscription sub = w.subscribe([&](const pc::StateFrame& f) {
+  pc::Subscription sub = w.subscribe(interest, [&](const pc::StateFrame& f) {
     const auto now = std::chrono::system_clock::now().time_since_epoch();
     const double ms = double(std::chrono::duration_cast<std::chrono::nanoseconds>(now).count() -
                              int64_t(f.stampNs)) /
@@ -298,6 +300,15 @@ int main(int argc, char** argv) {
   std::string latencyLog;
   subscribeCmd->add_option("--latency-log", latencyLog,
                            "write one line per received tick, \"tick latency_ms\", to this file");
+  std::vector<uint64_t> interestBodies;
+  std::vector<float> interestRegion;
+  subscribeCmd->add_option("--bodies", interestBodies,
+                           "only these bodies (ids, comma-separated): an interest (docs/PROTOCOL.md)")
+      ->delimiter(',');
+  subscribeCmd->add_option("--region", interestRegion,
+                           "only the bodies inside the box x0,y0,z0,x1,y1,z1 (m): an interest")
+      ->delimiter(',')
+      ->expected(6);
   auto* snapshot = app.add_subcommand("snapshot", "save or restore a world's snapshot");
   snapshot->require_subcommand(1);
   auto* save = snapshot->add_subcommand("save", "save WORLD's snapshot into a local FILE");
@@ -333,7 +344,17 @@ int main(int argc, char** argv) {
     if (*subscribeCmd) {
       std::signal(SIGINT, onSignal);
       std::signal(SIGTERM, onSignal);
-      return subscribe(client, world, subWarmup, subSeconds, latencyLog);
+      pc::Interest interest;
+      interest.bodies = interestBodies;
+      if (!interestRegion.empty())
+        interest.region = std::make_pair(
+            phys::Vec3{interestRegion[0], interestRegion[1], interestRegion[2]},
+            phys::Vec3{interestRegion[3], interestRegion[4], interestRegion[5]});
+      if (!interest.bodies.empty() && interest.region) {
+        std::fprintf(stderr, "physctl: give --bodies or --region, not both\n");
+        return 2;
+      }
+      return subscribe(client, world, subWarmup, subSeconds, latencyLog, interest);
     }
     if (*list) {
       printWorlds(client.listWorlds().get());
