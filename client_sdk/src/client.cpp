@@ -144,7 +144,10 @@ struct Subscription::State {
 
   void onChunk(const wire::StateFrame& f, size_t bytes) {
     const uint64_t t = f.tick();
-    if (any && t <= lastComplete) return;
+    // Older ticks are superseded; the tick already delivered comes again only as a keyframe
+    // (sent for a new subscriber while the world is paused), which is applied again, so that
+    // the deltas after it (based on it) apply.
+    if (any && (t < lastComplete || (t == lastComplete && !f.keyframe()))) return;
     Partial& p = partial[t];
     if (p.got.empty()) {
       p.chunkCount = f.chunk_count();

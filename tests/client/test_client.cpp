@@ -405,6 +405,44 @@ TEST(ClientSdk, LateSubscriberHasTheFullStateWithinAKeyframe) {
   w.pause().get();
 }
 
+// A second subscriber to a paused world gets a keyframe at the tick the first already has;
+// the first applies it again, so the deltas after it still apply for both.
+TEST(ClientSdk, ASecondSubscriberToAPausedWorldBreaksNobodysDeltas) {
+  Env env;
+  Client& c = env.client;
+  c.connect();
+  WorldHandle w = c.createWorld({"paused", "", std::nullopt, 0}).get();
+  // A box at rest in zero gravity: after the first keyframe every delta is empty.
+  phys::BodyDef still = boxBody({0, 0, 5});
+  still.gravityScale = 0;
+  const uint64_t id = w.spawn(still).get()[0];
+  Subscription a = w.subscribe();
+  uint64_t tick = 0;
+  ASSERT_TRUE(waitFor([&] {
+    tick = w.step(1).get().tick;
+    return a.waitForFrame(tick - 1, 300ms).has_value();
+  }));
+  for (int i = 0; i < 3; ++i) {  // empty deltas: a holds the state as of an earlier tick
+    tick = w.step(1).get().tick;
+    ASSERT_TRUE(a.waitForFrame(tick - 1, kTimeout));
+  }
+  Subscription b = w.subscribe();
+  // An edit while paused: b's keyframe goes out at once, at the tick a already has.
+  std::this_thread::sleep_for(400ms);  // physd counts b (every 250 ms)
+  const std::vector<uint64_t> ids = {id};
+  w.setMaterial(ids, phys::Material{0.3f, 0, 1000}).get();
+  ASSERT_TRUE(b.waitForFrame(0, kTimeout).has_value());
+  for (int i = 0; i < 5; ++i) {
+    tick = w.step(1).get().tick;
+    auto fa = a.waitForFrame(tick - 1, kTimeout), fb = b.waitForFrame(tick - 1, kTimeout);
+    ASSERT_TRUE(fa && fb) << "tick " << tick;
+    EXPECT_EQ(fa->tick, tick);
+    EXPECT_EQ(fb->tick, tick);
+  }
+  EXPECT_EQ(a.framesSkipped(), 0u);
+  EXPECT_EQ(b.framesSkipped(), 0u);
+}
+
 // An interest: a subscription to some bodies (or a box) gets exactly those, rebuilt every
 // tick, on its own topic.
 TEST(ClientSdk, AnInterestDeliversExactlyTheBodiesAskedFor) {
