@@ -145,14 +145,8 @@ void World::Impl::wakeIsland(int32_t k) {
   SleepingIsland& is = islands[size_t(k)];
   // The stored impulses are per substep of the step they were solved in: scaled to the
   // current unit, as rescaleWarmStarts does for the awake contacts.
-  const float before = is.substepTime, now = stats.substepTime;
-  if (before > 0 && now > 0 && before != now) {
-    const float s = std::clamp(now / before, 1e-4f, 1e4f);
-    for (Contact& c : is.contacts) {
-      for (float& f : c.normalImpulse) f *= s;
-      for (auto& t : c.tangentImpulse) t[0] *= s, t[1] *= s;
-    }
-  }
+  if (const float s = impulseScale(is.substepTime, stats.substepTime); s != 1)
+    scaleImpulses(&is.contacts, s);
   const double g = length(def.gravity);
   for (uint32_t slot : is.bodies) {
     BodyRec& b = bodies.at(slot);

@@ -905,6 +905,14 @@ bool contactShapeOk(const Pool<ShapeRec, ShapeTag>& shapes, uint32_t slot, Shape
   return id.generation < g;
 }
 
+void writeContactList(Writer& w, const std::vector<Contact>& list) {
+  w.u32(uint32_t(list.size()));
+  for (size_t i = 0; i < list.size(); ++i) {
+    w.where("contact", int64_t(i));
+    ioContact(w, list[i]);
+  }
+}
+
 void readContactList(Reader& r, Parsed* st, std::vector<Contact>* list) {
   const uint32_t n = r.count(196, "contact");
   list->resize(n);
@@ -1005,8 +1013,7 @@ void readBroadPhase(Reader& r, Parsed* st) {
     if (!(fat.lo.x <= fat.hi.x && fat.lo.y <= fat.hi.y && fat.lo.z <= fat.hi.z))
       return r.fail("fat box is inverted");
     ShapeRec& s = st->shapes.at(slot);
-    const BodyRec& b = *st->bodies.get(s.body);
-    const bool isStatic = b.type == BodyType::Static || b.asleep();  // proxyStatic
+    const bool isStatic = World::Impl::proxyStatic(*st->bodies.get(s.body));
     s.proxy = st->broadPhase.createProxyWithFatBox(fat, slot, isStatic);
     ++next;
   }
@@ -1064,11 +1071,7 @@ Status World::saveSnapshot(std::vector<uint8_t>* out) const {
   w.endSection(at);
 
   at = w.beginSection("CONT");
-  w.u32(uint32_t(m.contacts.size()));
-  for (size_t i = 0; i < m.contacts.size(); ++i) {
-    w.where("contact", int64_t(i));
-    ioContact(w, m.contacts[i]);
-  }
+  writeContactList(w, m.contacts);
   w.endSection(at);
 
   at = w.beginSection("BRPH");
@@ -1090,8 +1093,7 @@ Status World::saveSnapshot(std::vector<uint8_t>* out) const {
     w.u32s(is.bodies);
     w.f32(is.substepTime);
     w.f64(is.potential);
-    w.u32(uint32_t(is.contacts.size()));
-    for (const Contact& c : is.contacts) ioContact(w, c);
+    writeContactList(w, is.contacts);
   }
   w.u32s(m.freeIslands);
   w.endSection(at);

@@ -253,15 +253,10 @@ void World::Impl::rescaleWarmStarts(float h) {
   // Warm starts are impulses per substep: the substeps just changed length (stack
   // stiffening, a guard retry, a new time step), so last step's impulses are scaled to keep
   // the forces they stand for.
-  const float before = stats.substepTime;
+  const float k = impulseScale(stats.substepTime, h);
   stats.substepTime = h;  // their unit from here on
-  if (!(before > 0) || before == h) return;
-  // Bounded, so that a corrupt or absurd unit cannot blow the impulses up.
-  const float k = std::clamp(h / before, 1e-4f, 1e4f);
-  for (Contact& c : contacts) {
-    for (float& f : c.normalImpulse) f *= k;
-    for (auto& t : c.tangentImpulse) t[0] *= k, t[1] *= k;
-  }
+  if (k == 1) return;
+  scaleImpulses(&contacts, k);
   for (uint32_t i = 0; i < joints.capacity(); ++i)
     if (joints.alive(i))
       for (float& f : joints.at(i).impulses) f *= k;

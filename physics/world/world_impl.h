@@ -3,6 +3,7 @@
 // joints.cpp (joint rows from the body records) and stacks.cpp (stack stiffening).
 #pragma once
 
+#include <algorithm>
 #include <exception>
 
 #include <cstdint>
@@ -90,6 +91,20 @@ struct Contact {
   float& patchImpulse(int d) { return tangentImpulse[d / 2][d % 2]; }
   float patchImpulse(int d) const { return tangentImpulse[d / 2][d % 2]; }
 };
+
+/// Warm-start impulses are per substep: the factor that takes impulses solved with substeps of
+/// `before` s to substeps of `after` s, keeping the forces they stand for; 1 when there is
+/// nothing to scale. Bounded, so that a corrupt or absurd unit cannot blow them up.
+inline float impulseScale(float before, float after) {
+  if (!(before > 0) || !(after > 0) || before == after) return 1;
+  return std::clamp(after / before, 1e-4f, 1e4f);
+}
+inline void scaleImpulses(std::vector<Contact>* contacts, float k) {
+  for (Contact& c : *contacts) {
+    for (float& f : c.normalImpulse) f *= k;
+    for (auto& t : c.tangentImpulse) t[0] *= k, t[1] *= k;
+  }
+}
 
 /// Dynamic bodies asleep together (islands.cpp): they woke together and sleep together.
 struct SleepingIsland {
@@ -198,7 +213,7 @@ struct World::Impl {
   void updateMass(BodyRec& b);
   /// What the broad phase takes for static: static bodies and sleeping ones (no pairs with
   /// each other).
-  bool proxyStatic(const BodyRec& b) const { return b.type == BodyType::Static || b.asleep(); }
+  static bool proxyStatic(const BodyRec& b) { return b.type == BodyType::Static || b.asleep(); }
   void syncProxies(BodyId id, bool moved);
   Transform shapeTransform(const BodyRec& b, const ShapeRec& s) const { return b.xf * s.def.local; }
   static uint64_t bodyPairKey(uint32_t a, uint32_t b) {

@@ -721,7 +721,6 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
         return finish();
       }
       ServerWorld::Interest in;
-      in.owner = envelopeKey;
       if (r->bodies()) {
         in.ids.assign(r->bodies()->begin(), r->bodies()->end());
         std::sort(in.ids.begin(), in.ids.end());
@@ -1018,7 +1017,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
         ctx.header.tick = data.tick;
         sw->tick = data.tick;
         ++sw->revision;
-      sw->framesReplaced();  // a new world: subscribers start from a keyframe
+        sw->framesReplaced();  // a new world: subscribers start from a keyframe
         sw->infoDirty = sw->frameDirty = true;
         reply = protocol::encodeIdsReply(ctx.header, ctx.ids.bodies, ctx.ids.joints);
         return finish();

@@ -171,7 +171,7 @@ void ServerCore::setSubscribers(uint32_t world, uint32_t n) {
 }
 void ServerCore::setSubscribers(uint32_t world, uint32_t interest, uint32_t n) {
   std::lock_guard<std::mutex> lock(subscribersMutex_);
-  subscribers_[uint64_t(world) << 32 | interest] = n;
+  subscribers_[streamKey(world, interest)] = n;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -662,7 +662,7 @@ bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorl
   uint32_t subscribers = 0;
   {
     std::lock_guard<std::mutex> lock(subscribersMutex_);
-    auto it = subscribers_.find(uint64_t(w.id) << 32 | interest);
+    auto it = subscribers_.find(streamKey(w.id, interest));
     subscribers = it == subscribers_.end() ? 0 : it->second;
   }
   if (subscribers == 0 && !config_.framesWithoutSubscribers) {
@@ -739,7 +739,6 @@ bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorl
                                          removed, uint32_t(pub.sent.size()));
   pub.awake = awakeIds;
   pub.valid = true;
-  pub.lastTick = w.tick;
   const bool carried = keyframe || !states.empty() || !removed.empty();
   if (carried) pub.baseTick = w.tick;
   pub.changedSinceKeyframe = !keyframe && (pub.changedSinceKeyframe || carried);
@@ -817,7 +816,7 @@ std::vector<protocol::WorldSummary> ServerCore::summaries() const {
     s.awakeBodies = uint32_t(w->world->awakeBodyCount());
     s.sleepingBodies = uint32_t(w->world->stats().sleepingBodies);
     s.frameBytes = uint32_t(std::min<uint64_t>(w->published.bytes, UINT32_MAX));
-    auto it = subscribers_.find(uint64_t(id) << 32);
+    auto it = subscribers_.find(streamKey(id, 0));
     s.subscribers = it == subscribers_.end() ? 0 : it->second;
     out.push_back(std::move(s));
   }

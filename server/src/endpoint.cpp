@@ -131,7 +131,7 @@ void DdsEndpoint::publish(ReliableMessage& m) {
       stateTopic(m.world, uint32_t(m.key));  // its readers are counted before any frame
       break;
     case ReliableMessage::Type::InterestRemoved:
-      state_.erase(uint64_t(m.world) << 32 | uint32_t(m.key));
+      state_.erase(streamKey(m.world, uint32_t(m.key)));
       break;
     case ReliableMessage::Type::WorldRemoved: {
       auto it = infoChunks_.find(m.world);
@@ -140,8 +140,8 @@ void DdsEndpoint::publish(ReliableMessage& m) {
           infoWriter_.dispose(protocol::worldInfoKey(m.world, i));
         infoChunks_.erase(it);
       }
-      state_.erase(state_.lower_bound(uint64_t(m.world) << 32),
-                   state_.lower_bound(uint64_t(m.world + 1) << 32));
+      state_.erase(state_.lower_bound(streamKey(m.world, 0)),
+                   state_.lower_bound(streamKey(m.world + 1, 0)));
       removed_.insert(m.world);
       core_->setSubscribers(m.world, 0);
       spdlog::info("world {} destroyed", m.world);
@@ -156,7 +156,7 @@ void DdsEndpoint::publish(ReliableMessage& m) {
 
 DdsEndpoint::StateTopic* DdsEndpoint::stateTopic(uint32_t world, uint32_t interest) {
   if (removed_.count(world)) return nullptr;  // queued before its world was destroyed
-  const uint64_t key = uint64_t(world) << 32 | interest;
+  const uint64_t key = streamKey(world, interest);
   auto it = state_.find(key);
   if (it == state_.end()) {
     auto st = std::make_unique<StateTopic>();
@@ -175,12 +175,11 @@ DdsEndpoint::StateTopic* DdsEndpoint::stateTopic(uint32_t world, uint32_t intere
 
 void DdsEndpoint::publish(StateFrameSet& f) {
   // An interest's writer is made when it is added; a frame queued after it was removed goes.
-  if (f.interest != 0 && !state_.count(uint64_t(f.world) << 32 | f.interest)) return;
+  if (f.interest != 0 && !state_.count(streamKey(f.world, f.interest))) return;
   StateTopic* st = stateTopic(f.world, f.interest);
   if (!st) return;
-  auto it = state_.find(uint64_t(f.world) << 32 | f.interest);
   for (uint32_t i = 0; i < f.chunks.size(); ++i) {
-    dds_return_t rc = it->second->writer.write(i, f.chunks[i], f.tick);
+    dds_return_t rc = st->writer.write(i, f.chunks[i], f.tick);
     if (rc == DDS_RETCODE_OK) {
       counters_.framesWritten.fetch_add(1);
     } else {

@@ -156,7 +156,7 @@ struct ServerWorld {
     std::unordered_map<uint64_t, phys::wire::BodyState> sent;
     std::vector<uint64_t> awake;
     bool valid = false;   ///< a keyframe went out and every frame since
-    uint64_t lastTick = 0, sinceKeyframe = 0;
+    uint64_t sinceKeyframe = 0;
     /// The tick of the last frame that carried something (a keyframe, a body, a removal):
     /// deltas apply to the state as of then, so losing an empty delta costs nothing.
     uint64_t baseTick = 0;
@@ -172,7 +172,6 @@ struct ServerWorld {
     std::vector<uint64_t> ids;  ///< sorted; empty for a region
     bool region = false;
     phys::Vec3 lo, hi;          ///< the region
-    uint64_t owner = 0;         ///< the client that asked
     Published published;
     bool contains(uint64_t id, const phys::BodyState& s) const {
       if (!region) return std::binary_search(ids.begin(), ids.end(), id);
@@ -390,7 +389,7 @@ class ServerCore {
   std::vector<std::pair<std::thread, std::shared_ptr<LoadTask>>> loaders_;
 
   mutable std::mutex subscribersMutex_;
-  std::map<uint64_t, uint32_t> subscribers_;  ///< by world << 32 | interest
+  std::map<uint64_t, uint32_t> subscribers_;  ///< by streamKey(world, interest)
 };
 
 /// The tick thread: at each boundary applies queued commands, advances time, publishes

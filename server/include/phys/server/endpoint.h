@@ -57,7 +57,7 @@ class DdsEndpoint {
     dds::Topic topic;
     dds::Writer writer;
   };
-  /// By world << 32 | interest (0: the world's own stream); publisher thread only.
+  /// By streamKey(world, interest) (interest 0: the world's own stream); publisher thread only.
   std::map<uint64_t, std::unique_ptr<StateTopic>> state_;
   /// Made on first use; null for a removed world.
   StateTopic* stateTopic(uint32_t world, uint32_t interest = 0);

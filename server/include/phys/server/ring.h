@@ -52,6 +52,12 @@ class DropOldestRing {
 };
 
 /// One tick of one world: its state chunks (protocol::encodeStateFrames), keyed by index.
+/// A stream of state frames: a world's own (interest 0) or one of its interests'. The key
+/// every per-stream map uses (subscriber counts, writers, dropped frames).
+inline uint64_t streamKey(uint32_t world, uint32_t interest) {
+  return uint64_t(world) << 32 | interest;
+}
+
 struct StateFrameSet {
   uint32_t world = 0;
   uint64_t tick = 0;
@@ -85,7 +91,7 @@ class PublishQueue {
   void pushFrame(StateFrameSet f) {
     {
       std::lock_guard<std::mutex> lock(mutex_);
-      if (frames_.full()) ++droppedByStream_[streamKey(frames_.front())];
+      if (frames_.full()) ++droppedByStream_[streamKey(frames_.front().world, frames_.front().interest)];
       frames_.push(std::move(f));
     }
     cv_.notify_one();
@@ -135,7 +141,7 @@ class PublishQueue {
   /// chain of deltas, repaired by a keyframe.
   uint64_t framesDropped(uint32_t world, uint32_t interest) const {
     std::lock_guard<std::mutex> lock(mutex_);
-    auto it = droppedByStream_.find(uint64_t(world) << 32 | interest);
+    auto it = droppedByStream_.find(streamKey(world, interest));
     return it == droppedByStream_.end() ? 0 : it->second;
   }
   size_t framesQueued() const {
@@ -148,7 +154,6 @@ class PublishQueue {
   }
 
  private:
-  static uint64_t streamKey(const StateFrameSet& f) { return uint64_t(f.world) << 32 | f.interest; }
   std::map<uint64_t, uint64_t> droppedByStream_;
   mutable std::mutex mutex_;
   std::condition_variable cv_;
