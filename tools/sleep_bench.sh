@@ -4,8 +4,18 @@
 # and our steps with sleeping off as the baseline. Prints one line per run: the median ms per
 # step over the whole run and after the scene's settle time, and the bodies awake at the end.
 #   tools/sleep_bench.sh [build dir]     (the pile runs 25 simulated seconds: minutes)
+#   tools/sleep_bench.sh --device [build dir]
+# --device: the GPU backend instead (lavapipe where there is no GPU: PHYS_GPU_ALLOW_CPU=1),
+# on configs/bench/sleep_device.json (240 cubes in 16 pyramids that fall asleep, one ball that
+# never does): sleeping on and off, and beside them the ball alone and the pyramids alone, so
+# what the sleeping bodies still cost the device is the difference from the ball alone.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
+device=0
+if [ "${1:-}" = --device ]; then
+  device=1
+  shift
+fi
 build=${1:-$root/build}
 bench=$build/tools/physbench
 out=$(mktemp -d)
@@ -22,6 +32,30 @@ print(f"{sys.argv[1]:<44} steps {j['steps']:>5}  ms/step median {m['ms_per_step_
       f"  settled median {'-' if s is None else f'{s:9.4f}'}  awake at the end {awake}")
 PY
 }
+if [ "$device" = 1 ]; then
+  export PHYS_GPU_ALLOW_CPU=${PHYS_GPU_ALLOW_CPU:-1}
+  export MESA_SHADER_CACHE_DIR=${MESA_SHADER_CACHE_DIR:-$build/mesa_shader_cache}
+  file=$root/configs/bench/sleep_device.json
+  python3 - "$file" "$out" <<'PY'
+import json, sys
+scene = json.load(open(sys.argv[1]))
+ball = dict(scene, name="ball_alone", generators=[], metrics={"settle_time": 1.5},
+            criteria=[{"metric": "nan", "max": 0}])
+pyramids = dict(scene, name="pyramids_alone", bodies=scene["bodies"][:1])
+json.dump(ball, open(sys.argv[2] + "/ball.json", "w"))
+json.dump(pyramids, open(sys.argv[2] + "/pyramids.json", "w"))
+PY
+  gpu() {  # label scene sleep
+    "$bench" --scene "$2" --backend gpu --require-device --seconds 3 --sleep "$3" \
+      --json "$out/run.json" > /dev/null || true
+    row "$1" "$out/run.json"
+  }
+  gpu "sleep_device: device, sleeping on" "$file" on
+  gpu "sleep_device: device, sleeping off" "$file" off
+  gpu "the ball alone: device, sleeping on" "$out/ball.json" on
+  gpu "the pyramids alone: device, sleeping on" "$out/pyramids.json" on
+  exit 0
+fi
 for scene in many_pyramids pile_10k; do
   file=$root/configs/scenes/$scene.json
   seconds=$([ "$scene" = pile_10k ] && echo 25 || echo 10)

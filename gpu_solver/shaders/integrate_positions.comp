@@ -46,6 +46,7 @@ void main() {
   uint i = globalIndex();
   if (i >= k.bodyCount) return;
   GpuBodyParams p = params[i];
+  if ((p.flags.x & PHYS_GPU_BODY_ASLEEP) != 0u) return;  // held exactly where it fell asleep
   GpuSolverBody b = bodies[i];
   vec4 q0 = b.q;
   vec3 pv = vec3(0), pw = vec3(0);

@@ -30,6 +30,9 @@ using uint = uint32_t;
 // GpuBodyParams.flags bits.
 #define PHYS_GPU_BODY_DYNAMIC 1u     // moved by forces and constraints (else kinematic)
 #define PHYS_GPU_BODY_GYROSCOPIC 2u  // unequal principal moments: the free-rotation splitting
+// Asleep (an island at rest, physics/world/islands.cpp): not dynamic, not moved, makes no
+// pairs with static or other sleeping bodies; an awake body touching it wakes it (the host).
+#define PHYS_GPU_BODY_ASLEEP 4u
 
 // GpuShape.type, as phys::ShapeType.
 #define PHYS_GPU_SHAPE_SPHERE 0u

@@ -247,6 +247,14 @@ struct GpuWorld::Impl {
   std::vector<GpuJoint> joints;
   std::vector<GpuJointOut> jointOut;  ///< warm starts going up, results coming back
   bool jointsDirty = false;
+  // The last step's inputs, kept so that it can be undone (undoStep): the states and joint
+  // impulses before it; prevJointOut holds something only when the step changed them.
+  std::vector<GpuBodyState> prevStates;
+  std::vector<GpuJointOut> prevJointOut;
+  bool undoable = false, jointOutStepped = false;
+  /// After an undo the counters' previous pair count is still the one before the undone
+  /// step: the next broad phase must not overwrite it with the undone step's.
+  bool keepPrevPairs = false;
   std::vector<uint32_t> dirtyBodies;
   bool allBodiesDirty = false, shapesDirty = false;
   // What came back from the last step.
@@ -338,6 +346,7 @@ int GpuWorld::validationErrors() const {
 void GpuWorld::setBodies(std::span<const GpuBodyState> states,
                          std::span<const GpuBodyParams> params) {
   if (states.size() != params.size()) throw std::invalid_argument("setBodies: sizes differ");
+  impl_->undoable = false;
   impl_->states.assign(states.begin(), states.end());
   impl_->params.assign(params.begin(), params.end());
   impl_->allBodiesDirty = true;
@@ -347,6 +356,7 @@ void GpuWorld::setBodies(std::span<const GpuBodyState> states,
 
 void GpuWorld::setBody(uint32_t index, const GpuBodyState& state, const GpuBodyParams& params) {
   if (index >= impl_->states.size()) throw std::out_of_range("setBody: no such body");
+  impl_->undoable = false;
   impl_->states[index] = state;
   if ((impl_->params[index].flags.x ^ params.flags.x) & PHYS_GPU_BODY_DYNAMIC)
     impl_->ldlDirty = true;  // rows couple through dynamic bodies only
@@ -357,6 +367,7 @@ void GpuWorld::setBody(uint32_t index, const GpuBodyState& state, const GpuBodyP
 void GpuWorld::setShapes(std::span<const GpuShape> shapes, std::span<const uint32_t> owners) {
   if (!owners.empty() && owners.size() != shapes.size())
     throw std::invalid_argument("setShapes: owners and shapes differ in size");
+  impl_->undoable = false;
   impl_->shapes.assign(shapes.begin(), shapes.end());
   impl_->owners.assign(owners.begin(), owners.end());
   impl_->stepsSinceSweepAxis = ~uint64_t(0);  // the axis is chosen again at the next step
@@ -385,6 +396,7 @@ void GpuWorld::setNoCollide(std::vector<std::pair<uint32_t, uint32_t>> pairs) {
 
 void GpuWorld::setJoints(std::span<const GpuJoint> joints, std::span<const GpuJointOut> impulses) {
   if (joints.size() != impulses.size()) throw std::invalid_argument("setJoints: sizes differ");
+  impl_->undoable = false;
   impl_->joints.assign(joints.begin(), joints.end());
   impl_->jointOut.assign(impulses.begin(), impulses.end());
   impl_->jointsDirty = true;
@@ -486,7 +498,9 @@ void GpuWorld::Impl::recordBroadPhase(Stream& s, const GpuStepConstants& c) {
   Kernels& k = kernels();
   // Last step's pair count is the count of last step's manifolds (warm starts); the
   // statistics start from zero.
-  s.copy(counterBuf, PHYS_GPU_COUNTER_PAIRS * 4, counterBuf, PHYS_GPU_COUNTER_PREV_PAIRS * 4, 4);
+  if (!keepPrevPairs)
+    s.copy(counterBuf, PHYS_GPU_COUNTER_PAIRS * 4, counterBuf, PHYS_GPU_COUNTER_PREV_PAIRS * 4,
+           4);
   const uint32_t zeros[4] = {0, 0, 0, 0};
   s.upload(counterBuf, PHYS_GPU_COUNTER_CONTACTS * 4, zeros, sizeof zeros);
   const Buffer* keys[] = {&boundsBuf, &shapeBuf, &keyBuf};
@@ -846,13 +860,36 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
     // Room to grow without a retry next time (the buffers never shrink).
     if (found * 3 > uint64_t(w.pairCapacity) * 2) w.pairCapacity = capped(found * 2);
     w.states.swap(result);
-    if (solve && !w.joints.empty()) w.jointOut.swap(jointResults);
+    w.prevStates.swap(result);
+    w.jointOutStepped = solve && !w.joints.empty();
+    if (w.jointOutStepped) {
+      w.jointOut.swap(jointResults);
+      w.prevJointOut.swap(jointResults);
+    }
     w.current ^= 1;
+    w.undoable = true;
+    w.keepPrevPairs = false;
     break;
   }
   w.stageMs.assign(kStageCount, 0.0);
   const std::vector<double>& ms = s.stageMs();
   for (size_t i = 0; i < ms.size() && i < w.stageMs.size(); ++i) w.stageMs[i] = ms[i];
+  return true;
+}
+
+bool GpuWorld::undoStep() {
+  Impl& w = *impl_;
+  if (!w.undoable) return false;
+  w.undoable = false;
+  w.states.swap(w.prevStates);
+  if (w.jointOutStepped) w.jointOut.swap(w.prevJointOut);
+  // Last step's manifolds (the warm starts) are still in the other buffer, untouched.
+  w.current ^= 1;
+  w.keepPrevPairs = true;
+  // The device holds the undone step's states and joint impulses: they all go up again.
+  w.allBodiesDirty = true;
+  w.dirtyBodies.clear();
+  if (w.jointOutStepped) w.jointsDirty = true;
   return true;
 }
 

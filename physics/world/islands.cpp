@@ -49,6 +49,10 @@ bool moving(const BodyRec& b) {
 
 }  // namespace
 
+bool World::Impl::wakesSleeper(const BodyRec& other) {
+  return other.type == BodyType::Dynamic || (other.type == BodyType::Kinematic && moving(other));
+}
+
 Status World::validate(const SleepSettings& s) {
   if (!(std::isfinite(s.time) && s.time > 0 && s.time <= 1e6f))
     return Status::Error(StatusCode::InvalidArgument, "sleep time must be in (0, 1e6] s");
@@ -153,6 +157,8 @@ void World::Impl::wakeIsland(int32_t k) {
     b.island = -1;
     b.sleepTime = 0;
     for (ShapeId sid : b.shapes) broadPhase.setStatic(shapes.get(sid)->proxy, false);
+    deviceEdited(slot);  // goes up to the device as dynamic again
+    if (!b.joints.empty()) deviceJointsChanged();
     if (snapshotValid) {
       // Woken inside a step: a rollback puts the body back here, awake (a wake is not undone).
       snapshot.bodies.push_back({slot, b.xf, b.com, b.v, b.w, b.force, b.torque});
@@ -224,12 +230,17 @@ void World::Impl::wakeTouched() {
     const BodyRec& B = bodies.at(c.bodyB.index);
     if (A.asleep() == B.asleep()) continue;
     const BodyRec& sleeper = A.asleep() ? A : B;
-    const BodyRec& other = A.asleep() ? B : A;
-    // A resting kinematic body holds a sleeping one without waking it.
-    if (other.type == BodyType::Static || (other.type == BodyType::Kinematic && !moving(other)))
-      continue;
-    wakeList.push_back(uint32_t(sleeper.island));
+    if (wakesSleeper(A.asleep() ? B : A)) wakeList.push_back(uint32_t(sleeper.island));
   }
+  std::sort(wakeList.begin(), wakeList.end());
+  wakeList.erase(std::unique(wakeList.begin(), wakeList.end()), wakeList.end());
+  for (uint32_t k : wakeList) wakeIsland(int32_t(k));
+  wakeJointedToMovingKinematic();
+}
+
+void World::Impl::wakeJointedToMovingKinematic() {
+  if (sleepingBodyCount == 0) return;
+  wakeList.clear();
   // Joints from moving kinematic bodies (a dynamic body's joints share its island).
   for (uint32_t slot : awakeBodies) {
     const BodyRec& b = bodies.at(slot);
@@ -285,8 +296,9 @@ void World::Impl::updateSleep(float dt) {
   }
 
   // Islands: union-find over the awake bodies (by their solver index, 1 + their place in
-  // awakeBodies, as this step's buildSolverBodies numbered them), joined by contacts with
-  // points and by joints between dynamic bodies. The root is the lowest index (deterministic).
+  // awakeBodies, as this step's buildSolverBodies or stepOnDevice numbered them), joined by
+  // contacts with points and by joints between dynamic bodies. The root is the lowest index
+  // (deterministic).
   const size_t n = awakeBodies.size();
   islandParent.resize(n);
   std::iota(islandParent.begin(), islandParent.end(), 0);
@@ -301,15 +313,19 @@ void World::Impl::updateSleep(float dt) {
     const int32_t a = root(A.solverIndex - 1), b = root(B.solverIndex - 1);
     if (a != b) islandParent[size_t(std::max(a, b))] = std::min(a, b);
   };
-  for (const Contact& c : contacts) {
-    if (c.manifold.count == 0) continue;
-    BodyRec& A = bodies.at(c.bodyA.index);
-    BodyRec& B = bodies.at(c.bodyB.index);
+  auto touch = [&](BodyRec& A, BodyRec& B) {
     // Carried by a moving kinematic body: not at rest, whatever its speed.
     if (A.type == BodyType::Kinematic && moving(A)) B.sleepTime = 0;
     if (B.type == BodyType::Kinematic && moving(B)) A.sleepTime = 0;
     join(A, B);
+  };
+  if (lastStepOnCpu) {
+    for (const Contact& c : contacts)
+      if (c.manifold.count > 0) touch(bodies.at(c.bodyA.index), bodies.at(c.bodyB.index));
+  } else {
+    for (auto [a, b] : deviceTouches) touch(bodies.at(a), bodies.at(b));
   }
+  if (!lastStepOnCpu) collectStepJoints();  // the CPU step collected them
   for (uint32_t ji : stepJoints) {
     const JointDef& d = joints.at(ji).def;
     if (d.bodyA.isNull()) continue;
@@ -370,12 +386,16 @@ void World::Impl::updateSleep(float dt) {
     b.island = k;
     b.solverIndex = 0;
     for (ShapeId sid : b.shapes) broadPhase.setStatic(shapes.get(sid)->proxy, true);
+    deviceEdited(slot);  // goes up to the device asleep
+    if (!b.joints.empty()) deviceJointsChanged();
     ++sleepingBodyCount;
   }
   for (int32_t k : sleepers) islands[size_t(k)].substepTime = stats.substepTime;
   sleepingPotentialValid = false;
   // Their contacts: those with points go with their island; the others between two bodies
-  // that no longer move are dropped (the broad phase will not report them again).
+  // that no longer move are dropped (the broad phase will not report them again). (A device
+  // step's contacts are on the device, which simply finds no sleeping pairs; this list is
+  // then the CPU's, from its last step.)
   contactScratch.clear();
   for (Contact& c : contacts) {
     const BodyRec& A = bodies.at(c.bodyA.index);

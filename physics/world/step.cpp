@@ -85,7 +85,7 @@ void World::step() {
     if (w.stats.pairsDropped > 0) w.stats.pairLimitSteps++;
     // Islands and sleeping, once the step is accepted (islands.cpp): rest timers, and the
     // islands that rested long enough fall asleep. Part of the step's time.
-    if (w.lastStepOnCpu) {
+    {
       const double t0 = nowMs();
       w.updateSleep(w.def.timeStep);
       const double ms = nowMs() - t0;

@@ -65,6 +65,7 @@ int gpuValidationErrorsInProcess() {
 }
 void World::Impl::deviceEdited(uint32_t) {}
 void World::Impl::deviceStale() {}
+void World::Impl::deviceJointsChanged() {}
 bool World::Impl::stepOnDevice(int) {
   return false;
 }
@@ -81,8 +82,10 @@ struct DeviceWorld {
   std::vector<uint32_t> jointSlots;  ///< device joint index -> joint slot
   std::vector<float> stiffness;      ///< body slot -> joints' geometric stiffness this step
   std::vector<uint32_t> slots;       ///< device body index -> body slot
+  std::vector<uint32_t> owners;      ///< device shape index -> its body's slot
   std::vector<uint32_t> edited;      ///< body slots edited since the last upload
   bool stale = true;                 ///< bodies or shapes changed: upload everything
+  bool jointsChanged = false;        ///< a joint fell asleep or woke: the joints go up again
 };
 
 void DeviceWorldDeleter::operator()(DeviceWorld* d) const {
@@ -102,9 +105,11 @@ gpu::GpuBodyState stateOf(const BodyRec& b) {
   return {v4(b.com), q4(b.xf.q), v4(b.v), v4(b.w)};
 }
 
+// A sleeping body goes up as a body the step does not move (v and w are zero): contacts
+// with it treat it as immovable, and an awake body that touches it wakes it (stepOnDevice).
 gpu::GpuBodyParams paramsOf(const BodyRec& b, Vec3 gravity, float stiffness) {
   gpu::GpuBodyParams p;
-  const bool dynamic = b.type == BodyType::Dynamic;
+  const bool dynamic = b.type == BodyType::Dynamic && !b.asleep();
   p.accel = v4(dynamic ? gravity * b.gravityScale + b.force * b.invMass : Vec3{}, b.invMass);
   p.torque = v4(dynamic ? b.torque : Vec3{}, b.linearDamping);
   p.principal = q4(b.principal);
@@ -116,7 +121,8 @@ gpu::GpuBodyParams paramsOf(const BodyRec& b, Vec3 gravity, float stiffness) {
   const float spread = std::max({I.x, I.y, I.z}) - std::min({I.x, I.y, I.z});
   const bool gyroscopic = b.gyroscopic && spread > 1e-5f * std::max({I.x, I.y, I.z});
   p.flags.x = (dynamic ? PHYS_GPU_BODY_DYNAMIC : 0u) |
-              (dynamic && gyroscopic ? PHYS_GPU_BODY_GYROSCOPIC : 0u);
+              (dynamic && gyroscopic ? PHYS_GPU_BODY_GYROSCOPIC : 0u) |
+              (b.asleep() ? PHYS_GPU_BODY_ASLEEP : 0u);
   return p;
 }
 
@@ -248,6 +254,10 @@ void World::Impl::deviceStale() {
   if (device) device->stale = true;
 }
 
+void World::Impl::deviceJointsChanged() {
+  if (device) device->jointsChanged = true;
+}
+
 /// Why the device cannot solve this world's contacts (empty: it can).
 static std::string contactsOffDevice(const SolverSettings& s, bool hulls, bool narrowPhase) {
   if (!narrowPhase) return "this build has no narrow phase on the GPU";
@@ -296,9 +306,132 @@ static gpu::ContactSettings contactSettings(const SolverSettings& s) {
   return c;
 }
 
+/// What changed on the host goes up: everything when stale, else the edited bodies, and the
+/// joints when one fell asleep or woke. A sleeping joint (its bodies asleep) stays on the
+/// host with its impulses, which warm-start it when it wakes.
+void World::Impl::uploadToDevice() {
+  World::Impl& w = *this;
+  DeviceWorld& d = *device;
+  gpu::GpuWorld& g = *d.world;
+  const auto stiffnessOf = [&](uint32_t slot) {
+    return slot < d.stiffness.size() ? d.stiffness[slot] : 0.0f;
+  };
+  if (d.stale) {
+    d.slots.clear();
+    std::vector<gpu::GpuBodyState> states;
+    std::vector<gpu::GpuBodyParams> params;
+    for (uint32_t i = 0; i < w.bodies.capacity(); ++i) {
+      if (!w.bodies.alive(i)) continue;
+      BodyRec& b = w.bodies.at(i);
+      b.deviceIndex = -1;
+      if (b.type == BodyType::Static) continue;
+      b.deviceIndex = int32_t(d.slots.size());
+      d.slots.push_back(i);
+      states.push_back(stateOf(b));
+      params.push_back(paramsOf(b, w.def.gravity, stiffnessOf(i)));
+    }
+    g.setBodies(states, params);
+    std::vector<gpu::GpuShape> shapeRecs;
+    std::vector<uint32_t> hullWords(4, 0);  // no record at offset 0
+    std::unordered_map<const ConvexHull*, uint32_t> packed;
+    d.owners.clear();
+    d.hulls = false;
+    for (uint32_t i = 0; i < w.shapes.capacity(); ++i) {
+      if (!w.shapes.alive(i)) continue;
+      const ShapeRec& s = w.shapes.at(i);
+      uint32_t hull = gpu::kNoHull;
+      if (s.def.geom.type == ShapeType::Hull && s.def.geom.hull) {
+        const ConvexHull* h = s.def.geom.hull.get();
+        auto it = packed.find(h);
+        if (it == packed.end()) {
+          std::string error;
+          it = packed.emplace(h, gpu::packHull(gpu::hullInputOf(*h), &hullWords, &error)).first;
+          d.hulls |= it->second == gpu::kNoHull;  // unusable on the device: the CPU takes it
+        }
+        hull = it->second;
+      }
+      const BodyRec& b = *w.bodies.get(s.body);
+      shapeRecs.push_back(shapeOf(s, b, w.shapeTransform(b, s), hull));
+      d.owners.push_back(s.body.index);
+    }
+    g.setShapes(shapeRecs, d.owners);
+    g.setHulls(std::move(hullWords));
+    std::vector<std::pair<uint32_t, uint32_t> > apart;
+    for (uint64_t key : w.noCollide) apart.push_back({uint32_t(key >> 32), uint32_t(key)});
+    g.setNoCollide(std::move(apart));
+    d.jointsChanged = true;
+  } else {
+    for (uint32_t slot : d.edited) {
+      if (!w.bodies.alive(slot)) continue;
+      const BodyRec& b = w.bodies.at(slot);
+      if (b.deviceIndex >= 0)
+        g.setBody(uint32_t(b.deviceIndex), stateOf(b),
+                  paramsOf(b, w.def.gravity, stiffnessOf(slot)));
+    }
+  }
+  if (d.jointsChanged) {
+    std::vector<gpu::GpuJoint> jointRecs;
+    std::vector<gpu::GpuJointOut> jointWarm;
+    d.jointSlots.clear();
+    for (uint32_t i = 0; i < w.joints.capacity(); ++i) {
+      if (!w.joints.alive(i)) continue;
+      const JointRec& j = w.joints.at(i);
+      const BodyRec* A = j.def.bodyA.isNull() ? nullptr : w.bodies.get(j.def.bodyA);
+      const BodyRec& B = *w.bodies.get(j.def.bodyB);
+      if (B.asleep() || (A && A->asleep())) continue;
+      d.jointSlots.push_back(i);
+      jointRecs.push_back(jointOf(j, A, B));
+      jointWarm.push_back(jointImpulses(j));
+    }
+    g.setJoints(jointRecs, jointWarm);
+  }
+  d.edited.clear();
+  d.stale = d.jointsChanged = false;
+}
+
+/// After a device step: the sleeping islands an awake body (or a moving kinematic one) now
+/// touches wake, as the CPU's wakeTouched. The pairs come back with the step (readContacts);
+/// the device finds no pair between two bodies that are asleep or static. Returns whether
+/// any woke.
+bool World::Impl::wakeTouchedOnDevice() {
+  World::Impl& w = *this;
+  const DeviceWorld& d = *device;
+  if (w.sleepingBodyCount == 0) return false;
+  std::vector<int32_t> wake;
+  for (const gpu::GpuManifold& m : d.world->manifolds()) {
+    if (m.count == 0) continue;
+    const BodyRec& A = w.bodies.at(d.owners[m.shapeA]);
+    const BodyRec& B = w.bodies.at(d.owners[m.shapeB]);
+    if (A.asleep() == B.asleep()) continue;
+    if (World::Impl::wakesSleeper(A.asleep() ? B : A)) wake.push_back(A.asleep() ? A.island : B.island);
+  }
+  std::sort(wake.begin(), wake.end());
+  wake.erase(std::unique(wake.begin(), wake.end()), wake.end());
+  for (int32_t k : wake) w.wakeIsland(k);
+  return !wake.empty();
+}
+
 bool World::Impl::stepOnDevice(int substeps) {
   DeviceWorld& d = *device;
   const float dt = def.timeStep;
+  const bool sleeping = sleepActive();
+  if (sleeping) {
+    wakeJointedToMovingKinematic();
+    if (awakeBodies.empty()) {
+      // Every body asleep (or static): nothing for the device to do, nothing moves.
+      stats.bodies = int(bodies.size());
+      stats.awake = 0;
+      stats.pairs = stats.contacts = stats.contactPoints = stats.joints = 0;
+      stats.pairsDropped = 0;
+      stats.pairLimit = pairLimit();
+      stats.maxPenetration = 0;
+      stats.velocityResidual = 0;
+      stats.iterationsUsed = 0;
+      deviceTouches.clear();
+      backend.gpuSteps++;
+      return true;
+    }
+  }
   // Joints' geometric stiffness from last step's forces (addGeometricStiffness): it goes up
   // in the bodies' parameters, so a body that has or had some goes up again.
   if (def.solver.geometricStiffness && joints.size() > 0) {
@@ -312,74 +445,7 @@ bool World::Impl::stepOnDevice(int substeps) {
     d.stiffness.clear();
   }
   gpu::GpuWorld& g = *d.world;
-  if (d.stale) {
-    d.slots.clear();
-    std::vector<gpu::GpuBodyState> states;
-    std::vector<gpu::GpuBodyParams> params;
-    for (uint32_t i = 0; i < bodies.capacity(); ++i) {
-      if (!bodies.alive(i)) continue;
-      BodyRec& b = bodies.at(i);
-      b.deviceIndex = -1;
-      if (b.type == BodyType::Static) continue;
-      b.deviceIndex = int32_t(d.slots.size());
-      d.slots.push_back(i);
-      states.push_back(stateOf(b));
-      params.push_back(paramsOf(b, def.gravity, d.stiffness.empty() ? 0.0f : d.stiffness[i]));
-    }
-    g.setBodies(states, params);
-    std::vector<gpu::GpuShape> shapeRecs;
-    std::vector<uint32_t> owners;
-    std::vector<uint32_t> hullWords(4, 0);  // no record at offset 0
-    std::unordered_map<const ConvexHull*, uint32_t> packed;
-    d.hulls = false;
-    for (uint32_t i = 0; i < shapes.capacity(); ++i) {
-      if (!shapes.alive(i)) continue;
-      const ShapeRec& s = shapes.at(i);
-      uint32_t hull = gpu::kNoHull;
-      if (s.def.geom.type == ShapeType::Hull && s.def.geom.hull) {
-        const ConvexHull* h = s.def.geom.hull.get();
-        auto it = packed.find(h);
-        if (it == packed.end()) {
-          std::string error;
-          it = packed.emplace(h, gpu::packHull(gpu::hullInputOf(*h), &hullWords, &error)).first;
-          d.hulls |= it->second == gpu::kNoHull;  // unusable on the device: the CPU takes it
-        }
-        hull = it->second;
-      }
-      const BodyRec& b = *bodies.get(s.body);
-      shapeRecs.push_back(shapeOf(s, b, shapeTransform(b, s), hull));
-      owners.push_back(s.body.index);
-    }
-    g.setShapes(shapeRecs, owners);
-    g.setHulls(std::move(hullWords));
-    std::vector<std::pair<uint32_t, uint32_t> > apart;
-    for (uint64_t key : noCollide) apart.push_back({uint32_t(key >> 32), uint32_t(key)});
-    g.setNoCollide(std::move(apart));
-    std::vector<gpu::GpuJoint> jointRecs;
-    std::vector<gpu::GpuJointOut> jointWarm;
-    d.jointSlots.clear();
-    for (uint32_t i = 0; i < joints.capacity(); ++i) {
-      if (!joints.alive(i)) continue;
-      const JointRec& j = joints.at(i);
-      const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
-      const BodyRec& B = *bodies.get(j.def.bodyB);
-
-      d.jointSlots.push_back(i);
-      jointRecs.push_back(jointOf(j, A, B));
-      jointWarm.push_back(jointImpulses(j));
-    }
-    g.setJoints(jointRecs, jointWarm);
-  } else {
-    for (uint32_t slot : d.edited) {
-      if (!bodies.alive(slot)) continue;
-      const BodyRec& b = bodies.at(slot);
-      if (b.deviceIndex >= 0)
-        g.setBody(uint32_t(b.deviceIndex), stateOf(b),
-                  paramsOf(b, def.gravity, d.stiffness.empty() ? 0.0f : d.stiffness[slot]));
-    }
-  }
-  d.edited.clear();
-  d.stale = false;
+  uploadToDevice();
 
   // A world whose contacts or joints the device cannot solve yet steps on the device only
   // while it has none (the CPU's broad phase tells).
@@ -404,17 +470,18 @@ bool World::Impl::stepOnDevice(int substeps) {
   in.solveContacts = solveOnDevice;
   in.contacts = contactSettings(def.solver);
   in.maxPairs = pairLimit();
-  std::string error;
-  if (!g.step(in, &error)) {
-    backend.lastFallback = "the device step failed: " + error;
-    d.stale = true;
-    return false;
-  }
-
+  // With sleeping on, the touching pairs come back: the islands are found on the host.
+  in.readContacts = sleeping;
   // Past the pair bound under PairOverflow::Refuse the step is not taken: refused before the
   // host mirror is written (the device's copy is marked stale by the refusal), so the world
   // is as it was even without the guard.
-  {
+  auto take = [&]() {
+    std::string error;
+    if (!g.step(in, &error)) {
+      backend.lastFallback = "the device step failed: " + error;
+      d.stale = true;
+      return false;
+    }
     const gpu::ContactStats cs = g.contactStats();
     const uint64_t found = uint64_t(cs.pairs) + cs.dropped;
     if (def.pairOverflow == WorldDef::PairOverflow::Refuse && found > in.maxPairs) {
@@ -422,12 +489,27 @@ bool World::Impl::stepOnDevice(int substeps) {
       stats.pairsDropped = found - in.maxPairs;
       throw PairLimitReached();
     }
+    return true;
+  };
+  if (!take()) return false;
+  if (sleeping && wakeTouchedOnDevice()) {
+    // On the CPU a sleeping island that the step's narrow phase finds touched joins that
+    // step (wakeTouched). The device found it only after its step: the step is undone and
+    // taken again with the island awake (a wake is rare: one more step's work then).
+    g.undoStep();
+    uploadToDevice();
+    if (!take()) return false;
+    // Islands the woken ones touch wake for the next step (as on the CPU, which finds them
+    // in the next step's narrow phase).
+    wakeTouchedOnDevice();
   }
 
-  // The host mirror. Forces last one step: a body that had some goes up again without.
+  // The host mirror of the awake bodies (a sleeping body is where it fell asleep, at rest).
+  // Forces last one step: a body that had some goes up again without.
   std::span<const gpu::GpuBodyState> out = g.states();
   for (size_t i = 0; i < d.slots.size(); ++i) {
     BodyRec& b = bodies.at(d.slots[i]);
+    if (b.asleep()) continue;
     const gpu::GpuBodyState& s = out[i];
     b.com = {s.com.x, s.com.y, s.com.z};
     b.xf.q = {s.q.x, s.q.y, s.q.z, s.q.w};
@@ -438,6 +520,14 @@ bool World::Impl::stepOnDevice(int substeps) {
       b.force = b.torque = {};
       d.edited.push_back(d.slots[i]);
     }
+  }
+  if (sleeping) {
+    // The islands' edges (updateSleep) and the awake bodies' numbering it unions by.
+    deviceTouches.clear();
+    for (const gpu::GpuManifold& m : g.manifolds())
+      if (m.count > 0) deviceTouches.push_back({d.owners[m.shapeA], d.owners[m.shapeB]});
+    for (size_t i = 0; i < awakeBodies.size(); ++i)
+      bodies.at(awakeBodies[i]).solverIndex = int32_t(i + 1);
   }
 
   // Joints: impulses (next step's warm start on either backend, snapshots), reactions, and
@@ -473,7 +563,7 @@ bool World::Impl::stepOnDevice(int substeps) {
   profile.finalize = stage(gpu::Stage::Finalize);
   profile.readback = stage(gpu::Stage::Readback);
   stats.bodies = int(bodies.size());
-  stats.awake = int(d.slots.size());
+  stats.awake = int(awakeBodies.size());
   const gpu::ContactStats cs = g.contactStats();
   stats.pairs = int(cs.pairs);
   stats.pairLimit = in.maxPairs;

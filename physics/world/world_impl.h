@@ -180,7 +180,10 @@ struct World::Impl {
   void awakeInsert(uint32_t slot);    ///< a body became awake (created, woken, made non-static)
   void awakeErase(uint32_t slot);     ///< a body left the step (destroyed, made static)
   void rebuildAwake();                ///< awakeBodies and the counts from the bodies (restore)
-  bool sleepActive() const { return def.sleep.enabled && !device; }
+  bool sleepActive() const { return def.sleep.enabled; }
+  /// A device step's touching pairs (body slots, contacts with points), read back for the
+  /// islands (updateSleep's edges when the device took the step).
+  std::vector<std::pair<uint32_t, uint32_t>> deviceTouches;
   /// Wakes island k: its bodies join the step with their timers reset, their proxies move
   /// again, their contacts rejoin the list. Inside a step the guard's copy gets them too.
   void wakeIsland(int32_t k);
@@ -193,8 +196,14 @@ struct World::Impl {
   /// After the narrow phase: islands touched by an awake body or a moving kinematic body
   /// (contacts with points, joints) wake.
   void wakeTouched();
-  /// After an accepted CPU step: rest timers, islands of the awake dynamic bodies, and the
-  /// islands whose bodies all rested long enough fall asleep.
+  /// wakeTouched's second half: islands jointed to a moving kinematic body (known before the
+  /// step: the device's step calls it first).
+  void wakeJointedToMovingKinematic();
+  /// Whether a touch of a sleeping body by `other` wakes it: not by a static body, nor by a
+  /// kinematic one at rest (it holds what sleeps on it).
+  static bool wakesSleeper(const BodyRec& other);
+  /// After an accepted step (CPU or device): rest timers, islands of the awake dynamic
+  /// bodies, and the islands whose bodies all rested long enough fall asleep.
   void updateSleep(float dt);
   void collectStepJoints();
   /// The sleeping islands' potential energy, summed in island order; cached until an island
@@ -267,8 +276,11 @@ struct World::Impl {
   void openDevice();                 ///< at construction, for Backend::Gpu and Auto
   void deviceEdited(uint32_t slot);  ///< a body's pose, velocity or forces changed
   void deviceStale();                ///< anything else changed: everything goes up again
+  void deviceJointsChanged();        ///< a joint fell asleep or woke: the device's set changes
   /// The step on the device; false (the CPU takes it) when the device cannot take it.
   bool stepOnDevice(int substeps);
+  void uploadToDevice();        ///< stepOnDevice's: what changed on the host goes up
+  bool wakeTouchedOnDevice();   ///< stepOnDevice's: wakes what its step found touched
   /// The contact pair bound this step runs under (WorldDef::maxContactPairs resolved).
   uint32_t pairLimit() const;
   /// Whether the joints' direct solve (DirectLdl) stays small this step: no dynamic body in

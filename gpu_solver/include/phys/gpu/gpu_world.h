@@ -133,6 +133,12 @@ class GpuWorld {
   /// One step of dt in `substeps` substeps. False with *error on a device failure (the
   /// states are then those of the last good step).
   bool step(const StepInput& in, std::string* error);
+  /// Undoes the last step (once): the states and joint impulses are those before it, and the
+  /// next step warm-starts from the contacts before it, so stepping again gives what that
+  /// step would have given with whatever was set since (a body woken by what the step found,
+  /// world_gpu.cpp). False when there is no step to undo or something was set since it (set
+  /// after the undo instead).
+  bool undoStep();
   /// After a step: every body's state, in setBodies order.
   std::span<const GpuBodyState> states() const;
   /// After a step with readBounds: every shape's bounds, in setShapes order.

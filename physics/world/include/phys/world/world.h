@@ -75,7 +75,8 @@ struct BackendState {
   Backend active = Backend::Cpu;  ///< Gpu when a device was opened
   std::string device;             ///< the Vulkan device's name, when active is Gpu
   std::string note;               ///< why the CPU runs a world that asked for the GPU
-  uint64_t gpuSteps = 0;          ///< steps taken on the device
+  uint64_t gpuSteps = 0;          ///< steps taken on the device (those with every body asleep
+                                  ///< need no device work and count here too)
   uint64_t cpuSteps = 0;          ///< steps taken by the CPU backend (all of a CPU world's)
   std::string lastFallback;       ///< why the last CPU step of a GPU world was not on the device
   /// Errors the Vulkan validation layer reported on the world's device so far (only with
@@ -150,8 +151,7 @@ struct WorldDef {
   int guardRetries = 2;
   Backend backend = Backend::Cpu;
   bool gpuAllowCpuDevice = false;  ///< let the GPU backend run on a CPU Vulkan device (tests)
-  /// Islands and sleeping. A world with a device (Backend::Gpu or Auto with a device open)
-  /// does not sleep yet: its bodies stay awake whatever this says.
+  /// Islands and sleeping, on either backend (the same decisions; docs/ARCHITECTURE.md).
   SleepSettings sleep;
 };
 
