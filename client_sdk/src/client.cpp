@@ -127,6 +127,7 @@ struct Subscription::State {
     StateFrame frame;  ///< what the chunks carried (bodies changed this tick)
     std::vector<uint64_t> removed;
     uint64_t baseTick = 0;
+    uint64_t refreshLo = 0, refreshHi = 0;  ///< a rolling refresh's keys (hi 0: none)
   };
   std::map<uint64_t, Partial> partial;
   uint64_t lastComplete = 0;
@@ -138,6 +139,19 @@ struct Subscription::State {
   uint64_t fullTick = 0;   ///< the last tick applied
   uint64_t stateTick = 0;  ///< the last tick applied that carried something (deltas' base)
   bool haveFull = false;
+  /// Out of step with a stream that refreshes (the server's rolling refresh): a frame was
+  /// lost, so the state is not the world's. The deltas are still applied, and once
+  /// refreshes without a gap between them have gone round every key (from wherever they
+  /// were, to the end and on from 0 back to there), the state is the world's again: frames
+  /// are delivered from then on. Until then they are skipped, as while waiting for a keyframe.
+  bool resyncing = false;
+  /// Where the last tick's changed bodies are in `full` (their marks come off at the next),
+  /// valid while no body came or went since.
+  std::vector<uint32_t> changedAt;
+  bool changedAtValid = false;
+  bool covering = false;  ///< refreshes since the last gap ...
+  uint64_t coverStart = 0, coveredTo = 0;  ///< ... began at this key and reach that one
+  bool wrapped = false;                    ///< ... past the end, and on from key 0
 
   static uint64_t order(uint64_t id) { return (id << 32) | (id >> 32); }  // index, generation
   static bool before(const BodyState& a, const BodyState& b) { return order(a.id) < order(b.id); }
@@ -158,9 +172,14 @@ struct Subscription::State {
       p.frame.stampNs = f.stamp_ns();
       p.frame.keyframe = f.keyframe();
       p.baseTick = f.base_tick();
+      p.refreshLo = f.refresh_lo();
+      p.refreshHi = f.refresh_hi();
     }
     if (!p.got.insert(f.chunk_index()).second) return;
     p.frame.bytes += bytes;
+    p.frame.bodies.reserve(p.frame.bodies.size() + (f.bodies()    ? f.bodies()->size()
+                                                      : f.compact() ? f.compact()->size()
+                                                                    : 0));
     if (f.bodies())
       for (const wire::BodyState* s : *f.bodies()) p.frame.bodies.push_back(toState(*s));
     if (f.compact() && f.bounds_min() && f.bounds_max()) {
@@ -195,61 +214,132 @@ struct Subscription::State {
     if (fn) fn(*frame);
   }
 
-  /// A complete tick onto the full state; false (and the state dropped until the next
-  /// keyframe) when it cannot be: a delta on another tick than the one held, or one that
-  /// does not add up to the world's count.
+  /// A complete tick onto the full state; false when the state is not the world's at that
+  /// tick: a delta on another tick than the one held, or one that does not add up to the
+  /// world's count. The state is then dropped until the next keyframe or, when the stream
+  /// refreshes, repaired by the refreshes (resyncing).
   bool apply(const Partial& p) {
-    auto fail = [&] {
-      haveFull = false;
+    auto drop = [&] {
+      haveFull = resyncing = false;
       full.clear();
       return false;
     };
+    const bool refresh = p.refreshHi != 0;
     if (p.frame.keyframe) {
       full = p.frame.bodies;
       if (!std::is_sorted(full.begin(), full.end(), before))
         std::sort(full.begin(), full.end(), before);
       for (BodyState& s : full) s.changed = true;
+      changedAtValid = false;
+      resyncing = false;
     } else {
-      if (!haveFull || p.baseTick != stateTick) return fail();
-      for (BodyState& s : full) s.changed = false;
-      // The body with this id among full's first n (sorted) entries, or null.
-      auto find = [&](size_t n, uint64_t id) -> BodyState* {
-        BodyState key;
-        key.id = id;
-        const auto end = full.begin() + std::ptrdiff_t(n);
-        auto it = std::lower_bound(full.begin(), end, key, before);
-        return it != end && it->id == id ? &*it : nullptr;
-      };
-      bool erase = false;
-      for (uint64_t id : p.removed) {
-        if (BodyState* b = find(full.size(), id)) {
-          b->id = 0;  // erased below (0 is never a body's id)
-          erase = true;
+      const bool inStep = haveFull && p.baseTick == stateTick;
+      if (!inStep) {
+        if (!refresh && !resyncing) return drop();  // wait for the next keyframe
+        if (!resyncing || p.baseTick != stateTick) covering = false;  // (another) frame lost
+        resyncing = true;
+        haveFull = false;
+      }
+      applyDelta(p);
+    }
+    fullTick = p.frame.tick;
+    if (p.frame.keyframe || !p.frame.bodies.empty() || !p.removed.empty()) stateTick = fullTick;
+    if (resyncing) {
+      if (refresh) {
+        if (!covering || p.refreshLo != coveredTo) {  // the first since a loss, or a gap
+          covering = true;
+          wrapped = false;
+          coverStart = p.refreshLo;
+        }
+        coveredTo = p.refreshHi;
+        if (coveredTo == UINT64_MAX) {  // the end: on from the first key
+          coveredTo = 0;
+          wrapped = true;
         }
       }
+      if (!covering || !wrapped || coveredTo < coverStart) return false;
+      resyncing = false;  // every key refreshed since the last loss
+    }
+    if (full.size() != p.frame.total) {
+      if (!refresh) return drop();
+      resyncing = true;  // repaired by the next round of refreshes
+      covering = haveFull = false;
+      return false;
+    }
+    haveFull = true;
+    return true;
+  }
+
+  /// A delta's removals, changed bodies and refresh onto the full state.
+  void applyDelta(const Partial& p) {
+    // Last tick's marks off: where they were, unless bodies came or went since.
+    if (changedAtValid) {
+      for (uint32_t i : changedAt) full[i].changed = false;
+    } else {
+      for (BodyState& s : full) s.changed = false;
+    }
+    changedAt.clear();
+    changedAtValid = true;
+    // The body with this id among full's first n (sorted) entries, or null.
+    auto find = [&](size_t n, uint64_t id) -> BodyState* {
+      BodyState key;
+      key.id = id;
+      const auto end = full.begin() + std::ptrdiff_t(n);
+      auto it = std::lower_bound(full.begin(), end, key, before);
+      return it != end && it->id == id ? &*it : nullptr;
+    };
+    bool erase = false;
+    for (uint64_t id : p.removed) {
+      if (BodyState* b = find(full.size(), id)) {
+        b->id = 0;  // erased below (0 is never a body's id)
+        erase = true;
+      }
+    }
+    auto eraseMarked = [&] {
       if (erase)
         full.erase(std::remove_if(full.begin(), full.end(), [](const BodyState& s) { return s.id == 0; }),
                    full.end());
-      const size_t old = full.size();
-      for (const BodyState& s : p.frame.bodies) {
-        if (BodyState* b = find(old, s.id)) {
-          *b = s;
-          b->changed = true;
-        } else {
-          full.push_back(s);  // a new body: sorted in below
-          full.back().changed = true;
-        }
-      }
-      if (full.size() != old) {
-        std::sort(full.begin() + std::ptrdiff_t(old), full.end(), before);
-        std::inplace_merge(full.begin(), full.begin() + std::ptrdiff_t(old), full.end(), before);
+      erase = false;
+    };
+    changedAtValid = !erase;  // positions move when bodies go
+    eraseMarked();            // before the binary searches below
+    const size_t old = full.size();
+    for (const BodyState& s : p.frame.bodies) {
+      if (BodyState* b = find(old, s.id)) {
+        *b = s;
+        b->changed = true;
+        changedAt.push_back(uint32_t(b - full.data()));
+      } else {
+        full.push_back(s);  // a new body: sorted in below
+        full.back().changed = true;
       }
     }
-    if (full.size() != p.frame.total) return fail();
-    haveFull = true;
-    fullTick = p.frame.tick;
-    if (p.frame.keyframe || !p.frame.bodies.empty() || !p.removed.empty()) stateTick = fullTick;
-    return true;
+    if (full.size() != old) {
+      changedAtValid = false;  // and when bodies come
+      std::sort(full.begin() + std::ptrdiff_t(old), full.end(), before);
+      std::inplace_merge(full.begin(), full.begin() + std::ptrdiff_t(old), full.end(), before);
+    }
+    if (p.refreshHi != 0) {
+      // A refresh carries every body of its key range: one held there that it does not carry
+      // is gone (removed in a frame this subscriber lost).
+      std::vector<uint64_t> carried;
+      for (const BodyState& s : p.frame.bodies) {
+        const uint64_t k = order(s.id);
+        if (k >= p.refreshLo && (p.refreshHi == UINT64_MAX || k < p.refreshHi)) carried.push_back(k);
+      }
+      std::sort(carried.begin(), carried.end());
+      BodyState lo;
+      lo.id = order(p.refreshLo);  // order() is its own inverse
+      auto it = std::lower_bound(full.begin(), full.end(), lo, before);
+      for (; it != full.end() && (p.refreshHi == UINT64_MAX || order(it->id) < p.refreshHi); ++it) {
+        if (!std::binary_search(carried.begin(), carried.end(), order(it->id))) {
+          it->id = 0;
+          erase = true;
+        }
+      }
+      if (erase) changedAtValid = false;
+      eraseMarked();
+    }
   }
 };
 

@@ -598,6 +598,10 @@ Bytes encodeStateFrame(const FrameHeader& header, uint32_t chunkIndex, uint32_t 
     f.add_bounds_max(&hi);
   }
   if (header.interest != 0) f.add_interest(header.interest);
+  if (header.refreshHi != 0) {
+    f.add_refresh_lo(header.refreshLo);
+    f.add_refresh_hi(header.refreshHi);
+  }
   return finishBytes(fbb, f.Finish(), wire::kStateFrameId);
 }
 

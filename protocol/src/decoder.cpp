@@ -1015,6 +1015,12 @@ Decoded<wire::StateFrame> decodeStateFrame(std::span<const uint8_t> bytes, const
           return c.invalid("compact", "needs bounds_min and bounds_max");
         if (f.keyframe() && f.removed() && f.removed()->size() > 0)
           return c.invalid("removed", "is only for deltas (keyframe false)");
+        if (f.refresh_hi() != 0 && f.keyframe())
+          return c.invalid("refresh_hi", "is only for deltas (keyframe false)");
+        if (f.refresh_hi() != 0 && f.refresh_lo() >= f.refresh_hi())
+          return c.invalid("refresh_lo", "must be below refresh_hi");
+        if (f.refresh_hi() == 0 && f.refresh_lo() != 0)
+          return c.invalid("refresh_lo", "without refresh_hi");
         if (f.removed() && f.removed()->size() > c.lim.maxBodiesPerFrame)
           return c.fail(Code::ResourceExhausted, "removed",
                         "has " + std::to_string(f.removed()->size()) + " entries, the limit is " +

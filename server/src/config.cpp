@@ -111,7 +111,7 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
   if (auto* t = root["server"].as_table()) {
     s = checkKeys(*t,
                   {"name", "id", "log_level", "threads", "default_rate_hz", "max_catch_up_steps",
-                   "status_period_s", "bodies_per_chunk", "keyframe_ticks", "state_encoding",
+                   "status_period_s", "bodies_per_chunk", "keyframe_ticks", "refresh", "state_encoding",
                    "frame_ring", "max_worlds",
                    "realtime_priority", "backend", "gpu_allow_cpu_device",
                    "max_bodies_per_world", "max_joints_per_world", "max_bodies_total",
@@ -132,6 +132,13 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     if (c.core.keyframeTicks < 1)
       return Status::Error(Code::InvalidArgument,
                            "physd config: server.keyframe_ticks must be >= 1 (1: every frame a keyframe)");
+    std::string refresh = c.core.rollingRefresh ? "rolling" : "keyframe";
+    PHYS_GET(*t, "refresh", "server", &refresh);
+    if (refresh != "rolling" && refresh != "keyframe")
+      return Status::Error(Code::InvalidArgument,
+                           "physd config: server.refresh must be \"rolling\" or \"keyframe\", got \"" +
+                               refresh + "\"");
+    c.core.rollingRefresh = refresh == "rolling";
     std::string encoding = c.core.compactStates ? "compact" : "full";
     PHYS_GET(*t, "state_encoding", "server", &encoding);
     if (encoding != "full" && encoding != "compact")

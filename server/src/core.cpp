@@ -671,18 +671,26 @@ bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorl
   }
   // This stream's frames the publisher dropped (a stalled writer) break its chain of deltas.
   const uint64_t dropped = out_.framesDropped(w.id, interest);
-  // The periodic keyframe repairs what a subscriber lost; a stream at rest since its last
-  // keyframe has had nothing to lose but empty deltas, so it comes quietKeyframeFactor times
-  // less often (an idle world costs a tenth).
-  const uint64_t period = uint64_t(config_.keyframeTicks) *
-                          (pub.changedSinceKeyframe ? 1 : std::max<uint32_t>(1, config_.quietKeyframeFactor));
+  // Every body goes again once a period, to repair what a subscriber lost: spread over the
+  // deltas (the rolling refresh) or as a whole keyframe. A stream at rest for a whole period
+  // has had nothing to lose but empty deltas, so its next period is quietKeyframeFactor times
+  // longer (an idle world costs a tenth).
+  const bool rolling = config_.rollingRefresh && config_.keyframeTicks > 1;
+  const bool quiet = rolling ? !pub.changedThisRound : !pub.changedSinceKeyframe;
+  // (keyframe_ticks 1 is every frame a keyframe, quiet or not.)
+  const uint64_t period =
+      uint64_t(config_.keyframeTicks) *
+      (quiet && config_.keyframeTicks > 1 ? std::max<uint32_t>(1, config_.quietKeyframeFactor) : 1);
   const bool keyframe = !pub.valid || subscribers > pub.subscribers ||
-                        dropped != pub.droppedSeen || pub.sinceKeyframe + 1 >= period;
+                        dropped != pub.droppedSeen ||
+                        (!rolling && pub.sinceKeyframe + 1 >= period);
   if (!keyframe && !newTick) return false;  // the same tick again: in the next tick's delta
   phys::World& world = *w.world;
   std::vector<wire::BodyState> states;
   std::vector<uint64_t> removed;
   phys::BodyState s;
+  uint64_t refreshLo = 0, refreshHi = 0;
+  bool changed = false;  // a delta carrying a change (not only the refresh)
   if (keyframe) {
     std::vector<phys::BodyId> ids;
     if (filter && !filter->region) {
@@ -692,13 +700,14 @@ bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorl
       ids = world.bodies();
     }
     pub.sent.clear();
-    pub.sent.reserve(ids.size());
     for (phys::BodyId id : ids) {
       if (!world.getBody(id, &s).ok() || (filter && !filter->contains(id.packed(), s))) continue;
       states.push_back(protocol::toWire(s));
-      pub.sent[id.packed()] = states.back();
+      pub.sent.emplace_hint(pub.sent.end(), protocol::refreshKey(id.packed()), states.back());
     }
     pub.sinceKeyframe = 0;
+    pub.refreshCursor = 0;
+    pub.changedThisRound = false;
   } else {
     std::vector<uint64_t> candidates;
     candidates.reserve(awakeIds.size() + pub.awake.size() + w.touched.size());
@@ -708,19 +717,38 @@ bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorl
     all.reserve(candidates.size() + w.touched.size());
     std::set_union(candidates.begin(), candidates.end(), w.touched.begin(), w.touched.end(),
                    std::back_inserter(all));
+    std::vector<uint64_t> carried;  // refresh keys of the bodies this delta carries
     for (uint64_t id : all) {
       if (filter && !filter->region && !std::binary_search(filter->ids.begin(), filter->ids.end(), id))
         continue;
+      const uint64_t key = protocol::refreshKey(id);
       if (world.getBody(phys::BodyId::fromPacked(id), &s).ok() &&
           (!filter || filter->contains(id, s))) {
         const wire::BodyState ws = protocol::toWire(s);
-        auto [it, added] = pub.sent.try_emplace(id, ws);
+        auto [it, added] = pub.sent.try_emplace(key, ws);
         if (!added && std::memcmp(&it->second, &ws, sizeof ws) == 0) continue;  // unchanged
         it->second = ws;
         states.push_back(ws);
-      } else if (pub.sent.erase(id) > 0) {
+        carried.push_back(key);
+      } else if (pub.sent.erase(key) > 0) {
         removed.push_back(id);  // gone, or out of the region
       }
+    }
+    changed = !states.empty() || !removed.empty();
+    if (rolling) {
+      // The next period-th of the stream's bodies, in key order, as its subscribers hold them
+      // (every change since went out in a delta), those already carried left out.
+      std::sort(carried.begin(), carried.end());
+      const size_t per = std::max<size_t>(1, (pub.sent.size() + period - 1) / period);
+      auto it = pub.sent.lower_bound(pub.refreshCursor);
+      refreshLo = pub.refreshCursor;
+      for (size_t k = 0; k < per && it != pub.sent.end(); ++k, ++it)
+        if (!std::binary_search(carried.begin(), carried.end(), it->first))
+          states.push_back(it->second);
+      refreshHi = it == pub.sent.end() ? UINT64_MAX : it->first;  // above lo: keys are unique
+      pub.changedThisRound = pub.changedThisRound || changed;
+      pub.refreshCursor = it == pub.sent.end() ? 0 : refreshHi;  // at the end: round again
+      if (it == pub.sent.end()) pub.changedThisRound = false;
     }
     ++pub.sinceKeyframe;
   }
@@ -735,13 +763,15 @@ bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorl
   h.baseTick = pub.baseTick;
   h.compact = config_.compactStates;
   h.interest = interest;
+  h.refreshLo = refreshLo;
+  h.refreshHi = refreshHi;
   f.chunks = protocol::encodeStateFrames(h, states, std::max<uint32_t>(1, config_.bodiesPerChunk),
                                          removed, uint32_t(pub.sent.size()));
   pub.awake = awakeIds;
   pub.valid = true;
   const bool carried = keyframe || !states.empty() || !removed.empty();
   if (carried) pub.baseTick = w.tick;
-  pub.changedSinceKeyframe = !keyframe && (pub.changedSinceKeyframe || carried);
+  pub.changedSinceKeyframe = !keyframe && (pub.changedSinceKeyframe || changed);
   pub.subscribers = subscribers;
   pub.droppedSeen = dropped;
   pub.bytes = 0;

@@ -375,6 +375,10 @@ TEST(ClientSdk, RebuiltStateEqualsTheWorldsEveryTick) {
     if (!f.keyframe) {
       ++deltas;
       changedInDeltas += f.changed;
+      // Marked changed: exactly the bodies this tick's frame carried.
+      size_t marked = 0;
+      for (const BodyState& b : f.bodies) marked += b.changed;
+      ASSERT_EQ(marked, f.changed) << "tick " << tick;
     }
   }
   // Most frames were deltas, and once the boxes slept they carried the drifting ones only.
@@ -600,6 +604,104 @@ TEST(ClientSdk, SubscriberHeldUpForThreeTicksStillGetsEachOfThem) {
     EXPECT_EQ(slow.ticks[t], ids.size()) << "tick " << t;
   }
   EXPECT_TRUE(std::is_sorted(slow.order.begin(), slow.order.end()));
+  held.reset();
+  observer.reset();
+}
+
+// A subscriber held up for longer than its reader keeps frames (kStateReaderDepth ticks)
+// loses some; the server does not know. With the rolling refresh (the default) the SDK keeps
+// applying what comes and is whole again once one round of refreshes (keyframe_ticks frames)
+// has covered every body: no keyframe needed, and the state it then delivers is the world's.
+TEST(ClientSdk, ASubscriberThatLostFramesIsRepairedByTheRollingRefresh) {
+  Env env;
+  Client& c = env.client;
+  c.connect();
+  Client slowClient{options("slow")};
+  WorldHandle w = c.createWorld({"resync", "", std::nullopt, 0}).get();
+  std::vector<phys::BodyDef> defs = grid(100);  // resting, then asleep
+  for (int i = 0; i < 10; ++i) {
+    phys::BodyDef d = boxBody({float(i) * 3, 40, 5});
+    d.gravityScale = 0;
+    d.linearVelocity = {0.3f, 0.1f * float(i), 0};  // drifting for good
+    defs.push_back(d);
+  }
+  w.spawn(defs).get();
+  struct Seen {
+    std::mutex m;
+    std::map<uint64_t, StateFrame> frames;
+    bool has(uint64_t t) {
+      std::lock_guard<std::mutex> lk(m);
+      return frames.count(t) > 0;
+    }
+  } observed, slow;
+  struct Release {
+    std::promise<void> p;
+    bool done = false;
+    void go() {
+      if (!std::exchange(done, true)) p.set_value();
+    }
+    ~Release() { go(); }
+  } release;
+  std::shared_future<void> released = release.p.get_future().share();
+  std::atomic<bool> blocking{false};
+  Subscription observer = c.subscribe(w.id(), [&](const StateFrame& f) {
+    std::lock_guard<std::mutex> lk(observed.m);
+    observed.frames[f.tick].tick = f.tick;
+  });
+  Subscription held = slowClient.subscribe(w.id(), [&, released](const StateFrame& f) {
+    {
+      std::lock_guard<std::mutex> lk(slow.m);
+      slow.frames[f.tick] = f;
+    }
+    if (blocking.exchange(false)) released.wait();
+  });
+  uint64_t tick = 0;
+  ASSERT_TRUE(waitFor([&] {
+    tick = w.step(1).get().tick;
+    return waitFor([&] { return observed.has(tick) && slow.has(tick); }, 500ms);
+  }));
+  blocking = true;
+  const uint64_t first = w.step(1).get().tick;
+  ASSERT_TRUE(waitFor([&] { return slow.has(first) && !blocking; }));
+  // Three times what the reader keeps go by while the slow subscriber's thread waits.
+  uint64_t last = first;
+  for (int i = 0; i < 3 * protocol::kStateReaderDepth; ++i) {
+    last = w.step(1).get().tick;
+    ASSERT_TRUE(waitFor([&] { return observed.has(last); }));
+  }
+  const uint64_t skippedBefore = held.framesSkipped();
+  release.go();
+  // Tick by tick until the slow subscriber delivers again.
+  uint64_t repaired = 0;
+  for (int i = 0; i < 150 && !repaired; ++i) {
+    const uint64_t t = w.step(1).get().tick;
+    ASSERT_TRUE(waitFor([&] { return observed.has(t); }));
+    if (waitFor([&] { return slow.has(t); }, 50ms)) repaired = t;
+  }
+  ASSERT_NE(repaired, 0u) << "the slow subscriber never delivered again";
+  EXPECT_GT(held.framesSkipped(), skippedBefore) << "it did lose frames";
+  // One round of refreshes (60 frames) from the first frame it read after the release (the
+  // oldest its reader kept).
+  EXPECT_LE(repaired - last, 60u + 2);
+  const StateFrame truth = w.queryState().get();
+  ASSERT_EQ(truth.tick, repaired);
+  StateFrame f;
+  {
+    std::lock_guard<std::mutex> lk(slow.m);
+    f = slow.frames.at(repaired);
+  }
+  EXPECT_FALSE(f.keyframe) << "repaired by the refreshes, not by a keyframe";
+  ASSERT_EQ(f.bodies.size(), truth.bodies.size());
+  std::map<uint64_t, BodyState> want;
+  for (const BodyState& b : truth.bodies) want[b.id] = b;
+  for (const BodyState& b : f.bodies) {
+    ASSERT_TRUE(want.count(b.id)) << "body " << b.id;
+    const BodyState& t = want.at(b.id);
+    EXPECT_TRUE(std::memcmp(&b.position, &t.position, sizeof t.position) == 0 &&
+                std::memcmp(&b.rotation, &t.rotation, sizeof t.rotation) == 0 &&
+                std::memcmp(&b.linearVelocity, &t.linearVelocity, sizeof t.linearVelocity) == 0)
+        << "body " << b.id;
+  }
   held.reset();
   observer.reset();
 }

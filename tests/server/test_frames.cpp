@@ -23,6 +23,7 @@ struct Frame {
   uint32_t total = 0;
   std::map<uint64_t, wire::BodyState> bodies;
   std::vector<uint64_t> removed;
+  uint64_t refreshLo = 0, refreshHi = 0;
 };
 
 class FramesTest : public ::testing::Test {
@@ -59,6 +60,8 @@ class FramesTest : public ::testing::Test {
         f.keyframe = d->keyframe();
         f.baseTick = d->base_tick();
         f.total = d->total_bodies();
+        f.refreshLo = d->refresh_lo();
+        f.refreshHi = d->refresh_hi();
         if (d->bodies())
           for (const wire::BodyState* s : *d->bodies()) f.bodies[s->id()] = *s;
         if (d->compact()) {
@@ -102,8 +105,16 @@ CoreConfig withSubscribersOnly() {
   return c;
 }
 
+/// Every body again as a whole keyframe every keyframeTicks frames (refresh = "keyframe"):
+/// deltas carry exactly what changed.
+CoreConfig keyframeMode() {
+  CoreConfig c = withSubscribersOnly();
+  c.rollingRefresh = false;
+  return c;
+}
+
 TEST_F(FramesTest, NoSubscribersNoFramesThenAKeyframeForTheFirstOne) {
-  start(withSubscribersOnly());
+  start(keyframeMode());
   spawn({phys::test::groundBody(), phys::test::boxBody({0, 0, 3})});
   frames();
   for (int i = 0; i < 5; ++i) {
@@ -129,7 +140,7 @@ TEST_F(FramesTest, NoSubscribersNoFramesThenAKeyframeForTheFirstOne) {
 }
 
 TEST_F(FramesTest, DeltasCarryWhatChangedAndKeyframesComeOnTime) {
-  start(withSubscribersOnly());
+  start(keyframeMode());
   core->setSubscribers(world, 1);
   // A box resting on the ground (asleep after 0.5 s) and a free one drifting in the air.
   BodyDef drifting = phys::test::boxBody({5, 0, 10});
@@ -177,6 +188,100 @@ TEST_F(FramesTest, DeltasCarryWhatChangedAndKeyframesComeOnTime) {
   EXPECT_TRUE(f.bodies.count(resting));  // moving the ground under it woke it
   EXPECT_EQ(f.removed, std::vector<uint64_t>{moving});
   EXPECT_EQ(f.total, 3u);
+}
+
+TEST_F(FramesTest, RollingRefreshSendsEveryBodyOncePerPeriodBetweenChanges) {
+  // refresh = "rolling" (the default), keyframe_ticks 10: after the first keyframe only
+  // deltas, each carrying what changed and the next tenth of the bodies in key order; the
+  // refreshes tile the keys from 0 to the end, so a subscriber that lost a frame is whole
+  // again after one round (the SDK's side: tests/client). A world at rest goes round ten
+  // times more slowly.
+  start(withSubscribersOnly());
+  core->setSubscribers(world, 1);
+  std::vector<BodyDef> defs{phys::test::groundBody()};
+  for (int i = 0; i < 24; ++i) defs.push_back(phys::test::boxBody({float(i) * 3, 0, 0.5f}));
+  BodyDef drifting = phys::test::boxBody({0, 20, 10});
+  drifting.gravityScale = 0;
+  drifting.linearVelocity = {0.5f, 0, 0};
+  defs.push_back(drifting);
+  std::vector<uint64_t> ids = spawn(defs);
+  const uint64_t moving = ids.back();
+  frames();
+  ASSERT_TRUE(step().keyframe);
+  auto keyOf = [](uint64_t id) { return protocol::refreshKey(id); };
+  uint64_t expectLo = 0;
+  std::map<uint64_t, int> refreshed;  // this round: times each body was in a refresh
+  int rounds = 0, framesThisRound = 0;
+  std::vector<int> roundLengths;
+  auto check = [&](const Frame& f) {
+    ASSERT_FALSE(f.keyframe) << "no periodic keyframe in rolling mode, tick " << f.tick;
+    ASSERT_NE(f.refreshHi, 0u) << "every delta refreshes";
+    ASSERT_EQ(f.refreshLo, expectLo) << "the refreshes follow each other, tick " << f.tick;
+    ++framesThisRound;
+    // Every body of the range is carried, and only those of the range besides the changed.
+    for (uint64_t id : ids) {
+      const uint64_t k = keyOf(id);
+      if (k >= f.refreshLo && (f.refreshHi == UINT64_MAX || k < f.refreshHi)) {
+        ASSERT_TRUE(f.bodies.count(id)) << "body " << id << " in range, not carried";
+        refreshed[id]++;
+      }
+    }
+    expectLo = f.refreshHi == UINT64_MAX ? 0 : f.refreshHi;
+    if (f.refreshHi == UINT64_MAX) {  // a round is over: every body exactly once
+      ASSERT_EQ(refreshed.size(), ids.size());
+      for (auto& [id, n] : refreshed) ASSERT_EQ(n, 1) << "body " << id;
+      refreshed.clear();
+      ++rounds;
+      roundLengths.push_back(framesThisRound);
+      framesThisRound = 0;
+    }
+  };
+  for (int i = 0; i < 40; ++i) {
+    Frame f = step();
+    check(f);
+    EXPECT_TRUE(f.bodies.count(moving));
+  }
+  // 26 bodies, a tenth (3) a frame: a round every 9 frames while something moves.
+  ASSERT_GE(rounds, 4);
+  for (size_t r = 1; r < roundLengths.size(); ++r) EXPECT_LE(roundLengths[r], 10);
+  // At rest (the drifting box removed, the boxes asleep): rounds ten times longer.
+  ASSERT_EQ(send(CommandBuilder().removeBodies(std::vector<uint64_t>{moving}))->status(), Code::Ok);
+  ids.pop_back();
+  bool started = false;
+  for (int i = 0; i < 400; ++i) {
+    Frame f = step();
+    if (i == 0) {
+      EXPECT_EQ(f.removed, std::vector<uint64_t>{moving});
+    }
+    if (!started) {  // from the next round that begins
+      if (f.refreshLo != 0) continue;
+      started = true;
+      refreshed.clear();
+      roundLengths.clear();
+      framesThisRound = 0;
+      expectLo = 0;
+    }
+    check(f);
+  }
+  ASSERT_GE(roundLengths.size(), 2u);
+  EXPECT_GE(roundLengths.back(), 25) << "a world at rest refreshes its 25 bodies one a frame";
+}
+
+TEST_F(FramesTest, KeyframeTicksOneIsEveryFrameAKeyframeEvenAtRest) {
+  // The fan-out baseline (configs/bench/fanout_10k.toml): a world whose bodies do not move
+  // still sends every body every frame (the quiet factor stretches periods longer than one).
+  CoreConfig c = withSubscribersOnly();
+  c.keyframeTicks = 1;
+  start(c);
+  core->setSubscribers(world, 1);
+  BodyDef still = phys::test::boxBody({0, 0, 5});
+  still.gravityScale = 0;
+  spawn({still, still});
+  for (int i = 0; i < 12; ++i) {
+    Frame f = step();
+    EXPECT_TRUE(f.keyframe) << "frame " << i;
+    EXPECT_EQ(f.bodies.size(), 2u);
+  }
 }
 
 TEST_F(FramesTest, LoadResetAndRestoreStartFromAKeyframe) {

@@ -222,7 +222,15 @@ struct FrameHeader {
   uint64_t baseTick = 0;
   bool compact = false;  ///< CompactBodyState instead of BodyState (compact.h)
   uint32_t interest = 0;  ///< 0: the whole world; else an interest's stream
+  /// A delta's refresh: it also carries every body of the stream whose order key
+  /// (refreshKey) is in [refreshLo, refreshHi); refreshHi 0: none; UINT64_MAX: to the end.
+  uint64_t refreshLo = 0, refreshHi = 0;
 };
+/// A body's place in a stream's rolling refresh: (index << 32) | generation, the world's
+/// order (a packed id is generation << 32 | index). Its own inverse.
+inline constexpr uint64_t refreshKey(uint64_t packedId) {
+  return (packedId << 32) | (packedId >> 32);
+}
 /// One chunk. A delta's chunk 0 carries `removed`; totalBodies is the world's count.
 Bytes encodeStateFrame(const FrameHeader& header, uint32_t chunkIndex, uint32_t chunkCount,
                        uint32_t totalBodies, std::span<const wire::BodyState> bodies,

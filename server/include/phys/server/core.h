@@ -71,12 +71,15 @@ struct CoreConfig {
   /// budgets allow); past it: ResourceExhausted.
   uint32_t maxConcurrentLoads = 2;
   uint32_t bodiesPerChunk = protocol::kDefaultBodiesPerChunk;
-  /// State frames: a keyframe (every body) every keyframeTicks frames, at once for a new
-  /// subscriber and after a world is replaced (load, reset, restore); deltas (the bodies
-  /// whose state changed) in between. 1: every frame a keyframe.
+  /// State frames: a keyframe (every body) at once for a new subscriber and after a world is
+  /// replaced (load, reset, restore); deltas (the bodies whose state changed) in between, and
+  /// every body sent again once per keyframeTicks frames, to repair what a subscriber lost:
+  /// spread over the deltas (rollingRefresh: each carries the next keyframeTicks-th of the
+  /// bodies) or as a whole keyframe every keyframeTicks frames. 1: every frame a keyframe.
   uint32_t keyframeTicks = 60;
-  /// A stream whose deltas have carried nothing since its last keyframe (a world at rest)
-  /// sends its periodic keyframe this many times less often.
+  bool rollingRefresh = true;
+  /// A stream whose deltas have carried no change for a whole period (a world at rest) sends
+  /// its bodies again this many times less often.
   uint32_t quietKeyframeFactor = 10;
   /// CompactBodyState (40 bytes, bounded error: protocol/compact.h) instead of BodyState.
   bool compactStates = false;
@@ -153,7 +156,9 @@ struct ServerWorld {
   /// frames by body id, the bodies awake at the last frame, the bodies edited since
   /// (touched: poses, velocities, impulses, spawned, removed), when the last keyframe was.
   struct Published {
-    std::unordered_map<uint64_t, phys::wire::BodyState> sent;
+    /// What the stream's subscribers hold: the last state sent of each body in it, by
+    /// protocol::refreshKey (the world's order, which the rolling refresh walks).
+    std::map<uint64_t, phys::wire::BodyState> sent;
     std::vector<uint64_t> awake;
     bool valid = false;   ///< a keyframe went out and every frame since
     uint64_t sinceKeyframe = 0;
@@ -164,6 +169,10 @@ struct ServerWorld {
     uint32_t subscribers = 0;  ///< at the last frame
     uint64_t droppedSeen = 0;  ///< the publisher's dropped frames at the last frame
     uint64_t bytes = 0;        ///< of the last frame
+    /// The rolling refresh: where the next one starts (a refreshKey) and whether a frame
+    /// since the current round began carried a change.
+    uint64_t refreshCursor = 0;
+    bool changedThisRound = false;
   } published;
   std::vector<uint64_t> touched;  ///< bodies edited outside the step since the last frame
   uint64_t lastFrameTick = UINT64_MAX;  ///< the tick of the last queueFrame
