@@ -641,6 +641,23 @@ TEST(ProtocolReject, FramesRepliesStatus) {
   lim.maxBodiesPerFrame = 2;
   f = decodeStateFrame(encodeStateFrame({1, 1, 0}, 0, 1, 3, states), lim);
   EXPECT_EQ(f.status.code, Code::ResourceExhausted);
+  // A rolling refresh: only on a delta, its range not empty; a good one decodes.
+  FrameHeader refresh{1, 1, 0};
+  refresh.refreshLo = 5;
+  refresh.refreshHi = 9;
+  f = decodeStateFrame(encodeStateFrame(refresh, 0, 1, 3, states));
+  EXPECT_NE(f.status.message.find("state_frame.refresh_hi is only for deltas"), std::string::npos)
+      << f.status.message;
+  refresh.keyframe = false;
+  f = decodeStateFrame(encodeStateFrame(refresh, 0, 1, 3, states));
+  ASSERT_TRUE(f.ok()) << f.status.message;
+  EXPECT_EQ(f->refresh_lo(), 5u);
+  EXPECT_EQ(f->refresh_hi(), 9u);
+  refresh.refreshLo = 9;
+  f = decodeStateFrame(encodeStateFrame(refresh, 0, 1, 3, states));
+  EXPECT_NE(f.status.message.find("state_frame.refresh_lo must be below refresh_hi"),
+            std::string::npos)
+      << f.status.message;
 
   ReplyHeader h;
   h.status.code = Code(200);
