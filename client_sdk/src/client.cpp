@@ -109,9 +109,25 @@ struct Subscription::State {
 
   mutable std::mutex m;
   std::condition_variable cv;
-  /// The last frame delivered, shared with the callback's (copied out by latest() only: a
-  /// tick of a 10,000-body world is 0.8 MB, and most subscribers use the callback).
-  std::shared_ptr<const StateFrame> latest;
+  /// The last frame delivered (under m): its header in `delivered`, its bodies wherever
+  /// deliveredBodies points: the full state while it is that tick's (no copy per tick: a
+  /// tick of a 10,000-body world is 0.6 MB, and most subscribers use the callback), the
+  /// callback's frame while the callback runs, or delivered.bodies, a copy made only when
+  /// the full state moves on without delivering (a lost frame). latest() and waitForFrame()
+  /// copy it out.
+  StateFrame delivered;
+  const std::vector<BodyState>* deliveredBodies = nullptr;  ///< null: nothing delivered
+  StateFrame copyDelivered() const {
+    StateFrame f = delivered;
+    if (deliveredBodies != &delivered.bodies) f.bodies = *deliveredBodies;
+    return f;
+  }
+  /// Before the full state changes into something that may not be delivered.
+  void keepDelivered() {
+    if (deliveredBodies != &full) return;
+    delivered.bodies = full;
+    deliveredBodies = &delivered.bodies;
+  }
   uint64_t frames = 0;
 
   std::mutex ownerMutex;
@@ -174,12 +190,13 @@ struct Subscription::State {
       p.baseTick = f.base_tick();
       p.refreshLo = f.refresh_lo();
       p.refreshHi = f.refresh_hi();
+      // Room for the tick once (a keyframe holds them all; a delta's chunks are about this
+      // one's size), not a reallocation per chunk.
+      const size_t n = f.bodies() ? f.bodies()->size() : f.compact() ? f.compact()->size() : 0;
+      p.frame.bodies.reserve(f.keyframe() ? f.total_bodies() : n * p.chunkCount);
     }
     if (!p.got.insert(f.chunk_index()).second) return;
     p.frame.bytes += bytes;
-    p.frame.bodies.reserve(p.frame.bodies.size() + (f.bodies()    ? f.bodies()->size()
-                                                      : f.compact() ? f.compact()->size()
-                                                                    : 0));
     if (f.bodies())
       for (const wire::BodyState* s : *f.bodies()) p.frame.bodies.push_back(toState(*s));
     if (f.compact() && f.bounds_min() && f.bounds_max()) {
@@ -197,30 +214,47 @@ struct Subscription::State {
     any = true;
     lastComplete = t;
     partial.erase(partial.begin(), partial.upper_bound(t));
-    if (!apply(done)) {
-      std::lock_guard<std::mutex> lk(m);
-      ++skipped;
-      return;
-    }
-    auto frame = std::make_shared<StateFrame>(std::move(done.frame));
-    frame->changed = uint32_t(frame->bodies.size());
-    frame->bodies = full;
+    // physd sends a tick's bodies in the world's order; applying them is then one walk.
+    if (!std::is_sorted(done.frame.bodies.begin(), done.frame.bodies.end(), before))
+      std::sort(done.frame.bodies.begin(), done.frame.bodies.end(), before);
+    std::vector<BodyState> carried = std::move(done.frame.bodies);
+    StateFrame header = done.frame;  // the tick without its bodies
+    header.changed = uint32_t(carried.size());
+    done.frame.bodies = std::move(carried);
     {
+      // The full state changes under the lock: latest() may be copying it.
       std::lock_guard<std::mutex> lk(m);
-      latest = frame;
+      if (!apply(done)) {
+        ++skipped;
+        return;
+      }
+      delivered = header;
+      deliveredBodies = &full;
       ++frames;
     }
     cv.notify_all();
-    if (fn) fn(*frame);
+    if (!fn) return;
+    // The callback's frame borrows the full state and gives it back.
+    StateFrame view = std::move(header);
+    {
+      std::lock_guard<std::mutex> lk(m);
+      view.bodies = std::move(full);
+      deliveredBodies = &view.bodies;
+    }
+    fn(view);
+    std::lock_guard<std::mutex> lk(m);
+    full = std::move(view.bodies);
+    deliveredBodies = &full;
   }
 
-  /// A complete tick onto the full state; false when the state is not the world's at that
-  /// tick: a delta on another tick than the one held, or one that does not add up to the
-  /// world's count. The state is then dropped until the next keyframe or, when the stream
-  /// refreshes, repaired by the refreshes (resyncing).
+  /// A complete tick onto the full state (under m); false when the state is not the
+  /// world's at that tick: a delta on another tick than the one held, or one that does not
+  /// add up to the world's count. The state is then dropped until the next keyframe or, when
+  /// the stream refreshes, repaired by the refreshes (resyncing).
   bool apply(const Partial& p) {
     auto drop = [&] {
       haveFull = resyncing = false;
+      keepDelivered();
       full.clear();
       return false;
     };
@@ -234,13 +268,14 @@ struct Subscription::State {
       resyncing = false;
     } else {
       const bool inStep = haveFull && p.baseTick == stateTick;
+      if (!inStep) keepDelivered();  // what follows may not be delivered
       if (!inStep) {
         if (!refresh && !resyncing) return drop();  // wait for the next keyframe
         if (!resyncing || p.baseTick != stateTick) covering = false;  // (another) frame lost
         resyncing = true;
         haveFull = false;
       }
-      applyDelta(p);
+      applyDelta(p, /*refreshRemoves=*/!inStep);
     }
     fullTick = p.frame.tick;
     if (p.frame.keyframe || !p.frame.bodies.empty() || !p.removed.empty()) stateTick = fullTick;
@@ -261,6 +296,8 @@ struct Subscription::State {
       resyncing = false;  // every key refreshed since the last loss
     }
     if (full.size() != p.frame.total) {
+      // A server that miscounted (never expected): the tick delivered last was in `full`.
+      if (deliveredBodies == &full) deliveredBodies = nullptr;
       if (!refresh) return drop();
       resyncing = true;  // repaired by the next round of refreshes
       covering = haveFull = false;
@@ -270,8 +307,10 @@ struct Subscription::State {
     return true;
   }
 
-  /// A delta's removals, changed bodies and refresh onto the full state.
-  void applyDelta(const Partial& p) {
+  /// A delta's removals, changed bodies and refresh onto the full state. refreshRemoves: a
+  /// body held in the refresh's range that it does not carry is gone (only out of step: in
+  /// step the state holds exactly the stream's bodies already).
+  void applyDelta(const Partial& p, bool refreshRemoves) {
     // Last tick's marks off: where they were, unless bodies came or went since.
     if (changedAtValid) {
       for (uint32_t i : changedAt) full[i].changed = false;
@@ -304,11 +343,27 @@ struct Subscription::State {
     changedAtValid = !erase;  // positions move when bodies go
     eraseMarked();            // before the binary searches below
     const size_t old = full.size();
+    // The carried bodies come sorted (onChunk): each is looked for after the last one, by a
+    // galloping search (the next is usually a few places on).
+    size_t from = 0;
     for (const BodyState& s : p.frame.bodies) {
-      if (BodyState* b = find(old, s.id)) {
-        *b = s;
-        b->changed = true;
-        changedAt.push_back(uint32_t(b - full.data()));
+      BodyState key;
+      key.id = s.id;
+      size_t lo = from, bound = from, step = 1;  // [from, lo) < key <= full[bound]
+      while (bound < old && before(full[bound], key)) {
+        lo = bound + 1;
+        bound = from + step;
+        step *= 2;
+      }
+      const auto end = full.begin() + std::ptrdiff_t(old);
+      const auto it = std::lower_bound(full.begin() + std::ptrdiff_t(lo),
+                                       full.begin() + std::ptrdiff_t(std::min(bound + 1, old)),
+                                       key, before);
+      from = size_t(it - full.begin());
+      if (it != end && it->id == s.id) {
+        *it = s;
+        it->changed = true;
+        changedAt.push_back(uint32_t(from));
       } else {
         full.push_back(s);  // a new body: sorted in below
         full.back().changed = true;
@@ -319,15 +374,14 @@ struct Subscription::State {
       std::sort(full.begin() + std::ptrdiff_t(old), full.end(), before);
       std::inplace_merge(full.begin(), full.begin() + std::ptrdiff_t(old), full.end(), before);
     }
-    if (p.refreshHi != 0) {
+    if (p.refreshHi != 0 && refreshRemoves) {
       // A refresh carries every body of its key range: one held there that it does not carry
       // is gone (removed in a frame this subscriber lost).
       std::vector<uint64_t> carried;
       for (const BodyState& s : p.frame.bodies) {
         const uint64_t k = order(s.id);
         if (k >= p.refreshLo && (p.refreshHi == UINT64_MAX || k < p.refreshHi)) carried.push_back(k);
-      }
-      std::sort(carried.begin(), carried.end());
+      }  // in order, as the bodies are
       BodyState lo;
       lo.id = order(p.refreshLo);  // order() is its own inverse
       auto it = std::lower_bound(full.begin(), full.end(), lo, before);
@@ -744,17 +798,17 @@ uint32_t Subscription::world() const {
 std::optional<StateFrame> Subscription::latest() const {
   if (!state_) return std::nullopt;
   std::lock_guard<std::mutex> lk(state_->m);
-  if (!state_->latest) return std::nullopt;
-  return *state_->latest;
+  if (!state_->deliveredBodies) return std::nullopt;
+  return state_->copyDelivered();
 }
 
 std::optional<StateFrame> Subscription::waitForFrame(uint64_t afterTick,
                                                      std::chrono::milliseconds timeout) {
   if (!state_) return std::nullopt;
   std::unique_lock<std::mutex> lk(state_->m);
-  state_->cv.wait_for(lk, timeout,
-                      [&] { return state_->latest && state_->latest->tick > afterTick; });
-  if (state_->latest && state_->latest->tick > afterTick) return *state_->latest;
+  auto ready = [&] { return state_->deliveredBodies && state_->delivered.tick > afterTick; };
+  state_->cv.wait_for(lk, timeout, ready);
+  if (ready()) return state_->copyDelivered();
   return std::nullopt;
 }
 

@@ -20,7 +20,8 @@ uint32_t fraction24(float x, float lo, float hi) {
   return uint32_t(std::lround(f * kPosScale));
 }
 float unfraction24(uint32_t q, float lo, float hi) {
-  return float(double(lo) + (double(hi) - double(lo)) * (double(q) / kPosScale));
+  // (A multiplication, not a division: decoding is a subscriber's main cost per body.)
+  return float(double(lo) + (double(hi) - double(lo)) * (double(q) * (1.0 / kPosScale)));
 }
 
 uint64_t packRotation(const wire::Quat& q) {
@@ -41,20 +42,22 @@ uint64_t packRotation(const wire::Quat& q) {
   return bits;
 }
 wire::Quat unpackRotation(uint64_t bits) {
+  // In float: the 20-bit steps (1.4e-6) are twenty times float's rounding here, and this is
+  // a subscriber's main cost per body.
   const int largest = int((bits >> 60) & 3);
-  double c[4] = {};
-  double sum = 0;
+  float c[4] = {};
+  float sum = 0;
   int k = 0;
+  constexpr float kStep = float(2 * kRotSpan / kRotScale), kSpan = float(kRotSpan);
   for (int i = 0; i < 4; ++i) {
     if (i == largest) continue;
-    const uint64_t q20 = (bits >> (40 - 20 * k)) & 0xFFFFF;
-    c[i] = double(q20) / kRotScale * (2 * kRotSpan) - kRotSpan;
+    c[i] = float((bits >> (40 - 20 * k)) & 0xFFFFF) * kStep - kSpan;
     sum += c[i] * c[i];
     ++k;
   }
-  c[largest] = std::sqrt(std::max(0.0, 1.0 - sum));
-  const double n = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2] + c[3] * c[3]);
-  return wire::Quat(float(c[0] / n), float(c[1] / n), float(c[2] / n), float(c[3] / n));
+  c[largest] = std::sqrt(std::max(0.0f, 1.0f - sum));
+  const float inv = 1 / std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2] + c[3] * c[3]);
+  return wire::Quat(c[0] * inv, c[1] * inv, c[2] * inv, c[3] * inv);
 }
 
 }  // namespace
@@ -84,8 +87,8 @@ uint16_t toHalf(float f) {
 float fromHalf(uint16_t h) {
   const uint32_t sign = uint32_t(h & 0x8000) << 16;
   const uint32_t e = (h >> 10) & 0x1F, m = h & 0x3FF;
-  if (e == 0) {
-    const float v = std::ldexp(float(m), -24);
+  if (e == 0) {  // zero or subnormal: m 2^-24, exactly (a power of two, no ldexp call)
+    const float v = float(m) * 0x1p-24f;
     return sign ? -v : v;
   }
   if (e == 31) return std::bit_cast<float>(sign | 0x7F800000 | (m << 13));
@@ -122,9 +125,10 @@ wire::CompactBodyState compactState(const wire::BodyState& s, const CompactBound
 }
 
 wire::BodyState expandState(const wire::CompactBodyState& c, const CompactBounds& b) {
-  uint32_t q[3] = {};
+  const uint8_t* bytes = c.position()->Data();
+  uint32_t q[3];
   for (int a = 0; a < 3; ++a)
-    for (int k = 0; k < 3; ++k) q[a] |= uint32_t(c.position()->Get(3 * a + k)) << (8 * k);
+    q[a] = uint32_t(bytes[3 * a]) | uint32_t(bytes[3 * a + 1]) << 8 | uint32_t(bytes[3 * a + 2]) << 16;
   const wire::Vec3 p(unfraction24(q[0], b.lo.x, b.hi.x), unfraction24(q[1], b.lo.y, b.hi.y),
                      unfraction24(q[2], b.lo.z, b.hi.z));
   const wire::Vec3 v(fromHalf(c.linear_velocity()->Get(0)), fromHalf(c.linear_velocity()->Get(1)),

@@ -750,6 +750,10 @@ bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorl
       pub.refreshCursor = it == pub.sent.end() ? 0 : refreshHi;  // at the end: round again
       if (it == pub.sent.end()) pub.changedThisRound = false;
     }
+    // In the world's order, as keyframes are: a subscriber applies them in one walk.
+    std::sort(states.begin(), states.end(), [](const wire::BodyState& a, const wire::BodyState& b) {
+      return protocol::refreshKey(a.id()) < protocol::refreshKey(b.id());
+    });
     ++pub.sinceKeyframe;
   }
   StateFrameSet f;
