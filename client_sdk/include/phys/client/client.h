@@ -214,7 +214,8 @@ class WorldHandle {
   std::future<Ack> restoreSnapshotFile(std::string_view file, CallOptions o = {});
 
   /// State frames of this world: fn (if any) runs on the SDK's thread for every complete
-  /// tick; Subscription::latest() holds the newest.
+  /// tick, with a frame valid until it returns (copy what you keep: the SDK applies the next
+  /// tick to the same bodies); Subscription::latest() returns a copy of the newest.
   Subscription subscribe(std::function<void(const StateFrame&)> fn = {});
   /// Only what `interest` names: physd keeps a stream of it on its own topic until the
   /// subscription ends. Throws Error like a request (e.g. ResourceExhausted past 64
