@@ -310,7 +310,6 @@ static gpu::ContactSettings contactSettings(const SolverSettings& s) {
 /// joints when one fell asleep or woke. A sleeping joint (its bodies asleep) stays on the
 /// host with its impulses, which warm-start it when it wakes.
 void World::Impl::uploadToDevice() {
-  World::Impl& w = *this;
   DeviceWorld& d = *device;
   gpu::GpuWorld& g = *d.world;
   const auto stiffnessOf = [&](uint32_t slot) {
@@ -320,15 +319,15 @@ void World::Impl::uploadToDevice() {
     d.slots.clear();
     std::vector<gpu::GpuBodyState> states;
     std::vector<gpu::GpuBodyParams> params;
-    for (uint32_t i = 0; i < w.bodies.capacity(); ++i) {
-      if (!w.bodies.alive(i)) continue;
-      BodyRec& b = w.bodies.at(i);
+    for (uint32_t i = 0; i < bodies.capacity(); ++i) {
+      if (!bodies.alive(i)) continue;
+      BodyRec& b = bodies.at(i);
       b.deviceIndex = -1;
       if (b.type == BodyType::Static) continue;
       b.deviceIndex = int32_t(d.slots.size());
       d.slots.push_back(i);
       states.push_back(stateOf(b));
-      params.push_back(paramsOf(b, w.def.gravity, stiffnessOf(i)));
+      params.push_back(paramsOf(b, def.gravity, stiffnessOf(i)));
     }
     g.setBodies(states, params);
     std::vector<gpu::GpuShape> shapeRecs;
@@ -336,9 +335,9 @@ void World::Impl::uploadToDevice() {
     std::unordered_map<const ConvexHull*, uint32_t> packed;
     d.owners.clear();
     d.hulls = false;
-    for (uint32_t i = 0; i < w.shapes.capacity(); ++i) {
-      if (!w.shapes.alive(i)) continue;
-      const ShapeRec& s = w.shapes.at(i);
+    for (uint32_t i = 0; i < shapes.capacity(); ++i) {
+      if (!shapes.alive(i)) continue;
+      const ShapeRec& s = shapes.at(i);
       uint32_t hull = gpu::kNoHull;
       if (s.def.geom.type == ShapeType::Hull && s.def.geom.hull) {
         const ConvexHull* h = s.def.geom.hull.get();
@@ -350,34 +349,34 @@ void World::Impl::uploadToDevice() {
         }
         hull = it->second;
       }
-      const BodyRec& b = *w.bodies.get(s.body);
-      shapeRecs.push_back(shapeOf(s, b, w.shapeTransform(b, s), hull));
+      const BodyRec& b = *bodies.get(s.body);
+      shapeRecs.push_back(shapeOf(s, b, shapeTransform(b, s), hull));
       d.owners.push_back(s.body.index);
     }
     g.setShapes(shapeRecs, d.owners);
     g.setHulls(std::move(hullWords));
     std::vector<std::pair<uint32_t, uint32_t> > apart;
-    for (uint64_t key : w.noCollide) apart.push_back({uint32_t(key >> 32), uint32_t(key)});
+    for (uint64_t key : noCollide) apart.push_back({uint32_t(key >> 32), uint32_t(key)});
     g.setNoCollide(std::move(apart));
     d.jointsChanged = true;
   } else {
     for (uint32_t slot : d.edited) {
-      if (!w.bodies.alive(slot)) continue;
-      const BodyRec& b = w.bodies.at(slot);
+      if (!bodies.alive(slot)) continue;
+      const BodyRec& b = bodies.at(slot);
       if (b.deviceIndex >= 0)
         g.setBody(uint32_t(b.deviceIndex), stateOf(b),
-                  paramsOf(b, w.def.gravity, stiffnessOf(slot)));
+                  paramsOf(b, def.gravity, stiffnessOf(slot)));
     }
   }
   if (d.jointsChanged) {
     std::vector<gpu::GpuJoint> jointRecs;
     std::vector<gpu::GpuJointOut> jointWarm;
     d.jointSlots.clear();
-    for (uint32_t i = 0; i < w.joints.capacity(); ++i) {
-      if (!w.joints.alive(i)) continue;
-      const JointRec& j = w.joints.at(i);
-      const BodyRec* A = j.def.bodyA.isNull() ? nullptr : w.bodies.get(j.def.bodyA);
-      const BodyRec& B = *w.bodies.get(j.def.bodyB);
+    for (uint32_t i = 0; i < joints.capacity(); ++i) {
+      if (!joints.alive(i)) continue;
+      const JointRec& j = joints.at(i);
+      const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
+      const BodyRec& B = *bodies.get(j.def.bodyB);
       if (B.asleep() || (A && A->asleep())) continue;
       d.jointSlots.push_back(i);
       jointRecs.push_back(jointOf(j, A, B));
@@ -394,20 +393,20 @@ void World::Impl::uploadToDevice() {
 /// the device finds no pair between two bodies that are asleep or static. Returns whether
 /// any woke.
 bool World::Impl::wakeTouchedOnDevice() {
-  World::Impl& w = *this;
   const DeviceWorld& d = *device;
-  if (w.sleepingBodyCount == 0) return false;
+  if (sleepingBodyCount == 0) return false;
   std::vector<int32_t> wake;
   for (const gpu::GpuManifold& m : d.world->manifolds()) {
     if (m.count == 0) continue;
-    const BodyRec& A = w.bodies.at(d.owners[m.shapeA]);
-    const BodyRec& B = w.bodies.at(d.owners[m.shapeB]);
+    const BodyRec& A = bodies.at(d.owners[m.shapeA]);
+    const BodyRec& B = bodies.at(d.owners[m.shapeB]);
     if (A.asleep() == B.asleep()) continue;
-    if (World::Impl::wakesSleeper(A.asleep() ? B : A)) wake.push_back(A.asleep() ? A.island : B.island);
+    const BodyRec& sleeper = A.asleep() ? A : B;
+    if (wakesSleeper(A.asleep() ? B : A)) wake.push_back(sleeper.island);
   }
   std::sort(wake.begin(), wake.end());
   wake.erase(std::unique(wake.begin(), wake.end()), wake.end());
-  for (int32_t k : wake) w.wakeIsland(k);
+  for (int32_t k : wake) wakeIsland(k);
   return !wake.empty();
 }
 

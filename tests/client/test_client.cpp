@@ -116,6 +116,52 @@ bool waitFor(Pred pred, std::chrono::milliseconds timeout = kTimeout) {
   return pred();
 }
 
+/// What a subscription was given: each tick's frame, in the order delivered.
+struct TickLog {
+  std::mutex m;
+  std::map<uint64_t, StateFrame> frames;
+  std::vector<uint64_t> order;
+  void add(const StateFrame& f) {
+    std::lock_guard<std::mutex> lk(m);
+    frames[f.tick] = f;
+    order.push_back(f.tick);
+  }
+  bool has(uint64_t t) {
+    std::lock_guard<std::mutex> lk(m);
+    return frames.count(t) > 0;
+  }
+};
+
+/// A subscriber on a client of its own whose callback can be held: arm() makes the next
+/// callback wait (on the SDK thread, as a slow application would) until release(). Released
+/// on every path out of a test (a failed ASSERT included), and the client (which joins its
+/// SDK thread, the one running the callback) goes before what the callback touches.
+struct HeldSubscriber {
+  explicit HeldSubscriber(uint32_t world) {
+    sub = client->subscribe(world, [this, released = released](const StateFrame& f) {
+      log.add(f);
+      if (armed.exchange(false)) released.wait();
+    });
+  }
+  ~HeldSubscriber() {
+    release();
+    sub.reset();
+    client.reset();
+  }
+  void arm() { armed = true; }
+  bool holding() const { return !armed; }  ///< the armed callback has begun to wait
+  void release() {
+    if (!std::exchange(done, true)) promise.set_value();
+  }
+  std::unique_ptr<Client> client = std::make_unique<Client>(options("slow"));
+  std::promise<void> promise;
+  std::shared_future<void> released = promise.get_future().share();
+  bool done = false;
+  std::atomic<bool> armed{false};
+  TickLog log;
+  Subscription sub;
+};
+
 // The client is created before the daemon: its participant then owns the process's domain,
 // so the daemon can be stopped and started under it.
 struct Env {
@@ -545,67 +591,34 @@ TEST(ClientSdk, SubscriberHeldUpForThreeTicksStillGetsEachOfThem) {
   Env env;
   Client& c = env.client;
   c.connect();
-  Client slowClient{options("slow")};
   WorldHandle w = c.createWorld({"held", "", std::nullopt, 0}).get();
   auto ids = w.spawn(grid(1499)).get();  // 1500 bodies: 2 chunks
-  struct Seen {
-    std::mutex m;
-    std::map<uint64_t, size_t> ticks;  // tick -> bodies
-    std::vector<uint64_t> order;
-    bool has(uint64_t t) {
-      std::lock_guard<std::mutex> lk(m);
-      return ticks.count(t) > 0;
-    }
-  } observed, slow;
-  // Released on every path out of the test (a failed ASSERT included): the slow client's
-  // destructor joins its SDK thread, which may be waiting here.
-  struct Release {
-    std::promise<void> p;
-    bool done = false;
-    void go() {
-      if (!std::exchange(done, true)) p.set_value();
-    }
-    ~Release() { go(); }
-  } release;
-  std::shared_future<void> released = release.p.get_future().share();
-  std::atomic<bool> blocking{false};
-  Subscription observer = c.subscribe(w.id(), [&](const StateFrame& f) {
-    std::lock_guard<std::mutex> lk(observed.m);
-    observed.ticks[f.tick] = f.bodies.size();
-  });
-  Subscription held = slowClient.subscribe(w.id(), [&, released](const StateFrame& f) {
-    {
-      std::lock_guard<std::mutex> lk(slow.m);
-      slow.ticks[f.tick] = f.bodies.size();
-      slow.order.push_back(f.tick);
-    }
-    if (blocking.exchange(false)) released.wait();
-  });
+  TickLog observed;
+  Subscription observer = c.subscribe(w.id(), [&](const StateFrame& f) { observed.add(f); });
+  HeldSubscriber slow(w.id());
   // Until both readers are matched; then the next tick blocks the slow subscriber's thread.
   uint64_t tick = 0;
   ASSERT_TRUE(waitFor([&] {
     tick = w.step(1).get().tick;
-    return waitFor([&] { return observed.has(tick) && slow.has(tick); }, 500ms);
+    return waitFor([&] { return observed.has(tick) && slow.log.has(tick); }, 500ms);
   }));
-  blocking = true;
+  slow.arm();
   const uint64_t first = w.step(1).get().tick;
-  ASSERT_TRUE(waitFor([&] { return slow.has(first) && !blocking; }));
+  ASSERT_TRUE(waitFor([&] { return slow.log.has(first) && slow.holding(); }));
   std::vector<uint64_t> later;
   for (int i = 0; i < 3; ++i) later.push_back(w.step(1).get().tick);
   // Delivered to every reader (the observer has them), while the slow one's thread waits.
   ASSERT_TRUE(waitFor([&] { return observed.has(later.back()); }));
   std::this_thread::sleep_for(200ms);
-  EXPECT_FALSE(slow.has(later.front()));
-  release.go();
-  ASSERT_TRUE(waitFor([&] { return slow.has(later.back()); }));
-  std::lock_guard<std::mutex> lk(slow.m);
+  EXPECT_FALSE(slow.log.has(later.front()));
+  slow.release();
+  ASSERT_TRUE(waitFor([&] { return slow.log.has(later.back()); }));
+  std::lock_guard<std::mutex> lk(slow.log.m);
   for (uint64_t t : later) {
-    ASSERT_TRUE(slow.ticks.count(t)) << "tick " << t << " lost";
-    EXPECT_EQ(slow.ticks[t], ids.size()) << "tick " << t;
+    ASSERT_TRUE(slow.log.frames.count(t)) << "tick " << t << " lost";
+    EXPECT_EQ(slow.log.frames[t].bodies.size(), ids.size()) << "tick " << t;
   }
-  EXPECT_TRUE(std::is_sorted(slow.order.begin(), slow.order.end()));
-  held.reset();
-  observer.reset();
+  EXPECT_TRUE(std::is_sorted(slow.log.order.begin(), slow.log.order.end()));
 }
 
 // A subscriber held up for longer than its reader keeps frames (kStateReaderDepth ticks)
@@ -616,7 +629,6 @@ TEST(ClientSdk, ASubscriberThatLostFramesIsRepairedByTheRollingRefresh) {
   Env env;
   Client& c = env.client;
   c.connect();
-  Client slowClient{options("slow")};
   WorldHandle w = c.createWorld({"resync", "", std::nullopt, 0}).get();
   std::vector<phys::BodyDef> defs = grid(100);  // resting, then asleep
   for (int i = 0; i < 10; ++i) {
@@ -626,60 +638,34 @@ TEST(ClientSdk, ASubscriberThatLostFramesIsRepairedByTheRollingRefresh) {
     defs.push_back(d);
   }
   w.spawn(defs).get();
-  struct Seen {
-    std::mutex m;
-    std::map<uint64_t, StateFrame> frames;
-    bool has(uint64_t t) {
-      std::lock_guard<std::mutex> lk(m);
-      return frames.count(t) > 0;
-    }
-  } observed, slow;
-  struct Release {
-    std::promise<void> p;
-    bool done = false;
-    void go() {
-      if (!std::exchange(done, true)) p.set_value();
-    }
-    ~Release() { go(); }
-  } release;
-  std::shared_future<void> released = release.p.get_future().share();
-  std::atomic<bool> blocking{false};
-  Subscription observer = c.subscribe(w.id(), [&](const StateFrame& f) {
-    std::lock_guard<std::mutex> lk(observed.m);
-    observed.frames[f.tick].tick = f.tick;
-  });
-  Subscription held = slowClient.subscribe(w.id(), [&, released](const StateFrame& f) {
-    {
-      std::lock_guard<std::mutex> lk(slow.m);
-      slow.frames[f.tick] = f;
-    }
-    if (blocking.exchange(false)) released.wait();
-  });
+  TickLog observed;
+  Subscription observer = c.subscribe(w.id(), [&](const StateFrame& f) { observed.add(f); });
+  HeldSubscriber slow(w.id());
   uint64_t tick = 0;
   ASSERT_TRUE(waitFor([&] {
     tick = w.step(1).get().tick;
-    return waitFor([&] { return observed.has(tick) && slow.has(tick); }, 500ms);
+    return waitFor([&] { return observed.has(tick) && slow.log.has(tick); }, 500ms);
   }));
-  blocking = true;
+  slow.arm();
   const uint64_t first = w.step(1).get().tick;
-  ASSERT_TRUE(waitFor([&] { return slow.has(first) && !blocking; }));
+  ASSERT_TRUE(waitFor([&] { return slow.log.has(first) && slow.holding(); }));
   // Three times what the reader keeps go by while the slow subscriber's thread waits.
   uint64_t last = first;
   for (int i = 0; i < 3 * protocol::kStateReaderDepth; ++i) {
     last = w.step(1).get().tick;
     ASSERT_TRUE(waitFor([&] { return observed.has(last); }));
   }
-  const uint64_t skippedBefore = held.framesSkipped();
-  release.go();
+  const uint64_t skippedBefore = slow.sub.framesSkipped();
+  slow.release();
   // Tick by tick until the slow subscriber delivers again.
   uint64_t repaired = 0;
   for (int i = 0; i < 150 && !repaired; ++i) {
     const uint64_t t = w.step(1).get().tick;
     ASSERT_TRUE(waitFor([&] { return observed.has(t); }));
-    if (waitFor([&] { return slow.has(t); }, 50ms)) repaired = t;
+    if (waitFor([&] { return slow.log.has(t); }, 50ms)) repaired = t;
   }
   ASSERT_NE(repaired, 0u) << "the slow subscriber never delivered again";
-  EXPECT_GT(held.framesSkipped(), skippedBefore) << "it did lose frames";
+  EXPECT_GT(slow.sub.framesSkipped(), skippedBefore) << "it did lose frames";
   // One round of refreshes (60 frames) from the first frame it read after the release (the
   // oldest its reader kept).
   EXPECT_LE(repaired - last, 60u + 2);
@@ -687,8 +673,8 @@ TEST(ClientSdk, ASubscriberThatLostFramesIsRepairedByTheRollingRefresh) {
   ASSERT_EQ(truth.tick, repaired);
   StateFrame f;
   {
-    std::lock_guard<std::mutex> lk(slow.m);
-    f = slow.frames.at(repaired);
+    std::lock_guard<std::mutex> lk(slow.log.m);
+    f = slow.log.frames.at(repaired);
   }
   EXPECT_FALSE(f.keyframe) << "repaired by the refreshes, not by a keyframe";
   ASSERT_EQ(f.bodies.size(), truth.bodies.size());
@@ -702,8 +688,6 @@ TEST(ClientSdk, ASubscriberThatLostFramesIsRepairedByTheRollingRefresh) {
                 std::memcmp(&b.linearVelocity, &t.linearVelocity, sizeof t.linearVelocity) == 0)
         << "body " << b.id;
   }
-  held.reset();
-  observer.reset();
 }
 
 TEST(ClientSdk, GuardRailsAreAnnouncedOnTheEventsTopic) {

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "../common/bodies.h"
+#include "gpu_test_util.h"
 #include "phys/gpu/gpu_world.h"
 #include "phys/scene/scene.h"
 #include "phys/world/world.h"
@@ -47,25 +48,8 @@ WorldDef gpuDef(Backend backend = Backend::Gpu) {
   return d;
 }
 
-BodyId add(World& w, const BodyDef& d) {
-  BodyId id;
-  Status st = w.createBody(d, &id);
-  EXPECT_TRUE(st.ok()) << st.message;
-  return id;
-}
-
-BodyState state(const World& w, BodyId id) {
-  BodyState s;
-  EXPECT_TRUE(w.getBody(id, &s).ok());
-  return s;
-}
-
-/// Skips the test when no Vulkan device can be opened at all (no loader or driver).
-#define REQUIRE_DEVICE(world)                                              \
-  do {                                                                     \
-    if ((world).backendState().active != Backend::Gpu)                     \
-      GTEST_SKIP() << "no Vulkan device: " << (world).backendState().note; \
-  } while (0)
+using gpu_test::add;
+using gpu_test::state;
 
 Vec3 angularMomentum(const BodyState& s) {
   return s.inertia * s.angularVelocity;

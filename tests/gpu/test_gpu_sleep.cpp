@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "../common/bodies.h"
+#include "gpu_test_util.h"
 #include "phys/world/world.h"
 
 namespace phys {
@@ -28,24 +29,8 @@ WorldDef sleepyDef(Backend backend) {
   return d;
 }
 
-BodyId add(World& w, const BodyDef& d) {
-  BodyId id;
-  Status st = w.createBody(d, &id);
-  EXPECT_TRUE(st.ok()) << st.message;
-  return id;
-}
-
-BodyState state(const World& w, BodyId id) {
-  BodyState s;
-  EXPECT_TRUE(w.getBody(id, &s).ok());
-  return s;
-}
-
-#define REQUIRE_DEVICE(world)                                              \
-  do {                                                                     \
-    if ((world).backendState().active != Backend::Gpu)                     \
-      GTEST_SKIP() << "no Vulkan device: " << (world).backendState().note; \
-  } while (0)
+using gpu_test::add;
+using gpu_test::state;
 
 bool allAsleep(const World& w, const std::vector<BodyId>& ids) {
   for (BodyId id : ids)
