@@ -48,8 +48,8 @@ WorldDef gpuDef(Backend backend = Backend::Gpu) {
   return d;
 }
 
-using gpu_test::add;
-using gpu_test::state;
+constexpr auto add = test::addBody;
+constexpr auto state = test::stateOf;
 
 Vec3 angularMomentum(const BodyState& s) {
   return s.inertia * s.angularVelocity;

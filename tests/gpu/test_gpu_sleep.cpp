@@ -29,8 +29,8 @@ WorldDef sleepyDef(Backend backend) {
   return d;
 }
 
-using gpu_test::add;
-using gpu_test::state;
+constexpr auto add = test::addBody;
+constexpr auto state = test::stateOf;
 
 bool allAsleep(const World& w, const std::vector<BodyId>& ids) {
   for (BodyId id : ids)
