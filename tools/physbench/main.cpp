@@ -27,7 +27,7 @@
 //     docs/BENCHMARKS.md: the default sweep (with the peers; tables, fronts, plots in
 //     docs/benchmarks/) and the stress run (1000 seeds, every preset). --quick: CI-sized.
 //   physbench --stress [--presets a,b|all] [--seeds N] [--seed-start S] [--seed S]
-//             [--stress-seconds T] [--jobs N] [--csv OUT] [--dump-scene FILE]
+//             [--stress-seconds T] [--jobs N] [--csv OUT] [--dump-scene FILE] [--kinds K,..]
 //             [--fail-on-failure]
 //     seeded random scenes and each preset's failure rate (see stress.cpp).
 #include <CLI/CLI.hpp>
@@ -222,6 +222,10 @@ int main(int argc, char** argv) {
       app.add_option("--dump-scene", stress.dumpScene,
                      "with --seed: write the seed's scene as a scene file"),
       app.add_flag("--fail-on-failure", stress.failOnFailure, "exit 1 when a run failed"),
+      app.add_option("--kinds", stress.kinds,
+                     "scene kinds, comma-separated: stack, pile, chain, joint_tree, overlap, "
+                     "elastic (default: the first five, seed mod 5)")
+          ->delimiter(','),
   };
   for (CLI::Option* o : stressOnly) o->needs(stressFlag);
   for (CLI::Option* o :

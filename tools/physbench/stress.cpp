@@ -8,6 +8,11 @@
 //              plus 10 m/s (with joints a light body at the end of a heavy swinging arm
 //              legitimately goes faster, as a whip does);
 //   joint      a joint's anchors more than 10 cm apart.
+// The elastic kind (only with --kinds elastic: it is not in the default rotation, so the
+// other kinds' seeds keep their scenes) is bodies with restitution 0.5 to 1 touching each
+// other, hit at speed: a row on the ground hit along its length, or a cluster floating in
+// zero gravity hit by one or two projectiles. It fails when the energy ever rises 0.1 %
+// above its start: an impact may lose energy, never make it.
 // A seed fully determines its scene (the generator uses its own integer-to-float mapping, not
 // the standard distributions, whose output differs between libraries), so a failing seed is
 // replayed with --seed and written out as a scene file with --dump-scene.
@@ -249,17 +254,63 @@ void makeOverlap(Rng& r, Scene* sc) {
   }
 }
 
-const char* const kKinds[] = {"stack", "pile", "chain", "joint_tree", "overlap"};
-constexpr int kOverlapKind = 4;
-int kindOf(uint64_t seed) {
+/// Spheres and boxes with restitution 0.5 to 1, touching, hit at speed (see the top).
+void makeElastic(Rng& r, Scene* sc) {
+  const float size = r.uniform(0.15f, 0.4f);
+  auto shape = [&](bool sphere) {
+    ShapeDef s;
+    s.geom = sphere ? ShapeGeom::sphere(size) : ShapeGeom::box({size, size, size});
+    s.material.restitution = r.uniform(0.5f, 1.0f);
+    s.material.friction = r.uniform(0, 0.6f);
+    s.material.density = 100 * r.logUniform(1);  // masses within a decade
+    return s;
+  };
+  auto body = [&](const std::string& name, Vec3 p, bool sphere) {
+    BodyDef b;
+    b.name = name;
+    b.position = p;
+    b.shapes.push_back(shape(sphere));
+    sc->bodies.push_back(b);
+    return &sc->bodies.back();
+  };
+  const bool spheres = r.range(0, 2) > 0;  // boxes a third of the time
+  if (r.range(0, 1) == 0) {
+    // A row on the ground, touching, hit along its length by one more of its kind.
+    const int n = r.range(2, 8);
+    for (int i = 0; i < n; ++i) body("row/" + std::to_string(i), {2 * size * float(i), 0, size}, spheres);
+    BodyDef* hit = body("striker", {-2 * size - r.uniform(0.05f, 0.5f), 0, size}, spheres);
+    hit->linearVelocity = {r.uniform(2, 12), 0, 0};
+  } else {
+    // A cluster floating in zero gravity (a cube of touching bodies), hit by one or two.
+    sc->world.gravity = {};
+    const int side = r.range(2, 3);
+    for (int i = 0; i < side * side * side; ++i)
+      body("cluster/" + std::to_string(i),
+           {2 * size * float(i % side), 2 * size * float((i / side) % side),
+            5 + 2 * size * float(i / (side * side))},
+           spheres);
+    const int projectiles = r.range(1, 2);
+    for (int k = 0; k < projectiles; ++k) {
+      const Vec3 dir = normalize(Vec3{r.uniform(-1, 1), r.uniform(-1, 1), r.uniform(-1, 1)});
+      const Vec3 centre{size * float(side - 1), size * float(side - 1), 5 + size * float(side - 1)};
+      BodyDef* hit = body("projectile/" + std::to_string(k), centre - dir * (2 * size * float(side) + 1),
+                          r.range(0, 1) == 0);
+      hit->linearVelocity = dir * r.uniform(3, 15);
+    }
+  }
+}
+
+const char* const kKinds[] = {"stack", "pile", "chain", "joint_tree", "overlap", "elastic"};
+constexpr int kOverlapKind = 4, kElasticKind = 5;
+/// The default rotation: the first five kinds by seed mod 5 (elastic only when asked for).
+int defaultKindOf(uint64_t seed) {
   return int(seed % 5);
 }
 
-/// The scene of a seed: its kind is seed mod 5, everything else comes from the seed's stream.
-Scene makeScene(uint64_t seed) {
+/// The scene of a seed and kind: everything comes from the seed's stream.
+Scene makeScene(uint64_t seed, int kind) {
   Rng r{seed * 0x2545F4914F6CDD1Dull + 1};
   Scene sc;
-  const int kind = kindOf(seed);
   sc.name = std::string("stress_") + kKinds[kind] + "_" + std::to_string(seed);
   sc.description = "physbench --stress scene for seed " + std::to_string(seed);
   sc.bodies.push_back(groundBody());
@@ -276,15 +327,19 @@ Scene makeScene(uint64_t seed) {
     case 3:
       makeJointTree(r, &sc);
       break;
-    default:
+    case kOverlapKind:
       makeOverlap(r, &sc);
-      break;  // kOverlapKind
+      break;
+    default:
+      makeElastic(r, &sc);
+      break;  // kElasticKind
   }
   sc.metrics.settleTime = 1;
   return sc;
 }
 
 constexpr double kEnergyRise = 0.05;
+constexpr double kElasticEnergyRise = 0.001;  ///< an elastic impact makes no energy
 
 struct RunResult {
   uint64_t seed = 0;
@@ -293,9 +348,10 @@ struct RunResult {
   double maxSpeed = 0, speedBound = 0, jointError = 0, energyRise = 0;
   unsigned long long guardEvents = 0;
   bool checkEnergy = true;
+  double energyBound = kEnergyRise;  ///< the rise that fails it
   std::string firstFailure;  ///< when and where it first failed (replays of failed runs only)
   bool exploded() const {
-    return maxSpeed > speedBound || (checkEnergy && energyRise > kEnergyRise);
+    return maxSpeed > speedBound || (checkEnergy && energyRise > energyBound);
   }
   bool jointFailed() const { return jointError > kStressJointError; }
   bool failed() const { return !error.empty() || nan > 0 || exploded() || jointFailed(); }
@@ -406,21 +462,28 @@ std::string describeFailure(const Scene& sc, const World& world, const std::vect
 /// Runs one seed with one preset. With `explain` (a replay of a failed run: runs are
 /// deterministic with one thread), the measures are checked after every step as well and the
 /// first step that fails is described in RunResult::firstFailure.
-RunResult runOne(uint64_t seed, const std::string& presetName, const SolverSettings& settings,
-                 double seconds, bool explain = false) {
-  Scene sc = makeScene(seed);
+RunResult runOne(uint64_t seed, int kind, const std::string& presetName,
+                 const SolverSettings& settings, double seconds, bool explain = false) {
+  Scene sc = makeScene(seed, kind);
   sc.world.solver = settings;
   sc.world.threads = 1;
   RunResult res;
   res.seed = seed;
-  res.kind = kKinds[kindOf(seed)];
+  res.kind = kKinds[kind];
   res.preset = presetName;
-  res.checkEnergy = kindOf(seed) != kOverlapKind;
+  res.checkEnergy = kind != kOverlapKind;
+  if (kind == kElasticKind) res.energyBound = kElasticEnergyRise;
   float top = 0;
   for (const BodyDef& b : sc.bodies)
     if (b.type == BodyType::Dynamic) top = std::max(top, b.position.z);
   res.speedBound = sc.joints.empty() ? std::sqrt(2 * 9.81 * (top + 1.0)) + 10
                                      : std::numeric_limits<double>::infinity();
+  if (kind == kElasticKind) {
+    // Struck by a body up to ten times its mass, a body leaves at up to twice the speed.
+    double fastest = 0;
+    for (const BodyDef& b : sc.bodies) fastest = std::max(fastest, double(length(b.linearVelocity)));
+    res.speedBound = 2 * fastest + std::sqrt(2 * 9.81 * (top + 1.0)) + 1;
+  }
   World world(sc.world);
   std::vector<BodyId> ids;
   std::vector<JointId> jointIds;
@@ -471,6 +534,19 @@ int runStress(const StressOptions& opt) {
       return 2;
     }
   }
+  std::vector<int> kinds;
+  for (const std::string& k : opt.kinds) {
+    const auto it = std::find(std::begin(kKinds), std::end(kKinds), k);
+    if (it == std::end(kKinds)) {
+      std::cerr << "physbench: unknown stress kind '" << k
+                << "' (stack, pile, chain, joint_tree, overlap, elastic)\n";
+      return 2;
+    }
+    kinds.push_back(int(it - std::begin(kKinds)));
+  }
+  auto kindFor = [&](uint64_t seed) {
+    return kinds.empty() ? defaultKindOf(seed) : kinds[size_t(seed % kinds.size())];
+  };
   std::vector<uint64_t> seeds;
   if (opt.seed) {
     seeds.push_back(*opt.seed);
@@ -483,7 +559,7 @@ int runStress(const StressOptions& opt) {
       return 2;
     }
     std::ofstream f(opt.dumpScene);
-    f << sceneToJson(makeScene(seeds[0]));
+    f << sceneToJson(makeScene(seeds[0], kindFor(seeds[0])));
     if (!f) {
       std::cerr << "physbench: cannot write " << opt.dumpScene << "\n";
       return 2;
@@ -505,7 +581,8 @@ int runStress(const StressOptions& opt) {
   auto worker = [&] {
     for (size_t k; (k = next.fetch_add(1)) < jobs.size();) {
       const Job& j = jobs[k];
-      results[k] = runOne(j.seed, names[j.preset], presets[names[j.preset]].settings, opt.seconds);
+      results[k] = runOne(j.seed, kindFor(j.seed), names[j.preset],
+                          presets[names[j.preset]].settings, opt.seconds);
       const size_t d = ++done;
       if (d % 50 == 0 || d == jobs.size()) {
         std::lock_guard<std::mutex> lock(printMutex);
@@ -568,7 +645,11 @@ int runStress(const StressOptions& opt) {
   int shown = 0;
   for (const RunResult& r : results) {
     if (!r.failed()) continue;
-    if (shown++ == 0) say("\nfailures (replay: physbench --stress --seed S --presets P):\n");
+    if (shown++ == 0) {
+      std::string kindsArg;
+      for (const std::string& k : opt.kinds) kindsArg += (kindsArg.empty() ? " --kinds " : ",") + k;
+      say("\nfailures (replay: physbench --stress --seed S --presets P%s):\n", kindsArg.c_str());
+    }
     if (shown > 20) continue;
     say("  seed %llu (%s) preset %s:", static_cast<unsigned long long>(r.seed), r.kind.c_str(),
         r.preset.c_str());
@@ -580,7 +661,8 @@ int runStress(const StressOptions& opt) {
     say("\n");
     // Replayed step by step to say when it first failed, on what, and what touched it.
     const RunResult replay =
-        runOne(r.seed, r.preset, presets[r.preset].settings, opt.seconds, /*explain=*/true);
+        runOne(r.seed, kindFor(r.seed), r.preset, presets[r.preset].settings, opt.seconds,
+               /*explain=*/true);
     if (!replay.firstFailure.empty()) say("    %s\n", replay.firstFailure.c_str());
   }
   if (shown > 20) say("  ... and %d more (see --csv)\n", shown - 20);
