@@ -148,8 +148,19 @@ struct HeldSubscriber {
     sub.reset();
     client.reset();
   }
-  void arm() { armed = true; }
-  bool holding() const { return !armed; }  ///< the armed callback has begun to wait
+  /// Steps `w` until this subscriber and `observed` both have a tick (their readers are
+  /// matched), then one more tick, whose callback it holds. That tick, or 0 if it failed.
+  uint64_t holdNextTick(WorldHandle& w, TickLog& observed) {
+    uint64_t tick = 0;
+    const bool matched = waitFor([&] {
+      tick = w.step(1).get().tick;
+      return waitFor([&] { return observed.has(tick) && log.has(tick); }, 500ms);
+    });
+    if (!matched) return 0;
+    armed = true;
+    const uint64_t held = w.step(1).get().tick;
+    return waitFor([&] { return log.has(held) && !armed; }) ? held : 0;
+  }
   void release() {
     if (!std::exchange(done, true)) promise.set_value();
   }
@@ -596,15 +607,8 @@ TEST(ClientSdk, SubscriberHeldUpForThreeTicksStillGetsEachOfThem) {
   TickLog observed;
   Subscription observer = c.subscribe(w.id(), [&](const StateFrame& f) { observed.add(f); });
   HeldSubscriber slow(w.id());
-  // Until both readers are matched; then the next tick blocks the slow subscriber's thread.
-  uint64_t tick = 0;
-  ASSERT_TRUE(waitFor([&] {
-    tick = w.step(1).get().tick;
-    return waitFor([&] { return observed.has(tick) && slow.log.has(tick); }, 500ms);
-  }));
-  slow.arm();
-  const uint64_t first = w.step(1).get().tick;
-  ASSERT_TRUE(waitFor([&] { return slow.log.has(first) && slow.holding(); }));
+  const uint64_t first = slow.holdNextTick(w, observed);
+  ASSERT_NE(first, 0u);
   std::vector<uint64_t> later;
   for (int i = 0; i < 3; ++i) later.push_back(w.step(1).get().tick);
   // Delivered to every reader (the observer has them), while the slow one's thread waits.
@@ -641,14 +645,8 @@ TEST(ClientSdk, ASubscriberThatLostFramesIsRepairedByTheRollingRefresh) {
   TickLog observed;
   Subscription observer = c.subscribe(w.id(), [&](const StateFrame& f) { observed.add(f); });
   HeldSubscriber slow(w.id());
-  uint64_t tick = 0;
-  ASSERT_TRUE(waitFor([&] {
-    tick = w.step(1).get().tick;
-    return waitFor([&] { return observed.has(tick) && slow.log.has(tick); }, 500ms);
-  }));
-  slow.arm();
-  const uint64_t first = w.step(1).get().tick;
-  ASSERT_TRUE(waitFor([&] { return slow.log.has(first) && slow.holding(); }));
+  const uint64_t first = slow.holdNextTick(w, observed);
+  ASSERT_NE(first, 0u);
   // Three times what the reader keeps go by while the slow subscriber's thread waits.
   uint64_t last = first;
   for (int i = 0; i < 3 * protocol::kStateReaderDepth; ++i) {
