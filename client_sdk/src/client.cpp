@@ -169,6 +169,7 @@ struct Subscription::State {
   uint64_t coverStart = 0, coveredTo = 0;  ///< ... began at this key and reach that one
   bool wrapped = false;                    ///< ... past the end, and on from key 0
 
+  static constexpr size_t kReserveBodies = 65536;  ///< 4 MB of states
   static uint64_t order(uint64_t id) { return (id << 32) | (id >> 32); }  // index, generation
   static bool before(const BodyState& a, const BodyState& b) { return order(a.id) < order(b.id); }
 
@@ -191,9 +192,11 @@ struct Subscription::State {
       p.refreshLo = f.refresh_lo();
       p.refreshHi = f.refresh_hi();
       // Room for the tick once (a keyframe holds them all; a delta's chunks are about this
-      // one's size), not a reallocation per chunk.
+      // one's size), not a reallocation per chunk; at most kReserveBodies on the word of one
+      // chunk (a sender's claims cost no more than that until its chunks arrive).
       const size_t n = f.bodies() ? f.bodies()->size() : f.compact() ? f.compact()->size() : 0;
-      p.frame.bodies.reserve(f.keyframe() ? f.total_bodies() : n * p.chunkCount);
+      const size_t want = std::min<size_t>(n * p.chunkCount, f.total_bodies());
+      p.frame.bodies.reserve(std::min(want, kReserveBodies));
     }
     if (!p.got.insert(f.chunk_index()).second) return;
     p.frame.bytes += bytes;
