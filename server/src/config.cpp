@@ -88,6 +88,21 @@ Status getMiB(const toml::table& t, const char* key, const std::string& where, u
   return s;
 }
 
+/// A key that is one of two words at where.key, if the key is there, as a bool (true: the
+/// first word); *first keeps its value otherwise.
+Status getEither(const toml::table& t, const char* key, const std::string& where,
+                 const char* yes, const char* no, bool* first) {
+  std::string word = *first ? yes : no;
+  Status s = get(t, key, where, &word);
+  if (!s.ok()) return s;
+  if (word != yes && word != no)
+    return Status::Error(Code::InvalidArgument, "physd config: " + where + "." + key +
+                                                    " must be \"" + yes + "\" or \"" + no +
+                                                    "\", got \"" + word + "\"");
+  *first = word == yes;
+  return Status::Ok();
+}
+
 #define PHYS_GET_MIB(t, key, where, out)    \
   do {                                      \
     Status s_ = getMiB(t, key, where, out); \
@@ -132,20 +147,12 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     if (c.core.keyframeTicks < 1)
       return Status::Error(Code::InvalidArgument,
                            "physd config: server.keyframe_ticks must be >= 1 (1: every frame a keyframe)");
-    std::string refresh = c.core.rollingRefresh ? "rolling" : "keyframe";
-    PHYS_GET(*t, "refresh", "server", &refresh);
-    if (refresh != "rolling" && refresh != "keyframe")
-      return Status::Error(Code::InvalidArgument,
-                           "physd config: server.refresh must be \"rolling\" or \"keyframe\", got \"" +
-                               refresh + "\"");
-    c.core.rollingRefresh = refresh == "rolling";
-    std::string encoding = c.core.compactStates ? "compact" : "full";
-    PHYS_GET(*t, "state_encoding", "server", &encoding);
-    if (encoding != "full" && encoding != "compact")
-      return Status::Error(Code::InvalidArgument,
-                           "physd config: server.state_encoding must be \"full\" or \"compact\", got \"" +
-                               encoding + "\"");
-    c.core.compactStates = encoding == "compact";
+    s = getEither(*t, "refresh", "server", "rolling", "keyframe", &c.core.rollingRefresh);
+    if (!s.ok()) return s;
+    bool full = !c.core.compactStates;
+    s = getEither(*t, "state_encoding", "server", "full", "compact", &full);
+    if (!s.ok()) return s;
+    c.core.compactStates = !full;
     PHYS_GET(*t, "frame_ring", "server", &c.core.frameRingCapacity);
     PHYS_GET(*t, "max_worlds", "server", &c.core.maxWorlds);
     PHYS_GET(*t, "realtime_priority", "server", &c.realtimePriority);

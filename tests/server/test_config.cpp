@@ -62,6 +62,29 @@ TEST(ServerConfig, RejectsUnknownKeysAndWrongTypes) {
   EXPECT_FALSE(c.worlds[0].run);
 }
 
+TEST(ServerConfig, TwoWordKeys) {
+  // refresh and state_encoding: each one of two words, its default without the key.
+  DaemonConfig c;
+  Status s = parseDaemonConfig("", "/tmp", &c);
+  ASSERT_TRUE(s.ok()) << s.message;
+  EXPECT_TRUE(c.core.rollingRefresh);
+  EXPECT_FALSE(c.core.compactStates);
+  s = parseDaemonConfig("[server]\nrefresh = \"keyframe\"\nstate_encoding = \"compact\"\n",
+                        "/tmp", &c);
+  ASSERT_TRUE(s.ok()) << s.message;
+  EXPECT_FALSE(c.core.rollingRefresh);
+  EXPECT_TRUE(c.core.compactStates);
+  s = parseDaemonConfig("[server]\nrefresh = \"Rolling\"\n", "/tmp", &c);
+  EXPECT_EQ(s.code, Code::InvalidArgument);
+  EXPECT_NE(s.message.find("server.refresh must be \"rolling\" or \"keyframe\", got \"Rolling\""),
+            std::string::npos)
+      << s.message;
+  s = parseDaemonConfig("[server]\nstate_encoding = \"half\"\n", "/tmp", &c);
+  EXPECT_NE(s.message.find("server.state_encoding must be \"full\" or \"compact\", got \"half\""),
+            std::string::npos)
+      << s.message;
+}
+
 TEST(ServerConfig, Backend) {
   DaemonConfig c;
   Status s = parseDaemonConfig("", "/tmp", &c);
