@@ -6,13 +6,14 @@
 # docs/BENCHMARKS.md keeps its table ("Whole scenes on the device").
 #
 #   tools/device_scenes.sh [--scenes "a b"] [--preset P] [--jobs N] [--build-dir DIR]
-#                          [--out DIR]
+#                          [--out DIR] [--timeout S]
 #
 # Defaults: the scenes ctest runs on the device CI-sized, which are every scene with criteria
 # but box_stack, pyramid_40, pyramid_100 and the scale scenes (many_pyramids, the piles,
 # fanout_10k), each an hour or more on lavapipe (name them to run them); the scenes' own
 # solvers, one at a time, the build of ./test.sh (build/). Without a GPU it runs on lavapipe
-# (PHYS_GPU_ALLOW_CPU=1 is set). Each run's JSON and output go to DIR (default
+# (PHYS_GPU_ALLOW_CPU=1 is set). --timeout stops a run after S wall seconds (exit 124 in the
+# table). Each run's JSON and output go to DIR (default
 # build/device_scenes/); the Markdown table goes to stdout. The exit status is 1 when a run
 # failed a criterion the CPU run passed, or did not run every step on the device.
 set -euo pipefail
@@ -24,6 +25,7 @@ preset=""
 jobs=1
 build_dir=build
 out=""
+limit=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --scenes) scenes=$2; shift 2 ;;
@@ -31,7 +33,8 @@ while [ $# -gt 0 ]; do
     --jobs) jobs=$2; shift 2 ;;
     --build-dir) build_dir=$2; shift 2 ;;
     --out) out=$2; shift 2 ;;
-    -h|--help) sed -n '2,17p' "$0"; exit 0 ;;
+    --timeout) limit=(timeout "$2"); shift 2 ;;
+    -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
     *) echo "device_scenes.sh: unknown argument $1" >&2; exit 2 ;;
   esac
 done
@@ -47,7 +50,7 @@ run_one() {
   [ -n "$preset" ] && args+=(--preset "$preset")
   local start end
   start=$(date +%s)
-  "$bench" "${args[@]}" >"$out/$scene.txt" 2>&1 && echo 0 >"$out/$scene.status" ||
+  "${limit[@]}" "$bench" "${args[@]}" >"$out/$scene.txt" 2>&1 && echo 0 >"$out/$scene.status" ||
     echo $? >"$out/$scene.status"
   end=$(date +%s)
   echo $((end - start)) >"$out/$scene.wall"
