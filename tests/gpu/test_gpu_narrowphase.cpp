@@ -8,7 +8,10 @@
 // A configuration within a rounding error of a decision (two SAT axes within the tolerance, a
 // point at the margin, a vertex at a clip plane's slop) may go either way on either side; such
 // near-ties are found by nudging the CPU's input by 2e-5 (m, rad) and need only match one of
-// the nudged answers.
+// the nudged answers. A reduction to four points that chose other candidates as good as the
+// CPU's (the same deepest point, the same area within 0.1 %) is a near-tie too: on an NVIDIA
+// H100 (2026-11-26) four random hull-plane pairs of 400 kept another fourth vertex than the
+// CPU, which 32 nudges of the pose did not reproduce.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -475,6 +478,45 @@ std::string difference(const gpu::GpuManifold& g, const Manifold& cpu) {
   return {};
 }
 
+/// Area of the convex hull of up to four points seen along `n` (the manifold's normal).
+float spreadArea(const Vec3* p, int count, Vec3 n) {
+  auto tri = [&](int a, int b, int c) {
+    return std::fabs(dot(cross(p[b] - p[a], p[c] - p[a]), n)) * 0.5f;
+  };
+  if (count < 3) return 0;
+  if (count == 3) return tri(0, 1, 2);
+  // Four points: the largest of the three quadrilaterals (the convex one is the hull) and of
+  // the four triangles (one point inside the triangle of the others).
+  auto quad = [&](int a, int b, int c, int d) {
+    return std::fabs(dot(cross(p[c] - p[a], p[d] - p[b]), n)) * 0.5f;
+  };
+  float best = std::max({quad(0, 1, 2, 3), quad(0, 2, 1, 3), quad(0, 1, 3, 2)});
+  return std::max({best, tri(0, 1, 2), tri(0, 1, 3), tri(0, 2, 3), tri(1, 2, 3)});
+}
+
+/// A reduction to four that picked other candidates as good as the CPU's: the same count, the
+/// same deepest separation, the same normal, and an area within 0.1 % of the CPU's points'
+/// (two hull vertices of nearly equal merit, where a nudge of the pose moves both alike and
+/// the device's rounding decides).
+bool equallyGoodReduction(const gpu::GpuManifold& g, const Manifold& cpu) {
+  const int n = static_cast<int>(g.count);
+  if (n != cpu.count || n < 4) return false;
+  const Vec3 gn{g.normal.x, g.normal.y, g.normal.z};
+  const Vec3 dn = vabs(gn - cpu.normal);
+  if (std::max(dn.x, std::max(dn.y, dn.z)) > 1e-4f) return false;
+  Vec3 gp[4], cp[4];
+  float gDeep = 1e9f, cDeep = 1e9f;
+  for (int k = 0; k < n; ++k) {
+    gp[k] = {g.points[k].x, g.points[k].y, g.points[k].z};
+    cp[k] = cpu.points[k].point;
+    gDeep = std::min(gDeep, g.points[k].w);
+    cDeep = std::min(cDeep, cpu.points[k].separation);
+  }
+  if (std::fabs(gDeep - cDeep) > 2e-4f) return false;
+  const float ga = spreadArea(gp, n, cpu.normal), ca = spreadArea(cp, n, cpu.normal);
+  return std::fabs(ga - ca) <= 1e-3f * std::max(ca, 1e-6f);
+}
+
 /// What a test's pairs came to on the CPU, for the coverage checks.
 struct Tally {
   int pairs = 0, touching = 0, points = 0, ambiguous = 0;
@@ -551,6 +593,7 @@ Tally compareAll(const Scene& scene, const std::vector<gpu::GpuManifold>& gpuOut
       collide(sa.geom, na, sb.geom, nb, nm, &alt);
       matched = difference(g, alt).empty();
     }
+    if (!matched) matched = equallyGoodReduction(g, cpu);
     if (matched) {
       ++tally.ambiguous;
       std::printf("[ near-tie ] pair %zu (%s - %s): %s\n", i, toString(sa.geom.type),
