@@ -47,7 +47,8 @@ void atomicMax(std::atomic<float>& m, float v) {
 struct Solver::IterationParams {
   Softness contactSoft, jointSoft;
   float h = 0, invH = 0, linearSlop = 0, maxPushout = 0;
-  bool soft = true, useBias = true, skipEquality = false;
+  bool soft = true, useBias = true, skipEquality = false, skipDirect = false;
+  ContactRule contact;
   bool splitPushout = false;  ///< penetration is resolved by solvePushout, not here
   bool measure = false;       ///< compute the convergence measure
 };
@@ -70,6 +71,25 @@ Row contactRow(const SolverManifold& m, RowKind kind, Vec3 axis, int k) {
   r.linB = axis;
   r.angB = cross(m.rB[k], axis);
   return r;
+}
+
+ContactTerms ContactRule::terms(const Row& r, float C) const {
+  ContactTerms t;
+  if (C > 0) {
+    t.bias = C * invH;  // speculative: close exactly the gap this substep, no more
+  } else if (useBias) {
+    // Slop only with Baumgarte: a soft contact's spring has zero rest length, and a slop
+    // there only lets bodies sink into each other by that much.
+    float slop = !softStabilization && r.kind == RowKind::ContactNormal ? linearSlop : 0;
+    float Cs = std::min(0.0f, C + slop);
+    // Split push-out: deeper than a resting sag is solvePushout's.
+    if (splitPushout && r.kind == RowKind::ContactNormal)
+      Cs = std::max(Cs, -SolverSettings::kSplitDepth);
+    t.bias = std::max(soft.biasRate * Cs, -maxPushout);
+    t.massScale = soft.massScale;
+    t.impulseScale = soft.impulseScale;
+  }
+  return t;
 }
 
 Softness makeSoftness(float hertz, float zeta, float h) {
@@ -336,8 +356,25 @@ void Solver::warmStartGroup(const Group& g, Velocity& A, Velocity& B) {
   }
 }
 
-float Solver::solveIteration(const SolverSettings& s, float h, bool useBias, bool skipEquality) {
+ContactRule Solver::contactRule(const SolverSettings& s, float h, bool useBias) {
+  ContactRule c;
+  c.invH = 1 / h;
+  c.softStabilization = s.stabilization == SolverSettings::Stabilization::Soft;
+  c.soft = c.softStabilization
+               ? makeSoftness(cappedHertz(s.contactHertz, c.invH), s.contactDampingRatio, h)
+               : Softness{s.baumgarte * c.invH, 1, 0};
+  c.linearSlop = s.linearSlop;
+  c.maxPushout = s.maxPushout;
+  c.useBias = useBias;
+  c.splitPushout = s.splitPushout;
+  return c;
+}
+
+float Solver::solveIteration(const SolverSettings& s, float h, bool useBias, bool skipEquality,
+                             bool skipDirect) {
   IterationParams p;
+  p.contact = contactRule(s, h, useBias);
+  p.skipDirect = skipDirect;
   p.h = h;
   p.invH = 1 / h;
   p.soft = s.stabilization == SolverSettings::Stabilization::Soft;
@@ -373,6 +410,7 @@ float Solver::solveGroup(const Group& g, Velocity& A, Velocity& B, const Iterati
     const size_t i = units[u];
     Row& r = rows[i];
     if (p.skipEquality && r.kind == RowKind::Equality) continue;
+    if (p.skipDirect && r.direct) continue;
     if (r.kind == RowKind::Friction) {
       change = std::max(change, solveFrictionPair(r, rows[i + 1], A, B, p.measure));
       continue;
@@ -391,22 +429,8 @@ float Solver::solveGroup(const Group& g, Velocity& A, Velocity& B, const Iterati
     switch (r.kind) {
       case RowKind::ContactNormal:
       case RowKind::Limit: {
-        float C = rowError(r);
-        float bias = 0, massScale = 1, impulseScale = 0;
-        if (C > 0) {
-          bias = C * p.invH;  // speculative: close exactly the gap this substep, no more
-        } else if (p.useBias) {
-          // Slop only with Baumgarte: a soft contact's spring has zero rest length, and a
-          // slop there only lets bodies sink into each other by that much.
-          float slop = !p.soft && r.kind == RowKind::ContactNormal ? p.linearSlop : 0;
-          float Cs = std::min(0.0f, C + slop);
-          // Split push-out: deeper than a resting sag is solvePushout's.
-          if (p.splitPushout && r.kind == RowKind::ContactNormal) Cs = std::max(Cs, -kSplitDepth);
-          bias = std::max(p.contactSoft.biasRate * Cs, -p.maxPushout);
-          massScale = p.contactSoft.massScale;
-          impulseScale = p.contactSoft.impulseScale;
-        }
-        impulse = -r.effMass * massScale * (vn + bias) - impulseScale * r.lambda;
+        const ContactTerms t = p.contact.terms(r, rowError(r));
+        impulse = -r.effMass * t.massScale * (vn + t.bias) - t.impulseScale * r.lambda;
         float next = std::max(r.lambda + impulse, 0.0f);
         impulse = next - r.lambda;
         r.lambda = next;

@@ -90,6 +90,8 @@ struct Row {
   /// First row of a constraint (a joint, a contact manifold): the unit of the Jacobi scheme,
   /// whose rows all act on the same two bodies.
   bool groupStart = false;
+  /// A contact normal row of an island solved by DirectContacts, not by the iterations.
+  bool direct = false;
 };
 
 /// A contact manifold in the solver's terms, from which the World makes its rows (three per
@@ -123,6 +125,19 @@ struct Softness {
 /// Catto's soft constraint coefficients for a spring of `hertz` and damping ratio `zeta`
 /// over a step of h seconds. hertz == 0 gives a rigid row without position correction.
 Softness makeSoftness(float hertz, float zeta, float h);
+
+/// How a contact normal (or limit) row with position error C is solved in an iteration: the
+/// velocity bias and Catto's scales, impulse = -effMass massScale (J v + bias) - impulseScale
+/// lambda. The one rule of the iterations and the direct contact solve.
+struct ContactTerms {
+  float bias = 0, massScale = 1, impulseScale = 0;
+};
+struct ContactRule {
+  Softness soft;  ///< the contacts' softness this substep (Baumgarte: {beta / h, 1, 0})
+  float invH = 0, linearSlop = 0, maxPushout = 0;
+  bool softStabilization = true, useBias = true, splitPushout = false;
+  ContactTerms terms(const Row& r, float C) const;
+};
 
 class Solver {
  public:
@@ -182,7 +197,10 @@ class Solver {
   /// leaves the joints' equality rows to a direct solve (EqualityLdl). Returns the largest
   /// velocity change the iteration made to a row, |delta lambda| / effMass (m/s or rad/s):
   /// the convergence measure.
-  float solveIteration(const SolverSettings& s, float h, bool useBias, bool skipEquality = false);
+  float solveIteration(const SolverSettings& s, float h, bool useBias, bool skipEquality = false,
+                       bool skipDirect = false);
+  /// The contact rule of an iteration (solveIteration's, and the direct contact solve's).
+  static ContactRule contactRule(const SolverSettings& s, float h, bool useBias);
   /// The bias rate (1/s) at which equality rows correct position error over a substep h.
   static float equalityBiasRate(const SolverSettings& s, float h);
   /// Records where each solve unit (a row, a friction pair, a joint block) starts, the

@@ -4,19 +4,13 @@
 
 namespace phys {
 
-namespace {
-
-/// J_i . M^-1 J_j^T restricted to one body: row i's Jacobian on that body times row j's
-/// M^-1 J^T on it. `sideI`/`sideJ`: 0 = the body is the row's A, 1 = its B.
-double coupling(const Row& ri, int sideI, const Row& rj, int sideJ) {
+double rowCoupling(const Row& ri, int sideI, const Row& rj, int sideJ) {
   const Vec3& lin = sideI == 0 ? ri.linA : ri.linB;
   const Vec3& ang = sideI == 0 ? ri.angA : ri.angB;
   const Vec3& mlin = sideJ == 0 ? rj.mLinA : rj.mLinB;
   const Vec3& mang = sideJ == 0 ? rj.mAngA : rj.mAngB;
   return double(dot(lin, mlin)) + double(dot(ang, mang));
 }
-
-}  // namespace
 
 void EqualityLdl::analyze(const Solver& s) {
   rows_.clear();
@@ -43,7 +37,7 @@ void EqualityLdl::assemble(const Solver& s) {
     for (const auto& [i, si] : list)
       for (const auto& [j, sj] : list)
         triplets_.emplace_back(int(i), int(j),
-                               coupling(s.rows[rows_[i]], si, s.rows[rows_[j]], sj));
+                               rowCoupling(s.rows[rows_[i]], si, s.rows[rows_[j]], sj));
   }
   // A little regularization keeps redundant joints (closed loops, two welds in parallel)
   // factorable; relative to the diagonal so it means the same at any mass.

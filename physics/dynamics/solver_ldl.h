@@ -12,6 +12,11 @@
 
 namespace phys {
 
+/// J_i . M^-1 J_j^T restricted to one body: row i's Jacobian on that body times row j's
+/// M^-1 J^T on it. `sideI`/`sideJ`: 0 = the body is the row's A, 1 = its B. Summed over the
+/// dynamic bodies two rows share, the entry (i, j) of A = J M^-1 J^T.
+double rowCoupling(const Row& ri, int sideI, const Row& rj, int sideJ);
+
 class EqualityLdl {
  public:
   /// Collects the equality rows of the solver and analyses A's sparsity pattern (once per

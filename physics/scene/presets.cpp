@@ -109,6 +109,8 @@ Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path, 
       st = readNumber(v, p, &s.restitutionThreshold);
     else if (k == "tolerance")
       st = readNumber(v, p, &s.tolerance);
+    else if (k == "direct_contact_ratio")
+      st = readNumber(v, p, &s.directContactRatio);
     else if (k == "warm_start" || k == "restitution" || k == "block_contacts" ||
              k == "geometric_stiffness" || k == "split_pushout" || k == "patch_friction" ||
              k == "stack_stiffening") {
@@ -167,6 +169,7 @@ nlohmann::json solverSettingsToJson(const SolverSettings& s) {
           {"split_pushout", s.splitPushout},
           {"patch_friction", s.patchFriction},
           {"stack_stiffening", s.stackStiffening},
+          {"direct_contact_ratio", s.directContactRatio},
           {"geometric_stiffness", s.geometricStiffness},
           {"restitution_threshold", s.restitutionThreshold},
           {"equality", enumName(kEqualitySolves, s.equalitySolve)},

@@ -56,10 +56,10 @@ static_assert(std::numeric_limits<float>::is_iec559 && std::numeric_limits<doubl
 // bumped), or snapshots silently lose it and restored worlds diverge. The sizes catch most
 // additions; they are only checked where they were measured (libstdc++, 64-bit).
 #if defined(__GLIBCXX__) && UINTPTR_MAX == UINT64_MAX
-static_assert(sizeof(SolverSettings) == 84, "SolverSettings changed: update snapshot.cpp");
+static_assert(sizeof(SolverSettings) == 88, "SolverSettings changed: update snapshot.cpp");
 // WorldDef's backend and gpuAllowCpuDevice are not saved: where a world runs is the
 // restoring process's choice.
-static_assert(sizeof(WorldDef) == 160, "WorldDef changed: update snapshot.cpp");
+static_assert(sizeof(WorldDef) == 164, "WorldDef changed: update snapshot.cpp");
 static_assert(sizeof(StepStats) == 200, "StepStats changed: update snapshot.cpp");
 static_assert(sizeof(BodyRec) == 352, "BodyRec changed: update snapshot.cpp");
 static_assert(sizeof(ShapeGeom) == 56, "ShapeGeom changed: update snapshot.cpp");
@@ -72,8 +72,9 @@ static_assert(sizeof(ConvexHull) == 112, "ConvexHull changed: update snapshot.cp
 
 constexpr char kMagic[8] = {'P', 'H', 'Y', 'S', 'N', 'A', 'P', '\0'};
 // 2: SolverSettings::patchFriction; 3: stackStiffening; 4: WorldDef::maxContactPairs and
-// pairOverflow, and the pair bound's, failed and refused steps' StepStats.
-constexpr uint32_t kVersion = 5;
+// pairOverflow, and the pair bound's, failed and refused steps' StepStats; 6:
+// SolverSettings::directContactRatio.
+constexpr uint32_t kVersion = 6;
 constexpr size_t kHeaderSize = 8 + 4 + 8 + 8;
 constexpr int kMaxGuardRetries = 1000;
 
@@ -462,6 +463,7 @@ void ioSolver(Ar& ar, D& s) {
   ar.flag(s.geometricStiffness);
   ar.flag(s.patchFriction);
   ar.flag(s.stackStiffening);
+  ar.f32(s.directContactRatio);
 }
 
 template <class Ar, class D>

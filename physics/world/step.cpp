@@ -177,8 +177,11 @@ void World::stepOnce(int substeps) {
     }
   }
   const float equalityBias = Solver::equalityBiasRate(s, h);
+  const bool directContacts = !w.directContacts.empty();
   auto iterate = [&](bool useBias) {
-    float change = solver.solveIteration(s, h, useBias, direct);
+    float change = solver.solveIteration(s, h, useBias, direct, directContacts);
+    if (directContacts)
+      change = std::max(change, w.directContacts.solve(solver, Solver::contactRule(s, h, useBias)));
     if (direct) change = std::max(change, w.ldl.solve(solver, equalityBias, useBias));
     return change;
   };
@@ -841,21 +844,35 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   // Built serially: building them in parallel needs the vector sized first, and
   // value-initializing 28,000 rows of 160 bytes (pyramid_40) cost more than the parallel
   // build saved.
-  const bool vectorized =
-      vectorizedContacts() && s.scheme == SolverSettings::Scheme::GaussSeidel && !s.blockContacts &&
-      !s.splitPushout &&
-      (s.positionPass == SolverSettings::PositionPass::None || s.positionIterations == 0);
   uint32_t halfEnd[2] = {};
   const bool halves = orderContacts(s, halfEnd);
+  // Mass-ratio islands' normal rows are solved directly, which needs rows: such a step is
+  // the scalar solve (bit-identical to the wide blocks).
+  const bool directContactsNeeded = findDirectContactIslands(s);
+  const bool vectorized =
+      vectorizedContacts() && s.scheme == SolverSettings::Scheme::GaussSeidel && !s.blockContacts &&
+      !s.splitPushout && !directContactsNeeded &&
+      (s.positionPass == SolverSettings::PositionPass::None || s.positionIterations == 0);
   manifoldContact.clear();
-  for (uint32_t ci : contactOrder) {
-    Contact& c = contacts[ci];
+  std::vector<std::vector<uint32_t>> directRows;  // per island, its normal rows
+  std::vector<int32_t> islandSlot(directContactsNeeded ? solver.bodies.size() : 0, -1);
+  for (size_t k = 0; k < contactOrder.size(); ++k) {
+    Contact& c = contacts[contactOrder[k]];
     if (vectorized) {
-      manifoldContact.push_back(ci);
+      manifoldContact.push_back(contactOrder[k]);
       continue;
     }
     c.firstRow = int32_t(solver.rows.size());
     contactRowsOf(c, solverManifold(c, s));
+    if (directContactsNeeded && directIsland[k] >= 0) {
+      int32_t& slot = islandSlot[size_t(directIsland[k])];
+      if (slot < 0) {
+        slot = int32_t(directRows.size());
+        directRows.emplace_back();
+      }
+      for (int p = 0; p < c.manifold.count; ++p)
+        directRows[size_t(slot)].push_back(uint32_t(c.firstRow + p));
+    }
   }
   // Every field of a manifold is assigned below: resizing without a clear spares zeroing
   // the entries that were there last step.
@@ -876,7 +893,57 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
     wide.build(solver, manifolds, halves ? halfEnd : nullptr);
   else
     wide.clear();
+  directContacts.setup(solver, std::move(directRows));
   stats.vectorizedManifolds = int(manifolds.size());
+}
+
+bool World::Impl::findDirectContactIslands(const SolverSettings& s) {
+  directIsland.assign(contactOrder.size(), -1);
+  if (!(s.directContactRatio > 0) || s.scheme == SolverSettings::Scheme::Jacobi) return false;
+  // Islands over the awake dynamic bodies (solver indices; static and kinematic bodies join
+  // none), and which of them hold a touching pair of mass ratio directContactRatio or more.
+  std::vector<int32_t> parent(solver.bodies.size());
+  for (size_t i = 0; i < parent.size(); ++i) parent[i] = int32_t(i);
+  auto find = [&](int32_t x) {
+    while (parent[size_t(x)] != x) x = parent[size_t(x)] = parent[size_t(parent[size_t(x)])];
+    return x;
+  };
+  auto dynamicIndex = [&](BodyId id) {
+    const BodyRec& b = bodies.at(id.index);
+    return b.type == BodyType::Dynamic && b.solverIndex > 0 ? b.solverIndex : 0;
+  };
+  std::vector<std::pair<int32_t, int32_t>> heavyPairs;
+  for (uint32_t ci : contactOrder) {
+    const Contact& c = contacts[ci];
+    const int32_t a = dynamicIndex(c.bodyA), b = dynamicIndex(c.bodyB);
+    if (a == 0 || b == 0) continue;
+    parent[size_t(find(a))] = find(b);
+    const float ma = bodies.at(c.bodyA.index).mass, mb = bodies.at(c.bodyB.index).mass;
+    if (std::max(ma, mb) >= s.directContactRatio * std::min(ma, mb)) heavyPairs.push_back({a, b});
+  }
+  if (heavyPairs.empty()) return false;
+  // Normal rows per island (contacts with static bodies count for their dynamic body's).
+  std::vector<int32_t> rowsOf(solver.bodies.size(), -1);  // -1: not a mass-ratio island
+  for (const auto& [a, b] : heavyPairs) rowsOf[size_t(find(a))] = 0;
+  std::vector<int32_t> root(contactOrder.size(), 0);
+  for (size_t k = 0; k < contactOrder.size(); ++k) {
+    const Contact& c = contacts[contactOrder[k]];
+    int32_t d = dynamicIndex(c.bodyA);
+    if (d == 0) d = dynamicIndex(c.bodyB);
+    if (d == 0) continue;
+    root[k] = find(d);
+    if (rowsOf[size_t(root[k])] >= 0) rowsOf[size_t(root[k])] += c.manifold.count;
+  }
+  bool any = false;
+  for (size_t k = 0; k < contactOrder.size(); ++k) {
+    const int32_t r = root[k];
+    if (r == 0 || rowsOf[size_t(r)] < 0 ||
+        rowsOf[size_t(r)] > SolverSettings::kDirectContactMaxRows)
+      continue;
+    directIsland[k] = r;
+    any = true;
+  }
+  return any;
 }
 
 bool World::Impl::orderContacts(const SolverSettings& s, uint32_t halfEnd[2]) {

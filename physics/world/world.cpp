@@ -161,6 +161,8 @@ Status World::validate(const SolverSettings& s) {
       s.equalitySolve == SolverSettings::EqualitySolve::DirectLdl)
     return invalid("solver: equality direct_ldl needs a Gauss-Seidel scheme");
   if (!finite(s.tolerance) || s.tolerance < 0) return invalid("solver.tolerance must be >= 0");
+  if (!finite(s.directContactRatio) || (s.directContactRatio != 0 && s.directContactRatio < 1))
+    return invalid("solver.direct_contact_ratio must be 0 (never) or >= 1");
   return Status::Ok();
 }
 

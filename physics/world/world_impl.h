@@ -13,6 +13,7 @@
 #include "phys/collision/broadphase.h"
 #include "phys/world/world.h"
 #include "dynamics/solver.h"
+#include "dynamics/solver_contact_direct.h"
 #include "dynamics/solver_ldl.h"
 #include "dynamics/solver_wide.h"
 #include "dynamics/stacks.h"
@@ -164,6 +165,11 @@ struct World::Impl {
   std::vector<Vec3> solverCom;
   std::vector<uint8_t> solverHalf;
   EqualityLdl ldl;  ///< the joints' direct solve (equality = direct_ldl)
+  /// The contact normal rows of mass-ratio islands, solved directly (directContactRatio).
+  DirectContacts directContacts;
+  /// Per entry of contactOrder: the mass-ratio island whose direct solve takes its normal
+  /// rows (a solver body index, the island's root), or -1.
+  std::vector<int32_t> directIsland;
   Snapshot snapshot;
   // Islands and sleeping (islands.cpp).
   /// Slots of the bodies the step moves (not static, not asleep), ascending: every per-body
@@ -262,6 +268,10 @@ struct World::Impl {
   std::vector<StackLevel> stackModel;
   /// Fills contactOrder; with halves (solver_wide.h) returns true and where the halves' end.
   bool orderContacts(const SolverSettings& s, uint32_t halfEnd[2]);
+  /// Finds the islands of contactOrder's contacts in which a dynamic body touches one
+  /// directContactRatio times lighter or heavier, small enough for the direct solve, and
+  /// fills directIsland. Returns whether there are any.
+  bool findDirectContactIslands(const SolverSettings& s);
   void buildSolverBodies(const SolverSettings& s);  ///< s: this step's (substeps may differ)
   /// Joints' geometric stiffness added to the solver bodies' inertia (substep h).
   void addGeometricStiffness(float h);

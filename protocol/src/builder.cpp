@@ -183,6 +183,7 @@ Offset<wire::SolverSettings> writeSolver(Fbb& fbb, const SolverOverrides& s) {
   if (s.splitPushout) b.add_split_pushout(*s.splitPushout);
   if (s.patchFriction) b.add_patch_friction(*s.patchFriction);
   if (s.stackStiffening) b.add_stack_stiffening(*s.stackStiffening);
+  if (s.directContactRatio) b.add_direct_contact_ratio(*s.directContactRatio);
   return b.Finish();
 }
 
@@ -216,7 +217,7 @@ Offset<wire::LimitsInfo> writeLimits(Fbb& fbb, const Limits& l) {
 // (SolverSettings, appended at the end), SolverOverrides and its from()/empty(),
 // detail::writeSolver, convert.cpp (toOverrides, applyOverrides), the decoder's range check
 // and docs/PROTOCOL.md; then update the size here.
-static_assert(sizeof(phys::SolverSettings) == 84,
+static_assert(sizeof(phys::SolverSettings) == 88,
               "phys::SolverSettings changed: mirror the change in the protocol (see comment)");
 
 SolverOverrides SolverOverrides::from(const phys::SolverSettings& s) {
@@ -247,6 +248,7 @@ SolverOverrides SolverOverrides::from(const phys::SolverSettings& s) {
   o.splitPushout = s.splitPushout;
   o.patchFriction = s.patchFriction;
   o.stackStiffening = s.stackStiffening;
+  o.directContactRatio = s.directContactRatio;
   return o;
 }
 
@@ -256,7 +258,7 @@ bool SolverOverrides::empty() const {
          !stabilization && !baumgarte && !contactHertz && !contactDampingRatio && !jointHertz &&
          !jointDampingRatio && !maxPushout && !linearSlop && !warmStart && !restitution &&
          !restitutionThreshold && !equalitySolve && !blockContacts && !geometricStiffness &&
-         !splitPushout && !patchFriction && !stackStiffening;
+         !splitPushout && !patchFriction && !stackStiffening && !directContactRatio;
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -154,6 +154,7 @@ SolverOverrides toOverrides(const wire::SolverSettings& in) {
   if (auto v = in.split_pushout()) o.splitPushout = *v;
   if (auto v = in.patch_friction()) o.patchFriction = *v;
   if (auto v = in.stack_stiffening()) o.stackStiffening = *v;
+  if (auto v = in.direct_contact_ratio()) o.directContactRatio = *v;
   return o;
 }
 
@@ -184,6 +185,7 @@ void applyOverrides(const SolverOverrides& o, phys::SolverSettings* s) {
   if (o.splitPushout) s->splitPushout = *o.splitPushout;
   if (o.patchFriction) s->patchFriction = *o.patchFriction;
   if (o.stackStiffening) s->stackStiffening = *o.stackStiffening;
+  if (o.directContactRatio) s->directContactRatio = *o.directContactRatio;
 }
 
 void applySolverSettings(const wire::SolverSettings& in, phys::SolverSettings* out) {

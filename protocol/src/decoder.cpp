@@ -26,6 +26,7 @@ namespace {
 using flatbuffers::Vector;
 
 using detail::kMaxDampingRatio;
+using detail::kMaxDirectContactRatio;
 using detail::kMaxHertz;
 using detail::num;
 using detail::ValueRules;
@@ -484,7 +485,8 @@ bool Checker::solver(const wire::SolverSettings& s, int* fieldsSet) {
             pos(s.max_pushout(), lim.maxLinearSpeed, "max_pushout") &&
             f32(s.linear_slop(), 0, lim.maxSize, "linear_slop") &&
             f32(s.restitution_threshold(), 0, lim.maxLinearSpeed, "restitution_threshold") &&
-            en(s.equality_solve(), wire::EqualitySolve::MAX, "equality_solve", "EqualitySolve");
+            en(s.equality_solve(), wire::EqualitySolve::MAX, "equality_solve", "EqualitySolve") &&
+            f32(s.direct_contact_ratio(), 0, kMaxDirectContactRatio, "direct_contact_ratio");
   if (!ok) return false;
   flag(s.warm_start());
   flag(s.restitution());

@@ -16,6 +16,7 @@ namespace phys::protocol::detail {
 /// Bounds with no Limits field of their own (documented in docs/PROTOCOL.md).
 inline constexpr float kMaxHertz = 1e6f;         ///< spring, contact and joint stiffness, Hz
 inline constexpr float kMaxDampingRatio = 1e6f;  ///< spring, contact and joint damping ratios
+inline constexpr float kMaxDirectContactRatio = 1e6f;  ///< SolverSettings::directContactRatio
 
 inline std::string num(double v) {
   char buf[32];

@@ -293,6 +293,7 @@ TEST(ProtocolRoundTrip, MaterialAndSolver) {
   full.splitPushout = true;
   full.patchFriction = true;
   full.stackStiffening = false;  // the default is true
+  full.directContactRatio = 50;
   auto f = mustDecode(CommandBuilder().setSolver("", SolverOverrides::from(full)).finish(header()));
   phys::SolverSettings got;
   applySolverSettings(*f->request_as_SetSolver()->settings(), &got);
@@ -309,6 +310,7 @@ TEST(ProtocolRoundTrip, MaterialAndSolver) {
   EXPECT_EQ(got.splitPushout, true);
   EXPECT_EQ(got.patchFriction, true);
   EXPECT_EQ(got.stackStiffening, false);
+  EXPECT_EQ(got.directContactRatio, 50.0f);
   EXPECT_EQ(got.contactHertz, full.contactHertz);
 }
 

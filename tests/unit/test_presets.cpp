@@ -28,6 +28,7 @@ TEST(Presets, ShippedFileLoadsAndItsDefaultExists) {
   EXPECT_EQ(s.maxPushout, d.maxPushout);
   EXPECT_EQ(s.splitPushout, d.splitPushout);
   EXPECT_EQ(s.stackStiffening, d.stackStiffening);
+  EXPECT_EQ(s.directContactRatio, d.directContactRatio);
   EXPECT_EQ(s.equalitySolve, d.equalitySolve);
   EXPECT_EQ(s.patchFriction, d.patchFriction);
   EXPECT_EQ(s.geometricStiffness, d.geometricStiffness);
@@ -52,6 +53,13 @@ TEST(Presets, BadFieldsAreRejectedWithTheirPath) {
   EXPECT_FALSE(parse(R"({"substepz": 2})").ok());
   EXPECT_FALSE(parse(R"({"stabilization": "stiff"})").ok());
   EXPECT_FALSE(parse(R"({"warm_start": 1})").ok());
+  EXPECT_TRUE(parse(R"({"direct_contact_ratio": 0})").ok());
+  st = parse(R"({"direct_contact_ratio": 0.5})");
+  EXPECT_NE(st.message.find("direct_contact_ratio must be 0 (never) or >= 1"), std::string::npos)
+      << st.message;
+  // The Jacobi scheme has no direct contacts and ignores the ratio (as the GPU backend does).
+  EXPECT_TRUE(
+      parse(R"({"scheme": "jacobi", "equality": "iterative", "direct_contact_ratio": 10})").ok());
   EXPECT_FALSE(parsePresets("{", "p.json", &presets, nullptr).ok());
   EXPECT_FALSE(
       parsePresets(R"({"default": "zz", "presets": {"a": {}}})", "p.json", &presets, nullptr).ok());

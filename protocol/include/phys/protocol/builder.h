@@ -74,6 +74,7 @@ struct SolverOverrides {
   std::optional<bool> splitPushout;
   std::optional<bool> patchFriction;
   std::optional<bool> stackStiffening;
+  std::optional<float> directContactRatio;
 
   /// Every field set from s.
   static SolverOverrides from(const phys::SolverSettings& s);

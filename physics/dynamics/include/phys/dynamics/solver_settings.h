@@ -59,6 +59,17 @@ struct SolverSettings {
   bool restitution = true;
   float restitutionThreshold = 1;  ///< m/s, approach speed below which no bounce
   EqualitySolve equalitySolve = EqualitySolve::DirectLdl;
+  /// Direct contacts: an island of touching bodies in which a dynamic body touches one this
+  /// many times lighter (or heavier) has its contact normal rows solved all together and
+  /// exactly, as rigid rows, by an active-set Cholesky solve inside every Gauss-Seidel
+  /// iteration (solver_contact_direct.h); friction stays iterated. Iteration alone cannot
+  /// carry a 1000:1 load (a light body between a heavy one and the ground passes on about
+  /// 1/ratio of the missing impulse per sweep), and a soft contact's compliance, relative to
+  /// its own effective mass, lets a light body's ground contact sag ratio times as far.
+  /// 0: never. Islands with more than kDirectContactMaxRows normal rows are iterated. The
+  /// Jacobi scheme and the GPU backend ignore it (they iterate every contact).
+  float directContactRatio = 10;
+  static constexpr int kDirectContactMaxRows = 256;
   /// Contact block solve: the 2-4 normal rows of a manifold solved together as one small LCP
   /// in every biased iteration (soft stabilization; speculative manifolds go row by row).
   bool blockContacts = false;

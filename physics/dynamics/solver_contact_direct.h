@@ -1,0 +1,76 @@
+// Direct contacts: the contact normal rows of an island where a heavy body rests on light
+// ones, solved all together and exactly inside every Gauss-Seidel iteration (the joints'
+// LDL hybrid, solver_ldl.h, carried over to contacts). Iteration cannot carry such a load: a
+// light body between a 1000 kg-times-heavier one and the ground passes on about 1/ratio of
+// the missing impulse per sweep, so the heavy body sinks through it or squeezes it out.
+//
+// The rows are unilateral, so the solve is an active-set one: the rows in the set are
+// rigid, (A + eps D) dlambda = -(J v + bias), with A = J M^-1 J^T, D its diagonal and bias the
+// iteration's (the soft contacts' position correction rate, or none in the relax pass); a
+// row whose impulse would turn negative leaves the set at zero, a row outside it that would
+// still approach joins it, until neither happens (the first passes change every violating
+// row at once, later ones only the first: Murty's least-index rule, which cannot cycle).
+// Rigid, not soft: a soft row's compliance is relative to its own effective mass, so the
+// ground contact of a light body under a load R times its mass would sag R times as far
+// (3 cm at 1000:1 and 90 Hz). eps = 1e-3 keeps redundant rows (a face's four points, which
+// three directions separate; piles with more rows than degrees of freedom) factorable and
+// their slightly inconsistent biases from turning into large impulses; it costs a steady
+// error of about 1e-3 of the row's impulse times its inverse effective mass, corrected by
+// the bias (measured: 6 um of penetration under a 1000:1 load).
+// A is fixed for the step (contact rows do not change inside one), so the factorization of
+// an active set is kept and reused while the set holds. Friction stays iterated, bounded by
+// the exact normal impulses.
+#pragma once
+
+#include <Eigen/Dense>
+#include <vector>
+
+#include "dynamics/solver.h"
+
+namespace phys {
+
+class DirectContacts {
+ public:
+  /// Takes the islands' normal rows (solver row indices, a list per island), flags them
+  /// Row::direct, and assembles each island's A from the rows' Jacobians and masses
+  /// (Solver::finishRows has run).
+  void setup(Solver& s, std::vector<std::vector<uint32_t>> islands);
+  void clear() { islands_.clear(); }
+  bool empty() const { return islands_.empty(); }
+  size_t islandCount() const { return islands_.size(); }
+  /// One exact solve of every island's normal rows under `rule` (the iteration's: biased or
+  /// relaxing, soft or Baumgarte), applied to the bodies' velocities and the rows' lambda.
+  /// Returns the largest velocity change it made to a row (the convergence measure).
+  float solve(Solver& s, const ContactRule& rule);
+
+  /// Active-set passes at most per solve (then the impulses are clamped at zero), the
+  /// first kBlockPasses of them changing the set at every violation, the others at one.
+  static constexpr int kMaxPasses = 64;
+  static constexpr int kBlockPasses = 4;
+
+ private:
+  struct Island {
+    std::vector<uint32_t> rows;
+    Eigen::MatrixXd A;            ///< J M^-1 J^T of the rows
+    std::vector<uint8_t> active;  ///< the last solve's active set (the next one's start)
+    /// Kept factorizations of M = A + Gamma restricted to an active set: two, since the
+    /// biased iterations (soft rows) and the relax pass (rigid rows) alternate.
+    struct Factor {
+      std::vector<int> set;
+      Eigen::VectorXd diag;  ///< Gamma on the set
+      Eigen::LLT<Eigen::MatrixXd> ldlt;
+      bool valid = false;
+    };
+    Factor factors[2];
+    int nextFactor = 0;
+  };
+  /// The factorization of M on set_ with compliance gamma_, kept or made.
+  const Eigen::LLT<Eigen::MatrixXd>& factorFor(Island& is);
+  float solveIsland(Solver& s, Island& is, const ContactRule& rule);
+  std::vector<Island> islands_;
+  // Scratch.
+  Eigen::VectorXd gamma_, residual_, x_, rhs_, xs_;
+  std::vector<int> set_;
+};
+
+}  // namespace phys
