@@ -220,7 +220,11 @@ void World::stepOnce(int substeps) {
   }
   {
     StageTimer t(&p.restitution);
-    if (s.restitution) solver.applyRestitution(s.restitutionThreshold);
+    if (s.restitution) {
+      w.beforeRestitution.assign(solver.bodies.begin(), solver.bodies.end());
+      solver.applyRestitution(s.restitutionThreshold);
+      w.limitRestitutionEnergy(w.beforeRestitution);
+    }
   }
   if (w.wide.active) {
     StageTimer t(&p.storeImpulses);
@@ -895,6 +899,97 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
     wide.clear();
   directContacts.setup(solver, std::move(directRows));
   stats.vectorizedManifolds = int(manifolds.size());
+}
+
+int World::Impl::limitRestitutionEnergy(const std::vector<Velocity>& before) {
+  // Restitution sets each touching point's separation speed from its approach speed, point by
+  // point and in sequence; a body hit while it touches others (a row of balls, a cluster) can
+  // so leave with more energy than the impact brought (measured: 6 % of random elastic
+  // configurations, up to +17 %). Whatever the points ask, an impact with restitution at most
+  // 1 cannot end with more kinetic energy than it started with: the velocities after the pass
+  // are v(a) = v_before + a dv, and the largest a in [0, 1] whose island energy stays within
+  // the budget is taken (the energy is quadratic in a).
+  const size_t n = solver.bodies.size();
+  std::vector<uint8_t> changed(n, 0);
+  bool any = false;
+  for (size_t i = 1; i < n; ++i) {
+    const SolverBody& b = solver.bodies[i];
+    if (!b.dynamic) continue;
+    const Velocity& v0 = before[i];
+    if (b.v.x != v0.v.x || b.v.y != v0.v.y || b.v.z != v0.v.z || b.w.x != v0.w.x ||
+        b.w.y != v0.w.y || b.w.z != v0.w.z)
+      changed[i] = 1, any = true;
+  }
+  if (!any) return 0;
+  // Islands over the touching dynamic bodies: energy moves through every contact.
+  std::vector<int32_t> parent(n);
+  for (size_t i = 0; i < n; ++i) parent[i] = int32_t(i);
+  auto find = [&](int32_t x) {
+    while (parent[size_t(x)] != x) x = parent[size_t(x)] = parent[size_t(parent[size_t(x)])];
+    return x;
+  };
+  for (uint32_t ci : contactOrder) {
+    const Contact& c = contacts[ci];
+    const int32_t a = bodies.at(c.bodyA.index).solverIndex, b = bodies.at(c.bodyB.index).solverIndex;
+    if (a > 0 && b > 0 && solver.bodies[size_t(a)].dynamic && solver.bodies[size_t(b)].dynamic)
+      parent[size_t(find(a))] = find(b);
+  }
+  std::vector<uint8_t> hit(n, 0);  // roots of islands with a changed body
+  for (size_t i = 1; i < n; ++i)
+    if (changed[i]) hit[size_t(find(int32_t(i)))] = 1;
+  // Per island: the budget (kinetic energy at the step's start plus the work of gravity and
+  // applied forces over the step) and the energy after the pass, q2 a^2 + q1 a + q0.
+  struct Sums {
+    double budget = 0, q0 = 0, q1 = 0, q2 = 0;
+  };
+  std::vector<Sums> sums(n);
+  for (size_t i = 1; i < n; ++i) {
+    const SolverBody& sb = solver.bodies[i];
+    if (!sb.dynamic) continue;
+    const int32_t root = find(int32_t(i));
+    if (!hit[size_t(root)]) continue;
+    const BodyRec& b = bodies.at(awakeBodies[i - 1]);
+    const double m = b.mass;
+    auto rot = [&](Quat q, Vec3 u, Vec3 v) {  // u^T I v, world vectors, I at orientation q
+      return double(dot(invRotate(q, u), b.inertiaLocal * invRotate(q, v)));
+    };
+    Sums& s = sums[size_t(root)];
+    s.budget += 0.5 * m * double(dot(b.v, b.v)) + 0.5 * rot(b.xf.q, b.w, b.w) +
+                m * double(dot(sb.linearAccel, sb.dp)) + double(dot(sb.torque, sb.dtheta));
+    const Velocity& v0 = before[i];
+    const Vec3 dv = sb.v - v0.v, dw = sb.w - v0.w;
+    s.q0 += 0.5 * m * double(dot(v0.v, v0.v)) + 0.5 * rot(sb.q, v0.w, v0.w);
+    s.q1 += m * double(dot(v0.v, dv)) + rot(sb.q, v0.w, dw);
+    s.q2 += 0.5 * m * double(dot(dv, dv)) + 0.5 * rot(sb.q, dw, dw);
+  }
+  std::vector<float> scale(n, 1.0f);
+  int scaled = 0;
+  for (size_t r = 1; r < n; ++r) {
+    if (!hit[r]) continue;
+    const Sums& s = sums[r];
+    const double limit = s.budget + 1e-9 * std::fabs(s.budget);
+    if (s.q2 + s.q1 + s.q0 <= limit) continue;
+    // The largest a in [0, 1] with q2 a^2 + q1 a + q0 <= limit; when even a = 0 is over (the
+    // solve itself ended above the budget), the a of least energy.
+    double a = 0;
+    const double disc = s.q1 * s.q1 - 4 * s.q2 * (s.q0 - limit);
+    if (s.q2 > 0 && disc >= 0 && s.q0 <= limit)
+      a = (-s.q1 + std::sqrt(disc)) / (2 * s.q2);
+    else if (s.q2 > 0)
+      a = -s.q1 / (2 * s.q2);
+    scale[r] = float(std::clamp(a, 0.0, 1.0));
+    ++scaled;
+  }
+  if (scaled == 0) return 0;
+  for (size_t i = 1; i < n; ++i) {
+    if (!changed[i]) continue;
+    const float a = scale[size_t(find(int32_t(i)))];
+    if (a == 1) continue;
+    SolverBody& sb = solver.bodies[i];
+    sb.v = before[i].v + (sb.v - before[i].v) * a;
+    sb.w = before[i].w + (sb.w - before[i].w) * a;
+  }
+  return scaled;
 }
 
 bool World::Impl::findDirectContactIslands(const SolverSettings& s) {

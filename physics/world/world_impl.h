@@ -272,6 +272,12 @@ struct World::Impl {
   /// directContactRatio times lighter or heavier, small enough for the direct solve, and
   /// fills directIsland. Returns whether there are any.
   bool findDirectContactIslands(const SolverSettings& s);
+  /// After the restitution pass: in each island of touching bodies whose velocities the pass
+  /// changed (`before`: the solver bodies' velocities before it), scales the pass's velocity
+  /// changes down, where needed, so that the island's kinetic energy ends no higher than at
+  /// the step's start plus the work its forces did over the step. Returns the islands scaled.
+  int limitRestitutionEnergy(const std::vector<Velocity>& before);
+  std::vector<Velocity> beforeRestitution;
   void buildSolverBodies(const SolverSettings& s);  ///< s: this step's (substeps may differ)
   /// Joints' geometric stiffness added to the solver bodies' inertia (substep h).
   void addGeometricStiffness(float h);
