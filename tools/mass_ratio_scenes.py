@@ -1,3 +1,7 @@
+#!/usr/bin/env python3
+"""Writes configs/scenes/mass_ratio_{10,100,1000}.json (issue 23): heavy bodies carried by
+light ones at R:1, four setups side by side (a column, a plate on four supports, a beam on two,
+a cube on a pile). Run from the repository root: python3 tools/mass_ratio_scenes.py"""
 import json, sys
 def box(name, pos, he, mass=None):
     b = {"name": name, "position": pos, "shapes": [{"type": "box", "half_extents": he}]}
