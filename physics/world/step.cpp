@@ -904,8 +904,8 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
 int World::Impl::limitRestitutionEnergy(const std::vector<Velocity>& before) {
   // Restitution sets each touching point's separation speed from its approach speed, point by
   // point and in sequence; a body hit while it touches others (a row of balls, a cluster) can
-  // so leave with more energy than the impact brought (measured: 6 % of random elastic
-  // configurations, up to +17 %). Whatever the points ask, an impact with restitution at most
+  // so leave with more energy than the impact brought (measured with the default: 5.2 % of
+  // 1000 random elastic configurations; +60 % on a struck row of five balls). Whatever the points ask, an impact with restitution at most
   // 1 cannot end with more kinetic energy than it started with: the velocities after the pass
   // are v(a) = v_before + a dv, and the largest a in [0, 1] whose island energy stays within
   // the budget is taken (the energy is quadratic in a).
