@@ -14,6 +14,18 @@ void DirectContacts::setup(Solver& s, std::vector<std::vector<uint32_t>> islands
   std::vector<std::pair<int32_t, std::pair<int, int>>> refs;  // (body, (row, side))
   for (std::vector<uint32_t>& rows : islands) {
     Island is;
+    // Islands at rest only: one with a row approaching faster than kImpactSpeed at the step's
+    // start, or deeper than the split push-out's depth (bodies spawned into each other), is
+    // iterated that step. Solved exactly, a heavy body landing on a light one stops
+    // dead in one substep, and the light body's friction, bounded by that impulse and still
+    // iterated, can throw it; solving only the resting rows directly leaves the impact's
+    // iterated rows and the exact ones fighting over the light body (measured: 23 and 7 of
+    // 1000 stress runs failed against 3 iterated).
+    bool impact = false;
+    for (uint32_t i : rows)
+      impact |= s.rowVelocity(s.rows[i]) < -kImpactSpeed ||
+                s.rows[i].C0 < -SolverSettings::kSplitDepth;
+    if (impact) continue;
     is.rows = std::move(rows);
     const int n = int(is.rows.size());
     // Rows meet through the dynamic bodies they share; the world and kinematic bodies

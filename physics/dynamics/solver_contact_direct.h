@@ -47,6 +47,8 @@ class DirectContacts {
   /// first kBlockPasses of them changing the set at every violation, the others at one.
   static constexpr int kMaxPasses = 64;
   static constexpr int kBlockPasses = 4;
+  /// m/s: rows approaching faster than this at the step's start (impacts) stay iterated.
+  static constexpr float kImpactSpeed = 1;
 
  private:
   struct Island {

@@ -515,6 +515,48 @@ TEST(ProtocolReject, ExactlyOneOf) {
                "step.count must be >= 1, got 0");
 }
 
+TEST(ProtocolReject, EdgeCasesAsDocumented) {
+  // docs/PROTOCOL.md, "Edge cases": one check per row, in the table's order.
+  // A required vector present but empty.
+  expectReject(CommandBuilder().spawnBodies({}).finish(header()), Code::InvalidArgument,
+               "spawn_bodies.bodies must not be empty");
+  // A zero id where an id is expected.
+  std::vector<uint64_t> zero = {0};
+  expectReject(CommandBuilder().removeJoints(zero).finish(header()), Code::InvalidArgument,
+               "remove_joints.joints[0] must be a non-zero id");
+  expectReject(CommandBuilder().pause().finish({0, 1, kWorld}), Code::InvalidArgument,
+               "command.client_id must be non-zero");
+  expectReject(CommandBuilder().pause().finish(header(1, 0)), Code::InvalidArgument,
+               "command.world must name a world for pause");
+  // Step 0, and over the limit.
+  expectReject(CommandBuilder().step(0).finish(header()), Code::InvalidArgument,
+               "step.count must be >= 1, got 0");
+  expectReject(CommandBuilder().step(100001).finish(header()), Code::ResourceExhausted,
+               "step.count is 100001, the limit is 100000");
+  // A name over its byte limit, and a required name absent or empty.
+  auto createWorld = [](const std::string& name) {
+    return CommandBuilder().createWorld({name, "", {}, 0, ""}).finish(header(1, 0));
+  };
+  expectReject(createWorld(std::string(257, 'w')), Code::ResourceExhausted,
+               "create_world.name is 257 bytes, the limit is 256");
+  EXPECT_TRUE(decodeCommand(createWorld(std::string(256, 'w'))).ok());
+  expectReject(createWorld(""), Code::InvalidArgument, "create_world.name must be given");
+  CommandBuilder cw;
+  auto empty = cw.fbb().CreateString("");
+  expectReject(cw.raw(wire::Request::CreateWorld, wire::CreateCreateWorld(cw.fbb(), empty).Union())
+                   .finish(header(1, 0)),
+               Code::InvalidArgument, "create_world.name must not be empty");
+  // A required sub-table missing.
+  CommandBuilder cb;
+  auto ids = cb.fbb().CreateVector(std::vector<uint64_t>{4});
+  expectReject(
+      cb.raw(wire::Request::SetMaterial, wire::CreateSetMaterial(cb.fbb(), ids, 0).Union())
+          .finish(header()),
+      Code::InvalidArgument, "set_material.material must be given");
+  // The request missing, or its table.
+  expectReject(CommandBuilder().finish(header()), Code::Malformed, "command.request is missing");
+}
+
 // ---------------------------------------------------------------------------------------------
 // Counts
 

@@ -406,6 +406,27 @@ TEST_F(CoreTest, SnapshotBytesRoundTripIsExact) {
   EXPECT_EQ(fingerprint(), before);
 }
 
+// Restoring into a running world is allowed (docs/PROTOCOL.md, RestoreSnapshot): the content
+// is replaced at a tick boundary and the world goes on running from the restored state.
+TEST_F(CoreTest, RestoreIntoARunningWorldKeepsItRunning) {
+  spawn({groundBody(), boxBody({0, 0, 1})});
+  ASSERT_EQ(send(CommandBuilder().step(10))->status(), Code::Ok);
+  Reply r = send(CommandBuilder().saveSnapshot());
+  ASSERT_EQ(r->status(), Code::Ok) << message(r);
+  std::vector<uint8_t> snap(r->result_as_SnapshotResult()->snapshot()->begin(),
+                            r->result_as_SnapshotResult()->snapshot()->end());
+  ASSERT_EQ(send(CommandBuilder().run(0))->status(), Code::Ok);
+  EXPECT_EQ(core.advance(0), 1u);
+  EXPECT_EQ(core.advance(0), 1u);
+  r = send(CommandBuilder().restoreSnapshot(snap));
+  ASSERT_EQ(r->status(), Code::Ok) << message(r);
+  ServerWorld* w = core.world(world);
+  EXPECT_EQ(w->tick, 10u);
+  EXPECT_EQ(w->mode, RunMode::AsFastAsPossible);
+  EXPECT_EQ(core.advance(0), 1u);
+  EXPECT_EQ(w->tick, 11u);
+}
+
 TEST_F(CoreTest, SnapshotFile) {
   spawn({groundBody(), boxBody({0, 0, 1})});
   Reply r = send(CommandBuilder().saveSnapshot("one.snap", false));
