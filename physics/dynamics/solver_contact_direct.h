@@ -4,6 +4,10 @@
 // light body between a 1000 kg-times-heavier one and the ground passes on about 1/ratio of
 // the missing impulse per sweep, so the heavy body sinks through it or squeezes it out.
 //
+// Only islands at rest: one with an impact (a row approaching faster than kImpactSpeed) or a
+// contact deeper than the split push-out's depth is iterated in that step (setup; why:
+// docs/ARCHITECTURE.md, "Islands at rest only").
+//
 // The rows are unilateral, so the solve is an active-set one: the rows in the set are
 // rigid, (A + eps D) dlambda = -(J v + bias), with A = J M^-1 J^T, D its diagonal and bias the
 // iteration's (the soft contacts' position correction rate, or none in the relax pass); a
