@@ -16,11 +16,10 @@ void DirectContacts::setup(Solver& s, std::vector<std::vector<uint32_t>> islands
     Island is;
     // Islands at rest only: one with a row approaching faster than kImpactSpeed at the step's
     // start, or deeper than the split push-out's depth (bodies spawned into each other), is
-    // iterated that step. Solved exactly, a heavy body landing on a light one stops
-    // dead in one substep, and the light body's friction, bounded by that impulse and still
-    // iterated, can throw it; solving only the resting rows directly leaves the impact's
-    // iterated rows and the exact ones fighting over the light body (measured: 23 and 7 of
-    // 1000 stress runs failed against 3 iterated).
+    // iterated that step. Solved exactly, a heavy body landing on a light one stops dead in
+    // one substep and can throw a light body under it; solving only the resting rows directly
+    // leaves the impact's iterated rows and the exact ones fighting over the light body
+    // (measured: 23 and 7 of 1000 stress runs failed against 3 iterated; ARCHITECTURE).
     bool impact = false;
     for (uint32_t i : rows)
       impact |= s.rowVelocity(s.rows[i]) < -kImpactSpeed ||
