@@ -375,18 +375,17 @@ float Solver::solveIteration(const SolverSettings& s, float h, bool useBias, boo
   IterationParams p;
   p.contact = contactRule(s, h, useBias);
   p.skipDirect = skipDirect;
+  // The contact fields the wide blocks and the contact block solve read, from the one rule.
   p.h = h;
-  p.invH = 1 / h;
-  p.soft = s.stabilization == SolverSettings::Stabilization::Soft;
-  p.contactSoft = p.soft
-                      ? makeSoftness(cappedHertz(s.contactHertz, p.invH), s.contactDampingRatio, h)
-                      : Softness{s.baumgarte * p.invH, 1, 0};
+  p.invH = p.contact.invH;
+  p.soft = p.contact.softStabilization;
+  p.contactSoft = p.contact.soft;
   p.jointSoft = p.soft ? makeSoftness(cappedHertz(s.jointHertz, p.invH), s.jointDampingRatio, h)
                        : Softness{s.baumgarte * p.invH, 1, 0};
-  p.linearSlop = s.linearSlop;
-  p.maxPushout = s.maxPushout;
+  p.linearSlop = p.contact.linearSlop;
+  p.maxPushout = p.contact.maxPushout;
   p.useBias = useBias;
-  p.splitPushout = s.splitPushout;
+  p.splitPushout = p.contact.splitPushout;
   p.skipEquality = skipEquality;
   p.measure = s.tolerance > 0;
   WideParams wp;

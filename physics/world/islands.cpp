@@ -10,7 +10,6 @@
 // solves nothing, whatever its size. See docs/ARCHITECTURE.md "Islands and sleeping".
 #include <algorithm>
 #include <cmath>
-#include <numeric>
 
 #include "phys/world/world.h"
 #include "world/world_impl.h"
@@ -300,18 +299,12 @@ void World::Impl::updateSleep(float dt) {
   // contacts with points and by joints between dynamic bodies. The root is the lowest index
   // (deterministic).
   const size_t n = awakeBodies.size();
-  islandParent.resize(n);
-  std::iota(islandParent.begin(), islandParent.end(), 0);
-  auto root = [&](int32_t i) {
-    while (islandParent[size_t(i)] != i)
-      i = islandParent[size_t(i)] = islandParent[size_t(islandParent[size_t(i)])];
-    return i;
-  };
+  islandSets.reset(n);
+  auto root = [&](int32_t i) { return islandSets.root(i); };
   auto join = [&](const BodyRec& A, const BodyRec& B) {
     if (A.type != BodyType::Dynamic || B.type != BodyType::Dynamic || !A.awake() || !B.awake())
       return;
-    const int32_t a = root(A.solverIndex - 1), b = root(B.solverIndex - 1);
-    if (a != b) islandParent[size_t(std::max(a, b))] = std::min(a, b);
+    islandSets.join(A.solverIndex - 1, B.solverIndex - 1);
   };
   auto touch = [&](BodyRec& A, BodyRec& B) {
     // Carried by a moving kinematic body: not at rest, whatever its speed.

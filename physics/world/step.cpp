@@ -922,17 +922,14 @@ int World::Impl::limitRestitutionEnergy(const std::vector<Velocity>& before) {
   }
   if (!any) return 0;
   // Islands over the touching dynamic bodies: energy moves through every contact.
-  std::vector<int32_t> parent(n);
-  for (size_t i = 0; i < n; ++i) parent[i] = int32_t(i);
-  auto find = [&](int32_t x) {
-    while (parent[size_t(x)] != x) x = parent[size_t(x)] = parent[size_t(parent[size_t(x)])];
-    return x;
-  };
+  DisjointSets sets;
+  sets.reset(n);
+  auto find = [&](int32_t i) { return sets.root(i); };
   for (uint32_t ci : contactOrder) {
     const Contact& c = contacts[ci];
     const int32_t a = bodies.at(c.bodyA.index).solverIndex, b = bodies.at(c.bodyB.index).solverIndex;
     if (a > 0 && b > 0 && solver.bodies[size_t(a)].dynamic && solver.bodies[size_t(b)].dynamic)
-      parent[size_t(find(a))] = find(b);
+      sets.join(a, b);
   }
   std::vector<uint8_t> hit(n, 0);  // roots of islands with a changed body
   for (size_t i = 1; i < n; ++i)
@@ -997,12 +994,9 @@ bool World::Impl::findDirectContactIslands(const SolverSettings& s) {
   if (!(s.directContactRatio > 0) || s.scheme == SolverSettings::Scheme::Jacobi) return false;
   // Islands over the awake dynamic bodies (solver indices; static and kinematic bodies join
   // none), and which of them hold a touching pair of mass ratio directContactRatio or more.
-  std::vector<int32_t> parent(solver.bodies.size());
-  for (size_t i = 0; i < parent.size(); ++i) parent[i] = int32_t(i);
-  auto find = [&](int32_t x) {
-    while (parent[size_t(x)] != x) x = parent[size_t(x)] = parent[size_t(parent[size_t(x)])];
-    return x;
-  };
+  DisjointSets sets;
+  sets.reset(solver.bodies.size());
+  auto find = [&](int32_t i) { return sets.root(i); };
   auto dynamicIndex = [&](BodyId id) {
     const BodyRec& b = bodies.at(id.index);
     return b.type == BodyType::Dynamic && b.solverIndex > 0 ? b.solverIndex : 0;
@@ -1012,7 +1006,7 @@ bool World::Impl::findDirectContactIslands(const SolverSettings& s) {
     const Contact& c = contacts[ci];
     const int32_t a = dynamicIndex(c.bodyA), b = dynamicIndex(c.bodyB);
     if (a == 0 || b == 0) continue;
-    parent[size_t(find(a))] = find(b);
+    sets.join(a, b);
     const float ma = bodies.at(c.bodyA.index).mass, mb = bodies.at(c.bodyB.index).mass;
     if (std::max(ma, mb) >= s.directContactRatio * std::min(ma, mb)) heavyPairs.push_back({a, b});
   }

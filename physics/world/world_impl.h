@@ -17,6 +17,7 @@
 #include "dynamics/solver_ldl.h"
 #include "dynamics/solver_wide.h"
 #include "dynamics/stacks.h"
+#include "base/disjoint_sets.h"
 #include "base/thread_pool.h"
 
 namespace phys {
@@ -181,7 +182,7 @@ struct World::Impl {
   bool lastStepOnCpu = false;  ///< the last stepOnce ran the CPU stages (not the device)
   /// Joint slots the step solves (not asleep), ascending: collectStepJoints.
   std::vector<uint32_t> stepJoints;
-  std::vector<int32_t> islandParent;  ///< updateSleep's scratch: union-find over awakeBodies
+  DisjointSets islandSets;  ///< updateSleep's scratch: union-find over awakeBodies
   std::vector<uint32_t> wakeList;     ///< wakeTouched's scratch: islands to wake
   void awakeInsert(uint32_t slot);    ///< a body became awake (created, woken, made non-static)
   void awakeErase(uint32_t slot);     ///< a body left the step (destroyed, made static)
