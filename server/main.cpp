@@ -79,9 +79,31 @@ int main(int argc, char** argv) {
     spdlog::critical("presets: {}", s.message);
     return 2;
   }
+  core.setLog([](bool error, const std::string& line) {
+    if (error)
+      spdlog::error("{}", line);
+    else
+      spdlog::info("{}", line);
+  });
+  // Durable worlds first (docs/SERVER.md "Durable worlds"): a start-up world that was kept
+  // is restored as it was, not created again.
+  if (!cfg.core.dataDir.empty()) {
+    std::vector<std::string> notes;
+    s = core.restoreWorlds(&notes);
+    for (const std::string& n : notes)
+      if (n.find("restored at tick") != std::string::npos)
+        spdlog::info("{}", n);
+      else
+        spdlog::warn("{}", n);
+    if (!s.ok()) {
+      spdlog::critical("paths.data: {}", s.message);
+      return 2;
+    }
+  }
   for (const StartupWorld& w : cfg.worlds) {
+    if (ServerWorld* kept = core.findWorld(w.name); kept && !kept->ephemeral) continue;
     uint32_t id = 0;
-    s = core.createWorld(w.name, w.preset, w.scene, &id, w.backend);
+    s = core.createWorld(w.name, w.preset, w.scene, &id, w.backend, w.ephemeral);
     if (!s.ok()) {
       spdlog::critical("world '{}': {}", w.name, s.message);
       return 2;

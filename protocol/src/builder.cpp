@@ -285,7 +285,7 @@ CommandBuilder& CommandBuilder::createWorld(const CreateWorldArgs& args) {
   wire::Vec3 g = toWire(args.gravity.value_or(phys::Vec3{}));
   return add(wire::Request::CreateWorld,
              wire::CreateCreateWorld(fbb_, name, preset, args.gravity ? &g : nullptr, args.timeStep,
-                                     backend, args.sleep)
+                                     backend, args.sleep, args.ephemeral)
                  .Union());
 }
 

@@ -894,6 +894,7 @@ Decoded<T> decodeRoot(std::span<const uint8_t> bytes, const Limits& lim, const c
     return out;
   }
   out.root = root;
+  out.bytes = std::span<const uint8_t>(data, bytes.size());
   return out;
 }
 

@@ -20,6 +20,7 @@
 #include "phys/protocol/validate.h"
 #include "phys/scene/scene.h"
 #include "phys/server/core.h"
+#include "internal.h"
 
 namespace phys::server {
 
@@ -75,6 +76,13 @@ phys::BodyDef defFromWorld(const phys::World& w, phys::BodyId id) {
   return d;
 }
 
+/// Names are checked by the codec to be plain ([A-Za-z0-9._-], no leading dot).
+std::string underDir(const std::string& dir, const std::string& name, const char* ext) {
+  return (fs::path(dir) / (name + ext)).string();
+}
+
+}  // namespace
+
 void rebuildDefs(ServerWorld& w) {
   w.bodyDefs.clear();
   w.jointDefs.clear();
@@ -85,13 +93,6 @@ void rebuildDefs(ServerWorld& w) {
     if (w.world->getJoint(id, &d, &s).ok()) w.jointDefs[id.packed()] = d;
   }
 }
-
-/// Names are checked by the codec to be plain ([A-Za-z0-9._-], no leading dot).
-std::string underDir(const std::string& dir, const std::string& name, const char* ext) {
-  return (fs::path(dir) / (name + ext)).string();
-}
-
-}  // namespace
 
 /// Whether a world edit carries the vectors and tables it must have.
 bool requiredPresent(wire::Request type, const void* t) {
@@ -483,7 +484,11 @@ Bytes ServerCore::applyBytes(std::span<const uint8_t> payload, uint64_t envelope
 }
 
 Bytes ServerCore::apply(const Incoming& in) {
-  if (in.command.ok()) return apply(*in.command, in.envelopeKey);
+  if (in.command.ok()) {
+    Bytes reply = apply(*in.command, in.envelopeKey);
+    journalApplied(in, &reply);  // on a durable server: in the world's journal, or an error
+    return reply;
+  }
   // Not decodable: answer the envelope's key and seq (the only correlation that is known).
   ++counters_.commands;
   ++counters_.errors;
@@ -522,6 +527,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
   ServerWorld* sw = nullptr;
   Bytes reply;
   auto finish = [&]() -> Bytes {
+    lastStatus_ = st;
     if (!st.ok()) ++counters_.errors;
     if (sw && ctx.header.tick == 0) ctx.header.tick = sw->tick;
     if (!reply.empty() && st.ok()) return std::move(reply);
@@ -533,6 +539,8 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
   };
 
   if (c.client_id() != envelopeKey) {
+    // Answered to the envelope's key, the sender's own, never to the client it names.
+    ctx.header.clientId = envelopeKey;
     st = err(Code::Malformed, "command.client_id " + hex(c.client_id()) +
                                   " differs from the envelope key " + hex(envelopeKey));
     return finish();
@@ -610,8 +618,19 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       def.sleep.enabled = r->sleep();
       auto w = makeWorld(name, preset, def);
       w->id = nextWorldId_++;
+      w->ephemeral = r->ephemeral();
       ctx.header.world = w->id;
+      ServerWorld& made = *w;
       worlds_[w->id] = std::move(w);
+      if (durable() && !made.ephemeral && !replaying_) {
+        // Its directory and first checkpoint before the reply names it.
+        st = createStore(made);
+        if (!st.ok()) {
+          st.message = "create_world: " + st.message;
+          worlds_.erase(made.id);
+          ctx.header.world = 0;
+        }
+      }
       return finish();
     }
     case wire::Request::DestroyWorld: {
@@ -619,6 +638,10 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       m.type = ReliableMessage::Type::WorldRemoved;
       m.world = sw->id;
       ctx.header.tick = sw->tick;
+      if (sw->store) {
+        st = sw->store->remove();
+        if (!st.ok()) return finish();
+      }
       worlds_.erase(sw->id);
       sw = nullptr;
       out_.pushReliable(std::move(m));
@@ -634,6 +657,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       ++sw->revision;
       sw->framesReplaced();  // a new world: subscribers start from a keyframe
       sw->infoDirty = sw->frameDirty = true;
+      st = durableReplaced(*sw, "reset_world");
       return finish();
     }
     case wire::Request::ListWorlds: {
@@ -1019,7 +1043,11 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
         ++sw->revision;
         sw->framesReplaced();  // a new world: subscribers start from a keyframe
         sw->infoDirty = sw->frameDirty = true;
-        reply = protocol::encodeIdsReply(ctx.header, ctx.ids.bodies, ctx.ids.joints);
+        st = durableReplaced(*sw, "restore_snapshot");
+        if (st.ok())
+          reply = protocol::encodeIdsReply(ctx.header, ctx.ids.bodies, ctx.ids.joints);
+        else
+          ctx.ids = {};
         return finish();
       }
       sw->tick = data.tick;
@@ -1028,6 +1056,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       sw->framesReplaced();  // a new world: subscribers start from a keyframe
       sw->infoDirty = sw->frameDirty = true;
       ctx.header.tick = sw->tick;
+      st = durableReplaced(*sw, "restore_snapshot");
       return finish();
     }
     case wire::Request::Batch: {
@@ -1190,7 +1219,9 @@ Status ServerCore::loadScene(ServerWorld& sw, const wire::LoadScene* r,
   SceneLoad load = prepareScene(sceneRequest(sw, r, sceneName, forReply));
   if (!load.status.ok()) return load.status;
   commitScene(sw, std::move(load), bodyIds, jointIds);
-  return Status::Ok();
+  st = durableReplaced(sw, "load_scene");  // on disk before the reply
+  if (!st.ok()) bodyIds->clear(), jointIds->clear();
+  return st;
 }
 
 Status ServerCore::checkRestored(const phys::World& w, const std::string& path) const {

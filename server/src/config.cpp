@@ -132,7 +132,8 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
                    "max_bodies_per_world", "max_joints_per_world", "max_bodies_total",
                    "memory_budget_mb", "max_snapshot_files", "max_snapshot_mb",
                    "max_queued_per_client", "max_queued_mb", "max_queued_mb_per_client",
-                   "step_slice_ms", "max_contact_pairs", "max_concurrent_loads"},
+                   "step_slice_ms", "max_contact_pairs", "max_concurrent_loads",
+                   "checkpoint_period_s", "journal_max_mb"},
                   "server");
     if (!s.ok()) return s;
     PHYS_GET(*t, "name", "server", &c.core.serverName);
@@ -171,6 +172,13 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     PHYS_GET_MIB(*t, "max_snapshot_mb", "server", &c.core.maxSnapshotBytes);
     PHYS_GET_MIB(*t, "max_queued_mb", "server", &c.core.maxQueuedBytes);
     PHYS_GET_MIB(*t, "max_queued_mb_per_client", "server", &c.core.maxQueuedBytesPerClient);
+    // Durability (docs/SERVER.md "Durable worlds").
+    PHYS_GET(*t, "checkpoint_period_s", "server", &c.core.checkpointPeriodS);
+    PHYS_GET_MIB(*t, "journal_max_mb", "server", &c.core.journalMaxBytes);
+    if (!(c.core.checkpointPeriodS >= 0.1))
+      return Status::Error(Code::InvalidArgument, "server.checkpoint_period_s must be >= 0.1");
+    if (c.core.journalMaxBytes == 0)
+      return Status::Error(Code::InvalidArgument, "server.journal_max_mb must be >= 1");
     double sliceMs = c.core.stepSliceSeconds * 1000;
     PHYS_GET(*t, "step_slice_ms", "server", &sliceMs);
     if (!(sliceMs >= 1 && sliceMs <= 1000))
@@ -189,7 +197,7 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     c.cycloneConfig = resolve(baseDir, c.cycloneConfig);
   }
   if (auto* t = root["paths"].as_table()) {
-    s = checkKeys(*t, {"presets", "scenes", "snapshots"}, "paths");
+    s = checkKeys(*t, {"presets", "scenes", "snapshots", "data"}, "paths");
     if (!s.ok()) return s;
     PHYS_GET(*t, "presets", "paths", &c.core.presetsFile);
     PHYS_GET(*t, "scenes", "paths", &c.core.scenesDir);
@@ -197,6 +205,8 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     c.core.presetsFile = resolve(baseDir, c.core.presetsFile);
     c.core.scenesDir = resolve(baseDir, c.core.scenesDir);
     c.core.snapshotDir = resolve(baseDir, c.core.snapshotDir);
+    PHYS_GET(*t, "data", "paths", &c.core.dataDir);
+    c.core.dataDir = resolve(baseDir, c.core.dataDir);
   }
   if (auto* t = root["limits"].as_table()) {
     protocol::Limits& l = c.core.limits;
@@ -221,7 +231,8 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
       const toml::table* t = arr->get(i)->as_table();
       const std::string where = "worlds[" + std::to_string(i) + "]";
       if (!t) return Status::Error(Code::InvalidArgument, where + " must be a table");
-      s = checkKeys(*t, {"name", "scene", "preset", "run", "rate_hz", "backend"}, where);
+      s = checkKeys(*t, {"name", "scene", "preset", "run", "rate_hz", "backend", "ephemeral"},
+                    where);
       if (!s.ok()) return s;
       StartupWorld w;
       PHYS_GET(*t, "name", where, &w.name);
@@ -229,6 +240,7 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
       PHYS_GET(*t, "preset", where, &w.preset);
       PHYS_GET(*t, "run", where, &w.run);
       PHYS_GET(*t, "rate_hz", where, &w.rateHz);
+      PHYS_GET(*t, "ephemeral", where, &w.ephemeral);
       s = getBackend(*t, where, &w.backend, nullptr);
       if (!s.ok()) return s;
       if (w.name.empty()) return Status::Error(Code::InvalidArgument, where + ".name is required");

@@ -61,7 +61,11 @@ void ServerCore::finishLoad(ServerWorld& w) {
   if (st.ok())
     st = checkGrowth(nullptr, uint64_t(job.task->result.bodyIds.size()), 0, "load_scene",
                      uint64_t(w.world->bodyCount()));
-  if (st.ok()) commitScene(w, std::move(job.task->result), &bodies, &joints);
+  if (st.ok()) {
+    commitScene(w, std::move(job.task->result), &bodies, &joints);
+    st = durableReplaced(w, "load_scene");  // on disk before the reply
+    if (!st.ok()) bodies.clear(), joints.clear();
+  }
   job.task->result = SceneLoad{};  // the unused world goes now, not with the thread
   h.tick = w.tick;
   if (!st.ok()) ++counters_.errors;
@@ -108,13 +112,15 @@ std::unique_ptr<ServerWorld> ServerCore::makeWorld(const std::string& name,
 }
 
 Status ServerCore::createWorld(const std::string& name, const std::string& preset,
-                               const std::string& scene, uint32_t* id, const std::string& backend) {
+                               const std::string& scene, uint32_t* id, const std::string& backend,
+                               bool ephemeral) {
   const CoreCounters saved = counters_;  // start-up worlds are not client commands
   protocol::CommandBuilder b;
   protocol::CreateWorldArgs args;
   args.name = name;
   args.preset = preset;
   args.backend = backend;
+  args.ephemeral = ephemeral;
   Bytes reply =
       applyBytes(b.createWorld(args).finish({config_.serverId, 0, 0}), config_.serverId, 0);
   auto d = protocol::decodeReply(std::move(reply), config_.limits);
@@ -131,6 +137,7 @@ Status ServerCore::createWorld(const std::string& name, const std::string& prese
     std::vector<uint64_t> bodies, joints;
     Status s = loadScene(*worlds_.at(wid), nullptr, scene, /*forReply=*/false, &bodies, &joints);
     if (!s.ok()) {
+      if (worlds_.at(wid)->store) worlds_.at(wid)->store->remove();
       worlds_.erase(wid);
       counters_.commands = saved.commands;
       counters_.errors = saved.errors;
@@ -149,6 +156,10 @@ Status ServerCore::setRun(uint32_t id, RunMode mode, double rateHz) {
   w->mode = mode;
   if (mode == RunMode::RealTime) w->rateHz = rateHz > 0 ? rateHz : config_.defaultRateHz;
   w->accumulator = 0;
+  if (w->store) {
+    Status s = journalMark(*w);
+    return s.ok() ? w->store->sync() : s;
+  }
   return Status::Ok();
 }
 
@@ -218,7 +229,7 @@ void ServerCore::submit(Incoming in) {
       h.world = in.command->world();
     }
     h.status = Status::Error(Code::ResourceExhausted, refused);
-    pushReply(in.envelopeKey, in.envelopeSeq, protocol::encodeReply(h));
+    pushReplyNow(in.envelopeKey, in.envelopeSeq, protocol::encodeReply(h));
     return;
   }
   inboxCv_.notify_one();
@@ -238,7 +249,22 @@ void ServerCore::release(uint64_t envelopeKey, uint64_t bytes) {
   pendingBytes_ -= std::min(pendingBytes_, bytes);
 }
 
-void ServerCore::pushReply(uint64_t key, uint64_t seq, Bytes reply) {
+void ServerCore::pushReply(uint64_t key, uint64_t seq, Bytes reply, uint32_t durableWorld,
+                           const ReplyHeader* failed) {
+  if (!durable()) return pushReplyNow(key, seq, std::move(reply));
+  HeldReply h;
+  h.key = key;
+  h.seq = seq;
+  h.reply = std::move(reply);
+  h.durableWorld = durableWorld;
+  if (failed) {
+    h.hasFailed = true;
+    h.failed = *failed;
+  }
+  held_.push_back(std::move(h));
+}
+
+void ServerCore::pushReplyNow(uint64_t key, uint64_t seq, Bytes reply) {
   ReliableMessage m;
   m.type = ReliableMessage::Type::Reply;
   m.key = key;
@@ -261,6 +287,7 @@ size_t ServerCore::processPending() {
   // Commands that waited for a Step job which has ended go first, in their order.
   for (uint32_t id : worldIds()) drainWaiting(id);
   for (Incoming& in : batch) dispatch(std::move(in));
+  commitDurable();  // the journals synced, then the replies go out
   if (!batch.empty()) publishWorldInfo();
   return batch.size();
 }
@@ -326,10 +353,16 @@ void ServerCore::dispatch(Incoming in) {
 void ServerCore::applyNow(const Incoming& in) {
   current_ = &in;
   deferred_ = false;
+  journaledWorld_ = 0;
   Bytes reply = apply(in);
   current_ = nullptr;
   if (deferred_) return;  // a Step job answers when it ends
-  pushReply(in.envelopeKey, in.envelopeSeq, std::move(reply));
+  if (journaledWorld_) {
+    const ReplyHeader failed = protocol::replyTo(*in.command);
+    pushReply(in.envelopeKey, in.envelopeSeq, std::move(reply), journaledWorld_, &failed);
+  } else {
+    pushReply(in.envelopeKey, in.envelopeSeq, std::move(reply));
+  }
   release(in);
 }
 
@@ -378,13 +411,22 @@ void ServerCore::endJob(ServerWorld& w, Status status) {
   w.job.reset();
   ReplyHeader h = job.header;
   h.tick = w.tick;
+  // The tick the steps reached is journaled before the reply says it.
+  bool marked = false;
+  if (w.store && w.tick != w.journaledTick) {
+    Status ms = journalMark(w);
+    marked = ms.ok();
+    if (!marked && status.ok()) status = Status::Error(ms.code, "step: not stored: " + ms.message);
+  }
   if (!status.ok()) {
     status.message += " after " + std::to_string(job.requested - job.remaining) + " of " +
                       std::to_string(job.requested) + " steps";
     ++counters_.errors;
   }
+  const ReplyHeader failed = h;
   h.status = std::move(status);
-  pushReply(job.envelopeKey, job.envelopeSeq, protocol::encodeReply(h));
+  pushReply(job.envelopeKey, job.envelopeSeq, protocol::encodeReply(h), marked ? w.id : 0,
+            &failed);
   release(job.envelopeKey, job.charge);
 }
 
@@ -427,6 +469,7 @@ uint64_t defaultMemoryBudget() {
 
 Status ServerCore::checkGrowth(const ServerWorld* w, uint64_t bodies, uint64_t joints,
                                const std::string& what, uint64_t replaced) const {
+  if (replaying_) return Status::Ok();  // the command passed them when it was first applied
   // A count past its limit, in one sentence for every count.
   auto over = [&](uint64_t would, uint64_t limit, const char* things, const char* key) {
     return Status::Error(Code::ResourceExhausted, what + " would make " + std::to_string(would) +
@@ -505,6 +548,7 @@ double ServerCore::stepTimed(ServerWorld& w, uint64_t n) {
     ++counters_.stepFailures;
     w.mode = RunMode::Paused;
     w.accumulator = 0;
+    journalMark(w);  // the run state changed outside a command
     queueEvent(w, wire::Severity::Error, code,
                failure + "; the world is paused at tick " + std::to_string(w.tick));
   }
@@ -525,6 +569,7 @@ double ServerCore::stepTimed(ServerWorld& w, uint64_t n) {
 
 void ServerCore::queueEvent(const ServerWorld& w, wire::Severity severity, std::string_view code,
                             std::string_view message) {
+  if (replaying_) return;  // told when it first happened
   ReliableMessage m;
   m.type = ReliableMessage::Type::Event;
   m.key = w.id;
@@ -537,6 +582,12 @@ Status ServerCore::stepWorld(uint32_t id, uint64_t n) {
   ServerWorld* w = world(id);
   if (!w) return Status::Error(Code::NotFound, "no world " + std::to_string(id));
   const double ms = stepTimed(*w, n);
+  // Applied directly (tests, Step without the queue): the tick reached is on disk on return.
+  if (w->store && w->tick != w->journaledTick && !replaying_) {
+    Status s = journalMark(*w);
+    if (s.ok()) s = w->store->sync();
+    if (!s.ok()) log(true, "world " + std::to_string(id) + ": " + s.message);
+  }
   if (!stepProblem_.ok()) {
     w->frameDirty = true;
     return stepProblem_;
@@ -611,6 +662,7 @@ uint64_t ServerCore::advance(double wallSeconds) {
     }
     if (w.frameDirty) queueFrame(w);
   }
+  commitDurable();  // Steps' marks synced before their replies; checkpoints that are due
   return total;
 }
 

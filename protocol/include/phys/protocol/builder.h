@@ -44,6 +44,9 @@ struct CreateWorldArgs {
   /// Islands and sleeping (phys::SleepSettings, the default thresholds); worlds sleep unless
   /// this says otherwise.
   bool sleep = true;
+  /// Not kept on a durable server's disk (docs/SERVER.md "Durable worlds"): a restart loses
+  /// it, and its commands are answered without waiting for a disk.
+  bool ephemeral = false;
 };
 
 /// Solver settings to change; unset fields keep the world's current value.

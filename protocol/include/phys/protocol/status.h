@@ -3,6 +3,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <span>
 #include <string>
 
 #include "phys/protocol/wire.h"
@@ -42,6 +43,9 @@ struct Decoded {
   const T* root = nullptr;
   Status status;
   std::shared_ptr<const void> storage;  ///< the bytes, when the Decoded owns them
+  /// The verified buffer `root` lies in (the caller's bytes or `storage`); empty unless ok().
+  /// physd journals a command's exact bytes from it.
+  std::span<const uint8_t> bytes;
 
   bool ok() const { return status.ok(); }
   const T* operator->() const { return root; }

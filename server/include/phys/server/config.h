@@ -17,6 +17,9 @@ struct StartupWorld {
   bool run = true;      ///< start running
   double rateHz = 0;    ///< 0: the server's default rate
   std::string backend;  ///< "cpu", "gpu", "auto"; empty: server.backend
+  /// Not kept in `[paths] data`: recreated from this entry at every start. A durable
+  /// start-up world is created once and restored from its checkpoint afterwards.
+  bool ephemeral = false;
 };
 
 struct DaemonConfig {

@@ -13,6 +13,7 @@
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <map>
 #include <unordered_map>
 #include <memory>
@@ -30,12 +31,14 @@
 #include "phys/protocol/limits.h"
 #include "phys/protocol/status.h"
 #include "phys/server/ring.h"
+#include "phys/server/store.h"
 #include "phys/world/world.h"
 
 namespace phys::server {
 
 using protocol::Status;
 using Code = protocol::Code;
+using protocol::ReplyHeader;
 
 struct CoreConfig {
   std::string serverName = "physd";
@@ -43,6 +46,17 @@ struct CoreConfig {
   std::string presetsFile;  ///< empty: phys::defaultPresetsPath()
   std::string scenesDir;    ///< LoadScene by name: <scenesDir>/<name>.json
   std::string snapshotDir;  ///< SaveSnapshot / RestoreSnapshot files; empty: refused
+  /// Durable worlds (docs/SERVER.md "Durable worlds"): each world's checkpoint and journal
+  /// under <dataDir>/worlds/<id>/, restored at start-up (restoreWorlds); a command's reply
+  /// goes out once what it changed is on disk. Empty: worlds live in memory only.
+  std::string dataDir;
+  /// A world's checkpoint is rewritten this often (s of wall time) while it changes, and
+  /// whenever its journal passes journalMaxBytes: restoring replays at most that much.
+  double checkpointPeriodS = 30;
+  uint64_t journalMaxBytes = 64ull << 20;
+  /// A running world journals the tick it reached this often (s), so a restart resumes
+  /// within this much of where it stopped (restored worlds resume from the last record).
+  double markPeriodS = 1;
   protocol::Limits limits;  ///< codec limits, also announced in HelloResult
   int threads = 1;          ///< WorldDef::threads of every world
   int maxCatchUpSteps = 4;  ///< steps one tick may take to catch up with real time
@@ -214,6 +228,13 @@ struct ServerWorld {
     uint64_t charge = 0;
   };
   std::optional<LoadJob> load;
+  // Durability (store.h): null store for an ephemeral world or a server without a data
+  // directory.
+  bool ephemeral = false;
+  std::unique_ptr<WorldStore> store;
+  uint64_t journaledTick = 0;  ///< the tick of the last record or checkpoint
+  uint64_t checkpointTick = 0;
+  std::chrono::steady_clock::time_point checkpointAt{}, markAt{};
   /// Commands for this world that arrived during its StepJob or LoadJob, applied in order
   /// after it.
   std::deque<Incoming> waiting;
@@ -245,8 +266,20 @@ class ServerCore {
   /// A world with a preset (empty: the default), optionally a scene by name, and a backend
   /// ("cpu", "gpu", "auto"; empty: config().backend; a scene's other than "cpu" wins).
   Status createWorld(const std::string& name, const std::string& preset, const std::string& scene,
-                     uint32_t* id, const std::string& backend = {});
+                     uint32_t* id, const std::string& backend = {}, bool ephemeral = false);
   Status setRun(uint32_t world, RunMode mode, double rateHz);
+  /// Start-up, before any command: every world kept under config().dataDir, from its
+  /// checkpoint and journal (docs/SERVER.md "Durable worlds"). `notes` gets a line per world
+  /// restored and per thing dropped (a torn journal tail, an unreadable world).
+  Status restoreWorlds(std::vector<std::string>* notes);
+  /// The world of that name, or null.
+  ServerWorld* findWorld(const std::string& name);
+  /// Where the core reports what it does not answer to a client (a journal that cannot be
+  /// synced, a failed checkpoint): physd logs it; the default prints to stderr.
+  void setLog(std::function<void(bool error, const std::string& line)> log) { log_ = std::move(log); }
+  /// Makes every world's journal durable and takes the checkpoints that are due (also done
+  /// after each processPending and advance); for tests and shutdown.
+  void commitDurable();
 
   // --- Commands ---
   /// Applies one decoded command now and returns the reply payload. envelopeKey must equal
@@ -313,7 +346,14 @@ class ServerCore {
   /// Applies one queued command: a reply is pushed now, or (a Step too long for one slice)
   /// when its job ends. Commands for a busy world wait for its job.
   void dispatch(Incoming in);
-  void pushReply(uint64_t key, uint64_t seq, Bytes reply);
+  /// A reply to a command: straight to out() or, on a durable server, held until the journals
+  /// it depends on are synced (commitDurable). durableWorld: the world whose journal holds
+  /// what the command changed (0: none); if that journal then fails, the reply becomes
+  /// `failed` (the header of an error reply to the same command) instead.
+  void pushReply(uint64_t key, uint64_t seq, Bytes reply, uint32_t durableWorld = 0,
+                 const ReplyHeader* failed = nullptr);
+  /// The reader thread's replies (refused at submit): never held.
+  void pushReplyNow(uint64_t key, uint64_t seq, Bytes reply);
   /// Applies a command now (no queue): pushes its reply, unless it became a Step job.
   void applyNow(const Incoming& in);
   /// Runs about `seconds` (at least one step) of a world's StepJob; at its end pushes the
@@ -362,6 +402,44 @@ class ServerCore {
                   std::string_view message);
   std::unique_ptr<ServerWorld> makeWorld(const std::string& name, const std::string& preset,
                                          const phys::WorldDef& def);
+
+  // --- Durability (durable.cpp) ---
+  bool durable() const { return !config_.dataDir.empty(); }
+  /// A new durable world's directory and first checkpoint (and the next world id on disk).
+  Status createStore(ServerWorld& w);
+  /// The world's whole state to its store (a new checkpoint; the journal starts empty).
+  Status checkpointWorld(ServerWorld& w);
+  /// After a command replaced a world's state (LoadScene, ResetWorld, RestoreSnapshot): a
+  /// checkpoint, or, when it cannot be written, the world as its files hold it and an error.
+  Status durableReplaced(ServerWorld& w, const std::string& what);
+  /// Journals an applied command (Ok, a kind that changes the world): false when it could
+  /// not be stored (the world is then reloaded from its files and *reply says why).
+  void journalApplied(const Incoming& in, Bytes* reply);
+  /// Journals the tick a world reached and its run state.
+  Status journalMark(ServerWorld& w);
+  /// Rebuilds a world in place from its store (checkpoint + journal): after a journal that
+  /// could not be written, and at start-up.
+  Status reloadWorld(ServerWorld& w, std::vector<std::string>* notes);
+  Status restoreInto(ServerWorld& w, const Checkpoint& c, const std::vector<JournalRecord>& records,
+                     std::vector<std::string>* notes);
+  void log(bool error, const std::string& line) const;
+  /// Replies held until the journals are synced (pushReply).
+  struct HeldReply {
+    uint64_t key = 0, seq = 0;
+    Bytes reply;
+    uint32_t durableWorld = 0;
+    bool hasFailed = false;
+    ReplyHeader failed;
+  };
+  std::vector<HeldReply> held_;
+  /// Restoring: replayed commands are not journaled, budgets are not checked again (they
+  /// held when the command was first applied), events are not sent.
+  bool replaying_ = false;
+  /// The world whose journal the command applyNow is applying went to (0: none).
+  uint32_t journaledWorld_ = 0;
+  /// The status of the last command applyChecked answered.
+  Status lastStatus_;
+  std::function<void(bool, const std::string&)> log_;
 
   CoreConfig config_;
   std::map<std::string, phys::Preset> presets_;
