@@ -121,6 +121,20 @@ bool viewSerializedEnvelope(const uint8_t* p, size_t size, phys_wire_Envelope* e
 }
 
 int Reader::take(const std::function<void(const phys_wire_Envelope&)>& fn) {
+  return take([&](const phys_wire_Envelope& env, dds_instance_handle_t) { fn(env); });
+}
+
+bool Reader::participantOf(dds_instance_handle_t writer, std::array<uint8_t, 16>* guid) const {
+  dds_builtintopic_endpoint_t* ep = dds_get_matched_publication_data(e_, writer);
+  if (!ep) return false;
+  static_assert(sizeof ep->participant_key.v == 16);
+  std::memcpy(guid->data(), ep->participant_key.v, 16);
+  dds_builtintopic_free_endpoint(ep);
+  return true;
+}
+
+int Reader::take(
+    const std::function<void(const phys_wire_Envelope&, dds_instance_handle_t writer)>& fn) {
   // Serialized samples (dds_takecdr), viewed in place: dds_take would copy every payload
   // out of Cyclone's sample into a buffer of its own first, 64 KB per state chunk and
   // subscriber (docs/BENCHMARKS.md, fan-out).
@@ -140,12 +154,12 @@ int Reader::take(const std::function<void(const phys_wire_Envelope&)>& fn) {
         phys_wire_Envelope env{};
         if (held && ref.iov_len == size &&
             viewSerializedEnvelope(static_cast<const uint8_t*>(ref.iov_base), size, &env)) {
-          fn(env);
+          fn(env, infos[i].publication_handle);
           ++total;
         } else {
           env = phys_wire_Envelope{};
           if (ddsi_serdata_to_sample(sd, &env, nullptr, nullptr)) {
-            fn(env);
+            fn(env, infos[i].publication_handle);
             ++total;
           }
           dds_sample_free(&env, &phys_wire_Envelope_desc, DDS_FREE_CONTENTS);

@@ -1,6 +1,8 @@
 // DdsEndpoint: phys/cmd -> ServerCore, PublishQueue -> the published topics.
 #include "phys/server/endpoint.h"
 
+#include <cstring>
+
 #include <spdlog/spdlog.h>
 
 #include "phys/protocol/dds_envelope.h"
@@ -59,8 +61,18 @@ void DdsEndpoint::readLoop() {
   while (!stop_) {
     waitset_.wait(DDS_MSECS(200));
     if (stop_) break;
-    cmdReader_.take([&](const phys_wire_Envelope& env) {
+    cmdReader_.take([&](const phys_wire_Envelope& env, dds_instance_handle_t writer) {
       counters_.commandsTaken.fetch_add(1);
+      if (!vouch(env.key, writer)) {
+        // Not answered: every reply on this key goes to the participant that holds it, which
+        // would take an answer to someone else's command for one of its own.
+        const uint64_t n = counters_.spoofed.fetch_add(1) + 1;
+        if ((n & (n - 1)) == 0)  // 1, 2, 4, 8, ...: a flood does not flood the log
+          spdlog::warn("phys/cmd: client key {:#x} is held by another participant; command "
+                       "dropped unanswered ({} so far)",
+                       env.key, n);
+        return;
+      }
       Incoming in;
       in.envelopeKey = env.key;
       in.envelopeSeq = env.seq;
@@ -82,6 +94,44 @@ void DdsEndpoint::readLoop() {
       core_->submit(std::move(in));
     });
   }
+}
+
+bool DdsEndpoint::vouch(uint64_t key, dds_instance_handle_t writer) {
+  Guid guid{};
+  auto w = writers_.find(writer);
+  if (w != writers_.end()) {
+    guid = w->second;
+  } else {
+    // Cyclone delivers data only from matched writers; should the discovery data be gone
+    // already, the writer's own handle stands for its participant.
+    if (!cmdReader_.participantOf(writer, &guid)) std::memcpy(guid.data(), &writer, sizeof writer);
+    if (writers_.size() >= kMaxOwners)  // forget writers that left
+      std::erase_if(writers_, [&](const auto& e) {
+        Guid g;
+        return !cmdReader_.participantOf(e.first, &g);
+      });
+    writers_[writer] = guid;
+  }
+  auto it = owners_.find(key);
+  if (it != owners_.end()) {
+    if (it->second.participant == guid) {
+      it->second.writer = writer;
+      return true;
+    }
+    Guid still;
+    if (cmdReader_.participantOf(it->second.writer, &still)) return false;  // held
+    it->second = {guid, writer};  // its holder left: the key passes on (a client restarted)
+    return true;
+  }
+  if (owners_.size() >= kMaxOwners) {
+    std::erase_if(owners_, [&](const auto& e) {
+      Guid g;
+      return !cmdReader_.participantOf(e.second.writer, &g);
+    });
+    if (owners_.size() >= kMaxOwners) return false;  // that many live clients: no more
+  }
+  owners_.emplace(key, Owner{guid, writer});
+  return true;
 }
 
 void DdsEndpoint::publishLoop() {

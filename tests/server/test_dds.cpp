@@ -281,5 +281,60 @@ TEST(ServerDds, GarbageGetsMalformedAndDaemonKeepsTicking) {
   EXPECT_GE(daemon.endpoint.counters().undecodable.load(), 4u);
 }
 
+
+TEST(ServerDds, AClientKeyBelongsToTheParticipantThatUsesItFirst) {
+  // Issue 24 6(a): a participant writing commands under another client's key is not answered
+  // (the answer would reach the key's holder as if it were its own), until that client left.
+  useLoopback();
+  const uint32_t domain = testDomain();
+  Daemon daemon(domain);
+  auto owner = std::make_unique<TestClient>(domain);
+  TestClient thief(domain);
+  thief.id = owner->id;  // listens on the owner's key, and writes under it
+  ASSERT_TRUE(owner->connected());
+  ASSERT_TRUE(thief.connected());
+  auto r = owner->call(CommandBuilder().listWorlds(), 0);
+  ASSERT_TRUE(r);
+  protocol::Bytes stolen = CommandBuilder().createWorld({"stolen", "", std::nullopt, 0})
+                               .finish({owner->id, 2001, 0});
+  thief.sendRaw(stolen, 2001, owner->id);
+  ASSERT_TRUE(waitFor([&] { return daemon.endpoint.counters().spoofed.load() >= 1; }));
+  // The holder goes on, and neither it nor the thief heard an answer to 2001; no world made.
+  r = owner->call(CommandBuilder().listWorlds(), 0);
+  ASSERT_TRUE(r);
+  EXPECT_EQ((*r)->result_as_WorldList()->worlds()->size(), 0u);
+  EXPECT_FALSE(owner->pending.count(2001));
+  bool heard = false;
+  waitFor(
+      [&] {
+        thief.replies.take([&](const phys_wire_Envelope& env) {
+          auto b = protocol::envelopeBytes(env);
+          Reply rep = protocol::decodeReply(std::vector<uint8_t>(b.begin(), b.end()));
+          heard |= rep.ok() && rep->seq() == 2001;
+        });
+        return false;
+      },
+      std::chrono::milliseconds(300));
+  EXPECT_FALSE(heard);
+  // The holder leaves: the key passes to the next participant that uses it.
+  owner.reset();
+  bool answered = false;
+  for (int i = 0; i < 40 && !answered; ++i) {
+    const uint64_t s = 3000 + uint64_t(i);
+    thief.sendRaw(CommandBuilder().listWorlds().finish({thief.id, s, 0}), s, thief.id);
+    answered = waitFor(
+        [&] {
+          thief.replies.take([&](const phys_wire_Envelope& env) {
+            auto b = protocol::envelopeBytes(env);
+            Reply rep = protocol::decodeReply(std::vector<uint8_t>(b.begin(), b.end()));
+            answered |= rep.ok() && rep->seq() >= 3000;
+          });
+          return answered;
+        },
+        std::chrono::milliseconds(250));
+  }
+  EXPECT_TRUE(answered);
+}
+
 }  // namespace
 }  // namespace phys::server::test

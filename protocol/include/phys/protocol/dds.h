@@ -6,6 +6,7 @@
 #include <dds/dds.h>
 
 #include <cstdint>
+#include <array>
 #include <functional>
 #include <span>
 #include <string>
@@ -106,6 +107,12 @@ class Reader : public Entity {
   /// Takes every available sample, calling fn for each valid one; returns the count or a
   /// negative retcode.
   int take(const std::function<void(const phys_wire_Envelope&)>& fn);
+  /// The same, with the instance handle of the writer each sample came from (what DDS vouches
+  /// for about its sender: see participantOf).
+  int take(const std::function<void(const phys_wire_Envelope&, dds_instance_handle_t writer)>& fn);
+  /// The participant (its GUID, 16 bytes) of a writer matched with this reader; false when
+  /// the writer is not (or no longer) matched.
+  bool participantOf(dds_instance_handle_t writer, std::array<uint8_t, 16>* guid) const;
   uint32_t matched() const;
 };
 

@@ -12,6 +12,9 @@
 #include <string>
 #include <thread>
 
+#include <array>
+#include <unordered_map>
+
 #include "phys/server/core.h"
 #include "phys/server/dds.h"
 
@@ -28,6 +31,9 @@ struct EndpointCounters {
   std::atomic<uint64_t> repliesWritten{0};
   std::atomic<uint64_t> framesWritten{0};  ///< state chunks
   std::atomic<uint64_t> writeErrors{0};
+  /// Commands dropped unanswered because their envelope key belongs to another participant
+  /// (a client's key is bound to the participant that first used it, while it is there).
+  std::atomic<uint64_t> spoofed{0};
 };
 
 class DdsEndpoint {
@@ -42,6 +48,18 @@ class DdsEndpoint {
 
  private:
   void readLoop();
+  /// Whether the participant that wrote a command may use its envelope key: the first
+  /// participant to use a key holds it until DDS no longer matches its writer (it left, or
+  /// its lease expired). Reader thread only.
+  bool vouch(uint64_t key, dds_instance_handle_t writer);
+  using Guid = std::array<uint8_t, 16>;
+  struct Owner {
+    Guid participant{};
+    dds_instance_handle_t writer = 0;
+  };
+  std::unordered_map<uint64_t, Owner> owners_;                 ///< by client key
+  std::unordered_map<dds_instance_handle_t, Guid> writers_;    ///< participants of writers
+  static constexpr size_t kMaxOwners = 1 << 16;
   void publishLoop();
   void publish(ReliableMessage& m);
   void publish(StateFrameSet& f);
