@@ -47,9 +47,14 @@ for _ in $(seq 30); do
     cat "$LOG" >&2
     exit 1
   fi
-  if build/tools/physctl --timeout 2000 list 2>/dev/null | grep -Eq '^ +[0-9]+ +default .* running'; then
+  listed=$(build/tools/physctl --timeout 2000 list 2>/dev/null || true)
+  if echo "$listed" | grep -Eq '^ +[0-9]+ +default .* running'; then
     ok=1
     break
+  fi
+  # Restored paused from an earlier run (worlds are kept in [paths] data): run it again.
+  if echo "$listed" | grep -Eq '^ +[0-9]+ +default '; then
+    build/tools/physctl --timeout 2000 run default >/dev/null 2>&1 || true
   fi
   sleep 0.5
 done

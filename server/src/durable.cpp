@@ -115,6 +115,12 @@ Status ServerCore::checkpointWorld(ServerWorld& w) {
   return Status::Ok();
 }
 
+Status ServerCore::checkpointNow(uint32_t id) {
+  ServerWorld* w = world(id);
+  if (!w) return Status::Error(Code::NotFound, "no world " + std::to_string(id));
+  return checkpointWorld(*w);
+}
+
 Status ServerCore::durableReplaced(ServerWorld& w, const std::string& what) {
   if (!w.store || replaying_) return Status::Ok();
   Status s = checkpointWorld(w);

@@ -25,6 +25,15 @@ TEST(ServerConfig, ShippedConfigLoads) {
   EXPECT_EQ(c.core.backend, phys::Backend::Cpu);
   EXPECT_FALSE(c.core.gpuAllowCpuDevice);
   EXPECT_EQ(c.worlds[0].backend, "");
+  // Worlds are kept on disk, checkpointed every 30 s (here: in a scratch directory, not in
+  // the shipped /tmp/physd/data that a running physd may be using).
+  EXPECT_EQ(c.core.dataDir, "/tmp/physd/data");
+  EXPECT_EQ(c.core.checkpointPeriodS, 30);
+  EXPECT_EQ(c.core.journalMaxBytes, 64u << 20);
+  EXPECT_FALSE(c.worlds[0].ephemeral);
+  const auto data =
+      std::filesystem::temp_directory_path() / ("physd_shipped_" + std::to_string(getpid()));
+  c.core.dataDir = data.string();
   // The start-up world of the shipped config can be created.
   ServerCore core(c.core);
   ASSERT_TRUE(core.init().ok());
@@ -33,6 +42,8 @@ TEST(ServerConfig, ShippedConfigLoads) {
   ASSERT_TRUE(s.ok()) << s.message;
   EXPECT_GT(core.world(id)->world->bodyCount(), 0);
   EXPECT_EQ(core.counters().commands, 0u);
+  EXPECT_TRUE(std::filesystem::exists(data / "worlds" / std::to_string(id) / "checkpoint"));
+  std::filesystem::remove_all(data);
 }
 
 TEST(ServerConfig, RejectsUnknownKeysAndWrongTypes) {

@@ -280,6 +280,8 @@ class ServerCore {
   /// Makes every world's journal durable and takes the checkpoints that are due (also done
   /// after each processPending and advance); for tests and shutdown.
   void commitDurable();
+  /// Writes a world's checkpoint now (its journal starts empty); Ok for a world not kept.
+  Status checkpointNow(uint32_t world);
 
   // --- Commands ---
   /// Applies one decoded command now and returns the reply payload. envelopeKey must equal
