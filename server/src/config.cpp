@@ -133,7 +133,8 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
                    "memory_budget_mb", "max_snapshot_files", "max_snapshot_mb",
                    "max_queued_per_client", "max_queued_mb", "max_queued_mb_per_client",
                    "step_slice_ms", "max_contact_pairs", "max_concurrent_loads",
-                   "checkpoint_period_s", "journal_max_mb"},
+                   "checkpoint_period_s", "journal_max_mb", "max_client_commands_per_s",
+                   "max_client_burst"},
                   "server");
     if (!s.ok()) return s;
     PHYS_GET(*t, "name", "server", &c.core.serverName);
@@ -172,6 +173,12 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     PHYS_GET_MIB(*t, "max_snapshot_mb", "server", &c.core.maxSnapshotBytes);
     PHYS_GET_MIB(*t, "max_queued_mb", "server", &c.core.maxQueuedBytes);
     PHYS_GET_MIB(*t, "max_queued_mb_per_client", "server", &c.core.maxQueuedBytesPerClient);
+    PHYS_GET(*t, "max_client_commands_per_s", "server", &c.core.maxClientCommandsPerS);
+    PHYS_GET(*t, "max_client_burst", "server", &c.core.maxClientBurst);
+    if (!(c.core.maxClientCommandsPerS >= 0) || !(c.core.maxClientBurst >= 1))
+      return Status::Error(Code::InvalidArgument,
+                           "server.max_client_commands_per_s must be >= 0 (0: no limit) and "
+                           "server.max_client_burst >= 1");
     // Durability (docs/SERVER.md "Durable worlds").
     PHYS_GET(*t, "checkpoint_period_s", "server", &c.core.checkpointPeriodS);
     PHYS_GET_MIB(*t, "journal_max_mb", "server", &c.core.journalMaxBytes);

@@ -194,7 +194,13 @@ void ServerCore::submit(Incoming in) {
     std::lock_guard<std::mutex> lock(inboxMutex_);
     Pending& p = pendingPerClient_[in.envelopeKey];
     const uint64_t bytes = queueCharge(in);
-    if (p.commands >= config_.maxQueuedPerClient)
+    if (!takeToken(in.envelopeKey, std::chrono::steady_clock::now()))
+      refused = "client " + std::to_string(in.envelopeKey) + " sends more than " +
+                std::to_string(int64_t(config_.maxClientCommandsPerS)) +
+                " commands a second (server.max_client_commands_per_s, bursts of " +
+                std::to_string(int64_t(config_.maxClientBurst)) +
+                ": server.max_client_burst); slow down";
+    else if (p.commands >= config_.maxQueuedPerClient)
       refused = "client " + std::to_string(in.envelopeKey) + " has " +
                 std::to_string(p.commands) +
                 " commands waiting to be applied, the limit is " +
@@ -233,6 +239,28 @@ void ServerCore::submit(Incoming in) {
     return;
   }
   inboxCv_.notify_one();
+}
+
+bool ServerCore::takeToken(uint64_t client, std::chrono::steady_clock::time_point now) {
+  if (config_.maxClientCommandsPerS <= 0) return true;
+  const double burst = std::max(1.0, config_.maxClientBurst);
+  auto it = rates_.find(client);
+  if (it == rates_.end()) {
+    if (rates_.size() >= 65536)  // forget the clients whose buckets are full again (idle)
+      std::erase_if(rates_, [&](const auto& e) {
+        return e.second.tokens + std::chrono::duration<double>(now - e.second.last).count() *
+                                     config_.maxClientCommandsPerS >=
+               burst;
+      });
+    it = rates_.emplace(client, RateBucket{burst, now}).first;
+  }
+  RateBucket& b = it->second;
+  b.tokens = std::min(burst, b.tokens + std::chrono::duration<double>(now - b.last).count() *
+                                            config_.maxClientCommandsPerS);
+  b.last = now;
+  if (b.tokens < 1) return false;
+  b.tokens -= 1;
+  return true;
 }
 
 void ServerCore::release(const Incoming& in) {

@@ -564,5 +564,36 @@ TEST_F(BudgetTest, EngineSnapshotIsCheckedBeforeItReplacesTheWorld) {
                 Code::InvalidArgument, "friction");
 }
 
+
+TEST_F(SliceTest, AClientPastItsCommandRateIsRefusedAndOthersAreNot) {
+  // A fresh core whose clients may send 50 commands at once and 10 a second after that.
+  CoreConfig c = testConfig();
+  c.maxClientCommandsPerS = 10;
+  c.maxClientBurst = 50;
+  makeCore(c);
+  constexpr uint64_t kFlood = 0xF1, kCalm = 0xCA;
+  for (int i = 0; i < 80; ++i) submit(kFlood, CommandBuilder().listWorlds(), 0);
+  submit(kCalm, CommandBuilder().listWorlds(), 0);
+  core->processPending();
+  int ok = 0, refused = 0, calm = 0;
+  for (Reply& r : replies()) {
+    if (r->client_id() == kCalm) {
+      ++calm;
+      EXPECT_EQ(r->status(), Code::Ok);
+      continue;
+    }
+    if (r->status() == Code::Ok) ++ok;
+    if (r->status() == Code::ResourceExhausted) {
+      ++refused;
+      EXPECT_NE(message(r).find("max_client_commands_per_s"), std::string::npos) << message(r);
+    }
+  }
+  EXPECT_EQ(calm, 1);
+  // The burst, and what the rate refilled while the loop ran (well under a second).
+  EXPECT_GE(ok, 50);
+  EXPECT_LE(ok, 60);
+  EXPECT_EQ(ok + refused, 80);
+}
+
 }  // namespace
 }  // namespace phys::server::test

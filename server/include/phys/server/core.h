@@ -74,6 +74,11 @@ struct CoreConfig {
   uint32_t maxQueuedPerClient = 256;          ///< commands a client has waiting
   uint64_t maxQueuedBytes = 64ull << 20;      ///< payload bytes waiting, all clients
   uint64_t maxQueuedBytesPerClient = 16ull << 20;  ///< payload bytes one client has waiting
+  /// Commands one client may send per second, on average, and at once (a token bucket per
+  /// envelope key, refilled at the rate up to the burst); past it a command is answered
+  /// ResourceExhausted at once. 0: no limit.
+  double maxClientCommandsPerS = 2000;
+  double maxClientBurst = 500;
   /// Contact pairs per step of a world (WorldDef::maxContactPairs; 0: the engine's automatic
   /// bound). A step past it is not taken (PairOverflow::Refuse): the world pauses and a
   /// contact_budget event says why.
@@ -462,6 +467,14 @@ class ServerCore {
     uint64_t bytes = 0;
   };
   std::map<uint64_t, Pending> pendingPerClient_;
+  /// Each client's token bucket (maxClientCommandsPerS); guarded by inboxMutex_.
+  struct RateBucket {
+    double tokens = 0;
+    std::chrono::steady_clock::time_point last;
+  };
+  std::unordered_map<uint64_t, RateBucket> rates_;
+  /// Takes a token of the client's bucket; false when it has none (inboxMutex_ held).
+  bool takeToken(uint64_t client, std::chrono::steady_clock::time_point now);
   uint64_t pendingBytes_ = 0;
   std::atomic<uint64_t> refusedAtSubmit_{0};
   /// Bytes a queued command holds of the queue's budgets: its payload and what holding it
