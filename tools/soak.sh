@@ -31,10 +31,14 @@ while [ $# -gt 0 ]; do
     *) echo "usage: $0 [--seconds S] [--kills K] [--clients N] [--build DIR] [--out DIR] [--domain N]" >&2; exit 2 ;;
   esac
 done
-physd="$build/server/physd" soak="$build/tools/physsoak"
-for b in "$physd" "$soak"; do [ -x "$b" ] || { echo "missing $b (build first)" >&2; exit 2; }; done
+for b in "$build/server/physd" "$build/tools/physsoak"; do
+  [ -x "$b" ] || { echo "missing $b (build first)" >&2; exit 2; }
+done
 [ -n "$out" ] || out=$(mktemp -d /tmp/physd_soak.XXXXXX)
-mkdir -p "$out"
+mkdir -p "$out/bin"
+# Copies: a rebuild during the run must not change the daemon that restarts.
+cp "$build/server/physd" "$build/tools/physsoak" "$out/bin/"
+physd="$out/bin/physd" soak="$out/bin/physsoak"
 rm -rf "$out/data" "$out/clients.jsonl" "$out/rss.csv" "$out"/physd*.log
 # Loopback Cyclone with a discovery tag of this run: other runs and tests never see it.
 sed "s|<Discovery>|<Discovery><Tag>physd-soak-$$</Tag>|" "$root/configs/cyclonedds/loopback.xml" >"$out/cyclone.xml"

@@ -44,6 +44,8 @@ const char* toString(ErrorCode c) {
       return "ResourceExhausted";
     case ErrorCode::Internal:
       return "Internal";
+    case ErrorCode::PermissionDenied:
+      return "PermissionDenied";
     case ErrorCode::Timeout:
       return "Timeout";
     case ErrorCode::Disconnected:
@@ -1014,6 +1016,11 @@ std::future<Ack> WorldHandle::run(float rateHz, CallOptions o) {
 }
 std::future<Ack> WorldHandle::pause(CallOptions o) {
   PHYS_WORLD_ACK(pause());
+}
+
+std::future<Ack> WorldHandle::setAccess(std::span<const uint64_t> editors, bool shared,
+                                        CallOptions o) {
+  PHYS_WORLD_ACK(setAccess(editors, shared));
 }
 
 std::future<StateFrame> WorldHandle::queryState(std::span<const uint64_t> ids, uint32_t first,

@@ -283,9 +283,11 @@ CommandBuilder& CommandBuilder::createWorld(const CreateWorldArgs& args) {
   auto preset = optString(fbb_, args.preset);
   auto backend = optString(fbb_, args.backend);
   wire::Vec3 g = toWire(args.gravity.value_or(phys::Vec3{}));
+  flatbuffers::Offset<flatbuffers::Vector<uint64_t>> editors;
+  if (!args.editors.empty()) editors = fbb_.CreateVector(args.editors);
   return add(wire::Request::CreateWorld,
              wire::CreateCreateWorld(fbb_, name, preset, args.gravity ? &g : nullptr, args.timeStep,
-                                     backend, args.sleep, args.ephemeral)
+                                     backend, args.sleep, args.ephemeral, editors, args.shared)
                  .Union());
 }
 
@@ -438,6 +440,11 @@ CommandBuilder& CommandBuilder::subscribeRegion(phys::Vec3 lo, phys::Vec3 hi) {
 
 CommandBuilder& CommandBuilder::unsubscribe(uint32_t interest) {
   return add(wire::Request::Unsubscribe, wire::CreateUnsubscribe(fbb_, interest).Union());
+}
+
+CommandBuilder& CommandBuilder::setAccess(std::span<const uint64_t> editors, bool shared) {
+  auto v = fbb_.CreateVector(editors.data(), editors.size());
+  return add(wire::Request::SetAccess, wire::CreateSetAccess(fbb_, v, shared).Union());
 }
 
 CommandBuilder& CommandBuilder::saveSnapshot(std::string_view file, bool returnBytes) {

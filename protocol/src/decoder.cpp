@@ -43,7 +43,7 @@ std::string hexId(uint64_t v) {
 }
 
 
-constexpr std::array<const char*, 27> kRequestNames = {"none",
+constexpr std::array<const char*, 28> kRequestNames = {"none",
                                                        "hello",
                                                        "create_world",
                                                        "destroy_world",
@@ -69,7 +69,8 @@ constexpr std::array<const char*, 27> kRequestNames = {"none",
                                                        "restore_snapshot",
                                                        "batch",
                                                        "subscribe",
-                                                       "unsubscribe"};
+                                                       "unsubscribe",
+                                                       "set_access"};
 static_assert(kRequestNames.size() == size_t(wire::Request::MAX) + 1,
               "a request kind without a name");
 
@@ -219,6 +220,14 @@ class Checker : public ValueRules<Checker> {
   bool aligned8(const Vector<T>* v, std::string_view f) {
     if (!v || v->size() == 0 || reinterpret_cast<uintptr_t>(v->Data()) % 8 == 0) return true;
     return fail(Code::Malformed, f, "is not 8-byte aligned");
+  }
+  /// Client ids a world's owner lets change it: non-zero, no repeats, at most kMaxEditors.
+  bool editorList(const Vector<uint64_t>* v, std::string_view f) {
+    if (v && v->size() > kMaxEditors)
+      return fail(Code::ResourceExhausted, f,
+                  "has " + std::to_string(v->size()) + " ids, the limit is " +
+                      std::to_string(kMaxEditors));
+    return idList(v, f, false, true);
   }
   template <class T>
   bool nonEmpty(const Vector<T>* v, std::string_view f) {
@@ -532,8 +541,11 @@ bool Checker::request(wire::Request type, const void* table) {
         return false;
       if (r->time_step() != 0 && !timeStep(r->time_step(), "time_step"))
         return false;
+      if (!editorList(r->editors(), "editors")) return false;
       return backend(r->backend(), "backend");
     }
+    case wire::Request::SetAccess:
+      return editorList(static_cast<const wire::SetAccess*>(table)->editors(), "editors");
     case wire::Request::DestroyWorld:
     case wire::Request::ResetWorld:
     case wire::Request::ListWorlds:

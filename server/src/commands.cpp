@@ -473,6 +473,44 @@ struct ServerCore::Context {
   }
 };
 
+Status ServerCore::checkAccess(const ServerWorld& w, const wire::Command& c, uint64_t key) const {
+  enum class Need { Read, Edit, Own };
+  Need need = Need::Edit;
+  switch (c.request_type()) {
+    case wire::Request::QueryState:
+    case wire::Request::Subscribe:
+    case wire::Request::Unsubscribe:  // its own interest: checked again in apply (others' need Edit)
+      need = Need::Read;
+      break;
+    case wire::Request::SaveSnapshot: {  // bytes are a read; a file on the server is not
+      auto* r = c.request_as_SaveSnapshot();
+      need = r && r->file() && r->file()->size() ? Need::Edit : Need::Read;
+      break;
+    }
+    case wire::Request::DestroyWorld:
+    case wire::Request::SetAccess:
+      need = Need::Own;
+      break;
+    default:
+      break;
+  }
+  if (c.request_type() == wire::Request::Unsubscribe) {
+    auto* r = c.request_as_Unsubscribe();
+    auto it = r ? w.interests.find(r->interest()) : w.interests.end();
+    if (it != w.interests.end() && it->second.client != key) need = Need::Edit;
+  }
+  if (need == Need::Read || w.owner == 0 || key == w.owner) return Status::Ok();
+  if (need == Need::Edit &&
+      (w.shared || std::find(w.editors.begin(), w.editors.end(), key) != w.editors.end()))
+    return Status::Ok();
+  return err(Code::PermissionDenied,
+             std::string(protocol::requestName(c.request_type())) + ": world " +
+                 std::to_string(w.id) + " '" + w.name + "' belongs to client " + hex(w.owner) +
+                 (need == Need::Own ? "; only its owner may do this"
+                                    : "; client " + hex(key) +
+                                          " is not one of its editors (the owner's SetAccess)"));
+}
+
 Bytes ServerCore::applyBytes(std::span<const uint8_t> payload, uint64_t envelopeKey,
                              uint64_t envelopeSeq) {
   Incoming in;
@@ -557,6 +595,10 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
     st = err(Code::Malformed, "command.request is missing");
     return finish();
   }
+  if (sw && !replaying_) {  // replayed commands were allowed when first applied
+    st = checkAccess(*sw, c, envelopeKey);
+    if (!st.ok()) return finish();
+  }
   switch (type) {
     case wire::Request::Hello: {
       auto* r = c.request_as_Hello();
@@ -619,6 +661,9 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       auto w = makeWorld(name, preset, def);
       w->id = nextWorldId_++;
       w->ephemeral = r->ephemeral();
+      w->owner = startupCreate_ ? 0 : envelopeKey;
+      if (r->editors()) w->editors.assign(r->editors()->begin(), r->editors()->end());
+      w->shared = r->shared();
       ctx.header.world = w->id;
       ServerWorld& made = *w;
       worlds_[w->id] = std::move(w);
@@ -757,6 +802,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
         return finish();
       }
       const uint32_t id = sw->nextInterest++;
+      in.client = envelopeKey;
       sw->interests.emplace(id, std::move(in));
       ReliableMessage m;
       m.type = ReliableMessage::Type::InterestAdded;
@@ -770,11 +816,18 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
     }
     case wire::Request::Unsubscribe: {
       const uint32_t id = c.request_as_Unsubscribe()->interest();
-      if (!sw->interests.erase(id)) {
+      auto it = sw->interests.find(id);
+      if (it == sw->interests.end()) {
         st = err(Code::NotFound, "unsubscribe.interest " + std::to_string(id) +
                                      " is not an interest of this world");
         return finish();
       }
+      // Its subscriber, or whoever may change the world.
+      if (it->second.client != envelopeKey) {
+        st = checkAccess(*sw, c, envelopeKey);
+        if (!st.ok()) return finish();
+      }
+      sw->interests.erase(it);
       ReliableMessage m;
       m.type = ReliableMessage::Type::InterestRemoved;
       m.world = sw->id;
@@ -785,6 +838,13 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
     case wire::Request::Pause: {
       sw->mode = RunMode::Paused;
       sw->accumulator = 0;
+      return finish();
+    }
+    case wire::Request::SetAccess: {
+      auto* r = c.request_as_SetAccess();
+      sw->editors.clear();
+      if (r->editors()) sw->editors.assign(r->editors()->begin(), r->editors()->end());
+      sw->shared = r->shared();
       return finish();
     }
     case wire::Request::QueryState: {

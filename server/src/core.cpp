@@ -121,8 +121,10 @@ Status ServerCore::createWorld(const std::string& name, const std::string& prese
   args.preset = preset;
   args.backend = backend;
   args.ephemeral = ephemeral;
+  startupCreate_ = true;  // no owner: every client may use a start-up world
   Bytes reply =
       applyBytes(b.createWorld(args).finish({config_.serverId, 0, 0}), config_.serverId, 0);
+  startupCreate_ = false;
   auto d = protocol::decodeReply(std::move(reply), config_.limits);
   if (!d.ok()) return Status::Error(Code::Internal, "create world reply: " + d.status.message);
   if (d->status() != Code::Ok) {
@@ -346,6 +348,12 @@ void ServerCore::dispatch(Incoming in) {
   if (w && (w->busy() || !w->waiting.empty())) {
     if (!endsJob(in)) {  // after the job and what waits for it, in order
       w->waiting.push_back(std::move(in));
+      return;
+    }
+    // A client that may not do this to the world does not end its job: refused now.
+    if (in.command->client_id() != in.envelopeKey ||
+        !checkAccess(*w, *in.command, in.envelopeKey).ok()) {
+      applyNow(in);
       return;
     }
     // Pause, ResetWorld, DestroyWorld end the job. What waited for it came first: it applies

@@ -33,7 +33,7 @@ namespace {
 /// and checkpoint, or are steps).
 bool journaled(wire::Request t) {
   return protocol::isBatchable(t) || t == wire::Request::Batch || t == wire::Request::Run ||
-         t == wire::Request::Pause;
+         t == wire::Request::Pause || t == wire::Request::SetAccess;
 }
 
 std::vector<uint8_t> markPayload(const ServerWorld& w) {
@@ -96,6 +96,9 @@ Status ServerCore::checkpointWorld(ServerWorld& w) {
   c.meta.revision = w.revision;
   c.meta.mode = uint8_t(w.mode);
   c.meta.rateHz = w.rateHz;
+  c.meta.owner = w.owner;
+  c.meta.editors = w.editors;
+  c.meta.shared = w.shared;
   phys::Status ps = w.world->saveSnapshot(&c.engine);
   if (!ps.ok())
     return Status::Error(Code::Internal, "checkpoint of world " + std::to_string(w.id) + ": " +
@@ -240,6 +243,9 @@ Status ServerCore::restoreInto(ServerWorld& w, const Checkpoint& c,
   w.revision = c.meta.revision;
   w.mode = RunMode(c.meta.mode);
   w.rateHz = c.meta.rateHz;
+  w.owner = c.meta.owner;
+  w.editors = c.meta.editors;
+  w.shared = c.meta.shared;
   w.accumulator = 0;
   w.bodyDefs.clear();
   w.jointDefs.clear();

@@ -151,6 +151,10 @@ std::vector<uint8_t> encodeCheckpoint(const Checkpoint& c) {
   w.put<uint64_t>(c.meta.revision);
   w.put<uint8_t>(c.meta.mode);
   w.put<double>(c.meta.rateHz);
+  w.put<uint64_t>(c.meta.owner);
+  w.put<uint8_t>(c.meta.shared);
+  w.put<uint32_t>(uint32_t(c.meta.editors.size()));
+  for (uint64_t e : c.meta.editors) w.put<uint64_t>(e);
   w.blob(c.engine);
   w.blob(c.defs);
   w.put<uint32_t>(crc(w.b));
@@ -180,6 +184,11 @@ Status decodeCheckpoint(std::span<const uint8_t> bytes, Checkpoint* out) {
   c.meta.revision = r.get<uint64_t>();
   c.meta.mode = r.get<uint8_t>();
   c.meta.rateHz = r.get<double>();
+  c.meta.owner = r.get<uint64_t>();
+  c.meta.shared = r.get<uint8_t>() != 0;
+  const uint32_t editors = r.get<uint32_t>();
+  for (uint32_t i = 0; r.ok && i < editors && i <= protocol::kMaxEditors; ++i)
+    c.meta.editors.push_back(r.get<uint64_t>());
   auto engine = r.blob();
   auto defs = r.blob();
   if (!r.ok || r.at != r.b.size())

@@ -37,7 +37,10 @@ class BudgetTest : public ::testing::Test {
   void makeCore(CoreConfig c) {
     core = std::make_unique<ServerCore>(std::move(c));
     ASSERT_TRUE(core->init().ok());
-    Reply r = send(CommandBuilder().createWorld({"w", "", std::nullopt, 0}), 0);
+    // Shared: the slice tests' clients (kA, kB, ...) all change it.
+    protocol::CreateWorldArgs args{"w", "", std::nullopt, 0};
+    args.shared = true;
+    Reply r = send(CommandBuilder().createWorld(args), 0);
     ASSERT_EQ(r->status(), Code::Ok) << message(r);
     world = r->world();
   }
@@ -211,7 +214,9 @@ class SliceTest : public BudgetTest {
     std::vector<phys::BodyDef> defs;
     for (int i = 0; i < 200; ++i) defs.push_back(boxBody({float(i % 20) * 2, float(i / 20) * 2, 1}));
     ASSERT_EQ(send(CommandBuilder().spawnBodies(defs))->status(), Code::Ok);
-    Reply r = send(CommandBuilder().createWorld({"other", "", std::nullopt, 0}), 0);
+    protocol::CreateWorldArgs args{"other", "", std::nullopt, 0};
+    args.shared = true;
+    Reply r = send(CommandBuilder().createWorld(args), 0);
     other = r->world();
   }
   void submit(uint64_t client, CommandBuilder& b, uint32_t w) {
@@ -323,9 +328,17 @@ TEST_F(SliceTest, PauseEndsWaitingJobsAndKeepsTheOrderOfTheRest) {
 TEST_F(SliceTest, DestroyingABusyWorldAnswersItsStep) {
   submit(0xA, CommandBuilder().step(100000), world);
   core->processPending();
+  // Another client may not destroy it: refused at once, the job goes on.
   submit(0xB, CommandBuilder().destroyWorld(), world);
   core->processPending();
   std::vector<Reply> r = replies();
+  ASSERT_EQ(r.size(), 1u);
+  EXPECT_EQ(r[0]->status(), Code::PermissionDenied);
+  EXPECT_TRUE(core->world(world)->busy());
+  // Its owner may.
+  submit(kClient, CommandBuilder().destroyWorld(), world);
+  core->processPending();
+  r = replies();
   ASSERT_EQ(r.size(), 2u);
   EXPECT_EQ(r[0]->status(), Code::IncorrectState);
   EXPECT_EQ(r[1]->status(), Code::Ok);
@@ -370,7 +383,9 @@ TEST_F(SliceTest, LoadsInFlightAreBounded) {
   CoreConfig c = testConfig();
   c.maxConcurrentLoads = 1;
   makeCore(c);
-  Reply r = send(CommandBuilder().createWorld({"second", "", std::nullopt, 0}), 0);
+  protocol::CreateWorldArgs secondArgs{"second", "", std::nullopt, 0};
+  secondArgs.shared = true;
+  Reply r = send(CommandBuilder().createWorld(secondArgs), 0);
   const uint32_t second = r->world();
   submit(0xA, CommandBuilder().loadSceneNamed("pile_10k"), world);
   submit(0xB, CommandBuilder().loadSceneNamed("pile_10k"), second);
@@ -435,7 +450,9 @@ TEST_F(BudgetTest, BodiesPerWorldAndInAll) {
                 Code::ResourceExhausted, "server.max_bodies_per_world");
   defs.resize(10);
   ASSERT_EQ(send(CommandBuilder().spawnBodies(defs))->status(), Code::Ok);
-  Reply r = send(CommandBuilder().createWorld({"second", "", std::nullopt, 0}), 0);
+  protocol::CreateWorldArgs secondArgs{"second", "", std::nullopt, 0};
+  secondArgs.shared = true;
+  Reply r = send(CommandBuilder().createWorld(secondArgs), 0);
   const uint32_t second = r->world();
   defs.resize(6);
   r = send(CommandBuilder().spawnBodies(defs), second);

@@ -134,6 +134,7 @@ TEST(Durable, EveryAcknowledgedEditSurvivesARestart) {
   EXPECT_EQ(b->world(id)->bodyDefs.at(ids[0]).name, "bottom");
   EXPECT_EQ(b->world(id)->bodyDefs.size(), a.world(id)->bodyDefs.size());
   EXPECT_EQ(b->world(id)->preset, "pgs");
+  EXPECT_EQ(b->world(id)->owner, kClient);  // access is kept too
   ASSERT_TRUE(a.stepWorld(id, 40).ok());
   expectSameFuture(a, id, *b);
   // New ids continue where the original's do.

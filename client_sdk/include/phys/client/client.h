@@ -203,6 +203,10 @@ class WorldHandle {
   /// Real time at rateHz (0: as fast as possible).
   std::future<Ack> run(float rateHz = 60, CallOptions o = {});
   std::future<Ack> pause(CallOptions o = {});
+  /// The world's owner only: who else may change it (docs/SERVER.md "Access"). editors:
+  /// client ids (Client::clientId()); shared: every client. Others get PermissionDenied.
+  std::future<Ack> setAccess(std::span<const uint64_t> editors, bool shared = false,
+                             CallOptions o = {});
   /// ids empty: every body, paged by first / maxCount.
   std::future<StateFrame> queryState(std::span<const uint64_t> ids = {}, uint32_t first = 0,
                                      uint32_t maxCount = 0, CallOptions o = {});

@@ -18,6 +18,7 @@ enum class ErrorCode : uint8_t {
   Unsupported = 5,
   ResourceExhausted = 6,
   Internal = 7,
+  PermissionDenied = 8,  ///< this client may not change that world (docs/SERVER.md "Access")
   Timeout = 100,       ///< no reply before the request's deadline
   Disconnected = 101,  ///< the server went away (or restarted) with the request pending
   Transport = 102,     ///< a DDS call failed

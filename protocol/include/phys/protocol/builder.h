@@ -47,6 +47,10 @@ struct CreateWorldArgs {
   /// Not kept on a durable server's disk (docs/SERVER.md "Durable worlds"): a restart loses
   /// it, and its commands are answered without waiting for a disk.
   bool ephemeral = false;
+  /// Access (docs/SERVER.md "Access"): the creating client owns the world; these clients may
+  /// change it too; shared: any client may.
+  std::vector<uint64_t> editors = {};
+  bool shared = false;
 };
 
 /// Solver settings to change; unset fields keep the world's current value.
@@ -135,6 +139,8 @@ class CommandBuilder {
   CommandBuilder& subscribeBodies(std::span<const uint64_t> ids);
   CommandBuilder& subscribeRegion(phys::Vec3 lo, phys::Vec3 hi);
   CommandBuilder& unsubscribe(uint32_t interest);
+  /// The world's owner only: who else may change it.
+  CommandBuilder& setAccess(std::span<const uint64_t> editors, bool shared);
   CommandBuilder& queryState(std::span<const uint64_t> ids = {}, uint32_t first = 0,
                              uint32_t maxCount = 0);
   /// file: also (or only, with returnBytes false) written on the server under that name.

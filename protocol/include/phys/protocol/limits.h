@@ -14,6 +14,8 @@ inline constexpr uint32_t kMaxEnvelopeBytes = 4u << 20;
 
 /// Default number of bodies per StateFrame chunk (a lost datagram loses little).
 inline constexpr uint32_t kDefaultBodiesPerChunk = 1000;
+/// Editors a world's owner may name (CreateWorld.editors, SetAccess.editors).
+inline constexpr uint32_t kMaxEditors = 256;
 
 /// Every limit the decoders check, with its default. Counts are per message: a Batch's
 /// commands share one budget. Exceeding a count or size gives ResourceExhausted; a number out

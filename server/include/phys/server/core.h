@@ -155,6 +155,12 @@ struct ServerWorld {
   std::string name;
   std::string preset;
   std::unique_ptr<phys::World> world;
+  /// Access (docs/SERVER.md "Access"): the client that created the world owns it (0: no
+  /// owner, a start-up world: every client may do everything); editors may change it too,
+  /// and with `shared` every client may. Reads are open to all.
+  uint64_t owner = 0;
+  std::vector<uint64_t> editors;
+  bool shared = false;
   /// Definitions of live bodies and joints by packed id (poses as spawned; world info
   /// refreshes poses and velocities from the engine).
   std::map<uint64_t, phys::BodyDef> bodyDefs;
@@ -198,6 +204,7 @@ struct ServerWorld {
   /// Interests (Subscribe): streams of some of the world's bodies, each on its own topic.
   struct Interest {
     std::vector<uint64_t> ids;  ///< sorted; empty for a region
+    uint64_t client = 0;        ///< who subscribed (may unsubscribe, as may the world's editors)
     bool region = false;
     phys::Vec3 lo, hi;          ///< the region
     Published published;
@@ -344,6 +351,11 @@ class ServerCore {
   /// A world restored from engine state, against the codec's rules (the engine's own checks
   /// guard its invariants, not the protocol's ranges).
   Status checkRestored(const phys::World& w, const std::string& path) const;
+  /// Whether client `key` may apply command c to world w (docs/SERVER.md "Access"):
+  /// PermissionDenied with who may, or Ok.
+  Status checkAccess(const ServerWorld& w, const wire::Command& c, uint64_t key) const;
+  /// createWorld (start-up worlds) is making a world: it has no owner.
+  bool startupCreate_ = false;
   Status queueFrame(ServerWorld& w);
   /// One stream of a world's frames (interest 0: the world's own); false when nobody
   /// subscribes to it (nothing encoded).

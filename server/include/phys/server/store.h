@@ -18,6 +18,7 @@
 #include <string>
 #include <vector>
 
+#include "phys/protocol/limits.h"
 #include "phys/protocol/status.h"
 
 namespace phys::server {
@@ -32,6 +33,9 @@ struct CheckpointMeta {
   uint64_t tick = 0, revision = 0;
   uint8_t mode = 0;  ///< RunMode
   double rateHz = 60;
+  uint64_t owner = 0;  ///< access (ServerWorld::owner, editors, shared)
+  std::vector<uint64_t> editors;
+  bool shared = false;
 };
 
 struct Checkpoint {
