@@ -20,6 +20,7 @@ ServerCore::ServerCore(CoreConfig config)
       out_(config_.frameRingCapacity) {}
 
 ServerCore::~ServerCore() {
+  if (dataLock_ >= 0) ::close(dataLock_);
   // A loader still building a scene finishes first (its world is then dropped).
   for (auto& [thread, task] : loaders_)
     if (thread.joinable()) thread.join();

@@ -14,7 +14,12 @@
 //   checkpointPeriodS while a world changes, and when its journal passes journalMaxBytes.
 // - At start-up each world is rebuilt from its checkpoint, then its records are replayed:
 //   step to the record's tick, apply the command (or take the mark's run state).
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -321,6 +326,26 @@ Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
   if (ec)
     return Status::Error(Code::Internal,
                          "cannot create " + config_.dataDir + "/worlds: " + ec.message());
+  // One daemon per data directory: a second would interleave its writes with ours.
+  const std::string lockPath = config_.dataDir + "/lock";
+  const int fd = ::open(lockPath.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (fd < 0)
+    return Status::Error(Code::Internal, "cannot open " + lockPath + ": " + std::strerror(errno));
+  if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+    char pid[32] = {};
+    const ssize_t n = ::pread(fd, pid, sizeof pid - 1, 0);
+    ::close(fd);
+    return Status::Error(Code::IncorrectState,
+                         config_.dataDir + " is in use by another physd" +
+                             (n > 0 ? " (pid " + std::string(pid, size_t(n)) + ")" : "") +
+                             "; give each daemon its own [paths] data");
+  }
+  const std::string pid = std::to_string(::getpid());
+  if (::ftruncate(fd, 0) != 0 || ::pwrite(fd, pid.data(), pid.size(), 0) < 0) {
+    // The pid is for the message above only; the lock is what counts.
+  }
+  if (dataLock_ >= 0) ::close(dataLock_);
+  dataLock_ = fd;
   {
     std::ifstream f(config_.dataDir + "/next_world_id");
     uint32_t next = 0;

@@ -364,6 +364,24 @@ TEST(Durable, CheckpointsFoldTheJournalAndACorruptCheckpointIsNotRestored) {
   fs::remove_all(data);
 }
 
+TEST(Durable, TwoDaemonsNeverShareADataDirectory) {
+  const fs::path data = scratch("lock");
+  std::vector<std::string> notes;
+  auto a = restart(data, &notes);
+  ServerCore b(durableConfig(data));
+  ASSERT_TRUE(b.init().ok());
+  Status s = b.restoreWorlds(&notes);
+  EXPECT_EQ(s.code, Code::IncorrectState);
+  EXPECT_NE(s.message.find("in use by another physd (pid " + std::to_string(getpid())),
+            std::string::npos)
+      << s.message;
+  a.reset();  // the first goes away: the directory is free
+  ServerCore c(durableConfig(data));
+  ASSERT_TRUE(c.init().ok());
+  EXPECT_TRUE(c.restoreWorlds(&notes).ok());
+  fs::remove_all(data);
+}
+
 TEST(Durable, AMismatchedClientIdIsAnsweredToTheSenderOnly) {
   // Issue 24 6(a): a command naming another client is answered to its envelope's key.
   ServerCore core(testConfig());

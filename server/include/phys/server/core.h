@@ -458,6 +458,9 @@ class ServerCore {
   uint32_t journaledWorld_ = 0;
   /// The status of the last command applyChecked answered.
   Status lastStatus_;
+  /// `<dataDir>/lock`, flock'ed by restoreWorlds for the core's life: two daemons never
+  /// write one data directory.
+  int dataLock_ = -1;
   std::function<void(bool, const std::string&)> log_;
 
   CoreConfig config_;
