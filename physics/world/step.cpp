@@ -5,6 +5,7 @@
 #include "phys/world/world.h"
 
 #include <algorithm>
+#include <limits>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -80,7 +81,16 @@ void World::step() {
         fault = w.checkHealth();
       }
       if (w.stats.guardRetries > 0) w.stats.guardEvents++;
-      if (!fault.empty()) w.quarantine();
+      if (!fault.empty()) {
+        w.quarantine();
+        // The statistics describe the world as it is now, not the failed attempt: that one's
+        // energy and residual may be NaN, and a world whose statistics are not finite cannot
+        // be saved (saveSnapshot), which a durable server does every few seconds. The
+        // residual of a solve that diverged is reported as the largest double.
+        w.stats.energyAfter = energy();
+        if (!std::isfinite(w.stats.velocityResidual))
+          w.stats.velocityResidual = std::numeric_limits<double>::max();
+      }
     }
     if (w.stats.pairsDropped > 0) w.stats.pairLimitSteps++;
     // Islands and sleeping, once the step is accepted (islands.cpp): rest timers, and the

@@ -92,6 +92,9 @@ Status ServerCore::createStore(ServerWorld& w) {
 
 Status ServerCore::checkpointWorld(ServerWorld& w) {
   if (!w.store) return Status::Ok();
+  // A failed checkpoint is tried again a period later, not at every tick.
+  w.checkpointAt = std::chrono::steady_clock::now();
+  w.checkpointFailed = true;
   Checkpoint c;
   c.meta.worldId = w.id;
   c.meta.name = w.name;
@@ -117,8 +120,8 @@ Status ServerCore::checkpointWorld(ServerWorld& w) {
   for (auto& [id, d] : w.jointDefs) defs.joints.push_back({id, d});
   c.defs = protocol::encodeSnapshot(defs);
   Status s = w.store->writeCheckpoint(std::move(c));
-  w.checkpointAt = std::chrono::steady_clock::now();
   if (!s.ok()) return s;
+  w.checkpointFailed = false;
   w.checkpointTick = w.journaledTick = w.tick;
   return Status::Ok();
 }
@@ -222,9 +225,12 @@ void ServerCore::commitDurable() {
   for (auto& [id, w] : worlds_) {
     if (!w->store || w->busy()) continue;
     const bool changed = w->store->journalRecords() > 0 || w->tick != w->checkpointTick;
-    const bool due = w->store->journalBytes() > config_.journalMaxBytes ||
-                     (changed && now - w->checkpointAt >=
-                                     std::chrono::duration<double>(config_.checkpointPeriodS));
+    const bool period =
+        now - w->checkpointAt >= std::chrono::duration<double>(config_.checkpointPeriodS);
+    // A long journal is folded at once, unless the last try failed (then a period later).
+    const bool due = (w->store->journalBytes() > config_.journalMaxBytes &&
+                      (!w->checkpointFailed || period)) ||
+                     (changed && period);
     if (!due) continue;
     Status s = checkpointWorld(*w);
     if (!s.ok()) log(true, "world " + std::to_string(id) + ": checkpoint: " + s.message);

@@ -96,7 +96,9 @@ TEST(ElasticImpacts, StressSeed26ClusterMakesNoEnergy) {
     w.step();
     highest = std::max(highest, w.energy());
     // The impacts are over by step 20; the ground plane, 5 m below, takes momentum later.
-    if (i == 60) EXPECT_LT(length(momentumOf() - p0), 1e-3f * length(p0));
+    if (i == 60) {
+      EXPECT_LT(length(momentumOf() - p0), 1e-3f * length(p0));
+    }
   }
   EXPECT_LE(highest, e0 * (1 + 1e-3)) << "energy rose by " << (highest / e0 - 1) * 100 << " %";
 }

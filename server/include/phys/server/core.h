@@ -246,6 +246,7 @@ struct ServerWorld {
   std::unique_ptr<WorldStore> store;
   uint64_t journaledTick = 0;  ///< the tick of the last record or checkpoint
   uint64_t checkpointTick = 0;
+  bool checkpointFailed = false;  ///< the last try; retried a checkpoint period later
   std::chrono::steady_clock::time_point checkpointAt{}, markAt{};
   /// Commands for this world that arrived during its StepJob or LoadJob, applied in order
   /// after it.

@@ -184,7 +184,9 @@ struct StepStats {
   int contactsBetweenHalves = -1;
   double energyBefore = 0;      ///< J, kinetic + potential at step start
   double energyAfter = 0;       ///< J, at step end
-  double velocityResidual = 0;  ///< norm of J v + bias over active rows after the solve
+  /// Norm of J v + bias over active rows after the solve; after a step whose bodies the guard
+  /// stopped (guardQuarantined), the largest double if the solve diverged.
+  double velocityResidual = 0;
   double maxPenetration = 0;    ///< m, deepest contact overlap at the start of the step
   int iterationsUsed =
       0;  ///< velocity iterations of the step (substeps x iterations, as redone by the guard)
