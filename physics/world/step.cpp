@@ -502,6 +502,22 @@ void World::Impl::quarantine() {
     std::fill(std::begin(c.normalImpulse), std::end(c.normalImpulse), 0.0f);
     for (auto& t : c.tangentImpulse) t[0] = t[1] = 0;
   }
+  // Nor are the joints': a NaN impulse kept for warm starting poisons the next step, which
+  // then fails and stops its bodies again, every step (found by the physd soak: worlds whose
+  // guard stopped a hundred bodies a step for the rest of the run, and could not be saved).
+  for (uint32_t i = 0; i < joints.capacity(); ++i) {
+    if (!joints.alive(i)) continue;
+    JointRec* j = &joints.at(i);
+    bool finite = isFinite(j->state.reactionForce) && isFinite(j->state.reactionTorque) &&
+                  std::isfinite(j->state.positionError) && std::isfinite(j->state.angleError);
+    for (float f : j->impulses) finite = finite && std::isfinite(f);
+    if (finite) continue;
+    std::fill(std::begin(j->impulses), std::end(j->impulses), 0.0f);
+    j->impulseCount = 0;
+    const JointId id = j->state.id;
+    j->state = JointState{};
+    j->state.id = id;
+  }
 }
 
 void World::Impl::applyCommands() {
