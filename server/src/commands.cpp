@@ -539,7 +539,9 @@ Bytes ServerCore::apply(const Incoming& in) {
 
 Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey) {
   // No exception leaves a command: the engine and the codec report failures as statuses, so
-  // one that escapes anyway is answered here and the daemon goes on.
+  // one that escapes anyway is answered here and the daemon goes on. (Such a command is not
+  // journaled: lastStatus_ stays an error unless applyChecked answers.)
+  lastStatus_ = Status::Error(Code::Internal, "the command threw");
   try {
     return applyChecked(c, envelopeKey);
   } catch (const std::bad_alloc&) {
