@@ -938,23 +938,10 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
                        " bytes (server.max_snapshot_mb); overwrite an old file instead");
           return finish();
         }
-        // Written aside and renamed: a failed write never leaves a torn snapshot.
-        const std::string tmp = path + ".partial";
-        {
-          std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
-          f.write(reinterpret_cast<const char*>(snap.data()), std::streamsize(snap.size()));
-          f.flush();
-          if (!f) {
-            f.close();
-            fs::remove(tmp, ec);
-            st = err(Code::Internal, "save_snapshot.file: cannot write '" + file + "'");
-            return finish();
-          }
-        }
-        fs::rename(tmp, path, ec);
-        if (ec) {
-          fs::remove(tmp, ec);
-          st = err(Code::Internal, "save_snapshot.file: cannot write '" + file + "'");
+        // Written aside, synced and renamed (as checkpoints are): a failed write never leaves
+        // a torn snapshot.
+        if (Status w = writeFileAtomically(path, snap); !w.ok()) {
+          st = err(Code::Internal, "save_snapshot.file: cannot write '" + file + "': " + w.message);
           return finish();
         }
       }

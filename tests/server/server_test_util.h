@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -60,6 +61,32 @@ inline std::vector<uint64_t> jointIds(const Reply& r) {
     if (ids->joints())
       for (uint64_t id : *ids->joints()) v.push_back(id);
   return v;
+}
+
+/// A command as the reader thread queues it (ServerCore::submit): envelope key and seq, the
+/// payload decoded.
+inline Incoming queuedCommand(uint64_t client, uint64_t seq, protocol::CommandBuilder& b,
+                              uint32_t world) {
+  Incoming in;
+  in.envelopeKey = client;
+  in.envelopeSeq = seq;
+  protocol::Bytes bytes = b.finish({client, seq, world});
+  in.bytes = bytes.size();
+  in.command = protocol::decodeCommand(std::move(bytes));
+  EXPECT_TRUE(in.command.ok()) << in.command.status.message;
+  return in;
+}
+
+/// The replies the core has pushed so far, decoded, in order (other queued items dropped).
+inline std::vector<Reply> takeReplies(ServerCore& core) {
+  std::vector<Reply> out;
+  for (;;) {
+    PublishQueue::Item item = core.out().pop(std::chrono::milliseconds(0));
+    if (!item.reliable && !item.frame) break;
+    if (item.reliable && item.reliable->type == ReliableMessage::Type::Reply)
+      out.push_back(decode(item.reliable->chunks.at(0)));
+  }
+  return out;
 }
 
 /// A size field of /proc/<pid>/status ("VmRSS", "VmHWM"), bytes; -1 when absent. pid 0: this

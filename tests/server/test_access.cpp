@@ -111,13 +111,7 @@ TEST_F(AccessTest, EditorsEditSharedWorldsAreOpenOnlyTheOwnerDestroys) {
 TEST_F(AccessTest, ANonEditorsPauseDoesNotEndTheOwnersStep) {
   // Pause, ResetWorld and DestroyWorld end a running Step job, but only when the client may.
   auto submit = [&](uint64_t client, CommandBuilder& b) {
-    Incoming in;
-    in.envelopeKey = client;
-    in.envelopeSeq = ++seq;
-    Bytes bytes = b.finish({client, seq, world});
-    in.bytes = bytes.size();
-    in.command = protocol::decodeCommand(std::move(bytes));
-    core.submit(std::move(in));
+    core.submit(queuedCommand(client, ++seq, b, world));
   };
   std::vector<phys::BodyDef> defs;
   for (int i = 0; i < 300; ++i) defs.push_back(boxBody({float(i % 20) * 2, float(i / 20) * 2, 1}));
@@ -129,14 +123,9 @@ TEST_F(AccessTest, ANonEditorsPauseDoesNotEndTheOwnersStep) {
   core.processPending();
   EXPECT_TRUE(core.world(world)->busy());
   bool refused = false;
-  for (;;) {
-    PublishQueue::Item item = core.out().pop(std::chrono::milliseconds(0));
-    if (!item.reliable && !item.frame) break;
-    if (item.reliable && item.reliable->type == ReliableMessage::Type::Reply) {
-      Reply r = decode(item.reliable->chunks.at(0));
-      EXPECT_EQ(r->client_id(), kOther) << "only the refusal is answered yet";
-      refused |= r->status() == Code::PermissionDenied;
-    }
+  for (const Reply& r : takeReplies(core)) {
+    EXPECT_EQ(r->client_id(), kOther) << "only the refusal is answered yet";
+    refused |= r->status() == Code::PermissionDenied;
   }
   EXPECT_TRUE(refused);
 }

@@ -220,26 +220,10 @@ class SliceTest : public BudgetTest {
     other = r->world();
   }
   void submit(uint64_t client, CommandBuilder& b, uint32_t w) {
-    Incoming in;
-    in.envelopeKey = client;
-    in.envelopeSeq = ++seq;
-    protocol::Bytes bytes = b.finish({client, seq, w});
-    in.bytes = bytes.size();
-    in.command = protocol::decodeCommand(std::move(bytes));
-    ASSERT_TRUE(in.command.ok());
-    core->submit(std::move(in));
+    core->submit(queuedCommand(client, ++seq, b, w));
   }
   /// Replies pushed so far, decoded, in order.
-  std::vector<Reply> replies() {
-    std::vector<Reply> out;
-    for (;;) {
-      PublishQueue::Item item = core->out().pop(std::chrono::milliseconds(0));
-      if (!item.reliable && !item.frame) break;
-      if (item.reliable && item.reliable->type == ReliableMessage::Type::Reply)
-        out.push_back(decode(item.reliable->chunks.at(0)));
-    }
-    return out;
-  }
+  std::vector<Reply> replies() { return takeReplies(*core); }
   uint32_t other = 0;
 };
 

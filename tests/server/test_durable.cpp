@@ -38,28 +38,9 @@ struct Client {
     return decode(core->applyBytes(b.finish({kClient, seq, world}), kClient, seq));
   }
   void submit(CommandBuilder& b, uint32_t world) {
-    ++seq;
-    Incoming in;
-    in.envelopeKey = kClient;
-    in.envelopeSeq = seq;
-    Bytes bytes = b.finish({kClient, seq, world});
-    in.bytes = bytes.size();
-    in.command = protocol::decodeCommand(std::move(bytes));
-    core->submit(std::move(in));
+    core->submit(queuedCommand(kClient, ++seq, b, world));
   }
 };
-
-/// The replies the core has pushed so far.
-std::vector<Reply> drainReplies(ServerCore& core) {
-  std::vector<Reply> out;
-  for (;;) {
-    PublishQueue::Item item = core.out().pop(std::chrono::milliseconds(0));
-    if (!item.reliable && !item.frame) break;
-    if (item.reliable && item.reliable->type == ReliableMessage::Type::Reply)
-      out.push_back(decode(std::move(item.reliable->chunks.at(0))));
-  }
-  return out;
-}
 
 std::unique_ptr<ServerCore> restart(const fs::path& data, std::vector<std::string>* notes) {
   auto core = std::make_unique<ServerCore>(durableConfig(data));
@@ -169,7 +150,7 @@ TEST(Durable, ARunningWorldResumesWhereItsJournalEndsAndEqualsAnUninterruptedRun
     a.processPending();
     a.advance(1.0 / 60);
   }
-  for (const Reply& rep : drainReplies(a)) EXPECT_EQ(rep->status(), Code::Ok) << message(rep);
+  for (const Reply& rep : takeReplies(a)) EXPECT_EQ(rep->status(), Code::Ok) << message(rep);
   ASSERT_GT(a.world(id)->tick, 100u);
 
   const fs::path copy = scratch("running_copy");
@@ -342,7 +323,7 @@ TEST(Durable, CheckpointsFoldTheJournalAndACorruptCheckpointIsNotRestored) {
       a.processPending();
       a.advance(0);
     }
-    for (const Reply& rep : drainReplies(a)) EXPECT_EQ(rep->status(), Code::Ok);
+    for (const Reply& rep : takeReplies(a)) EXPECT_EQ(rep->status(), Code::Ok);
     EXPECT_GT(a.world(id)->store->generation(), 2u);
     EXPECT_LE(a.world(id)->store->journalBytes(), 4096u + 512u);
   }
