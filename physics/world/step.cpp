@@ -463,18 +463,29 @@ void World::Impl::restoreSnapshot(bool moveContacts) {
   deviceStale();
 }
 
-const char* World::Impl::bodyFault(const BodyRec& b) const {
+const char* World::Impl::bodyFault(const BodyRec& b, const Snapshot::Body& before) const {
   if (!isFinite(b.xf.p) || !isFinite(b.xf.q) || !isFinite(b.v) || !isFinite(b.w))
     return "has a non-finite state";
   // The speed clamp only bites when something has blown up.
   if (length(b.v) >= 0.999f * def.maxLinearSpeed || length(b.w) >= 0.999f * def.maxAngularSpeed)
     return "reached the speed limit";
+  // Positions integrate the velocities the solve leaves, which the clamp has not seen yet: a
+  // solve that blew up can move a body far (found by fuzz_apply: a body with inertia moments
+  // (1.2e-38, 2, 3) went 1.5e7 m in one step, then left it below the speed limit). A dynamic
+  // body's centre of mass moves at most maxLinearSpeed, plus what a push-out adds, per second;
+  // twice that in one step is a blow-up. (Kinematic bodies move at their set velocity.)
+  if (b.type == BodyType::Dynamic) {
+    const double d = length(Vec3{b.com.x - before.com.x, b.com.y - before.com.y,
+                                 b.com.z - before.com.z});
+    if (d > 2.0 * (double(def.maxLinearSpeed) + double(def.solver.maxPushout)) * def.timeStep)
+      return "moved farther in one step than its speed limit allows";
+  }
   return nullptr;
 }
 
 std::string World::Impl::checkHealth() const {
   for (const Snapshot::Body& s : snapshot.bodies) {
-    if (const char* fault = bodyFault(bodies.at(s.index)))
+    if (const char* fault = bodyFault(bodies.at(s.index), s))
       return "body " + std::to_string(s.index) + " " + fault;
   }
   double gain = stats.energyAfter - stats.energyBefore;
@@ -490,7 +501,7 @@ void World::Impl::quarantine() {
   // rest of the world keep its step. A bad body never poisons the others.
   for (const Snapshot::Body& s : snapshot.bodies) {
     BodyRec& b = bodies.at(s.index);
-    if (!bodyFault(b)) continue;
+    if (!bodyFault(b, s)) continue;
     b.xf = s.xf;
     b.com = s.com;
     b.v = b.w = {};

@@ -49,6 +49,14 @@ bool positive(Vec3 v) {
   return positive(v.x) && positive(v.y) && positive(v.z);
 }
 
+/// (x, y, z) scaled to length maxLength when longer (computed in double; the result is finite
+/// for finite input).
+Vec3 clampedLength(double x, double y, double z, float maxLength) {
+  const double len = std::sqrt(x * x + y * y + z * z);
+  const double s = len > double(maxLength) ? double(maxLength) / len : 1.0;
+  return {float(x * s), float(y * s), float(z * s)};
+}
+
 /// Accepts quaternions within 1e-3 of unit length (normalizing them); rejects others.
 Status checkRotation(Quat* q, const char* what) {
   if (!isFinite(*q)) return invalid(std::string(what) + ": rotation is not finite");
@@ -537,8 +545,35 @@ Status World::applyImpulse(BodyId id, Vec3 impulse, Vec3 point) {
   impl_->wake(id.index);
   Mat3 R = toMat3(b->xf.q);
   Mat3 invI = R * b->invInertiaLocal * transpose(R);
-  b->v += impulse * b->invMass;
-  b->w += invI * cross(point - b->com, impulse);
+  const Vec3 r = point - b->com;
+  const Vec3 v = b->v + impulse * b->invMass;
+  const Vec3 w = b->w + invI * cross(r, impulse);
+  // The speed clamps hold between steps too: an impulse too large for the body's mass would
+  // otherwise leave a velocity far past them (or infinite) until the next step clamps it, which
+  // getBody, snapshots and a server's world description (the codec bounds speeds) would read.
+  // Within the clamps the result is the plain float sum, as before.
+  const float maxV = impl_->def.maxLinearSpeed, maxW = impl_->def.maxAngularSpeed;
+  if (isFinite(v) && length(v) <= maxV) {
+    b->v = v;
+  } else {
+    const double m = b->invMass;
+    b->v = clampedLength(double(b->v.x) + double(impulse.x) * m,
+                         double(b->v.y) + double(impulse.y) * m,
+                         double(b->v.z) + double(impulse.z) * m, maxV);
+  }
+  if (isFinite(w) && length(w) <= maxW) {
+    b->w = w;
+  } else {
+    // r x impulse and invI times it in double: every product of finite floats is finite there.
+    const double cx = double(r.y) * impulse.z - double(r.z) * impulse.y;
+    const double cy = double(r.z) * impulse.x - double(r.x) * impulse.z;
+    const double cz = double(r.x) * impulse.y - double(r.y) * impulse.x;
+    auto row = [&](int i) {
+      return double(invI.c0[i]) * cx + double(invI.c1[i]) * cy + double(invI.c2[i]) * cz;
+    };
+    b->w = clampedLength(double(b->w.x) + row(0), double(b->w.y) + row(1),
+                         double(b->w.z) + row(2), maxW);
+  }
   impl_->deviceEdited(id.index);
   return Status::Ok();
 }

@@ -322,7 +322,8 @@ struct World::Impl {
   /// copied (nothing allocates: a failed step's undo), leaving the copy without them.
   void restoreSnapshot(bool moveContacts = false);
   std::string checkHealth() const;                ///< empty when the step was healthy
-  const char* bodyFault(const BodyRec& b) const;  ///< what is wrong with a body, or null
+  /// What is wrong with a body after a step (before: its state when the step began), or null.
+  const char* bodyFault(const BodyRec& b, const Snapshot::Body& before) const;
   void quarantine();  ///< joint rows at the current poses, inside the substep loop
   void finalize(float hSub);
   void measureJoints();  ///< joints' position and angle errors at the bodies' poses
