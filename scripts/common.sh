@@ -4,7 +4,7 @@
 PHYS_PACKAGES=(cmake ninja-build g++ pkg-config libeigen3-dev nlohmann-json3-dev libqhull-dev
   libgtest-dev libgmock-dev libcli11-dev
   cyclonedds-dev cyclonedds-tools libflatbuffers-dev flatbuffers-compiler libspdlog-dev
-  libtomlplusplus-dev zlib1g-dev bc python3
+  libtomlplusplus-dev zlib1g-dev libssl-dev bc python3
   libvulkan-dev glslc mesa-vulkan-drivers vulkan-validationlayers vulkan-tools
   libbullet-dev libode-dev libmujoco-dev gnuplot-nox)
 

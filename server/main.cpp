@@ -51,6 +51,19 @@ int main(int argc, char** argv) {
     ss << f.rdbuf();
     cycloneXml = ss.str();
   }
+  if (cfg.security.enabled()) {
+    s = phys::protocol::addSecurity(&cycloneXml, cfg.security);
+    if (!s.ok()) {
+      spdlog::critical("{}", s.message);
+      return 2;
+    }
+  }
+  // With DDS Security (from [security] or a Cyclone configuration that has it, such as
+  // configs/cyclonedds/secure.xml), world owners and editors are identities
+  // (docs/SECURITY.md "Who owns a world").
+  const bool identities = cycloneXml.find("<Security") != std::string::npos;
+  cfg.core.identities = identities;
+  if (identities) spdlog::info("dds: security on; commands are attributed to identities");
 
   // Real-time scheduling, set before any thread starts so that every thread inherits it.
   if (cfg.realtimePriority > 0) {
@@ -118,7 +131,7 @@ int main(int argc, char** argv) {
     if (!b.note.empty()) spdlog::warn("world {} '{}': {}", id, w.name, b.note);
   }
 
-  DdsEndpoint endpoint(&core, {cfg.domain, cycloneXml});
+  DdsEndpoint endpoint(&core, {cfg.domain, cycloneXml, identities});
   s = endpoint.start();
   if (!s.ok()) {
     spdlog::critical("dds: {}", s.message);

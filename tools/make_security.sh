@@ -3,13 +3,18 @@
 # CA, a key and CA-signed certificate per identity, and the governance and permissions
 # documents signed by that CA (S/MIME, as Cyclone's access-control plugin reads them).
 #
-#   tools/make_security.sh [--out DIR] [--identities "physd client1 client2"] [--days N]
+#   tools/make_security.sh [--out DIR] [--identities "physd client1 client2"]
+#                          [--servers "physd"] [--days N]
 #
 # DIR (default: <source>/build/security) then holds
 #   ca_key.pem ca_cert.pem                    the test CA (EC prime256v1, self-signed)
 #   <name>_key.pem <name>_cert.pem            per identity, subject CN=<name>,O=physd-test
 #   governance.xml governance.p7s             domains 0-230, everything protected
-#   permissions.xml permissions.p7s           a grant per identity: all topics, domains 0-230
+#   permissions.xml permissions.p7s           a grant per identity, domains 0-230: a server
+#                                             (--servers) publishes and subscribes anywhere;
+#                                             a client subscribes anywhere and publishes only
+#                                             in partition phys.id.<name>, which is how physd
+#                                             tells who sent a command (docs/SECURITY.md)
 #
 # Domains stop at 230, not DDS's 232: Cyclone 0.10's access-control plugin rejects a governance
 # or permissions document with a domain id above 230 ("Can not parse governance file").
@@ -20,12 +25,13 @@
 # openssl is needed. The CA's key lies unencrypted next to the rest: test credentials only.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
-out="$root/build/security" identities="physd client1 client2" days=365
-usage() { echo "usage: $0 [--out DIR] [--identities \"NAME ...\"] [--days N]" >&2; exit 2; }
+out="$root/build/security" identities="physd client1 client2" servers="physd" days=365
+usage() { echo "usage: $0 [--out DIR] [--identities \"NAME ...\"] [--servers \"NAME ...\"] [--days N]" >&2; exit 2; }
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --out) [[ $# -ge 2 ]] || usage; out="$2"; shift 2 ;;
     --identities) [[ $# -ge 2 ]] || usage; identities="$2"; shift 2 ;;
+    --servers) [[ $# -ge 2 ]] || usage; servers="$2"; shift 2 ;;
     --days) [[ $# -ge 2 ]] || usage; days="$2"; shift 2 ;;
     -h|--help) usage ;;
     *) usage ;;
@@ -155,6 +161,10 @@ else
 fi
 grants=""
 for n in "${names[@]}"; do
+  # A client's writers (its commands) only in its own identity partition: a command that
+  # physd reads there was written with this identity's certificate.
+  publish_partition="phys.id.$n"
+  [[ " $servers " == *" $n "* ]] && publish_partition="*"
   grants+="
     <grant name=\"${n}_permissions\">
       <subject_name>CN=$n,O=$org</subject_name>
@@ -166,7 +176,7 @@ for n in "${names[@]}"; do
         $domains
         <publish>
           <topics><topic>*</topic></topics>
-          <partitions><partition>*</partition></partitions>
+          <partitions><partition>$publish_partition</partition></partitions>
         </publish>
         <subscribe>
           <topics><topic>*</topic></topics>

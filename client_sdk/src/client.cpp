@@ -447,14 +447,21 @@ struct Client::Impl {
   explicit Impl(ClientOptions o) : options(std::move(o)) {
     clientId = options.clientId ? options.clientId : randomId();
     std::string err;
-    if (!participant.create(options.domain, options.cycloneXml, &err)) fail("participant", err);
+    std::string xml = options.cycloneXml;
+    std::vector<std::string> cmdPartitions;
+    if (options.security.enabled()) {
+      protocol::Status s = protocol::addSecurity(&xml, options.security);
+      if (!s.ok()) throw Error(ErrorCode::InvalidArgument, s.message);
+      cmdPartitions.push_back(protocol::identityPartition(options.security.identity));
+    }
+    if (!participant.create(options.domain, xml, &err)) fail("participant", err);
     if (!cmdTopic.create(participant, std::string(protocol::kCommandTopic), &err) ||
         !replyTopic.create(participant, std::string(protocol::kReplyTopic), &err) ||
         !statusTopic.create(participant, std::string(protocol::kStatusTopic), &err) ||
         !eventsTopic.create(participant, std::string(protocol::kEventsTopic), &err))
       fail("topic", err);
     if (!cmdWriter.create(participant, cmdTopic, protocol::kCommandQos,
-                          protocol::PayloadKind::Command, &err))
+                          protocol::PayloadKind::Command, &err, cmdPartitions))
       fail("writer", err);
     if (!replyReader.create(participant, replyTopic, protocol::kReplyQos, &err) ||
         !statusReader.create(participant, statusTopic, protocol::kStatusQos, &err) ||

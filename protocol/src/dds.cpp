@@ -49,11 +49,33 @@ bool Topic::create(const Participant& p, const std::string& name, std::string* e
   return true;
 }
 
+namespace {
+/// A publisher (or subscriber) of its own for an entity in partitions; 0 (the participant's
+/// implicit one) for none.
+dds_entity_t partitioned(const Participant& p, const std::vector<std::string>& partitions,
+                         bool publisher, Entity* out, std::string* err) {
+  if (partitions.empty()) return p.get();
+  std::vector<const char*> names;
+  for (const std::string& s : partitions) names.push_back(s.c_str());
+  dds_qos_t* q = dds_create_qos();
+  dds_qset_partition(q, uint32_t(names.size()), names.data());
+  dds_entity_t e = publisher ? dds_create_publisher(p.get(), q, nullptr)
+                             : dds_create_subscriber(p.get(), q, nullptr);
+  dds_delete_qos(q);
+  if (!check(e, publisher ? "dds_create_publisher" : "dds_create_subscriber", err)) return 0;
+  *out = Entity(e);
+  return e;
+}
+}  // namespace
+
 bool Writer::create(const Participant& p, const Topic& t, const protocol::QosPreset& qos,
-                    protocol::PayloadKind kind, std::string* err) {
+                    protocol::PayloadKind kind, std::string* err,
+                    const std::vector<std::string>& partitions) {
   kind_ = kind;
+  const dds_entity_t parent = partitioned(p, partitions, true, &publisher_, err);
+  if (!parent) return false;
   protocol::QosPtr q = protocol::makeQos(qos);
-  dds_entity_t w = dds_create_writer(p.get(), t.get(), q.get(), nullptr);
+  dds_entity_t w = dds_create_writer(parent, t.get(), q.get(), nullptr);
   if (!check(w, "dds_create_writer " + t.name(), err)) return false;
   e_ = w;
   return true;
@@ -85,9 +107,11 @@ std::vector<dds_instance_handle_t> Writer::matchedHandles() const {
 }
 
 bool Reader::create(const Participant& p, const Topic& t, const protocol::QosPreset& qos,
-                    std::string* err) {
+                    std::string* err, const std::vector<std::string>& partitions) {
+  const dds_entity_t parent = partitioned(p, partitions, false, &subscriber_, err);
+  if (!parent) return false;
   protocol::QosPtr q = protocol::makeQos(qos);
-  dds_entity_t r = dds_create_reader(p.get(), t.get(), q.get(), nullptr);
+  dds_entity_t r = dds_create_reader(parent, t.get(), q.get(), nullptr);
   if (!check(r, "dds_create_reader " + t.name(), err)) return false;
   e_ = r;
   return true;
@@ -125,10 +149,27 @@ int Reader::take(const std::function<void(const phys_wire_Envelope&)>& fn) {
 }
 
 bool Reader::participantOf(dds_instance_handle_t writer, std::array<uint8_t, 16>* guid) const {
+  return publicationOf(writer, guid, nullptr);
+}
+
+bool Reader::publicationOf(dds_instance_handle_t writer, std::array<uint8_t, 16>* guid,
+                           std::vector<std::string>* partitions) const {
   dds_builtintopic_endpoint_t* ep = dds_get_matched_publication_data(e_, writer);
   if (!ep) return false;
   static_assert(sizeof ep->participant_key.v == 16);
   std::memcpy(guid->data(), ep->participant_key.v, 16);
+  if (partitions) {
+    partitions->clear();
+    uint32_t n = 0;
+    char** ps = nullptr;
+    if (ep->qos && dds_qget_partition(ep->qos, &n, &ps)) {
+      for (uint32_t i = 0; i < n; ++i) {
+        partitions->emplace_back(ps[i] ? ps[i] : "");
+        dds_free(ps[i]);
+      }
+      dds_free(ps);
+    }
+  }
   dds_builtintopic_free_endpoint(ep);
   return true;
 }

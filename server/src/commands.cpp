@@ -473,7 +473,8 @@ struct ServerCore::Context {
   }
 };
 
-Status ServerCore::checkAccess(const ServerWorld& w, const wire::Command& c, uint64_t key) const {
+Status ServerCore::checkAccess(const ServerWorld& w, const wire::Command& c, uint64_t key,
+                               uint64_t envelopeKey) const {
   enum class Need { Read, Edit, Own };
   Need need = Need::Edit;
   switch (c.request_type()) {
@@ -497,17 +498,18 @@ Status ServerCore::checkAccess(const ServerWorld& w, const wire::Command& c, uin
   if (c.request_type() == wire::Request::Unsubscribe) {
     auto* r = c.request_as_Unsubscribe();
     auto it = r ? w.interests.find(r->interest()) : w.interests.end();
-    if (it != w.interests.end() && it->second.client != key) need = Need::Edit;
+    if (it != w.interests.end() && it->second.client != envelopeKey) need = Need::Edit;
   }
   if (need == Need::Read || w.owner == 0 || key == w.owner) return Status::Ok();
   if (need == Need::Edit &&
       (w.shared || std::find(w.editors.begin(), w.editors.end(), key) != w.editors.end()))
     return Status::Ok();
+  const char* who = config_.identities ? "identity key " : "client ";
   return err(Code::PermissionDenied,
              std::string(protocol::requestName(c.request_type())) + ": world " +
-                 std::to_string(w.id) + " '" + w.name + "' belongs to client " + hex(w.owner) +
+                 std::to_string(w.id) + " '" + w.name + "' belongs to " + who + hex(w.owner) +
                  (need == Need::Own ? "; only its owner may do this"
-                                    : "; client " + hex(key) +
+                                    : std::string("; ") + who + hex(key) +
                                           " is not one of its editors (the owner's SetAccess)"));
 }
 
@@ -523,7 +525,7 @@ Bytes ServerCore::applyBytes(std::span<const uint8_t> payload, uint64_t envelope
 
 Bytes ServerCore::apply(const Incoming& in) {
   if (in.command.ok()) {
-    Bytes reply = apply(*in.command, in.envelopeKey);
+    Bytes reply = apply(*in.command, in.envelopeKey, in.principal);
     journalApplied(in, &reply);  // on a durable server: in the world's journal, or an error
     return reply;
   }
@@ -537,13 +539,13 @@ Bytes ServerCore::apply(const Incoming& in) {
   return protocol::encodeReply(h);
 }
 
-Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey) {
+Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey, uint64_t principal) {
   // No exception leaves a command: the engine and the codec report failures as statuses, so
   // one that escapes anyway is answered here and the daemon goes on. (Such a command is not
   // journaled: lastStatus_ stays an error unless applyChecked answers.)
   lastStatus_ = Status::Error(Code::Internal, "the command threw");
   try {
-    return applyChecked(c, envelopeKey);
+    return applyChecked(c, envelopeKey, principal ? principal : envelopeKey);
   } catch (const std::bad_alloc&) {
     ++counters_.errors;
     return protocol::encodeReply(protocol::replyTo(
@@ -559,7 +561,8 @@ Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey) {
   }
 }
 
-Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
+Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
+                                uint64_t principal) {
   ++counters_.commands;
   Context ctx{*this, protocol::replyTo(c), {}, {}, {}};
   Status& st = ctx.header.status;
@@ -598,7 +601,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
     return finish();
   }
   if (sw && !replaying_) {  // replayed commands were allowed when first applied
-    st = checkAccess(*sw, c, envelopeKey);
+    st = checkAccess(*sw, c, principal, envelopeKey);
     if (!st.ok()) return finish();
   }
   switch (type) {
@@ -663,7 +666,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       auto w = makeWorld(name, preset, def);
       w->id = nextWorldId_++;
       w->ephemeral = r->ephemeral();
-      w->owner = startupCreate_ ? 0 : envelopeKey;
+      w->owner = startupCreate_ ? 0 : principal;
       if (r->editors()) w->editors.assign(r->editors()->begin(), r->editors()->end());
       w->shared = r->shared();
       ctx.header.world = w->id;
@@ -826,7 +829,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey) {
       }
       // Its subscriber, or whoever may change the world.
       if (it->second.client != envelopeKey) {
-        st = checkAccess(*sw, c, envelopeKey);
+        st = checkAccess(*sw, c, principal, envelopeKey);
         if (!st.ok()) return finish();
       }
       sw->interests.erase(it);

@@ -121,7 +121,7 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     return Status::Error(Code::InvalidArgument, os.str());
   }
   DaemonConfig c;
-  Status s = checkKeys(root, {"server", "dds", "paths", "limits", "worlds"}, "physd config");
+  Status s = checkKeys(root, {"server", "dds", "security", "paths", "limits", "worlds"}, "physd config");
   if (!s.ok()) return s;
   if (auto* t = root["server"].as_table()) {
     s = checkKeys(*t,
@@ -202,6 +202,20 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     PHYS_GET(*t, "domain", "dds", &c.domain);
     PHYS_GET(*t, "config", "dds", &c.cycloneConfig);
     c.cycloneConfig = resolve(baseDir, c.cycloneConfig);
+  }
+  if (auto* t = root["security"].as_table()) {
+    s = checkKeys(*t, {"dir", "identity", "plugins"}, "security");
+    if (!s.ok()) return s;
+    std::string dir, identity, plugins;
+    PHYS_GET(*t, "dir", "security", &dir);
+    PHYS_GET(*t, "identity", "security", &identity);
+    PHYS_GET(*t, "plugins", "security", &plugins);
+    if (dir.empty() || !protocol::validIdentityName(identity))
+      return Status::Error(Code::InvalidArgument,
+                           "security: give dir (tools/make_security.sh's folder) and identity "
+                           "(1-64 characters of A-Z a-z 0-9 _ . -)");
+    c.security = protocol::SecurityFiles::fromDir(resolve(baseDir, dir), identity);
+    if (!plugins.empty()) c.security.pluginDir = resolve(baseDir, plugins);
   }
   if (auto* t = root["paths"].as_table()) {
     s = checkKeys(*t, {"presets", "scenes", "snapshots", "data"}, "paths");

@@ -7,6 +7,7 @@
 
 #include "phys/protocol/dds_envelope.h"
 #include "phys/protocol/decoder.h"
+#include "phys/protocol/security.h"
 
 namespace phys::server {
 
@@ -29,7 +30,11 @@ Status DdsEndpoint::start() {
       !statusTopic_.create(participant_, std::string(protocol::kStatusTopic), &err) ||
       !eventsTopic_.create(participant_, std::string(protocol::kEventsTopic), &err))
     return fail();
-  if (!cmdReader_.create(participant_, cmdTopic_, protocol::kCommandQos, &err) ||
+  // Commands come in the default partition and, from clients with a DDS Security identity,
+  // in that identity's partition (protocol/security.h).
+  const std::vector<std::string> cmdPartitions = {
+      "", std::string(protocol::kIdentityPartitionPrefix) + "*"};
+  if (!cmdReader_.create(participant_, cmdTopic_, protocol::kCommandQos, &err, cmdPartitions) ||
       !replyWriter_.create(participant_, replyTopic_, protocol::kReplyQos, PayloadKind::Reply,
                            &err) ||
       !infoWriter_.create(participant_, infoTopic_, protocol::kWorldInfoQos, PayloadKind::WorldInfo,
@@ -63,7 +68,8 @@ void DdsEndpoint::readLoop() {
     if (stop_) break;
     cmdReader_.take([&](const phys_wire_Envelope& env, dds_instance_handle_t writer) {
       counters_.commandsTaken.fetch_add(1);
-      if (!vouch(env.key, writer)) {
+      uint64_t principal = 0;
+      if (!vouch(env.key, writer, &principal)) {
         // Not answered: every reply on this key goes to the participant that holds it, which
         // would take an answer to someone else's command for one of its own.
         const uint64_t n = counters_.spoofed.fetch_add(1) + 1;
@@ -78,6 +84,24 @@ void DdsEndpoint::readLoop() {
       in.envelopeSeq = env.seq;
       in.bytes = env.bytes._length;
       Status s = protocol::checkEnvelope(env, PayloadKind::Command, limits);
+      if (config_.identities) {
+        in.principal = principal;
+        if (s.ok() && principal == 0) {
+          // Answered (the key is this participant's), but with no identity nobody's world
+          // access can be decided: a client that writes outside its identity partition.
+          const uint64_t n = counters_.unidentified.fetch_add(1) + 1;
+          if ((n & (n - 1)) == 0)
+            spdlog::warn("phys/cmd from client {:#x}: written outside an identity partition "
+                         "on a secure domain; refused ({} so far)",
+                         env.key, n);
+          s = Status::Error(
+              Code::PermissionDenied,
+              "this daemon runs DDS Security and attributes commands to identities: write them "
+              "in partition " +
+                  std::string(protocol::kIdentityPartitionPrefix) +
+                  "<your identity> (the SDK and physctl do when given their identity)");
+        }
+      }
       if (s.ok()) {
         auto bytes = protocol::envelopeBytes(env);
         in.command =
@@ -85,7 +109,7 @@ void DdsEndpoint::readLoop() {
       } else {
         in.command.status = s;
       }
-      if (!in.command.ok()) {
+      if (!in.command.ok() && in.command.status.code != Code::PermissionDenied) {
         counters_.undecodable.fetch_add(1);
         // Still answered (to the envelope's key and seq) by the core, in arrival order.
         spdlog::warn("phys/cmd from client {:#x} seq {}: {} ({})", env.key, env.seq,
@@ -96,21 +120,36 @@ void DdsEndpoint::readLoop() {
   }
 }
 
-bool DdsEndpoint::vouch(uint64_t key, dds_instance_handle_t writer) {
+bool DdsEndpoint::vouch(uint64_t key, dds_instance_handle_t writer, uint64_t* principal) {
   Guid guid{};
   auto w = writers_.find(writer);
   if (w != writers_.end()) {
-    guid = w->second;
+    guid = w->second.participant;
+    *principal = w->second.principal;
   } else {
     // Cyclone delivers data only from matched writers; should the discovery data be gone
-    // already, the writer's own handle stands for its participant.
-    if (!cmdReader_.participantOf(writer, &guid)) std::memcpy(guid.data(), &writer, sizeof writer);
+    // already, the writer's own handle stands for its participant (and it has no identity).
+    WriterInfo info;
+    std::vector<std::string> partitions;
+    if (cmdReader_.publicationOf(writer, &info.participant, &partitions)) {
+      // One identity partition and no other: a writer in two would have two identities.
+      std::optional<std::string> identity;
+      int identities = 0;
+      for (const std::string& p : partitions)
+        if (auto id = protocol::identityOfPartition(p)) identity = id, ++identities;
+      if (identities == 1 && partitions.size() == 1)
+        info.principal = protocol::identityKey(*identity);
+    } else {
+      std::memcpy(info.participant.data(), &writer, sizeof writer);
+    }
     if (writers_.size() >= kMaxOwners)  // forget writers that left
       std::erase_if(writers_, [&](const auto& e) {
         Guid g;
         return !cmdReader_.participantOf(e.first, &g);
       });
-    writers_[writer] = guid;
+    writers_[writer] = info;
+    guid = info.participant;
+    *principal = info.principal;
   }
   auto it = owners_.find(key);
   if (it != owners_.end()) {

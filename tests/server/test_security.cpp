@@ -5,7 +5,10 @@
 // credentials are made once per test process by tools/make_security.sh into a temporary
 // folder. A client of the same CA with a granted identity exchanges a command and its reply
 // and reads status and state frames; a client without security (loopback.xml) or with a
-// certificate of another CA reads nothing and gets nothing taken.
+// certificate of another CA reads nothing and gets nothing taken. On a secure daemon a world
+// belongs to the identity that created it, not to a client id: another identity's edits are
+// refused, the same identity from another process (another client id) may edit, and no
+// participant can write in another identity's partition.
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -19,6 +22,7 @@
 #include <thread>
 
 #include "phys/protocol/dds_envelope.h"
+#include "phys/protocol/security.h"
 #include "phys/server/dds.h"
 #include "phys/server/endpoint.h"
 #include "server_test_util.h"
@@ -49,21 +53,58 @@ std::string readAll(const std::string& path) {
 // binary is a client and never reaches GoogleTest's main: it joins the domain with that XML,
 // writes a Hello every 250 ms whether or not a command reader is matched, reads phys/reply,
 // phys/status and phys/state/<world>, and prints what it got as one line,
-//   sectest matched=M replies=R hello_ok=H statuses=S states=F match_ms=T
+//   sectest matched=M replies=R hello_ok=H statuses=S states=F match_ms=T action=A world=W
 // then exits 0 (3: it could not join the domain). It stops early once it has all three.
+// Its commands go out in partition PHYS_SECTEST_PARTITION if set, else in its identity's
+// (phys.id.<PHYS_IDENTITY>), else (or with "-") in the default partition. With PHYS_SECTEST_DO, once its
+// Hello is answered it sends one more command and waits for its reply, A its status code:
+//   create:NAME              CreateWorld NAME (W: the new world's id)
+//   spawn:WORLD              SpawnBodies of one box into world WORLD
+//   access:WORLD:IDENTITY    SetAccess of WORLD, editors = [identityKey(IDENTITY)]
 
 struct ChildResult {
   bool ran = false;
   unsigned matched = 0;  ///< daemon readers/writers matched (command writer + reply reader)
   int replies = 0, helloOk = 0, statuses = 0, states = 0;
   long matchMs = -1;
+  int action = -1;  ///< PHYS_SECTEST_DO's reply status (-1: none came)
+  uint32_t world = 0;
   std::string output;
 };
+
+/// PHYS_SECTEST_DO as a command (world id in *world).
+protocol::Bytes actionCommand(const std::string& what, uint64_t id, uint64_t seq) {
+  const size_t a = what.find(':'), b = what.find(':', a + 1);
+  const std::string verb = what.substr(0, a), arg = what.substr(a + 1, b - a - 1);
+  CommandBuilder c;
+  if (verb == "create") {
+    protocol::CreateWorldArgs args;
+    args.name = arg;
+    c.createWorld(args);
+    return c.finish({id, seq, 0});
+  }
+  const uint32_t world = uint32_t(std::stoul(arg));
+  if (verb == "spawn") {
+    const std::vector<phys::BodyDef> bodies{boxBody({0, 0, 1})};
+    c.spawnBodies(bodies);
+  } else {
+    const std::vector<uint64_t> editors{protocol::identityKey(what.substr(b + 1))};
+    c.setAccess(editors, false);
+  }
+  return c.finish({id, seq, world});
+}
 
 int runChild(const char* xmlPath) {
   const uint32_t domain = uint32_t(std::atoi(std::getenv("PHYS_SECTEST_DOMAIN")));
   const uint32_t world = uint32_t(std::atoi(std::getenv("PHYS_SECTEST_WORLD")));
   const double seconds = std::atof(std::getenv("PHYS_SECTEST_SECONDS"));
+  const char* action = std::getenv("PHYS_SECTEST_DO");
+  std::vector<std::string> partitions;
+  if (const char* p = std::getenv("PHYS_SECTEST_PARTITION")) {
+    if (std::string(p) != "-") partitions.push_back(p);  // "-": the default partition
+  }
+  else if (const char* id = std::getenv("PHYS_IDENTITY"))
+    partitions.push_back(protocol::identityPartition(id));
   std::string err;
   protocol::dds::Participant p;
   protocol::dds::Topic cmdTopic, replyTopic, statusTopic, stateTopic;
@@ -72,7 +113,8 @@ int runChild(const char* xmlPath) {
   if (!p.create(domain, readAll(xmlPath), &err) || !cmdTopic.create(p, "phys/cmd", &err) ||
       !replyTopic.create(p, "phys/reply", &err) || !statusTopic.create(p, "phys/status", &err) ||
       !stateTopic.create(p, "phys/state/" + std::to_string(world), &err) ||
-      !cmd.create(p, cmdTopic, protocol::kCommandQos, protocol::PayloadKind::Command, &err) ||
+      !cmd.create(p, cmdTopic, protocol::kCommandQos, protocol::PayloadKind::Command, &err,
+                  partitions) ||
       !replies.create(p, replyTopic, protocol::kReplyQos, &err) ||
       !status.create(p, statusTopic, protocol::kStatusQos, &err) ||
       !state.create(p, stateTopic, protocol::kStateQos, &err)) {
@@ -80,37 +122,55 @@ int runChild(const char* xmlPath) {
     return 3;
   }
   const uint64_t id = kChildClient + uint64_t(getpid());
-  int repliesSeen = 0, helloOk = 0, statuses = 0, states = 0;
+  int repliesSeen = 0, helloOk = 0, statuses = 0, states = 0, actionStatus = -1;
+  uint32_t actionWorld = 0;
+  uint64_t actionSeq = 0;
   long matchMs = -1;
   const auto start = Clock::now();
   const auto end = start + std::chrono::duration<double>(seconds);
   auto nextHello = start;
   uint64_t seq = 0;
-  while (Clock::now() < end && !(helloOk && statuses && states)) {
+  auto send = [&](const protocol::Bytes& b) {
+    phys_wire_Envelope env{};
+    protocol::wrapEnvelope(&env, id, seq, protocol::PayloadKind::Command, b);
+    dds_write(cmd.get(), &env);
+  };
+  while (Clock::now() < end &&
+         !(helloOk && statuses && states && (!action || actionStatus >= 0))) {
     if (matchMs < 0 && cmd.matched() > 0 && replies.matched() > 0)
       matchMs = long(std::chrono::duration_cast<std::chrono::milliseconds>(Clock::now() - start)
                          .count());
     if (!helloOk && Clock::now() >= nextHello) {
       ++seq;
-      protocol::Bytes b = CommandBuilder().hello("sectest").finish({id, seq, 0});
-      phys_wire_Envelope env{};
-      protocol::wrapEnvelope(&env, id, seq, protocol::PayloadKind::Command, b);
-      dds_write(cmd.get(), &env);
+      send(CommandBuilder().hello("sectest").finish({id, seq, 0}));
       nextHello = Clock::now() + std::chrono::milliseconds(250);
+    }
+    if (helloOk && action && !actionSeq) {
+      actionSeq = ++seq;
+      send(actionCommand(action, id, actionSeq));
     }
     replies.take([&](const phys_wire_Envelope& env) {
       if (env.key != id) return;
       ++repliesSeen;
       auto bytes = protocol::envelopeBytes(env);
       Reply r = protocol::decodeReply(std::vector<uint8_t>(bytes.begin(), bytes.end()));
-      if (r.ok() && r->status() == Code::Ok && r->result_as_HelloResult()) helloOk = 1;
+      if (!r.ok()) return;
+      if (actionSeq && r->seq() == actionSeq) {
+        actionStatus = int(r->status());
+        actionWorld = r->world();
+      } else if (r->status() == Code::Ok && r->result_as_HelloResult()) {
+        helloOk = 1;
+      }
     });
     status.take([&](const phys_wire_Envelope&) { ++statuses; });
     state.take([&](const phys_wire_Envelope&) { ++states; });
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
-  std::printf("sectest matched=%u replies=%d hello_ok=%d statuses=%d states=%d match_ms=%ld\n",
-              cmd.matched() + replies.matched(), repliesSeen, helloOk, statuses, states, matchMs);
+  std::printf(
+      "sectest matched=%u replies=%d hello_ok=%d statuses=%d states=%d match_ms=%ld action=%d "
+      "world=%u\n",
+      cmd.matched() + replies.matched(), repliesSeen, helloOk, statuses, states, matchMs,
+      actionStatus, actionWorld);
   return 0;
 }
 
@@ -137,13 +197,16 @@ std::string quoted(const std::string& s) {
 
 /// Runs this binary as a client (above) with these environment settings, for `seconds`.
 ChildResult runClient(const std::string& xml, uint32_t domain, uint32_t world, double seconds,
-                      const std::string& securityDir = "", const std::string& identity = "") {
+                      const std::string& securityDir = "", const std::string& identity = "",
+                      const std::string& action = "", const std::string& partition = "") {
   std::string cmd = "PHYS_SECTEST_XML=" + quoted(xml) +
                     " PHYS_SECTEST_DOMAIN=" + std::to_string(domain) +
                     " PHYS_SECTEST_WORLD=" + std::to_string(world) +
                     " PHYS_SECTEST_SECONDS=" + std::to_string(seconds);
   if (!securityDir.empty()) cmd += " PHYS_SECURITY_DIR=" + quoted(securityDir);
   if (!identity.empty()) cmd += " PHYS_IDENTITY=" + quoted(identity);
+  if (!action.empty()) cmd += " PHYS_SECTEST_DO=" + quoted(action);
+  if (!partition.empty()) cmd += " PHYS_SECTEST_PARTITION=" + quoted(partition);
   cmd += " exec " + quoted(selfPath());
   ChildResult r;
   FILE* f = popen(cmd.c_str(), "r");
@@ -152,9 +215,10 @@ ChildResult runClient(const std::string& xml, uint32_t domain, uint32_t world, d
   while (std::fgets(line, sizeof line, f)) {
     r.output += line;
     if (std::sscanf(line,
-                    "sectest matched=%u replies=%d hello_ok=%d statuses=%d states=%d match_ms=%ld",
-                    &r.matched, &r.replies, &r.helloOk, &r.statuses, &r.states,
-                    &r.matchMs) == 6)
+                    "sectest matched=%u replies=%d hello_ok=%d statuses=%d states=%d "
+                    "match_ms=%ld action=%d world=%u",
+                    &r.matched, &r.replies, &r.helloOk, &r.statuses, &r.states, &r.matchMs,
+                    &r.action, &r.world) == 8)
       r.ran = true;
   }
   const int st = pclose(f);
@@ -190,7 +254,7 @@ const Credentials& credentials() {
     const std::string script = quoted(kSource + "/tools/make_security.sh");
     const std::string logFile = (c.dir / "make_security.log").string();
     fs::create_directories(c.dir);
-    for (auto [sub, names] : {std::pair{"main", "physd client1"}, std::pair{"rogue", "client1"}}) {
+    for (auto [sub, names] : {std::pair{"main", "physd client1 client2"}, std::pair{"rogue", "client1"}}) {
       const std::string run = "bash " + script + " --out " + quoted((c.dir / sub).string()) +
                               " --identities " + quoted(names) + " --days 2 >> " +
                               quoted(logFile) + " 2>&1";
@@ -229,10 +293,11 @@ struct SecureDaemon {
   static CoreConfig config() {
     CoreConfig c = testConfig();
     c.keyframeTicks = 1;
+    c.identities = true;
     return c;
   }
   explicit SecureDaemon(uint32_t domain)
-      : core(config()), endpoint(&core, {domain, readAll(kSecureXml)}) {
+      : core(config()), endpoint(&core, {domain, readAll(kSecureXml), /*identities=*/true}) {
     EXPECT_TRUE(core.init().ok());
     // Made before the endpoint and tick thread start (the test's thread is the tick thread
     // until then).
@@ -335,6 +400,40 @@ TEST_F(ServerSecurity, ClientWithOwnCertificateButForeignDocumentsCannotStart) {
   ChildResult r = runClient(kSecureXml, testDomain(), 1, 2, mixed.string(), "client1");
   EXPECT_FALSE(r.ran) << r.output;
   EXPECT_NE(r.output.find("sectest error="), std::string::npos) << r.output;
+}
+
+TEST_F(ServerSecurity, AWorldBelongsToTheIdentityThatCreatedItNotToAClientId) {
+  const uint32_t domain = testDomain();
+  SecureDaemon daemon(domain);
+  ASSERT_TRUE(daemon.started);
+  auto as = [&](const char* identity, const std::string& action) {
+    ChildResult r = runClient(kSecureXml, domain, daemon.world, 20, mainDir, identity, action);
+    EXPECT_TRUE(r.ran && r.helloOk) << identity << " " << action << ": " << r.output;
+    return r;
+  };
+  // client1 creates a world; each child process has a client id of its own (its pid).
+  ChildResult made = as("client1", "create:owned");
+  ASSERT_EQ(made.action, int(Code::Ok)) << made.output;
+  const std::string world = std::to_string(made.world);
+  // Another identity may not change it; client1 from another process (another client id) may.
+  EXPECT_EQ(as("client2", "spawn:" + world).action, int(Code::PermissionDenied));
+  EXPECT_EQ(as("client1", "spawn:" + world).action, int(Code::Ok));
+  // The owner names client2 an editor by identity: now it may.
+  EXPECT_EQ(as("client1", "access:" + world + ":client2").action, int(Code::Ok));
+  EXPECT_EQ(as("client2", "spawn:" + world).action, int(Code::Ok));
+  // Commands outside an identity partition are refused on a secure daemon, Hello too (physd's
+  // own identity may publish anywhere, so its participant can try).
+  ChildResult plain = runClient(kSecureXml, domain, daemon.world, 4, mainDir, "physd", "", "-");
+  ASSERT_TRUE(plain.ran) << plain.output;
+  EXPECT_GT(plain.replies, 0) << plain.output;
+  EXPECT_EQ(plain.helloOk, 0) << plain.output;
+  EXPECT_GT(daemon.endpoint.counters().unidentified.load(), 0u);
+  // No participant can write in another identity's partition: client2's permissions refuse
+  // a writer in phys.id.client1 (its own access-control plugin, and physd's for remote ones).
+  ChildResult forged = runClient(kSecureXml, domain, daemon.world, 4, mainDir, "client2",
+                                 "spawn:" + world, protocol::identityPartition("client1"));
+  EXPECT_FALSE(forged.ran) << forged.output;
+  EXPECT_NE(forged.output.find("sectest error="), std::string::npos) << forged.output;
 }
 
 }  // namespace

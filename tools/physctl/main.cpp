@@ -1,6 +1,6 @@
 // physctl: a command-line client of physd over the client SDK (docs/CLIENT.md).
 //
-//   physctl [--domain N] [--config XML] list
+//   physctl [--domain N] [--config XML] [--identity NAME [--security-dir DIR]] list
 //   physctl create NAME [--preset P] [--backend cpu|gpu|auto]
 //   physctl load WORLD SCENE          # a server-side scene name, or a local .json file
 //   physctl step WORLD N
@@ -260,6 +260,13 @@ int main(int argc, char** argv) {
                  "configs/cyclonedds/loopback.xml)");
   app.add_option("--timeout", timeoutMs, "connect and request timeout, ms")
       ->check(CLI::PositiveNumber);
+  std::string identity, securityDir = std::string(PHYS_SOURCE_DIR) + "/build/security";
+  app.add_option("--identity", identity,
+                 "DDS Security identity (docs/SECURITY.md): its certificate and key, the CA and "
+                 "the signed documents are read from --security-dir");
+  app.add_option("--security-dir", securityDir,
+                 "the folder tools/make_security.sh wrote (default: the source tree's "
+                 "build/security)");
 
   std::string world, name, preset, scene, file, backend;
   uint32_t steps = 1;
@@ -332,6 +339,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "physctl: cannot read Cyclone config %s\n", config.c_str());
     return 2;
   }
+  if (!identity.empty()) options.security = pc::SecurityFiles::fromDir(securityDir, identity);
 
   try {
     pc::Client client(options);

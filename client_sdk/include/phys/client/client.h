@@ -26,6 +26,7 @@
 
 #include "phys/client/error.h"
 #include "phys/protocol/builder.h"
+#include "phys/protocol/security.h"
 #include "phys/world/world.h"
 
 namespace phys::client {
@@ -35,6 +36,8 @@ using WorldSummary = protocol::WorldSummary;
 using CreateWorldArgs = protocol::CreateWorldArgs;
 using SolverOverrides = protocol::SolverOverrides;
 using PointFrame = wire::PointFrame;
+using SecurityFiles = protocol::SecurityFiles;
+using protocol::identityKey;
 
 struct ClientOptions {
   uint32_t domain = 0;
@@ -45,6 +48,12 @@ struct ClientOptions {
   std::chrono::milliseconds connectTimeout{10000};  ///< connect(): server match + Hello
   std::chrono::milliseconds requestTimeout{10000};  ///< default per-request deadline
   bool autoReconnect = true;                        ///< say Hello again when a (new) daemon appears
+  /// DDS Security (docs/SECURITY.md): this client's identity and its files, e.g.
+  /// SecurityFiles::fromDir("build/security", "client1") for what tools/make_security.sh
+  /// made. Added to cycloneXml; the commands go out in the identity's partition, so that a
+  /// secure physd knows who sent them (worlds this client creates are owned by the identity,
+  /// whatever its client id). Empty identity: no security of the SDK's own.
+  SecurityFiles security;
 };
 
 /// What the server said in HelloResult.

@@ -76,8 +76,13 @@ class Topic : public Entity {
 /// An envelope writer with the topic's QoS preset; counts seq per writer.
 class Writer : public Entity {
  public:
+  ~Writer() { reset(); }  // the writer before its publisher
+  /// partitions: DDS partitions of the writer's own publisher (empty: the participant's
+  /// implicit publisher, default partition). A client writes its commands in its identity's
+  /// partition on a secure daemon (phys/protocol/security.h).
   bool create(const Participant& p, const Topic& t, const protocol::QosPreset& qos,
-              protocol::PayloadKind kind, std::string* err);
+              protocol::PayloadKind kind, std::string* err,
+              const std::vector<std::string>& partitions = {});
   /// Writes one envelope (Cyclone serializes it before returning).
   dds_return_t write(uint64_t key, std::span<const uint8_t> bytes, uint64_t seq = 0);
   /// Disposes the instance of key (transient-local readers forget it).
@@ -89,6 +94,7 @@ class Writer : public Entity {
   std::vector<dds_instance_handle_t> matchedHandles() const;
 
  private:
+  Entity publisher_;
   protocol::PayloadKind kind_ = protocol::PayloadKind::Command;
   uint64_t seq_ = 0;
 };
@@ -102,8 +108,11 @@ bool viewSerializedEnvelope(const uint8_t* cdr, size_t size, phys_wire_Envelope*
 
 class Reader : public Entity {
  public:
+  ~Reader() { reset(); }  // the reader before its subscriber
+  /// partitions: DDS partitions (wildcards allowed) of the reader's own subscriber (empty:
+  /// the implicit subscriber, default partition).
   bool create(const Participant& p, const Topic& t, const protocol::QosPreset& qos,
-              std::string* err);
+              std::string* err, const std::vector<std::string>& partitions = {});
   /// Takes every available sample, calling fn for each valid one; returns the count or a
   /// negative retcode.
   int take(const std::function<void(const phys_wire_Envelope&)>& fn);
@@ -113,7 +122,14 @@ class Reader : public Entity {
   /// The participant (its GUID, 16 bytes) of a writer matched with this reader; false when
   /// the writer is not (or no longer) matched.
   bool participantOf(dds_instance_handle_t writer, std::array<uint8_t, 16>* guid) const;
+  /// The same, and the writer's partitions (as discovery announced them; on a secure domain
+  /// the access-control plugin has checked them against the writer's signed permissions).
+  bool publicationOf(dds_instance_handle_t writer, std::array<uint8_t, 16>* guid,
+                     std::vector<std::string>* partitions) const;
   uint32_t matched() const;
+
+ private:
+  Entity subscriber_;
 };
 
 /// A waitset with a data-available condition per attached reader and a guard to wake it.

@@ -5,6 +5,7 @@
 #include <string>
 #include <vector>
 
+#include "phys/protocol/security.h"
 #include "phys/server/core.h"
 
 namespace phys::server {
@@ -31,6 +32,9 @@ struct DaemonConfig {
   /// priority, so subscribers and other processes on a busy host cannot delay a tick; 0: the
   /// normal scheduler. Needs CAP_SYS_NICE (or root, or an rtprio ulimit); else a warning.
   int realtimePriority = 0;
+  /// [security] dir, identity, plugins: DDS Security with the files tools/make_security.sh
+  /// writes (docs/SECURITY.md); added to the Cyclone configuration. Empty identity: none.
+  protocol::SecurityFiles security;
   CoreConfig core;
   std::vector<StartupWorld> worlds;
 };

@@ -79,6 +79,10 @@ struct CoreConfig {
   /// ResourceExhausted at once. 0: no limit.
   double maxClientCommandsPerS = 2000;
   double maxClientBurst = 500;
+  /// Principals are DDS Security identities (identity keys, protocol/security.h), not client
+  /// ids: physd runs with security ([security] in its config). Only wording here; the
+  /// endpoint attributes commands.
+  bool identities = false;
   /// Contact pairs per step of a world (WorldDef::maxContactPairs; 0: the engine's automatic
   /// bound). A step past it is not taken (PairOverflow::Refuse): the world pauses and a
   /// contact_budget event says why.
@@ -117,6 +121,10 @@ struct CoreConfig {
 struct Incoming {
   uint64_t envelopeKey = 0;
   uint64_t envelopeSeq = 0;
+  /// Who the command acts as for world access (owner, editors): on a secure daemon the
+  /// identity key of the DDS Security identity that wrote it (protocol/security.h); 0: the
+  /// envelope key (the client id).
+  uint64_t principal = 0;
   size_t bytes = 0;  ///< payload size, for the queue's budget
   protocol::Decoded<wire::Command> command;
 };
@@ -298,8 +306,8 @@ class ServerCore {
 
   // --- Commands ---
   /// Applies one decoded command now and returns the reply payload. envelopeKey must equal
-  /// the command's client id.
-  Bytes apply(const wire::Command& command, uint64_t envelopeKey);
+  /// the command's client id; principal: Incoming::principal.
+  Bytes apply(const wire::Command& command, uint64_t envelopeKey, uint64_t principal = 0);
   /// Decodes and applies a raw payload as the daemon does (an undecodable payload is
   /// answered to client envelopeKey, seq envelopeSeq).
   Bytes applyBytes(std::span<const uint8_t> payload, uint64_t envelopeKey, uint64_t envelopeSeq);
@@ -348,13 +356,14 @@ class ServerCore {
 
  private:
   friend struct Context;
-  Bytes applyChecked(const wire::Command& command, uint64_t envelopeKey);
+  Bytes applyChecked(const wire::Command& command, uint64_t envelopeKey, uint64_t principal);
   /// A world restored from engine state, against the codec's rules (the engine's own checks
   /// guard its invariants, not the protocol's ranges).
   Status checkRestored(const phys::World& w, const std::string& path) const;
-  /// Whether client `key` may apply command c to world w (docs/SERVER.md "Access"):
-  /// PermissionDenied with who may, or Ok.
-  Status checkAccess(const ServerWorld& w, const wire::Command& c, uint64_t key) const;
+  /// Whether principal `key` (Incoming::principal) may apply command c, sent under
+  /// envelopeKey, to world w (docs/SERVER.md "Access"): PermissionDenied with who may, or Ok.
+  Status checkAccess(const ServerWorld& w, const wire::Command& c, uint64_t key,
+                     uint64_t envelopeKey) const;
   /// createWorld (start-up worlds) is making a world: it has no owner.
   bool startupCreate_ = false;
   Status queueFrame(ServerWorld& w);

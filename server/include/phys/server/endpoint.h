@@ -23,6 +23,10 @@ namespace phys::server {
 struct EndpointConfig {
   uint32_t domain = 0;
   std::string cycloneXml;  ///< Cyclone XML for the domain; empty: CYCLONEDDS_URI / defaults
+  /// The domain runs DDS Security (cycloneXml has a <Security> element): every command is
+  /// attributed to the identity whose partition it was written in (Incoming::principal,
+  /// protocol/security.h), and one written outside an identity partition is refused.
+  bool identities = false;
 };
 
 struct EndpointCounters {
@@ -34,6 +38,8 @@ struct EndpointCounters {
   /// Commands dropped unanswered because their envelope key belongs to another participant
   /// (a client's key is bound to the participant that first used it, while it is there).
   std::atomic<uint64_t> spoofed{0};
+  /// Secure daemon: commands refused because their writer is in no identity partition.
+  std::atomic<uint64_t> unidentified{0};
 };
 
 class DdsEndpoint {
@@ -50,15 +56,21 @@ class DdsEndpoint {
   void readLoop();
   /// Whether the participant that wrote a command may use its envelope key: the first
   /// participant to use a key holds it until DDS no longer matches its writer (it left, or
-  /// its lease expired). Reader thread only.
-  bool vouch(uint64_t key, dds_instance_handle_t writer);
+  /// its lease expired). *principal: the writer's identity key (0: it has no identity
+  /// partition). Reader thread only.
+  bool vouch(uint64_t key, dds_instance_handle_t writer, uint64_t* principal);
   using Guid = std::array<uint8_t, 16>;
   struct Owner {
     Guid participant{};
     dds_instance_handle_t writer = 0;
   };
-  std::unordered_map<uint64_t, Owner> owners_;                 ///< by client key
-  std::unordered_map<dds_instance_handle_t, Guid> writers_;    ///< participants of writers
+  /// What discovery said of a command writer: its participant and its identity's key.
+  struct WriterInfo {
+    Guid participant{};
+    uint64_t principal = 0;
+  };
+  std::unordered_map<uint64_t, Owner> owners_;                     ///< by client key
+  std::unordered_map<dds_instance_handle_t, WriterInfo> writers_;  ///< by writer
   static constexpr size_t kMaxOwners = 1 << 16;
   void publishLoop();
   void publish(ReliableMessage& m);
