@@ -139,6 +139,27 @@ TEST(ServerConfig, Backend) {
   EXPECT_NE(s.message.find("server.gpu_allow_cpu_device"), std::string::npos) << s.message;
 }
 
+TEST(ServerConfig, Security) {
+  DaemonConfig c;
+  Status s = parseDaemonConfig("", "/etc/physd", &c);
+  ASSERT_TRUE(s.ok()) << s.message;
+  EXPECT_FALSE(c.security.enabled());
+  s = parseDaemonConfig("[security]\ndir = \"sec\"\nidentity = \"physd\"\n", "/etc/physd", &c);
+  ASSERT_TRUE(s.ok()) << s.message;
+  EXPECT_TRUE(c.security.enabled());
+  EXPECT_EQ(c.security.certificate, "/etc/physd/sec/physd_cert.pem");  // relative to the file
+  EXPECT_EQ(c.security.permissions, "/etc/physd/sec/permissions.p7s");
+  EXPECT_EQ(c.security.pluginDir, "");  // Debian's
+  // Both keys are needed, the name is what make_security.sh accepts, no unknown keys.
+  for (const char* bad : {"[security]\ndir = \"sec\"\n", "[security]\nidentity = \"physd\"\n",
+                          "[security]\ndir = \"sec\"\nidentity = \"a b\"\n",
+                          "[security]\ndir = \"sec\"\nidentity = \"physd\"\ncert = \"x\"\n"}) {
+    s = parseDaemonConfig(bad, "/etc/physd", &c);
+    EXPECT_FALSE(s.ok()) << bad;
+    EXPECT_NE(s.message.find("security"), std::string::npos) << s.message;
+  }
+}
+
 TEST(ServerConfig, BadStartupWorldFails) {
   ServerCore core(testConfig());
   ASSERT_TRUE(core.init().ok());
