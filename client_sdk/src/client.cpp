@@ -104,7 +104,10 @@ Ids ids(const wire::Reply& r) {
 
 struct Subscription::State {
   uint32_t world = 0;
-  uint32_t interest = 0;  ///< 0: the world's own stream
+  /// 0: the world's own stream. An interest's id changes when the SDK subscribes it again on
+  /// a new daemon (after a restart): written by the SDK thread under Impl::subsMutex.
+  uint32_t interest = 0;
+  Interest spec;  ///< what the interest asked for (subscribed again after a restart)
   dds::Topic topic;
   dds::Reader reader;
   std::function<void(const StateFrame&)> fn;
@@ -174,6 +177,18 @@ struct Subscription::State {
   static constexpr size_t kReserveBodies = 65536;  ///< 4 MB of states
   static uint64_t order(uint64_t id) { return (id << 32) | (id >> 32); }  // index, generation
   static bool before(const BodyState& a, const BodyState& b) { return order(a.id) < order(b.id); }
+
+  /// A new daemon's stream (after a restart, or an interest subscribed again): its ticks may
+  /// be behind the last one delivered (a restored world resumes at its last mark), so
+  /// nothing of the old stream's reassembly holds; it starts again from a keyframe.
+  void restart() {
+    std::lock_guard<std::mutex> lk(m);
+    partial.clear();
+    any = false;
+    haveFull = resyncing = covering = false;
+    keepDelivered();
+    full.clear();
+  }
 
   void onChunk(const wire::StateFrame& f, size_t bytes) {
     const uint64_t t = f.tick();
@@ -699,12 +714,64 @@ struct Client::Impl {
         helloInFlight = false;
         if (!e && r->status() == wire::StatusCode::Ok && r->result_as_HelloResult()) {
           ServerInfo i = parseHello(*r);
-          std::lock_guard<std::mutex> lk(infoMutex);
-          server = i;
-          helloOk = true;
-          ++reconnects;
+          {
+            std::lock_guard<std::mutex> lk(infoMutex);
+            server = i;
+            helloOk = true;
+            ++reconnects;
+          }
+          resubscribe();
         } else {
           needHello = true;  // retried while a server is matched
+        }
+      });
+    }
+  }
+
+  /// After a daemon (re)appeared: every stream starts over, and every interest is subscribed
+  /// again (a daemon keeps no interests across a restart: docs/SERVER.md "Durable worlds").
+  /// SDK thread.
+  void resubscribe() {
+    std::vector<std::shared_ptr<Subscription::State>> copy;
+    {
+      std::lock_guard<std::mutex> lk(subsMutex);
+      copy = subs;
+    }
+    for (auto& s : copy) {
+      s->restart();
+      if (s->interest == 0) continue;
+      CommandBuilder b;
+      if (s->spec.region)
+        b.subscribeRegion(s->spec.region->first, s->spec.region->second);
+      else
+        b.subscribeBodies(s->spec.bodies);
+      std::weak_ptr<Subscription::State> weak = s;
+      send(b, s->world, options.requestTimeout, [this, weak](const wire::Reply* r, const Error* e) {
+        auto s = weak.lock();
+        const wire::InterestResult* i =
+            !e && r->status() == wire::StatusCode::Ok ? r->result_as_InterestResult() : nullptr;
+        if (!s || !i || i->interest() == 0) return;  // gone, or the world with it
+        const uint32_t id = i->interest();
+        std::string err;
+        dds::Topic topic;
+        dds::Reader reader;
+        bool live = false;
+        {
+          std::lock_guard<std::mutex> lk(subsMutex);
+          live = std::find(subs.begin(), subs.end(), s) != subs.end();
+          if (live && topic.create(participant, protocol::stateTopic(s->world, id), &err) &&
+              reader.create(participant, topic, protocol::kStateReaderQos, &err)) {
+            waitset.detach(s->reader);
+            s->reader = std::move(reader);
+            s->topic = std::move(topic);
+            s->interest = id;
+            if (!waitset.attach(s->reader, &err)) live = false;
+          }
+        }
+        if (!live) {  // unsubscribed meanwhile: the new interest is not wanted either
+          CommandBuilder u;
+          u.unsubscribe(id);
+          send(u, s->world, options.requestTimeout, [](const wire::Reply*, const Error*) {});
         }
       });
     }
@@ -744,10 +811,11 @@ struct Client::Impl {
   }
 
   Subscription subscribe(uint32_t world, std::function<void(const StateFrame&)> fn,
-                         uint32_t interest = 0) {
+                         uint32_t interest = 0, Interest spec = {}) {
     auto s = std::make_shared<Subscription::State>();
     s->world = world;
     s->interest = interest;
+    s->spec = std::move(spec);
     s->fn = std::move(fn);
     s->owner = this;
     std::string err;
@@ -764,15 +832,17 @@ struct Client::Impl {
   }
 
   void unsubscribe(const std::shared_ptr<Subscription::State>& s) {
+    uint32_t interest = 0;
     {
       std::lock_guard<std::mutex> lk(subsMutex);
       waitset.detach(s->reader);
       subs.erase(std::remove(subs.begin(), subs.end(), s), subs.end());
+      interest = s->interest;
     }
-    if (s->interest != 0) {
+    if (interest != 0) {
       // physd drops the interest's stream; nobody waits for the answer.
       CommandBuilder b;
-      b.unsubscribe(s->interest);
+      b.unsubscribe(interest);
       send(b, s->world, options.requestTimeout, [](const wire::Reply*, const Error*) {});
     }
   }
@@ -1089,7 +1159,7 @@ Subscription WorldHandle::subscribe(const Interest& interest,
           throw Error(ErrorCode::BadReply, "subscribe reply without an interest");
         return i->interest();
       }).get();
-  return client_->impl_->subscribe(id_, std::move(fn), id);
+  return client_->impl_->subscribe(id_, std::move(fn), id, interest);
 }
 
 }  // namespace phys::client

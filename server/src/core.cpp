@@ -109,6 +109,7 @@ std::unique_ptr<ServerWorld> ServerCore::makeWorld(const std::string& name,
   applyPolicy(&d);
   w->world = std::make_unique<phys::World>(d);
   w->rateHz = config_.defaultRateHz;
+  w->nextInterest = interestBase_ + 1;
   return w;
 }
 

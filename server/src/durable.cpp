@@ -243,6 +243,7 @@ Status ServerCore::restoreInto(ServerWorld& w, const Checkpoint& c,
   phys::WorldDef def;
   if (!phys::parseBackend(c.meta.backend, &def.backend)) def.backend = config_.backend;
   auto fresh = makeWorld(c.meta.name, c.meta.preset, def);
+  w.nextInterest = std::max(w.nextInterest, fresh->nextInterest);  // a reload keeps its count
   phys::Status ps = fresh->world->restoreSnapshot(c.engine.data(), c.engine.size());
   if (!ps.ok())
     return Status::Error(Code::Internal, "checkpoint engine state: " + ps.message);
@@ -357,6 +358,21 @@ Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
     std::ifstream f(config_.dataDir + "/next_world_id");
     uint32_t next = 0;
     if (f >> next && next > nextWorldId_) nextWorldId_ = next;
+  }
+  {
+    // Interests are not kept across a restart, and their ids name topics
+    // (phys/state/<world>/<interest>) that readers of the old daemon may still have: each
+    // start of this data directory numbers them from its own base, so that a new interest
+    // never takes a stale subscriber's topic (the SDK subscribes its interests again).
+    const std::string path = config_.dataDir + "/starts";
+    uint64_t starts = 0;
+    std::ifstream(path) >> starts;
+    ++starts;
+    const std::string text = std::to_string(starts) + "\n";
+    Status st = writeFileAtomically(
+        path, std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(text.data()), text.size()));
+    if (!st.ok()) return st;
+    interestBase_ = uint32_t(starts % 32768) << 16;
   }
   std::vector<uint32_t> ids;
   for (const auto& e : fs::directory_iterator(config_.dataDir + "/worlds", ec)) {

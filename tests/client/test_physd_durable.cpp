@@ -151,5 +151,65 @@ TEST(ClientPhysdProcess, AKilledDaemonRestoresEveryAcknowledgedCommand) {
   EXPECT_TRUE(WIFEXITED(st) && WEXITSTATUS(st) == 0);
 }
 
+TEST(ClientPhysdProcess, SubscriptionsGoOnAfterTheDaemonIsKilledAndRestarted) {
+  // A running world; one subscription to its own stream and one to an interest (one body).
+  // physd is SIGKILLed and restarted on its data: both subscriptions deliver frames of the
+  // restored world again, the interest one only the body it asked for (the SDK subscribed
+  // it again: the new daemon kept no interests, and numbered its interests anew).
+  testing::ScratchDir dir("physclient_resubscribe");
+  const std::string data = (dir.path / "data").string();
+  testing::PhysdConfig cfg(dir.path, "physd-resubscribe", 200 + uint32_t((getpid() + 7) % 29),
+                           "data = \"" + data + "\"\n");
+  auto spawn = [&] { return testing::spawnProcess(PHYSD_BINARY, {"--config", cfg.toml}); };
+  Client c(cfg.clientOptions(20s));
+  pid_t pid = spawn();
+  ASSERT_GT(pid, 0);
+  c.connect();
+  // No gravity, three boxes drifting apart at 1 m/s: every tick changes every body.
+  WorldHandle w =
+      c.createWorld({"watched", "", phys::Vec3{0, 0, 0}, 0, "", /*sleep=*/false}).get();
+  std::vector<phys::BodyDef> defs;
+  for (float x : {-3.0f, 0.0f, 3.0f}) {
+    defs.push_back(phys::test::boxBody({x, 0, 3}));
+    defs.back().linearVelocity = {x / 3, 1, 0};
+  }
+  const std::vector<uint64_t> ids = w.spawn(defs).get();
+  w.run(60).get();
+  Subscription all = w.subscribe();
+  Interest one;
+  one.bodies = {ids[1]};
+  Subscription some = w.subscribe(one);
+  auto frameAfter = [](Subscription& s, uint64_t n) {
+    const auto end = std::chrono::steady_clock::now() + 20s;
+    while (s.framesReceived() < n && std::chrono::steady_clock::now() < end)
+      std::this_thread::sleep_for(10ms);
+    return s.framesReceived() >= n;
+  };
+  ASSERT_TRUE(frameAfter(all, 5));
+  ASSERT_TRUE(frameAfter(some, 5));
+  ASSERT_EQ(kill(pid, SIGKILL), 0);
+  int st = 0;
+  ASSERT_EQ(waitpid(pid, &st, 0), pid);
+  const uint64_t allBefore = all.framesReceived(), someBefore = some.framesReceived();
+  pid = spawn();
+  ASSERT_GT(pid, 0);
+  const auto end = std::chrono::steady_clock::now() + 20s;
+  while (c.reconnects() < 1 && std::chrono::steady_clock::now() < end)
+    std::this_thread::sleep_for(10ms);
+  ASSERT_GE(c.reconnects(), 1u);
+  EXPECT_TRUE(frameAfter(all, allBefore + 5)) << all.framesReceived() << " frames";
+  EXPECT_TRUE(frameAfter(some, someBefore + 5)) << some.framesReceived() << " frames";
+  std::optional<StateFrame> f = some.latest();
+  ASSERT_TRUE(f.has_value());
+  ASSERT_EQ(f->bodies.size(), 1u);
+  EXPECT_EQ(f->bodies[0].id, ids[1]);
+  f = all.latest();
+  ASSERT_TRUE(f.has_value());
+  EXPECT_EQ(f->bodies.size(), 3u);
+  ASSERT_EQ(kill(pid, SIGTERM), 0);
+  ASSERT_EQ(waitpid(pid, &st, 0), pid);
+  EXPECT_TRUE(WIFEXITED(st) && WEXITSTATUS(st) == 0);
+}
+
 }  // namespace
 }  // namespace phys::client

@@ -76,7 +76,10 @@ class Topic : public Entity {
 /// An envelope writer with the topic's QoS preset; counts seq per writer.
 class Writer : public Entity {
  public:
-  ~Writer() { reset(); }  // the writer before its publisher
+  Writer() = default;
+  Writer(Writer&&) = default;
+  Writer& operator=(Writer&&) = default;  // the old writer goes before its publisher
+  ~Writer() { reset(); }                  // the writer before its publisher
   /// partitions: DDS partitions of the writer's own publisher (empty: the participant's
   /// implicit publisher, default partition). A client writes its commands in its identity's
   /// partition on a secure daemon (phys/protocol/security.h).
@@ -108,7 +111,10 @@ bool viewSerializedEnvelope(const uint8_t* cdr, size_t size, phys_wire_Envelope*
 
 class Reader : public Entity {
  public:
-  ~Reader() { reset(); }  // the reader before its subscriber
+  Reader() = default;
+  Reader(Reader&&) = default;
+  Reader& operator=(Reader&&) = default;  // the old reader goes before its subscriber
+  ~Reader() { reset(); }                  // the reader before its subscriber
   /// partitions: DDS partitions (wildcards allowed) of the reader's own subscriber (empty:
   /// the implicit subscriber, default partition).
   bool create(const Participant& p, const Topic& t, const protocol::QosPreset& qos,

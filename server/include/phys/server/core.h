@@ -366,6 +366,9 @@ class ServerCore {
                      uint64_t envelopeKey) const;
   /// createWorld (start-up worlds) is making a world: it has no owner.
   bool startupCreate_ = false;
+  /// The first interest id of every world is this + 1: a durable server's count of its
+  /// starts, times 65536 (restoreWorlds), so interest topics are never reused across starts.
+  uint32_t interestBase_ = 0;
   Status queueFrame(ServerWorld& w);
   /// One stream of a world's frames (interest 0: the world's own); false when nobody
   /// subscribes to it (nothing encoded).
