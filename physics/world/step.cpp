@@ -93,6 +93,9 @@ void World::step() {
       }
     }
     if (w.stats.pairsDropped > 0) w.stats.pairLimitSteps++;
+    // Bodies past the world's extent stop at its edge (a body falling forever, a kinematic
+    // body sent away): beyond it no state could be sent, and floats lose the centimetre.
+    w.keepInsideWorld();
     // Islands and sleeping, once the step is accepted (islands.cpp): rest timers, and the
     // islands that rested long enough fall asleep. Part of the step's time.
     {
@@ -528,6 +531,29 @@ void World::Impl::quarantine() {
     const JointId id = j->state.id;
     j->state = JointState{};
     j->state.id = id;
+  }
+}
+
+void World::Impl::keepInsideWorld() {
+  constexpr float e = WorldDef::kWorldExtent;
+  for (uint32_t i : awakeBodies) {
+    BodyRec& b = bodies.at(i);
+    const Vec3 p = b.xf.p;
+    const Vec3 in{std::clamp(p.x, -e, e), std::clamp(p.y, -e, e), std::clamp(p.z, -e, e)};
+    // On the edge and heading out: held there (at 1e6 m a float's step is 6 cm, so a slow
+    // body would otherwise gather speed in place until it jumps out again).
+    auto out = [&](float x, float v) { return (x >= e && v > 0) || (x <= -e && v < 0); };
+    const bool leaving = out(in.x, b.v.x) || out(in.y, b.v.y) || out(in.z, b.v.z);
+    if (in == p && !leaving) continue;
+    b.xf.p = in;
+    b.com += in - p;
+    b.v = b.w = {};
+    deviceEdited(i);
+    if (in == p) continue;  // held on the edge: stopped already when it got there
+    stats.guardQuarantined++;
+    stats.lastGuardEvent = "step " + std::to_string(stats.step) + ": body " + std::to_string(i) +
+                           " left the world's extent (" + std::to_string(int64_t(e)) +
+                           " m) and was stopped at its edge";
   }
 }
 

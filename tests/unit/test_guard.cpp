@@ -96,3 +96,26 @@ TEST(Guard, HealthyScenesRaiseNoAlarm) {
     EXPECT_EQ(w.stats().guardEvents, 0u) << name << ": " << w.stats().lastGuardEvent;
   }
 }
+
+TEST(Guard, ABodyThatLeavesTheWorldStopsAtItsEdge) {
+  // A kinematic body at the speed limit along x and a dynamic one falling with no ground,
+  // both started near the edge: they stop at x = kWorldExtent and z = -kWorldExtent, at
+  // rest, and everything they report stays within what the protocol can carry.
+  constexpr float e = WorldDef::kWorldExtent;
+  World w;
+  BodyDef k = boxBody({e - 10, 0, 0}, {0.5f, 0.5f, 0.5f}, BodyType::Kinematic);
+  k.linearVelocity = {500, 0, 0};
+  BodyId kin = addBody(w, k);
+  BodyId fall = addBody(w, boxBody({0, 0, -e + 1}));
+  for (int i = 0; i < 120; ++i) w.step();
+  BodyState a = stateOf(w, kin), b = stateOf(w, fall);
+  EXPECT_EQ(a.position.x, e);
+  EXPECT_EQ(length(a.linearVelocity), 0.0f);
+  EXPECT_EQ(b.position.z, -e);
+  EXPECT_EQ(length(b.linearVelocity), 0.0f);  // held on the edge
+  EXPECT_GE(w.stats().guardQuarantined, 1u);  // the falling one may land on the edge exactly
+  EXPECT_NE(w.stats().lastGuardEvent.find("left the world's extent"), std::string::npos)
+      << w.stats().lastGuardEvent;
+  std::vector<uint8_t> bytes;
+  EXPECT_TRUE(w.saveSnapshot(&bytes).ok());
+}

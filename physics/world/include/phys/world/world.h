@@ -111,6 +111,11 @@ struct SleepSettings {
 struct WorldDef {
   Vec3 gravity{0, 0, -9.81f};   ///< m/s^2
   float timeStep = 1.0f / 60;   ///< s, the fixed step used by step()
+  /// m: bodies are kept within |x|, |y|, |z| <= this (the origin of each): one that leaves
+  /// stops at the face it crossed (World::step's last stage; counted in
+  /// StepStats::guardQuarantined). The protocol's coordinate range (protocol::Limits::
+  /// maxCoordinate) is the same, so every state physd sends can be decoded.
+  static constexpr float kWorldExtent = 1e6f;
   float maxLinearSpeed = 1000;  ///< m/s, clamp
   float maxAngularSpeed = 500;  ///< rad/s, clamp
   /// m: every contact closer than this is solved (speculatively when apart); the margin also
@@ -140,10 +145,12 @@ struct WorldDef {
   /// Threads for the step's parallel loops, the caller included; 0: the machine's hardware
   /// threads (at most 8). Results do not depend on it.
   int threads = 0;
-  /// Guard rails: after every step, check for non-finite state, speeds at the clamp and
-  /// energy jumps; on a violation roll the step back and redo it with twice the substeps (up
-  /// to guardRetries times), then stop the bodies still at fault. Costs a copy of the
-  /// bodies' state and the contacts per step.
+  /// Guard rails: after every step, check for non-finite state, speeds at the clamp, a
+  /// dynamic body's centre of mass moving more than 2 x (maxLinearSpeed + solver.maxPushout)
+  /// x timeStep, and energy jumps; on a violation roll the step back and redo it with twice
+  /// the substeps (up to guardRetries times), then stop the bodies still at fault (and zero
+  /// the non-finite joint impulses). Costs a copy of the bodies' state and the contacts per
+  /// step. (Bodies leaving kWorldExtent are stopped at its edge with or without the guard.)
   bool guard = true;
   /// An energy gain in one step above guardEnergyJump * kinetic energy + the energy of
   /// lifting every dynamic body by 0.1 m counts as an explosion.
