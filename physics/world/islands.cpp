@@ -148,8 +148,19 @@ void World::Impl::wakeIsland(int32_t k) {
   SleepingIsland& is = islands[size_t(k)];
   // The stored impulses are per substep of the step they were solved in: scaled to the
   // current unit, as rescaleWarmStarts does for the awake contacts.
-  if (const float s = impulseScale(is.substepTime, stats.substepTime); s != 1)
-    scaleImpulses(&is.contacts, s);
+  const float scale = impulseScale(is.substepTime, stats.substepTime);
+  if (scale != 1) {
+    scaleImpulses(&is.contacts, scale);
+    // Its joints too, once each (a joint between two of its bodies is listed by both).
+    for (uint32_t slot : is.bodies)
+      for (JointId jid : bodies.at(slot).joints) {
+        JointRec& j = *joints.get(jid);
+        const BodyRec* a = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
+        const bool listedByA = a && a->island == k;
+        if (listedByA && !(j.def.bodyA == bodies.idAt(slot))) continue;  // A scales it
+        for (float& f : j.impulses) f *= scale;
+      }
+  }
   const double g = length(def.gravity);
   for (uint32_t slot : is.bodies) {
     BodyRec& b = bodies.at(slot);

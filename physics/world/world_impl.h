@@ -325,6 +325,7 @@ struct World::Impl {
   /// What is wrong with a body after a step (before: its state when the step began), or null.
   const char* bodyFault(const BodyRec& b, const Snapshot::Body& before) const;
   void quarantine();  ///< joint rows at the current poses, inside the substep loop
+  bool jointAsleep(const JointRec& j) const;  ///< its island sleeps
   /// Stops every moving body outside WorldDef::kWorldExtent at the extent's face.
   void keepInsideWorld();
   void finalize(float hSub);

@@ -134,7 +134,7 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
                    "max_queued_per_client", "max_queued_mb", "max_queued_mb_per_client",
                    "step_slice_ms", "max_contact_pairs", "max_concurrent_loads",
                    "checkpoint_period_s", "journal_max_mb", "max_client_commands_per_s",
-                   "max_client_burst"},
+                   "max_client_burst", "trim_period_s"},
                   "server");
     if (!s.ok()) return s;
     PHYS_GET(*t, "name", "server", &c.core.serverName);
@@ -158,6 +158,7 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     PHYS_GET(*t, "frame_ring", "server", &c.core.frameRingCapacity);
     PHYS_GET(*t, "max_worlds", "server", &c.core.maxWorlds);
     PHYS_GET(*t, "realtime_priority", "server", &c.realtimePriority);
+    PHYS_GET(*t, "trim_period_s", "server", &c.trimPeriodS);
     s = getBackend(*t, "server", nullptr, &c.core.backend);
     if (!s.ok()) return s;
     PHYS_GET(*t, "gpu_allow_cpu_device", "server", &c.core.gpuAllowCpuDevice);
@@ -272,6 +273,9 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     return Status::Error(Code::InvalidArgument, "server.id must be non-zero");
   if (c.statusPeriodS <= 0)
     return Status::Error(Code::InvalidArgument, "server.status_period_s must be > 0");
+  if (c.trimPeriodS < 0 || c.trimPeriodS > 86400)
+    return Status::Error(Code::InvalidArgument,
+                         "server.trim_period_s must be 0 (never) or 1..86400 s");
   if (c.realtimePriority < 0 || c.realtimePriority > 99)
     return Status::Error(Code::InvalidArgument,
                          "server.realtime_priority must be 0 (off) or 1..99, got " +

@@ -133,12 +133,9 @@ bool DdsEndpoint::vouch(uint64_t key, dds_instance_handle_t writer, uint64_t* pr
     std::vector<std::string> partitions;
     if (cmdReader_.publicationOf(writer, &info.participant, &partitions)) {
       // One identity partition and no other: a writer in two would have two identities.
-      std::optional<std::string> identity;
-      int identities = 0;
-      for (const std::string& p : partitions)
-        if (auto id = protocol::identityOfPartition(p)) identity = id, ++identities;
-      if (identities == 1 && partitions.size() == 1)
-        info.principal = protocol::identityKey(*identity);
+      if (partitions.size() == 1)
+        if (auto identity = protocol::identityOfPartition(partitions[0]))
+          info.principal = protocol::identityKey(*identity);
     } else {
       std::memcpy(info.participant.data(), &writer, sizeof writer);
     }

@@ -119,3 +119,62 @@ TEST(Guard, ABodyThatLeavesTheWorldStopsAtItsEdge) {
   std::vector<uint8_t> bytes;
   EXPECT_TRUE(w.saveSnapshot(&bytes).ok());
 }
+
+TEST(Guard, ASleepingJointKeepsItsImpulsesThroughOtherIslandsRetries) {
+  // A chain of four boxes hanging at rest from a world anchor falls asleep with its joints'
+  // impulses (the weights below each) kept for the warm start. Elsewhere a body gets an absurd
+  // force every step, so the guard rolls back and redoes every step with longer and shorter
+  // substeps. The sleeping joints are in none of those steps: their impulses must come
+  // through unchanged. (They used to be rescaled at every attempt and never rolled back:
+  // times 8 a step here; in the physd soak they reached infinity and the world could no
+  // longer be saved.) Woken, the chain's joints carry the same weights at once.
+  WorldDef def;
+  def.sleep.enabled = true;
+  def.solver.scheme = SolverSettings::Scheme::Jacobi;
+  def.solver.substeps = 1;
+  def.solver.iterations = 1;
+  World w(def);
+  std::vector<BodyId> chain;
+  std::vector<JointId> links;
+  for (int i = 0; i < 4; ++i) {
+    chain.push_back(addBody(w, boxBody({0, 0, 9.0f - float(i)}, {0.2f, 0.2f, 0.2f})));
+    JointDef j;
+    j.type = JointType::Distance;
+    j.bodyA = i == 0 ? BodyId() : chain[size_t(i) - 1];
+    j.bodyB = chain.back();
+    j.anchorA = i == 0 ? Vec3{0, 0, 10} : Vec3{0, 0, 0};  // a world point without body A
+    j.length = 1;
+    links.emplace_back();
+    ASSERT_TRUE(w.createJoint(j, &links.back()).ok());
+  }
+  for (int i = 0; i < 600 && !stateOf(w, chain.back()).sleeping; ++i) w.step();
+  ASSERT_TRUE(stateOf(w, chain.back()).sleeping) << "the chain did not fall asleep";
+  auto reactions = [&] {
+    std::vector<float> f;
+    for (JointId id : links) {
+      JointDef d;
+      JointState s;
+      EXPECT_TRUE(w.getJoint(id, &d, &s).ok());
+      f.push_back(length(s.reactionForce));
+    }
+    return f;
+  };
+  const std::vector<float> atRest = reactions();
+  BodyId runaway = addBody(w, boxBody({50, 0, 5}));
+  for (int i = 0; i < 30; ++i) {
+    ASSERT_TRUE(w.applyForce(runaway, {1e30f, 0, 0}, {50, 0, 5}).ok());
+    w.step();
+  }
+  EXPECT_GE(w.stats().guardEvents, 30u) << "the runaway no longer makes the guard retry";
+  ASSERT_TRUE(stateOf(w, chain.back()).sleeping);
+  ASSERT_TRUE(w.destroyBody(runaway).ok());
+  ASSERT_TRUE(w.wakeBody(chain.back()).ok());
+  const uint64_t events = w.stats().guardEvents;
+  w.step();
+  EXPECT_EQ(w.stats().guardEvents, events) << w.stats().lastGuardEvent;
+  const std::vector<float> woken = reactions();
+  for (size_t i = 0; i < links.size(); ++i) {
+    EXPECT_GT(atRest[i], 0.5f) << "link " << i;
+    EXPECT_NEAR(woken[i], atRest[i], 0.05f * atRest[i]) << "link " << i;
+  }
+}

@@ -32,6 +32,8 @@ struct DaemonConfig {
   /// priority, so subscribers and other processes on a busy host cannot delay a tick; 0: the
   /// normal scheduler. Needs CAP_SYS_NICE (or root, or an rtprio ulimit); else a warning.
   int realtimePriority = 0;
+  /// s: how often the daemon hands freed memory back to the system (malloc_trim); 0: never.
+  int trimPeriodS = 10;
   /// [security] dir, identity, plugins: DDS Security with the files tools/make_security.sh
   /// writes (docs/SECURITY.md); added to the Cyclone configuration. Empty identity: none.
   protocol::SecurityFiles security;
