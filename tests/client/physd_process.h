@@ -13,6 +13,7 @@
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "phys/client/client.h"
@@ -66,6 +67,16 @@ inline int stopProcess(pid_t pid, int sig) {
   kill(pid, sig);
   waitpid(pid, &st, 0);
   return st;
+}
+
+/// Waits up to `wait` until the client has greeted `n` daemons after its first (a restart
+/// each); true when it has.
+inline bool awaitReconnects(const Client& c, uint64_t n,
+                            std::chrono::milliseconds wait = std::chrono::seconds(20)) {
+  const auto end = std::chrono::steady_clock::now() + wait;
+  while (c.reconnects() < n && std::chrono::steady_clock::now() < end)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  return c.reconnects() >= n;
 }
 
 /// A physd configuration in `dir`: physd.toml (server name, domain, start-up worlds as TOML

@@ -21,6 +21,17 @@ namespace {
 using namespace std::chrono_literals;
 using protocol::CommandBuilder;
 
+/// physd as a process on a data directory of its own, to be killed and started again.
+struct DurableDaemon {
+  testing::ScratchDir dir;
+  std::string data;
+  testing::PhysdConfig cfg;
+  DurableDaemon(const std::string& name, uint32_t domain)
+      : dir(name), data((dir.path / "data").string()),
+        cfg(dir.path, name, domain, "data = \"" + data + "\"\n") {}
+  pid_t spawn() const { return testing::spawnProcess(PHYSD_BINARY, {"--config", cfg.toml}); }
+};
+
 /// What the client did that the daemon acknowledged, in order: spawns and steps.
 struct Op {
   enum Kind { Spawn, Impulse, Step } kind;
@@ -57,13 +68,9 @@ struct Reference {
 };
 
 TEST(ClientPhysdProcess, AKilledDaemonRestoresEveryAcknowledgedCommand) {
-  testing::ScratchDir dir("physclient_durable");
-  const std::string data = (dir.path / "data").string();
-  testing::PhysdConfig cfg(dir.path, "physd-durable", 200 + uint32_t(getpid() % 29),
-                           "data = \"" + data + "\"\n");
-  auto spawn = [&] { return testing::spawnProcess(PHYSD_BINARY, {"--config", cfg.toml}); };
-  Client c(cfg.clientOptions(20s));
-  pid_t pid = spawn();
+  DurableDaemon d("physd-durable", 200 + uint32_t(getpid() % 29));
+  Client c(d.cfg.clientOptions(20s));
+  pid_t pid = d.spawn();
   ASSERT_GT(pid, 0);
   c.connect();
   WorldHandle w = c.createWorld({"kept", "", std::nullopt, 0}).get();
@@ -114,12 +121,9 @@ TEST(ClientPhysdProcess, AKilledDaemonRestoresEveryAcknowledgedCommand) {
     driver.join();
     ASSERT_GT(acked.size(), 5u) << "the client barely ran before the kill";
 
-    pid = spawn();
+    pid = d.spawn();
     ASSERT_GT(pid, 0);
-    const auto end = std::chrono::steady_clock::now() + 20s;
-    while (c.reconnects() < uint64_t(round + 1) && std::chrono::steady_clock::now() < end)
-      std::this_thread::sleep_for(10ms);
-    ASSERT_GE(c.reconnects(), uint64_t(round + 1));
+    ASSERT_TRUE(testing::awaitReconnects(c, uint64_t(round + 1)));
     // The same handle: same world id, same body ids.
     StateFrame s = w.queryState().get();
     // The uninterrupted run, with the acknowledged commands, and with the one in flight if
@@ -156,13 +160,9 @@ TEST(ClientPhysdProcess, SubscriptionsGoOnAfterTheDaemonIsKilledAndRestarted) {
   // physd is SIGKILLed and restarted on its data: both subscriptions deliver frames of the
   // restored world again, the interest one only the body it asked for (the SDK subscribed
   // it again: the new daemon kept no interests, and numbered its interests anew).
-  testing::ScratchDir dir("physclient_resubscribe");
-  const std::string data = (dir.path / "data").string();
-  testing::PhysdConfig cfg(dir.path, "physd-resubscribe", 200 + uint32_t((getpid() + 7) % 29),
-                           "data = \"" + data + "\"\n");
-  auto spawn = [&] { return testing::spawnProcess(PHYSD_BINARY, {"--config", cfg.toml}); };
-  Client c(cfg.clientOptions(20s));
-  pid_t pid = spawn();
+  DurableDaemon d("physd-resubscribe", 200 + uint32_t((getpid() + 7) % 29));
+  Client c(d.cfg.clientOptions(20s));
+  pid_t pid = d.spawn();
   ASSERT_GT(pid, 0);
   c.connect();
   // No gravity, three boxes drifting apart at 1 m/s: every tick changes every body.
@@ -191,12 +191,9 @@ TEST(ClientPhysdProcess, SubscriptionsGoOnAfterTheDaemonIsKilledAndRestarted) {
   int st = 0;
   ASSERT_EQ(waitpid(pid, &st, 0), pid);
   const uint64_t allBefore = all.framesReceived(), someBefore = some.framesReceived();
-  pid = spawn();
+  pid = d.spawn();
   ASSERT_GT(pid, 0);
-  const auto end = std::chrono::steady_clock::now() + 20s;
-  while (c.reconnects() < 1 && std::chrono::steady_clock::now() < end)
-    std::this_thread::sleep_for(10ms);
-  ASSERT_GE(c.reconnects(), 1u);
+  ASSERT_TRUE(testing::awaitReconnects(c, 1));
   EXPECT_TRUE(frameAfter(all, allBefore + 5)) << all.framesReceived() << " frames";
   EXPECT_TRUE(frameAfter(some, someBefore + 5)) << some.framesReceived() << " frames";
   std::optional<StateFrame> f = some.latest();
