@@ -19,7 +19,11 @@
 #define PHYS_WIDE_INLINE inline __attribute__((always_inline))
 // The kernels come in an AVX2 clone, picked at load time where the CPU has it, and a
 // baseline one. AVX2 brings no FMA (and -ffp-contract=off): both give the same bits.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+// Sanitizer builds (PHYS_NO_MULTIVERSION, cmake/warnings.cmake) keep the baseline only: the
+// clones' ifunc resolver runs inside the dynamic loader, before a sanitizer's runtime is
+// ready, and an instrumented resolver faults there (ThreadSanitizer does, before main).
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && \
+    !defined(PHYS_NO_MULTIVERSION)
 #define PHYS_WIDE_CLONES __attribute__((target_clones("avx2", "default")))
 #else
 #define PHYS_WIDE_CLONES

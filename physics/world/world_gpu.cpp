@@ -58,6 +58,8 @@ void DeviceWorldDeleter::operator()(DeviceWorld* d) const {
   delete d;
 }
 void World::Impl::openDevice() {
+  backend.requested = def.backend;
+  if (def.backend == Backend::Cpu) return;  // nothing to say: the CPU is what it asked for
   backend.note = "built without the GPU backend (PHYS_WITH_GPU=OFF)";
 }
 int gpuValidationErrorsInProcess() {

@@ -15,6 +15,7 @@
 #include "attacks.h"
 #include "phys/protocol/validate.h"
 #include "phys/scene/scene.h"
+#include "../common/sanitizer.h"
 #include "server_test_util.h"
 
 namespace phys::server::test {
@@ -65,9 +66,10 @@ class BudgetTest : public ::testing::Test {
     EXPECT_EQ(r->status(), code) << message(r);
     EXPECT_NE(message(r).find(needle), std::string::npos) << message(r);
     EXPECT_LT(message(r).size(), 2048u) << "an error message stays short";
-    EXPECT_LT(s, 1.0) << message(r);
+    EXPECT_LT(s, 1.0 * phys::test::kTimeFactor) << message(r);
     if (peak && before > 0) {
-      EXPECT_LT(procStatusBytes(0, "VmHWM") - before, 100ll << 20) << message(r);
+      EXPECT_LT(procStatusBytes(0, "VmHWM") - before, (100ll << 20) * phys::test::kMemoryFactor)
+          << message(r);
     }
     EXPECT_EQ(core->world(world)->world->stateHash(), hash);
     EXPECT_EQ(core->world(world)->world->bodyCount(), bodies);
