@@ -240,6 +240,22 @@ void WideContacts::clear() {
   errorsCurrent = false;
 }
 
+void WideContacts::release() noexcept {
+  clear();
+  std::vector<Item>().swap(schedule);
+  std::vector<Block>().swap(blocks_);
+  std::vector<std::pair<uint32_t, uint32_t>>().swap(laneOf_);
+  std::vector<double>().swap(residualTerms_);
+  std::vector<PointFriction>().swap(friction_);
+  std::vector<Patch>().swap(patches_);
+}
+
+size_t WideContacts::capacityBytes() const {
+  return schedule.capacity() * sizeof(Item) + blocks_.capacity() * sizeof(Block) +
+         laneOf_.capacity() * sizeof(laneOf_[0]) + residualTerms_.capacity() * sizeof(double) +
+         friction_.capacity() * sizeof(PointFriction) + patches_.capacity() * sizeof(Patch);
+}
+
 template <class F>
 void WideContacts::forEachPart(F&& fn) const {
   if (halves_ && pool_) {

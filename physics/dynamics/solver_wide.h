@@ -85,6 +85,9 @@ class WideContacts {
   /// over the rows alone again. The blocks stay for residual().
   void store(std::vector<SolverManifold>& manifolds);
   void clear();
+  /// clear(), and the blocks' storage back to the allocator (World::Impl::releaseStepBuffers).
+  void release() noexcept;
+  size_t capacityBytes() const;  ///< the storage held (blocks, friction, lanes, schedule)
   /// Adds the contacts' part of Solver::velocityResidual to sum, in the rows' order.
   double residual(const std::vector<SolverBody>& bodies, float h, double sum) const;
 

@@ -105,6 +105,7 @@ void World::step() {
       w.profile.buildIslands += ms;
       w.profile.total += ms;
     }
+    w.followActivity();
   } catch (const PairLimitReached&) {  // PairOverflow::Refuse
     w.stepRefused();
   } catch (const std::exception& e) {  // std::bad_alloc, std::length_error: all the step throws
@@ -388,6 +389,49 @@ uint32_t World::Impl::pairLimit() const {
   return uint32_t(std::clamp<uint64_t>(perShape, WorldDef::kMinAutoContactPairs, UINT32_MAX));
 }
 
+void World::Impl::releaseStepBuffers() noexcept {
+  std::vector<Contact>().swap(snapshot.contacts);
+  std::vector<Contact>().swap(contactScratch);
+  std::vector<ProxyPair>().swap(pairs);
+  std::vector<SolverManifold>().swap(manifolds);
+  std::vector<uint32_t>().swap(manifoldContact);
+  std::vector<uint32_t>().swap(contactOrder);
+  std::vector<Row>().swap(solver.rows);
+  wide.release();
+}
+
+size_t World::stepBufferBytes() const {
+  const Impl& w = *impl_;
+  auto bytes = [](const auto& v) { return v.capacity() * sizeof(v[0]); };
+  return bytes(w.contacts) + bytes(w.contactScratch) + bytes(w.snapshot.contacts) +
+         bytes(w.pairs) + bytes(w.manifolds) + bytes(w.manifoldContact) + bytes(w.contactOrder) +
+         bytes(w.solver.rows) + w.wide.capacityBytes();
+}
+
+void World::Impl::followActivity() noexcept {
+  // The buffers a step fills (contacts, the guard's copy of them, pairs, manifolds, rows,
+  // SIMD blocks) keep the capacity of the largest step they served: a world that once had
+  // 3,000 contact pairs and now has 500 would hold the memory of 3,000 for good, and a
+  // long-lived world's memory would creep up with every new peak of its pair count. So the
+  // buffers follow the world's activity: once a whole window of steps stayed under half the
+  // pairs they were grown for, they go back and the next step grows them to its own size.
+  // At most one release per window; results do not depend on capacities.
+  ActivityWindow& a = activity;
+  const size_t pairsNow = contacts.size();
+  a.windowPairs = std::max(a.windowPairs, pairsNow);
+  a.grownFor = std::max(a.grownFor, pairsNow);
+  if (++a.steps < ActivityWindow::kSteps) return;
+  if (a.grownFor >= ActivityWindow::kMinPairs && a.windowPairs * 2 < a.grownFor) {
+    releaseStepBuffers();
+    contacts.shrink_to_fit();  // kept (warm starts), at its own size; never throws (a
+                               // failed copy leaves it as it is)
+    a.grownFor = a.windowPairs;
+    a.releases++;
+  }
+  a.steps = 0;
+  a.windowPairs = 0;
+}
+
 void World::Impl::stepFailed(const char* what) noexcept {
   // Back to the state before the step. The guard's copy has it. Without one (guard off) the
   // bodies are as they were anyway, since only finalize writes them and nothing after it
@@ -401,14 +445,7 @@ void World::Impl::stepFailed(const char* what) noexcept {
   }
   snapshotValid = stepTouched = false;
   // The step's buffers (what a failed allocation was most likely growing) go back.
-  std::vector<Contact>().swap(snapshot.contacts);
-  std::vector<Contact>().swap(contactScratch);
-  std::vector<ProxyPair>().swap(pairs);
-  std::vector<SolverManifold>().swap(manifolds);
-  std::vector<uint32_t>().swap(manifoldContact);
-  std::vector<uint32_t>().swap(contactOrder);
-  std::vector<Row>().swap(solver.rows);
-  wide.clear();
+  releaseStepBuffers();
   // The broad phase may have failed inside a tree update: built again from the proxies' fat
   // boxes, which are always current (the pairs depend on nothing else), or at least made to
   // find its pairs from scratch.

@@ -309,6 +309,19 @@ struct World::Impl {
   /// A step threw: put the world back as it was before it, free the step's buffers and count
   /// it (StepStats::stepFailures).
   void stepFailed(const char* what) noexcept;
+  /// The step's buffers (contacts' scratch and guard copy, pairs, manifolds, rows, SIMD
+  /// blocks) back to the allocator; the next step grows them again.
+  void releaseStepBuffers() noexcept;
+  /// After an accepted step: the step's buffers follow the world's activity (step.cpp).
+  struct ActivityWindow {
+    static constexpr int kSteps = 600;        ///< a window: 10 s at 60 Hz
+    static constexpr size_t kMinPairs = 256;  ///< smaller buffers are left alone
+    int steps = 0;
+    size_t windowPairs = 0;  ///< the most contact pairs of a step in this window
+    size_t grownFor = 0;     ///< the most pairs the buffers served since their last release
+    uint64_t releases = 0;
+  } activity;
+  void followActivity() noexcept;
   /// The step passed the pair bound under PairOverflow::Refuse: undone like a failed step,
   /// counted as refused.
   void stepRefused() noexcept;

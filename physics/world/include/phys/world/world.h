@@ -347,6 +347,9 @@ class World {
                  double stepMs);
   const StepProfile& profile() const;
   const StepStats& stats() const;
+  /// Bytes held by the step's buffers (contacts, pairs, manifolds, rows, SIMD blocks): they
+  /// follow the world's activity, given back once a window of steps needed under half of them.
+  size_t stepBufferBytes() const;
   const BackendState& backendState() const;
   /// Contacts after the last step (touching or speculative).
   std::vector<ContactInfo> contacts() const;
