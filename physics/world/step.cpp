@@ -412,16 +412,18 @@ void World::Impl::followActivity() noexcept {
   // The buffers a step fills (contacts, the guard's copy of them, pairs, manifolds, rows,
   // SIMD blocks) keep the capacity of the largest step they served: a world that once had
   // 3,000 contact pairs and now has 500 would hold the memory of 3,000 for good, and a
-  // long-lived world's memory would creep up with every new peak of its pair count. So the
-  // buffers follow the world's activity: once a whole window of steps stayed under half the
-  // pairs they were grown for, they go back and the next step grows them to its own size.
-  // At most one release per window; results do not depend on capacities.
+  // long-lived world's memory would creep up with every new peak of its pair count (the
+  // pairs of a world whose islands sleep and wake swing between hundreds and thousands, and
+  // their running maximum keeps setting records). So the buffers follow the world's
+  // activity: once a whole window of steps needed under two thirds of the pairs they were
+  // grown for, they go back and the next step grows them to its own size. At most one
+  // release per window; results do not depend on capacities.
   ActivityWindow& a = activity;
   const size_t pairsNow = contacts.size();
   a.windowPairs = std::max(a.windowPairs, pairsNow);
   a.grownFor = std::max(a.grownFor, pairsNow);
   if (++a.steps < ActivityWindow::kSteps) return;
-  if (a.grownFor >= ActivityWindow::kMinPairs && a.windowPairs * 2 < a.grownFor) {
+  if (a.grownFor >= ActivityWindow::kMinPairs && a.windowPairs * 3 < a.grownFor * 2) {
     releaseStepBuffers();
     contacts.shrink_to_fit();  // kept (warm starts), at its own size; never throws (a
                                // failed copy leaves it as it is)

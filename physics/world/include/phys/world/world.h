@@ -348,7 +348,8 @@ class World {
   const StepProfile& profile() const;
   const StepStats& stats() const;
   /// Bytes held by the step's buffers (contacts, pairs, manifolds, rows, SIMD blocks): they
-  /// follow the world's activity, given back once a window of steps needed under half of them.
+  /// follow the world's activity, given back once a window of 600 steps needed under two
+  /// thirds of the pairs they were grown for.
   size_t stepBufferBytes() const;
   const BackendState& backendState() const;
   /// Contacts after the last step (touching or speculative).
