@@ -11,6 +11,7 @@
 #include <cmath>
 #include <cstring>
 #include <new>
+#include <type_traits>
 
 #include "dynamics/joints.h"
 #include "world/world_impl.h"
@@ -389,23 +390,31 @@ uint32_t World::Impl::pairLimit() const {
   return uint32_t(std::clamp<uint64_t>(perShape, WorldDef::kMinAutoContactPairs, UINT32_MAX));
 }
 
+namespace {
+/// The vectors a step fills and empties again (releaseStepBuffers, stepBufferBytes: one list
+/// for both); the persistent contacts and the SIMD blocks are handled beside it.
+template <class Impl, class F>
+void forEachStepScratch(Impl& w, F&& f) {
+  f(w.snapshot.contacts);
+  f(w.contactScratch);
+  f(w.pairs);
+  f(w.manifolds);
+  f(w.manifoldContact);
+  f(w.contactOrder);
+  f(w.solver.rows);
+}
+}  // namespace
+
 void World::Impl::releaseStepBuffers() noexcept {
-  std::vector<Contact>().swap(snapshot.contacts);
-  std::vector<Contact>().swap(contactScratch);
-  std::vector<ProxyPair>().swap(pairs);
-  std::vector<SolverManifold>().swap(manifolds);
-  std::vector<uint32_t>().swap(manifoldContact);
-  std::vector<uint32_t>().swap(contactOrder);
-  std::vector<Row>().swap(solver.rows);
+  forEachStepScratch(*this, [](auto& v) { std::remove_reference_t<decltype(v)>().swap(v); });
   wide.release();
 }
 
 size_t World::stepBufferBytes() const {
   const Impl& w = *impl_;
-  auto bytes = [](const auto& v) { return v.capacity() * sizeof(v[0]); };
-  return bytes(w.contacts) + bytes(w.contactScratch) + bytes(w.snapshot.contacts) +
-         bytes(w.pairs) + bytes(w.manifolds) + bytes(w.manifoldContact) + bytes(w.contactOrder) +
-         bytes(w.solver.rows) + w.wide.capacityBytes();
+  size_t bytes = w.contacts.capacity() * sizeof(Contact) + w.wide.capacityBytes();
+  forEachStepScratch(w, [&](const auto& v) { bytes += v.capacity() * sizeof(v[0]); });
+  return bytes;
 }
 
 void World::Impl::followActivity() noexcept {
@@ -428,7 +437,6 @@ void World::Impl::followActivity() noexcept {
     contacts.shrink_to_fit();  // kept (warm starts), at its own size; never throws (a
                                // failed copy leaves it as it is)
     a.grownFor = a.windowPairs;
-    a.releases++;
   }
   a.steps = 0;
   a.windowPairs = 0;

@@ -319,7 +319,6 @@ struct World::Impl {
     int steps = 0;
     size_t windowPairs = 0;  ///< the most contact pairs of a step in this window
     size_t grownFor = 0;     ///< the most pairs the buffers served since their last release
-    uint64_t releases = 0;
   } activity;
   void followActivity() noexcept;
   /// The step passed the pair bound under PairOverflow::Refuse: undone like a failed step,
