@@ -16,8 +16,10 @@
 #
 # Reports: replies lost (must be 0), restore mismatches (must be 0), daemon crashes (must be
 # 0), kills, tick overruns, frames received, daemon RSS over time (rss.csv) and its growth
-# from a sixth of the run to the end (under 5 % for a run of an hour or more). Exits 1 when
-# a must-be-zero count is not.
+# from a sixth of the run to the end (means of the first and last 5 minutes of that span;
+# under 5 % for a run of an hour or more), and beside it what the memory should follow
+# (memory.csv from the monitor: the daemon's heap in use, its worlds' bodies, joints,
+# contacts and step buffers). Exits 1 when a must-be-zero count is not.
 set -uo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 seconds=3600 kills=5 clients=32 build="$root/build" out="" domain=$((100 + $$ % 100))
@@ -40,7 +42,7 @@ mkdir -p "$out/bin"
 # Copies: a rebuild during the run must not change the daemon that restarts.
 cp "$build/server/physd" "$build/tools/physsoak" "$out/bin/"
 physd="$out/bin/physd" soak="$out/bin/physsoak"
-rm -rf "$out/data" "$out/clients.jsonl" "$out/rss.csv" "$out"/physd*.log
+rm -rf "$out/data" "$out/clients.jsonl" "$out/rss.csv" "$out/memory.csv" "$out"/physd*.log
 # Loopback Cyclone with a discovery tag of this run: other runs and tests never see it.
 sed "s|<Discovery>|<Discovery><Tag>physd-soak-$$</Tag>|" "$root/configs/cyclonedds/loopback.xml" >"$out/cyclone.xml"
 cat >"$out/physd.toml" <<EOF
@@ -79,7 +81,9 @@ client() {  # role index seconds: started in the background, its pid in lastpid
   lastpid=$!
 }
 for i in $(seq 1 "$editors"); do client editor "$i" "$seconds"; cpids+=("$lastpid"); done
-client monitor 0 "$seconds"; cpids+=("$lastpid")
+"$soak" --role monitor --index 0 --seconds "$seconds" --domain "$domain" --config "$out/cyclone.xml" \
+  --out "$out/clients.jsonl" --memory "$out/memory.csv" >/dev/null 2>>"$out/clients.err" &
+cpids+=("$!")
 churn=()
 declare -A churnpid
 for i in $(seq 1 "$subs"); do
@@ -137,9 +141,10 @@ else
   crashes=$((crashes + 1))
 fi
 
-python3 - "$out" "$seconds" "$killed" "$crashes" <<'EOF'
+python3 - "$out" "$seconds" "$killed" "$crashes" "$t0" <<'EOF'
 import json, sys
 out, seconds, killed, crashes = sys.argv[1], float(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
+t0 = float(sys.argv[5])
 rows = [json.loads(l) for l in open(out + "/clients.jsonl") if l.strip()]
 def total(k, role=None):
     return sum(r[k] for r in rows if role is None or r["role"] == role)
@@ -148,12 +153,25 @@ failed = [r for r in rows if not r["ok"]]
 rss = [l.strip().split(",") for l in open(out + "/rss.csv")][1:]
 rss = [(float(t), int(k), int(e)) for t, k, e in rss]
 last = [r for r in rss if r[2] == rss[-1][2]] if rss else []
-start = [r for r in last if r[0] >= seconds / 6]
+# Growth from a sixth of the run to its end, of the last daemon: the mean over the first
+# window from then against the mean over the last one (a tenth of that span, at most 5
+# minutes). The daemon's memory follows its worlds' activity, which swings within seconds
+# (contacts by a factor of 2 in the soak), so single samples at either end would measure
+# the swing, not a trend.
+span0 = max(seconds / 6, last[0][0]) if last else seconds / 6
+window = max(10.0, min(300.0, (seconds - span0) / 10))
+def ends(rows, t):  # rows (t, ...) from span0 on: the first and the last window
+    rows = [r for r in rows if t(r) >= span0]
+    if len(rows) < 2:
+        return None, None
+    a = [r for r in rows if t(r) <= t(rows[0]) + window]
+    b = [r for r in rows if t(r) >= t(rows[-1]) - window]
+    return a, b
 growth = None
-if len(start) >= 2:
-    a = sum(r[1] for r in start[:5]) / len(start[:5])
-    b = sum(r[1] for r in start[-5:]) / len(start[-5:])
-    growth = (b - a) / a * 100
+a, b = ends(last, lambda r: r[0])
+if a:
+    ma, mb = sum(r[1] for r in a) / len(a), sum(r[1] for r in b) / len(b)
+    growth = (mb - ma) / ma * 100
 print(f"clients: {len(rows)} reported ({len(editors)} editors), {len(failed)} failed to run")
 print(f"acknowledged commands: {total('acked', 'editor')}, refused with a status: {total('refused', 'editor')}")
 print(f"replies lost: {total('lost')}")
@@ -168,7 +186,23 @@ print(f"state frames received by subscribers: {total('frames')}")
 if rss:
     print(f"daemon RSS: first {rss[0][1]} kB, max {max(r[1] for r in rss)} kB, last {rss[-1][1]} kB")
 if growth is not None:
-    print(f"RSS growth of the last daemon from {seconds/6:.0f} s to the end: {growth:+.1f} %")
+    print(f"RSS growth of the last daemon from {span0:.0f} s to the end (means of the first and"
+          f" last {window:.0f} s): {ma / 1024:.1f} -> {mb / 1024:.1f} MB, {growth:+.1f} %")
+# What the memory should follow (memory.csv, from the monitor's phys/status samples): the
+# heap in use and the worlds' activity, at the same two ends as the RSS.
+try:
+    mem = [l.strip().split(",") for l in open(out + "/memory.csv")][1:]
+    mem = [(float(r[0]) - t0,) + tuple(int(x) for x in r[1:]) for r in mem if r[0][0].isdigit()]
+    a, b = ends([r for r in mem if r[2] > 0], lambda r: r[0])
+    if a:
+        def avg(rows, i): return sum(r[i] for r in rows) / len(rows)
+        for name, i, unit in (("heap in use", 1, 1e6), ("step buffers", 7, 1e6),
+                              ("contacts", 6, 1), ("awake bodies", 4, 1), ("bodies", 3, 1),
+                              ("joints", 5, 1)):
+            print(f"{name} (all worlds): {avg(a, i) / unit:.1f} -> {avg(b, i) / unit:.1f}"
+                  + (" MB" if unit > 1 else ""))
+except (OSError, ValueError, IndexError):
+    pass
 bad = total('lost') + total('mismatches') + crashes + len(failed)
 if seconds >= 3600 and growth is not None and growth >= 5:
     print("RSS grew 5 % or more"); bad += 1

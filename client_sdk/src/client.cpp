@@ -639,6 +639,7 @@ struct Client::Impl {
       st.commands = s->commands();
       st.errors = s->errors();
       st.framesDropped = s->frames_dropped();
+      st.heapBytes = s->heap_bytes();
       if (s->worlds())
         for (auto* w : *s->worlds()) st.worlds.push_back(toSummary(*w));
       std::lock_guard<std::mutex> lk(infoMutex);

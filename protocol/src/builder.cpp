@@ -196,7 +196,8 @@ Offset<wire::WorldSummary> writeWorldSummary(Fbb& fbb, const WorldSummary& w) {
   return wire::CreateWorldSummary(fbb, w.world, name, preset, w.bodies, w.joints, w.tick, w.time,
                                   w.running, w.rateHz, w.tickMs, w.tickMsMax, w.overruns,
                                   w.subscribers, w.frames, backend, device, note, w.gpuSteps,
-                                  w.cpuSteps, w.awakeBodies, w.sleepingBodies, w.frameBytes);
+                                  w.cpuSteps, w.awakeBodies, w.sleepingBodies, w.frameBytes,
+                                  w.contacts, w.stepBufferBytes);
 }
 
 Offset<wire::LimitsInfo> writeLimits(Fbb& fbb, const Limits& l) {
@@ -717,7 +718,8 @@ Bytes encodeServerStatus(const ServerStatusInfo& status) {
   for (const WorldSummary& w : status.worlds) v.push_back(detail::writeWorldSummary(fbb, w));
   auto worlds = fbb.CreateVector(v);
   auto root = wire::CreateServerStatus(fbb, name, version, status.uptimeS, status.commands,
-                                       status.errors, worlds, status.framesDropped);
+                                       status.errors, worlds, status.framesDropped,
+                                       status.heapBytes);
   return finishBytes(fbb, root, wire::kServerStatusId);
 }
 

@@ -217,6 +217,8 @@ WorldSummary toWorldSummary(const wire::WorldSummary& in) {
   s.awakeBodies = in.awake_bodies();
   s.sleepingBodies = in.sleeping_bodies();
   s.frameBytes = in.frame_bytes();
+  s.contacts = in.contacts();
+  s.stepBufferBytes = in.step_buffer_bytes();
   return s;
 }
 

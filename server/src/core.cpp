@@ -1,6 +1,8 @@
 // ServerCore: registry, time control, frames, status (commands.cpp applies commands).
 #include "phys/server/core.h"
 
+#include <malloc.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -941,6 +943,8 @@ std::vector<protocol::WorldSummary> ServerCore::summaries() const {
     s.awakeBodies = uint32_t(w->world->awakeBodyCount());
     s.sleepingBodies = uint32_t(w->world->stats().sleepingBodies);
     s.frameBytes = uint32_t(std::min<uint64_t>(w->published.bytes, UINT32_MAX));
+    s.contacts = uint32_t(w->world->stats().contacts);
+    s.stepBufferBytes = w->world->stepBufferBytes();
     auto it = subscribers_.find(streamKey(id, 0));
     s.subscribers = it == subscribers_.end() ? 0 : it->second;
     out.push_back(std::move(s));
@@ -957,6 +961,10 @@ protocol::ServerStatusInfo ServerCore::status() const {
   s.errors = counters_.errors + refusedAtSubmit_.load();
   s.worlds = summaries();
   s.framesDropped = out_.framesDropped();
+  // glibc: bytes handed out from the arenas plus those in their own mappings. What the
+  // resident set holds beyond this is the allocator's free pages (and code, stacks).
+  const struct mallinfo2 mi = mallinfo2();
+  s.heapBytes = mi.uordblks + mi.hblkhd;
   return s;
 }
 

@@ -66,14 +66,15 @@ pc::WorldHandle resolve(pc::Client& c, const std::string& world) {
 /// The worlds, one a line; a world's backend (and device) after its numbers, and below it
 /// why the CPU runs a world that asked for the GPU.
 void printWorlds(const std::vector<pc::WorldSummary>& worlds) {
-  std::printf("%6s  %-20s %-12s %8s %8s %7s %10s %10s %8s %6s %8s %10s  %s\n", "id", "name",
-              "preset", "awake", "bodies", "joints", "tick", "time s", "state", "rate", "overruns", "frames",
-              "backend");
+  std::printf("%6s  %-20s %-12s %8s %8s %7s %8s %7s %10s %10s %8s %6s %8s %10s  %s\n", "id",
+              "name", "preset", "awake", "bodies", "joints", "contacts", "buf MB", "tick", "time s",
+              "state", "rate", "overruns", "frames", "backend");
   for (const auto& w : worlds) {
     std::string backend = w.backend.empty() ? "cpu" : w.backend;  // servers before backends
     if (!w.device.empty()) backend += " (" + w.device + ")";
-    std::printf("%6u  %-20s %-12s %8u %8u %7u %10llu %10.2f %8s %6.0f %8llu %10llu  %s\n", w.world,
-                w.name.c_str(), w.preset.c_str(), w.awakeBodies, w.bodies, w.joints, (unsigned long long)w.tick,
+    std::printf("%6u  %-20s %-12s %8u %8u %7u %8u %7.1f %10llu %10.2f %8s %6.0f %8llu %10llu  %s\n",
+                w.world, w.name.c_str(), w.preset.c_str(), w.awakeBodies, w.bodies, w.joints,
+                w.contacts, double(w.stepBufferBytes) / 1e6, (unsigned long long)w.tick,
                 w.time, w.running ? "running" : "paused", double(w.rateHz),
                 (unsigned long long)w.overruns, (unsigned long long)w.frames, backend.c_str());
     if (!w.backendNote.empty()) std::printf("%6s  note: %s\n", "", w.backendNote.c_str());
@@ -117,9 +118,10 @@ int watch(pc::Client& c, const std::string& only) {
           ++it;
       for (const auto& w : worlds)
         if (!live.count(w.world)) live[w.world].sub = c.subscribe(w.world);
-      std::snprintf(line, sizeof line, "%s %s  up %.0f s  commands %llu  errors %llu\n",
+      std::snprintf(line, sizeof line, "%s %s  up %.0f s  commands %llu  errors %llu  heap %.1f MB\n",
                     status->serverName.c_str(), status->serverVersion.c_str(), status->uptimeS,
-                    (unsigned long long)status->commands, (unsigned long long)status->errors);
+                    (unsigned long long)status->commands, (unsigned long long)status->errors,
+                    double(status->heapBytes) / 1e6);
       out += line;
       std::snprintf(line, sizeof line, "%5s  %-18s %10s %10s %8s %8s %15s %10s %8s %6s %5s\n",
                     "id", "world", "tick", "sim time", "tick ms", "max ms", "awake/bodies",

@@ -1,10 +1,10 @@
 // physsoak: one scripted client of tools/soak.sh (issue 24 "Soak").
 //
 //   physsoak --role editor|subscriber|slow|monitor --index I --seconds S [--domain D]
-//            [--config XML] [--seed N] [--out FILE]
+//            [--config XML] [--seed N] [--out FILE] [--memory CSV]
 //
 // editor: owns the world "soak-<I>" (created, or found again after a restart) and for S
-//   seconds sends one command at a time: spawn bodies, remove some, add a joint, apply
+//   seconds sends one command at a time: spawn bodies, remove some, add or remove a joint, apply
 //   forces, change the solver, Step, Run, Pause. It keeps what the daemon acknowledged (the
 //   live body ids, the tick of the last Step) and, after every daemon restart, checks the
 //   restored world against it: every acknowledged body there and no other (bar the one
@@ -12,7 +12,8 @@
 //   A request that times out while no daemon restart happens around it is a lost reply.
 // subscriber / slow: subscribes to editor worlds' state frames (slow: sleeps 50 ms in its
 //   callback) and counts frames.
-// monitor: records the daemon's status (tick overruns of every world) once a second.
+// monitor: records the daemon's status (tick overruns of every world) once a second, and
+//   with --memory the daemon's heap and its worlds' activity every 10 s.
 //
 // At the end it writes one JSON line to --out (or stdout): its counts.
 #include <CLI/CLI.hpp>
@@ -20,6 +21,7 @@
 #include <chrono>
 #include <cstdio>
 #include <fstream>
+#include <iomanip>
 #include <map>
 #include <random>
 #include <set>
@@ -71,6 +73,12 @@ void editor(Client& c, int index, double seconds, uint32_t seed, Counts* n) {
     w = c.createWorld({name, "", std::nullopt, 0}).get();
   }
   std::set<uint64_t> live;  // acknowledged bodies
+  // Acknowledged joints (id -> its bodies), at most kMaxJoints: like the bodies (at most 400)
+  // the joints stay bounded, so the world's size and activity settle within minutes and the
+  // daemon's memory from minute 10 on measures the daemon, not a world that keeps growing
+  // (unbounded, the 16 worlds' joints grew all hour and pulled their bodies into piles).
+  constexpr size_t kMaxJoints = 40;
+  std::map<uint64_t, std::pair<uint64_t, uint64_t>> joints;
   uint64_t ground = 0;
   {
     // What a world found again holds is taken as it is (an earlier soak client's).
@@ -138,9 +146,20 @@ void editor(Client& c, int index, double seconds, uint32_t seed, Counts* n) {
         if (*it != ground) {
           const uint64_t id = *it;
           removing = 1;
+          // Its joints go with it (forgotten first: if the reply is cut off, the body and
+          // its joints may be gone or not; a later removal of such a joint is refused).
+          std::erase_if(joints, [id](const auto& j) {
+            return j.second.first == id || j.second.second == id;
+          });
           w.removeBodies(std::vector<uint64_t>{id}, o).get();
           live.erase(id);
         }
+      } else if (action < 42 && joints.size() >= kMaxJoints) {
+        auto it = joints.begin();
+        std::advance(it, rng() % joints.size());
+        const uint64_t id = it->first;
+        joints.erase(it);
+        w.removeJoints(std::vector<uint64_t>{id}, o).get();
       } else if (action < 42 && live.size() > 3) {
         std::vector<uint64_t> ids(live.begin(), live.end());
         JointDef j;
@@ -148,8 +167,10 @@ void editor(Client& c, int index, double seconds, uint32_t seed, Counts* n) {
         j.bodyA = BodyId::fromPacked(ids[rng() % ids.size()]);
         j.bodyB = BodyId::fromPacked(ids[rng() % ids.size()]);
         j.length = 1.5f;
-        if (j.bodyA != j.bodyB && j.bodyA.packed() != ground && j.bodyB.packed() != ground)
-          w.addJoints(std::span<const JointDef>(&j, 1), o).get();
+        if (j.bodyA != j.bodyB && j.bodyA.packed() != ground && j.bodyB.packed() != ground) {
+          const std::vector<uint64_t> added = w.addJoints(std::span<const JointDef>(&j, 1), o).get();
+          if (!added.empty()) joints[added[0]] = {j.bodyA.packed(), j.bodyB.packed()};
+        }
       } else if (action < 65 && live.size() > 1) {
         auto it = live.begin();
         std::advance(it, rng() % live.size());
@@ -205,18 +226,38 @@ void subscriber(Client& c, int index, double seconds, bool slow, Counts* n) {
   n->frames = frames.load();
 }
 
-void monitor(Client& c, double seconds, Counts* n) {
+/// memory: when not empty, a CSV file that gets a line every 10 s: the unix time, the daemon's
+/// heap in use and, summed over its worlds, bodies, awake bodies, joints, contacts and the
+/// step buffers' bytes (what the daemon's memory should follow).
+void monitor(Client& c, double seconds, const std::string& memory, Counts* n) {
   const auto end = Clock::now() + std::chrono::duration<double>(seconds);
+  std::ofstream mem;
+  if (!memory.empty()) {
+    mem.open(memory, std::ios::app);
+    mem << "unix_s,heap_bytes,worlds,bodies,awake,joints,contacts,step_buffer_bytes\n";
+  }
   // Overruns per world; a restarted daemon counts from 0 again, so a drop adds what the
   // last daemon had counted.
   std::map<uint32_t, uint64_t> last;
-  while (Clock::now() < end) {
-    if (auto st = c.latestStatus())
+  for (int i = 0; Clock::now() < end; ++i) {
+    if (auto st = c.latestStatus()) {
+      uint64_t bodies = 0, awake = 0, joints = 0, contacts = 0, buffers = 0;
       for (const auto& w : st->worlds) {
         uint64_t& l = last[w.world];
         if (w.overruns < l) n->overruns += l;
         l = w.overruns;
+        bodies += w.bodies, awake += w.awakeBodies, joints += w.joints;
+        contacts += w.contacts, buffers += w.stepBufferBytes;
       }
+      if (mem.is_open() && i % 10 == 0) {
+        const double unix = std::chrono::duration<double>(
+                                std::chrono::system_clock::now().time_since_epoch())
+                                .count();
+        mem << std::fixed << std::setprecision(1) << unix << ',' << st->heapBytes << ','
+            << st->worlds.size() << ',' << bodies << ',' << awake << ',' << joints << ','
+            << contacts << ',' << buffers << std::endl;
+      }
+    }
     std::this_thread::sleep_for(1s);
   }
   for (auto& [w, o] : last) n->overruns += o;
@@ -226,7 +267,7 @@ void monitor(Client& c, double seconds, Counts* n) {
 
 int main(int argc, char** argv) {
   CLI::App app{"physsoak: a scripted client of tools/soak.sh"};
-  std::string role = "editor", configFile, out;
+  std::string role = "editor", configFile, out, memory;
   int index = 0;
   double seconds = 60;
   uint32_t domain = 0, seed = 1;
@@ -237,6 +278,7 @@ int main(int argc, char** argv) {
   app.add_option("--config", configFile, "Cyclone XML file");
   app.add_option("--seed", seed);
   app.add_option("--out", out, "append the summary line here");
+  app.add_option("--memory", memory, "monitor: append the daemon's memory every 10 s here (CSV)");
   CLI11_PARSE(app, argc, argv);
 
   ClientOptions o;
@@ -257,7 +299,7 @@ int main(int argc, char** argv) {
     c.connect();
     if (role == "editor") editor(c, index, seconds, seed, &n);
     if (role == "subscriber" || role == "slow") subscriber(c, index, seconds, role == "slow", &n);
-    if (role == "monitor") monitor(c, seconds, &n);
+    if (role == "monitor") monitor(c, seconds, memory, &n);
     n.restarts = std::max<uint64_t>(n.restarts, c.reconnects());
   } catch (const std::exception& e) {
     std::fprintf(stderr, "physsoak %s %d: %s\n", role.c_str(), index, e.what());

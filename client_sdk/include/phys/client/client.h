@@ -124,6 +124,7 @@ struct ServerStatus {
   uint64_t commands = 0, errors = 0;
   std::vector<WorldSummary> worlds;
   uint64_t framesDropped = 0;  ///< state frames the daemon's publisher dropped, total
+  uint64_t heapBytes = 0;      ///< bytes in use in the daemon's heap (0: not reported)
 };
 
 /// A notice from the daemon (phys/events), e.g. the engine's guard rails redoing a step.

@@ -205,6 +205,8 @@ struct WorldSummary {
   uint32_t awakeBodies = 0;     ///< bodies the world steps (not static, not asleep)
   uint32_t sleepingBodies = 0;  ///< dynamic bodies asleep
   uint32_t frameBytes = 0;      ///< bytes of the last state frame (0: none encoded)
+  uint32_t contacts = 0;        ///< contacts the last step collided
+  uint64_t stepBufferBytes = 0; ///< bytes held by the world's step buffers
 };
 
 /// A reply without a result (errors; Pause, DestroyWorld, ...).
@@ -286,6 +288,7 @@ struct ServerStatusInfo {
   uint64_t errors = 0;    ///< rejected
   std::vector<WorldSummary> worlds;
   uint64_t framesDropped = 0;  ///< state frames dropped by the publisher's ring
+  uint64_t heapBytes = 0;      ///< bytes in use in the daemon's heap (glibc mallinfo2)
 };
 Bytes encodeServerStatus(const ServerStatusInfo& status);
 
