@@ -1,0 +1,61 @@
+# `cmake --install build [--prefix P]`: the client SDK as a package (docs/CLIENT.md "Linking
+# the SDK from another project").
+#
+#   lib/libphysclient.a, libphys_protocol.a, libphys_core.a (+ libphys_gpu.a when built)
+#   include/phys/...                 the SDK's, the protocol's and the engine's public headers
+#   lib/cmake/phys/physConfig.cmake  find_package(phys CONFIG): phys::client, phys::core
+#   lib/pkgconfig/phys-client.pc     pkg-config --cflags --libs phys-client
+#
+# Static libraries, as in the tree: a program that links phys::client carries the SDK and
+# needs at run time only the system's shared libraries (Cyclone DDS, OpenSSL, Vulkan).
+# phys::core alone is the engine, for programs that step worlds in process.
+include(GNUInstallDirs)
+include(CMakePackageConfigHelpers)
+
+set(_phys_targets physclient phys_protocol phys_core)
+if(TARGET phys_gpu)
+  list(APPEND _phys_targets phys_gpu)
+endif()
+install(TARGETS ${_phys_targets} EXPORT physTargets
+        ARCHIVE DESTINATION ${CMAKE_INSTALL_LIBDIR}
+        INCLUDES DESTINATION ${CMAKE_INSTALL_INCLUDEDIR})
+
+# Headers: every room's include/ tree merges into include/phys/.
+foreach(_dir client_sdk/include protocol/include physics/base/include physics/collision/include
+             physics/dynamics/include physics/world/include)
+  install(DIRECTORY ${PROJECT_SOURCE_DIR}/${_dir}/ DESTINATION ${CMAKE_INSTALL_INCLUDEDIR})
+endforeach()
+if(TARGET phys_gpu)
+  install(DIRECTORY ${PROJECT_SOURCE_DIR}/gpu_solver/include/ DESTINATION ${CMAKE_INSTALL_INCLUDEDIR})
+endif()
+# Generated: the FlatBuffers schema's header and the DDS envelope's (included as "envelope.h").
+install(FILES ${PROJECT_BINARY_DIR}/protocol/generated/phys/protocol/physics_generated.h
+        DESTINATION ${CMAKE_INSTALL_INCLUDEDIR}/phys/protocol)
+install(FILES ${PROJECT_BINARY_DIR}/protocol/envelope.h DESTINATION ${CMAKE_INSTALL_INCLUDEDIR})
+
+set(_phys_cmake_dir ${CMAKE_INSTALL_LIBDIR}/cmake/phys)
+install(EXPORT physTargets NAMESPACE phys:: DESTINATION ${_phys_cmake_dir})
+if(TARGET phys_gpu)
+  set(PHYS_PACKAGE_WITH_GPU ON)
+else()
+  set(PHYS_PACKAGE_WITH_GPU OFF)
+endif()
+configure_package_config_file(${PROJECT_SOURCE_DIR}/cmake/physConfig.cmake.in
+                              ${PROJECT_BINARY_DIR}/physConfig.cmake
+                              INSTALL_DESTINATION ${_phys_cmake_dir})
+write_basic_package_version_file(${PROJECT_BINARY_DIR}/physConfigVersion.cmake
+                                 COMPATIBILITY SameMinorVersion)
+install(FILES ${PROJECT_BINARY_DIR}/physConfig.cmake ${PROJECT_BINARY_DIR}/physConfigVersion.cmake
+        DESTINATION ${_phys_cmake_dir})
+
+# pkg-config: static libraries, so every library the SDK needs is in Libs.
+set(PHYS_PC_LIBS "-lphysclient -lphys_protocol -lphys_core")
+if(TARGET phys_gpu)
+  string(APPEND PHYS_PC_LIBS " -lphys_gpu -lvulkan")
+endif()
+string(APPEND PHYS_PC_LIBS " -lddsc -lflatbuffers -lcrypto -lqhull_r -lpthread")
+# Relocatable: the .pc finds the prefix from its own folder, so --prefix at install time works.
+file(RELATIVE_PATH PHYS_PC_TO_PREFIX /p/${CMAKE_INSTALL_LIBDIR}/pkgconfig /p)
+configure_file(${PROJECT_SOURCE_DIR}/cmake/phys-client.pc.in ${PROJECT_BINARY_DIR}/phys-client.pc
+               @ONLY)
+install(FILES ${PROJECT_BINARY_DIR}/phys-client.pc DESTINATION ${CMAKE_INSTALL_LIBDIR}/pkgconfig)
