@@ -629,8 +629,11 @@ TEST(ProtocolRoundTrip, StatusAndEvents) {
   w.backend = "cpu";
   w.backendNote = "no GPU device, running on the CPU: no Vulkan device";
   w.cpuSteps = 12;
+  w.contacts = 321;
+  w.stepBufferBytes = 5'000'000'000ull;  // past 32 bits
   s.worlds.push_back(w);
   s.framesDropped = 5;
+  s.heapBytes = 123'456'789'012ull;
   auto d = decodeServerStatus(encodeServerStatus(s));
   ASSERT_TRUE(d.ok()) << d.status.message;
   EXPECT_EQ(d->server_name()->str(), "physd@host");
@@ -644,7 +647,10 @@ TEST(ProtocolRoundTrip, StatusAndEvents) {
   EXPECT_EQ(ws.backendNote, w.backendNote);
   EXPECT_EQ(ws.gpuSteps, 0u);
   EXPECT_EQ(ws.cpuSteps, 12u);
+  EXPECT_EQ(ws.contacts, 321u);
+  EXPECT_EQ(ws.stepBufferBytes, 5'000'000'000ull);
   EXPECT_EQ(d->frames_dropped(), 5u);
+  EXPECT_EQ(d->heap_bytes(), 123'456'789'012ull);
 
   auto e = decodeEvent(
       encodeEvent(1, 42, wire::Severity::Warning, "guard_rollback", "step redone at 8 substeps"));

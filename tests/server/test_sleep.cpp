@@ -62,7 +62,16 @@ TEST_F(SleepServerTest, WorldsSleepByDefaultAndCreateWorldCanSayOtherwise) {
     EXPECT_EQ(s.bodies, 2u);
     EXPECT_EQ(s.awakeBodies, s.world == on ? 0u : 1u) << s.name;
     EXPECT_EQ(s.sleepingBodies, s.world == on ? 1u : 0u) << s.name;
+    // The awake box touches the ground (its contacts are in the step's buffers); a sleeping
+    // island is not collided.
+    if (s.world == off) {
+      EXPECT_GE(s.contacts, 1u);
+      EXPECT_GT(s.stepBufferBytes, 0u);
+    } else {
+      EXPECT_EQ(s.contacts, 0u);
+    }
   }
+  EXPECT_GT(core.status().heapBytes, 0u);
   // The default CreateWorldArgs sleep.
   const uint32_t plain =
       send(CommandBuilder().createWorld({"plain", "", std::nullopt, 0}), 0)->world();
