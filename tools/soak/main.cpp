@@ -166,7 +166,11 @@ void editor(Client& c, int index, double seconds, uint32_t seed, Counts* n) {
         j.type = JointType::Distance;
         j.bodyA = BodyId::fromPacked(ids[rng() % ids.size()]);
         j.bodyB = BodyId::fromPacked(ids[rng() % ids.size()]);
-        j.length = 1.5f;
+        // Rest length: the distance the bodies are apart now (length < 0). A fixed length
+        // (1.5 m) pulled bodies from across the world together: every joint added left a
+        // cluster behind after it was removed, and with bodies living ~30 minutes in the
+        // soak the worlds' contacts kept rising all hour (6,000 to 18,000 in 17 minutes).
+        j.length = -1;
         if (j.bodyA != j.bodyB && j.bodyA.packed() != ground && j.bodyB.packed() != ground) {
           const std::vector<uint64_t> added = w.addJoints(std::span<const JointDef>(&j, 1), o).get();
           if (!added.empty()) joints[added[0]] = {j.bodyA.packed(), j.bodyB.packed()};
