@@ -6,13 +6,18 @@ PHYS_PACKAGES=(cmake ninja-build g++ pkg-config libeigen3-dev nlohmann-json3-dev
   cyclonedds-dev cyclonedds-tools libflatbuffers-dev flatbuffers-compiler libspdlog-dev
   libtomlplusplus-dev zlib1g-dev libssl-dev bc python3
   libvulkan-dev glslc mesa-vulkan-drivers vulkan-validationlayers vulkan-tools
-  libbullet-dev libode-dev libmujoco-dev gnuplot-nox)
+  libbullet-dev libode-dev libmujoco-dev gnuplot-nox
+  python3-dev pybind11-dev
+  libcivetweb-dev nodejs chromium)
 
 phys_install_deps() {
   local missing=()
   for p in "${PHYS_PACKAGES[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
   done
+  # npm (the viewer's page is bundled at build time): Debian's package, unless a nodejs that
+  # brings its own npm is installed (NodeSource's conflicts with Debian's npm).
+  command -v npm >/dev/null || missing+=(npm)
   [ ${#missing[@]} -eq 0 ] && return 0
   echo "Installing missing packages: ${missing[*]}"
   local sudo=""

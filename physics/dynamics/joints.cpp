@@ -6,22 +6,6 @@
 
 namespace phys {
 
-const char* toString(JointType t) {
-  switch (t) {
-    case JointType::Ball:
-      return "ball";
-    case JointType::Hinge:
-      return "hinge";
-    case JointType::Fixed:
-      return "fixed";
-    case JointType::Distance:
-      return "distance";
-    case JointType::Prismatic:
-      return "prismatic";
-  }
-  return "?";
-}
-
 JointFrame jointFrame(const JointRec& j, const BodyPose* A, const BodyPose& B) {
   JointFrame f;
   if (A) {

@@ -13,20 +13,6 @@
 namespace phys {
 
 // ---------------------------------------------------------------------------------------------
-// Names
-
-const char* toString(BodyType t) {
-  switch (t) {
-    case BodyType::Static:
-      return "static";
-    case BodyType::Kinematic:
-      return "kinematic";
-    case BodyType::Dynamic:
-      return "dynamic";
-  }
-  return "?";
-}
-// ---------------------------------------------------------------------------------------------
 // Validation: every public edit checks its input completely before changing anything.
 
 namespace {

@@ -25,28 +25,6 @@
 
 namespace phys {
 
-const char* toString(Backend b) {
-  switch (b) {
-    case Backend::Cpu:
-      return "cpu";
-    case Backend::Gpu:
-      return "gpu";
-    case Backend::Auto:
-      return "auto";
-  }
-  return "?";
-}
-
-bool parseBackend(const std::string& text, Backend* out) {
-  for (Backend b : {Backend::Cpu, Backend::Gpu, Backend::Auto}) {
-    if (text == toString(b)) {
-      *out = b;
-      return true;
-    }
-  }
-  return false;
-}
-
 const BackendState& World::backendState() const {
   return impl_->backend;
 }

@@ -1,0 +1,1384 @@
+// physclient for Python: pybind11 bindings of the client SDK (docs/PYTHON.md).
+//
+//   import physclient as pc
+//   with pc.Client(domain=0) as c:
+//       c.connect()
+//       w = c.create_world("demo")
+//       ids = w.spawn([pc.BodyDef(position=(0, 0, 2),
+//                                 shapes=[pc.ShapeDef(pc.ShapeGeom.box((0.5, 0.5, 0.5)))])])
+//       w.step(60)
+//       print(w.query_state().bodies[0].position)
+//
+// Threads and the GIL. Every call that waits releases the GIL. Requests and wait_for_frame wait
+// in slices of 100 ms, checking for signals between them (Ctrl-C interrupts a wait; the request
+// itself is not cancelled); connect() and world_named() wait in one piece (the SDK's own waits,
+// bounded by their timeouts). Subscription and event callbacks run on the SDK's
+// thread and take the GIL for the call. A request of a client from inside one of that client's
+// callbacks would wait for a reply that the same thread has to take: it raises RuntimeError
+// instead of deadlocking. The Python objects that hold a callback let go of it with the GIL
+// held, whichever thread drops them; a Client is destroyed (its thread joined) with the GIL
+// released, so that a callback waiting for the GIL can finish. Clients still open when the
+// interpreter exits are closed by an atexit hook, before Python finalizes.
+//
+// Vectors are tuples (x, y, z); rotations are unit quaternions as the SDK stores them,
+// (x, y, z, w). Body and joint ids are the SDK's packed 64-bit ids (ints).
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <Python.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <future>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "phys/client/client.h"
+#include "phys/client/error.h"
+
+namespace py = pybind11;
+namespace pc = phys::client;
+
+// ---------------------------------------------------------------------------------------------
+// Vec3 and Quat as Python sequences of floats (tuples when returned).
+
+namespace pybind11::detail {
+
+inline bool loadFloats(handle src, float* out, size_t n) {
+  if (!src || !PySequence_Check(src.ptr()) || PyUnicode_Check(src.ptr()) ||
+      PyBytes_Check(src.ptr()))
+    return false;
+  const Py_ssize_t size = PySequence_Size(src.ptr());
+  if (size != Py_ssize_t(n)) {
+    if (size < 0) PyErr_Clear();
+    return false;
+  }
+  for (size_t i = 0; i < n; ++i) {
+    object item = reinterpret_steal<object>(PySequence_GetItem(src.ptr(), Py_ssize_t(i)));
+    if (!item) {
+      PyErr_Clear();
+      return false;
+    }
+    const double d = PyFloat_AsDouble(item.ptr());
+    if (d == -1.0 && PyErr_Occurred()) {
+      PyErr_Clear();
+      return false;
+    }
+    out[i] = float(d);
+  }
+  return true;
+}
+
+template <>
+struct type_caster<phys::Vec3> {
+  PYBIND11_TYPE_CASTER(phys::Vec3, const_name("tuple[float, float, float]"));
+  bool load(handle src, bool) {
+    float v[3];
+    if (!loadFloats(src, v, 3)) return false;
+    value = {v[0], v[1], v[2]};
+    return true;
+  }
+  static handle cast(const phys::Vec3& v, return_value_policy, handle) {
+    return make_tuple(v.x, v.y, v.z).release();
+  }
+};
+
+template <>
+struct type_caster<phys::Quat> {
+  PYBIND11_TYPE_CASTER(phys::Quat, const_name("tuple[float, float, float, float]"));
+  bool load(handle src, bool) {
+    float v[4];
+    if (!loadFloats(src, v, 4)) return false;
+    value = phys::Quat{v[0], v[1], v[2], v[3]};
+    return true;
+  }
+  static handle cast(const phys::Quat& q, return_value_policy, handle) {
+    return make_tuple(q.x, q.y, q.z, q.w).release();
+  }
+};
+
+}  // namespace pybind11::detail
+
+namespace {
+
+// ---------------------------------------------------------------------------------------------
+// Exceptions: physclient.Error and a subclass per ErrorCode.
+
+PyObject* gError = nullptr;  // physclient.Error (a new reference kept for the process)
+struct ErrorClass {
+  pc::ErrorCode code;
+  const char* name;
+  PyObject* extraBase;  // a builtin exception it also derives from, or null
+  PyObject* cls = nullptr;
+};
+std::vector<ErrorClass>& errorClasses() {
+  static auto* classes = new std::vector<ErrorClass>;  // leaked: lives until the process ends
+  return *classes;
+}
+
+void raiseError(const pc::Error& e) {
+  PyObject* cls = gError;
+  for (const ErrorClass& c : errorClasses())
+    if (c.code == e.code()) cls = c.cls;
+  py::object type = py::reinterpret_borrow<py::object>(cls);
+  py::object exc = type(py::str(e.what()));
+  exc.attr("code") = py::cast(e.code());
+  exc.attr("message") = py::str(e.message());
+  exc.attr("from_server") = py::bool_(e.fromServer());
+  PyErr_SetObject(cls, exc.ptr());
+}
+
+// ---------------------------------------------------------------------------------------------
+// Clients, leases and the interpreter's exit.
+
+/// Set by the atexit hook: callbacks stop calling into Python, callback holders no longer
+/// touch their objects (the interpreter is going away).
+std::atomic<bool> gExiting{false};
+
+void dropClient(std::shared_ptr<pc::Client>& c);
+
+/// The C++ client of a physclient.Client, shared by the Client and its World and
+/// Subscription objects: the connection lasts while one of them does, or until close(). Null
+/// once closed. Calls hold a copy of the pointer (a lease) while they run, so that close()
+/// from another thread never pulls the client from under them: the last holder destroys it.
+struct ClientBox {
+  std::mutex m;
+  std::shared_ptr<pc::Client> client;
+  ClientBox() = default;
+  ClientBox(const ClientBox&) = delete;
+  ClientBox& operator=(const ClientBox&) = delete;
+  ~ClientBox() { dropClient(client); }
+};
+using BoxPtr = std::shared_ptr<ClientBox>;
+
+std::mutex& registryMutex() {
+  static auto* m = new std::mutex;
+  return *m;
+}
+std::vector<std::weak_ptr<ClientBox>>& registry() {
+  static auto* r = new std::vector<std::weak_ptr<ClientBox>>;
+  return *r;
+}
+
+/// The client whose callback this thread is running (SDK threads only), if any.
+thread_local const ClientBox* tlCallbackOf = nullptr;
+
+/// Drops a reference to a client; when it is the last, the client is destroyed (its thread
+/// joined) with the GIL released. In a callback (on an SDK thread, which a client's destruction
+/// may have to join) the last reference goes to a thread of its own.
+void dropClient(std::shared_ptr<pc::Client>& c) {
+  if (!c) return;
+  if (tlCallbackOf && c.use_count() == 1) {
+    std::thread([last = std::move(c)]() mutable { last.reset(); }).detach();
+    return;
+  }
+  if (Py_IsInitialized() && PyGILState_Check()) {
+    py::gil_scoped_release release;
+    c.reset();
+  } else {
+    c.reset();
+  }
+}
+
+struct Lease {
+  std::shared_ptr<pc::Client> client;
+  explicit Lease(const BoxPtr& box) {
+    std::lock_guard<std::mutex> lk(box->m);
+    client = box->client;
+    if (!client) throw std::runtime_error("physclient: the client is closed");
+  }
+  ~Lease() { dropClient(client); }
+  Lease(const Lease&) = delete;
+  Lease& operator=(const Lease&) = delete;
+  pc::Client& operator*() const { return *client; }
+  pc::Client* operator->() const { return client.get(); }
+};
+
+void closeBox(ClientBox& box) {
+  std::shared_ptr<pc::Client> c;
+  {
+    std::lock_guard<std::mutex> lk(box.m);
+    c.swap(box.client);
+  }
+  dropClient(c);
+}
+
+struct CallbackScope {
+  const ClientBox* previous;
+  explicit CallbackScope(const ClientBox* box) : previous(tlCallbackOf) { tlCallbackOf = box; }
+  ~CallbackScope() { tlCallbackOf = previous; }
+};
+
+void checkNotInCallback(const BoxPtr& box) {
+  if (tlCallbackOf == box.get())
+    throw std::runtime_error(
+        "physclient: a request of a client from its own subscription or event callback would "
+        "wait for a reply that only this thread can take; make it from another thread");
+}
+
+/// A Python callable held by the SDK (in a std::function): released with the GIL held,
+/// whichever thread lets go of it last.
+struct PyCallback {
+  py::object fn;
+  explicit PyCallback(py::object f) : fn(std::move(f)) {}
+  PyCallback(const PyCallback&) = delete;
+  PyCallback& operator=(const PyCallback&) = delete;
+  ~PyCallback() {
+    if (!fn) return;
+    if (gExiting.load() || !Py_IsInitialized()) {
+      fn.release();  // the interpreter is going away: leave it be
+      return;
+    }
+    py::gil_scoped_acquire gil;
+    fn = py::object();
+  }
+};
+
+/// Calls cb(arg) on the SDK's thread with the GIL; an exception of the callback is reported as
+/// unraisable (sys.unraisablehook), never thrown into the SDK.
+template <class T>
+void invokeCallback(const std::shared_ptr<PyCallback>& cb, const ClientBox* box, const T& arg,
+                    const char* what) {
+  if (gExiting.load()) return;
+  py::gil_scoped_acquire gil;
+  if (gExiting.load()) return;
+  CallbackScope scope(box);
+  try {
+    cb->fn(py::cast(arg, py::return_value_policy::copy));
+  } catch (py::error_already_set& e) {
+    e.discard_as_unraisable(what);
+  } catch (const std::exception& e) {
+    PyErr_SetString(PyExc_RuntimeError, e.what());
+    PyErr_WriteUnraisable(cb->fn.ptr());
+  }
+}
+
+std::chrono::milliseconds toMs(double seconds) {
+  if (!(seconds >= 0) || !std::isfinite(seconds))
+    throw py::value_error("physclient: a timeout is a finite number of seconds >= 0");
+  return std::chrono::milliseconds(int64_t(std::ceil(seconds * 1000.0)));
+}
+
+pc::CallOptions callOptions(std::optional<double> timeout) {
+  pc::CallOptions o;
+  if (timeout) {
+    o.timeout = toMs(*timeout);
+    if (o.timeout.count() == 0) o.timeout = std::chrono::milliseconds(1);
+  }
+  return o;
+}
+
+constexpr std::chrono::milliseconds kSlice{100};
+
+/// Waits for a future with the GIL released, a slice at a time, checking for signals between
+/// slices (KeyboardInterrupt); then returns its value or throws its error.
+template <class T>
+T waitFuture(std::future<T> fut) {
+  for (;;) {
+    std::future_status st;
+    {
+      py::gil_scoped_release release;
+      st = fut.wait_for(kSlice);
+    }
+    if (st == std::future_status::ready) break;
+    if (PyErr_CheckSignals() != 0) throw py::error_already_set();
+  }
+  return fut.get();
+}
+
+/// A request: mk(client) sends it (GIL released) and returns its future; waited for as above
+/// while a lease keeps the client.
+template <class MakeFuture>
+auto request(const BoxPtr& box, MakeFuture&& mk) {
+  checkNotInCallback(box);
+  Lease lease(box);
+  auto fut = [&] {
+    py::gil_scoped_release release;
+    return mk(*lease);
+  }();
+  return waitFuture(std::move(fut));
+}
+
+/// A blocking SDK call that returns no future: run with the GIL released.
+template <class F>
+auto blocking(const BoxPtr& box, F&& f) {
+  checkNotInCallback(box);
+  Lease lease(box);
+  py::gil_scoped_release release;
+  return f(*lease);
+}
+
+/// A non-blocking SDK call (no wait on the SDK's thread).
+template <class F>
+auto quick(const BoxPtr& box, F&& f) {
+  Lease lease(box);
+  return f(*lease);
+}
+
+template <class T>
+std::vector<T> oneOrMany(const py::object& o, const char* what) {
+  if (py::isinstance<T>(o)) return {o.cast<T>()};
+  try {
+    return o.cast<std::vector<T>>();
+  } catch (const py::cast_error&) {
+    throw py::type_error(std::string("physclient: expected a ") + what + " or a list of them");
+  }
+}
+
+std::vector<uint64_t> idList(const py::object& o) {
+  if (o.is_none()) return {};
+  if (py::isinstance<py::int_>(o)) return {o.cast<uint64_t>()};
+  return o.cast<std::vector<uint64_t>>();
+}
+
+std::vector<uint8_t> bytesOf(const py::buffer& b) {
+  py::buffer_info info = b.request();
+  const auto* p = static_cast<const uint8_t*>(info.ptr);
+  return std::vector<uint8_t>(p, p + info.size * info.itemsize);
+}
+
+/// A def struct made from keyword arguments: its default, then each keyword set as the
+/// attribute of that name (unknown names raise TypeError).
+template <class T>
+T fromKwargs(T value, const py::kwargs& kw, const char* type) {
+  if (kw.empty()) return value;
+  py::object o = py::cast(std::move(value));
+  for (auto item : kw) {
+    const std::string key = py::str(item.first);
+    if (key.empty() || key[0] == '_' || !py::hasattr(py::type::of(o), key.c_str()))
+      throw py::type_error(std::string(type) + "() got an unexpected keyword argument '" + key +
+                           "'");
+    py::setattr(o, item.first, item.second);
+  }
+  return o.template cast<T>();
+}
+
+template <class T>
+std::string reprOf(const T& v) {
+  return std::string(py::repr(py::cast(v)));
+}
+
+// ---------------------------------------------------------------------------------------------
+// A state frame's bodies as one buffer: rows of 13 float32 (position xyz, rotation xyzw,
+// linear velocity xyz, angular velocity xyz), for memoryview / numpy.asarray.
+
+struct BodyArray {
+  std::vector<float> data;
+  size_t rows = 0;
+  static constexpr size_t kColumns = 13;
+  explicit BodyArray(const std::vector<pc::BodyState>& bodies) : rows(bodies.size()) {
+    data.reserve(rows * kColumns);
+    for (const pc::BodyState& b : bodies) {
+      const float row[kColumns] = {b.position.x,        b.position.y,        b.position.z,
+                                   b.rotation.x,        b.rotation.y,        b.rotation.z,
+                                   b.rotation.w,        b.linearVelocity.x,  b.linearVelocity.y,
+                                   b.linearVelocity.z,  b.angularVelocity.x, b.angularVelocity.y,
+                                   b.angularVelocity.z};
+      data.insert(data.end(), row, row + kColumns);
+    }
+  }
+};
+
+// ---------------------------------------------------------------------------------------------
+// Solver overrides from keyword arguments.
+
+template <class E>
+E enumByName(const py::handle& v, std::initializer_list<std::pair<const char*, E>> names,
+             const char* what) {
+  const std::string s = py::str(v);
+  for (const auto& [n, e] : names)
+    if (s == n) return e;
+  std::string all;
+  for (const auto& [n, e] : names) all += std::string(all.empty() ? "" : ", ") + n;
+  throw py::value_error(std::string("physclient: ") + what + " is one of " + all);
+}
+
+pc::SolverOverrides solverOverrides(const py::kwargs& kw) {
+  using S = phys::SolverSettings;
+  pc::SolverOverrides o;
+  for (auto item : kw) {
+    const std::string k = py::str(item.first);
+    const py::handle v = item.second;
+#define PHYS_OVERRIDE(name, field, type) \
+  if (k == name) {                       \
+    o.field = v.cast<type>();            \
+    continue;                            \
+  }
+    PHYS_OVERRIDE("position_iterations", positionIterations, int)
+    PHYS_OVERRIDE("position_baumgarte", positionBaumgarte, float)
+    PHYS_OVERRIDE("max_position_correction", maxPositionCorrection, float)
+    PHYS_OVERRIDE("substeps", substeps, int)
+    PHYS_OVERRIDE("iterations", iterations, int)
+    PHYS_OVERRIDE("tolerance", tolerance, float)
+    PHYS_OVERRIDE("relax_iterations", relaxIterations, int)
+    PHYS_OVERRIDE("baumgarte", baumgarte, float)
+    PHYS_OVERRIDE("contact_hertz", contactHertz, float)
+    PHYS_OVERRIDE("contact_damping_ratio", contactDampingRatio, float)
+    PHYS_OVERRIDE("joint_hertz", jointHertz, float)
+    PHYS_OVERRIDE("joint_damping_ratio", jointDampingRatio, float)
+    PHYS_OVERRIDE("max_pushout", maxPushout, float)
+    PHYS_OVERRIDE("linear_slop", linearSlop, float)
+    PHYS_OVERRIDE("warm_start", warmStart, bool)
+    PHYS_OVERRIDE("restitution", restitution, bool)
+    PHYS_OVERRIDE("restitution_threshold", restitutionThreshold, float)
+    PHYS_OVERRIDE("block_contacts", blockContacts, bool)
+    PHYS_OVERRIDE("geometric_stiffness", geometricStiffness, bool)
+    PHYS_OVERRIDE("split_pushout", splitPushout, bool)
+    PHYS_OVERRIDE("patch_friction", patchFriction, bool)
+    PHYS_OVERRIDE("stack_stiffening", stackStiffening, bool)
+    PHYS_OVERRIDE("direct_contact_ratio", directContactRatio, float)
+#undef PHYS_OVERRIDE
+    if (k == "scheme") {
+      o.scheme = enumByName<S::Scheme>(v,
+                                       {{"GaussSeidel", S::Scheme::GaussSeidel},
+                                        {"Jacobi", S::Scheme::Jacobi},
+                                        {"ColoredGaussSeidel", S::Scheme::ColoredGaussSeidel}},
+                                       "scheme");
+    } else if (k == "position_pass") {
+      o.positionPass = enumByName<S::PositionPass>(
+          v,
+          {{"None", S::PositionPass::None},
+           {"NonlinearGaussSeidel", S::PositionPass::NonlinearGaussSeidel},
+           {"NonlinearJacobi", S::PositionPass::NonlinearJacobi}},
+          "position_pass");
+    } else if (k == "stabilization") {
+      o.stabilization = enumByName<S::Stabilization>(
+          v, {{"Baumgarte", S::Stabilization::Baumgarte}, {"Soft", S::Stabilization::Soft}},
+          "stabilization");
+    } else if (k == "equality_solve") {
+      o.equalitySolve = enumByName<S::EqualitySolve>(
+          v,
+          {{"Iterative", S::EqualitySolve::Iterative},
+           {"DirectLdl", S::EqualitySolve::DirectLdl}},
+          "equality_solve");
+    } else {
+      throw py::type_error("set_solver() got an unexpected keyword argument '" + k + "'");
+    }
+  }
+  return o;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Python-side objects.
+
+class PySubscription {
+ public:
+  PySubscription(BoxPtr box, pc::Subscription sub, std::shared_ptr<PyCallback> cb)
+      : box_(std::move(box)), sub_(std::move(sub)), cb_(std::move(cb)), world_(sub_.world()) {}
+  ~PySubscription() { close(); }
+  PySubscription(const PySubscription&) = delete;
+  PySubscription& operator=(const PySubscription&) = delete;
+
+  void close() {
+    if (!sub_) return;
+    closedFrames_ = sub_.framesReceived();
+    closedSkipped_ = sub_.framesSkipped();
+    if (Py_IsInitialized() && PyGILState_Check()) {
+      py::gil_scoped_release release;
+      sub_.reset();
+    } else {
+      sub_.reset();
+    }
+  }
+  bool active() const { return bool(sub_); }
+  uint32_t world() const { return world_; }
+  std::optional<pc::StateFrame> latest() const {
+    py::gil_scoped_release release;
+    return sub_.latest();
+  }
+  std::optional<pc::StateFrame> waitForFrame(uint64_t afterTick, double timeoutS) {
+    const auto end = std::chrono::steady_clock::now() + toMs(timeoutS);
+    for (;;) {
+      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+          end - std::chrono::steady_clock::now());
+      std::optional<pc::StateFrame> f;
+      {
+        py::gil_scoped_release release;
+        f = sub_.waitForFrame(afterTick, std::clamp(left, std::chrono::milliseconds(0), kSlice));
+      }
+      if (f || left <= kSlice) return f;
+      if (PyErr_CheckSignals() != 0) throw py::error_already_set();
+    }
+  }
+  uint64_t framesReceived() const { return sub_ ? sub_.framesReceived() : closedFrames_; }
+  uint64_t framesSkipped() const { return sub_ ? sub_.framesSkipped() : closedSkipped_; }
+
+ private:
+  BoxPtr box_;  // keeps the connection
+  pc::Subscription sub_;
+  std::shared_ptr<PyCallback> cb_;  // also held by the SDK's std::function
+  uint32_t world_;
+  uint64_t closedFrames_ = 0, closedSkipped_ = 0;  // the counts when closed
+};
+
+std::function<void(const pc::StateFrame&)> frameCallback(const py::object& callback,
+                                                         const BoxPtr& box,
+                                                         std::shared_ptr<PyCallback>* held) {
+  if (callback.is_none()) return {};
+  if (!PyCallable_Check(callback.ptr()))
+    throw py::type_error("physclient: callback must be callable (or None)");
+  auto cb = std::make_shared<PyCallback>(callback);
+  *held = cb;
+  const ClientBox* raw = box.get();
+  return [cb, raw](const pc::StateFrame& f) {
+    invokeCallback(cb, raw, f, "physclient subscription callback");
+  };
+}
+
+class PyWorld {
+ public:
+  PyWorld(BoxPtr box, uint32_t id) : box_(std::move(box)), id_(id) {}
+  uint32_t id() const { return id_; }
+  const BoxPtr& box() const { return box_; }
+
+  template <class F>
+  auto req(std::optional<double> timeout, F&& f) {
+    const pc::CallOptions o = callOptions(timeout);
+    return request(box_, [&](pc::Client& c) { return f(pc::WorldHandle(&c, id_), o); });
+  }
+
+  pc::WorldSummary info(std::optional<double> timeout) {
+    auto worlds = request(box_, [&](pc::Client& c) { return c.listWorlds(callOptions(timeout)); });
+    for (const pc::WorldSummary& w : worlds)
+      if (w.world == id_) return w;
+    throw pc::Error(pc::ErrorCode::NotFound, "no world " + std::to_string(id_));
+  }
+
+  PySubscription* subscribe(const py::object& callback, const py::object& bodies,
+                            const py::object& region, std::optional<double> timeout) {
+    checkNotInCallback(box_);
+    std::shared_ptr<PyCallback> held;
+    auto fn = frameCallback(callback, box_, &held);
+    pc::Interest interest;
+    interest.bodies = idList(bodies);
+    if (!region.is_none()) {
+      auto corners = region.cast<std::pair<phys::Vec3, phys::Vec3>>();
+      interest.region = corners;
+    }
+    Lease lease(box_);
+    pc::Subscription sub;
+    {
+      py::gil_scoped_release release;
+      pc::WorldHandle w(&*lease, id_);
+      sub = interest.all() ? w.subscribe(std::move(fn))
+                           : w.subscribe(interest, std::move(fn), callOptions(timeout));
+    }
+    return new PySubscription(box_, std::move(sub), std::move(held));
+  }
+
+ private:
+  BoxPtr box_;
+  uint32_t id_;
+};
+
+class PyClient {
+ public:
+  PyClient(uint32_t domain, std::string name, std::optional<std::string> cycloneXml,
+           uint64_t clientId, double connectTimeout, double requestTimeout, bool autoReconnect,
+           std::optional<std::string> securityDir, std::optional<std::string> identity) {
+    pc::ClientOptions o;
+    o.domain = domain;
+    o.name = std::move(name);
+    o.cycloneXml = cycloneXml.value_or("");
+    o.clientId = clientId;
+    o.connectTimeout = toMs(connectTimeout);
+    o.requestTimeout = toMs(requestTimeout);
+    o.autoReconnect = autoReconnect;
+    if (securityDir || identity) {
+      if (!securityDir || !identity)
+        throw py::value_error("physclient: security_dir and identity go together");
+      o.security = pc::SecurityFiles::fromDir(*securityDir, *identity);
+    }
+    box_ = std::make_shared<ClientBox>();
+    {
+      py::gil_scoped_release release;
+      box_->client = std::make_shared<pc::Client>(std::move(o));
+    }
+    std::lock_guard<std::mutex> lk(registryMutex());
+    auto& r = registry();
+    r.erase(std::remove_if(r.begin(), r.end(), [](const auto& w) { return w.expired(); }),
+            r.end());
+    r.push_back(box_);
+  }
+  PyClient(const PyClient&) = delete;
+  PyClient& operator=(const PyClient&) = delete;
+
+  void close() { closeBox(*box_); }
+  bool closed() const {
+    std::lock_guard<std::mutex> lk(box_->m);
+    return !box_->client;
+  }
+  const BoxPtr& box() const { return box_; }
+
+  /// Subscription to events: fn on the SDK's thread for each.
+  void onEvent(const py::object& callback) {
+    std::function<void(const pc::Event&)> fn;
+    if (!callback.is_none()) {
+      if (!PyCallable_Check(callback.ptr()))
+        throw py::type_error("physclient: callback must be callable (or None)");
+      auto cb = std::make_shared<PyCallback>(callback);
+      const ClientBox* raw = box_.get();
+      fn = [cb, raw](const pc::Event& e) {
+        invokeCallback(cb, raw, e, "physclient event callback");
+      };
+    }
+    blocking(box_, [&](pc::Client& c) {
+      c.onEvent(std::move(fn));
+      return 0;
+    });
+  }
+
+ private:
+  BoxPtr box_;
+};
+
+void closeAllClients() {
+  std::vector<BoxPtr> boxes;
+  {
+    std::lock_guard<std::mutex> lk(registryMutex());
+    for (auto& w : registry())
+      if (auto b = w.lock()) boxes.push_back(std::move(b));
+    registry().clear();
+  }
+  for (auto& b : boxes) closeBox(*b);
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+
+PYBIND11_MODULE(physclient, m) {
+  m.doc() =
+      "physclient: the physd client SDK for Python (docs/PYTHON.md).\n\n"
+      "Vectors are tuples (x, y, z); rotations are unit quaternions (x, y, z, w); body and\n"
+      "joint ids are ints. Failed requests raise physclient.Error (a subclass per code).";
+  m.attr("__version__") = PHYSCLIENT_VERSION;
+
+  // Enums.
+  py::enum_<pc::ErrorCode>(m, "ErrorCode", "The server's status codes (< 100) and the SDK's.")
+      .value("Ok", pc::ErrorCode::Ok)
+      .value("Malformed", pc::ErrorCode::Malformed)
+      .value("InvalidArgument", pc::ErrorCode::InvalidArgument)
+      .value("NotFound", pc::ErrorCode::NotFound)
+      .value("IncorrectState", pc::ErrorCode::IncorrectState)
+      .value("Unsupported", pc::ErrorCode::Unsupported)
+      .value("ResourceExhausted", pc::ErrorCode::ResourceExhausted)
+      .value("Internal", pc::ErrorCode::Internal)
+      .value("PermissionDenied", pc::ErrorCode::PermissionDenied)
+      .value("Timeout", pc::ErrorCode::Timeout)
+      .value("Disconnected", pc::ErrorCode::Disconnected)
+      .value("Transport", pc::ErrorCode::Transport)
+      .value("BadReply", pc::ErrorCode::BadReply);
+  py::enum_<phys::BodyType>(m, "BodyType")
+      .value("Static", phys::BodyType::Static)
+      .value("Kinematic", phys::BodyType::Kinematic)
+      .value("Dynamic", phys::BodyType::Dynamic);
+  py::enum_<phys::ShapeType>(m, "ShapeType")
+      .value("Sphere", phys::ShapeType::Sphere)
+      .value("Box", phys::ShapeType::Box)
+      .value("Capsule", phys::ShapeType::Capsule)
+      .value("Plane", phys::ShapeType::Plane)
+      .value("Hull", phys::ShapeType::Hull);
+  py::enum_<phys::JointType>(m, "JointType")
+      .value("Ball", phys::JointType::Ball)
+      .value("Hinge", phys::JointType::Hinge)
+      .value("Fixed", phys::JointType::Fixed)
+      .value("Distance", phys::JointType::Distance)
+      .value("Prismatic", phys::JointType::Prismatic);
+  py::enum_<pc::PointFrame>(m, "PointFrame",
+                            "Where the point of apply_force / apply_impulse is given.")
+      .value("CenterOfMass", pc::PointFrame::CenterOfMass)
+      .value("World", pc::PointFrame::World)
+      .value("Local", pc::PointFrame::Local);
+  py::enum_<pc::Event::Severity>(m, "Severity")
+      .value("Info", pc::Event::Severity::Info)
+      .value("Warning", pc::Event::Severity::Warning)
+      .value("Error", pc::Event::Severity::Error);
+
+  // Exceptions.
+  gError = PyErr_NewExceptionWithDoc(
+      "physclient.Error",
+      "A failed request: code (ErrorCode), message (the server's or the SDK's, without the "
+      "code), from_server (whether the server answered with the code).",
+      PyExc_Exception, nullptr);
+  if (!gError) throw py::error_already_set();
+  m.attr("Error") = py::handle(gError);
+  auto& classes = errorClasses();
+  classes = {{pc::ErrorCode::Malformed, "Malformed", nullptr},
+             {pc::ErrorCode::InvalidArgument, "InvalidArgument", nullptr},
+             {pc::ErrorCode::NotFound, "NotFound", nullptr},
+             {pc::ErrorCode::IncorrectState, "IncorrectState", nullptr},
+             {pc::ErrorCode::Unsupported, "Unsupported", nullptr},
+             {pc::ErrorCode::ResourceExhausted, "ResourceExhausted", nullptr},
+             {pc::ErrorCode::Internal, "Internal", nullptr},
+             {pc::ErrorCode::PermissionDenied, "PermissionDenied", nullptr},
+             {pc::ErrorCode::Timeout, "Timeout", PyExc_TimeoutError},
+             {pc::ErrorCode::Disconnected, "Disconnected", PyExc_ConnectionError},
+             {pc::ErrorCode::Transport, "Transport", nullptr},
+             {pc::ErrorCode::BadReply, "BadReply", nullptr}};
+  for (ErrorClass& c : classes) {
+    const std::string qualified = std::string("physclient.") + c.name;
+    py::tuple bases = c.extraBase ? py::make_tuple(py::handle(gError), py::handle(c.extraBase))
+                                  : py::make_tuple(py::handle(gError));
+    const std::string doc = std::string("physclient.Error with code ErrorCode.") + c.name + ".";
+    c.cls = PyErr_NewExceptionWithDoc(qualified.c_str(), doc.c_str(), bases.ptr(), nullptr);
+    if (!c.cls) throw py::error_already_set();
+    m.attr(c.name) = py::handle(c.cls);
+  }
+  py::register_exception_translator([](std::exception_ptr p) {
+    try {
+      if (p) std::rethrow_exception(p);
+    } catch (const pc::Error& e) {
+      raiseError(e);
+    }
+  });
+
+  // Definitions.
+  py::class_<phys::Material>(m, "Material",
+                             "Surface material: friction (>= 0), restitution (0..1), density "
+                             "(kg/m^3, for masses computed from shapes).")
+      .def(py::init([](py::kwargs kw) { return fromKwargs(phys::Material{}, kw, "Material"); }))
+      .def_readwrite("friction", &phys::Material::friction)
+      .def_readwrite("restitution", &phys::Material::restitution)
+      .def_readwrite("density", &phys::Material::density)
+      .def("__repr__", [](const phys::Material& mt) {
+        return "Material(friction=" + std::to_string(mt.friction) +
+               ", restitution=" + std::to_string(mt.restitution) +
+               ", density=" + std::to_string(mt.density) + ")";
+      });
+
+  py::class_<phys::ShapeGeom>(m, "ShapeGeom",
+                              "A shape's geometry in its local frame: make one with box(), "
+                              "sphere(), capsule(), plane() or hull().")
+      .def_static("box", &phys::ShapeGeom::box, py::arg("half_extents"),
+                  "A box of these half extents (m).")
+      .def_static("sphere", &phys::ShapeGeom::sphere, py::arg("radius"))
+      .def_static("capsule", &phys::ShapeGeom::capsule, py::arg("radius"), py::arg("half_height"),
+                  "A capsule along local z: radius and half the segment's length (m).")
+      .def_static("plane", &phys::ShapeGeom::plane, py::arg("normal") = phys::Vec3{0, 0, 1},
+                  py::arg("offset") = 0.0f,
+                  "The plane dot(normal, x) = offset (static bodies only).")
+      .def_static(
+          "hull",
+          [](const std::vector<phys::Vec3>& points) {
+            std::string err;
+            auto h = phys::buildConvexHull(points, &err);
+            if (!h) throw py::value_error("physclient: no convex hull: " + err);
+            return phys::ShapeGeom::convexHull(std::move(h));
+          },
+          py::arg("points"), "The convex hull of these points (m, local).")
+      .def_readonly("type", &phys::ShapeGeom::type)
+      .def_readwrite("radius", &phys::ShapeGeom::radius)
+      .def_readwrite("half_extents", &phys::ShapeGeom::halfExtents)
+      .def_readwrite("half_height", &phys::ShapeGeom::halfHeight)
+      .def_readwrite("normal", &phys::ShapeGeom::normal)
+      .def_readwrite("offset", &phys::ShapeGeom::offset)
+      .def_property_readonly("hull_vertices",
+                             [](const phys::ShapeGeom& g) {
+                               return g.hull ? g.hull->vertices : std::vector<phys::Vec3>{};
+                             })
+      .def("__repr__", [](const phys::ShapeGeom& g) {
+        return std::string("ShapeGeom(") + phys::toString(g.type) + ")";
+      });
+
+  py::class_<phys::ShapeDef>(m, "ShapeDef",
+                             "One shape of a body: geom, local_position and local_rotation "
+                             "(its frame in the body's), material.")
+      .def(py::init([](const phys::ShapeGeom& geom, py::kwargs kw) {
+             phys::ShapeDef s;
+             s.geom = geom;
+             return fromKwargs(std::move(s), kw, "ShapeDef");
+           }),
+           py::arg("geom"))
+      .def_readwrite("geom", &phys::ShapeDef::geom)
+      .def_property(
+          "local_position", [](const phys::ShapeDef& s) { return s.local.p; },
+          [](phys::ShapeDef& s, phys::Vec3 p) { s.local.p = p; })
+      .def_property(
+          "local_rotation", [](const phys::ShapeDef& s) { return s.local.q; },
+          [](phys::ShapeDef& s, phys::Quat q) { s.local.q = q; })
+      .def_readwrite("material", &phys::ShapeDef::material)
+      .def("__repr__", [](const phys::ShapeDef& s) {
+        return std::string("ShapeDef(") + phys::toString(s.geom.type) + ")";
+      });
+
+  py::class_<phys::BodyDef>(
+      m, "BodyDef",
+      "A body to spawn; keyword arguments set its fields: type (BodyType), position, rotation\n"
+      "(x, y, z, w), linear_velocity, angular_velocity, linear_damping, angular_damping,\n"
+      "gravity_scale, mass (0: from the shapes' densities), inertia, gyroscopic, allow_sleep,\n"
+      "name, shapes (a list of ShapeDef; assign a new list to change it).")
+      .def(py::init([](py::kwargs kw) { return fromKwargs(phys::BodyDef{}, kw, "BodyDef"); }))
+      .def_readwrite("type", &phys::BodyDef::type)
+      .def_readwrite("position", &phys::BodyDef::position)
+      .def_readwrite("rotation", &phys::BodyDef::rotation)
+      .def_readwrite("linear_velocity", &phys::BodyDef::linearVelocity)
+      .def_readwrite("angular_velocity", &phys::BodyDef::angularVelocity)
+      .def_readwrite("linear_damping", &phys::BodyDef::linearDamping)
+      .def_readwrite("angular_damping", &phys::BodyDef::angularDamping)
+      .def_readwrite("gravity_scale", &phys::BodyDef::gravityScale)
+      .def_readwrite("mass", &phys::BodyDef::mass)
+      .def_readwrite("inertia", &phys::BodyDef::inertia)
+      .def_readwrite("gyroscopic", &phys::BodyDef::gyroscopic)
+      .def_readwrite("allow_sleep", &phys::BodyDef::allowSleep)
+      .def_readwrite("name", &phys::BodyDef::name)
+      .def_readwrite("shapes", &phys::BodyDef::shapes)
+      .def("__repr__", [](const phys::BodyDef& b) {
+        return std::string("BodyDef(") + phys::toString(b.type) + ", position=" +
+               reprOf(b.position) + ", shapes=" + std::to_string(b.shapes.size()) + ")";
+      });
+
+  py::class_<phys::JointDef>(
+      m, "JointDef",
+      "A joint to add; keyword arguments set its fields: type (JointType), body_a, body_b\n"
+      "(body ids; body_a 0: anchored to the world), anchor_a, anchor_b (local to each body),\n"
+      "axis_a, axis_b, enable_limit, lower, upper, enable_motor, motor_speed,\n"
+      "max_motor_force, length (< 0: the initial distance), spring_hertz,\n"
+      "spring_damping_ratio, collide_connected, name.")
+      .def(py::init([](py::kwargs kw) { return fromKwargs(phys::JointDef{}, kw, "JointDef"); }))
+      .def_readwrite("type", &phys::JointDef::type)
+      .def_property(
+          "body_a", [](const phys::JointDef& j) { return j.bodyA.packed(); },
+          [](phys::JointDef& j, uint64_t id) { j.bodyA = phys::BodyId::fromPacked(id); })
+      .def_property(
+          "body_b", [](const phys::JointDef& j) { return j.bodyB.packed(); },
+          [](phys::JointDef& j, uint64_t id) { j.bodyB = phys::BodyId::fromPacked(id); })
+      .def_readwrite("anchor_a", &phys::JointDef::anchorA)
+      .def_readwrite("anchor_b", &phys::JointDef::anchorB)
+      .def_readwrite("axis_a", &phys::JointDef::axisA)
+      .def_readwrite("axis_b", &phys::JointDef::axisB)
+      .def_readwrite("enable_limit", &phys::JointDef::enableLimit)
+      .def_readwrite("lower", &phys::JointDef::lower)
+      .def_readwrite("upper", &phys::JointDef::upper)
+      .def_readwrite("enable_motor", &phys::JointDef::enableMotor)
+      .def_readwrite("motor_speed", &phys::JointDef::motorSpeed)
+      .def_readwrite("max_motor_force", &phys::JointDef::maxMotorForce)
+      .def_readwrite("length", &phys::JointDef::length)
+      .def_readwrite("spring_hertz", &phys::JointDef::springHertz)
+      .def_readwrite("spring_damping_ratio", &phys::JointDef::springDampingRatio)
+      .def_readwrite("collide_connected", &phys::JointDef::collideConnected)
+      .def_readwrite("name", &phys::JointDef::name)
+      .def("__repr__", [](const phys::JointDef& j) {
+        return std::string("JointDef(") + phys::toString(j.type) + ", body_a=" +
+               std::to_string(j.bodyA.packed()) + ", body_b=" + std::to_string(j.bodyB.packed()) +
+               ")";
+      });
+
+  // Results.
+  py::class_<pc::ServerInfo>(m, "ServerInfo", "What the server said in HelloResult.")
+      .def_readonly("protocol_version", &pc::ServerInfo::protocolVersion)
+      .def_readonly("name", &pc::ServerInfo::name)
+      .def_readonly("version", &pc::ServerInfo::version)
+      .def_readonly("features", &pc::ServerInfo::features)
+      .def("__repr__", [](const pc::ServerInfo& s) {
+        return "ServerInfo(name='" + s.name + "', version='" + s.version +
+               "', protocol_version=" + std::to_string(s.protocolVersion) + ")";
+      });
+
+  py::class_<pc::Ack>(m, "Ack", "A request's effect: the world and the tick (step: after it).")
+      .def_readonly("world", &pc::Ack::world)
+      .def_readonly("tick", &pc::Ack::tick)
+      .def("__repr__", [](const pc::Ack& a) {
+        return "Ack(world=" + std::to_string(a.world) + ", tick=" + std::to_string(a.tick) + ")";
+      });
+
+  py::class_<pc::Ids>(m, "Ids", "Bodies and joints a scene made.")
+      .def_readonly("bodies", &pc::Ids::bodies)
+      .def_readonly("joints", &pc::Ids::joints)
+      .def("__repr__", [](const pc::Ids& i) {
+        return "Ids(bodies=" + std::to_string(i.bodies.size()) +
+               ", joints=" + std::to_string(i.joints.size()) + ")";
+      });
+
+  py::class_<pc::BodyState>(m, "BodyState", "One body at one tick.")
+      .def_readonly("id", &pc::BodyState::id)
+      .def_readonly("position", &pc::BodyState::position)
+      .def_readonly("rotation", &pc::BodyState::rotation)
+      .def_readonly("linear_velocity", &pc::BodyState::linearVelocity)
+      .def_readonly("angular_velocity", &pc::BodyState::angularVelocity)
+      .def_readonly("changed", &pc::BodyState::changed)
+      .def("__repr__", [](const pc::BodyState& b) {
+        return "BodyState(id=" + std::to_string(b.id) + ", position=" + reprOf(b.position) + ")";
+      });
+
+  py::class_<BodyArray>(m, "BodyArray", py::buffer_protocol(),
+                        "A frame's bodies as a (n, 13) float32 buffer (memoryview, "
+                        "numpy.asarray): position xyz, rotation xyzw, linear velocity xyz, "
+                        "angular velocity xyz.")
+      .def_buffer([](BodyArray& a) {
+        return py::buffer_info(a.data.data(), sizeof(float), py::format_descriptor<float>::format(),
+                               2, {a.rows, BodyArray::kColumns},
+                               {sizeof(float) * BodyArray::kColumns, sizeof(float)});
+      })
+      .def("__len__", [](const BodyArray& a) { return a.rows; })
+      .def_property_readonly_static("COLUMNS", [](py::object) {
+        return py::make_tuple("px", "py", "pz", "qx", "qy", "qz", "qw", "vx", "vy", "vz", "wx",
+                              "wy", "wz");
+      });
+
+  py::class_<pc::StateFrame>(m, "StateFrame",
+                             "A world's bodies at one tick (a subscription's frame or a "
+                             "query_state answer). bodies is a new list at each access.")
+      .def_readonly("world", &pc::StateFrame::world)
+      .def_readonly("tick", &pc::StateFrame::tick)
+      .def_readonly("time", &pc::StateFrame::time)
+      .def_readonly("total", &pc::StateFrame::total)
+      .def_readonly("bodies", &pc::StateFrame::bodies)
+      .def_readonly("keyframe", &pc::StateFrame::keyframe)
+      .def_readonly("changed", &pc::StateFrame::changed)
+      .def_readonly("bytes", &pc::StateFrame::bytes)
+      .def_readonly("stamp_ns", &pc::StateFrame::stampNs)
+      .def_property_readonly("ids",
+                             [](const pc::StateFrame& f) {
+                               std::vector<uint64_t> ids;
+                               ids.reserve(f.bodies.size());
+                               for (const auto& b : f.bodies) ids.push_back(b.id);
+                               return ids;
+                             })
+      .def(
+          "find",
+          [](const pc::StateFrame& f, uint64_t id) -> std::optional<pc::BodyState> {
+            for (const auto& b : f.bodies)
+              if (b.id == id) return b;
+            return std::nullopt;
+          },
+          py::arg("id"), "The state of body id, or None.")
+      .def(
+          "array", [](const pc::StateFrame& f) { return BodyArray(f.bodies); },
+          "The bodies as a BodyArray (a buffer of (n, 13) float32), in the order of bodies.")
+      .def("__len__", [](const pc::StateFrame& f) { return f.bodies.size(); })
+      .def("__repr__", [](const pc::StateFrame& f) {
+        return "StateFrame(world=" + std::to_string(f.world) + ", tick=" + std::to_string(f.tick) +
+               ", bodies=" + std::to_string(f.bodies.size()) + ")";
+      });
+
+  py::class_<pc::WorldSummary>(m, "WorldSummary", "A world as list_worlds() reports it.")
+      .def_readonly("world", &pc::WorldSummary::world)
+      .def_readonly("name", &pc::WorldSummary::name)
+      .def_readonly("preset", &pc::WorldSummary::preset)
+      .def_readonly("bodies", &pc::WorldSummary::bodies)
+      .def_readonly("joints", &pc::WorldSummary::joints)
+      .def_readonly("tick", &pc::WorldSummary::tick)
+      .def_readonly("time", &pc::WorldSummary::time)
+      .def_readonly("running", &pc::WorldSummary::running)
+      .def_readonly("rate_hz", &pc::WorldSummary::rateHz)
+      .def_readonly("tick_ms", &pc::WorldSummary::tickMs)
+      .def_readonly("tick_ms_max", &pc::WorldSummary::tickMsMax)
+      .def_readonly("overruns", &pc::WorldSummary::overruns)
+      .def_readonly("subscribers", &pc::WorldSummary::subscribers)
+      .def_readonly("frames", &pc::WorldSummary::frames)
+      .def_readonly("backend", &pc::WorldSummary::backend)
+      .def_readonly("device", &pc::WorldSummary::device)
+      .def_readonly("backend_note", &pc::WorldSummary::backendNote)
+      .def_readonly("gpu_steps", &pc::WorldSummary::gpuSteps)
+      .def_readonly("cpu_steps", &pc::WorldSummary::cpuSteps)
+      .def_readonly("awake_bodies", &pc::WorldSummary::awakeBodies)
+      .def_readonly("sleeping_bodies", &pc::WorldSummary::sleepingBodies)
+      .def_readonly("frame_bytes", &pc::WorldSummary::frameBytes)
+      .def_readonly("contacts", &pc::WorldSummary::contacts)
+      .def_readonly("step_buffer_bytes", &pc::WorldSummary::stepBufferBytes)
+      .def("__repr__", [](const pc::WorldSummary& w) {
+        return "WorldSummary(world=" + std::to_string(w.world) + ", name='" + w.name +
+               "', bodies=" + std::to_string(w.bodies) + ", tick=" + std::to_string(w.tick) +
+               ", running=" + (w.running ? "True" : "False") + ")";
+      });
+
+  py::class_<pc::ServerStatus>(m, "ServerStatus", "The latest phys/status sample.")
+      .def_readonly("server_name", &pc::ServerStatus::serverName)
+      .def_readonly("server_version", &pc::ServerStatus::serverVersion)
+      .def_readonly("uptime_s", &pc::ServerStatus::uptimeS)
+      .def_readonly("commands", &pc::ServerStatus::commands)
+      .def_readonly("errors", &pc::ServerStatus::errors)
+      .def_readonly("worlds", &pc::ServerStatus::worlds)
+      .def_readonly("frames_dropped", &pc::ServerStatus::framesDropped)
+      .def_readonly("heap_bytes", &pc::ServerStatus::heapBytes);
+
+  py::class_<pc::Event>(m, "Event", "A notice from the daemon (phys/events).")
+      .def_readonly("world", &pc::Event::world)
+      .def_readonly("tick", &pc::Event::tick)
+      .def_readonly("severity", &pc::Event::severity)
+      .def_readonly("code", &pc::Event::code)
+      .def_readonly("message", &pc::Event::message)
+      .def("__repr__", [](const pc::Event& e) {
+        return "Event(world=" + std::to_string(e.world) + ", tick=" + std::to_string(e.tick) +
+               ", code='" + e.code + "')";
+      });
+
+  // Subscriptions.
+  py::class_<PySubscription>(
+      m, "Subscription",
+      "A live subscription to a world's state frames; close() (or the end of a with block, or\n"
+      "the object's collection) unsubscribes. A callback, if given, runs on the SDK's thread\n"
+      "for every complete tick with a StateFrame of its own.")
+      .def("latest", &PySubscription::latest, "The newest complete frame, or None.")
+      .def("wait_for_frame", &PySubscription::waitForFrame, py::arg("after_tick") = 0,
+           py::arg("timeout") = 5.0,
+           "Waits up to timeout seconds for a frame with tick > after_tick; None if none came.")
+      .def_property_readonly("frames_received", &PySubscription::framesReceived)
+      .def_property_readonly("frames_skipped", &PySubscription::framesSkipped)
+      .def_property_readonly("world", &PySubscription::world)
+      .def_property_readonly("active", &PySubscription::active, "False once closed.")
+      .def("close", &PySubscription::close)
+      .def("__enter__", [](py::object self) { return self; })
+      .def("__exit__", [](PySubscription& s, py::args) { s.close(); });
+
+  // Worlds.
+  using OptS = std::optional<double>;
+  const auto T = py::arg("timeout") = py::none();
+  py::class_<PyWorld>(m, "World",
+                      "A world of the server. Every request blocks until physd answers (or "
+                      "timeout seconds: None for the client's request_timeout) and raises "
+                      "physclient.Error when it fails.")
+      .def_property_readonly("id", &PyWorld::id)
+      .def("info", &PyWorld::info, py::kw_only(), T,
+           "This world's WorldSummary (from list_worlds).")
+      .def(
+          "destroy",
+          [](PyWorld& w, OptS t) {
+            return w.req(t, [](pc::WorldHandle h, pc::CallOptions o) { return h.destroy(o); });
+          },
+          py::kw_only(), T)
+      .def(
+          "reset",
+          [](PyWorld& w, OptS t) {
+            return w.req(t, [](pc::WorldHandle h, pc::CallOptions o) { return h.reset(o); });
+          },
+          py::kw_only(), T)
+      .def(
+          "load_scene",
+          [](PyWorld& w, const std::string& name, OptS t) {
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.loadScene(name, o);
+            });
+          },
+          py::arg("name"), py::kw_only(), T,
+          "A scene of the server's scene folder by name (configs/scenes/<name>.json) -> Ids.")
+      .def(
+          "load_scene_json",
+          [](PyWorld& w, const std::string& json, OptS t) {
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.loadSceneJson(json, o);
+            });
+          },
+          py::arg("json"), py::kw_only(), T, "A scene given as JSON text -> Ids.")
+      .def(
+          "spawn",
+          [](PyWorld& w, const py::object& bodies, OptS t) {
+            auto defs = oneOrMany<phys::BodyDef>(bodies, "BodyDef");
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.spawn(std::span<const phys::BodyDef>(defs), o);
+            });
+          },
+          py::arg("bodies"), py::kw_only(), T,
+          "Spawns a BodyDef or a list of them -> their ids, in order.")
+      .def(
+          "remove_bodies",
+          [](PyWorld& w, const py::object& ids, OptS t) {
+            auto v = idList(ids);
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.removeBodies(std::span<const uint64_t>(v), o);
+            });
+          },
+          py::arg("ids"), py::kw_only(), T)
+      .def(
+          "add_joints",
+          [](PyWorld& w, const py::object& joints, OptS t) {
+            auto defs = oneOrMany<phys::JointDef>(joints, "JointDef");
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.addJoints(std::span<const phys::JointDef>(defs), o);
+            });
+          },
+          py::arg("joints"), py::kw_only(), T, "Adds a JointDef or a list of them -> joint ids.")
+      .def(
+          "remove_joints",
+          [](PyWorld& w, const py::object& ids, OptS t) {
+            auto v = idList(ids);
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.removeJoints(std::span<const uint64_t>(v), o);
+            });
+          },
+          py::arg("ids"), py::kw_only(), T)
+      .def(
+          "set_pose",
+          [](PyWorld& w, uint64_t body, phys::Vec3 p, phys::Quat q, OptS t) {
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.setPose(body, p, q, o);
+            });
+          },
+          py::arg("body"), py::arg("position"), py::arg("rotation") = phys::Quat{}, py::kw_only(),
+          T)
+      .def(
+          "set_velocity",
+          [](PyWorld& w, uint64_t body, phys::Vec3 lin, phys::Vec3 ang, OptS t) {
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.setVelocity(body, lin, ang, o);
+            });
+          },
+          py::arg("body"), py::arg("linear"), py::arg("angular") = phys::Vec3{}, py::kw_only(), T)
+      .def(
+          "apply_force",
+          [](PyWorld& w, uint64_t body, phys::Vec3 f, phys::Vec3 point, pc::PointFrame frame,
+             OptS t) {
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.applyForce(body, f, point, frame, o);
+            });
+          },
+          py::arg("body"), py::arg("force"), py::arg("point") = phys::Vec3{},
+          py::arg("frame") = pc::PointFrame::CenterOfMass, py::kw_only(), T,
+          "A force (N) acting during the next step only.")
+      .def(
+          "apply_impulse",
+          [](PyWorld& w, uint64_t body, phys::Vec3 j, phys::Vec3 point, pc::PointFrame frame,
+             OptS t) {
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.applyImpulse(body, j, point, frame, o);
+            });
+          },
+          py::arg("body"), py::arg("impulse"), py::arg("point") = phys::Vec3{},
+          py::arg("frame") = pc::PointFrame::CenterOfMass, py::kw_only(), T,
+          "An impulse (N s), applied now.")
+      .def(
+          "apply_torque",
+          [](PyWorld& w, uint64_t body, phys::Vec3 torque, OptS t) {
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.applyTorque(body, torque, o);
+            });
+          },
+          py::arg("body"), py::arg("torque"), py::kw_only(), T,
+          "A torque (N m) acting during the next step only.")
+      .def(
+          "set_material",
+          [](PyWorld& w, const py::object& bodies, const phys::Material& mt, OptS t) {
+            auto v = idList(bodies);
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.setMaterial(std::span<const uint64_t>(v), mt, o);
+            });
+          },
+          py::arg("bodies"), py::arg("material"), py::kw_only(), T,
+          "Every shape of each body gets this material.")
+      .def(
+          "set_solver",
+          [](PyWorld& w, const std::string& preset, OptS t, const py::kwargs& kw) {
+            const pc::SolverOverrides ov = solverOverrides(kw);
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.setSolver(preset, ov, o);
+            });
+          },
+          py::arg("preset") = "", py::kw_only(), T,
+          "A solver preset (\"\": keep the world's) and overrides as keywords: iterations=,\n"
+          "substeps=, scheme='GaussSeidel'|'Jacobi'|'ColoredGaussSeidel', warm_start=, ...")
+      .def(
+          "step",
+          [](PyWorld& w, uint32_t n, OptS t) {
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) { return h.step(n, o); });
+          },
+          py::arg("n") = 1, py::kw_only(), T,
+          "Takes n steps now -> Ack whose tick is the tick after them.")
+      .def(
+          "run",
+          [](PyWorld& w, float rate, OptS t) {
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) { return h.run(rate, o); });
+          },
+          py::arg("rate_hz") = 60.0f, py::kw_only(), T,
+          "Runs in real time at rate_hz (0: as fast as possible).")
+      .def(
+          "pause",
+          [](PyWorld& w, OptS t) {
+            return w.req(t, [](pc::WorldHandle h, pc::CallOptions o) { return h.pause(o); });
+          },
+          py::kw_only(), T)
+      .def(
+          "set_access",
+          [](PyWorld& w, const py::object& editors, bool shared, OptS t) {
+            auto v = idList(editors);
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.setAccess(std::span<const uint64_t>(v), shared, o);
+            });
+          },
+          py::arg("editors") = py::list(), py::arg("shared") = false, py::kw_only(), T,
+          "The owner only: client ids that may change the world too, or shared: every client.")
+      .def(
+          "query_state",
+          [](PyWorld& w, const py::object& ids, uint32_t first, uint32_t maxCount, OptS t) {
+            auto v = idList(ids);
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.queryState(std::span<const uint64_t>(v), first, maxCount, o);
+            });
+          },
+          py::arg("ids") = py::none(), py::arg("first") = 0, py::arg("max_count") = 0,
+          py::kw_only(), T,
+          "These bodies' states (None: every body, paged by first / max_count) -> StateFrame.")
+      .def(
+          "save_snapshot",
+          [](PyWorld& w, OptS t) {
+            pc::Bytes b = w.req(
+                t, [](pc::WorldHandle h, pc::CallOptions o) { return h.saveSnapshot(o); });
+            return py::bytes(reinterpret_cast<const char*>(b.data()), b.size());
+          },
+          py::kw_only(), T, "The engine's exact snapshot of the world -> bytes.")
+      .def(
+          "save_snapshot_file",
+          [](PyWorld& w, const std::string& file, OptS t) {
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.saveSnapshotFile(file, o);
+            });
+          },
+          py::arg("file"), py::kw_only(), T, "Saved on the server, in its snapshot folder.")
+      .def(
+          "restore_snapshot",
+          [](PyWorld& w, const py::buffer& data, OptS t) {
+            const std::vector<uint8_t> bytes = bytesOf(data);
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.restoreSnapshot(std::span<const uint8_t>(bytes), o);
+            });
+          },
+          py::arg("snapshot"), py::kw_only(), T,
+          "Puts the world back as save_snapshot() saw it (bytes or any buffer).")
+      .def(
+          "restore_snapshot_file",
+          [](PyWorld& w, const std::string& file, OptS t) {
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.restoreSnapshotFile(file, o);
+            });
+          },
+          py::arg("file"), py::kw_only(), T)
+      .def("subscribe", &PyWorld::subscribe, py::arg("callback") = py::none(), py::kw_only(),
+           py::arg("bodies") = py::none(), py::arg("region") = py::none(), T,
+           "State frames of this world -> Subscription. callback(frame), if given, runs on the\n"
+           "SDK's thread for every complete tick. bodies (ids) or region ((min corner, max\n"
+           "corner)): only those bodies (an interest of physd's, asked for as a request).",
+           py::return_value_policy::take_ownership)
+      .def("__eq__",
+           [](const PyWorld& a, const PyWorld& b) { return a.box() == b.box() && a.id() == b.id(); })
+      .def("__hash__", [](const PyWorld& w) { return py::hash(py::int_(w.id())); })
+      .def("__repr__", [](const PyWorld& w) { return "World(" + std::to_string(w.id()) + ")"; });
+
+  // Clients.
+  py::class_<PyClient>(
+      m, "Client",
+      "A connection to physd: DDS entities and the SDK's thread, made at once; connect()\n"
+      "waits for a daemon. cyclone_xml is the Cyclone DDS XML text (None: CYCLONEDDS_URI or\n"
+      "Cyclone's defaults). Timeouts are in seconds. security_dir and identity: DDS Security\n"
+      "files as tools/make_security.sh writes them (docs/SECURITY.md). The connection lasts\n"
+      "while the Client or one of its World or Subscription objects does, or until close()\n"
+      "(or the end of a with block).")
+      .def(py::init<uint32_t, std::string, std::optional<std::string>, uint64_t, double, double,
+                    bool, std::optional<std::string>, std::optional<std::string>>(),
+           py::kw_only(), py::arg("domain") = 0, py::arg("name") = "physclient-python",
+           py::arg("cyclone_xml") = py::none(), py::arg("client_id") = 0,
+           py::arg("connect_timeout") = 10.0, py::arg("request_timeout") = 10.0,
+           py::arg("auto_reconnect") = true, py::arg("security_dir") = py::none(),
+           py::arg("identity") = py::none())
+      .def(
+          "connect",
+          [](PyClient& c) {
+            return blocking(c.box(), [](pc::Client& cl) { return cl.connect(); });
+          },
+          "Waits for physd on the domain and says Hello -> ServerInfo (Timeout if none "
+          "answers within connect_timeout).")
+      .def("close", &PyClient::close, "Ends the connection (pending requests fail).")
+      .def_property_readonly("closed", &PyClient::closed)
+      .def_property_readonly(
+          "connected",
+          [](PyClient& c) { return quick(c.box(), [](pc::Client& cl) { return cl.connected(); }); })
+      .def_property_readonly(
+          "reconnects",
+          [](PyClient& c) { return quick(c.box(), [](pc::Client& cl) { return cl.reconnects(); }); })
+      .def_property_readonly(
+          "client_id",
+          [](PyClient& c) { return quick(c.box(), [](pc::Client& cl) { return cl.clientId(); }); })
+      .def_property_readonly(
+          "domain",
+          [](PyClient& c) {
+            return quick(c.box(), [](pc::Client& cl) { return cl.options().domain; });
+          })
+      .def_property_readonly(
+          "server",
+          [](PyClient& c) { return quick(c.box(), [](pc::Client& cl) { return cl.server(); }); },
+          "What the last Hello answered (ServerInfo).")
+      .def(
+          "hello",
+          [](PyClient& c, OptS t) {
+            return request(c.box(), [&](pc::Client& cl) { return cl.hello(callOptions(t)); });
+          },
+          py::kw_only(), T)
+      .def(
+          "create_world",
+          [](PyClient& c, const std::string& name, const std::string& preset,
+             std::optional<phys::Vec3> gravity, float timeStep, const std::string& backend,
+             bool sleep, bool ephemeral, const py::object& editors, bool shared, OptS t) {
+            pc::CreateWorldArgs a;
+            a.name = name;
+            a.preset = preset;
+            a.gravity = gravity;
+            a.timeStep = timeStep;
+            a.backend = backend;
+            a.sleep = sleep;
+            a.ephemeral = ephemeral;
+            a.editors = idList(editors);
+            a.shared = shared;
+            pc::WorldHandle h = request(
+                c.box(), [&](pc::Client& cl) { return cl.createWorld(a, callOptions(t)); });
+            return PyWorld(c.box(), h.id());
+          },
+          py::arg("name"), py::arg("preset") = "", py::kw_only(), py::arg("gravity") = py::none(),
+          py::arg("time_step") = 0.0f, py::arg("backend") = "", py::arg("sleep") = true,
+          py::arg("ephemeral") = false, py::arg("editors") = py::list(), py::arg("shared") = false,
+          T,
+          "A new world -> World. gravity None: (0, 0, -9.81); time_step 0: 1/60 s; backend\n"
+          "'cpu', 'gpu', 'auto' or '' (the server's default).")
+      .def(
+          "list_worlds",
+          [](PyClient& c, OptS t) {
+            return request(c.box(), [&](pc::Client& cl) { return cl.listWorlds(callOptions(t)); });
+          },
+          py::kw_only(), T, "Every world of the server -> list of WorldSummary.")
+      .def(
+          "world", [](PyClient& c, uint32_t id) { return PyWorld(c.box(), id); }, py::arg("id"),
+          "A World for an existing world's id (no request).")
+      .def(
+          "world_named",
+          [](PyClient& c, const std::string& name, OptS t) {
+            pc::WorldHandle h = blocking(
+                c.box(), [&](pc::Client& cl) { return cl.worldNamed(name, callOptions(t)); });
+            return PyWorld(c.box(), h.id());
+          },
+          py::arg("name"), py::kw_only(), T, "The world of that name (NotFound if none).")
+      .def(
+          "latest_status",
+          [](PyClient& c) {
+            return quick(c.box(), [](pc::Client& cl) { return cl.latestStatus(); });
+          },
+          "The newest phys/status sample (ServerStatus), or None.")
+      .def(
+          "recent_events",
+          [](PyClient& c) {
+            return quick(c.box(), [](pc::Client& cl) { return cl.recentEvents(); });
+          },
+          "The last (up to 64) events received, oldest first.")
+      .def("on_event", &PyClient::onEvent, py::arg("callback"),
+           "callback(event) on the SDK's thread for every event from now on (None: stop).")
+      .def(
+          "subscribe",
+          [](PyClient& c, uint32_t world, const py::object& callback) {
+            return PyWorld(c.box(), world).subscribe(callback, py::none(), py::none(), {});
+          },
+          py::arg("world"), py::arg("callback") = py::none(),
+          py::return_value_policy::take_ownership, "World(world).subscribe(callback).")
+      .def("__enter__", [](py::object self) { return self; })
+      .def("__exit__", [](PyClient& c, py::args) { c.close(); });
+
+  // Clients still open at exit are closed before Python finalizes (their threads joined, so no
+  // callback runs into a finalizing interpreter).
+  py::module_::import("atexit").attr("register")(py::cpp_function([] {
+    gExiting.store(true);
+    closeAllClients();
+  }));
+}

@@ -1,0 +1,605 @@
+#!/usr/bin/env python3
+"""physclient (the Python bindings of the client SDK) against the physd binary.
+
+The module starts a physd of its own: a temporary config with a DDS domain from this process's
+id (150..229), configs/cyclonedds/loopback.xml with a discovery tag of this process (so that
+tests running in parallel never see each other's daemons), the source tree's presets and
+scenes, snapshot and data folders in a temporary folder; it is stopped with SIGTERM at the end
+and must exit cleanly.
+
+    Bindings       the API end to end: physics (free fall, a resting box, forces, joints),
+                   run / pause, subscriptions, snapshots, typed errors
+    ExampleScript  examples/drop_boxes.py against the same kind of daemon
+
+Environment (ctest sets it: client_sdk/python/CMakeLists.txt): PYTHONPATH with the built
+module, PHYSD_BINARY, PHYS_SOURCE_DIR.
+"""
+import math
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import textwrap
+import threading
+import time
+import unittest
+
+SOURCE_DIR = os.environ.get("PHYS_SOURCE_DIR") or os.path.abspath(
+    os.path.join(os.path.dirname(__file__), "..", "..", ".."))
+PHYSD = os.environ.get("PHYSD_BINARY") or os.path.join(SOURCE_DIR, "build", "server", "physd")
+EXAMPLE = os.path.join(SOURCE_DIR, "client_sdk", "python", "examples", "drop_boxes.py")
+SERVER_NAME = "physd-python"
+
+import physclient as pc  # noqa: E402  (PYTHONPATH: the build folder)
+
+G = 9.81
+DT = 1.0 / 60
+
+
+class Daemon:
+    """physd with a config of its own, stopped with SIGTERM."""
+
+    def __init__(self, name):
+        self.dir = tempfile.mkdtemp(prefix="physclient_py_")
+        self.domain = 150 + os.getpid() % 80
+        with open(os.path.join(SOURCE_DIR, "configs", "cyclonedds", "loopback.xml")) as f:
+            xml = f.read()
+        if "<Discovery>" not in xml:
+            raise RuntimeError("loopback.xml has no <Discovery> to tag")
+        self.xml_text = xml.replace(
+            "<Discovery>", f"<Discovery><Tag>physclient-python-{os.getpid()}</Tag>", 1)
+        self.xml = os.path.join(self.dir, "cyclone.xml")
+        with open(self.xml, "w") as f:
+            f.write(self.xml_text)
+        self.toml = os.path.join(self.dir, "physd.toml")
+        with open(self.toml, "w") as f:
+            f.write(textwrap.dedent(f"""\
+                [server]
+                name = "{name}"
+                log_level = "warn"
+                status_period_s = 0.2
+                [dds]
+                domain = {self.domain}
+                config = "{self.xml}"
+                [paths]
+                presets = "{SOURCE_DIR}/configs/presets.json"
+                scenes = "{SOURCE_DIR}/configs/scenes"
+                snapshots = "{self.dir}/snapshots"
+                data = "{self.dir}/data"
+                """))
+        if not os.access(PHYSD, os.X_OK):
+            raise RuntimeError(f"no physd binary at {PHYSD} (set PHYSD_BINARY)")
+        self.proc = subprocess.Popen([PHYSD, "--config", self.toml])
+
+    def client(self, **kw):
+        kw.setdefault("connect_timeout", 30.0)
+        kw.setdefault("request_timeout", 20.0)
+        return pc.Client(domain=self.domain, cyclone_xml=self.xml_text, **kw)
+
+    def stop(self):
+        """SIGTERM; the daemon's exit status (None if it had to be killed)."""
+        rc = self.proc.poll()
+        if rc is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                rc = self.proc.wait(30)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+                rc = None
+        shutil.rmtree(self.dir, ignore_errors=True)
+        return rc
+
+
+DAEMON = None
+
+
+def setUpModule():
+    global DAEMON
+    DAEMON = Daemon(SERVER_NAME)
+
+
+def tearDownModule():
+    rc = DAEMON.stop()
+    if rc != 0:
+        raise AssertionError(f"physd did not exit cleanly on SIGTERM: {rc}")
+
+
+def ground():
+    return pc.BodyDef(type=pc.BodyType.Static,
+                      shapes=[pc.ShapeDef(pc.ShapeGeom.plane((0, 0, 1), 0))])
+
+
+def box(z, x=0.0, **kw):
+    """A one-metre cube (1000 kg: density 1000) at (x, 0, z)."""
+    return pc.BodyDef(position=(x, 0, z), shapes=[pc.ShapeDef(pc.ShapeGeom.box((0.5, 0.5, 0.5)))],
+                      **kw)
+
+
+def wait_until(predicate, timeout=15.0, period=0.02):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(period)
+    return predicate()
+
+
+class Bindings(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.client = DAEMON.client(name="physclient-python-test")
+        cls.server = cls.client.connect()
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.client.close()
+
+    def new_world(self, what, **kw):
+        w = self.client.create_world(f"{what}-{os.getpid()}", **kw)
+        self.addCleanup(self._destroy, w)
+        return w
+
+    @staticmethod
+    def _destroy(w):
+        try:
+            w.destroy()
+        except (pc.Error, RuntimeError):
+            pass
+
+    def assertStatesEqual(self, a, b):
+        self.assertEqual(a.tick, b.tick)
+        self.assertEqual(a.ids, b.ids)
+        for x, y in zip(a.bodies, b.bodies):
+            self.assertEqual(x.position, y.position)
+            self.assertEqual(x.rotation, y.rotation)
+            self.assertEqual(x.linear_velocity, y.linear_velocity)
+            self.assertEqual(x.angular_velocity, y.angular_velocity)
+
+    # -- connection --------------------------------------------------------------------------
+
+    def test_connect_gives_the_server(self):
+        self.assertEqual(self.server.name, SERVER_NAME)
+        self.assertGreater(self.server.protocol_version, 0)
+        self.assertTrue(self.server.version)
+        self.assertTrue(self.client.connected)
+        self.assertNotEqual(self.client.client_id, 0)
+        self.assertEqual(self.client.server.name, SERVER_NAME)
+        self.assertEqual(self.client.domain, DAEMON.domain)
+        w = self.new_world("named")
+        self.assertEqual(self.client.world_named(f"named-{os.getpid()}"), w)
+        self.assertIn(w.id, [s.world for s in self.client.list_worlds()])
+        # phys/status comes every 0.2 s (the daemon's config).
+        status = wait_until(self.client.latest_status, timeout=10)
+        self.assertIsNotNone(status)
+        self.assertEqual(status.server_name, SERVER_NAME)
+
+    # -- physics -----------------------------------------------------------------------------
+
+    def test_free_fall_before_landing(self):
+        w = self.new_world("fall", time_step=DT, sleep=False)
+        z0 = 10.0
+        ids = w.spawn([ground(), box(z0)])
+        self.assertEqual(len(ids), 2)
+        n = 30
+        ack = w.step(n)
+        self.assertEqual(ack.tick, n)
+        self.assertEqual(ack.world, w.id)
+        f = w.query_state([ids[1]])
+        self.assertEqual(f.tick, n)
+        t = f.time
+        self.assertAlmostEqual(t, n * DT, places=6)
+        b = f.bodies[0]
+        self.assertEqual(b.id, ids[1])
+        x, y, z = b.position
+        # z0 - g t^2 / 2, within what a first-order integrator of step DT may differ by.
+        self.assertLess(abs(z - (z0 - G * t * t / 2)), G * DT * t / 2 + 1e-3, (z, t))
+        self.assertLess(z, z0 - 1.0)
+        self.assertGreater(z, 0.5)  # not landed yet
+        self.assertAlmostEqual(b.linear_velocity[2], -G * t, delta=2e-3)
+        self.assertLess(abs(x) + abs(y), 1e-6)
+        self.assertAlmostEqual(b.rotation[3], 1.0, places=6)  # (x, y, z, w)
+        info = w.info()
+        self.assertEqual((info.bodies, info.tick), (2, n))
+
+    def test_resting_box_stays_put(self):
+        w = self.new_world("rest", time_step=DT)
+        ids = w.spawn([ground(), box(0.5)])
+        w.step(120)
+        b = w.query_state([ids[1]]).bodies[0]
+        x, y, z = b.position
+        self.assertLess(abs(z - 0.5), 0.01, z)
+        self.assertLess(abs(x) + abs(y), 1e-3)
+        self.assertLess(math.hypot(*b.linear_velocity), 0.05)
+        self.assertGreater(abs(b.rotation[3]), 0.9999)
+
+    def test_forces_impulses_torques_and_joints(self):
+        w = self.new_world("forces", time_step=DT, sleep=False)
+        a, b = w.spawn([box(5.0), box(5.0, x=3.0)])
+        # An impulse acts now: 1000 N s on 1000 kg.
+        w.apply_impulse(a, (1000, 0, 0))
+        sa = w.query_state([a]).bodies[0]
+        self.assertAlmostEqual(sa.linear_velocity[0], 1.0, delta=1e-4)
+        # A force acts during the next step: m g up holds b for that step while a falls.
+        w.apply_force(b, (0, 0, 1000 * G))
+        # A torque too: I = m (1 + 1) / 12 about z, so tau = I gives w_z = DT after the step.
+        inertia = 1000 * 2 / 12
+        w.apply_torque(a, (0, 0, inertia))
+        w.step(1)
+        sa, sb = w.query_state([a, b]).bodies
+        self.assertAlmostEqual(sb.linear_velocity[2], 0.0, delta=1e-3)
+        self.assertAlmostEqual(sb.position[2], 5.0, delta=1e-4)
+        self.assertAlmostEqual(sa.linear_velocity[2], -G * DT, delta=1e-3)
+        self.assertAlmostEqual(sa.angular_velocity[2], DT, delta=1e-4)
+        self.assertAlmostEqual(sa.position[0], DT * 1.0, delta=1e-4)
+
+        w.set_pose(a, (1, 2, 3))
+        w.set_velocity(a, (0, 0, 0), (0, 0, 0))
+        sa = w.query_state([a]).bodies[0]
+        self.assertEqual(sa.position, (1.0, 2.0, 3.0))
+        self.assertEqual(sa.linear_velocity, (0.0, 0.0, 0.0))
+
+        # b hangs from the world by a ball joint at its centre: it stays; freed, it falls.
+        w.set_pose(b, (3, 0, 5))
+        w.set_velocity(b, (0, 0, 0))
+        joints = w.add_joints(pc.JointDef(type=pc.JointType.Ball, body_a=0, body_b=b,
+                                          anchor_a=(3, 0, 5), anchor_b=(0, 0, 0)))
+        self.assertEqual(len(joints), 1)
+        self.assertEqual(w.info().joints, 1)
+        w.step(60)
+        sb = w.query_state([b]).bodies[0]
+        self.assertAlmostEqual(sb.position[2], 5.0, delta=0.05)
+        self.assertAlmostEqual(sb.position[0], 3.0, delta=0.05)
+        w.remove_joints(joints)
+        self.assertEqual(w.info().joints, 0)
+        w.step(30)
+        self.assertLess(w.query_state([b]).bodies[0].position[2], 4.0)
+
+        w.remove_bodies([a])
+        self.assertEqual(w.info().bodies, 1)
+        with self.assertRaises(pc.Error):
+            w.set_pose(a, (0, 0, 1))  # a stale id
+
+    def test_load_scene(self):
+        w = self.new_world("scene")
+        ids = w.load_scene("vertical_stack")  # a ground and 20 cubes in a column
+        self.assertEqual(len(ids.bodies), 21)
+        info = w.info()
+        self.assertEqual(info.bodies, len(ids.bodies))
+        f = w.query_state()
+        self.assertEqual(f.total, len(ids.bodies))
+        self.assertEqual(set(f.ids), set(ids.bodies))
+        top = max(b.position[2] for b in f.bodies)
+        self.assertAlmostEqual(top, 19.5, delta=0.05)
+        w.step(30)
+        top_after = max(b.position[2] for b in w.query_state().bodies)
+        self.assertAlmostEqual(top_after, top, delta=0.02)  # the column stands
+        with self.assertRaises(pc.Error):
+            w.load_scene("no_such_scene")
+        self.assertEqual(w.info().bodies, 21)
+
+    # -- time control ------------------------------------------------------------------------
+
+    def test_pause_stops_the_tick_and_run_advances_it(self):
+        w = self.new_world("run")
+        w.spawn([ground(), box(3.0)])
+        w.run(60)
+        self.assertTrue(wait_until(lambda: w.info().tick > 5), "run did not advance the tick")
+        self.assertTrue(w.info().running)
+        ack = w.pause()
+        first = w.info()
+        self.assertFalse(first.running)
+        time.sleep(0.3)
+        second = w.info()
+        self.assertEqual(first.tick, second.tick)
+        self.assertEqual(ack.tick, first.tick)
+        w.run(60)
+        self.assertTrue(wait_until(lambda: w.info().tick > second.tick + 5))
+        w.pause()
+
+    # -- subscriptions -----------------------------------------------------------------------
+
+    def test_subscription_frames(self):
+        w = self.new_world("sub", sleep=False)
+        ids = w.spawn([ground(), box(20.0)])
+        frames = []
+        enough = threading.Event()
+
+        def on_frame(f):
+            frames.append((f.tick, f.find(ids[1]).position[2], len(f.bodies)))
+            if len(frames) >= 10:
+                enough.set()
+
+        with w.subscribe(on_frame) as sub, w.subscribe() as poll:
+            self.assertTrue(sub.active)
+            self.assertEqual(sub.world, w.id)
+            w.run(60)
+            self.assertTrue(enough.wait(30), f"{len(frames)} frames")
+            f1 = poll.wait_for_frame(0, timeout=10)
+            self.assertIsNotNone(f1)
+            f2 = poll.wait_for_frame(f1.tick, timeout=10)
+            self.assertIsNotNone(f2)
+            self.assertGreater(f2.tick, f1.tick)
+            latest = poll.latest()
+            self.assertGreaterEqual(latest.tick, f2.tick)
+            w.pause()
+            self.assertGreaterEqual(sub.frames_received, 10)
+        self.assertFalse(sub.active)
+        got = frames[:10]
+        ticks = [t for t, _, _ in got]
+        self.assertEqual(ticks, sorted(set(ticks)), "ticks not increasing")
+        zs = [z for _, z, _ in got]
+        self.assertTrue(all(b < a for a, b in zip(zs, zs[1:])), f"the box did not fall: {zs}")
+        self.assertTrue(all(n == 2 for _, _, n in got))
+        # The buffer view: (n, 13) float32 rows in the order of bodies.
+        view = memoryview(f2.array())
+        self.assertEqual((view.format, view.shape), ("f", (2, 13)))
+        rows = view.tolist()
+        for row, body in zip(rows, f2.bodies):
+            self.assertEqual(tuple(row[0:3]), body.position)
+            self.assertEqual(tuple(row[3:7]), body.rotation)
+            self.assertEqual(tuple(row[7:10]), body.linear_velocity)
+
+    def test_callback_errors_and_requests_from_a_callback(self):
+        w = self.new_world("cb", sleep=False)
+        w.spawn([ground(), box(20.0)])
+        reported = []
+        old_hook = sys.unraisablehook
+        sys.unraisablehook = lambda u: reported.append(u.exc_type)
+        self.addCleanup(setattr, sys, "unraisablehook", old_hook)
+        calls = []
+        request_error = []
+
+        def on_frame(f):
+            calls.append(f.tick)
+            if len(calls) == 1:
+                try:
+                    w.info()  # would wait for a reply only this thread can take
+                except RuntimeError as e:
+                    request_error.append(str(e))
+            raise ValueError("a broken callback")
+
+        with w.subscribe(on_frame) as sub:
+            w.run(60)
+            self.assertTrue(wait_until(lambda: len(calls) >= 5, timeout=30), calls)
+            w.pause()
+        # The SDK keeps delivering after a callback raised; each raise is reported. (A closed
+        # subscription keeps its counts.)
+        self.assertFalse(sub.active)
+        self.assertGreaterEqual(sub.frames_received, 5)
+        self.assertIn(ValueError, reported)
+        self.assertEqual(len(request_error), 1, request_error)
+        self.assertIn("callback", request_error[0])
+
+    # -- snapshots ---------------------------------------------------------------------------
+
+    def test_snapshot_save_and_restore(self):
+        w = self.new_world("snap", time_step=DT, sleep=False)
+        w.spawn([ground(), box(5.0),
+                 box(8.0, x=2.0, angular_velocity=(0.3, 0.2, 0.1))])
+        w.step(10)
+        snap = w.save_snapshot()
+        self.assertIsInstance(snap, bytes)
+        self.assertGreater(len(snap), 0)
+        saved = w.query_state()
+        w.step(20)
+        later = w.query_state()
+        self.assertEqual(later.tick, 30)
+        self.assertNotEqual(later.bodies[1].position, saved.bodies[1].position)
+
+        ack = w.restore_snapshot(snap)
+        self.assertEqual(ack.world, w.id)
+        self.assertStatesEqual(w.query_state(), saved)
+        # The engine's exact state: the same steps give the same states, bit for bit.
+        w.step(20)
+        self.assertStatesEqual(w.query_state(), later)
+        # Any buffer will do.
+        w.restore_snapshot(bytearray(snap))
+        self.assertStatesEqual(w.query_state(), saved)
+        # A snapshot that is not one is refused, and the world stays as it was.
+        with self.assertRaises(pc.Error):
+            w.restore_snapshot(b"not a snapshot")
+        self.assertStatesEqual(w.query_state(), saved)
+
+    # -- errors ------------------------------------------------------------------------------
+
+    def test_errors_are_typed_and_change_nothing(self):
+        self.assertTrue(issubclass(pc.InvalidArgument, pc.Error))
+        self.assertTrue(issubclass(pc.NotFound, pc.Error))
+        self.assertTrue(issubclass(pc.ResourceExhausted, pc.Error))
+        self.assertTrue(issubclass(pc.Timeout, pc.Error) and issubclass(pc.Timeout, TimeoutError))
+        self.assertTrue(issubclass(pc.Disconnected, ConnectionError))
+
+        # An unknown world.
+        with self.assertRaises(pc.Error) as cm:
+            self.client.world(987654).step(1)
+        e = cm.exception
+        self.assertIn(e.code, (pc.ErrorCode.NotFound, pc.ErrorCode.InvalidArgument))
+        self.assertIsInstance(e, getattr(pc, e.code.name))
+        self.assertTrue(e.from_server)
+        self.assertTrue(e.message)
+        self.assertTrue(str(e).startswith(e.code.name + ": "), str(e))
+        with self.assertRaises(pc.NotFound) as cm:
+            self.client.world_named("no such world")
+        self.assertEqual(cm.exception.code, pc.ErrorCode.NotFound)
+
+        # A NaN position: refused, the world unchanged.
+        w = self.new_world("errors", sleep=False)
+        ids = w.spawn([ground(), box(2.0)])
+        w.step(5)
+        before = w.query_state()
+        with self.assertRaises(pc.Error) as cm:
+            w.set_pose(ids[1], (math.nan, 0, 1))
+        self.assertEqual(cm.exception.code, pc.ErrorCode.InvalidArgument)
+        self.assertIsInstance(cm.exception, pc.InvalidArgument)
+        with self.assertRaises(pc.InvalidArgument):
+            w.spawn(box(math.nan))
+        self.assertStatesEqual(w.query_state(), before)
+        self.assertEqual(w.info().bodies, 2)
+
+        # No daemon answers in time: another domain (participants of one process share a
+        # domain id's configuration) with a discovery tag nobody has.
+        with pc.Client(domain=DAEMON.domain + 1, cyclone_xml=DAEMON.xml_text.replace(
+                "physclient-python-", "nobody-"), connect_timeout=0.3) as lonely:
+            t0 = time.monotonic()
+            with self.assertRaises(pc.Timeout) as cm:
+                lonely.connect()
+            self.assertEqual(cm.exception.code, pc.ErrorCode.Timeout)
+            self.assertFalse(cm.exception.from_server)
+            self.assertLess(time.monotonic() - t0, 10)
+
+        # Mistakes the bindings catch themselves.
+        with self.assertRaises(TypeError):
+            pc.BodyDef(no_such_field=1)
+        with self.assertRaises(TypeError):
+            pc.BodyDef(position=(1, 2))
+        with self.assertRaises(ValueError):
+            pc.ShapeGeom.hull([(0, 0, 0), (1, 0, 0), (0, 1, 0)])  # flat
+        with self.assertRaises(TypeError):
+            w.set_solver(no_such_setting=1)
+        with self.assertRaises(TypeError):
+            w.spawn("a box")
+
+    def test_definitions(self):
+        b = pc.BodyDef(type=pc.BodyType.Kinematic, position=(1, 2, 3), rotation=(0, 0, 1, 0),
+                       mass=2.5, name="k", shapes=[pc.ShapeDef(pc.ShapeGeom.sphere(0.25),
+                                                               local_position=(0, 0, 1),
+                                                               material=pc.Material(friction=0.1))])
+        self.assertEqual(b.type, pc.BodyType.Kinematic)
+        self.assertEqual(b.position, (1.0, 2.0, 3.0))
+        self.assertEqual(b.rotation, (0.0, 0.0, 1.0, 0.0))
+        self.assertEqual((b.mass, b.name), (2.5, "k"))
+        s = b.shapes[0]
+        self.assertEqual(s.geom.type, pc.ShapeType.Sphere)
+        self.assertEqual(s.geom.radius, 0.25)
+        self.assertEqual(s.local_position, (0.0, 0.0, 1.0))
+        self.assertAlmostEqual(s.material.friction, 0.1, places=6)
+        hull = pc.ShapeGeom.hull([(x, y, z) for x in (0, 1) for y in (0, 1) for z in (0, 1)])
+        self.assertEqual(hull.type, pc.ShapeType.Hull)
+        self.assertEqual(len(hull.hull_vertices), 8)
+        capsule = pc.ShapeGeom.capsule(0.2, 0.5)
+        self.assertEqual((capsule.type, capsule.half_height), (pc.ShapeType.Capsule, 0.5))
+        j = pc.JointDef(type=pc.JointType.Hinge, body_a=(7 << 32) | 3, enable_motor=True)
+        self.assertEqual((j.body_a, j.body_b, j.enable_motor), ((7 << 32) | 3, 0, True))
+        # A hull body and a capsule spawn and fall like any other.
+        w = self.new_world("shapes", sleep=False)
+        ids = w.spawn([pc.BodyDef(position=(0, 0, 5), shapes=[pc.ShapeDef(hull)]),
+                       pc.BodyDef(position=(3, 0, 5), shapes=[pc.ShapeDef(capsule)])])
+        w.step(10)
+        for body in w.query_state(ids).bodies:
+            self.assertLess(body.position[2], 5.0 - 0.1)
+
+    def test_requests_from_threads(self):
+        # Requests release the GIL while they wait: threads step worlds of their own at once.
+        worlds = [self.new_world(f"thread{i}", sleep=False) for i in range(4)]
+        errors = []
+
+        def work(w):
+            try:
+                (body,) = w.spawn(box(50.0))
+                for _ in range(20):
+                    w.step(1)
+                f = w.query_state([body])
+                if f.tick != 20 or not f.bodies[0].position[2] < 50.0:
+                    errors.append((w.id, f.tick, f.bodies[0].position))
+            except Exception as e:  # noqa: BLE001 (reported below)
+                errors.append(e)
+
+        threads = [threading.Thread(target=work, args=(w,)) for w in worlds]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(60)
+        self.assertFalse(any(t.is_alive() for t in threads))
+        self.assertEqual(errors, [])
+
+    # -- lifetime ----------------------------------------------------------------------------
+
+    def test_close_from_a_callback(self):
+        # A client closed by its own callback (on the SDK's thread, which closing joins).
+        c = DAEMON.client(name="self-closer")
+        c.connect()
+        w = c.create_world(f"self-closer-{os.getpid()}", ephemeral=True)
+        w.spawn(box(10.0))
+        closed = threading.Event()
+
+        def on_frame(f):
+            if not closed.is_set():
+                c.close()
+                closed.set()
+
+        sub = w.subscribe(on_frame)
+        w.run(60)
+        self.assertTrue(closed.wait(30))
+        self.assertTrue(wait_until(lambda: c.closed, timeout=5))
+        with self.assertRaises(RuntimeError):
+            w.info()
+        sub.close()
+        try:
+            self._destroy(self.client.world_named(f"self-closer-{os.getpid()}"))
+        except pc.NotFound:
+            pass
+
+    def test_close_and_exit(self):
+        c = DAEMON.client(name="closer")
+        c.connect()
+        w = c.create_world(f"closer-{os.getpid()}", ephemeral=True)
+        self.assertEqual(w.step(2).tick, 2)
+        c.close()
+        self.assertTrue(c.closed)
+        with self.assertRaises(RuntimeError):
+            w.step(1)
+        # A script that exits with a client, a running world and a subscription callback still
+        # open exits cleanly (the atexit hook closes the client before Python finalizes).
+        script = textwrap.dedent(f"""\
+            import time, physclient as pc
+            c = pc.Client(domain={DAEMON.domain}, cyclone_xml=open({DAEMON.xml!r}).read(),
+                          connect_timeout=30)
+            c.connect()
+            w = c.create_world("exiting-{os.getpid()}", ephemeral=True)
+            w.spawn(pc.BodyDef(position=(0, 0, 1),
+                               shapes=[pc.ShapeDef(pc.ShapeGeom.sphere(0.5))]))
+            seen = []
+            sub = w.subscribe(lambda f: seen.append(f.tick))
+            w.run(60)
+            deadline = time.time() + 20
+            while len(seen) < 3 and time.time() < deadline:
+                time.sleep(0.01)
+            print("frames", len(seen))
+            """)
+        r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                           timeout=60)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        n = int(re.search(r"frames (\d+)", r.stdout).group(1))
+        self.assertGreaterEqual(n, 3)
+        try:
+            self._destroy(self.client.world_named(f"exiting-{os.getpid()}"))
+        except pc.NotFound:
+            pass
+
+
+class ExampleScript(unittest.TestCase):
+    def test_drop_boxes(self):
+        r = subprocess.run([sys.executable, EXAMPLE, "--domain", str(DAEMON.domain),
+                            "--cyclone-xml", DAEMON.xml], capture_output=True, text=True,
+                           timeout=90)
+        self.assertEqual(r.returncode, 0, r.stdout + r.stderr)
+        self.assertIn(f"connected to {SERVER_NAME}", r.stdout)
+        zs = sorted(float(z) for z in re.findall(r"^box \d+: x=\S+ y=\S+ z=(\S+)$", r.stdout,
+                                                   re.M))
+        self.assertEqual(len(zs), 3, r.stdout)
+        # Dropped from 1, 2.5 and 4 m, the three cubes come to rest in a column.
+        for i, z in enumerate(zs):
+            self.assertAlmostEqual(z, 0.5 + i, delta=0.1, msg=r.stdout)
+        # It destroyed its world.
+        with DAEMON.client() as c:
+            c.connect()
+            self.assertFalse([s for s in c.list_worlds() if s.name.startswith("drop-boxes-")])
+
+
+if __name__ == "__main__":
+    unittest.main()
