@@ -3,11 +3,13 @@
 // by playwright-core. Checks that the page loads with no console error, draws the default
 // world (window.physview: the bodies and the tick it drew), that a click drops a body that
 // `physctl list` counts, that Pause stops the tick as physctl sees it and Step advances it by
-// one, and writes a screenshot.
+// one, that the WebSocket refuses pages of other origins and a ninth page, and writes a
+// screenshot.
 //
 //   node viewer_test.mjs --physd BIN --physview BIN --physctl BIN --chromium BIN
 //                        --node-modules DIR --source DIR --screenshot PNG [--headed]
 import assert from 'node:assert/strict';
+import net from 'node:net';
 import { CHROMIUM_ARGS, Daemons, loadPlaywright, parseArgs, sleep } from './lib.mjs';
 
 const opts = parseArgs(process.argv.slice(2), {
@@ -21,6 +23,57 @@ const { chromium } = loadPlaywright(opts.nodeModules);
 const daemons = new Daemons(opts);
 let browser = null;
 const step = (what) => console.log(`[viewer_test] ${what}`);
+
+/// fn() until it returns something truthy (returned), every 100 ms, for at most ms: the test
+/// waits for what it checks, not for a fixed time (the host may be loaded).
+async function until(what, fn, ms = 10000) {
+  const end = Date.now() + ms;
+  for (;;) {
+    const v = await fn();
+    if (v) return v;
+    if (Date.now() > end) throw new Error(`timed out after ${ms} ms: ${what}`);
+    await sleep(100);
+  }
+}
+
+/// A WebSocket handshake by hand over a socket (a browser's headers, Origin among them):
+/// resolves with the answer's status (0: closed with no answer) and the socket, left open.
+function upgrade(port, headers) {
+  return new Promise((resolve, reject) => {
+    const sock = net.connect(port, '127.0.0.1');
+    let data = '';
+    let done = false;
+    const finish = (status) => {
+      if (done) return;
+      done = true;
+      clearTimeout(timer);
+      resolve({ status, sock });
+    };
+    const timer = setTimeout(() => {
+      sock.destroy();
+      reject(new Error(`no answer to a WebSocket handshake with ${headers.join(', ')}`));
+    }, 10000);
+    sock.on('connect', () => sock.write([
+      'GET /ws HTTP/1.1', ...headers, 'Upgrade: websocket', 'Connection: Upgrade',
+      'Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==', 'Sec-WebSocket-Version: 13', '', '',
+    ].join('\r\n')));
+    sock.on('data', (d) => {
+      data += d.toString('latin1');
+      if (data.includes('\r\n\r\n')) finish(Number((/^HTTP\/1\.[01] (\d{3})/.exec(data) || [])[1] || -1));
+    });
+    sock.on('error', () => {});  // 'close' follows
+    sock.on('close', () => finish(0));
+  });
+}
+
+/// Whether sock is closed by the other end within ms.
+function closedWithin(sock, ms) {
+  if (sock.destroyed) return Promise.resolve(true);
+  return new Promise((resolve) => {
+    const timer = setTimeout(() => resolve(false), ms);
+    sock.once('close', () => { clearTimeout(timer); resolve(true); });
+  });
+}
 
 async function main() {
   const started = await daemons.startPhysd();
@@ -49,7 +102,7 @@ async function main() {
   const t0 = pv.tick;
   await page.waitForFunction((t) => window.physview.tick > t + 10, t0, { timeout: 10000 });
 
-  await sleep(1500);  // the scene a moment after start: the picture in docs/
+  await sleep(1500);  // not a wait for anything: the scene a moment later is the picture in docs/
   await page.screenshot({ path: opts.screenshot });
   step(`screenshot ${opts.screenshot}`);
 
@@ -71,7 +124,7 @@ async function main() {
   await page.waitForFunction(() => window.physview.lastAck && window.physview.lastAck.op === 'pause',
     null, { timeout: 10000 });
   const p1 = await daemons.world();
-  await sleep(800);
+  await sleep(800);  // not a wait for anything: the window in which a running world would tick
   const p2 = await daemons.world();
   step(`paused: physctl ${p1.state} at tick ${p1.tick}, then ${p2.tick}`);
   assert.equal(p1.state, 'paused');
@@ -90,10 +143,48 @@ async function main() {
   await page.click('#run');
   await page.waitForFunction(() => window.physview.lastAck && window.physview.lastAck.op === 'run',
     null, { timeout: 10000 });
-  await sleep(300);
-  const r = await daemons.world();
-  assert.equal(r.state, 'running');
-  assert.ok(r.tick > s.tick, 'Run ticks again');
+  const r = await until('physctl sees the world run and tick again after Run', async () => {
+    const x = await daemons.world();
+    return x.state === 'running' && x.tick > s.tick ? x : null;
+  });
+  step(`run: physctl ${r.state} at tick ${r.tick}`);
+
+  // The WebSocket: only pages of physview's own origin (a browser lets any site's page open
+  // ws://127.0.0.1:PORT/ws), at most eight pages at once.
+  const port = Number(new URL(url).port);
+  const host = `Host: 127.0.0.1:${port}`;
+  const foreign = await upgrade(port, [host, 'Origin: http://evil.example']);
+  foreign.sock.destroy();
+  const rebound = await upgrade(port, [`Host: evil.example:${port}`, `Origin: http://evil.example:${port}`]);
+  rebound.sock.destroy();
+  step(`handshakes: Origin evil.example ${foreign.status}, evil.example as Host and Origin ${rebound.status}`);
+  assert.equal(foreign.status, 403, 'a page of another origin gets no WebSocket');
+  assert.equal(rebound.status, 403, 'a page of another host name (DNS rebinding) gets no WebSocket');
+  const own = await upgrade(port, [host, `Origin: http://127.0.0.1:${port}`]);
+  assert.equal(own.status, 101, 'a page of the same origin gets its WebSocket');
+  // A command of more than 4 KiB closes the connection (one masked text frame, mask 0).
+  const big = Buffer.alloc(5000, 0x20);
+  own.sock.write(Buffer.concat([Buffer.from([0x81, 0xfe, big.length >> 8, big.length & 0xff, 0, 0, 0, 0]), big]));
+  assert.ok(await closedWithin(own.sock, 10000), 'a 5000-byte message closes the connection');
+  // The page is one; seven more (no Origin: not a browser) make eight, the ninth is refused.
+  const extra = [];
+  try {
+    for (let i = 0; i < 7; ++i) {
+      const x = await until(`page ${i + 2} of 8 (slots of closed connections given back)`, async () => {
+        const c = await upgrade(port, [host]);
+        if (c.status === 101) return c;
+        c.sock.destroy();
+        return null;
+      });
+      extra.push(x);
+    }
+    const ninth = await upgrade(port, [host]);
+    ninth.sock.destroy();
+    step(`eight pages open: a ninth gets ${ninth.status}`);
+    assert.equal(ninth.status, 503, 'a ninth page is refused');
+  } finally {
+    for (const x of extra) x.sock.destroy();
+  }
 
   pv = await page.evaluate(() => ({ ...window.physview }));
   step(`page: ${pv.drawnFrames} frames drawn, ${pv.framesReceived} received, errors ${JSON.stringify(pv.errors)}`);

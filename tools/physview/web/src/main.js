@@ -1,7 +1,7 @@
 // physview's page: a WebSocket to the bridge (/ws), the HUD, and the draw loop. Frames are
 // applied once per animation frame, the newest one only (latest wins, as in the bridge).
 // window.physview exposes what was drawn, for tests and benchmarks.
-import { FRAME, SHAPES, decodeFrame, decodeShapes, messageKind } from './protocol.js';
+import { FRAME, SHAPES, decodeFrame, decodeShapes, messageKind, messageWorld } from './protocol.js';
 import { View } from './view.js';
 
 const $ = (id) => document.getElementById(id);
@@ -18,6 +18,7 @@ const state = {
   running: false,
   drawnFrames: 0,     // frames applied and drawn
   framesReceived: 0,
+  framesIgnored: 0,   // frames of another world than the selected one (not drawn)
   renders: 0,         // animation frames that rendered
   animationFrames: 0, // requestAnimationFrame callbacks
   fps: 0,             // requestAnimationFrame callbacks in the last second
@@ -117,9 +118,25 @@ function onBinary(buffer) {
   const kind = messageKind(buffer);
   if (kind === FRAME) {
     ++state.framesReceived;
+    // A frame of the world the page left (sent before the select took effect) would be
+    // drawn with the new world's shapes: dropped.
+    if (messageWorld(buffer) !== state.world) {
+      ++state.framesIgnored;
+      return;
+    }
     pending = buffer;  // latest wins
   } else if (kind === SHAPES) {
-    view.addShapes(decodeShapes(buffer));
+    const msg = decodeShapes(buffer);
+    if (msg.reset) {
+      // The bridge shows another world (or none: 0) from here on: nothing of the old one stays.
+      state.world = msg.world;
+      pending = null;
+      view.clear();
+      state.bodies = 0;
+    } else if (msg.world !== state.world) {
+      return;
+    }
+    view.addShapes(msg);
     needRender = true;
   }
 }

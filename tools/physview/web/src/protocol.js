@@ -22,6 +22,11 @@ export function messageKind(buffer) {
   return buffer.byteLength >= 4 ? new Uint32Array(buffer, 0, 1)[0] : 0;
 }
 
+/// The world a frame or shapes message is of (0 when too short to say).
+export function messageWorld(buffer) {
+  return buffer.byteLength >= 8 ? new Uint32Array(buffer, 4, 1)[0] : 0;
+}
+
 /// A frame: its header, and u32 / f32 views of its body records (9 words a body: id index, id
 /// generation, position x y z, rotation x y z w).
 export function decodeFrame(buffer) {

@@ -169,16 +169,35 @@ export class View {
 
   /// A shapes message: descriptions of bodies the page has not seen (reset: of a new world).
   addShapes(msg) {
-    if (msg.reset) {
-      this.byIndex = [];
-      this.fitPending = true;
-    }
+    if (msg.reset) this.clear();
     for (const b of msg.bodies) {
       const entries = [];
       for (const s of b.shapes) this.entriesOf(s, entries);
       this.byIndex[b.index] = { gen: b.gen, motion: b.motion, shapes: b.shapes, entries, color: this.colorOf(b) };
     }
     this.layoutDirty = true;
+  }
+
+  /// Drops every description and every drawn body (a shapes reset: another world).
+  clear() {
+    for (const m of this.meshes) {
+      this.scene.remove(m);
+      m.traverse((o) => {  // hull and plane meshes are the old world's alone
+        if (o.geometry) o.geometry.dispose();
+        if (o.material && o.material !== this.planeMaterial) o.material.dispose();
+      });
+    }
+    this.meshes = [];
+    for (const p of this.pools) {
+      p.count = 0;
+      if (p.mesh) p.mesh.count = 0;
+    }
+    this.byIndex = [];
+    this.layoutDesc = [];
+    this.layoutCount = -1;
+    this.layoutDirty = true;
+    this.drawnBodies = 0;
+    this.fitPending = true;
   }
 
   colorOf(b) {
