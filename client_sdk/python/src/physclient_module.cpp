@@ -15,10 +15,12 @@
 // bounded by their timeouts). Subscription and event callbacks run on the SDK's
 // thread and take the GIL for the call. A request of a client from inside one of that client's
 // callbacks would wait for a reply that the same thread has to take: it raises RuntimeError
-// instead of deadlocking. The Python objects that hold a callback let go of it with the GIL
-// held, whichever thread drops them; a Client is destroyed (its thread joined) with the GIL
-// released, so that a callback waiting for the GIL can finish. Clients still open when the
-// interpreter exits are closed by an atexit hook, before Python finalizes.
+// instead of deadlocking. The SDK holds callbacks weakly; the Python objects that hold them
+// (a Subscription, a Client's connection for on_event) let go of them with the GIL held: once
+// close() or on_event() has returned, the callback is not called again (a call already running
+// may still be finishing: close() does not wait). A Client is destroyed (its thread joined)
+// with the GIL released, so that a callback waiting for the GIL can finish. Clients still open
+// when the interpreter exits are closed by an atexit hook, before Python finalizes.
 //
 // Vectors are tuples (x, y, z); rotations are unit quaternions as the SDK stores them,
 // (x, y, z, w). Body and joint ids are the SDK's packed 64-bit ids (ints).
@@ -37,6 +39,7 @@
 #include <mutex>
 #include <optional>
 #include <string>
+#include <system_error>
 #include <thread>
 #include <vector>
 
@@ -142,19 +145,25 @@ void raiseError(const pc::Error& e) {
 /// touch their objects (the interpreter is going away).
 std::atomic<bool> gExiting{false};
 
-void dropClient(std::shared_ptr<pc::Client>& c);
+struct PyCallback;
 
 /// The C++ client of a physclient.Client, shared by the Client and its World and
 /// Subscription objects: the connection lasts while one of them does, or until close(). Null
 /// once closed. Calls hold a copy of the pointer (a lease) while they run, so that close()
-/// from another thread never pulls the client from under them: the last holder destroys it.
+/// from another thread never pulls the client from under them: the last holder destroys it
+/// (deleteClient, the pointer's deleter).
 struct ClientBox {
+  /// Serializes on_event() and close(): the SDK's event function and the callback it refers
+  /// to change together. Taken before m.
+  std::mutex eventMutex;
+  /// The event callback (on_event): the only strong reference; the SDK's function holds a
+  /// weak one, so that the SDK never releases the last reference under its own lock.
+  std::shared_ptr<PyCallback> eventCallback;
   std::mutex m;
   std::shared_ptr<pc::Client> client;
   ClientBox() = default;
   ClientBox(const ClientBox&) = delete;
   ClientBox& operator=(const ClientBox&) = delete;
-  ~ClientBox() { dropClient(client); }
 };
 using BoxPtr = std::shared_ptr<ClientBox>;
 
@@ -167,23 +176,30 @@ std::vector<std::weak_ptr<ClientBox>>& registry() {
   return *r;
 }
 
-/// The client whose callback this thread is running (SDK threads only), if any.
+/// The client whose callback this thread is running (SDK threads only), if any. Python code
+/// runs on an SDK thread only inside invokeCallback (which sets this), and so does every
+/// release of a Python reference there (the SDK holds callbacks weakly).
 thread_local const ClientBox* tlCallbackOf = nullptr;
 
-/// Drops a reference to a client; when it is the last, the client is destroyed (its thread
-/// joined) with the GIL released. In a callback (on an SDK thread, which a client's destruction
-/// may have to join) the last reference goes to a thread of its own.
-void dropClient(std::shared_ptr<pc::Client>& c) {
-  if (!c) return;
-  if (tlCallbackOf && c.use_count() == 1) {
-    std::thread([last = std::move(c)]() mutable { last.reset(); }).detach();
+/// The deleter of every pc::Client: runs once, on the thread that lets go of the last
+/// reference (a decision no use_count() check can make without a race). The client is
+/// destroyed (its thread joined) with the GIL released, so that a callback waiting for the
+/// GIL can finish. On an SDK thread (in a callback: the thread that a client's destruction
+/// may have to join) it goes to a thread of its own.
+void deleteClient(pc::Client* c) {
+  if (tlCallbackOf) {
+    try {
+      std::thread([c] { delete c; }).detach();
+    } catch (const std::system_error&) {
+      // No thread to be had: leaking the client is better than joining this thread itself.
+    }
     return;
   }
   if (Py_IsInitialized() && PyGILState_Check()) {
     py::gil_scoped_release release;
-    c.reset();
+    delete c;
   } else {
-    c.reset();
+    delete c;
   }
 }
 
@@ -194,21 +210,11 @@ struct Lease {
     client = box->client;
     if (!client) throw std::runtime_error("physclient: the client is closed");
   }
-  ~Lease() { dropClient(client); }
   Lease(const Lease&) = delete;
   Lease& operator=(const Lease&) = delete;
   pc::Client& operator*() const { return *client; }
   pc::Client* operator->() const { return client.get(); }
 };
-
-void closeBox(ClientBox& box) {
-  std::shared_ptr<pc::Client> c;
-  {
-    std::lock_guard<std::mutex> lk(box.m);
-    c.swap(box.client);
-  }
-  dropClient(c);
-}
 
 struct CallbackScope {
   const ClientBox* previous;
@@ -223,8 +229,12 @@ void checkNotInCallback(const BoxPtr& box) {
         "wait for a reply that only this thread can take; make it from another thread");
 }
 
-/// A Python callable held by the SDK (in a std::function): released with the GIL held,
-/// whichever thread lets go of it last.
+/// A Python callable given as a callback: held strongly by its Python-side owner (the
+/// Subscription, or the client's box for on_event) and weakly by the SDK's std::function, so
+/// that its last reference goes with the GIL held on a Python thread (close(), on_event(),
+/// the owner's collection) or inside invokeCallback, never under one of the SDK's locks (the
+/// SDK destroys a replaced event function under the lock that latest_status() and the like
+/// take with the GIL held). Released with the GIL held, whichever thread lets go of it last.
 struct PyCallback {
   py::object fn;
   explicit PyCallback(py::object f) : fn(std::move(f)) {}
@@ -242,14 +252,18 @@ struct PyCallback {
 };
 
 /// Calls cb(arg) on the SDK's thread with the GIL; an exception of the callback is reported as
-/// unraisable (sys.unraisablehook), never thrown into the SDK.
+/// unraisable (sys.unraisablehook), never thrown into the SDK. The weak reference is taken
+/// under the GIL, as its owner drops it: once close() / on_event() has returned, no call
+/// starts any more (one already running may still be finishing).
 template <class T>
-void invokeCallback(const std::shared_ptr<PyCallback>& cb, const ClientBox* box, const T& arg,
+void invokeCallback(const std::weak_ptr<PyCallback>& weak, const ClientBox* box, const T& arg,
                     const char* what) {
   if (gExiting.load()) return;
   py::gil_scoped_acquire gil;
   if (gExiting.load()) return;
-  CallbackScope scope(box);
+  CallbackScope scope(box);  // outlives cb: a last reference dropped here is in the scope
+  const std::shared_ptr<PyCallback> cb = weak.lock();
+  if (!cb) return;
   try {
     cb->fn(py::cast(arg, py::return_value_policy::copy));
   } catch (py::error_already_set& e) {
@@ -260,9 +274,33 @@ void invokeCallback(const std::shared_ptr<PyCallback>& cb, const ClientBox* box,
   }
 }
 
+/// Closes a client: its client (destroyed by the last lease, its thread joined) and its
+/// event callback (released here, with the GIL held, after the client let go of it).
+void closeBox(ClientBox& box) {
+  std::shared_ptr<pc::Client> c;
+  std::shared_ptr<PyCallback> events;
+  {
+    std::lock_guard<std::mutex> ev(box.eventMutex);
+    std::lock_guard<std::mutex> lk(box.m);
+    c.swap(box.client);
+    events.swap(box.eventCallback);
+  }
+  c.reset();
+  events.reset();
+}
+
+/// The longest timeout (24 days). The SDK adds a timeout to steady_clock::now() (int64
+/// nanoseconds: an hour's timeout is fine, 1e10 s overflows and expires at once) and waits on
+/// condition variables with it; 24 days keeps every such sum far from overflowing, and the
+/// milliseconds below 2^31.
+constexpr double kMaxTimeoutS = 24.0 * 24 * 3600;
+
+/// Seconds -> milliseconds, rounded up; ValueError for a negative one or NaN, and longer
+/// ones (inf too) are the longest (kMaxTimeoutS).
 std::chrono::milliseconds toMs(double seconds) {
-  if (!(seconds >= 0) || !std::isfinite(seconds))
-    throw py::value_error("physclient: a timeout is a finite number of seconds >= 0");
+  if (!(seconds >= 0))
+    throw py::value_error("physclient: a timeout is a number of seconds >= 0 (not NaN)");
+  seconds = std::min(seconds, kMaxTimeoutS);
   return std::chrono::milliseconds(int64_t(std::ceil(seconds * 1000.0)));
 }
 
@@ -338,10 +376,17 @@ std::vector<uint64_t> idList(const py::object& o) {
   return o.cast<std::vector<uint64_t>>();
 }
 
+/// A buffer's bytes in C order. Any buffer will do: a strided one (memoryview(b)[::-1], a
+/// numpy slice) is copied element by element (PyBuffer_ToContiguous), not read as len bytes
+/// from its pointer (they are not its bytes, or not even inside it).
 std::vector<uint8_t> bytesOf(const py::buffer& b) {
-  py::buffer_info info = b.request();
-  const auto* p = static_cast<const uint8_t*>(info.ptr);
-  return std::vector<uint8_t>(p, p + info.size * info.itemsize);
+  Py_buffer view;
+  if (PyObject_GetBuffer(b.ptr(), &view, PyBUF_FULL_RO) != 0) throw py::error_already_set();
+  std::vector<uint8_t> out(size_t(view.len));
+  const int rc = view.len > 0 ? PyBuffer_ToContiguous(out.data(), &view, view.len, 'C') : 0;
+  PyBuffer_Release(&view);
+  if (rc != 0) throw py::error_already_set();
+  return out;
 }
 
 /// A def struct made from keyword arguments: its default, then each keyword set as the
@@ -471,27 +516,51 @@ pc::SolverOverrides solverOverrides(const py::kwargs& kw) {
 class PySubscription {
  public:
   PySubscription(BoxPtr box, pc::Subscription sub, std::shared_ptr<PyCallback> cb)
-      : box_(std::move(box)), sub_(std::move(sub)), cb_(std::move(cb)), world_(sub_.world()) {}
+      : box_(std::move(box)),
+        world_(sub.world()),
+        sub_(std::make_shared<pc::Subscription>(std::move(sub))),
+        cb_(std::move(cb)) {}
   ~PySubscription() { close(); }
   PySubscription(const PySubscription&) = delete;
   PySubscription& operator=(const PySubscription&) = delete;
 
+  /// Called with the GIL held (from Python, or the object's collection). Another thread may
+  /// be in latest() or wait_for_frame() with the GIL released, using the subscription's state
+  /// (the mutex and condition variable a waiter blocks on): each call holds a copy of sub_,
+  /// so the state lives until the last of them returns, and the unsubscribing happens then,
+  /// on the thread that drops the last copy (within a slice of wait_for_frame: 100 ms).
   void close() {
-    if (!sub_) return;
-    closedFrames_ = sub_.framesReceived();
-    closedSkipped_ = sub_.framesSkipped();
+    std::shared_ptr<pc::Subscription> sub;
+    {
+      std::lock_guard<std::mutex> lk(m_);
+      if (sub_) {
+        closedFrames_ = sub_->framesReceived();
+        closedSkipped_ = sub_->framesSkipped();
+      }
+      sub.swap(sub_);
+    }
+    // The callback's only strong reference, dropped with the GIL held: no call of it starts
+    // after this (invokeCallback takes its reference under the GIL); one already running may
+    // still be finishing on the SDK's thread (docs/PYTHON.md).
+    cb_.reset();
+    if (!sub) return;
     if (Py_IsInitialized() && PyGILState_Check()) {
       py::gil_scoped_release release;
-      sub_.reset();
+      sub.reset();
     } else {
-      sub_.reset();
+      sub.reset();
     }
   }
-  bool active() const { return bool(sub_); }
+  bool active() const {
+    std::lock_guard<std::mutex> lk(m_);
+    return bool(sub_);
+  }
   uint32_t world() const { return world_; }
   std::optional<pc::StateFrame> latest() const {
-    py::gil_scoped_release release;
-    return sub_.latest();
+    py::gil_scoped_release release;  // the copy below is dropped before the GIL comes back
+    const std::shared_ptr<pc::Subscription> sub = current();
+    if (!sub) return std::nullopt;
+    return sub->latest();
   }
   std::optional<pc::StateFrame> waitForFrame(uint64_t afterTick, double timeoutS) {
     const auto end = std::chrono::steady_clock::now() + toMs(timeoutS);
@@ -501,23 +570,40 @@ class PySubscription {
       std::optional<pc::StateFrame> f;
       {
         py::gil_scoped_release release;
-        f = sub_.waitForFrame(afterTick, std::clamp(left, std::chrono::milliseconds(0), kSlice));
+        const std::shared_ptr<pc::Subscription> sub = current();
+        if (!sub) return std::nullopt;  // closed: no frame will come
+        f = sub->waitForFrame(afterTick, std::clamp(left, std::chrono::milliseconds(0), kSlice));
       }
       if (f || left <= kSlice) return f;
       if (PyErr_CheckSignals() != 0) throw py::error_already_set();
     }
   }
-  uint64_t framesReceived() const { return sub_ ? sub_.framesReceived() : closedFrames_; }
-  uint64_t framesSkipped() const { return sub_ ? sub_.framesSkipped() : closedSkipped_; }
+  // Under m_: close() cannot take the subscription away meanwhile (no copy to drop).
+  uint64_t framesReceived() const {
+    std::lock_guard<std::mutex> lk(m_);
+    return sub_ ? sub_->framesReceived() : closedFrames_;
+  }
+  uint64_t framesSkipped() const {
+    std::lock_guard<std::mutex> lk(m_);
+    return sub_ ? sub_->framesSkipped() : closedSkipped_;
+  }
 
  private:
+  std::shared_ptr<pc::Subscription> current() const {
+    std::lock_guard<std::mutex> lk(m_);
+    return sub_;
+  }
+
   BoxPtr box_;  // keeps the connection
-  pc::Subscription sub_;
-  std::shared_ptr<PyCallback> cb_;  // also held by the SDK's std::function
   uint32_t world_;
+  mutable std::mutex m_;  // sub_ and the counts; never held while waiting for the GIL
+  std::shared_ptr<pc::Subscription> sub_;          // null once closed
   uint64_t closedFrames_ = 0, closedSkipped_ = 0;  // the counts when closed
+  std::shared_ptr<PyCallback> cb_;  // the callback's only strong reference (GIL held)
 };
 
+/// The SDK's function for a subscription callback: it refers to the callback weakly (the
+/// Subscription holds it: *held).
 std::function<void(const pc::StateFrame&)> frameCallback(const py::object& callback,
                                                          const BoxPtr& box,
                                                          std::shared_ptr<PyCallback>* held) {
@@ -527,8 +613,8 @@ std::function<void(const pc::StateFrame&)> frameCallback(const py::object& callb
   auto cb = std::make_shared<PyCallback>(callback);
   *held = cb;
   const ClientBox* raw = box.get();
-  return [cb, raw](const pc::StateFrame& f) {
-    invokeCallback(cb, raw, f, "physclient subscription callback");
+  return [weak = std::weak_ptr<PyCallback>(cb), raw](const pc::StateFrame& f) {
+    invokeCallback(weak, raw, f, "physclient subscription callback");
   };
 }
 
@@ -599,7 +685,7 @@ class PyClient {
     box_ = std::make_shared<ClientBox>();
     {
       py::gil_scoped_release release;
-      box_->client = std::make_shared<pc::Client>(std::move(o));
+      box_->client = std::shared_ptr<pc::Client>(new pc::Client(std::move(o)), deleteClient);
     }
     std::lock_guard<std::mutex> lk(registryMutex());
     auto& r = registry();
@@ -617,23 +703,36 @@ class PyClient {
   }
   const BoxPtr& box() const { return box_; }
 
-  /// Subscription to events: fn on the SDK's thread for each.
+  /// Subscription to events: fn on the SDK's thread for each. The box holds the callback;
+  /// the SDK's function refers to it weakly, because Client::onEvent destroys the function
+  /// it replaces under the SDK's info lock: had that been the last reference to the old
+  /// callback, its release would wait for the GIL there, while a thread holding the GIL waits
+  /// for that lock in latest_status(), recent_events() or server. The old callback goes here,
+  /// with the GIL held, after the SDK's call returned.
   void onEvent(const py::object& callback) {
+    std::shared_ptr<PyCallback> cb;
     std::function<void(const pc::Event&)> fn;
     if (!callback.is_none()) {
       if (!PyCallable_Check(callback.ptr()))
         throw py::type_error("physclient: callback must be callable (or None)");
-      auto cb = std::make_shared<PyCallback>(callback);
+      cb = std::make_shared<PyCallback>(callback);
       const ClientBox* raw = box_.get();
-      fn = [cb, raw](const pc::Event& e) {
-        invokeCallback(cb, raw, e, "physclient event callback");
+      fn = [weak = std::weak_ptr<PyCallback>(cb), raw](const pc::Event& e) {
+        invokeCallback(weak, raw, e, "physclient event callback");
       };
     }
-    blocking(box_, [&](pc::Client& c) {
-      c.onEvent(std::move(fn));
-      return 0;
-    });
-  }
+    checkNotInCallback(box_);
+    {
+      // The lock with the GIL released: its holders never wait for the GIL. Under it, the
+      // client cannot be closed (close() takes it too): a callback is never left in a closed
+      // box.
+      py::gil_scoped_release release;
+      std::lock_guard<std::mutex> lk(box_->eventMutex);
+      Lease lease(box_);
+      lease->onEvent(std::move(fn));
+      cb.swap(box_->eventCallback);  // cb: the old callback
+    }
+  }  // cb released here, with the GIL held
 
  private:
   BoxPtr box_;

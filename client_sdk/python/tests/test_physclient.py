@@ -26,6 +26,7 @@ import textwrap
 import threading
 import time
 import unittest
+import weakref
 
 SOURCE_DIR = os.environ.get("PHYS_SOURCE_DIR") or os.path.abspath(
     os.path.join(os.path.dirname(__file__), "..", "..", ".."))
@@ -400,6 +401,17 @@ class Bindings(unittest.TestCase):
         # Any buffer will do.
         w.restore_snapshot(bytearray(snap))
         self.assertStatesEqual(w.query_state(), saved)
+        # Strided ones too, copied in their order: a view of the reversed bytes backwards (its
+        # pointer is at its first element, the reversed copy's last byte: read from there
+        # straight on, it runs past the end) and every other byte of an interleaved copy.
+        w.step(5)
+        w.restore_snapshot(memoryview(snap[::-1])[::-1])
+        self.assertStatesEqual(w.query_state(), saved)
+        interleaved = bytearray(2 * len(snap))
+        interleaved[::2] = snap
+        w.step(5)
+        w.restore_snapshot(memoryview(interleaved)[::2])
+        self.assertStatesEqual(w.query_state(), saved)
         # A snapshot that is not one is refused, and the world stays as it was.
         with self.assertRaises(pc.Error):
             w.restore_snapshot(b"not a snapshot")
@@ -464,6 +476,29 @@ class Bindings(unittest.TestCase):
         with self.assertRaises(TypeError):
             w.spawn("a box")
 
+    def test_timeouts(self):
+        w = self.new_world("timeouts")
+        # Longer than the SDK can add to its clock (1e10 s overflows its int64 nanoseconds; a
+        # request would time out at once): the longest timeout (24 days) instead.
+        self.assertEqual(w.step(1, timeout=1e10).tick, 1)
+        self.assertEqual(w.step(1, timeout=1e300).tick, 2)
+        self.assertEqual(w.step(1, timeout=math.inf).tick, 3)
+        for bad in (-1.0, -math.inf, math.nan):
+            with self.assertRaises(ValueError):
+                w.step(1, timeout=bad)
+            with self.assertRaises(ValueError):
+                DAEMON.client(request_timeout=bad)
+        self.assertEqual(w.info().tick, 3)
+        with DAEMON.client(name="patient", connect_timeout=1e10, request_timeout=1e10) as c:
+            c.connect()
+            self.assertIn(w.id, [s.world for s in c.list_worlds()])
+        with w.subscribe() as sub:
+            with self.assertRaises(ValueError):
+                sub.wait_for_frame(0, timeout=math.nan)
+            w.run(60)
+            self.assertIsNotNone(sub.wait_for_frame(0, timeout=1e10))
+            w.pause()
+
     def test_definitions(self):
         b = pc.BodyDef(type=pc.BodyType.Kinematic, position=(1, 2, 3), rotation=(0, 0, 1, 0),
                        mass=2.5, name="k", shapes=[pc.ShapeDef(pc.ShapeGeom.sphere(0.25),
@@ -494,7 +529,35 @@ class Bindings(unittest.TestCase):
             self.assertLess(body.position[2], 5.0 - 0.1)
 
     def test_requests_from_threads(self):
-        # Requests release the GIL while they wait: threads step worlds of their own at once.
+        # Requests release the GIL while they wait. Another thread keeps running while a long
+        # step() is in flight: a ticker (a short sleep, then a timestamp, which needs the GIL)
+        # stamps all through the step. Were the GIL held, it could not stamp from just after the
+        # call to just before its end.
+        w = self.new_world("long-step", sleep=False)
+        w.spawn([ground()] + [box(0.5 + 1.2 * k, x=1.2 * i) for i in range(20) for k in range(10)])
+        stamps = []
+        stop = threading.Event()
+
+        def ticker():
+            while not stop.is_set():
+                time.sleep(0.002)
+                stamps.append(time.monotonic())
+
+        t = threading.Thread(target=ticker)
+        t.start()
+        try:
+            t0 = time.monotonic()
+            ack = w.step(600)
+            t1 = time.monotonic()
+        finally:
+            stop.set()
+            t.join(10)
+        self.assertEqual(ack.tick, 600)
+        self.assertGreater(t1 - t0, 0.1, "the step is too short to show anything")
+        inside = [s for s in stamps if t0 + 0.03 < s < t1 - 0.03]
+        self.assertGreaterEqual(len(inside), 10, (t1 - t0, len(stamps)))
+
+        # Threads step worlds of their own at once.
         worlds = [self.new_world(f"thread{i}", sleep=False) for i in range(4)]
         errors = []
 
@@ -543,6 +606,105 @@ class Bindings(unittest.TestCase):
             self._destroy(self.client.world_named(f"self-closer-{os.getpid()}"))
         except pc.NotFound:
             pass
+
+    def test_close_while_other_threads_use_the_subscription(self):
+        # close() while other threads wait in wait_for_frame() or read latest() and the counts
+        # with the GIL released: the subscription's state (the condition variable a waiter
+        # blocks on) lives until they are done with it.
+        w = self.new_world("close-race", sleep=False)
+        w.spawn([ground(), box(20.0)])
+        w.run(60)
+        errors = []
+        for _ in range(8):
+            calls = []
+            sub = w.subscribe(lambda f: calls.append(f.tick))
+            self.assertIsNotNone(sub.wait_for_frame(0, timeout=20))
+            stop = threading.Event()
+
+            def use(sub=sub, stop=stop):
+                try:
+                    while not stop.is_set():
+                        sub.wait_for_frame(1 << 62, timeout=0.05)  # no such tick: waits
+                        sub.latest()
+                        sub.frames_received
+                        sub.frames_skipped
+                except Exception as e:  # noqa: BLE001 (reported below)
+                    errors.append(e)
+
+            threads = [threading.Thread(target=use) for _ in range(3)]
+            for t in threads:
+                t.start()
+            time.sleep(0.05)
+            sub.close()
+            self.assertFalse(sub.active)
+            stop.set()
+            for t in threads:
+                t.join(10)
+            self.assertFalse(any(t.is_alive() for t in threads))
+            # Closed: no more calls, no frames, the counts kept; no waiting for what cannot come.
+            n = len(calls)
+            t0 = time.monotonic()
+            self.assertIsNone(sub.wait_for_frame(0, timeout=5))
+            self.assertLess(time.monotonic() - t0, 1.0)
+            self.assertIsNone(sub.latest())
+            self.assertGreaterEqual(sub.frames_received, 1)
+            time.sleep(0.05)
+            self.assertEqual(len(calls), n)
+        w.pause()
+        self.assertEqual(errors, [])
+
+    def test_on_event_replaced_while_others_read(self):
+        # on_event() replaces the SDK's function under a lock that latest_status(), recent_events()
+        # and server take with the GIL held; the old callback must not be released there (it
+        # would wait for the GIL: both threads stuck).
+        c = DAEMON.client(name="events")
+        c.connect()
+        self.addCleanup(c.close)
+        stop = threading.Event()
+        errors = []
+
+        def read():
+            try:
+                while not stop.is_set():
+                    c.latest_status()
+                    c.recent_events()
+                    c.server
+            except Exception as e:  # noqa: BLE001 (reported below)
+                errors.append(e)
+
+        def replace():
+            try:
+                for i in range(3000):  # before the fix, some runs got stuck in this loop
+                    c.on_event(lambda e, i=i: None)
+                c.on_event(None)
+            except Exception as e:  # noqa: BLE001 (reported below)
+                errors.append(e)
+            finally:
+                stop.set()
+
+        threads = [threading.Thread(target=read, daemon=True) for _ in range(2)]
+        threads.append(threading.Thread(target=replace, daemon=True))
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(60)
+        self.assertFalse(any(t.is_alive() for t in threads), "stuck")
+        self.assertEqual(errors, [])
+        # A callback left when the client closes is let go (it may refer to the client).
+        class Callback:
+            def __call__(self, event):
+                pass
+
+        cb = Callback()
+        cb.client = c
+        ref = weakref.ref(cb)
+        c.on_event(cb)
+        del cb
+        self.assertIsNotNone(ref())
+        c.close()
+        self.assertIsNone(ref())
+        with self.assertRaises(RuntimeError):
+            c.on_event(None)
 
     def test_close_and_exit(self):
         c = DAEMON.client(name="closer")
