@@ -8,9 +8,12 @@
 namespace phys::test {
 
 #if defined(__SANITIZE_THREAD__) || defined(__SANITIZE_ADDRESS__)
+/// A sanitizer's allocator stands in for glibc's (so mallinfo2 reports nothing, for one).
+inline constexpr bool kSanitized = true;
 inline constexpr double kTimeFactor = 10;      ///< times a wall-clock bound
 inline constexpr long long kMemoryFactor = 4;  ///< times a resident-memory bound
 #else
+inline constexpr bool kSanitized = false;
 inline constexpr double kTimeFactor = 1;
 inline constexpr long long kMemoryFactor = 1;
 #endif

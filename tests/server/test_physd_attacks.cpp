@@ -315,7 +315,7 @@ TEST(PhysdAttacks, SigtermDuringALongStepExitsWithinASecond) {
   // 5,000 bodies x 20,000 steps: within the budget, minutes of work, run in slices.
   seq = d.nextSeqA();
   Daemon::Result s = d.attack(CommandBuilder().step(20000).finish({Daemon::kA, seq, 1}), seq,
-                              std::chrono::milliseconds(500));
+                              std::chrono::milliseconds(int(500 * phys::test::kTimeFactor)));
   EXPECT_FALSE(s.reply) << "the Step should still be running";
   EXPECT_GT(s.otherAnswered, 0) << "another client is answered during the Step";
   EXPECT_LT(s.otherMaxMs, 1000 * phys::test::kTimeFactor);
