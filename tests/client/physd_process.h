@@ -16,6 +16,7 @@
 #include <thread>
 #include <vector>
 
+#include "../common/sanitizer.h"
 #include "phys/client/client.h"
 
 extern char** environ;
@@ -69,11 +70,24 @@ inline int stopProcess(pid_t pid, int sig) {
   return st;
 }
 
-/// Waits up to `wait` until the client has greeted `n` daemons after its first (a restart
-/// each); true when it has.
+/// Kills (SIGKILL) and reaps the child `pid` names when it goes out of scope, unless the test
+/// stopped it itself and set `pid` to 0: a test that fails halfway must not leave a daemon
+/// behind holding ctest's output pipe (ctest would wait for it until the test's time limit).
+struct ProcessGuard {
+  pid_t& pid;
+  ~ProcessGuard() {
+    if (pid > 0) {
+      kill(pid, SIGKILL);
+      waitpid(pid, nullptr, 0);
+    }
+  }
+};
+
+/// Waits up to `wait` (longer under a sanitizer) until the client has greeted `n` daemons
+/// after its first (a restart each); true when it has.
 inline bool awaitReconnects(const Client& c, uint64_t n,
                             std::chrono::milliseconds wait = std::chrono::seconds(20)) {
-  const auto end = std::chrono::steady_clock::now() + wait;
+  const auto end = std::chrono::steady_clock::now() + wait * int64_t(phys::test::kTimeFactor);
   while (c.reconnects() < n && std::chrono::steady_clock::now() < end)
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   return c.reconnects() >= n;
@@ -108,7 +122,7 @@ struct PhysdConfig {
     std::stringstream ss;
     ss << in.rdbuf();
     o.cycloneXml = ss.str();
-    o.connectTimeout = o.requestTimeout = timeout;
+    o.connectTimeout = o.requestTimeout = timeout * int64_t(phys::test::kTimeFactor);
     return o;
   }
 };

@@ -21,6 +21,7 @@ TEST(ClientPhysdProcess, ReconnectsAfterTheDaemonIsKilledAndRestarted) {
 
   Client c(cfg.clientOptions(20s));
   pid_t pid = spawn();
+  testing::ProcessGuard guard{pid};
   ASSERT_GT(pid, 0);
   EXPECT_EQ(c.connect().name, "physd-restart");
   EXPECT_EQ(c.worldNamed("proc").id(), 1u);
@@ -30,6 +31,7 @@ TEST(ClientPhysdProcess, ReconnectsAfterTheDaemonIsKilledAndRestarted) {
   ASSERT_EQ(kill(pid, SIGKILL), 0);
   int st = 0;
   ASSERT_EQ(waitpid(pid, &st, 0), pid);
+  pid = 0;
   // Nobody answers now: the request fails cleanly.
   try {
     w.step(1, {500ms}).get();
@@ -51,6 +53,7 @@ TEST(ClientPhysdProcess, ReconnectsAfterTheDaemonIsKilledAndRestarted) {
 
   ASSERT_EQ(kill(pid, SIGTERM), 0);
   ASSERT_EQ(waitpid(pid, &st, 0), pid);
+  pid = 0;
   EXPECT_TRUE(WIFEXITED(st) && WEXITSTATUS(st) == 0);
 }
 
