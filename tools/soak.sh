@@ -75,15 +75,13 @@ editors=$((clients / 2))
 subs=$((clients - editors - 1))
 cpids=()
 lastpid=0
-client() {  # role index seconds: started in the background, its pid in lastpid
+client() {  # role index seconds [more physsoak options]: in the background, its pid in lastpid
   "$soak" --role "$1" --index "$2" --seconds "$3" --domain "$domain" --config "$out/cyclone.xml" \
-    --seed "$((1000 + $2))" --out "$out/clients.jsonl" >/dev/null 2>>"$out/clients.err" &
+    --seed "$((1000 + $2))" --out "$out/clients.jsonl" "${@:4}" >/dev/null 2>>"$out/clients.err" &
   lastpid=$!
 }
 for i in $(seq 1 "$editors"); do client editor "$i" "$seconds"; cpids+=("$lastpid"); done
-"$soak" --role monitor --index 0 --seconds "$seconds" --domain "$domain" --config "$out/cyclone.xml" \
-  --out "$out/clients.jsonl" --memory "$out/memory.csv" >/dev/null 2>>"$out/clients.err" &
-cpids+=("$!")
+client monitor 0 "$seconds" --memory "$out/memory.csv"; cpids+=("$lastpid")
 churn=()
 declare -A churnpid
 for i in $(seq 1 "$subs"); do
