@@ -8,14 +8,15 @@
 //   node bench.mjs --physd BIN --physview BIN --physctl BIN --chromium BIN
 //                  --node-modules DIR --source DIR [--bodies 10000] [--seconds 10]
 //                  [--warmup 5] [--width 1280] [--height 720] [--query aa=0] [--json FILE]
+//                  [--gl swiftshader|llvmpipe]
 import { readFileSync, writeFileSync } from 'node:fs';
 import { join } from 'node:path';
-import { CHROMIUM_ARGS, Daemons, loadPlaywright, parseArgs, sleep } from './lib.mjs';
+import { chromiumArgs, Daemons, loadPlaywright, parseArgs, sleep } from './lib.mjs';
 
 const opts = parseArgs(process.argv.slice(2), {
   physd: '', physview: '', physctl: '', chromium: '/usr/bin/chromium', nodeModules: '',
   source: '', bodies: '10000', seconds: '10', warmup: '5', width: '1280', height: '720',
-  query: '', json: '', screenshot: '',
+  query: '', json: '', screenshot: '', gl: 'swiftshader',
 });
 const N = Number(opts.bodies);
 
@@ -59,7 +60,7 @@ let failed = false;
 try {
   await daemons.startPhysd();
   const url = await daemons.startPhysview();
-  browser = await chromium.launch({ executablePath: opts.chromium, headless: true, args: CHROMIUM_ARGS });
+  browser = await chromium.launch({ executablePath: opts.chromium, headless: true, args: chromiumArgs(opts.gl) });
   const page = await browser.newPage({ viewport: { width: Number(opts.width), height: Number(opts.height) } });
   const errors = [];
   page.on('console', (m) => { if (m.type() === 'error') errors.push(m.text()); });
@@ -83,6 +84,8 @@ try {
     seconds: s,
     viewport: `${opts.width}x${opts.height}`,
     query: opts.query,
+    gl: opts.gl,
+    renderer: b.page.renderer,
     software: b.page.software,
     antialias: b.page.antialias,
     rafHz: (b.page.animationFrames - a.page.animationFrames) / s,

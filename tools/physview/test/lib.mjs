@@ -129,3 +129,15 @@ export const CHROMIUM_ARGS = [
   // WebGL without a GPU: ANGLE on SwiftShader (Chromium asks for the opt-in since 2025).
   '--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--ignore-gpu-blocklist',
 ];
+
+/// The arguments for a WebGL backend: 'swiftshader' (CHROMIUM_ARGS), or 'llvmpipe': ANGLE
+/// over EGL on Mesa's llvmpipe (libgl1-mesa-dri; it rasterizes on LP_NUM_THREADS threads, and
+/// is the faster of the two software rasterizers here, docs/BENCHMARKS.md "Browser viewer").
+export function chromiumArgs(gl = 'swiftshader') {
+  if (gl === 'swiftshader') return CHROMIUM_ARGS;
+  if (gl === 'llvmpipe') {
+    return ['--no-sandbox', '--headless=new', '--use-gl=angle', '--use-angle=gl-egl',
+      '--ignore-gpu-blocklist'];
+  }
+  throw new Error(`--gl ${gl}: swiftshader or llvmpipe`);
+}

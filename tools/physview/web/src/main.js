@@ -39,6 +39,7 @@ const view = new View($('view'), {
   pixelRatio: params.has('scale') ? Number(params.get('scale')) : undefined,
 });
 state.software = view.software;
+state.renderer = view.rendererName;
 state.antialias = view.renderer.getContextAttributes().antialias;
 let pending = null;     // the newest frame not yet applied
 let needRender = true;

@@ -88,19 +88,24 @@ function entry(lp, lq, sx, sy, sz) {
   return { lp, lq, sx, sy, sz, identity, pool: -1, inst: -1, mesh: null };
 }
 
-/// Whether WebGL runs on a software rasterizer (SwiftShader, llvmpipe): headless browsers,
-/// machines without a GPU. Antialiasing is then left off (it costs most of the frame there).
-export function softwareRenderer() {
+/// WebGL's renderer, as the driver names it ('' where it does not say).
+export function rendererName() {
   try {
     const gl = document.createElement('canvas').getContext('webgl2');
     const info = gl && gl.getExtension('WEBGL_debug_renderer_info');
     const name = info ? String(gl.getParameter(info.UNMASKED_RENDERER_WEBGL)) : '';
     const lose = gl && gl.getExtension('WEBGL_lose_context');
     if (lose) lose.loseContext();
-    return /swiftshader|llvmpipe|softpipe|software/i.test(name);
+    return name;
   } catch {
-    return false;
+    return '';
   }
+}
+
+/// Whether WebGL runs on a software rasterizer (SwiftShader, llvmpipe): headless browsers,
+/// machines without a GPU. Antialiasing is then left off (it costs most of the frame there).
+export function softwareRenderer(name = rendererName()) {
+  return /swiftshader|llvmpipe|softpipe|software/i.test(name);
 }
 
 export class View {
@@ -108,7 +113,8 @@ export class View {
   /// device's, at most 2).
   constructor(container, options = {}) {
     this.container = container;
-    this.software = softwareRenderer();
+    this.rendererName = rendererName();
+    this.software = softwareRenderer(this.rendererName);
     const antialias = options.antialias ?? !this.software;
     const renderer = new THREE.WebGLRenderer({ antialias, powerPreference: 'high-performance' });
     renderer.setPixelRatio(options.pixelRatio ?? Math.min(window.devicePixelRatio || 1, 2));
