@@ -21,6 +21,7 @@
 #include <thread>
 
 #include "../common/bodies.h"
+#include "../common/sanitizer.h"
 #include "phys/client/client.h"
 #include "phys/server/core.h"
 #include "phys/server/endpoint.h"
@@ -29,7 +30,11 @@ namespace phys::client {
 namespace {
 
 using namespace std::chrono_literals;
-constexpr auto kTimeout = std::chrono::milliseconds(20000);  // a loaded 2-core machine
+// A loaded 2-core machine; 10x under a sanitizer (tests/common/sanitizer.h).
+constexpr auto kTimeout = std::chrono::milliseconds(int64_t(20000 * test::kTimeFactor));
+/// How long a frame may take to reach every matched reader before the test steps again (the
+/// warm-ups step until their readers are matched: a frame before that never arrives).
+constexpr auto kDelivery = std::chrono::milliseconds(int64_t(500 * test::kTimeFactor));
 
 uint32_t testDomain() {
   return 230 + uint32_t(getpid() % 2);
@@ -154,7 +159,7 @@ struct HeldSubscriber {
     uint64_t tick = 0;
     const bool matched = waitFor([&] {
       tick = w.step(1).get().tick;
-      return waitFor([&] { return observed.has(tick) && log.has(tick); }, 500ms);
+      return waitFor([&] { return observed.has(tick) && log.has(tick); }, kDelivery);
     });
     if (!matched) return 0;
     armed = true;
@@ -580,7 +585,7 @@ TEST(ClientSdk, EightSubscribersReceiveEveryBodyOfEveryTick) {
   uint64_t tick = 0;
   ASSERT_TRUE(waitFor([&] {
     tick = w.step(1).get().tick;
-    return waitFor([&] { return allHave(tick); }, 500ms);
+    return waitFor([&] { return allHave(tick); }, kDelivery);
   }));
   // Then every stepped tick reaches every subscriber with every body.
   for (int t = 0; t < kTicks; ++t) {
