@@ -13,6 +13,24 @@ const PALETTE = [0x5b8def, 0xef8a5b, 0x5bc98a, 0xd9c35b, 0xb07cd9, 0x5bc4d9, 0xe
 const STATIC_COLOR = 0x8a9099;
 const KINEMATIC_COLOR = 0xe0a040;
 
+/// A unit icosahedron shaded as a sphere: 20 triangles, each vertex's normal its position
+/// (three.js gives detail 0 flat normals).
+function smoothIcosahedron() {
+  const g = new THREE.IcosahedronGeometry(1, 0);
+  g.setAttribute('normal', g.getAttribute('position').clone());
+  return g;
+}
+
+/// Levels of detail of spheres (capsules' caps too) and capsules' cylinders, coarsest first.
+const LEVELS = [
+  { triangles: 20, sphere: smoothIcosahedron, segments: 6 },
+  { triangles: 64, sphere: () => new THREE.SphereGeometry(1, 8, 5), segments: 8 },
+  { triangles: 168, sphere: () => new THREE.SphereGeometry(1, 12, 8), segments: 12 },
+  { triangles: 720, sphere: () => new THREE.SphereGeometry(1, 24, 16), segments: 24 },
+];
+/// A software rasterizer's frame budget for round shapes (see View.setDetail).
+const SOFTWARE_ROUND_TRIANGLES = 100000;
+
 /// One InstancedMesh that grows (doubling) as instances are added.
 class Pool {
   constructor(scene, geometry, material) {
@@ -314,15 +332,24 @@ export class View {
     this.drawnBodies = drawn;
   }
 
-  /// Round shapes with fewer triangles as they get many: a software rasterizer (headless
-  /// chromium) spends most of a 10,000-body frame on vertices.
+  /// Round shapes with fewer triangles as they get many. On a GPU by the instance count; on
+  /// a software rasterizer (headless chromium, a machine without a GPU), which is bound by
+  /// triangles (about 6 million a second with llvmpipe on two cores, a quarter of that with
+  /// SwiftShader; docs/VIEWER.md "Performance"), the finest level whose round shapes stay
+  /// within SOFTWARE_ROUND_TRIANGLES a frame, down to a 20-triangle sphere.
   setDetail(roundInstances) {
-    const detail = roundInstances < 2000 ? 2 : roundInstances < 8000 ? 1 : 0;
+    let detail = 0;
+    if (this.software) {
+      for (let d = LEVELS.length - 1; d > 0 && !detail; --d)
+        if (roundInstances * LEVELS[d].triangles <= SOFTWARE_ROUND_TRIANGLES) detail = d;
+    } else {
+      detail = roundInstances < 2000 ? 3 : roundInstances < 8000 ? 2 : 1;
+    }
     if (detail === this.detail) return;
     this.detail = detail;
-    const [ws, hs] = [[8, 5], [12, 8], [24, 16]][detail];
-    const sphere = new THREE.SphereGeometry(1, ws, hs);
-    const cylinder = new THREE.CylinderGeometry(1, 1, 1, ws, 1, true).rotateX(Math.PI / 2);
+    const level = LEVELS[detail];
+    const sphere = level.sphere();
+    const cylinder = new THREE.CylinderGeometry(1, 1, 1, level.segments, 1, true).rotateX(Math.PI / 2);
     for (const [pool, g] of [[this.pools[POOL_SPHERE], sphere], [this.pools[POOL_CYLINDER], cylinder]]) {
       if (pool.geometry) pool.geometry.dispose();
       pool.geometry = g;
