@@ -190,7 +190,7 @@ if rss:
     print(f"daemon RSS: first {rss[0][1]} kB, max {max(r[1] for r in rss)} kB, last {rss[-1][1]} kB")
 if growth is not None:
     print(f"RSS growth of the last daemon from {span0:.0f} s to the end (means of the first and"
-          f" last {window:.0f} s): {ma / 1024:.1f} -> {mb / 1024:.1f} MB, {growth:+.1f} %")
+          f" last {window:.0f} s): {ma / 1024:.1f} -> {mb / 1024:.1f} MiB, {growth:+.1f} %")
 # What the memory should follow (memory.csv, from the monitor's phys/status samples): the
 # heap in use and the worlds' activity, at the same two ends as the RSS.
 try:
