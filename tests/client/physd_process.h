@@ -76,10 +76,7 @@ inline int stopProcess(pid_t pid, int sig) {
 struct ProcessGuard {
   pid_t& pid;
   ~ProcessGuard() {
-    if (pid > 0) {
-      kill(pid, SIGKILL);
-      waitpid(pid, nullptr, 0);
-    }
+    if (pid > 0) stopProcess(pid, SIGKILL);
   }
 };
 

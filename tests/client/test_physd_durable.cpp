@@ -71,6 +71,7 @@ TEST(ClientPhysdProcess, AKilledDaemonRestoresEveryAcknowledgedCommand) {
   DurableDaemon d("physd-durable", 200 + uint32_t(getpid() % 29));
   Client c(d.cfg.clientOptions(20s));
   pid_t pid = d.spawn();
+  testing::ProcessGuard guard{pid};
   ASSERT_GT(pid, 0);
   c.connect();
   WorldHandle w = c.createWorld({"kept", "", std::nullopt, 0}).get();
@@ -117,6 +118,7 @@ TEST(ClientPhysdProcess, AKilledDaemonRestoresEveryAcknowledgedCommand) {
     ASSERT_EQ(kill(pid, SIGKILL), 0);
     int st = 0;
     ASSERT_EQ(waitpid(pid, &st, 0), pid);
+    pid = 0;
     stop = true;
     driver.join();
     ASSERT_GT(acked.size(), 5u) << "the client barely ran before the kill";
@@ -152,6 +154,7 @@ TEST(ClientPhysdProcess, AKilledDaemonRestoresEveryAcknowledgedCommand) {
   ASSERT_EQ(kill(pid, SIGTERM), 0);
   int st = 0;
   ASSERT_EQ(waitpid(pid, &st, 0), pid);
+  pid = 0;
   EXPECT_TRUE(WIFEXITED(st) && WEXITSTATUS(st) == 0);
 }
 
@@ -163,6 +166,7 @@ TEST(ClientPhysdProcess, SubscriptionsGoOnAfterTheDaemonIsKilledAndRestarted) {
   DurableDaemon d("physd-resubscribe", 200 + uint32_t((getpid() + 7) % 29));
   Client c(d.cfg.clientOptions(20s));
   pid_t pid = d.spawn();
+  testing::ProcessGuard guard{pid};
   ASSERT_GT(pid, 0);
   c.connect();
   // No gravity, three boxes drifting apart at 1 m/s: every tick changes every body.
@@ -190,6 +194,7 @@ TEST(ClientPhysdProcess, SubscriptionsGoOnAfterTheDaemonIsKilledAndRestarted) {
   ASSERT_EQ(kill(pid, SIGKILL), 0);
   int st = 0;
   ASSERT_EQ(waitpid(pid, &st, 0), pid);
+  pid = 0;
   const uint64_t allBefore = all.framesReceived(), someBefore = some.framesReceived();
   pid = d.spawn();
   ASSERT_GT(pid, 0);
@@ -205,6 +210,7 @@ TEST(ClientPhysdProcess, SubscriptionsGoOnAfterTheDaemonIsKilledAndRestarted) {
   EXPECT_EQ(f->bodies.size(), 3u);
   ASSERT_EQ(kill(pid, SIGTERM), 0);
   ASSERT_EQ(waitpid(pid, &st, 0), pid);
+  pid = 0;
   EXPECT_TRUE(WIFEXITED(st) && WEXITSTATUS(st) == 0);
 }
 
