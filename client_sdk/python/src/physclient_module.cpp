@@ -181,6 +181,18 @@ std::vector<std::weak_ptr<ClientBox>>& registry() {
 /// release of a Python reference there (the SDK holds callbacks weakly).
 thread_local const ClientBox* tlCallbackOf = nullptr;
 
+/// Runs f with the GIL released where this thread holds it (f may join a thread that waits
+/// for the GIL), as it is otherwise.
+template <class F>
+void withoutGil(F&& f) {
+  if (Py_IsInitialized() && PyGILState_Check()) {
+    py::gil_scoped_release release;
+    f();
+  } else {
+    f();
+  }
+}
+
 /// The deleter of every pc::Client: runs once, on the thread that lets go of the last
 /// reference (a decision no use_count() check can make without a race). The client is
 /// destroyed (its thread joined) with the GIL released, so that a callback waiting for the
@@ -195,12 +207,7 @@ void deleteClient(pc::Client* c) {
     }
     return;
   }
-  if (Py_IsInitialized() && PyGILState_Check()) {
-    py::gil_scoped_release release;
-    delete c;
-  } else {
-    delete c;
-  }
+  withoutGil([c] { delete c; });
 }
 
 struct Lease {
@@ -544,12 +551,7 @@ class PySubscription {
     // still be finishing on the SDK's thread (docs/PYTHON.md).
     cb_.reset();
     if (!sub) return;
-    if (Py_IsInitialized() && PyGILState_Check()) {
-      py::gil_scoped_release release;
-      sub.reset();
-    } else {
-      sub.reset();
-    }
+    withoutGil([&sub] { sub.reset(); });
   }
   bool active() const {
     std::lock_guard<std::mutex> lk(m_);
