@@ -124,10 +124,11 @@ export class Daemons {
   }
 }
 
+const HEADLESS_ARGS = ['--no-sandbox', '--headless=new', '--ignore-gpu-blocklist'];
 export const CHROMIUM_ARGS = [
-  '--no-sandbox', '--headless=new',
+  ...HEADLESS_ARGS,
   // WebGL without a GPU: ANGLE on SwiftShader (Chromium asks for the opt-in since 2025).
-  '--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--ignore-gpu-blocklist',
+  '--use-angle=swiftshader', '--enable-unsafe-swiftshader',
 ];
 
 /// The arguments for a WebGL backend: 'swiftshader' (CHROMIUM_ARGS), or 'llvmpipe': ANGLE
@@ -136,8 +137,7 @@ export const CHROMIUM_ARGS = [
 export function chromiumArgs(gl = 'swiftshader') {
   if (gl === 'swiftshader') return CHROMIUM_ARGS;
   if (gl === 'llvmpipe') {
-    return ['--no-sandbox', '--headless=new', '--use-gl=angle', '--use-angle=gl-egl',
-      '--ignore-gpu-blocklist'];
+    return [...HEADLESS_ARGS, '--use-gl=angle', '--use-angle=gl-egl'];
   }
   throw new Error(`--gl ${gl}: swiftshader or llvmpipe`);
 }
