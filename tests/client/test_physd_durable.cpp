@@ -114,6 +114,16 @@ TEST(ClientPhysdProcess, AKilledDaemonRestoresEveryAcknowledgedCommand) {
         inFlight.reset();
       }
     });
+    // A failed assertion below leaves the round with the driver still running: it stops and
+    // is joined then (a joinable std::thread destroyed would end the whole test binary).
+    struct StopAndJoin {
+      std::atomic<bool>& stop;
+      std::thread& thread;
+      ~StopAndJoin() {
+        stop = true;
+        if (thread.joinable()) thread.join();
+      }
+    } joinDriver{stop, driver};
     std::this_thread::sleep_for(round == 0 ? 700ms : 900ms);
     ASSERT_EQ(kill(pid, SIGKILL), 0);
     int st = 0;
