@@ -27,6 +27,9 @@ class DisjointSets {
     b = root(b);
     if (a != b) parent_[size_t(std::max(a, b))] = std::min(a, b);
   }
+  /// The storage back to the allocator; the next reset takes it again.
+  void release() noexcept { std::vector<int32_t>().swap(parent_); }
+  size_t capacityBytes() const { return parent_.capacity() * sizeof(int32_t); }
 
  private:
   std::vector<int32_t> parent_;

@@ -1138,6 +1138,27 @@ uint64_t BroadPhase::computePairs(std::vector<ProxyPair>* out, size_t maxPairs) 
   return m.dropped;
 }
 
+void BroadPhase::releaseScratch() noexcept {
+  Impl& m = *impl_;
+  std::vector<ProxyPair>().swap(m.pairsBack);
+  std::vector<ProxyPair>().swap(m.fresh);
+  std::vector<uint32_t>().swap(m.batch);
+  std::vector<uint64_t>().swap(m.queryOrder);
+  if (m.pairs.capacity() > m.pairCount) {
+    try {
+      std::vector<ProxyPair>(m.pairs.begin(), m.pairs.begin() + ptrdiff_t(m.pairCount))
+          .swap(m.pairs);
+    } catch (const std::bad_alloc&) {  // the list as it was: still right
+    }
+  }
+}
+
+size_t BroadPhase::scratchBytes() const {
+  const Impl& m = *impl_;
+  return (m.pairs.capacity() + m.pairsBack.capacity() + m.fresh.capacity()) * sizeof(ProxyPair) +
+         m.batch.capacity() * sizeof(uint32_t) + m.queryOrder.capacity() * sizeof(uint64_t);
+}
+
 void BroadPhase::forgetPairs() {
   Impl& m = *impl_;
   m.stale = true;

@@ -15,6 +15,17 @@
 
 namespace phys {
 
+void Solver::release() noexcept {
+  forEachArray(*this, [](auto& v) { std::remove_reference_t<decltype(v)>().swap(v); });
+  pushActive = false;
+}
+
+size_t Solver::capacityBytes() const {
+  size_t bytes = 0;
+  forEachArray(*this, [&](const auto& v) { bytes += v.capacity() * sizeof(v[0]); });
+  return bytes;
+}
+
 namespace {
 // Split push-out: the soft contact's own bias corrects penetration up to this depth (a
 // resting contact's sag, so stacks behave exactly as without the split); the pseudo

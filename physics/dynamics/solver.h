@@ -185,6 +185,12 @@ class Solver {
   std::vector<GroupDelta> groupDelta;
   std::vector<uint32_t> bodyRefStart, bodyRefs;  ///< per body: (group << 1 | side), CSR
 
+  /// Every array above (and the private scratch) is filled by a step and read only inside
+  /// it: release() gives their memory back (World::Impl::releaseStepBuffers) and
+  /// capacityBytes() is what they hold.
+  void release() noexcept;
+  size_t capacityBytes() const;
+
   /// Sets M^-1 J^T, the effective mass and block matrices of rows [first, last) from the
   /// bodies' masses. A block keeps its blockInvK slot if it has one.
   void finishRows(size_t first, size_t last);
@@ -276,6 +282,13 @@ class Solver {
   template <class F>
   void parallel(size_t count, size_t grain, F&& fn);
   std::vector<Vec3> dv_, dw_;  ///< position pass (Jacobi) scratch
+  /// f(v) on each of the arrays: release() and capacityBytes() share the one list.
+  template <class Self, class F>
+  static void forEachArray(Self& s, F&& f) {
+    f(s.bodies), f(s.push), f(s.rows), f(s.units), f(s.groups), f(s.split), f(s.blockInvK);
+    f(s.contactK), f(s.serialGroups), f(s.colorGroups), f(s.colorStart), f(s.groupDelta);
+    f(s.bodyRefStart), f(s.bodyRefs), f(s.dv_), f(s.dw_);
+  }
 };
 
 }  // namespace phys

@@ -107,6 +107,10 @@ void World::step() {
       w.profile.total += ms;
     }
     w.followActivity();
+    // The step is accepted: the guard's copy no longer stands for anything. Bodies woken
+    // from now until the next step (an edit, a solver change waking every island) are not
+    // added to it (wakeIsland), which would only grow it.
+    w.snapshotValid = w.stepTouched = false;
   } catch (const PairLimitReached&) {  // PairOverflow::Refuse
     w.stepRefused();
   } catch (const std::exception& e) {  // std::bad_alloc, std::length_error: all the step throws
@@ -391,55 +395,84 @@ uint32_t World::Impl::pairLimit() const {
 }
 
 namespace {
-/// The vectors a step fills and empties again (releaseStepBuffers, stepBufferBytes: one list
-/// for both); the persistent contacts and the SIMD blocks are handled beside it.
+/// The vectors a step fills and empties again, sized by its pairs or by its awake bodies
+/// (releaseStepBuffers, stepBufferBytes: one list for both); the persistent contacts, the
+/// solver's arrays, the broad phase's scratch, the union-find and the SIMD blocks are
+/// handled beside it.
 template <class Impl, class F>
 void forEachStepScratch(Impl& w, F&& f) {
+  // Pair-sized.
   f(w.snapshot.contacts);
   f(w.contactScratch);
   f(w.pairs);
   f(w.manifolds);
   f(w.manifoldContact);
   f(w.contactOrder);
-  f(w.solver.rows);
+  f(w.directIsland);
+  // Body-sized.
+  f(w.snapshot.bodies);
+  f(w.snapshot.jointImpulses);
+  f(w.solverCom);
+  f(w.solverHalf);
+  f(w.beforeRestitution);
+  f(w.equalityRowsAt);
+  f(w.stackDepth), f(w.stackHead), f(w.stackNext), f(w.stackQueue), f(w.stackRoot);
+  f(w.stackIndex), f(w.stackDeepest), f(w.stackFirstLevel), f(w.stackSupport), f(w.stackRise);
+  f(w.stackLevels), f(w.stackModel);
 }
 }  // namespace
 
 void World::Impl::releaseStepBuffers() noexcept {
   forEachStepScratch(*this, [](auto& v) { std::remove_reference_t<decltype(v)>().swap(v); });
+  solver.release();
+  broadPhase.releaseScratch();
+  islandSets.release();
   wide.release();
 }
 
 size_t World::stepBufferBytes() const {
   const Impl& w = *impl_;
-  size_t bytes = w.contacts.capacity() * sizeof(Contact) + w.wide.capacityBytes();
+  size_t bytes = w.contacts.capacity() * sizeof(Contact) + w.wide.capacityBytes() +
+                 w.solver.capacityBytes() + w.broadPhase.scratchBytes() +
+                 w.islandSets.capacityBytes();
   forEachStepScratch(w, [&](const auto& v) { bytes += v.capacity() * sizeof(v[0]); });
   return bytes;
 }
 
 void World::Impl::followActivity() noexcept {
-  // The buffers a step fills (contacts, the guard's copy of them, pairs, manifolds, rows,
-  // SIMD blocks) keep the capacity of the largest step they served: a world that once had
-  // 3,000 contact pairs and now has 500 would hold the memory of 3,000 for good, and a
-  // long-lived world's memory would creep up with every new peak of its pair count (the
-  // pairs of a world whose islands sleep and wake swing between hundreds and thousands, and
-  // their running maximum keeps setting records). So the buffers follow the world's
-  // activity: once a whole window of steps needed under two thirds of the pairs they were
-  // grown for, they go back and the next step grows them to its own size. At most one
-  // release per window; results do not depend on capacities.
+  // The buffers a step fills keep the capacity of the largest step they served: those sized
+  // by its pairs (contacts, the guard's copy of them, pairs, manifolds, rows, SIMD blocks)
+  // and those sized by its awake bodies (the solver's bodies, the guard's copy of them, the
+  // stacks' and islands' scratch). A world that once had 3,000 contact pairs and now has 500
+  // would hold the memory of 3,000 for good, and a long-lived world's memory would creep up
+  // with every new peak (the pairs of a world whose islands sleep and wake swing between
+  // hundreds and thousands, a solver change wakes every body at once, and the running
+  // maximum keeps setting records: a soak's daemon gained megabytes over its first half hour
+  // that way). So the buffers follow the world's activity: once a whole window of steps
+  // needed under two thirds of the pairs, or of the awake bodies, they were grown for, they
+  // all go back and the next step grows them to its own size. At most one release per
+  // window; results do not depend on capacities.
   ActivityWindow& a = activity;
-  const size_t pairsNow = contacts.size();
+  const size_t pairsNow = contacts.size(), bodiesNow = awakeBodies.size();
   a.windowPairs = std::max(a.windowPairs, pairsNow);
   a.grownFor = std::max(a.grownFor, pairsNow);
+  a.windowBodies = std::max(a.windowBodies, bodiesNow);
+  a.grownForBodies = std::max(a.grownForBodies, bodiesNow);
   if (++a.steps < ActivityWindow::kSteps) return;
-  if (a.grownFor >= ActivityWindow::kMinPairs && a.windowPairs * 3 < a.grownFor * 2) {
+  const bool fewerPairs =
+      a.grownFor >= ActivityWindow::kMinPairs && a.windowPairs * 3 < a.grownFor * 2;
+  const bool fewerBodies = a.grownForBodies >= ActivityWindow::kMinBodies &&
+                           a.windowBodies * 3 < a.grownForBodies * 2;
+  if (fewerPairs || fewerBodies) {
     releaseStepBuffers();
     contacts.shrink_to_fit();  // kept (warm starts), at its own size; never throws (a
                                // failed copy leaves it as it is)
     a.grownFor = a.windowPairs;
+    a.grownForBodies = a.windowBodies;
   }
   a.steps = 0;
   a.windowPairs = 0;
+  a.windowBodies = 0;
 }
 
 void World::Impl::stepFailed(const char* what) noexcept {

@@ -314,11 +314,14 @@ struct World::Impl {
   void releaseStepBuffers() noexcept;
   /// After an accepted step: the step's buffers follow the world's activity (step.cpp).
   struct ActivityWindow {
-    static constexpr int kSteps = 600;        ///< a window: 10 s at 60 Hz
-    static constexpr size_t kMinPairs = 256;  ///< smaller buffers are left alone
+    static constexpr int kSteps = 600;         ///< a window: 10 s at 60 Hz
+    static constexpr size_t kMinPairs = 256;   ///< smaller buffers are left alone
+    static constexpr size_t kMinBodies = 256;  ///< ... and the buffers of fewer awake bodies
     int steps = 0;
-    size_t windowPairs = 0;  ///< the most contact pairs of a step in this window
-    size_t grownFor = 0;     ///< the most pairs the buffers served since their last release
+    size_t windowPairs = 0;   ///< the most contact pairs of a step in this window
+    size_t grownFor = 0;      ///< the most pairs the buffers served since their last release
+    size_t windowBodies = 0;  ///< the most awake bodies after a step in this window
+    size_t grownForBodies = 0;  ///< the most awake bodies since the last release
   } activity;
   void followActivity() noexcept;
   /// The step passed the pair bound under PairOverflow::Refuse: undone like a failed step,

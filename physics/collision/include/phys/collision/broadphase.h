@@ -60,6 +60,11 @@ class BroadPhase {
   /// Drops the pair list and its buffers (memory back after a failed step); the next
   /// computePairs finds every pair from scratch. The proxies stay.
   void forgetPairs();
+  /// Gives back the pair search's scratch (new pairs, the merge's second buffer) and trims
+  /// the pair list to its pairs; the list stays (World::Impl::releaseStepBuffers). The
+  /// bytes those buffers hold: scratchBytes().
+  void releaseScratch() noexcept;
+  size_t scratchBytes() const;
 
   /// Calls visit(user) for every proxy whose fat box overlaps `box` (ray/region queries).
   template <class F>
