@@ -744,9 +744,10 @@ struct BroadPhase::Impl {
   int count = 0;
   Tree trees[2];
 
-  // The current pairs, sorted, in pairs[0, pairCount). The vectors only grow so the merge
-  // writes through raw pointers without clearing; pairsBack is the other half of a double
-  // buffer and sorting scratch. fresh: new pairs being found.
+  // The current pairs, sorted, in pairs[0, pairCount). Between releases (releaseScratch)
+  // the vectors only grow so the merge writes through raw pointers without clearing;
+  // pairsBack is the other half of a double buffer and sorting scratch. fresh: new pairs
+  // being found.
   std::vector<ProxyPair> pairs, pairsBack, fresh;
   size_t pairCount = 0;
   std::vector<uint64_t> userBits;  // dirty users as bits (all clear between calls)
