@@ -453,26 +453,18 @@ void World::Impl::followActivity() noexcept {
   // all go back and the next step grows them to its own size. At most one release per
   // window; results do not depend on capacities.
   ActivityWindow& a = activity;
-  const size_t pairsNow = contacts.size(), bodiesNow = awakeBodies.size();
-  a.windowPairs = std::max(a.windowPairs, pairsNow);
-  a.grownFor = std::max(a.grownFor, pairsNow);
-  a.windowBodies = std::max(a.windowBodies, bodiesNow);
-  a.grownForBodies = std::max(a.grownForBodies, bodiesNow);
+  a.pairs.see(contacts.size());
+  a.bodies.see(awakeBodies.size());
   if (++a.steps < ActivityWindow::kSteps) return;
-  const bool fewerPairs =
-      a.grownFor >= ActivityWindow::kMinPairs && a.windowPairs * 3 < a.grownFor * 2;
-  const bool fewerBodies = a.grownForBodies >= ActivityWindow::kMinBodies &&
-                           a.windowBodies * 3 < a.grownForBodies * 2;
-  if (fewerPairs || fewerBodies) {
+  const bool release = a.pairs.fell() || a.bodies.fell();
+  if (release) {
     releaseStepBuffers();
     contacts.shrink_to_fit();  // kept (warm starts), at its own size; never throws (a
                                // failed copy leaves it as it is)
-    a.grownFor = a.windowPairs;
-    a.grownForBodies = a.windowBodies;
   }
   a.steps = 0;
-  a.windowPairs = 0;
-  a.windowBodies = 0;
+  a.pairs.next(release);
+  a.bodies.next(release);
 }
 
 void World::Impl::stepFailed(const char* what) noexcept {

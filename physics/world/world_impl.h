@@ -314,14 +314,26 @@ struct World::Impl {
   void releaseStepBuffers() noexcept;
   /// After an accepted step: the step's buffers follow the world's activity (step.cpp).
   struct ActivityWindow {
-    static constexpr int kSteps = 600;         ///< a window: 10 s at 60 Hz
-    static constexpr size_t kMinPairs = 256;   ///< smaller buffers are left alone
-    static constexpr size_t kMinBodies = 256;  ///< ... and the buffers of fewer awake bodies
+    static constexpr int kSteps = 600;  ///< a window: 10 s at 60 Hz
+    /// What the buffers are sized by (contact pairs, awake bodies), seen after each step.
+    struct Demand {
+      static constexpr size_t kMin = 256;  ///< buffers grown for less are left alone
+      size_t window = 0;    ///< the most of a step in this window
+      size_t grownFor = 0;  ///< the most the buffers served since their last release
+      void see(size_t n) {
+        window = std::max(window, n);
+        grownFor = std::max(grownFor, n);
+      }
+      /// The window needed under two thirds of what the buffers were grown for.
+      bool fell() const { return grownFor >= kMin && window * 3 < grownFor * 2; }
+      /// A new window; after a release the buffers are grown for this one's needs.
+      void next(bool released) {
+        if (released) grownFor = window;
+        window = 0;
+      }
+    };
     int steps = 0;
-    size_t windowPairs = 0;   ///< the most contact pairs of a step in this window
-    size_t grownFor = 0;      ///< the most pairs the buffers served since their last release
-    size_t windowBodies = 0;  ///< the most awake bodies after a step in this window
-    size_t grownForBodies = 0;  ///< the most awake bodies since the last release
+    Demand pairs, bodies;
   } activity;
   void followActivity() noexcept;
   /// The step passed the pair bound under PairOverflow::Refuse: undone like a failed step,
