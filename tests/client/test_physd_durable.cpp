@@ -5,8 +5,8 @@
 // restored tick, bit for bit, and the client's WorldHandle keeps working.
 #include <gtest/gtest.h>
 
-#include <atomic>
 #include <chrono>
+#include <stop_token>
 #include <thread>
 
 #include "../common/bodies.h"
@@ -84,12 +84,13 @@ TEST(ClientPhysdProcess, AKilledDaemonRestoresEveryAcknowledgedCommand) {
 
   for (int round = 0; round < 2; ++round) {
     // Round 0: killed while stepping; round 1: killed in a stream of edits.
-    std::atomic<bool> stop{false};
     std::vector<Op> acked;
     std::optional<Op> inFlight;
     std::mutex m;
-    std::thread driver([&] {
-      for (int i = 0; !stop; ++i) {
+    // A jthread: a failed assertion below leaves the round with the driver asked to stop and
+    // joined (a joinable std::thread destroyed would end the whole test binary).
+    std::jthread driver([&](std::stop_token stop) {
+      for (int i = 0; !stop.stop_requested(); ++i) {
         Op op;
         if (round == 0 || i % 3 == 2) {
           op = {Op::Step, {}, 0, {}, uint32_t(1 + i % 4)};
@@ -114,22 +115,12 @@ TEST(ClientPhysdProcess, AKilledDaemonRestoresEveryAcknowledgedCommand) {
         inFlight.reset();
       }
     });
-    // A failed assertion below leaves the round with the driver still running: it stops and
-    // is joined then (a joinable std::thread destroyed would end the whole test binary).
-    struct StopAndJoin {
-      std::atomic<bool>& stop;
-      std::thread& thread;
-      ~StopAndJoin() {
-        stop = true;
-        if (thread.joinable()) thread.join();
-      }
-    } joinDriver{stop, driver};
     std::this_thread::sleep_for(round == 0 ? 700ms : 900ms);
     ASSERT_EQ(kill(pid, SIGKILL), 0);
     int st = 0;
     ASSERT_EQ(waitpid(pid, &st, 0), pid);
     pid = 0;
-    stop = true;
+    driver.request_stop();
     driver.join();
     ASSERT_GT(acked.size(), 5u) << "the client barely ran before the kill";
 
