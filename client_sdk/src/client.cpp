@@ -422,6 +422,9 @@ struct Client::Impl {
 
   std::mutex writeMutex;
   std::atomic<uint64_t> seq{0};
+  /// Command readers (daemons) this client's proof was written to since they matched; under
+  /// writeMutex. See proveToNewDaemons.
+  std::set<dds_instance_handle_t> proofSentTo;
 
   struct Pending {
     Clock::time_point deadline;
@@ -522,6 +525,7 @@ struct Client::Impl {
   /// Sends a command; done runs once, on the SDK thread (or here on a write failure).
   void send(CommandBuilder& b, uint32_t world, std::chrono::milliseconds timeout,
             std::function<void(const wire::Reply*, const Error*)> done) {
+    const bool hello = b.requestCount() == 1 && b.requestType(0) == wire::Request::Hello;
     const uint64_t s = ++seq;
     protocol::Bytes bytes = b.finish({clientId, s, world});
     {
@@ -531,6 +535,7 @@ struct Client::Impl {
     dds_return_t rc;
     {
       std::lock_guard<std::mutex> lk(writeMutex);
+      proveToNewDaemons(hello);
       rc = cmdWriter.write(clientId, bytes, s);
     }
     if (rc < 0) {
@@ -567,6 +572,26 @@ struct Client::Impl {
 
   std::future<Ack> ackRequest(CommandBuilder& b, uint32_t world, const CallOptions& o) {
     return request<Ack>(b, world, o, [](const wire::Reply& r) { return ack(r); });
+  }
+
+  /// Before a command goes out (writeMutex held): a daemon that matched this client's writer
+  /// since the last Hello (a restarted daemon the SDK thread has not noticed yet) gets a Hello
+  /// with the proof first, on the same writer, so it reads the proof before the command and
+  /// treats the command as the key holder's. Without this, a command written in the moment
+  /// between a new daemon matching and the SDK thread's greeting would reach it unproven and be
+  /// refused on a proof-owned world. (The answer to this Hello is not awaited; the SDK thread
+  /// greets the daemon too, for its ServerInfo.)
+  void proveToNewDaemons(bool isHello) {
+    if (!key) return;
+    const std::vector<dds_instance_handle_t> now = cmdWriter.matchedHandles();
+    bool fresh = false;
+    for (dds_instance_handle_t h : now) fresh = fresh || !proofSentTo.count(h);
+    proofSentTo = std::set<dds_instance_handle_t>(now.begin(), now.end());
+    if (!fresh || isHello) return;
+    CommandBuilder b;
+    greet(b);
+    const uint64_t s = ++seq;
+    cmdWriter.write(clientId, b.finish({clientId, s, 0}), s);
   }
 
   /// Hello, with the key's binding proof when the client has a key.

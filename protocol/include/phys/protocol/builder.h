@@ -157,6 +157,7 @@ class CommandBuilder {
   flatbuffers::FlatBufferBuilder& fbb() { return fbb_; }
 
   size_t requestCount() const { return items_.size(); }
+  wire::Request requestType(size_t i) const { return items_.at(i).first; }
   /// The finished command; the builder is empty again afterwards.
   Bytes finish(const CommandHeader& header);
 
