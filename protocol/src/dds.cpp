@@ -213,6 +213,21 @@ int Reader::take(
   }
 }
 
+bool Reader::matchedPublications(std::vector<dds_instance_handle_t>* out) const {
+  // The count comes back even when the buffer is short: grow it and ask again.
+  out->resize(std::max<size_t>(out->capacity(), 64));
+  for (int tries = 0; tries < 4; ++tries) {
+    const dds_return_t n = dds_get_matched_publications(e_, out->data(), out->size());
+    if (n < 0) return false;
+    if (size_t(n) <= out->size()) {
+      out->resize(size_t(n));
+      return true;
+    }
+    out->resize(size_t(n) + 64);
+  }
+  return false;  // still growing faster than we ask
+}
+
 uint32_t Reader::matched() const {
   dds_subscription_matched_status_t m{};
   if (dds_get_subscription_matched_status(e_, &m) != DDS_RETCODE_OK) return 0;

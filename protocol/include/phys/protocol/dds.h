@@ -132,6 +132,9 @@ class Reader : public Entity {
   /// the access-control plugin has checked them against the writer's signed permissions).
   bool publicationOf(dds_instance_handle_t writer, std::array<uint8_t, 16>* guid,
                      std::vector<std::string>* partitions) const;
+  /// Instance handles of every writer matched with this reader now (the same handles as a
+  /// sample's publication handle); false on an error (*out then says nothing).
+  bool matchedPublications(std::vector<dds_instance_handle_t>* out) const;
   uint32_t matched() const;
 
  private:
