@@ -49,6 +49,18 @@ bool Topic::create(const Participant& p, const std::string& name, std::string* e
   return true;
 }
 
+bool Topic::setSampleInfoFilter(bool (*fn)(const dds_sample_info_t* info, void* arg), void* arg,
+                                std::string* err) {
+  dds_topic_filter f{};
+  f.mode = DDS_TOPIC_FILTER_SAMPLEINFO_ARG;
+  f.f.sampleinfo_arg = fn;
+  f.arg = arg;
+  const dds_return_t rc = dds_set_topic_filter_extended(e_, &f);
+  if (rc == DDS_RETCODE_OK) return true;
+  if (err) *err = "dds_set_topic_filter_extended " + name_ + ": " + error(rc);
+  return false;
+}
+
 namespace {
 /// A publisher (or subscriber) of its own for an entity in partitions; 0 (the participant's
 /// implicit one) for none.

@@ -169,9 +169,61 @@ const Guid* ClientKeys::guidOf(uint64_t participant) const {
   return it == participants_.end() ? nullptr : &it->second.guid;
 }
 
+uint64_t ClientKeys::participantOf(Writer w) const {
+  auto it = writers_.find(w);
+  return it == writers_.end() ? 0 : it->second.participant;
+}
+
 size_t ClientKeys::keysOf(uint64_t participant) const {
   auto it = participants_.find(participant);
   return it == participants_.end() ? 0 : it->second.keys.size();
+}
+
+// --- InstanceGate ---------------------------------------------------------------------------
+
+bool InstanceGate::admit(uint64_t writer, uint64_t instance) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  WriterRec& w = writers_[writer];
+  if (std::find(w.instances.begin(), w.instances.end(), instance) != w.instances.end())
+    return true;
+  if (w.instances.size() < perWriter_) {
+    w.instances.push_back(instance);
+    return true;
+  }
+  ++w.refused;
+  ++refused_;
+  return false;
+}
+
+std::vector<InstanceGate::Refused> InstanceGate::sweep(std::span<const uint64_t> live,
+                                                        Clock::time_point now) {
+  const std::unordered_set<uint64_t> matched(live.begin(), live.end());
+  std::vector<Refused> out;
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (auto it = writers_.begin(); it != writers_.end();) {
+    WriterRec& w = it->second;
+    if (w.refused > w.reported &&
+        (w.reported == 0 || now - w.reportedAt >= reportEvery_)) {
+      out.push_back({it->first, w.refused});
+      w.reported = w.refused;
+      w.reportedAt = now;
+    }
+    if (matched.count(it->first))
+      ++it;
+    else
+      it = writers_.erase(it);
+  }
+  return out;
+}
+
+uint64_t InstanceGate::refused() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return refused_;
+}
+
+size_t InstanceGate::writers() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return writers_.size();
 }
 
 }  // namespace phys::server

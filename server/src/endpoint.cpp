@@ -1,6 +1,7 @@
 // DdsEndpoint: phys/cmd -> ServerCore, PublishQueue -> the published topics.
 #include "phys/server/endpoint.h"
 
+#include <algorithm>
 #include <cstring>
 
 #include <spdlog/spdlog.h>
@@ -27,6 +28,9 @@ DdsEndpoint::DdsEndpoint(ServerCore* core, EndpointConfig config)
               Guid g;
               return cmdReader_.participantOf(w, &g);
             }),
+      // Twice the ids a participant may hold: a writer past its ids still has some of its
+      // commands reach ClientKeys, which reports them (and answers one in a while).
+      gate_(2 * std::max<uint32_t>(1, core->config().maxKeysPerParticipant)),
       core_(core),
       config_(std::move(config)) {}
 
@@ -39,6 +43,7 @@ Status DdsEndpoint::start() {
   auto fail = [&]() { return Status::Error(Code::Internal, err); };
   if (!participant_.create(config_.domain, config_.cycloneXml, &err)) return fail();
   if (!cmdTopic_.create(participant_, std::string(protocol::kCommandTopic), &err) ||
+      !cmdTopic_.setSampleInfoFilter(&DdsEndpoint::admitSample, &gate_, &err) ||
       !replyTopic_.create(participant_, std::string(protocol::kReplyTopic), &err) ||
       !infoTopic_.create(participant_, std::string(protocol::kWorldInfoTopic), &err) ||
       !statusTopic_.create(participant_, std::string(protocol::kStatusTopic), &err) ||
@@ -187,9 +192,27 @@ ClientKeys::Result DdsEndpoint::vouch(uint64_t key, dds_instance_handle_t writer
   return keys_.claim(key, writer, now);
 }
 
+bool DdsEndpoint::admitSample(const dds_sample_info_t* info, void* gate) {
+  return static_cast<InstanceGate*>(gate)->admit(info->publication_handle, info->instance_handle);
+}
+
 void DdsEndpoint::sweep() {
   sweptAt_ = ClientKeys::Clock::now();
   if (!cmdReader_.matchedPublications(&live_)) return;  // next time
+  for (const InstanceGate::Refused& r : gate_.sweep(live_, sweptAt_)) {
+    // Named by its participant: known when some of its commands came through, else asked.
+    std::string name;
+    if (const uint64_t p = keys_.participantOf(r.writer)) {
+      name = participantName(p);
+    } else {
+      Guid g{};
+      name = cmdReader_.participantOf(r.writer, &g) ? toString(g) : "(gone)";
+    }
+    spdlog::warn("phys/cmd: participant {} writes under more client ids than its {} "
+                 "(server.max_keys_per_participant); {} of its commands under further ids "
+                 "dropped before they reached physd",
+                 name, keys_.limits().keysPerParticipant, r.count);
+  }
   for (ClientKeys::Departed& d : keys_.sweep(live_)) {
     counters_.participantsLeft.fetch_add(1);
     spdlog::debug("phys/cmd: participant {} left; its {} client id(s) are free", toString(d.guid),

@@ -187,5 +187,29 @@ TEST(ClientKeys, GuidsPrintAsCycloneDoes) {
   EXPECT_EQ(toString(g), "1020304:5060708:90a0b0c:d0e0f10");
 }
 
+TEST(InstanceGate, AWriterMakesAtMostItsInstancesAndKeepsUsingThem) {
+  InstanceGate gate(32);
+  for (uint64_t i = 1; i <= 32; ++i) EXPECT_TRUE(gate.admit(7, 1000 + i));
+  for (uint64_t i = 33; i <= 70000; ++i) ASSERT_FALSE(gate.admit(7, 1000 + i));
+  EXPECT_EQ(gate.refused(), 70000u - 32u);
+  EXPECT_TRUE(gate.admit(7, 1001)) << "its own instances";
+  EXPECT_TRUE(gate.admit(8, 1001)) << "another writer, even on the same instance";
+  // Reported once per reportEvery; a writer that left is forgotten.
+  const auto t0 = InstanceGate::Clock::time_point{} + std::chrono::hours(1);
+  const uint64_t live[] = {7, 8};
+  std::vector<InstanceGate::Refused> r = gate.sweep(live, t0);
+  ASSERT_EQ(r.size(), 1u);
+  EXPECT_EQ(r[0].writer, 7u);
+  EXPECT_EQ(r[0].count, 70000u - 32u);
+  EXPECT_FALSE(gate.admit(7, 1));
+  EXPECT_TRUE(gate.sweep(live, t0 + std::chrono::seconds(1)).empty());
+  EXPECT_EQ(gate.sweep(live, t0 + std::chrono::seconds(10)).size(), 1u);
+  EXPECT_EQ(gate.writers(), 2u);
+  const uint64_t only8[] = {8};
+  gate.sweep(only8, t0 + std::chrono::seconds(20));
+  EXPECT_EQ(gate.writers(), 1u);
+  EXPECT_TRUE(gate.admit(7, 5)) << "a new writer with the same handle starts afresh";
+}
+
 }  // namespace
 }  // namespace phys::server::test

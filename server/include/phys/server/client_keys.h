@@ -19,6 +19,7 @@
 #include <chrono>
 #include <cstdint>
 #include <functional>
+#include <mutex>
 #include <span>
 #include <string>
 #include <unordered_map>
@@ -105,6 +106,8 @@ class ClientKeys {
   uint64_t holder(uint64_t key) const;
   /// A participant's GUID by number, or null.
   const Guid* guidOf(uint64_t participant) const;
+  /// A known writer's participant number (0: unknown).
+  uint64_t participantOf(Writer w) const;
   /// Keys a participant holds.
   size_t keysOf(uint64_t participant) const;
   const Limits& limits() const { return limits_; }
@@ -140,6 +143,45 @@ class ClientKeys {
   std::unordered_map<Guid, uint64_t, GuidHash> byGuid_;
   uint64_t nextParticipant_ = 1;
   bool sweepWanted_ = false;
+};
+
+/// What keeps a flood of client ids out of the DDS reader's own memory: Cyclone keeps an
+/// instance per key a writer registers (about 600 bytes each, until the writer leaves), so
+/// 50,000 new ids a second grew physd by 30 MB a second. The endpoint puts a content filter on
+/// its command topic (a sampleinfo filter: no deserialisation) that asks admit() for every
+/// sample; a sample that would make a writer's instance past `perWriter` is filtered out before
+/// Cyclone makes the instance (and acknowledged, so the writer is not held up). Thread-safe:
+/// admit() runs on Cyclone's delivery threads, with the reader's cache locked (it calls nothing).
+class InstanceGate {
+ public:
+  using Clock = std::chrono::steady_clock;
+  explicit InstanceGate(uint32_t perWriter, Clock::duration reportEvery = std::chrono::seconds(10))
+      : perWriter_(perWriter), reportEvery_(reportEvery) {}
+  /// Whether `writer` may deliver a sample of `instance` (a reader's instance handle): one of
+  /// its instances, or a new one while it has fewer than perWriter.
+  bool admit(uint64_t writer, uint64_t instance);
+  struct Refused {
+    uint64_t writer = 0;
+    uint64_t count = 0;  ///< its samples filtered out so far
+  };
+  /// Forgets the writers not in `live`; returns those whose samples were filtered out since
+  /// they were last returned, at most once per reportEvery each (for the log).
+  std::vector<Refused> sweep(std::span<const uint64_t> live, Clock::time_point now);
+  uint64_t refused() const;
+  size_t writers() const;
+  uint32_t perWriter() const { return perWriter_; }
+
+ private:
+  struct WriterRec {
+    std::vector<uint64_t> instances;
+    uint64_t refused = 0, reported = 0;
+    Clock::time_point reportedAt{};
+  };
+  const uint32_t perWriter_;
+  const Clock::duration reportEvery_;
+  mutable std::mutex mutex_;
+  std::unordered_map<uint64_t, WriterRec> writers_;
+  uint64_t refused_ = 0;
 };
 
 }  // namespace phys::server

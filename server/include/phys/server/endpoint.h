@@ -59,6 +59,9 @@ class DdsEndpoint {
   /// Stops both threads (the publisher first drains what is queued, briefly).
   void stop();
   const EndpointCounters& counters() const { return counters_; }
+  /// Commands DDS filtered out before they reached the reader: their writer had made
+  /// 2 x max_keys_per_participant instances (client ids) already (InstanceGate).
+  uint64_t commandsFiltered() const { return gate_.refused(); }
 
  private:
   void readLoop();
@@ -74,6 +77,9 @@ class DdsEndpoint {
   /// A participant's GUID for the log (its number when unknown).
   std::string participantName(uint64_t participant) const;
   ClientKeys keys_;
+  /// The command topic's filter (before cmdReader_, which uses it, and gone after it).
+  InstanceGate gate_;
+  static bool admitSample(const dds_sample_info_t* info, void* gate);
   ClientKeys::Clock::time_point sweptAt_{};
   std::vector<dds_instance_handle_t> live_;  ///< sweep's scratch
   void publishLoop();
