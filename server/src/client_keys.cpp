@@ -181,18 +181,35 @@ size_t ClientKeys::keysOf(uint64_t participant) const {
 
 // --- InstanceGate ---------------------------------------------------------------------------
 
-bool InstanceGate::admit(uint64_t writer, uint64_t instance) {
+bool InstanceGate::admit(uint64_t writer, uint64_t instance, Clock::time_point now) {
   std::lock_guard<std::mutex> lock(mutex_);
-  WriterRec& w = writers_[writer];
-  if (std::find(w.instances.begin(), w.instances.end(), instance) != w.instances.end())
-    return true;
-  if (w.instances.size() < perWriter_) {
-    w.instances.push_back(instance);
-    return true;
+  auto [it, added] = writers_.try_emplace(writer);
+  WriterRec& w = it->second;
+  if (added) {
+    w.tokens = std::max(1.0, limits_.burst);
+    w.last = now;
   }
-  ++w.refused;
-  ++refused_;
-  return false;
+  if (std::find(w.instances.begin(), w.instances.end(), instance) == w.instances.end()) {
+    if (w.instances.size() >= limits_.instances) {
+      ++w.refusedInstances;
+      ++refused_;
+      return false;
+    }
+    w.instances.push_back(instance);
+  }
+  if (limits_.rate > 0) {
+    w.tokens = std::min(std::max(1.0, limits_.burst),
+                        w.tokens + std::chrono::duration<double>(now - w.last).count() *
+                                       limits_.rate);
+    w.last = now;
+    if (w.tokens < 1) {
+      ++w.refusedRate;
+      ++refused_;
+      return false;
+    }
+    w.tokens -= 1;
+  }
+  return true;
 }
 
 std::vector<InstanceGate::Refused> InstanceGate::sweep(std::span<const uint64_t> live,
@@ -202,10 +219,10 @@ std::vector<InstanceGate::Refused> InstanceGate::sweep(std::span<const uint64_t>
   std::lock_guard<std::mutex> lock(mutex_);
   for (auto it = writers_.begin(); it != writers_.end();) {
     WriterRec& w = it->second;
-    if (w.refused > w.reported &&
-        (w.reported == 0 || now - w.reportedAt >= reportEvery_)) {
-      out.push_back({it->first, w.refused});
-      w.reported = w.refused;
+    const uint64_t refused = w.refusedInstances + w.refusedRate;
+    if (refused > w.reported && (w.reported == 0 || now - w.reportedAt >= limits_.reportEvery)) {
+      out.push_back({it->first, w.refusedInstances, w.refusedRate});
+      w.reported = refused;
       w.reportedAt = now;
     }
     if (matched.count(it->first))

@@ -20,6 +20,16 @@ ClientKeys::Limits keyLimits(const CoreConfig& c) {
   l.keysPerParticipant = c.maxKeysPerParticipant;
   return l;
 }
+/// Twice what the core serves and ClientKeys binds: a writer past its ids or its rate still has
+/// some of those commands reach them, which report them and answer one in a while; what is
+/// beyond that costs the reader nothing.
+InstanceGate::Limits gateLimits(const CoreConfig& c) {
+  InstanceGate::Limits l;
+  l.instances = 2 * std::max<uint32_t>(1, c.maxKeysPerParticipant);
+  l.rate = 2 * c.maxParticipantCommandsPerS;
+  l.burst = 2 * c.maxParticipantBurst;
+  return l;
+}
 }  // namespace
 
 DdsEndpoint::DdsEndpoint(ServerCore* core, EndpointConfig config)
@@ -28,9 +38,7 @@ DdsEndpoint::DdsEndpoint(ServerCore* core, EndpointConfig config)
               Guid g;
               return cmdReader_.participantOf(w, &g);
             }),
-      // Twice the ids a participant may hold: a writer past its ids still has some of its
-      // commands reach ClientKeys, which reports them (and answers one in a while).
-      gate_(2 * std::max<uint32_t>(1, core->config().maxKeysPerParticipant)),
+      gate_(gateLimits(core->config())),
       core_(core),
       config_(std::move(config)) {}
 
@@ -208,10 +216,16 @@ void DdsEndpoint::sweep() {
       Guid g{};
       name = cmdReader_.participantOf(r.writer, &g) ? toString(g) : "(gone)";
     }
-    spdlog::warn("phys/cmd: participant {} writes under more client ids than its {} "
-                 "(server.max_keys_per_participant); {} of its commands under further ids "
-                 "dropped before they reached physd",
-                 name, keys_.limits().keysPerParticipant, r.count);
+    if (r.instances)
+      spdlog::warn("phys/cmd: participant {} writes under more client ids than its {} "
+                   "(server.max_keys_per_participant); {} of its commands under further ids "
+                   "dropped before they reached physd",
+                   name, keys_.limits().keysPerParticipant, r.instances);
+    if (r.rate)
+      spdlog::warn("phys/cmd: participant {} writes more than {:.0f} commands a second (twice "
+                   "server.max_participant_commands_per_s); {} of them dropped before they "
+                   "reached physd",
+                   name, gate_.limits().rate, r.rate);
   }
   for (ClientKeys::Departed& d : keys_.sweep(live_)) {
     counters_.participantsLeft.fetch_add(1);

@@ -188,7 +188,7 @@ TEST(ClientKeys, GuidsPrintAsCycloneDoes) {
 }
 
 TEST(InstanceGate, AWriterMakesAtMostItsInstancesAndKeepsUsingThem) {
-  InstanceGate gate(32);
+  InstanceGate gate({32, 0, 1});
   for (uint64_t i = 1; i <= 32; ++i) EXPECT_TRUE(gate.admit(7, 1000 + i));
   for (uint64_t i = 33; i <= 70000; ++i) ASSERT_FALSE(gate.admit(7, 1000 + i));
   EXPECT_EQ(gate.refused(), 70000u - 32u);
@@ -200,7 +200,8 @@ TEST(InstanceGate, AWriterMakesAtMostItsInstancesAndKeepsUsingThem) {
   std::vector<InstanceGate::Refused> r = gate.sweep(live, t0);
   ASSERT_EQ(r.size(), 1u);
   EXPECT_EQ(r[0].writer, 7u);
-  EXPECT_EQ(r[0].count, 70000u - 32u);
+  EXPECT_EQ(r[0].instances, 70000u - 32u);
+  EXPECT_EQ(r[0].rate, 0u);
   EXPECT_FALSE(gate.admit(7, 1));
   EXPECT_TRUE(gate.sweep(live, t0 + std::chrono::seconds(1)).empty());
   EXPECT_EQ(gate.sweep(live, t0 + std::chrono::seconds(10)).size(), 1u);
@@ -209,6 +210,23 @@ TEST(InstanceGate, AWriterMakesAtMostItsInstancesAndKeepsUsingThem) {
   gate.sweep(only8, t0 + std::chrono::seconds(20));
   EXPECT_EQ(gate.writers(), 1u);
   EXPECT_TRUE(gate.admit(7, 5)) << "a new writer with the same handle starts afresh";
+}
+
+TEST(InstanceGate, AWriterPastItsRateIsFilteredAndOthersAreNot) {
+  InstanceGate gate({32, 4000, 1000});
+  auto t = InstanceGate::Clock::time_point{} + std::chrono::hours(1);
+  int admitted = 0;
+  for (int i = 0; i < 100000; ++i) admitted += gate.admit(7, 1, t);  // all at once
+  EXPECT_EQ(admitted, 1000) << "the burst";
+  EXPECT_TRUE(gate.admit(8, 1, t)) << "another writer";
+  t += std::chrono::milliseconds(250);
+  admitted = 0;
+  for (int i = 0; i < 100000; ++i) admitted += gate.admit(7, 1, t);
+  EXPECT_EQ(admitted, 1000) << "what a quarter second refilled";
+  const uint64_t live[] = {7, 8};
+  std::vector<InstanceGate::Refused> r = gate.sweep(live, t);
+  ASSERT_EQ(r.size(), 1u);
+  EXPECT_EQ(r[0].rate, 200000u - 2000u);
 }
 
 }  // namespace

@@ -145,40 +145,50 @@ class ClientKeys {
   bool sweepWanted_ = false;
 };
 
-/// What keeps a flood of client ids out of the DDS reader's own memory: Cyclone keeps an
-/// instance per key a writer registers (about 600 bytes each, until the writer leaves), so
-/// 50,000 new ids a second grew physd by 30 MB a second. The endpoint puts a content filter on
-/// its command topic (a sampleinfo filter: no deserialisation) that asks admit() for every
-/// sample; a sample that would make a writer's instance past `perWriter` is filtered out before
-/// Cyclone makes the instance (and acknowledged, so the writer is not held up). Thread-safe:
-/// admit() runs on Cyclone's delivery threads, with the reader's cache locked (it calls nothing).
+/// What keeps one writer's flood out of the DDS reader itself. Cyclone keeps an instance per
+/// key a writer registers (about 600 bytes each, until the writer leaves): 50,000 new ids a
+/// second grew physd by 30 MB a second. And every sample taken costs the reader thread a take,
+/// a decode and a refusal. The endpoint puts a content filter on its command topic (a
+/// sampleinfo filter: no deserialisation) that asks admit() about every sample: one that would
+/// make a writer's instance past `instances`, or come past the writer's rate (a token bucket
+/// of `rate` a second up to `burst`, set above what the core's per-participant budget answers),
+/// is filtered out before Cyclone stores it (and acknowledged, so the writer is not held up).
+/// Thread-safe: admit() runs on Cyclone's delivery threads with the reader's cache locked (it
+/// calls nothing).
 class InstanceGate {
  public:
   using Clock = std::chrono::steady_clock;
-  explicit InstanceGate(uint32_t perWriter, Clock::duration reportEvery = std::chrono::seconds(10))
-      : perWriter_(perWriter), reportEvery_(reportEvery) {}
-  /// Whether `writer` may deliver a sample of `instance` (a reader's instance handle): one of
-  /// its instances, or a new one while it has fewer than perWriter.
-  bool admit(uint64_t writer, uint64_t instance);
+  struct Limits {
+    uint32_t instances = 32;  ///< per writer
+    double rate = 0;          ///< samples a second per writer; 0: no limit
+    double burst = 1;
+    Clock::duration reportEvery = std::chrono::seconds(10);
+  };
+  explicit InstanceGate(Limits limits) : limits_(limits) {}
+  /// Whether `writer` may deliver a sample of `instance` (a reader's instance handle) now: one
+  /// of its instances or a new one while it has fewer than `instances`, within its rate.
+  bool admit(uint64_t writer, uint64_t instance, Clock::time_point now = Clock::now());
   struct Refused {
     uint64_t writer = 0;
-    uint64_t count = 0;  ///< its samples filtered out so far
+    uint64_t instances = 0;  ///< its samples filtered out for new instances, so far
+    uint64_t rate = 0;       ///< ... for its rate
   };
   /// Forgets the writers not in `live`; returns those whose samples were filtered out since
   /// they were last returned, at most once per reportEvery each (for the log).
   std::vector<Refused> sweep(std::span<const uint64_t> live, Clock::time_point now);
-  uint64_t refused() const;
+  uint64_t refused() const;  ///< samples filtered out, all writers, both reasons
   size_t writers() const;
-  uint32_t perWriter() const { return perWriter_; }
+  const Limits& limits() const { return limits_; }
 
  private:
   struct WriterRec {
     std::vector<uint64_t> instances;
-    uint64_t refused = 0, reported = 0;
+    double tokens = 0;
+    Clock::time_point last{};
+    uint64_t refusedInstances = 0, refusedRate = 0, reported = 0;
     Clock::time_point reportedAt{};
   };
-  const uint32_t perWriter_;
-  const Clock::duration reportEvery_;
+  const Limits limits_;
   mutable std::mutex mutex_;
   std::unordered_map<uint64_t, WriterRec> writers_;
   uint64_t refused_ = 0;

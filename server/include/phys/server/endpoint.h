@@ -60,7 +60,8 @@ class DdsEndpoint {
   void stop();
   const EndpointCounters& counters() const { return counters_; }
   /// Commands DDS filtered out before they reached the reader: their writer had made
-  /// 2 x max_keys_per_participant instances (client ids) already (InstanceGate).
+  /// 2 x max_keys_per_participant instances (client ids) already, or wrote faster than twice
+  /// max_participant_commands_per_s (InstanceGate).
   uint64_t commandsFiltered() const { return gate_.refused(); }
 
  private:
