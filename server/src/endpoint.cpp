@@ -91,6 +91,12 @@ void DdsEndpoint::stop() {
 void DdsEndpoint::readLoop() {
   const protocol::Limits& limits = core_->config().limits;
   sweptAt_ = ClientKeys::Clock::now();
+  auto sweepIfDue = [&](ClientKeys::Clock::time_point now) {
+    if (now - sweptAt_ >= config_.sweepPeriod ||
+        (keys_.sweepWanted() && now - sweptAt_ >= config_.sweepPeriod / 10))
+      sweep();
+  };
+  uint64_t taken = 0;
   while (!stop_) {
     waitset_.wait(DDS_MSECS(200));
     if (stop_) break;
@@ -99,6 +105,7 @@ void DdsEndpoint::readLoop() {
     cmdReader_.take([&](const phys_wire_Envelope& env, dds_instance_handle_t writer) {
       counters_.commandsTaken.fetch_add(1);
       const auto now = ClientKeys::Clock::now();
+      if ((++taken & 1023) == 0) sweepIfDue(now);  // a take that does not end sweeps too
       const ClientKeys::Result who = vouch(env.key, writer, now);
       if (who.verdict == ClientKeys::Verdict::HeldByOther) {
         // Not answered: every reply on this key goes to the participant that holds it, which
@@ -171,10 +178,7 @@ void DdsEndpoint::readLoop() {
       }
       core_->submit(std::move(in));
     });
-    const auto now = ClientKeys::Clock::now();
-    if (now - sweptAt_ >= config_.sweepPeriod ||
-        (keys_.sweepWanted() && now - sweptAt_ >= config_.sweepPeriod / 10))
-      sweep();
+    sweepIfDue(ClientKeys::Clock::now());
   }
 }
 
