@@ -57,6 +57,18 @@ bool Topic::create(const Participant& p, const std::string& name, std::string* e
   return true;
 }
 
+bool Topic::setSampleInfoFilter(bool (*fn)(const dds_sample_info_t* info, void* arg), void* arg,
+                                std::string* err) {
+  dds_topic_filter f{};
+  f.mode = DDS_TOPIC_FILTER_SAMPLEINFO_ARG;
+  f.f.sampleinfo_arg = fn;
+  f.arg = arg;
+  const dds_return_t rc = dds_set_topic_filter_extended(e_, &f);
+  if (rc == DDS_RETCODE_OK) return true;
+  if (err) *err = "dds_set_topic_filter_extended " + name_ + ": " + error(rc);
+  return false;
+}
+
 namespace {
 /// A publisher (or subscriber) of its own for an entity in partitions; 0 (the participant's
 /// implicit one) for none.
@@ -219,6 +231,21 @@ int Reader::take(
     }
     if (n < kBatch) return total;
   }
+}
+
+bool Reader::matchedPublications(std::vector<dds_instance_handle_t>* out) const {
+  // The count comes back even when the buffer is short: grow it and ask again.
+  out->resize(std::max<size_t>(out->capacity(), 64));
+  for (int tries = 0; tries < 4; ++tries) {
+    const dds_return_t n = dds_get_matched_publications(e_, out->data(), out->size());
+    if (n < 0) return false;
+    if (size_t(n) <= out->size()) {
+      out->resize(size_t(n));
+      return true;
+    }
+    out->resize(size_t(n) + 64);
+  }
+  return false;  // still growing faster than we ask
 }
 
 uint32_t Reader::matched() const {

@@ -758,6 +758,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
       job.header = ctx.header;
       job.envelopeKey = current_->envelopeKey;
       job.envelopeSeq = current_->envelopeSeq;
+      job.sender = current_->sender;
       job.charge = queueCharge(*current_);
       startLoad(task);  // first: if the thread cannot start, nothing waits for it
       sw->load = std::move(job);
@@ -788,6 +789,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
       job.header = ctx.header;
       job.envelopeKey = current_->envelopeKey;
       job.envelopeSeq = current_->envelopeSeq;
+      job.sender = current_->sender;
       job.charge = queueCharge(*current_);
       sw->job = job;
       deferred_ = true;  // advance() runs its slices, the first one right after this command
@@ -802,10 +804,35 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
     }
     case wire::Request::Subscribe: {
       auto* r = c.request_as_Subscribe();
-      if (sw->interests.size() >= ServerWorld::kMaxInterests) {
+      // Whose interests these are: the participant's (all its client ids), or the client id's
+      // for a command without one (in-process callers).
+      const uint64_t sender = current_ ? current_->sender : 0;
+      auto mine = [&](const ServerWorld::Interest& in) {
+        return sender ? in.sender == sender : in.sender == 0 && in.client == envelopeKey;
+      };
+      const size_t held = size_t(std::count_if(sw->interests.begin(), sw->interests.end(),
+                                               [&](const auto& e) { return mine(e.second); }));
+      const bool editor = sw->owner == 0 || sw->shared || principal == sw->owner ||
+                          std::find(sw->editors.begin(), sw->editors.end(), principal) !=
+                              sw->editors.end();
+      const size_t open = editor ? ServerWorld::kMaxInterests
+                                 : ServerWorld::kMaxInterests - ServerWorld::kInterestsForEditors;
+      if (held >= config_.maxInterestsPerClient) {
+        st = err(Code::ResourceExhausted,
+                 "subscribe: this client holds " + std::to_string(held) +
+                     " interests in this world, the most one client may "
+                     "(server.max_interests_per_client); unsubscribe one first");
+        return finish();
+      }
+      if (sw->interests.size() >= open) {
         st = err(Code::ResourceExhausted,
                  "subscribe: this world has " + std::to_string(sw->interests.size()) +
-                     " interests, the most it keeps (unsubscribe one first)");
+                     " interests, the most it keeps" +
+                     (editor ? std::string()
+                             : " for clients that may not change it (the other " +
+                                   std::to_string(ServerWorld::kInterestsForEditors) +
+                                   " are kept for its owner and editors)") +
+                     "; unsubscribe one first");
         return finish();
       }
       ServerWorld::Interest in;
@@ -822,6 +849,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
       }
       const uint32_t id = sw->nextInterest++;
       in.client = envelopeKey;
+      in.sender = sender;
       sw->interests.emplace(id, std::move(in));
       ReliableMessage m;
       m.type = ReliableMessage::Type::InterestAdded;

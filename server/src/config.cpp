@@ -134,7 +134,10 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
                    "max_queued_per_client", "max_queued_mb", "max_queued_mb_per_client",
                    "step_slice_ms", "max_contact_pairs", "max_concurrent_loads",
                    "checkpoint_period_s", "journal_max_mb", "max_client_commands_per_s",
-                   "max_client_burst", "trim_period_s"},
+                   "max_client_burst", "trim_period_s", "max_keys_per_participant",
+                   "max_participant_commands_per_s", "max_participant_burst",
+                   "max_queued_mb_per_participant", "max_participant_refusals_per_s",
+                   "max_interests_per_client"},
                   "server");
     if (!s.ok()) return s;
     PHYS_GET(*t, "name", "server", &c.core.serverName);
@@ -180,6 +183,24 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
       return Status::Error(Code::InvalidArgument,
                            "server.max_client_commands_per_s must be >= 0 (0: no limit) and "
                            "server.max_client_burst >= 1");
+    // Per DDS participant, whatever client ids it uses (docs/SERVER.md "Budgets").
+    PHYS_GET(*t, "max_keys_per_participant", "server", &c.core.maxKeysPerParticipant);
+    PHYS_GET(*t, "max_participant_commands_per_s", "server", &c.core.maxParticipantCommandsPerS);
+    PHYS_GET(*t, "max_participant_burst", "server", &c.core.maxParticipantBurst);
+    PHYS_GET_MIB(*t, "max_queued_mb_per_participant", "server",
+                 &c.core.maxQueuedBytesPerParticipant);
+    PHYS_GET(*t, "max_participant_refusals_per_s", "server", &c.core.maxParticipantRefusalsPerS);
+    PHYS_GET(*t, "max_interests_per_client", "server", &c.core.maxInterestsPerClient);
+    if (c.core.maxKeysPerParticipant == 0 || c.core.maxInterestsPerClient == 0)
+      return Status::Error(Code::InvalidArgument,
+                           "server.max_keys_per_participant and server.max_interests_per_client "
+                           "must be >= 1");
+    if (!(c.core.maxParticipantCommandsPerS >= 0) || !(c.core.maxParticipantBurst >= 1) ||
+        !(c.core.maxParticipantRefusalsPerS >= 0))
+      return Status::Error(Code::InvalidArgument,
+                           "server.max_participant_commands_per_s and "
+                           "max_participant_refusals_per_s must be >= 0 (0: no limit) and "
+                           "server.max_participant_burst >= 1");
     // Durability (docs/SERVER.md "Durable worlds").
     PHYS_GET(*t, "checkpoint_period_s", "server", &c.core.checkpointPeriodS);
     PHYS_GET_MIB(*t, "journal_max_mb", "server", &c.core.journalMaxBytes);

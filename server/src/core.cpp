@@ -75,7 +75,7 @@ void ServerCore::finishLoad(ServerWorld& w) {
   h.status = st;
   pushReply(job.envelopeKey, job.envelopeSeq,
             st.ok() ? protocol::encodeIdsReply(h, bodies, joints) : protocol::encodeReply(h));
-  release(job.envelopeKey, job.charge);
+  release(job.envelopeKey, job.sender, job.charge);
 }
 
 Status ServerCore::init() {
@@ -196,11 +196,33 @@ void ServerCore::setSubscribers(uint32_t world, uint32_t interest, uint32_t n) {
 
 void ServerCore::submit(Incoming in) {
   std::string refused;
+  bool answer = true;
   {
     std::lock_guard<std::mutex> lock(inboxMutex_);
+    const auto now = std::chrono::steady_clock::now();
+    // O(1) here (hash maps; pendingPerClient_ is a map of the clients with commands waiting):
+    // this runs on the reader thread, for every command.
+    SenderBudget* sender = nullptr;
+    if (in.sender) {
+      auto [it, added] = senders_.try_emplace(in.sender);
+      sender = &it->second;
+      if (added) {
+        sender->commands = {std::max(1.0, config_.maxParticipantBurst), now};
+        sender->refusals = {std::max(1.0, config_.maxParticipantRefusalsPerS), now};
+      }
+    }
     Pending& p = pendingPerClient_[in.envelopeKey];
+    RateBucket& bucket = bucketOf(in.envelopeKey, now);
     const uint64_t bytes = queueCharge(in);
-    if (!takeToken(in.envelopeKey, std::chrono::steady_clock::now()))
+    if (sender && !sender->commands.ready(config_.maxParticipantCommandsPerS,
+                                          config_.maxParticipantBurst, now))
+      refused = "this participant (client " + std::to_string(in.envelopeKey) +
+                " and any other ids it writes under) sends more than " +
+                std::to_string(int64_t(config_.maxParticipantCommandsPerS)) +
+                " commands a second (server.max_participant_commands_per_s, bursts of " +
+                std::to_string(int64_t(config_.maxParticipantBurst)) +
+                ": server.max_participant_burst); slow down";
+    else if (!bucket.ready(config_.maxClientCommandsPerS, config_.maxClientBurst, now))
       refused = "client " + std::to_string(in.envelopeKey) + " sends more than " +
                 std::to_string(int64_t(config_.maxClientCommandsPerS)) +
                 " commands a second (server.max_client_commands_per_s, bursts of " +
@@ -217,22 +239,48 @@ void ServerCore::submit(Incoming in) {
                 " bytes of commands waiting, the limit is " +
                 std::to_string(config_.maxQueuedBytesPerClient) +
                 " (server.max_queued_mb_per_client); wait for replies";
+    else if (sender &&
+             sender->pending.bytes + bytes > config_.maxQueuedBytesPerParticipant)
+      refused = "this participant (client " + std::to_string(in.envelopeKey) +
+                " and any other ids it writes under) has " +
+                std::to_string(sender->pending.bytes) +
+                " bytes of commands waiting, the limit is " +
+                std::to_string(config_.maxQueuedBytesPerParticipant) +
+                " (server.max_queued_mb_per_participant); wait for replies";
     else if (pendingBytes_ + bytes > config_.maxQueuedBytes)
       refused = "the server's command queue holds " + std::to_string(pendingBytes_) +
                 " bytes, the limit is " + std::to_string(config_.maxQueuedBytes) +
                 " (server.max_queued_mb); retry later";
     if (refused.empty()) {
+      if (config_.maxClientCommandsPerS > 0) bucket.tokens -= 1;
       ++p.commands;
       p.bytes += bytes;
+      if (sender) {
+        if (config_.maxParticipantCommandsPerS > 0) sender->commands.tokens -= 1;
+        ++sender->pending.commands;
+        sender->pending.bytes += bytes;
+      }
       pendingBytes_ += bytes;
       inbox_.push_back(std::move(in));
-    } else if (p.commands == 0) {
-      pendingPerClient_.erase(in.envelopeKey);
+    } else {
+      if (p.commands == 0) pendingPerClient_.erase(in.envelopeKey);
+      // One participant's refusals are answered up to a rate; the rest go unanswered, so a
+      // flood of refused commands is not a flood of replies for the publisher.
+      if (sender) {
+        answer = config_.maxParticipantRefusalsPerS <= 0 ||
+                 sender->refusals.ready(config_.maxParticipantRefusalsPerS,
+                                        config_.maxParticipantRefusalsPerS, now);
+        if (answer && config_.maxParticipantRefusalsPerS > 0) sender->refusals.tokens -= 1;
+      }
     }
   }
   if (!refused.empty()) {
-    // Answered at once (the tick thread may be busy), to the envelope's correlation.
     refusedAtSubmit_.fetch_add(1);
+    if (!answer) {
+      refusalsDropped_.fetch_add(1);
+      return;
+    }
+    // Answered at once (the tick thread may be busy), to the envelope's correlation.
     ReplyHeader h;
     h.clientId = in.envelopeKey;
     h.seq = in.envelopeSeq;
@@ -247,38 +295,83 @@ void ServerCore::submit(Incoming in) {
   inboxCv_.notify_one();
 }
 
-bool ServerCore::takeToken(uint64_t client, std::chrono::steady_clock::time_point now) {
-  if (config_.maxClientCommandsPerS <= 0) return true;
+bool ServerCore::RateBucket::ready(double rate, double burst,
+                                   std::chrono::steady_clock::time_point now) {
+  if (rate <= 0) return true;
+  tokens = std::min(std::max(1.0, burst),
+                    tokens + std::chrono::duration<double>(now - last).count() * rate);
+  last = now;
+  return tokens >= 1;
+}
+
+ServerCore::RateBucket& ServerCore::bucketOf(uint64_t client,
+                                             std::chrono::steady_clock::time_point now) {
   const double burst = std::max(1.0, config_.maxClientBurst);
   auto it = rates_.find(client);
-  if (it == rates_.end()) {
-    if (rates_.size() >= 65536)  // forget the clients whose buckets are full again (idle)
-      std::erase_if(rates_, [&](const auto& e) {
-        return e.second.tokens + std::chrono::duration<double>(now - e.second.last).count() *
-                                     config_.maxClientCommandsPerS >=
-               burst;
-      });
-    it = rates_.emplace(client, RateBucket{burst, now}).first;
+  if (it != rates_.end()) return it->second;
+  if (rates_.size() >= ratesCombAt_) {
+    // Forget the clients whose buckets are full again (idle): as cheap as a bucket each, over
+    // the size reached since the last comb.
+    std::erase_if(rates_, [&](const auto& e) {
+      return e.second.tokens + std::chrono::duration<double>(now - e.second.last).count() *
+                                   config_.maxClientCommandsPerS >=
+             burst;
+    });
+    ratesCombAt_ = std::max<size_t>(65536, 2 * rates_.size());
   }
-  RateBucket& b = it->second;
-  b.tokens = std::min(burst, b.tokens + std::chrono::duration<double>(now - b.last).count() *
-                                            config_.maxClientCommandsPerS);
-  b.last = now;
-  if (b.tokens < 1) return false;
-  b.tokens -= 1;
-  return true;
+  return rates_.emplace(client, RateBucket{burst, now}).first->second;
+}
+
+void ServerCore::clientsLeft(uint64_t sender, std::vector<uint64_t> keys) {
+  {
+    std::lock_guard<std::mutex> lock(inboxMutex_);
+    // Their budgets: what they have waiting is released into nothing as it is answered.
+    if (sender) senders_.erase(sender);
+    for (uint64_t k : keys) rates_.erase(k);
+    left_.push_back({sender, std::move(keys)});
+  }
+  inboxCv_.notify_one();
+}
+
+void ServerCore::applyLeft(const Left& l) {
+  for (auto& [id, w] : worlds_) {
+    for (auto it = w->interests.begin(); it != w->interests.end();) {
+      const ServerWorld::Interest& in = it->second;
+      const bool theirs =
+          l.sender ? in.sender == l.sender
+                   : in.sender == 0 &&
+                         std::find(l.keys.begin(), l.keys.end(), in.client) != l.keys.end();
+      if (!theirs) {
+        ++it;
+        continue;
+      }
+      ReliableMessage m;  // its topic goes, as an Unsubscribe's
+      m.type = ReliableMessage::Type::InterestRemoved;
+      m.world = w->id;
+      m.key = it->first;
+      out_.pushReliable(std::move(m));
+      it = w->interests.erase(it);
+    }
+  }
 }
 
 void ServerCore::release(const Incoming& in) {
-  release(in.envelopeKey, queueCharge(in));
+  release(in.envelopeKey, in.sender, queueCharge(in));
 }
 
-void ServerCore::release(uint64_t envelopeKey, uint64_t bytes) {
+void ServerCore::release(uint64_t envelopeKey, uint64_t sender, uint64_t bytes) {
   std::lock_guard<std::mutex> lock(inboxMutex_);
   auto it = pendingPerClient_.find(envelopeKey);
   if (it != pendingPerClient_.end()) {
     it->second.bytes -= std::min(it->second.bytes, bytes);
     if (--it->second.commands == 0) pendingPerClient_.erase(it);
+  }
+  if (sender) {
+    auto s = senders_.find(sender);  // gone when the participant left
+    if (s != senders_.end()) {
+      s->second.pending.bytes -= std::min(s->second.pending.bytes, bytes);
+      if (s->second.pending.commands > 0) --s->second.pending.commands;
+    }
   }
   pendingBytes_ -= std::min(pendingBytes_, bytes);
 }
@@ -309,18 +402,21 @@ void ServerCore::pushReplyNow(uint64_t key, uint64_t seq, Bytes reply) {
 
 void ServerCore::waitForCommands(std::chrono::microseconds timeout) {
   std::unique_lock<std::mutex> lock(inboxMutex_);
-  inboxCv_.wait_for(lock, timeout, [&] { return !inbox_.empty(); });
+  inboxCv_.wait_for(lock, timeout, [&] { return !inbox_.empty() || !left_.empty(); });
 }
 
 size_t ServerCore::processPending() {
   std::deque<Incoming> batch;
+  std::vector<Left> left;
   {
     std::lock_guard<std::mutex> lock(inboxMutex_);
     batch.swap(inbox_);
+    left.swap(left_);
   }
   // Commands that waited for a Step job which has ended go first, in their order.
   for (uint32_t id : worldIds()) drainWaiting(id);
   for (Incoming& in : batch) dispatch(std::move(in));
+  for (const Left& l : left) applyLeft(l);  // after what they sent before they left
   commitDurable();  // the journals synced, then the replies go out
   if (!batch.empty()) publishWorldInfo();
   return batch.size();
@@ -468,7 +564,7 @@ void ServerCore::endJob(ServerWorld& w, Status status) {
   h.status = std::move(status);
   pushReply(job.envelopeKey, job.envelopeSeq, protocol::encodeReply(h), marked ? w.id : 0,
             &failed);
-  release(job.envelopeKey, job.charge);
+  release(job.envelopeKey, job.sender, job.charge);
 }
 
 void ServerCore::cancelJob(ServerWorld& w, const std::string& why) {
@@ -482,7 +578,7 @@ void ServerCore::cancelJob(ServerWorld& w, const std::string& why) {
     h.status = Status::Error(Code::IncorrectState, "load_scene: " + why);
     ++counters_.errors;
     pushReply(job.envelopeKey, job.envelopeSeq, protocol::encodeReply(h));
-    release(job.envelopeKey, job.charge);
+    release(job.envelopeKey, job.sender, job.charge);
   }
 }
 

@@ -1,6 +1,7 @@
 // DdsEndpoint: phys/cmd -> ServerCore, PublishQueue -> the published topics.
 #include "phys/server/endpoint.h"
 
+#include <algorithm>
 #include <cstring>
 
 #include <spdlog/spdlog.h>
@@ -13,8 +14,33 @@ namespace phys::server {
 
 using protocol::PayloadKind;
 
+namespace {
+ClientKeys::Limits keyLimits(const CoreConfig& c) {
+  ClientKeys::Limits l;
+  l.keysPerParticipant = c.maxKeysPerParticipant;
+  return l;
+}
+/// Twice what the core serves and ClientKeys binds: a writer past its ids or its rate still has
+/// some of those commands reach them, which report them and answer one in a while; what is
+/// beyond that costs the reader nothing.
+InstanceGate::Limits gateLimits(const CoreConfig& c) {
+  InstanceGate::Limits l;
+  l.instances = 2 * std::max<uint32_t>(1, c.maxKeysPerParticipant);
+  l.rate = 2 * c.maxParticipantCommandsPerS;
+  l.burst = 2 * c.maxParticipantBurst;
+  return l;
+}
+}  // namespace
+
 DdsEndpoint::DdsEndpoint(ServerCore* core, EndpointConfig config)
-    : core_(core), config_(std::move(config)) {}
+    : keys_(keyLimits(core->config()),
+            [this](ClientKeys::Writer w) {
+              Guid g;
+              return cmdReader_.participantOf(w, &g);
+            }),
+      gate_(gateLimits(core->config())),
+      core_(core),
+      config_(std::move(config)) {}
 
 DdsEndpoint::~DdsEndpoint() {
   stop();
@@ -25,6 +51,7 @@ Status DdsEndpoint::start() {
   auto fail = [&]() { return Status::Error(Code::Internal, err); };
   if (!participant_.create(config_.domain, config_.cycloneXml, &err)) return fail();
   if (!cmdTopic_.create(participant_, std::string(protocol::kCommandTopic), &err) ||
+      !cmdTopic_.setSampleInfoFilter(&DdsEndpoint::admitSample, &gate_, &err) ||
       !replyTopic_.create(participant_, std::string(protocol::kReplyTopic), &err) ||
       !infoTopic_.create(participant_, std::string(protocol::kWorldInfoTopic), &err) ||
       !statusTopic_.create(participant_, std::string(protocol::kStatusTopic), &err) ||
@@ -63,30 +90,61 @@ void DdsEndpoint::stop() {
 
 void DdsEndpoint::readLoop() {
   const protocol::Limits& limits = core_->config().limits;
+  sweptAt_ = ClientKeys::Clock::now();
+  auto sweepIfDue = [&](ClientKeys::Clock::time_point now) {
+    if (now - sweptAt_ >= config_.sweepPeriod ||
+        (keys_.sweepWanted() && now - sweptAt_ >= config_.sweepPeriod / 10))
+      sweep();
+  };
+  uint64_t taken = 0;
   while (!stop_) {
     waitset_.wait(DDS_MSECS(200));
     if (stop_) break;
+    // Every command costs O(1) before it is dropped or queued: whatever one participant sends,
+    // the others' commands keep flowing (docs/SERVER.md "Budgets").
     cmdReader_.take([&](const phys_wire_Envelope& env, dds_instance_handle_t writer) {
       counters_.commandsTaken.fetch_add(1);
-      uint64_t principal = 0;
-      if (!vouch(env.key, writer, &principal)) {
+      const auto now = ClientKeys::Clock::now();
+      if ((++taken & 1023) == 0) sweepIfDue(now);  // a take that does not end sweeps too
+      const ClientKeys::Result who = vouch(env.key, writer, now);
+      if (who.verdict == ClientKeys::Verdict::HeldByOther) {
         // Not answered: every reply on this key goes to the participant that holds it, which
         // would take an answer to someone else's command for one of its own.
         const uint64_t n = counters_.spoofed.fetch_add(1) + 1;
-        if ((n & (n - 1)) == 0)  // 1, 2, 4, 8, ...: a flood does not flood the log
-          spdlog::warn("phys/cmd: client key {:#x} is held by another participant; command "
-                       "dropped unanswered ({} so far)",
-                       env.key, n);
+        if (who.report)  // its first, then one in reportEvery: a flood does not flood the log
+          spdlog::warn("phys/cmd: participant {} wrote under client id {:#x}, which another "
+                       "participant holds; dropped unanswered ({} from it, {} in all)",
+                       participantName(who.participant), env.key, who.refusals, n);
         return;
       }
       Incoming in;
       in.envelopeKey = env.key;
       in.envelopeSeq = env.seq;
+      in.sender = who.participant;
       in.bytes = env.bytes._length;
+      if (who.verdict != ClientKeys::Verdict::Ok) {
+        // Past the participant's ids (or a full table): dropped, but answered once in a while
+        // (who.report) so that a client past the limit learns why. Such a key is nobody's, so
+        // the answer reaches no one else's requests.
+        counters_.pastKeyLimit.fetch_add(1);
+        if (!who.report) return;
+        const std::string why =
+            who.verdict == ClientKeys::Verdict::TooManyKeys
+                ? "this participant uses more than " +
+                      std::to_string(keys_.limits().keysPerParticipant) +
+                      " client ids (server.max_keys_per_participant); commands under its "
+                      "other ids are dropped (" + std::to_string(who.refusals) + " so far)"
+                : std::string("the server holds as many client ids as it may; retry later");
+        spdlog::warn("phys/cmd: participant {}: {} (latest id {:#x})",
+                     participantName(who.participant), why, env.key);
+        in.command.status = Status::Error(Code::ResourceExhausted, why);
+        core_->submit(std::move(in));
+        return;
+      }
       Status s = protocol::checkEnvelope(env, PayloadKind::Command, limits);
       if (config_.identities) {
-        in.principal = principal;
-        if (s.ok() && principal == 0) {
+        in.principal = who.principal;
+        if (s.ok() && who.principal == 0) {
           // Answered (the key is this participant's), but with no identity nobody's world
           // access can be decided: a client that writes outside its identity partition.
           const uint64_t n = counters_.unidentified.fetch_add(1) + 1;
@@ -110,64 +168,80 @@ void DdsEndpoint::readLoop() {
         in.command.status = s;
       }
       if (!in.command.ok() && in.command.status.code != Code::PermissionDenied) {
-        counters_.undecodable.fetch_add(1);
-        // Still answered (to the envelope's key and seq) by the core, in arrival order.
-        spdlog::warn("phys/cmd from client {:#x} seq {}: {} ({})", env.key, env.seq,
-                     protocol::toString(in.command.status.code), in.command.status.message);
+        // Still answered (to the envelope's key and seq) by the core, in arrival order, within
+        // the sender's budgets; logged at the 1st, 2nd, 4th, ... time.
+        const uint64_t n = counters_.undecodable.fetch_add(1) + 1;
+        if ((n & (n - 1)) == 0)
+          spdlog::warn("phys/cmd from client {:#x} (participant {}) seq {}: {} ({}; {} so far)",
+                       env.key, participantName(who.participant), env.seq,
+                       protocol::toString(in.command.status.code), in.command.status.message, n);
       }
       core_->submit(std::move(in));
     });
+    sweepIfDue(ClientKeys::Clock::now());
   }
 }
 
-bool DdsEndpoint::vouch(uint64_t key, dds_instance_handle_t writer, uint64_t* principal) {
-  Guid guid{};
-  auto w = writers_.find(writer);
-  if (w != writers_.end()) {
-    guid = w->second.participant;
-    *principal = w->second.principal;
-  } else {
-    // Cyclone delivers data only from matched writers; should the discovery data be gone
-    // already, the writer's own handle stands for its participant (and it has no identity).
-    WriterInfo info;
+ClientKeys::Result DdsEndpoint::vouch(uint64_t key, dds_instance_handle_t writer,
+                                      ClientKeys::Clock::time_point now) {
+  if (!keys_.knows(writer)) {
+    // A new writer: what discovery says of it, once. Cyclone delivers data only from matched
+    // writers; should the discovery data be gone already, the writer's own handle stands for
+    // its participant (and it has no identity).
+    Guid participant{};
+    uint64_t principal = 0;
     std::vector<std::string> partitions;
-    if (cmdReader_.publicationOf(writer, &info.participant, &partitions)) {
+    if (cmdReader_.publicationOf(writer, &participant, &partitions)) {
       // One identity partition and no other: a writer in two would have two identities.
       if (partitions.size() == 1)
         if (auto identity = protocol::identityOfPartition(partitions[0]))
-          info.principal = protocol::identityKey(*identity);
+          principal = protocol::identityKey(*identity);
     } else {
-      std::memcpy(info.participant.data(), &writer, sizeof writer);
+      std::memcpy(participant.data(), &writer, sizeof writer);
     }
-    if (writers_.size() >= kMaxOwners)  // forget writers that left
-      std::erase_if(writers_, [&](const auto& e) {
-        Guid g;
-        return !cmdReader_.participantOf(e.first, &g);
-      });
-    writers_[writer] = info;
-    guid = info.participant;
-    *principal = info.principal;
+    keys_.addWriter(writer, participant, principal);
   }
-  auto it = owners_.find(key);
-  if (it != owners_.end()) {
-    if (it->second.participant == guid) {
-      it->second.writer = writer;
-      return true;
+  return keys_.claim(key, writer, now);
+}
+
+bool DdsEndpoint::admitSample(const dds_sample_info_t* info, void* gate) {
+  return static_cast<InstanceGate*>(gate)->admit(info->publication_handle, info->instance_handle);
+}
+
+void DdsEndpoint::sweep() {
+  sweptAt_ = ClientKeys::Clock::now();
+  if (!cmdReader_.matchedPublications(&live_)) return;  // next time
+  for (const InstanceGate::Refused& r : gate_.sweep(live_, sweptAt_)) {
+    // Named by its participant: known when some of its commands came through, else asked.
+    std::string name;
+    if (const uint64_t p = keys_.participantOf(r.writer)) {
+      name = participantName(p);
+    } else {
+      Guid g{};
+      name = cmdReader_.participantOf(r.writer, &g) ? toString(g) : "(gone)";
     }
-    Guid still;
-    if (cmdReader_.participantOf(it->second.writer, &still)) return false;  // held
-    it->second = {guid, writer};  // its holder left: the key passes on (a client restarted)
-    return true;
+    if (r.instances)
+      spdlog::warn("phys/cmd: participant {} writes under more client ids than its {} "
+                   "(server.max_keys_per_participant); {} of its commands under further ids "
+                   "dropped before they reached physd",
+                   name, keys_.limits().keysPerParticipant, r.instances);
+    if (r.rate)
+      spdlog::warn("phys/cmd: participant {} writes more than {:.0f} commands a second (twice "
+                   "server.max_participant_commands_per_s); {} of them dropped before they "
+                   "reached physd",
+                   name, gate_.limits().rate, r.rate);
   }
-  if (owners_.size() >= kMaxOwners) {
-    std::erase_if(owners_, [&](const auto& e) {
-      Guid g;
-      return !cmdReader_.participantOf(e.second.writer, &g);
-    });
-    if (owners_.size() >= kMaxOwners) return false;  // that many live clients: no more
+  for (ClientKeys::Departed& d : keys_.sweep(live_)) {
+    counters_.participantsLeft.fetch_add(1);
+    spdlog::debug("phys/cmd: participant {} left; its {} client id(s) are free", toString(d.guid),
+                  d.keys.size());
+    core_->clientsLeft(d.participant, std::move(d.keys));
   }
-  owners_.emplace(key, Owner{guid, writer});
-  return true;
+}
+
+std::string DdsEndpoint::participantName(uint64_t participant) const {
+  const Guid* g = keys_.guidOf(participant);
+  return g ? toString(*g) : "#" + std::to_string(participant);
 }
 
 void DdsEndpoint::publishLoop() {

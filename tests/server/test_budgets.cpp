@@ -221,8 +221,10 @@ class SliceTest : public BudgetTest {
     Reply r = send(CommandBuilder().createWorld(args), 0);
     other = r->world();
   }
-  void submit(uint64_t client, CommandBuilder& b, uint32_t w) {
-    core->submit(queuedCommand(client, ++seq, b, w));
+  void submit(uint64_t client, CommandBuilder& b, uint32_t w, uint64_t sender = 0) {
+    Incoming in = queuedCommand(client, ++seq, b, w);
+    in.sender = sender;  // the DDS participant (0: none)
+    core->submit(std::move(in));
   }
   /// Replies pushed so far, decoded, in order.
   std::vector<Reply> replies() { return takeReplies(*core); }
@@ -596,6 +598,97 @@ TEST_F(SliceTest, AClientPastItsCommandRateIsRefusedAndOthersAreNot) {
   EXPECT_GE(ok, 50);
   EXPECT_LE(ok, 60);
   EXPECT_EQ(ok + refused, 80);
+}
+
+TEST_F(SliceTest, AParticipantRotatingIdsIsBoundedAsOneClient) {
+  // Issue 39: the per-client budgets are per envelope key, so one participant writing under a
+  // new id each time had a fresh bucket and queue each time. Its ids now share one budget.
+  CoreConfig c = testConfig();
+  c.maxParticipantCommandsPerS = 10;
+  c.maxParticipantBurst = 50;
+  c.maxParticipantRefusalsPerS = 1000;  // every refusal answered here
+  makeCore(c);
+  constexpr uint64_t kFlooder = 7, kCalm = 8;
+  for (uint64_t i = 0; i < 80; ++i) submit(0xF100 + i, CommandBuilder().listWorlds(), 0, kFlooder);
+  submit(0xCA, CommandBuilder().listWorlds(), 0, kCalm);
+  core->processPending();
+  int ok = 0, refused = 0, calm = 0;
+  for (Reply& r : replies()) {
+    if (r->client_id() == 0xCA) {
+      ++calm;
+      EXPECT_EQ(r->status(), Code::Ok);
+      continue;
+    }
+    if (r->status() == Code::Ok) ++ok;
+    if (r->status() == Code::ResourceExhausted) {
+      ++refused;
+      EXPECT_NE(message(r).find("max_participant_commands_per_s"), std::string::npos)
+          << message(r);
+    }
+  }
+  EXPECT_EQ(calm, 1);
+  EXPECT_GE(ok, 50);
+  EXPECT_LE(ok, 60);
+  EXPECT_EQ(ok + refused, 80);
+}
+
+TEST_F(SliceTest, AParticipantsQueuedBytesAreBoundedOverItsIds) {
+  CoreConfig c = testConfig();
+  c.maxQueuedBytesPerParticipant = 8 << 10;
+  makeCore(c);
+  // Each command holds its payload and 256 bytes: about twenty fit in 8 KiB.
+  for (uint64_t i = 0; i < 100; ++i) submit(0xF100 + i, CommandBuilder().listWorlds(), 0, 7);
+  submit(0xCA, CommandBuilder().listWorlds(), 0, 8);
+  std::vector<Reply> refused = replies();
+  ASSERT_GE(refused.size(), 70u);
+  ASSERT_LE(refused.size(), 80u);
+  for (const Reply& r : refused) {
+    EXPECT_EQ(r->status(), Code::ResourceExhausted);
+    EXPECT_NE(message(r).find("max_queued_mb_per_participant"), std::string::npos) << message(r);
+    EXPECT_NE(r->client_id(), 0xCAu);
+  }
+  const size_t queued = core->processPending();
+  EXPECT_EQ(queued, 101 - refused.size());
+  replies();
+  // Answered, they free the participant's bytes.
+  submit(0xF000, CommandBuilder().listWorlds(), 0, 7);
+  EXPECT_TRUE(replies().empty());
+}
+
+TEST_F(SliceTest, RefusalsPastTheirRateAreDroppedUnanswered) {
+  // A participant flooding past its rate would have every refusal answered: a reply per
+  // command, filling the publisher's queue. Its refusals are answered up to a rate.
+  CoreConfig c = testConfig();
+  c.maxParticipantCommandsPerS = 10;
+  c.maxParticipantBurst = 10;
+  c.maxParticipantRefusalsPerS = 5;
+  makeCore(c);
+  for (int i = 0; i < 1000; ++i) submit(0xF1, CommandBuilder().listWorlds(), 0, 7);
+  const size_t answeredAtOnce = replies().size();
+  EXPECT_GE(answeredAtOnce, 5u);
+  EXPECT_LE(answeredAtOnce, 10u) << "5 at once, and what the rate refilled meanwhile";
+  EXPECT_GE(core->refusalsDropped(), 1000 - 10 - 10 - answeredAtOnce);
+  EXPECT_GE(core->processPending(), 10u);
+  // Without a participant (an in-process caller), every refusal is answered as before.
+  for (int i = 0; i < 700; ++i) submit(0xF2, CommandBuilder().listWorlds(), 0);
+  EXPECT_GE(replies().size(), 700u - 500u - 20u);
+}
+
+TEST_F(SliceTest, AParticipantThatLeftIsForgotten) {
+  CoreConfig c = testConfig();
+  c.maxParticipantCommandsPerS = 1;
+  c.maxParticipantBurst = 1;
+  makeCore(c);
+  submit(0xA, CommandBuilder().listWorlds(), 0, 7);
+  submit(0xA, CommandBuilder().listWorlds(), 0, 7);
+  ASSERT_EQ(replies().size(), 1u) << "the second is past its rate";
+  core->processPending();
+  replies();
+  core->clientsLeft(7, {0xA});
+  // The same id under a new participant (a client restarted) starts with full budgets.
+  submit(0xA, CommandBuilder().listWorlds(), 0, 9);
+  EXPECT_TRUE(replies().empty());
+  EXPECT_EQ(core->processPending(), 1u);
 }
 
 }  // namespace

@@ -4,6 +4,7 @@
 // configuration through CYCLONEDDS_URI.
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <cstdlib>
 #include <map>
@@ -14,6 +15,7 @@
 #include "phys/protocol/dds_envelope.h"
 #include "phys/server/dds.h"
 #include "phys/server/endpoint.h"
+#include "../common/sanitizer.h"
 #include "server_test_util.h"
 
 namespace phys::server::test {
@@ -72,7 +74,7 @@ class TestClient {
   }
 
   /// The reply to (id, seq), waiting for it.
-  std::optional<Reply> await(uint64_t seq) {
+  std::optional<Reply> await(uint64_t seq, std::chrono::milliseconds timeout = kTimeout) {
     std::optional<Reply> found;
     waitFor([&] {
       replies.take([&](const phys_wire_Envelope& env) {
@@ -87,15 +89,16 @@ class TestClient {
       found = it->second;
       pending.erase(it);
       return true;
-    });
+    }, timeout);
     return found;
   }
 
-  std::optional<Reply> call(CommandBuilder& b, uint32_t world) {
+  std::optional<Reply> call(CommandBuilder& b, uint32_t world,
+                            std::chrono::milliseconds timeout = kTimeout) {
     const uint64_t s = ++seq;
     protocol::Bytes bytes = b.finish({id, s, world});
     sendRaw(bytes, s, id);
-    return await(s);
+    return await(s, timeout);
   }
 
   uint64_t id = 0xA11CE000ull + uint64_t(getpid());
@@ -109,7 +112,8 @@ class TestClient {
 
 /// The daemon's components, as physd's main() wires them.
 struct Daemon {
-  explicit Daemon(uint32_t domain) : core(testConfig()), endpoint(&core, {domain, ""}) {
+  explicit Daemon(uint32_t domain, CoreConfig config = testConfig())
+      : core(std::move(config)), endpoint(&core, {domain, ""}) {
     EXPECT_TRUE(core.init().ok());
     Status s = endpoint.start();
     EXPECT_TRUE(s.ok()) << s.message;
@@ -334,6 +338,167 @@ TEST(ServerDds, AClientKeyBelongsToTheParticipantThatUsesItFirst) {
         std::chrono::milliseconds(250));
   }
   EXPECT_TRUE(answered);
+}
+
+/// "Answered within 5 s": a functional bound (before the fix: no answer for 30 s and more),
+/// widened under a sanitizer.
+const auto kAnswered = std::chrono::milliseconds(int64_t(5000 * phys::test::kTimeFactor));
+
+TEST(ServerDds, OneParticipantFloodingClientIdsStallsNoOne) {
+  // Issue 39, finding 1: one participant wrote 70,000 empty commands under 70,000 client ids
+  // and stayed; past 65,536 ids each new one cost the reader thread a scan of the whole id
+  // table (80-110 ms), so no other client was answered and no new client admitted while it
+  // stayed. Now a participant holds at most max_keys_per_participant ids (16), a command
+  // under another costs O(1) before it is dropped, and the others are answered meanwhile.
+  useLoopback();
+  const uint32_t domain = testDomain();
+  Daemon daemon(domain);
+  TestClient calm(domain);
+  ASSERT_TRUE(calm.connected());
+  ASSERT_TRUE(calm.call(CommandBuilder().hello("calm"), 0, kAnswered));
+
+  TestClient flooder(domain);
+  ASSERT_TRUE(flooder.connected());
+  constexpr uint64_t kIds = 70000;
+  std::atomic<uint64_t> sent{0};
+  std::thread flood([&] {
+    phys_wire_Envelope env{};
+    for (uint64_t i = 0; i < kIds; ++i) {
+      protocol::wrapEnvelope(&env, 0xF100D00000000ull + i, 1, protocol::PayloadKind::Command, {});
+      if (dds_write(flooder.cmd.get(), &env) == DDS_RETCODE_OK) sent.fetch_add(1);
+    }
+  });
+  // While it floods and after, the calm client's requests are answered.
+  int answered = 0;
+  bool allAnswered = true;
+  while (sent.load() < kIds && allAnswered) {
+    allAnswered = calm.call(CommandBuilder().listWorlds(), 0, kAnswered).has_value();
+    answered += allAnswered;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  flood.join();
+  EXPECT_TRUE(allAnswered) << "no reply within 5 s while the flood ran, after " << answered
+                           << " answered and " << sent.load() << " ids sent";
+  ASSERT_EQ(sent.load(), kIds);
+  // The flooder stays. Every one of its commands has been taken or filtered out by DDS, the
+  // calm client is still answered, and a new client is admitted.
+  EXPECT_TRUE(waitFor([&] {
+    return daemon.endpoint.counters().commandsTaken.load() +
+               daemon.endpoint.commandsFiltered() >= kIds;
+  }, std::chrono::milliseconds(int64_t(20000 * phys::test::kTimeFactor))));
+  for (int i = 0; i < 5; ++i)
+    ASSERT_TRUE(calm.call(CommandBuilder().listWorlds(), 0, kAnswered)) << i;
+  TestClient newcomer(domain);
+  newcomer.id = calm.id + 1;
+  ASSERT_TRUE(newcomer.connected());
+  auto hello = newcomer.call(CommandBuilder().hello("newcomer"), 0, kAnswered);
+  ASSERT_TRUE(hello) << "a new client's Hello was not answered while the flooder stayed";
+  EXPECT_EQ((*hello)->status(), Code::Ok);
+  // The flooder holds 16 ids; its commands under the next 16 were dropped by the endpoint,
+  // and the rest filtered out by DDS before they made an instance in the reader's cache.
+  EXPECT_EQ(daemon.endpoint.counters().pastKeyLimit.load(), 16u);
+  EXPECT_EQ(daemon.endpoint.commandsFiltered(), kIds - 32);
+}
+
+TEST(ServerDds, AParticipantFloodingOneIdGetsItsShareAndOthersAreAnswered) {
+  // The other flood: valid commands under one id as fast as a participant can write them. It
+  // is served at its rate (max_participant_commands_per_s), its refusals are answered up to
+  // max_participant_refusals_per_s and dropped beyond, and the others are answered meanwhile.
+  useLoopback();
+  const uint32_t domain = testDomain();
+  Daemon daemon(domain);
+  TestClient calm(domain), flooder(domain);
+  flooder.id = calm.id + 0x1000;
+  ASSERT_TRUE(calm.connected());
+  ASSERT_TRUE(flooder.connected());
+  const protocol::Bytes list = CommandBuilder().listWorlds().finish({flooder.id, 1, 0});
+  std::atomic<bool> stop{false};
+  std::atomic<uint64_t> sent{0};
+  std::thread flood([&] {
+    phys_wire_Envelope env{};
+    for (uint64_t s = 1; !stop.load(); ++s) {
+      protocol::wrapEnvelope(&env, flooder.id, s, protocol::PayloadKind::Command, list);
+      if (dds_write(flooder.cmd.get(), &env) == DDS_RETCODE_OK) sent.fetch_add(1);
+    }
+  });
+  // The calm client's requests are answered while it floods (at least 20,000 commands, ten
+  // times what it may send in a second), and a new client is admitted.
+  bool allAnswered = true;
+  const auto end = Clock::now() + std::chrono::seconds(60);
+  for (int i = 0; (i < 50 || sent.load() < 20000) && allAnswered && Clock::now() < end; ++i) {
+    allAnswered = calm.call(CommandBuilder().listWorlds(), 0, kAnswered).has_value();
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    if (i == 10) {
+      TestClient newcomer(domain);
+      newcomer.id = calm.id + 1;
+      const bool matched = newcomer.connected();
+      EXPECT_TRUE(matched);
+      if (matched) {  // (no ASSERT while the flood thread runs)
+        EXPECT_TRUE(newcomer.call(CommandBuilder().hello("newcomer"), 0, kAnswered))
+            << "a new client's Hello was not answered during the flood";
+      }
+    }
+  }
+  stop = true;
+  flood.join();
+  EXPECT_TRUE(allAnswered) << "no reply within 5 s while one participant flooded one id";
+  ASSERT_GE(sent.load(), 20000u);
+  EXPECT_GT(daemon.core.refusalsDropped(), 0u) << "its refusals past their rate were all answered";
+}
+
+TEST(ServerDds, AClientsInterestsAreFreedWhenItsParticipantLeaves) {
+  // Issue 39, finding 6: interests outlived their client, so read-only clients that came and
+  // went filled a world's slots for good. Now the endpoint finds the participant gone and the
+  // core removes its interests: the interest's state writer goes with them.
+  useLoopback();
+  const uint32_t domain = testDomain();
+  Daemon daemon(domain);
+  TestClient owner(domain);
+  ASSERT_TRUE(owner.connected());
+  auto r = owner.call(CommandBuilder().createWorld({"mine", "", std::nullopt, 0}), 0);
+  ASSERT_TRUE(r);
+  ASSERT_EQ((*r)->status(), Code::Ok) << message(*r);
+  const uint32_t world = (*r)->world();
+  const std::vector<phys::BodyDef> defs{groundBody(), boxBody({0, 0, 1})};
+  r = owner.call(CommandBuilder().spawnBodies(defs), world);
+  ASSERT_TRUE(r);
+  const std::vector<uint64_t> ids = bodyIds(*r);
+
+  auto reader = std::make_unique<TestClient>(domain);
+  reader->id = owner.id + 1;
+  ASSERT_TRUE(reader->connected());
+  std::vector<uint32_t> interests;
+  int refused = 0;
+  for (int i = 0; i < 12; ++i) {
+    auto s = reader->call(CommandBuilder().subscribeBodies({&ids[1], 1}), world);
+    ASSERT_TRUE(s);
+    if ((*s)->status() == Code::Ok)
+      interests.push_back((*s)->result_as_InterestResult()->interest());
+    else
+      ++refused;
+  }
+  EXPECT_EQ(interests.size(), 8u) << "server.max_interests_per_client";
+  EXPECT_EQ(refused, 4);
+  ASSERT_FALSE(interests.empty());
+  // The owner watches the first interest's topic: the daemon's writer is matched.
+  std::string err;
+  dds::Topic topic;
+  dds::Reader watch;
+  ASSERT_TRUE(topic.create(owner.p, protocol::stateTopic(world, interests[0]), &err)) << err;
+  ASSERT_TRUE(watch.create(owner.p, topic, protocol::kStateReaderQos, &err)) << err;
+  ASSERT_TRUE(waitFor([&] { return watch.matched() > 0; }));
+  // The reader leaves: within a sweep (1 s), its interests are removed and the writer goes.
+  reader.reset();
+  EXPECT_TRUE(waitFor([&] { return watch.matched() == 0; }, kAnswered))
+      << "the interest of a client that left was kept";
+  EXPECT_TRUE(waitFor([&] { return daemon.endpoint.counters().participantsLeft.load() >= 1; }));
+  // Its slots are free: a new reader gets its own quota.
+  TestClient next(domain);
+  next.id = owner.id + 2;
+  ASSERT_TRUE(next.connected());
+  auto s = next.call(CommandBuilder().subscribeBodies({&ids[1], 1}), world);
+  ASSERT_TRUE(s);
+  EXPECT_EQ((*s)->status(), Code::Ok) << message(*s);
 }
 
 }  // namespace

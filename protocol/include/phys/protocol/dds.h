@@ -70,6 +70,13 @@ class Participant : public Entity {
 class Topic : public Entity {
  public:
   bool create(const Participant& p, const std::string& name, std::string* err);
+  /// A filter that readers of this topic entity (created after it is set) apply to each
+  /// sample before storing it, from what DDS knows of the sample without deserialising it
+  /// (its writer's and instance's handles): a sample filtered out of a new instance makes no
+  /// instance. fn runs on Cyclone's delivery threads with the reader's cache locked. Cyclone
+  /// calls this API unstable (dds_set_topic_filter_extended, 0.10).
+  bool setSampleInfoFilter(bool (*fn)(const dds_sample_info_t* info, void* arg), void* arg,
+                           std::string* err);
   const std::string& name() const { return name_; }
 
  private:
@@ -135,6 +142,9 @@ class Reader : public Entity {
   /// the access-control plugin has checked them against the writer's signed permissions).
   bool publicationOf(dds_instance_handle_t writer, std::array<uint8_t, 16>* guid,
                      std::vector<std::string>* partitions) const;
+  /// Instance handles of every writer matched with this reader now (the same handles as a
+  /// sample's publication handle); false on an error (*out then says nothing).
+  bool matchedPublications(std::vector<dds_instance_handle_t>* out) const;
   uint32_t matched() const;
 
  private:

@@ -79,6 +79,25 @@ struct CoreConfig {
   /// ResourceExhausted at once. 0: no limit.
   double maxClientCommandsPerS = 2000;
   double maxClientBurst = 500;
+  // The same per DDS participant (Incoming::sender), whatever client ids it writes under, so
+  // that one rotating ids costs what one client may (docs/SERVER.md "Budgets"). An SDK
+  // client is one participant with one id.
+  /// Client ids one participant may hold (the DDS endpoint's ClientKeys); its commands under
+  /// others are dropped, one in a while answered ResourceExhausted.
+  uint32_t maxKeysPerParticipant = 16;
+  /// Commands per second and at once from one participant, all its ids together (0: no limit).
+  double maxParticipantCommandsPerS = 2000;
+  double maxParticipantBurst = 500;
+  /// Payload bytes one participant may have waiting, all its ids together.
+  uint64_t maxQueuedBytesPerParticipant = 16ull << 20;
+  /// Refusals at submit (rate, queue) answered per participant and second (a bucket of as
+  /// many); past it they are dropped unanswered and counted (refusalsDropped), so that a
+  /// flood of refused commands does not become a flood of replies.
+  double maxParticipantRefusalsPerS = 100;
+  /// Interests (Subscribe) one client may hold in one world: per participant, or per client
+  /// id for commands without one (in-process callers). Of a world's kMaxInterests, the last
+  /// kInterestsForEditors are for clients that may change it (owner, editors).
+  uint32_t maxInterestsPerClient = 8;
   /// Principals are DDS Security identities (identity keys, protocol/security.h), not client
   /// ids: physd runs with security ([security] in its config). Only wording here; the
   /// endpoint attributes commands.
@@ -128,6 +147,10 @@ struct Incoming {
   /// The participant that wrote it proved, in its Hello, that it holds the key the envelope
   /// key (the client id) names (phys/protocol/client_key.h; the endpoint checks the proof).
   bool proven = false;
+  /// The DDS participant that wrote it (ClientKeys' number, never reused; 0: none, an
+  /// in-process caller): its budgets beside the key's, and its interests are freed when it
+  /// leaves (ServerCore::clientsLeft).
+  uint64_t sender = 0;
   size_t bytes = 0;  ///< payload size, for the queue's budget
   protocol::Decoded<wire::Command> command;
 };
@@ -220,6 +243,7 @@ struct ServerWorld {
   struct Interest {
     std::vector<uint64_t> ids;  ///< sorted; empty for a region
     uint64_t client = 0;        ///< who subscribed (may unsubscribe, as may the world's editors)
+    uint64_t sender = 0;        ///< its participant (Incoming::sender; 0: none)
     bool region = false;
     phys::Vec3 lo, hi;          ///< the region
     Published published;
@@ -232,6 +256,10 @@ struct ServerWorld {
   std::map<uint32_t, Interest> interests;
   uint32_t nextInterest = 1;
   static constexpr size_t kMaxInterests = 64;
+  /// Of kMaxInterests, these are kept for clients that may change the world (its owner and
+  /// editors; everyone on a shared world or one without an owner): readers fill at most the
+  /// rest.
+  static constexpr size_t kInterestsForEditors = 16;
   /// The world was replaced (load, reset, restore): every stream starts from a keyframe.
   void framesReplaced() {
     published.valid = false;
@@ -242,7 +270,7 @@ struct ServerWorld {
   struct StepJob {
     uint64_t requested = 0, remaining = 0;
     protocol::ReplyHeader header;  ///< the Step's reply header
-    uint64_t envelopeKey = 0, envelopeSeq = 0;
+    uint64_t envelopeKey = 0, envelopeSeq = 0, sender = 0;
     uint64_t charge = 0;  ///< what the command holds of the queue's byte budgets
     double ms = 0;     ///< wall time spent so far
   };
@@ -251,7 +279,7 @@ struct ServerWorld {
   struct LoadJob {
     std::shared_ptr<LoadTask> task;
     protocol::ReplyHeader header;
-    uint64_t envelopeKey = 0, envelopeSeq = 0;
+    uint64_t envelopeKey = 0, envelopeSeq = 0, sender = 0;
     uint64_t charge = 0;
   };
   std::optional<LoadJob> load;
@@ -326,6 +354,13 @@ class ServerCore {
   /// maxQueuedPerClient commands waiting, or a queue holding maxQueuedBytes, gets a
   /// ResourceExhausted reply at once instead.
   void submit(Incoming in);
+  /// Thread-safe: clients are gone (the DDS endpoint: their participant's liveliness was
+  /// lost). sender: its number (Incoming::sender; 0: none, then `keys` say whose); keys: the
+  /// client ids it held. At the next tick boundary, after the commands queued before, the
+  /// interests they held are removed (as an Unsubscribe would); their budgets are forgotten.
+  void clientsLeft(uint64_t sender, std::vector<uint64_t> keys);
+  /// Refusals at submit dropped unanswered (CoreConfig::maxParticipantRefusalsPerS).
+  uint64_t refusalsDropped() const { return refusalsDropped_.load(); }
   /// Applies every queued command in arrival order, pushing the replies (and changed world
   /// info) to out(). Returns the number applied.
   size_t processPending();
@@ -505,22 +540,45 @@ class ServerCore {
     uint64_t bytes = 0;
   };
   std::map<uint64_t, Pending> pendingPerClient_;
-  /// Each client's token bucket (maxClientCommandsPerS); guarded by inboxMutex_.
+  /// A token bucket: refilled at a rate up to a burst.
   struct RateBucket {
     double tokens = 0;
     std::chrono::steady_clock::time_point last;
+    /// Refills it to `now`; whether a token is there (not taken). rate 0: always.
+    bool ready(double rate, double burst, std::chrono::steady_clock::time_point now);
   };
+  /// Each client's token bucket (maxClientCommandsPerS); guarded by inboxMutex_.
   std::unordered_map<uint64_t, RateBucket> rates_;
-  /// Takes a token of the client's bucket; false when it has none (inboxMutex_ held).
-  bool takeToken(uint64_t client, std::chrono::steady_clock::time_point now);
+  /// rates_ is combed for idle buckets when it reaches this size (then twice what is left, at
+  /// least 65536: amortised O(1) per command).
+  size_t ratesCombAt_ = 65536;
+  /// The client's bucket, made full on first use (inboxMutex_ held).
+  RateBucket& bucketOf(uint64_t client, std::chrono::steady_clock::time_point now);
+  /// What one participant has waiting and may send (Incoming::sender); guarded by inboxMutex_,
+  /// forgotten when it leaves.
+  struct SenderBudget {
+    Pending pending;
+    RateBucket commands;
+    RateBucket refusals;  ///< refusals answered (maxParticipantRefusalsPerS)
+  };
+  std::unordered_map<uint64_t, SenderBudget> senders_;
+  /// Clients gone (clientsLeft), applied by processPending after the commands before them.
+  struct Left {
+    uint64_t sender = 0;
+    std::vector<uint64_t> keys;
+  };
+  std::vector<Left> left_;  ///< guarded by inboxMutex_
+  /// Removes the interests of clients that left.
+  void applyLeft(const Left& l);
   uint64_t pendingBytes_ = 0;
   std::atomic<uint64_t> refusedAtSubmit_{0};
+  std::atomic<uint64_t> refusalsDropped_{0};
   /// Bytes a queued command holds of the queue's budgets: its payload and what holding it
   /// costs beside.
   static uint64_t queueCharge(const Incoming& in) { return uint64_t(in.bytes) + 256; }
   /// A submitted command was answered: its place in the queue's budgets is free.
   void release(const Incoming& in);
-  void release(uint64_t envelopeKey, uint64_t chargedBytes);
+  void release(uint64_t envelopeKey, uint64_t sender, uint64_t chargedBytes);
   // The command dispatch() is applying: a Step too long for one slice becomes a job that
   // answers it later (apply() then returns no reply and sets deferred_).
   const Incoming* current_ = nullptr;

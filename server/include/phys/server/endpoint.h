@@ -5,16 +5,16 @@
 #pragma once
 
 #include <atomic>
+#include <chrono>
 #include <cstdint>
 #include <map>
 #include <memory>
 #include <set>
 #include <string>
 #include <thread>
+#include <vector>
 
-#include <array>
-#include <unordered_map>
-
+#include "phys/server/client_keys.h"
 #include "phys/server/core.h"
 #include "phys/server/dds.h"
 
@@ -27,6 +27,9 @@ struct EndpointConfig {
   /// attributed to the identity whose partition it was written in (Incoming::principal,
   /// protocol/security.h), and one written outside an identity partition is refused.
   bool identities = false;
+  /// How often the reader thread looks for participants that left (their client ids and
+  /// interests are freed); sooner, down to a tenth of it, when the id table is full.
+  std::chrono::milliseconds sweepPeriod{1000};
 };
 
 struct EndpointCounters {
@@ -38,6 +41,11 @@ struct EndpointCounters {
   /// Commands dropped unanswered because their envelope key belongs to another participant
   /// (a client's key is bound to the participant that first used it, while it is there).
   std::atomic<uint64_t> spoofed{0};
+  /// Commands dropped because their participant holds max_keys_per_participant other keys
+  /// (or the id table is full); one in a while is answered ResourceExhausted.
+  std::atomic<uint64_t> pastKeyLimit{0};
+  /// Participants found gone by the sweep (their keys and interests freed).
+  std::atomic<uint64_t> participantsLeft{0};
   /// Secure daemon: commands refused because their writer is in no identity partition.
   std::atomic<uint64_t> unidentified{0};
 };
@@ -51,27 +59,30 @@ class DdsEndpoint {
   /// Stops both threads (the publisher first drains what is queued, briefly).
   void stop();
   const EndpointCounters& counters() const { return counters_; }
+  /// Commands DDS filtered out before they reached the reader: their writer had made
+  /// 2 x max_keys_per_participant instances (client ids) already, or wrote faster than twice
+  /// max_participant_commands_per_s (InstanceGate).
+  uint64_t commandsFiltered() const { return gate_.refused(); }
 
  private:
   void readLoop();
-  /// Whether the participant that wrote a command may use its envelope key: the first
-  /// participant to use a key holds it until DDS no longer matches its writer (it left, or
-  /// its lease expired). *principal: the writer's identity key (0: it has no identity
-  /// partition). Reader thread only.
-  bool vouch(uint64_t key, dds_instance_handle_t writer, uint64_t* principal);
-  using Guid = std::array<uint8_t, 16>;
-  struct Owner {
-    Guid participant{};
-    dds_instance_handle_t writer = 0;
-  };
-  /// What discovery said of a command writer: its participant and its identity's key.
-  struct WriterInfo {
-    Guid participant{};
-    uint64_t principal = 0;
-  };
-  std::unordered_map<uint64_t, Owner> owners_;                     ///< by client key
-  std::unordered_map<dds_instance_handle_t, WriterInfo> writers_;  ///< by writer
-  static constexpr size_t kMaxOwners = 1 << 16;
+  /// Whether the participant that wrote a command may use its envelope key (keys_: the first
+  /// participant to use a key holds it while DDS matches it; each holds at most
+  /// max_keys_per_participant): O(1), the writer's discovery data asked once per writer.
+  /// Reader thread only.
+  ClientKeys::Result vouch(uint64_t key, dds_instance_handle_t writer,
+                           ClientKeys::Clock::time_point now);
+  /// Forgets the writers DDS no longer matches and the participants gone with them: their
+  /// keys are free, and the core frees what they held (ServerCore::clientsLeft).
+  void sweep();
+  /// A participant's GUID for the log (its number when unknown).
+  std::string participantName(uint64_t participant) const;
+  ClientKeys keys_;
+  /// The command topic's filter (before cmdReader_, which uses it, and gone after it).
+  InstanceGate gate_;
+  static bool admitSample(const dds_sample_info_t* info, void* gate);
+  ClientKeys::Clock::time_point sweptAt_{};
+  std::vector<dds_instance_handle_t> live_;  ///< sweep's scratch
   void publishLoop();
   void publish(ReliableMessage& m);
   void publish(StateFrameSet& f);
