@@ -4,6 +4,7 @@
 // when the daemon goes away or a new one appears.
 #include "phys/client/client.h"
 
+#include "phys/protocol/client_key.h"
 #include "phys/protocol/compact.h"
 
 #include <algorithm>
@@ -12,7 +13,6 @@
 #include <deque>
 #include <map>
 #include <mutex>
-#include <random>
 #include <set>
 #include <thread>
 
@@ -74,15 +74,6 @@ std::string str(const flatbuffers::String* s) {
 
 WorldSummary toSummary(const wire::WorldSummary& w) {
   return protocol::toWorldSummary(w);
-}
-
-uint64_t randomId() {
-  std::random_device rd;
-  std::mt19937_64 g((uint64_t(rd()) << 32) ^ rd() ^
-                    uint64_t(Clock::now().time_since_epoch().count()));
-  uint64_t id = 0;
-  while (id == 0) id = g();
-  return id;
 }
 
 Ack ack(const wire::Reply& r) {
@@ -420,6 +411,9 @@ struct Subscription::State {
 struct Client::Impl {
   ClientOptions options;
   uint64_t clientId = 0;
+  std::optional<protocol::ClientKey> key;  ///< none: a plain fixed id (not proven)
+  /// The key's binding proof for this client's participant (made once: it does not change).
+  std::array<uint8_t, protocol::kClientProofBytes> proof{};
   dds::Participant participant;
   dds::Topic cmdTopic, replyTopic, statusTopic, eventsTopic;
   dds::Writer cmdWriter;
@@ -428,6 +422,9 @@ struct Client::Impl {
 
   std::mutex writeMutex;
   std::atomic<uint64_t> seq{0};
+  /// Command readers (daemons) this client's proof was written to since they matched; under
+  /// writeMutex. See proveToNewDaemons.
+  std::set<dds_instance_handle_t> proofSentTo;
 
   struct Pending {
     Clock::time_point deadline;
@@ -460,7 +457,20 @@ struct Client::Impl {
   }
 
   explicit Impl(ClientOptions o) : options(std::move(o)) {
-    clientId = options.clientId ? options.clientId : randomId();
+    // The client's id: its key's (proven in every Hello), or a plain fixed id without a key.
+    if (!options.keyFile.empty()) {
+      protocol::ClientKey k;
+      protocol::Status s = protocol::ClientKey::load(options.keyFile, true, &k);
+      if (!s.ok()) throw Error(ErrorCode::InvalidArgument, s.message);
+      if (options.clientId && options.clientId != k.clientId())
+        throw Error(ErrorCode::InvalidArgument,
+                    "ClientOptions::clientId differs from the id of the key in " +
+                        options.keyFile + " (leave it 0: the key names the client)");
+      key = k;
+    } else if (!options.clientId) {
+      key = protocol::ClientKey::generate();
+    }
+    clientId = key ? key->clientId() : options.clientId;
     std::string err;
     std::string xml = options.cycloneXml;
     std::vector<std::string> cmdPartitions;
@@ -470,6 +480,7 @@ struct Client::Impl {
       cmdPartitions.push_back(protocol::identityPartition(options.security.identity));
     }
     if (!participant.create(options.domain, xml, &err)) fail("participant", err);
+    if (key) proof = key->proveBinding(participant.guid());
     if (!cmdTopic.create(participant, std::string(protocol::kCommandTopic), &err) ||
         !replyTopic.create(participant, std::string(protocol::kReplyTopic), &err) ||
         !statusTopic.create(participant, std::string(protocol::kStatusTopic), &err) ||
@@ -514,6 +525,7 @@ struct Client::Impl {
   /// Sends a command; done runs once, on the SDK thread (or here on a write failure).
   void send(CommandBuilder& b, uint32_t world, std::chrono::milliseconds timeout,
             std::function<void(const wire::Reply*, const Error*)> done) {
+    const bool hello = b.requestCount() == 1 && b.requestType(0) == wire::Request::Hello;
     const uint64_t s = ++seq;
     protocol::Bytes bytes = b.finish({clientId, s, world});
     {
@@ -523,6 +535,7 @@ struct Client::Impl {
     dds_return_t rc;
     {
       std::lock_guard<std::mutex> lk(writeMutex);
+      proveToNewDaemons(hello);
       rc = cmdWriter.write(clientId, bytes, s);
     }
     if (rc < 0) {
@@ -561,6 +574,34 @@ struct Client::Impl {
     return request<Ack>(b, world, o, [](const wire::Reply& r) { return ack(r); });
   }
 
+  /// Before a command goes out (writeMutex held): a daemon that matched this client's writer
+  /// since the last Hello (a restarted daemon the SDK thread has not noticed yet) gets a Hello
+  /// with the proof first, on the same writer, so it reads the proof before the command and
+  /// treats the command as the key holder's. Without this, a command written in the moment
+  /// between a new daemon matching and the SDK thread's greeting would reach it unproven and be
+  /// refused on a proof-owned world. (The answer to this Hello is not awaited; the SDK thread
+  /// greets the daemon too, for its ServerInfo.)
+  void proveToNewDaemons(bool isHello) {
+    if (!key) return;
+    const std::vector<dds_instance_handle_t> now = cmdWriter.matchedHandles();
+    bool fresh = false;
+    for (dds_instance_handle_t h : now) fresh = fresh || !proofSentTo.count(h);
+    proofSentTo = std::set<dds_instance_handle_t>(now.begin(), now.end());
+    if (!fresh || isHello) return;
+    CommandBuilder b;
+    greet(b);
+    const uint64_t s = ++seq;
+    cmdWriter.write(clientId, b.finish({clientId, s, 0}), s);
+  }
+
+  /// Hello, with the key's binding proof when the client has a key.
+  void greet(CommandBuilder& b) const {
+    if (key)
+      b.hello(options.name, key->publicKey(), proof);
+    else
+      b.hello(options.name);
+  }
+
   static ServerInfo parseHello(const wire::Reply& r) {
     auto* h = r.result_as_HelloResult();
     if (!h) throw Error(ErrorCode::BadReply, "hello reply without HelloResult");
@@ -568,6 +609,7 @@ struct Client::Impl {
     i.protocolVersion = h->protocol_version();
     i.name = str(h->server_name());
     i.version = str(h->server_version());
+    i.clientProven = h->client_proven();
     if (h->features())
       for (auto* f : *h->features()) i.features.push_back(f->str());
     return i;
@@ -575,7 +617,7 @@ struct Client::Impl {
 
   std::future<ServerInfo> hello(const CallOptions& o) {
     CommandBuilder b;
-    b.hello(options.name);
+    greet(b);
     return request<ServerInfo>(b, 0, o, [this](const wire::Reply& r) {
       ServerInfo i = parseHello(r);
       {
@@ -710,7 +752,7 @@ struct Client::Impl {
       helloInFlight = true;
       needHello = false;
       CommandBuilder b;
-      b.hello(options.name);
+      greet(b);
       send(b, 0, std::chrono::milliseconds(2000), [this](const wire::Reply* r, const Error* e) {
         helloInFlight = false;
         if (!e && r->status() == wire::StatusCode::Ok && r->result_as_HelloResult()) {

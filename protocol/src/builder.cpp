@@ -279,6 +279,16 @@ CommandBuilder& CommandBuilder::hello(std::string_view clientName, uint16_t vers
   return add(wire::Request::Hello, wire::CreateHello(fbb_, version, name).Union());
 }
 
+CommandBuilder& CommandBuilder::hello(std::string_view clientName,
+                                      std::span<const uint8_t> publicKey,
+                                      std::span<const uint8_t> proof) {
+  auto name = optString(fbb_, clientName);
+  auto key = fbb_.CreateVector(publicKey.data(), publicKey.size());
+  auto sig = fbb_.CreateVector(proof.data(), proof.size());
+  return add(wire::Request::Hello,
+             wire::CreateHello(fbb_, kProtocolVersion, name, key, sig).Union());
+}
+
 CommandBuilder& CommandBuilder::createWorld(const CreateWorldArgs& args) {
   auto name = optString(fbb_, args.name);
   auto preset = optString(fbb_, args.preset);
@@ -516,7 +526,8 @@ Bytes encodeHelloReply(const ReplyHeader& header, const HelloInfo& info) {
   auto version = optString(fbb, info.serverVersion);
   auto features = fbb.CreateVectorOfStrings(info.features);
   auto limits = detail::writeLimits(fbb, info.limits);
-  auto r = wire::CreateHelloResult(fbb, kProtocolVersion, name, version, features, limits);
+  auto r = wire::CreateHelloResult(fbb, kProtocolVersion, name, version, features, limits,
+                                   info.clientProven);
   return finishReply(fbb, header, wire::Result::HelloResult, r.Union());
 }
 

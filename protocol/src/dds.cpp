@@ -40,6 +40,14 @@ bool Participant::create(uint32_t domain, const std::string& configXml, std::str
   return true;
 }
 
+std::array<uint8_t, 16> Participant::guid() const {
+  std::array<uint8_t, 16> g{};
+  dds_guid_t id;
+  static_assert(sizeof id.v == 16);
+  if (e_ > 0 && dds_get_guid(e_, &id) == DDS_RETCODE_OK) std::memcpy(g.data(), id.v, 16);
+  return g;
+}
+
 bool Topic::create(const Participant& p, const std::string& name, std::string* err) {
   name_ = name;
   dds_entity_t t =

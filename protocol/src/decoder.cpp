@@ -2,6 +2,8 @@
 // (decoder.h says what is checked and what is left to the server).
 #include "phys/protocol/decoder.h"
 
+#include "phys/protocol/client_key.h"
+
 #include <algorithm>
 #include <array>
 #include <cctype>
@@ -532,7 +534,17 @@ bool Checker::request(wire::Request type, const void* table) {
     case wire::Request::Hello: {
       auto* r = static_cast<const wire::Hello*>(table);
       if (r->protocol_version() == 0) return invalid("protocol_version", "must be >= 1, got 0");
-      return text(r->client_name(), lim.maxNameBytes, "client_name", false);
+      if (!text(r->client_name(), lim.maxNameBytes, "client_name", false)) return false;
+      // A binding proof (client_key.h): a whole key and a whole signature, or neither.
+      const size_t key = r->public_key() ? r->public_key()->size() : 0;
+      const size_t proof = r->proof() ? r->proof()->size() : 0;
+      if ((key || proof) && (key != kClientPublicKeyBytes || proof != kClientProofBytes))
+        return fail(Code::Malformed, "public_key",
+                    "a binding proof is a " + std::to_string(kClientPublicKeyBytes) +
+                        "-byte public key and a " + std::to_string(kClientProofBytes) +
+                        "-byte proof, got " + std::to_string(key) + " and " +
+                        std::to_string(proof));
+      return true;
     }
     case wire::Request::CreateWorld: {
       auto* r = static_cast<const wire::CreateWorld*>(table);

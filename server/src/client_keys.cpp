@@ -76,7 +76,21 @@ ClientKeys::Result ClientKeys::refuse(Verdict v, uint64_t participant, uint64_t 
   return r;
 }
 
-ClientKeys::Result ClientKeys::claim(uint64_t key, Writer writer, Clock::time_point now) {
+bool ClientKeys::proves(ParticipantRec& p, const Proof* proof, Clock::time_point now) {
+  if (!proof || !*proof) return false;
+  // The participant's budget of signature checks: a token bucket.
+  const double elapsed = std::chrono::duration<double>(now - p.proofAt).count();
+  p.proofTokens = p.proofTokens < 0 ? limits_.proofBurst
+                                    : std::min(limits_.proofBurst,
+                                               p.proofTokens + elapsed * limits_.proofsPerSecond);
+  p.proofAt = now;
+  if (p.proofTokens < 1) return false;
+  p.proofTokens -= 1;
+  return (*proof)(p.guid);
+}
+
+ClientKeys::Result ClientKeys::claim(uint64_t key, Writer writer, Clock::time_point now,
+                                     const Proof* proof) {
   auto w = writers_.find(writer);
   if (w == writers_.end()) {  // not added (the writer table is full)
     Result r;
@@ -89,21 +103,25 @@ ClientKeys::Result ClientKeys::claim(uint64_t key, Writer writer, Clock::time_po
   auto k = keys_.find(key);
   if (k != keys_.end()) {
     KeyRec& held = k->second;
+    ParticipantRec& p = participants_.at(who);
     if (held.participant == who) {
       held.writer = writer;
-      return Result{Verdict::Ok, who, principal, false, 0};
+      if (!held.proven && proves(p, proof, now)) held.proven = true;
+      return Result{Verdict::Ok, who, principal, false, 0, held.proven};
     }
-    if (!mayTake(held, who, now)) return refuse(Verdict::HeldByOther, who, principal, now);
-    // Its holder left (a client restarted with the same id): the key passes on, if the new
-    // participant has room for it.
-    ParticipantRec& p = participants_.at(who);
+    // Another participant holds it. A proof takes it at once (the holder, proven or not, is
+    // the key's holder no more: two proofs of one key are the same client, the newest wins);
+    // without one, only once its holder left (a client restarted with a plain fixed id).
+    const bool proven = proves(p, proof, now);
+    if (!proven && !mayTake(held, who, now))
+      return refuse(Verdict::HeldByOther, who, principal, now);
     if (p.keys.size() >= limits_.keysPerParticipant)
       return refuse(Verdict::TooManyKeys, who, principal, now);
     auto old = participants_.find(held.participant);
     if (old != participants_.end()) release(old->second, key);
-    held = KeyRec{who, writer, {}};
+    held = KeyRec{who, writer, {}, proven};
     p.keys.push_back(key);
-    return Result{Verdict::Ok, who, principal, false, 0};
+    return Result{Verdict::Ok, who, principal, false, 0, proven};
   }
   ParticipantRec& p = participants_.at(who);
   if (p.keys.size() >= limits_.keysPerParticipant)
@@ -112,9 +130,10 @@ ClientKeys::Result ClientKeys::claim(uint64_t key, Writer writer, Clock::time_po
     sweepWanted_ = true;
     return refuse(Verdict::Full, who, principal, now);
   }
-  keys_.emplace(key, KeyRec{who, writer, {}});
+  const bool proven = proves(p, proof, now);
+  keys_.emplace(key, KeyRec{who, writer, {}, proven});
   p.keys.push_back(key);
-  return Result{Verdict::Ok, who, principal, false, 0};
+  return Result{Verdict::Ok, who, principal, false, 0, proven};
 }
 
 bool ClientKeys::mayTake(KeyRec& held, uint64_t /*claimant*/, Clock::time_point now) {

@@ -474,7 +474,7 @@ struct ServerCore::Context {
 };
 
 Status ServerCore::checkAccess(const ServerWorld& w, const wire::Command& c, uint64_t key,
-                               uint64_t envelopeKey) const {
+                               uint64_t envelopeKey, bool proven) const {
   enum class Need { Read, Edit, Own };
   Need need = Need::Edit;
   switch (c.request_type()) {
@@ -500,10 +500,20 @@ Status ServerCore::checkAccess(const ServerWorld& w, const wire::Command& c, uin
     auto it = r ? w.interests.find(r->interest()) : w.interests.end();
     if (it != w.interests.end() && it->second.client != envelopeKey) need = Need::Edit;
   }
-  if (need == Need::Read || w.owner == 0 || key == w.owner) return Status::Ok();
-  if (need == Need::Edit &&
-      (w.shared || std::find(w.editors.begin(), w.editors.end(), key) != w.editors.end()))
-    return Status::Ok();
+  if (need == Need::Read || w.owner == 0) return Status::Ok();
+  const bool editor = std::find(w.editors.begin(), w.editors.end(), key) != w.editors.end();
+  // A world whose owner proved its id: the owner's and editors' ids count only from a
+  // participant that proved its own (anyone can write any id into a command).
+  const bool idCounts = !w.ownerProven || proven;
+  if (idCounts && key == w.owner) return Status::Ok();
+  if (need == Need::Edit && (w.shared || (idCounts && editor))) return Status::Ok();
+  if (!idCounts && (key == w.owner || editor))
+    return err(Code::PermissionDenied,
+               std::string(protocol::requestName(c.request_type())) + ": world " +
+                   std::to_string(w.id) + " '" + w.name + "' was created by a client that "
+                   "proved its id with a key, and client " + hex(key) +
+                   " has not proved its id on this connection: say Hello with the key's proof "
+                   "(the SDK does; docs/SERVER.md \"Access\")");
   const char* who = config_.identities ? "identity key " : "client ";
   return err(Code::PermissionDenied,
              std::string(protocol::requestName(c.request_type())) + ": world " +
@@ -525,7 +535,7 @@ Bytes ServerCore::applyBytes(std::span<const uint8_t> payload, uint64_t envelope
 
 Bytes ServerCore::apply(const Incoming& in) {
   if (in.command.ok()) {
-    Bytes reply = apply(*in.command, in.envelopeKey, in.principal);
+    Bytes reply = apply(*in.command, in.envelopeKey, in.principal, in.proven);
     journalApplied(in, &reply);  // on a durable server: in the world's journal, or an error
     return reply;
   }
@@ -539,13 +549,14 @@ Bytes ServerCore::apply(const Incoming& in) {
   return protocol::encodeReply(h);
 }
 
-Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey, uint64_t principal) {
+Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey, uint64_t principal,
+                        bool proven) {
   // No exception leaves a command: the engine and the codec report failures as statuses, so
   // one that escapes anyway is answered here and the daemon goes on. (Such a command is not
   // journaled: lastStatus_ stays an error unless applyChecked answers.)
   lastStatus_ = Status::Error(Code::Internal, "the command threw");
   try {
-    return applyChecked(c, envelopeKey, principal ? principal : envelopeKey);
+    return applyChecked(c, envelopeKey, principal ? principal : envelopeKey, proven);
   } catch (const std::bad_alloc&) {
     ++counters_.errors;
     return protocol::encodeReply(protocol::replyTo(
@@ -562,7 +573,7 @@ Bytes ServerCore::apply(const wire::Command& c, uint64_t envelopeKey, uint64_t p
 }
 
 Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
-                                uint64_t principal) {
+                                uint64_t principal, bool proven) {
   ++counters_.commands;
   Context ctx{*this, protocol::replyTo(c), {}, {}, {}};
   Status& st = ctx.header.status;
@@ -601,7 +612,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
     return finish();
   }
   if (sw && !replaying_) {  // replayed commands were allowed when first applied
-    st = checkAccess(*sw, c, principal, envelopeKey);
+    st = checkAccess(*sw, c, principal, envelopeKey, proven);
     if (!st.ok()) return finish();
   }
   switch (type) {
@@ -619,6 +630,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
       info.serverVersion = PHYSD_VERSION;
       info.features = {"batch", "snapshot", "engine_snapshot", "load_scene", "run", "query_state"};
       info.limits = config_.limits;
+      info.clientProven = proven;
       reply = protocol::encodeHelloReply(ctx.header, info);
       return finish();
     }
@@ -667,6 +679,8 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
       w->id = nextWorldId_++;
       w->ephemeral = r->ephemeral();
       w->owner = startupCreate_ ? 0 : principal;
+      // On a secure daemon the owner is an identity, which DDS Security vouches for.
+      w->ownerProven = !startupCreate_ && !config_.identities && proven;
       if (r->editors()) w->editors.assign(r->editors()->begin(), r->editors()->end());
       w->shared = r->shared();
       ctx.header.world = w->id;
@@ -857,7 +871,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
       }
       // Its subscriber, or whoever may change the world.
       if (it->second.client != envelopeKey) {
-        st = checkAccess(*sw, c, principal, envelopeKey);
+        st = checkAccess(*sw, c, principal, envelopeKey, proven);
         if (!st.ok()) return finish();
       }
       sw->interests.erase(it);

@@ -453,7 +453,7 @@ void ServerCore::dispatch(Incoming in) {
     // A client that may not do this to the world does not end its job: refused now.
     if (in.command->client_id() != in.envelopeKey ||
         !checkAccess(*w, *in.command, in.principal ? in.principal : in.envelopeKey,
-                     in.envelopeKey).ok()) {
+                     in.envelopeKey, in.proven).ok()) {
       applyNow(in);
       return;
     }

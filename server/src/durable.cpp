@@ -106,6 +106,7 @@ Status ServerCore::checkpointWorld(ServerWorld& w) {
   c.meta.rateHz = w.rateHz;
   c.meta.owner = w.owner;
   c.meta.editors = w.editors;
+  c.meta.ownerProven = w.ownerProven;
   c.meta.shared = w.shared;
   phys::Status ps = w.world->saveSnapshot(&c.engine);
   if (!ps.ok())
@@ -257,6 +258,7 @@ Status ServerCore::restoreInto(ServerWorld& w, const Checkpoint& c,
   w.rateHz = c.meta.rateHz;
   w.owner = c.meta.owner;
   w.editors = c.meta.editors;
+  w.ownerProven = c.meta.ownerProven;
   w.shared = c.meta.shared;
   w.accumulator = 0;
   w.bodyDefs.clear();
@@ -299,7 +301,7 @@ Status ServerCore::restoreInto(ServerWorld& w, const Checkpoint& c,
         break;
       }
       // Access was checked when it was first applied; nothing it does depends on who sent it.
-      applyChecked(*cmd, cmd->client_id(), cmd->client_id());
+      applyChecked(*cmd, cmd->client_id(), cmd->client_id(), /*proven=*/false);
       if (!lastStatus_.ok())
         notes->push_back("world " + std::to_string(w.id) + ": journal record " +
                          std::to_string(applied) + " (" +

@@ -3,10 +3,12 @@
 
 #include <algorithm>
 #include <cstring>
+#include <optional>
 
 #include <spdlog/spdlog.h>
 
 #include "phys/protocol/dds_envelope.h"
+#include "phys/protocol/client_key.h"
 #include "phys/protocol/decoder.h"
 #include "phys/protocol/security.h"
 
@@ -106,7 +108,26 @@ void DdsEndpoint::readLoop() {
       counters_.commandsTaken.fetch_add(1);
       const auto now = ClientKeys::Clock::now();
       if ((++taken & 1023) == 0) sweepIfDue(now);  // a take that does not end sweeps too
-      const ClientKeys::Result who = vouch(env.key, writer, now);
+      // A Hello may carry a proof of its key, which decides who holds the key: read before
+      // the claim (a Hello is small; larger payloads are not looked at here).
+      std::optional<protocol::Decoded<wire::Command>> early;
+      ClientKeys::Proof proof;
+      if (env.bytes._length <= limits.maxNameBytes + kHelloBytesBesideName &&
+          protocol::checkEnvelope(env, PayloadKind::Command, limits).ok()) {
+        auto bytes = protocol::envelopeBytes(env);
+        early = protocol::decodeCommand(std::vector<uint8_t>(bytes.begin(), bytes.end()), limits);
+        const wire::Hello* hello = early->ok() ? (*early)->request_as_Hello() : nullptr;
+        if (hello && hello->public_key() && hello->proof() && (*early)->client_id() == env.key)
+          proof = [&, hello](const Guid& participant) {
+            counters_.proofsChecked.fetch_add(1);
+            const bool ok = protocol::verifyBinding(
+                {hello->public_key()->data(), hello->public_key()->size()}, participant,
+                env.key, {hello->proof()->data(), hello->proof()->size()});
+            if (!ok) counters_.proofsFailed.fetch_add(1);
+            return ok;
+          };
+      }
+      const ClientKeys::Result who = vouch(env.key, writer, now, proof ? &proof : nullptr);
       if (who.verdict == ClientKeys::Verdict::HeldByOther) {
         // Not answered: every reply on this key goes to the participant that holds it, which
         // would take an answer to someone else's command for one of its own.
@@ -121,6 +142,7 @@ void DdsEndpoint::readLoop() {
       in.envelopeKey = env.key;
       in.envelopeSeq = env.seq;
       in.sender = who.participant;
+      in.proven = who.proven;
       in.bytes = env.bytes._length;
       if (who.verdict != ClientKeys::Verdict::Ok) {
         // Past the participant's ids (or a full table): dropped, but answered once in a while
@@ -160,7 +182,9 @@ void DdsEndpoint::readLoop() {
                   "<your identity> (the SDK and physctl do when given their identity)");
         }
       }
-      if (s.ok()) {
+      if (s.ok() && early) {
+        in.command = std::move(*early);
+      } else if (s.ok()) {
         auto bytes = protocol::envelopeBytes(env);
         in.command =
             protocol::decodeCommand(std::vector<uint8_t>(bytes.begin(), bytes.end()), limits);
@@ -183,7 +207,8 @@ void DdsEndpoint::readLoop() {
 }
 
 ClientKeys::Result DdsEndpoint::vouch(uint64_t key, dds_instance_handle_t writer,
-                                      ClientKeys::Clock::time_point now) {
+                                      ClientKeys::Clock::time_point now,
+                                      const ClientKeys::Proof* proof) {
   if (!keys_.knows(writer)) {
     // A new writer: what discovery says of it, once. Cyclone delivers data only from matched
     // writers; should the discovery data be gone already, the writer's own handle stands for
@@ -201,7 +226,7 @@ ClientKeys::Result DdsEndpoint::vouch(uint64_t key, dds_instance_handle_t writer
     }
     keys_.addWriter(writer, participant, principal);
   }
-  return keys_.claim(key, writer, now);
+  return keys_.claim(key, writer, now, proof);
 }
 
 bool DdsEndpoint::admitSample(const dds_sample_info_t* info, void* gate) {

@@ -152,7 +152,9 @@ std::vector<uint8_t> encodeCheckpoint(const Checkpoint& c) {
   w.put<uint8_t>(c.meta.mode);
   w.put<double>(c.meta.rateHz);
   w.put<uint64_t>(c.meta.owner);
-  w.put<uint8_t>(c.meta.shared);
+  // Access flags: bit 0 shared, bit 1 the owner proved its id (files before the second bit
+  // existed hold 0 or 1 here and read the same).
+  w.put<uint8_t>(uint8_t((c.meta.shared ? 1 : 0) | (c.meta.ownerProven ? 2 : 0)));
   w.put<uint32_t>(uint32_t(c.meta.editors.size()));
   for (uint64_t e : c.meta.editors) w.put<uint64_t>(e);
   w.blob(c.engine);
@@ -185,7 +187,9 @@ Status decodeCheckpoint(std::span<const uint8_t> bytes, Checkpoint* out) {
   c.meta.mode = r.get<uint8_t>();
   c.meta.rateHz = r.get<double>();
   c.meta.owner = r.get<uint64_t>();
-  c.meta.shared = r.get<uint8_t>() != 0;
+  const uint8_t access = r.get<uint8_t>();
+  c.meta.shared = (access & 1) != 0;
+  c.meta.ownerProven = (access & 2) != 0;
   const uint32_t editors = r.get<uint32_t>();
   for (uint32_t i = 0; r.ok && i < editors && i <= protocol::kMaxEditors; ++i)
     c.meta.editors.push_back(r.get<uint64_t>());

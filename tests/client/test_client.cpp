@@ -758,5 +758,50 @@ TEST(ClientSdk, ReconnectsWhenTheDaemonRestarts) {
   EXPECT_EQ(w2.step(2).get().tick, 2u);
 }
 
+// Issue 39 point 4: on a daemon without DDS Security an owner's client id is no secret (it is
+// in every command and in every PermissionDenied message). A client with a key proves its id
+// in Hello, so another participant that uses the id, while the owner is away or beside it,
+// cannot change the owner's world; and the owner coming back with its key file takes its id
+// back and is answered at once. (Old code: the squatter's step and destroy succeeded, and the
+// returning owner got no reply while the squatter held the id.)
+TEST(ClientSdk, AnOwnersIdReadOffTheWireDoesNotTakeItsWorldAndTheOwnerComesBack) {
+  Daemon daemon;
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / ("physclient_key_" + std::to_string(getpid()));
+  std::filesystem::remove_all(dir);
+  ClientOptions ownerOptions = options("owner");
+  ownerOptions.keyFile = (dir / "owner.key").string();
+  uint64_t ownerId = 0;
+  uint32_t world = 0;
+  {
+    Client owner(ownerOptions);
+    EXPECT_TRUE(owner.connect().clientProven);
+    ownerId = owner.clientId();
+    world = owner.createWorld({"owned", "", std::nullopt, 0}).get().id();
+    owner.world(world).spawn(grid(3)).get();
+  }  // the owner goes away
+
+  // Another participant writes the owner's id into its commands (the plain, unproven form).
+  ClientOptions squatterOptions = options("squatter");
+  squatterOptions.clientId = ownerId;
+  Client squatter(squatterOptions);
+  EXPECT_FALSE(squatter.connect().clientProven);
+  WorldHandle taken = squatter.world(world);
+  EXPECT_EQ(codeOf([&] { taken.step(5).get(); }), ErrorCode::PermissionDenied);
+  EXPECT_EQ(codeOf([&] { taken.setAccess({}, true).get(); }), ErrorCode::PermissionDenied);
+  EXPECT_EQ(codeOf([&] { taken.destroy().get(); }), ErrorCode::PermissionDenied);
+  EXPECT_EQ(taken.queryState().get().tick, 0u) << "reads stay open to all";
+
+  // The owner comes back with its key while the squatter still holds the id: answered.
+  Client owner(ownerOptions);
+  EXPECT_EQ(owner.clientId(), ownerId);
+  EXPECT_TRUE(owner.connect().clientProven);
+  EXPECT_EQ(owner.world(world).step(2).get().tick, 2u);
+  // The id is the owner's now: the squatter's commands under it go unanswered.
+  EXPECT_EQ(codeOf([&] { taken.step(1, {500ms}).get(); }), ErrorCode::Timeout);
+  EXPECT_EQ(owner.world(world).queryState().get().tick, 2u);
+  std::filesystem::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace phys::client

@@ -138,5 +138,89 @@ TEST_F(AccessTest, StartUpWorldsHaveNoOwner) {
   EXPECT_EQ(send(kEditor, CommandBuilder().destroyWorld(), id)->status(), Code::Ok);
 }
 
+/// Issue 39 point 4: on a daemon without DDS Security a client id is a number anyone may
+/// write into a command. A world whose creator proved its id (Hello with its key's binding
+/// proof: Incoming::proven) can be changed as its owner or an editor only by commands whose
+/// sender proved its id too; a command that merely carries the id is refused and changes
+/// nothing. (On the old code the same id was enough: every edit below succeeded.)
+struct ProvenAccessTest : ::testing::Test {
+  void SetUp() override {
+    ASSERT_TRUE(core.init().ok());
+    Reply r = send(kOwner, CommandBuilder().createWorld({"proven", "", std::nullopt, 0}), 0, true);
+    ASSERT_EQ(r->status(), Code::Ok) << message(r);
+    world = r->world();
+    ASSERT_TRUE(core.world(world)->ownerProven);
+    std::vector<phys::BodyDef> defs{boxBody({0, 0, 1}), groundBody()};
+    r = send(kOwner, CommandBuilder().spawnBodies(defs), world, true);
+    ASSERT_EQ(r->status(), Code::Ok) << message(r);
+    body = bodyIds(r).at(0);
+  }
+  /// A command as it arrives from a participant that did (proven) or did not prove its id.
+  Reply send(uint64_t client, CommandBuilder& b, uint32_t w, bool proven) {
+    ++seq;
+    Incoming in = queuedCommand(client, seq, b, w);
+    in.proven = proven;
+    return decode(core.apply(in));
+  }
+  uint64_t hash() { return core.world(world)->world->stateHash(); }
+  ServerCore core{testConfig()};
+  uint32_t world = 0;
+  uint64_t body = 0, seq = 0;
+};
+
+TEST_F(ProvenAccessTest, TheOwnersIdWithoutItsProofChangesNothing) {
+  const uint64_t before = hash();
+  std::vector<std::pair<const char*, CommandBuilder>> edits;
+  edits.emplace_back("step", std::move(CommandBuilder().step(3)));
+  edits.emplace_back("set_body_pose", std::move(CommandBuilder().setBodyPose(body, {1, 2, 3}, {})));
+  edits.emplace_back("reset_world", std::move(CommandBuilder().resetWorld()));
+  edits.emplace_back("set_access", std::move(CommandBuilder().setAccess(
+                                       std::vector<uint64_t>{kOther}, true)));
+  edits.emplace_back("destroy_world", std::move(CommandBuilder().destroyWorld()));
+  for (auto& [name, b] : edits) {
+    Reply r = send(kOwner, b, world, false);
+    EXPECT_EQ(r->status(), Code::PermissionDenied) << name << ": " << message(r);
+    EXPECT_NE(message(r).find("has not proved its id"), std::string::npos) << message(r);
+  }
+  EXPECT_EQ(hash(), before);
+  EXPECT_EQ(core.world(world)->tick, 0u);
+  EXPECT_FALSE(core.world(world)->shared);
+  // Reads stay open to all.
+  EXPECT_EQ(send(kOwner, CommandBuilder().queryState(), world, false)->status(), Code::Ok);
+  // The proven owner does what it likes.
+  EXPECT_EQ(send(kOwner, CommandBuilder().step(2), world, true)->status(), Code::Ok);
+  EXPECT_EQ(core.world(world)->tick, 2u);
+}
+
+TEST_F(ProvenAccessTest, EditorsOfAProvenWorldProveTheirIdsSharedWorldsStayOpen) {
+  ASSERT_EQ(send(kOwner, CommandBuilder().setAccess(std::vector<uint64_t>{kEditor}, false), world,
+                 true)
+                ->status(),
+            Code::Ok);
+  EXPECT_EQ(send(kEditor, CommandBuilder().step(1), world, false)->status(),
+            Code::PermissionDenied);
+  EXPECT_EQ(send(kEditor, CommandBuilder().step(1), world, true)->status(), Code::Ok);
+  // Shared: every client edits, proven or not; only the proven owner owns.
+  ASSERT_EQ(send(kOwner, CommandBuilder().setAccess({}, true), world, true)->status(), Code::Ok);
+  EXPECT_EQ(send(kOther, CommandBuilder().step(1), world, false)->status(), Code::Ok);
+  EXPECT_EQ(send(kOwner, CommandBuilder().destroyWorld(), world, false)->status(),
+            Code::PermissionDenied);
+}
+
+TEST_F(ProvenAccessTest, WorldsOfUnprovenCreatorsKeepThePlainIdRuleAndHelloSaysWhatWasProven) {
+  Reply r = send(kOther, CommandBuilder().createWorld({"plain", "", std::nullopt, 0}), 0, false);
+  ASSERT_EQ(r->status(), Code::Ok) << message(r);
+  const uint32_t plain = r->world();
+  EXPECT_FALSE(core.world(plain)->ownerProven);
+  EXPECT_EQ(send(kOther, CommandBuilder().step(1), plain, false)->status(), Code::Ok);
+  EXPECT_EQ(send(kOwner, CommandBuilder().step(1), plain, true)->status(),
+            Code::PermissionDenied);
+  for (bool proven : {false, true}) {
+    Reply h = send(kOther, CommandBuilder().hello("t"), 0, proven);
+    ASSERT_EQ(h->status(), Code::Ok);
+    EXPECT_EQ(h->result_as_HelloResult()->client_proven(), proven);
+  }
+}
+
 }  // namespace
 }  // namespace phys::server::test

@@ -181,6 +181,68 @@ TEST(ClientKeys, TheWriterTableIsBoundedToo) {
   EXPECT_EQ(k.claim(1, 9).verdict, Verdict::Ok);
 }
 
+// Issue 39, finding 5: a key proven by its holder (a Hello with the key's binding proof; here
+// a Proof that accepts one participant's GUID, as protocol::verifyBinding would) takes the key
+// from whoever holds it, proven or not, and the commands under it are proven; a plain claim
+// takes nothing from a live holder. (Before, the first participant kept the key while it was
+// there, so an owner coming back found its id held and got no answer.)
+TEST(ClientKeys, AProofTakesTheKeyFromAnyHolderAndItsCommandsAreProven) {
+  Keys k;
+  k.join(1, 1);  // a squatter, using the owner's id without a proof
+  k.join(2, 2);  // the owner, back with its key
+  k.join(3, 3);  // someone replaying the owner's proof from another participant
+  const uint64_t id = 0xAB;
+  int checks = 0;
+  const ClientKeys::Proof owners = [&](const Guid& g) {
+    ++checks;
+    return g == guid(2);
+  };
+  ASSERT_EQ(k.claim(id, 1).verdict, Verdict::Ok);
+  EXPECT_FALSE(k.claim(id, 1).proven);
+  // The replayed proof does not hold for participant 3: the key stays the squatter's.
+  EXPECT_EQ(k.keys.claim(id, 3, k.now, &owners).verdict, Verdict::HeldByOther);
+  EXPECT_EQ(k.keys.holder(id), 1u);
+  // The owner's does: the key is its own at once, though the squatter is still there.
+  const ClientKeys::Result back = k.keys.claim(id, 2, k.now, &owners);
+  EXPECT_EQ(back.verdict, Verdict::Ok);
+  EXPECT_TRUE(back.proven);
+  EXPECT_EQ(k.keys.holder(id), 2u);
+  EXPECT_EQ(k.keys.keysOf(1), 0u);
+  // Its later commands (no proof offered) stay proven, without another check.
+  const int before = checks;
+  EXPECT_TRUE(k.claim(id, 2).proven);
+  EXPECT_TRUE(k.keys.claim(id, 2, k.now, &owners).proven);
+  EXPECT_EQ(checks, before) << "a proven key is not checked again";
+  // The squatter's commands under it are now refused (dropped unanswered by the endpoint).
+  EXPECT_EQ(k.claim(id, 1).verdict, Verdict::HeldByOther);
+  // When the owner leaves, a plain claim may have the key again, unproven.
+  k.alive.erase(2);
+  k.sweep();
+  const ClientKeys::Result again = k.claim(id, 1);
+  EXPECT_EQ(again.verdict, Verdict::Ok);
+  EXPECT_FALSE(again.proven);
+}
+
+TEST(ClientKeys, AParticipantsProofsAreCheckedAtMostItsBudget) {
+  ClientKeys::Limits limits;
+  limits.proofsPerSecond = 2;
+  limits.proofBurst = 4;
+  Keys k(limits);
+  k.join(1, 1);
+  int checks = 0;
+  const ClientKeys::Proof wrong = [&](const Guid&) {
+    ++checks;
+    return false;
+  };
+  // A participant sending Hellos with bad proofs as fast as it can: 4 at once, then 2 a
+  // second; the others are not looked at (their Hellos stay unproven).
+  for (int i = 0; i < 1000; ++i) EXPECT_FALSE(k.keys.claim(0xC0, 1, k.now, &wrong).proven);
+  EXPECT_EQ(checks, 4);
+  k.now += 1s;
+  for (int i = 0; i < 1000; ++i) k.keys.claim(0xC0, 1, k.now, &wrong);
+  EXPECT_EQ(checks, 6);
+}
+
 TEST(ClientKeys, GuidsPrintAsCycloneDoes) {
   Guid g{};
   for (int i = 0; i < 16; ++i) g[i] = uint8_t(i + 1);

@@ -14,9 +14,11 @@
 
 #include <chrono>
 #include <cstdio>
+#include <cstring>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <set>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -66,6 +68,10 @@ struct ChildResult {
   bool ran = false;
   unsigned matched = 0;  ///< daemon readers/writers matched (command writer + reply reader)
   int replies = 0, helloOk = 0, statuses = 0, states = 0;
+  /// What discovery showed it: other participants, and publications and subscriptions of
+  /// other participants (topics); props: the property names of the participants' QoS.
+  int participants = 0, endpoints = 0;
+  std::string props;
   long matchMs = -1;
   int action = -1;  ///< PHYS_SECTEST_DO's reply status (-1: none came)
   uint32_t world = 0;
@@ -121,6 +127,49 @@ int runChild(const char* xmlPath) {
     std::printf("sectest error=%s\n", err.c_str());
     return 3;
   }
+  // Discovery as the application sees it: the built-in topics.
+  const dds_entity_t seenParticipants =
+      dds_create_reader(p.get(), DDS_BUILTIN_TOPIC_DCPSPARTICIPANT, nullptr, nullptr);
+  const dds_entity_t seenPublications =
+      dds_create_reader(p.get(), DDS_BUILTIN_TOPIC_DCPSPUBLICATION, nullptr, nullptr);
+  const dds_entity_t seenSubscriptions =
+      dds_create_reader(p.get(), DDS_BUILTIN_TOPIC_DCPSSUBSCRIPTION, nullptr, nullptr);
+  dds_guid_t own{};
+  dds_get_guid(p.get(), &own);
+  std::set<std::string> others, otherEndpoints, propNames;
+  auto guidText = [](const dds_guid_t& g) { return std::string(g.v, g.v + 16); };
+  auto readDiscovery = [&] {
+    void* samples[16] = {};
+    dds_sample_info_t infos[16];
+    int n = dds_read(seenParticipants, samples, infos, 16, 16);
+    for (int i = 0; i < n; ++i) {
+      if (!infos[i].valid_data) continue;
+      auto* pp = static_cast<dds_builtintopic_participant_t*>(samples[i]);
+      if (std::memcmp(pp->key.v, own.v, 16) == 0) continue;
+      others.insert(guidText(pp->key));
+      uint32_t np = 0;
+      char** names = nullptr;
+      if (pp->qos && dds_qget_propnames(pp->qos, &np, &names)) {
+        for (uint32_t k = 0; k < np; ++k) {
+          propNames.insert(names[k]);
+          dds_free(names[k]);
+        }
+        dds_free(names);
+      }
+    }
+    if (n > 0) dds_return_loan(seenParticipants, samples, n);
+    for (dds_entity_t r : {seenPublications, seenSubscriptions}) {
+      void* es[16] = {};
+      n = dds_read(r, es, infos, 16, 16);
+      for (int i = 0; i < n; ++i) {
+        if (!infos[i].valid_data) continue;
+        auto* e = static_cast<dds_builtintopic_endpoint_t*>(es[i]);
+        if (std::memcmp(e->participant_key.v, own.v, 16) != 0)
+          otherEndpoints.insert(guidText(e->key));
+      }
+      if (n > 0) dds_return_loan(r, es, n);
+    }
+  };
   const uint64_t id = kChildClient + uint64_t(getpid());
   int repliesSeen = 0, helloOk = 0, statuses = 0, states = 0, actionStatus = -1;
   uint32_t actionWorld = 0;
@@ -164,13 +213,17 @@ int runChild(const char* xmlPath) {
     });
     status.take([&](const phys_wire_Envelope&) { ++statuses; });
     state.take([&](const phys_wire_Envelope&) { ++states; });
+    readDiscovery();
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
+  std::string props;
+  for (const std::string& n : propNames) props += (props.empty() ? "" : ",") + n;
   std::printf(
       "sectest matched=%u replies=%d hello_ok=%d statuses=%d states=%d match_ms=%ld action=%d "
-      "world=%u\n",
+      "world=%u participants=%zu endpoints=%zu props=%s\n",
       cmd.matched() + replies.matched(), repliesSeen, helloOk, statuses, states, matchMs,
-      actionStatus, actionWorld);
+      actionStatus, actionWorld, others.size(), otherEndpoints.size(),
+      props.empty() ? "-" : props.c_str());
   return 0;
 }
 
@@ -214,12 +267,15 @@ ChildResult runClient(const std::string& xml, uint32_t domain, uint32_t world, d
   char line[512];
   while (std::fgets(line, sizeof line, f)) {
     r.output += line;
+    char props[256] = {};
     if (std::sscanf(line,
                     "sectest matched=%u replies=%d hello_ok=%d statuses=%d states=%d "
-                    "match_ms=%ld action=%d world=%u",
+                    "match_ms=%ld action=%d world=%u participants=%d endpoints=%d props=%255s",
                     &r.matched, &r.replies, &r.helloOk, &r.statuses, &r.states, &r.matchMs,
-                    &r.action, &r.world) == 8)
+                    &r.action, &r.world, &r.participants, &r.endpoints, props) == 11) {
       r.ran = true;
+      r.props = props;
+    }
   }
   const int st = pclose(f);
   r.ran = r.ran && WIFEXITED(st) && WEXITSTATUS(st) == 0;
@@ -371,6 +427,12 @@ TEST_F(ServerSecurity, ClientWithoutCertificateIsRefused) {
   // Plain loopback: no identity, no security. It writes Hellos for 4 s into nothing.
   ChildResult r = runClient(kLoopbackXml, domain, daemon.world, 4);
   expectRefused(r, daemon, "client without a certificate");
+  // What it still sees (docs/SECURITY.md "What an outsider sees"): physd's participant in
+  // discovery, whose announcement carries the tokens a handshake starts from, but no topic of
+  // it: no publication, no subscription.
+  EXPECT_GE(r.participants, 1) << r.output;
+  EXPECT_EQ(r.endpoints, 0) << r.output;
+  std::printf("client without a certificate: %s", r.output.c_str());
   // The daemon was there and serving all along: a client with an identity gets in.
   expectAdmitted(runClient(kSecureXml, domain, daemon.world, 15, mainDir, "client1"),
                  "client1 after");

@@ -670,12 +670,14 @@ class PyClient {
  public:
   PyClient(uint32_t domain, std::string name, std::optional<std::string> cycloneXml,
            uint64_t clientId, double connectTimeout, double requestTimeout, bool autoReconnect,
-           std::optional<std::string> securityDir, std::optional<std::string> identity) {
+           std::optional<std::string> securityDir, std::optional<std::string> identity,
+           std::optional<std::string> keyFile) {
     pc::ClientOptions o;
     o.domain = domain;
     o.name = std::move(name);
     o.cycloneXml = cycloneXml.value_or("");
     o.clientId = clientId;
+    o.keyFile = keyFile.value_or("");
     o.connectTimeout = toMs(connectTimeout);
     o.requestTimeout = toMs(requestTimeout);
     o.autoReconnect = autoReconnect;
@@ -978,6 +980,7 @@ PYBIND11_MODULE(physclient, m) {
       .def_readonly("name", &pc::ServerInfo::name)
       .def_readonly("version", &pc::ServerInfo::version)
       .def_readonly("features", &pc::ServerInfo::features)
+      .def_readonly("client_proven", &pc::ServerInfo::clientProven)
       .def("__repr__", [](const pc::ServerInfo& s) {
         return "ServerInfo(name='" + s.name + "', version='" + s.version +
                "', protocol_version=" + std::to_string(s.protocolVersion) + ")";
@@ -1367,16 +1370,19 @@ PYBIND11_MODULE(physclient, m) {
       "A connection to physd: DDS entities and the SDK's thread, made at once; connect()\n"
       "waits for a daemon. cyclone_xml is the Cyclone DDS XML text (None: CYCLONEDDS_URI or\n"
       "Cyclone's defaults). Timeouts are in seconds. security_dir and identity: DDS Security\n"
-      "files as tools/make_security.sh writes them (docs/SECURITY.md). The connection lasts\n"
+      "files as tools/make_security.sh writes them (docs/SECURITY.md). key_file: the client's\n"
+      "key (made when missing): the same proven client id at every run, so the worlds it\n"
+      "creates stay its own (docs/SERVER.md \"Access\"). The connection lasts\n"
       "while the Client or one of its World or Subscription objects does, or until close()\n"
       "(or the end of a with block).")
       .def(py::init<uint32_t, std::string, std::optional<std::string>, uint64_t, double, double,
-                    bool, std::optional<std::string>, std::optional<std::string>>(),
+                    bool, std::optional<std::string>, std::optional<std::string>,
+                    std::optional<std::string>>(),
            py::kw_only(), py::arg("domain") = 0, py::arg("name") = "physclient-python",
            py::arg("cyclone_xml") = py::none(), py::arg("client_id") = 0,
            py::arg("connect_timeout") = 10.0, py::arg("request_timeout") = 10.0,
            py::arg("auto_reconnect") = true, py::arg("security_dir") = py::none(),
-           py::arg("identity") = py::none())
+           py::arg("identity") = py::none(), py::arg("key_file") = py::none())
       .def(
           "connect",
           [](PyClient& c) {

@@ -179,6 +179,23 @@ class Bindings(unittest.TestCase):
         self.assertIsNotNone(status)
         self.assertEqual(status.server_name, SERVER_NAME)
 
+    def test_a_key_file_keeps_the_proven_id_across_clients(self):
+        # The default client proves a fresh id; a key file gives the same proven id each time,
+        # so a second run of a script owns the worlds of the first.
+        self.assertTrue(self.server.client_proven)
+        with tempfile.TemporaryDirectory() as d:
+            key = os.path.join(d, "me.key")
+            with DAEMON.client(key_file=key) as first:
+                self.assertTrue(first.connect().client_proven)
+                w = first.create_world(f"keyed-{os.getpid()}", ephemeral=True)
+                world_id, first_id = w.id, first.client_id
+            self.assertEqual(os.stat(key).st_mode & 0o777, 0o600)
+            with DAEMON.client(key_file=key) as second:
+                self.assertTrue(second.connect().client_proven)
+                self.assertEqual(second.client_id, first_id)
+                self.assertEqual(second.world(world_id).step(2).tick, 2)
+                second.world(world_id).destroy()
+
     # -- physics -----------------------------------------------------------------------------
 
     def test_free_fall_before_landing(self):

@@ -44,7 +44,16 @@ struct ClientOptions {
   /// Cyclone XML (the contents, not a path) for the domain; empty: CYCLONEDDS_URI / defaults.
   std::string cycloneXml;
   std::string name = "physclient";                  ///< sent in Hello
-  uint64_t clientId = 0;                            ///< 0: a random non-zero id
+  /// The client's key file (phys/protocol/client_key.h; made with a fresh key, mode 0600, when
+  /// missing): the client id is the key's, the same at every run, and proven to physd in
+  /// every Hello, so worlds it creates stay its own across its restarts and nobody else can
+  /// act as it by using its id (docs/SERVER.md "Access"). Empty (the default): a fresh key,
+  /// hence a fresh proven id, for each Client, unless clientId is given.
+  std::string keyFile;
+  /// A fixed client id without a key (the protocol's plain form): not proven, so physd treats
+  /// it as any participant's to claim while this client is away. 0: the key's id. With
+  /// keyFile it must be 0 or the key's id.
+  uint64_t clientId = 0;
   std::chrono::milliseconds connectTimeout{10000};  ///< connect(): server match + Hello
   std::chrono::milliseconds requestTimeout{10000};  ///< default per-request deadline
   bool autoReconnect = true;                        ///< say Hello again when a (new) daemon appears
@@ -62,6 +71,9 @@ struct ServerInfo {
   std::string name;
   std::string version;
   std::vector<std::string> features;
+  /// physd checked this client's binding proof (a daemon without DDS Security that knows
+  /// client keys): its id is its own on that daemon.
+  bool clientProven = false;
 };
 
 /// Reply to a request without a result: where and when it took effect.

@@ -101,6 +101,10 @@ class CommandBuilder {
   CommandBuilder() = default;
 
   CommandBuilder& hello(std::string_view clientName, uint16_t version = kProtocolVersion);
+  /// Hello with a client key's binding proof (phys/protocol/client_key.h): the command's
+  /// client id must be the key's.
+  CommandBuilder& hello(std::string_view clientName, std::span<const uint8_t> publicKey,
+                        std::span<const uint8_t> proof);
   CommandBuilder& createWorld(const CreateWorldArgs& args);
   CommandBuilder& destroyWorld();
   CommandBuilder& resetWorld();
@@ -153,6 +157,7 @@ class CommandBuilder {
   flatbuffers::FlatBufferBuilder& fbb() { return fbb_; }
 
   size_t requestCount() const { return items_.size(); }
+  wire::Request requestType(size_t i) const { return items_.at(i).first; }
   /// The finished command; the builder is empty again afterwards.
   Bytes finish(const CommandHeader& header);
 
@@ -180,6 +185,7 @@ struct HelloInfo {
   std::string serverVersion;
   std::vector<std::string> features;
   Limits limits;  ///< announced as LimitsInfo
+  bool clientProven = false;  ///< the Hello's binding proof was checked
 };
 
 /// One world, as ListWorlds and ServerStatus report it.

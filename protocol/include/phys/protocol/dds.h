@@ -57,6 +57,9 @@ class Participant : public Entity {
   /// Returns false and sets *err on failure.
   bool create(uint32_t domain, const std::string& configXml, std::string* err);
   uint32_t domain() const { return domain_; }
+  /// Its GUID, as other participants' discovery data names it (Reader::participantOf); all
+  /// zero before create().
+  std::array<uint8_t, 16> guid() const;
 
  private:
   Entity domainEntity_;

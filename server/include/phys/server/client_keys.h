@@ -13,6 +13,11 @@
 //   (against the reader's matched publications) and frees its keys. A key whose holder's
 //   writer is no longer matched passes at once to the next participant that uses it (a
 //   client restarted with the same id), without waiting for the sweep.
+// - A participant that *proves* a key (a Hello with the key's binding proof, checked through the
+//   Proof the endpoint passes: phys/protocol/client_key.h) holds it from then on, whoever held
+//   it before, and its commands under it are proven (Result::proven) until it leaves. At most
+//   `proofsPerSecond` proofs of a participant are checked (a signature check costs ~0.1 ms);
+//   past that its proofs are not looked at and its Hellos stay unproven.
 #pragma once
 
 #include <array>
@@ -50,6 +55,8 @@ class ClientKeys {
     /// A participant's refusals are reported (Result::report: a log line, a reply) at its
     /// first and then at most this often.
     Clock::duration reportEvery = std::chrono::seconds(10);
+    /// Proofs of one participant checked a second, on average and at once (a token bucket).
+    double proofsPerSecond = 4, proofBurst = 8;
   };
   /// Whether DDS still matches a writer (the endpoint: dds_get_matched_publication_data).
   using Alive = std::function<bool(Writer)>;
@@ -73,7 +80,12 @@ class ClientKeys {
     bool report = false;
     /// The participant's refusals so far (all verdicts but Ok), this one included.
     uint64_t refusals = 0;
+    /// Ok: the participant proved the key (this command's proof, or an earlier one).
+    bool proven = false;
   };
+  /// A command's offer of a binding proof: checks it against the sending participant's GUID
+  /// (the endpoint: protocol::verifyBinding with the Hello's public key and signature).
+  using Proof = std::function<bool(const Guid& participant)>;
 
   ClientKeys(Limits limits, Alive alive);
 
@@ -83,8 +95,10 @@ class ClientKeys {
   /// The endpoint asks DDS once per writer, before the writer's first claim. False when
   /// maxWriters are known (its commands are then refused Full until a sweep frees some).
   bool addWriter(Writer w, const Guid& participant, uint64_t principal);
-  /// Whether `writer`'s participant (addWriter first) may use `key` now.
-  Result claim(uint64_t key, Writer writer, Clock::time_point now);
+  /// Whether `writer`'s participant (addWriter first) may use `key` now. proof: the command
+  /// offers one (null: it does not); asked only when it would change something (the key is
+  /// not yet proven by this participant) and the participant's proof budget allows.
+  Result claim(uint64_t key, Writer writer, Clock::time_point now, const Proof* proof = nullptr);
 
   /// A participant that left: its number and GUID and the keys it held (now free).
   struct Departed {
@@ -123,12 +137,18 @@ class ClientKeys {
     std::vector<uint64_t> keys;  ///< held, at most keysPerParticipant
     uint64_t refusals = 0;
     Clock::time_point reportedAt{};
+    double proofTokens = -1;  ///< -1: a full bucket (not used yet)
+    Clock::time_point proofAt{};
   };
   struct KeyRec {
     uint64_t participant = 0;
     Writer writer = 0;  ///< the holder's writer that last used it
     Clock::time_point checkedAt{};  ///< the last Alive(writer) on another's claim
+    bool proven = false;  ///< the holder proved it (Proof)
   };
+  /// Whether participant `who` (of `guid`) proves a key with `proof`: within its budget, and
+  /// the proof holds.
+  bool proves(ParticipantRec& who, const Proof* proof, Clock::time_point now);
   /// Whether `claimant` may take a key another participant holds. Today: only when the
   /// holder's writer is gone (asked at most once per recheck).
   bool mayTake(KeyRec& held, uint64_t claimant, Clock::time_point now);

@@ -144,6 +144,9 @@ struct Incoming {
   /// identity key of the DDS Security identity that wrote it (protocol/security.h); 0: the
   /// envelope key (the client id).
   uint64_t principal = 0;
+  /// The participant that wrote it proved, in its Hello, that it holds the key the envelope
+  /// key (the client id) names (phys/protocol/client_key.h; the endpoint checks the proof).
+  bool proven = false;
   /// The DDS participant that wrote it (ClientKeys' number, never reused; 0: none, an
   /// in-process caller): its budgets beside the key's, and its interests are freed when it
   /// leaves (ServerCore::clientsLeft).
@@ -192,6 +195,10 @@ struct ServerWorld {
   uint64_t owner = 0;
   std::vector<uint64_t> editors;
   bool shared = false;
+  /// The owner proved its client id when it created the world (Incoming::proven, a daemon
+  /// without DDS Security): only commands from a participant that proved its id may then act
+  /// as the owner or an editor, so an id read off the wire is not enough to take the world.
+  bool ownerProven = false;
   /// Definitions of live bodies and joints by packed id (poses as spawned; world info
   /// refreshes poses and velocities from the engine).
   std::map<uint64_t, phys::BodyDef> bodyDefs;
@@ -334,8 +341,9 @@ class ServerCore {
 
   // --- Commands ---
   /// Applies one decoded command now and returns the reply payload. envelopeKey must equal
-  /// the command's client id; principal: Incoming::principal.
-  Bytes apply(const wire::Command& command, uint64_t envelopeKey, uint64_t principal = 0);
+  /// the command's client id; principal, proven: Incoming::principal, Incoming::proven.
+  Bytes apply(const wire::Command& command, uint64_t envelopeKey, uint64_t principal = 0,
+              bool proven = false);
   /// Decodes and applies a raw payload as the daemon does (an undecodable payload is
   /// answered to client envelopeKey, seq envelopeSeq).
   Bytes applyBytes(std::span<const uint8_t> payload, uint64_t envelopeKey, uint64_t envelopeSeq);
@@ -391,14 +399,16 @@ class ServerCore {
 
  private:
   friend struct Context;
-  Bytes applyChecked(const wire::Command& command, uint64_t envelopeKey, uint64_t principal);
+  Bytes applyChecked(const wire::Command& command, uint64_t envelopeKey, uint64_t principal,
+                     bool proven);
   /// A world restored from engine state, against the codec's rules (the engine's own checks
   /// guard its invariants, not the protocol's ranges).
   Status checkRestored(const phys::World& w, const std::string& path) const;
   /// Whether principal `key` (Incoming::principal) may apply command c, sent under
   /// envelopeKey, to world w (docs/SERVER.md "Access"): PermissionDenied with who may, or Ok.
+  /// proven: Incoming::proven.
   Status checkAccess(const ServerWorld& w, const wire::Command& c, uint64_t key,
-                     uint64_t envelopeKey) const;
+                     uint64_t envelopeKey, bool proven) const;
   /// createWorld (start-up worlds) is making a world: it has no owner.
   bool startupCreate_ = false;
   /// The first interest id of every world is this + 1: a durable server's count of its

@@ -48,6 +48,9 @@ struct EndpointCounters {
   std::atomic<uint64_t> participantsLeft{0};
   /// Secure daemon: commands refused because their writer is in no identity partition.
   std::atomic<uint64_t> unidentified{0};
+  /// Client keys' binding proofs (Hello) checked, and those that did not hold.
+  std::atomic<uint64_t> proofsChecked{0};
+  std::atomic<uint64_t> proofsFailed{0};
 };
 
 class DdsEndpoint {
@@ -68,10 +71,14 @@ class DdsEndpoint {
   void readLoop();
   /// Whether the participant that wrote a command may use its envelope key (keys_: the first
   /// participant to use a key holds it while DDS matches it; each holds at most
-  /// max_keys_per_participant): O(1), the writer's discovery data asked once per writer.
-  /// Reader thread only.
+  /// max_keys_per_participant; a proven Hello takes its key from anyone): O(1), the writer's
+  /// discovery data asked once per writer. proof: the command is a Hello with a binding proof
+  /// (null: it is not). Reader thread only.
   ClientKeys::Result vouch(uint64_t key, dds_instance_handle_t writer,
-                           ClientKeys::Clock::time_point now);
+                           ClientKeys::Clock::time_point now, const ClientKeys::Proof* proof);
+  /// Payloads up to limits.max_name_bytes plus this are read before the key is claimed, for a
+  /// Hello's proof (a Hello with the longest name, a key and a proof fits).
+  static constexpr size_t kHelloBytesBesideName = 512;
   /// Forgets the writers DDS no longer matches and the participants gone with them: their
   /// keys are free, and the core frees what they held (ServerCore::clientsLeft).
   void sweep();

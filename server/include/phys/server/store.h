@@ -36,6 +36,7 @@ struct CheckpointMeta {
   uint64_t owner = 0;  ///< access (ServerWorld::owner, editors, shared)
   std::vector<uint64_t> editors;
   bool shared = false;
+  bool ownerProven = false;  ///< ServerWorld::ownerProven
 };
 
 struct Checkpoint {
