@@ -622,6 +622,19 @@ const char* stateWord(JournalScan::State s) {
 
 }  // namespace
 
+bool unfinishedCreate(const std::string& dir) {
+  std::error_code ec;
+  if (fs::exists(dir + "/checkpoint", ec)) return false;
+  for (const auto& e : fs::directory_iterator(dir, ec)) {
+    const std::string n = e.path().filename().string();
+    if (n.ends_with(".partial")) continue;
+    if (n == "journal-1" && e.is_regular_file() && e.file_size(ec) <= kJournalRecordHeader + 16)
+      continue;
+    return false;
+  }
+  return !ec;
+}
+
 bool verifyDataDir(const std::string& data, std::string* text) {
   std::error_code ec;
   const fs::path worlds = fs::path(data) / "worlds";
@@ -644,7 +657,13 @@ bool verifyDataDir(const std::string& data, std::string* text) {
     std::vector<uint8_t> bytes;
     Checkpoint c;
     bool worldOk = true;
-    if (!readFile((dir / "checkpoint").string(), &bytes)) {
+    const bool have = readFile((dir / "checkpoint").string(), &bytes);
+    if (!have && unfinishedCreate(dir.string())) {
+      *text += line + ": an unfinished CreateWorld (no checkpoint; never acknowledged), "
+                      "removed at start-up\n";
+      continue;
+    }
+    if (!have) {
       line += ": checkpoint MISSING";
       worldOk = false;
     } else if (Status s = decodeCheckpoint(bytes, &c); !s.ok()) {

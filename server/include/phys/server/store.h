@@ -165,6 +165,10 @@ JournalScan scanJournal(const std::string& path, const CheckpointMeta& meta,
 Status setAside(const std::string& worldDir, const std::string& why, bool moveWhole,
                 std::string* where);
 
+/// A world directory that a crash left in the middle of CreateWorld (never acknowledged): no
+/// checkpoint, and nothing but its first journal (a header at most) and files written aside.
+bool unfinishedCreate(const std::string& worldDir);
+
 /// `physd --verify DATA`: every world's files under a data directory, read only (nothing is
 /// cut, moved or written): a line per world and per file, appended to *text. True when no
 /// world has lost acknowledged data (an unreadable checkpoint, a missing or damaged journal).
