@@ -54,21 +54,6 @@ std::vector<uint8_t> leasePayload(uint64_t until) {
   return p;
 }
 
-/// A world directory that a crash left in the middle of CreateWorld (never acknowledged): no
-/// checkpoint, and nothing but its first journal (a header at most) and files written aside.
-bool unfinishedCreate(const std::string& dir) {
-  std::error_code ec;
-  if (fs::exists(dir + "/checkpoint", ec)) return false;
-  for (const auto& e : fs::directory_iterator(dir, ec)) {
-    const std::string n = e.path().filename().string();
-    if (n.ends_with(".partial")) continue;
-    if (n == "journal-1" && e.is_regular_file() && e.file_size(ec) <= kJournalRecordHeader + 16)
-      continue;
-    return false;
-  }
-  return !ec;
-}
-
 std::vector<uint8_t> markPayload(const ServerWorld& w) {
   std::vector<uint8_t> p(9);
   p[0] = uint8_t(w.mode);
@@ -554,12 +539,14 @@ Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
     uint64_t starts = 0;
     std::ifstream(config_.dataDir + "/starts") >> starts;
     starts_ = starts + 1;
-    interestBase_ = uint32_t(starts_ % 32768) << 16;
     if (readOnly_.empty()) {
       s = writeStarts();
       if (!s.ok() && !diskFull(s)) return s;
       if (!s.ok()) goReadOnly("the data disk is full: " + s.message);
     }
+    // A read-only start could not count itself: the next start will take the same number,
+    // so this one numbers its interests from the other half of the range.
+    interestBase_ = uint32_t((starts_ + (readOnly_.empty() ? 0 : 16384)) % 32768) << 16;
   }
   if (!readOnly_.empty())
     notes->push_back("physd is read-only: " + readOnly_ +
