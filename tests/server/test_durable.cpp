@@ -545,7 +545,9 @@ TEST(Durable, ARestartNeverTakesBackATickSubscribersSaw) {
   c.submit(CommandBuilder().run(60), id);
   Queued q;
   for (int tick = 0; tick < 150; ++tick) {
-    if (tick % 7 == 2) c.submit(CommandBuilder().applyImpulse(ids[tick % 3], {0.3f, 0, 0}), id);
+    // Edits until tick 100, then only steps: the journal's last command is well behind.
+    if (tick % 7 == 2 && tick < 100)
+      c.submit(CommandBuilder().applyImpulse(ids[tick % 3], {0.3f, 0, 0}), id);
     if (tick == 70) c.submit(CommandBuilder().step(12), id);
     a.processPending();
     a.advance(1.0 / 60);
@@ -817,6 +819,59 @@ TEST(Durable, AFullDiskAtStartUpServesTheWorldsReadOnly) {
   }
   EXPECT_TRUE(b->readOnly().empty());
   EXPECT_EQ(c.send(CommandBuilder().spawnBodies(tower(1, 5)), id)->status(), Code::Ok);
+  fs::remove_all(data);
+}
+
+// Data directories written before issue 39: version 1 checkpoints, journals without a header.
+TEST(Durable, AVersion1DataDirectoryIsReadAndConverted) {
+  const fs::path data = scratch("version1");
+  uint32_t id = 0;
+  uint64_t hash = 0;
+  {
+    ServerCore a(durableConfig(data));
+    ASSERT_TRUE(a.init().ok());
+    Client c{&a};
+    id = c.send(CommandBuilder().createWorld({"old", "", std::nullopt, 0}), 0)->world();
+    ASSERT_EQ(c.send(CommandBuilder().spawnBodies(tower(2)), id)->status(), Code::Ok);
+    ASSERT_EQ(c.send(CommandBuilder().step(9), id)->status(), Code::Ok);
+    hash = a.world(id)->world->stateHash();
+  }
+  // As version 1 wrote them: the version field 1 (and the CRC over it), no journal header.
+  const fs::path dir = data / "worlds" / std::to_string(id);
+  std::vector<uint8_t> ck = bytesOf(dir / "checkpoint");
+  const uint32_t one = 1;
+  std::memcpy(ck.data() + 8, &one, 4);
+  auto crc32 = [](const uint8_t* p, size_t n) {
+    uint32_t c = 0xFFFFFFFFu;
+    for (size_t i = 0; i < n; ++i) {
+      c ^= p[i];
+      for (int k = 0; k < 8; ++k) c = (c >> 1) ^ (0xEDB88320u & (0u - (c & 1u)));
+    }
+    return ~c;
+  };
+  const uint32_t sum = crc32(ck.data(), ck.size() - 4);
+  std::memcpy(ck.data() + ck.size() - 4, &sum, 4);
+  std::ofstream(dir / "checkpoint", std::ios::binary | std::ios::trunc)
+      .write(reinterpret_cast<const char*>(ck.data()), std::streamsize(ck.size()));
+  const fs::path journal = journalOf(data, id);
+  std::vector<uint8_t> j = bytesOf(journal);
+  ASSERT_GT(j.size(), 33u);
+  ASSERT_EQ(j[16], 4);  // the header record: 17 bytes + 16 of payload
+  std::ofstream(journal, std::ios::binary | std::ios::trunc)
+      .write(reinterpret_cast<const char*>(j.data() + 33), std::streamsize(j.size() - 33));
+  std::string text;
+  EXPECT_TRUE(verifyDataDir(data.string(), &text)) << text;
+  EXPECT_NE(text.find("version 1"), std::string::npos) << text;
+
+  std::vector<std::string> notes;
+  auto b = restart(data, &notes);
+  ASSERT_TRUE(b->world(id)) << damageOf(*b, id);
+  EXPECT_EQ(b->world(id)->tick, 9u);
+  EXPECT_EQ(b->world(id)->world->stateHash(), hash);
+  // Its new checkpoint is version 2, with a header in its journal.
+  text.clear();
+  EXPECT_TRUE(verifyDataDir(data.string(), &text)) << text;
+  EXPECT_NE(text.find("version 2"), std::string::npos) << text;
   fs::remove_all(data);
 }
 
