@@ -1,7 +1,8 @@
 // physd: the physics daemon. Owns worlds, applies commands from phys/cmd at tick boundaries,
 // publishes replies, state frames, world info and status over Cyclone DDS.
 //
-//   physd --config configs/physd.toml [--domain N]
+//   physd --config configs/physd.toml [--domain N] [--accept-loss WORLD|all ...]
+//   physd --verify DATA      # every durable world's files under DATA; exit 0, or 1 on damage
 #include <malloc.h>
 #include <sched.h>
 #include <signal.h>
@@ -9,8 +10,10 @@
 #include <spdlog/spdlog.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <cerrno>
 #include <chrono>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
@@ -29,8 +32,24 @@ int main(int argc, char** argv) {
   app.add_option("--config", configPath, "physd.toml")->check(CLI::ExistingFile);
   app.add_option("--domain", domain, "DDS domain id (overrides dds.domain)")
       ->check(CLI::Range(0, 232));
+  std::vector<std::string> acceptLoss;
+  app.add_option("--accept-loss", acceptLoss,
+                 "restore these worlds (ids, or 'all') although their journal is missing or "
+                 "damaged: what is good is restored, the files are kept under <data>/damaged/")
+      ->take_all();
+  std::string verify;
+  app.add_option("--verify", verify,
+                 "check every world's files under this data directory (read only) and exit: "
+                 "0 when none has lost acknowledged data, else 1");
   app.set_version_flag("--version", PHYSD_VERSION);
   CLI11_PARSE(app, argc, argv);
+
+  if (!verify.empty()) {  // no config, no DDS: the files only
+    std::string text;
+    const bool ok = verifyDataDir(verify, &text);
+    std::fputs(text.c_str(), stdout);
+    return ok ? 0 : 1;
+  }
 
   DaemonConfig cfg;
   Status s = loadDaemonConfig(configPath, &cfg);
@@ -40,6 +59,22 @@ int main(int argc, char** argv) {
   }
   if (domain >= 0) cfg.domain = uint32_t(domain);
   spdlog::set_level(spdlog::level::from_str(cfg.logLevel));
+  for (const std::string& a : acceptLoss) {
+    char* end = nullptr;
+    const unsigned long id = std::strtoul(a.c_str(), &end, 10);
+    if (a == "all") {
+      cfg.core.acceptLoss.push_back(0);
+    } else if (!a.empty() && end && *end == 0 && id > 0 && id <= UINT32_MAX) {
+      cfg.core.acceptLoss.push_back(uint32_t(id));
+    } else {
+      spdlog::critical("--accept-loss takes world ids or 'all', got '{}'", a);
+      return 2;
+    }
+  }
+  if (!acceptLoss.empty() && cfg.core.dataDir.empty()) {
+    spdlog::critical("--accept-loss: the config has no [paths] data");
+    return 2;
+  }
 
   std::string cycloneXml;
   if (!cfg.cycloneConfig.empty()) {
@@ -115,6 +150,8 @@ int main(int argc, char** argv) {
     for (const std::string& n : notes)
       if (n.find("restored at tick") != std::string::npos)
         spdlog::info("{}", n);
+      else if (n.find("not restored") != std::string::npos || n.find("read-only") != std::string::npos)
+        spdlog::error("{}", n);
       else
         spdlog::warn("{}", n);
     if (!s.ok()) {
@@ -124,6 +161,19 @@ int main(int argc, char** argv) {
   }
   for (const StartupWorld& w : cfg.worlds) {
     if (ServerWorld* kept = core.findWorld(w.name); kept && !kept->ephemeral) continue;
+    // A kept world that could not be restored is not made afresh under its name: that would
+    // hide the loss (and the operator's --accept-loss would then find its name taken).
+    const auto& damaged = core.damagedWorlds();
+    if (std::any_of(damaged.begin(), damaged.end(),
+                    [&](const auto& d) { return d.second.name == w.name; })) {
+      spdlog::error("world '{}': not created afresh: the kept world of that name is damaged",
+                    w.name);
+      continue;
+    }
+    if (!core.readOnly().empty() && !w.ephemeral) {
+      spdlog::error("world '{}': not created: physd is read-only ({})", w.name, core.readOnly());
+      continue;
+    }
     uint32_t id = 0;
     s = core.createWorld(w.name, w.preset, w.scene, &id, w.backend, w.ephemeral);
     if (!s.ok()) {
@@ -148,7 +198,8 @@ int main(int argc, char** argv) {
   }
   TickThread tick(&core, std::chrono::milliseconds(int64_t(cfg.statusPeriodS * 1000)));
   tick.start();
-  spdlog::info("physd {} '{}' on domain {}", PHYSD_VERSION, cfg.core.serverName, cfg.domain);
+  spdlog::info("physd {} '{}' on domain {}{}", PHYSD_VERSION, cfg.core.serverName, cfg.domain,
+               core.readOnly().empty() ? "" : " (read-only: " + core.readOnly() + ")");
 
   // The main thread waits for a signal, and meanwhile gives the allocator's free pages back
   // to the system every trim period: the daemon's threads allocate and free a world's

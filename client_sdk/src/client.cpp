@@ -682,6 +682,7 @@ struct Client::Impl {
       st.errors = s->errors();
       st.framesDropped = s->frames_dropped();
       st.heapBytes = s->heap_bytes();
+      st.readOnly = str(s->read_only());
       if (s->worlds())
         for (auto* w : *s->worlds()) st.worlds.push_back(toSummary(*w));
       std::lock_guard<std::mutex> lk(infoMutex);

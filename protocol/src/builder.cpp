@@ -193,11 +193,12 @@ Offset<wire::WorldSummary> writeWorldSummary(Fbb& fbb, const WorldSummary& w) {
   auto backend = optString(fbb, w.backend);
   auto device = optString(fbb, w.device);
   auto note = optString(fbb, w.backendNote);
+  auto damage = optString(fbb, w.damage);
   return wire::CreateWorldSummary(fbb, w.world, name, preset, w.bodies, w.joints, w.tick, w.time,
                                   w.running, w.rateHz, w.tickMs, w.tickMsMax, w.overruns,
                                   w.subscribers, w.frames, backend, device, note, w.gpuSteps,
                                   w.cpuSteps, w.awakeBodies, w.sleepingBodies, w.frameBytes,
-                                  w.contacts, w.stepBufferBytes);
+                                  w.contacts, w.stepBufferBytes, damage);
 }
 
 Offset<wire::LimitsInfo> writeLimits(Fbb& fbb, const Limits& l) {
@@ -728,9 +729,10 @@ Bytes encodeServerStatus(const ServerStatusInfo& status) {
   v.reserve(status.worlds.size());
   for (const WorldSummary& w : status.worlds) v.push_back(detail::writeWorldSummary(fbb, w));
   auto worlds = fbb.CreateVector(v);
+  auto readOnly = optString(fbb, status.readOnly);
   auto root = wire::CreateServerStatus(fbb, name, version, status.uptimeS, status.commands,
                                        status.errors, worlds, status.framesDropped,
-                                       status.heapBytes);
+                                       status.heapBytes, readOnly);
   return finishBytes(fbb, root, wire::kServerStatusId);
 }
 

@@ -219,6 +219,7 @@ WorldSummary toWorldSummary(const wire::WorldSummary& in) {
   s.frameBytes = in.frame_bytes();
   s.contacts = in.contacts();
   s.stepBufferBytes = in.step_buffer_bytes();
+  s.damage = str(in.damage());
   return s;
 }
 

@@ -523,6 +523,37 @@ Status ServerCore::checkAccess(const ServerWorld& w, const wire::Command& c, uin
                                           " is not one of its editors (the owner's SetAccess)"));
 }
 
+Status ServerCore::checkWritable(const ServerWorld* w, const wire::Command& c) const {
+  if (readOnly_.empty() || replaying_) return Status::Ok();
+  const wire::Request t = c.request_type();
+  bool stored = false;  // what the command changes must be stored
+  switch (t) {
+    case wire::Request::CreateWorld: {
+      auto* r = c.request_as_CreateWorld();
+      stored = durable() && !(r && r->ephemeral());
+      break;
+    }
+    case wire::Request::Step:
+    case wire::Request::Run:
+    case wire::Request::Pause:
+    case wire::Request::LoadScene:
+    case wire::Request::ResetWorld:
+    case wire::Request::RestoreSnapshot:
+    case wire::Request::SetAccess:
+    case wire::Request::Batch:
+      stored = w && w->store;
+      break;
+    default:
+      stored = w && w->store && protocol::isBatchable(t);
+      break;
+  }
+  if (!stored) return Status::Ok();
+  return err(Code::ResourceExhausted,
+             std::string(protocol::requestName(t)) + ": physd is read-only: " + readOnly_ +
+                 "; reads are served, and commands that change kept worlds are taken again "
+                 "once the data directory can be written (physd tries every second)");
+}
+
 Bytes ServerCore::applyBytes(std::span<const uint8_t> payload, uint64_t envelopeKey,
                              uint64_t envelopeSeq) {
   Incoming in;
@@ -601,6 +632,16 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
   }
   if (protocol::needsWorld(type)) {
     sw = world(c.world());
+    if (!sw && damaged_.count(c.world())) {
+      const DamagedWorld& d = damaged_.at(c.world());
+      st = err(Code::IncorrectState,
+               std::string(protocol::requestName(type)) + ": world " + std::to_string(d.id) +
+                   (d.name.empty() ? "" : " '" + d.name + "'") +
+                   " is not restored: its files are damaged (" + d.damage +
+                   "); the operator restores what is good with physd --accept-loss " +
+                   std::to_string(d.id));
+      return finish();
+    }
     if (!sw) {
       st = err(Code::NotFound, "command.world " + std::to_string(c.world()) + " does not exist");
       return finish();
@@ -615,6 +656,8 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
     st = checkAccess(*sw, c, principal, envelopeKey, proven);
     if (!st.ok()) return finish();
   }
+  st = checkWritable(sw, c);  // a read-only server (a full data disk) stores nothing
+  if (!st.ok()) return finish();
   switch (type) {
     case wire::Request::Hello: {
       auto* r = c.request_as_Hello();
@@ -645,6 +688,13 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
         if (w->name == name) {
           st = err(Code::InvalidArgument,
                    "create_world.name '" + name + "' is taken by world " + std::to_string(id));
+          return finish();
+        }
+      for (auto& [id, d] : damaged_)
+        if (d.name == name) {
+          st = err(Code::InvalidArgument, "create_world.name '" + name +
+                                              "' is taken by world " + std::to_string(id) +
+                                              " (kept on disk, not restored: damaged)");
           return finish();
         }
       if (worlds_.size() >= config_.maxWorlds) {
@@ -783,8 +833,16 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
         return finish();
       }
       // From the queue: a slice now; what is left runs a slice per tick, between other
-      // commands and worlds, and answers when done (or when a Pause ends it).
+      // commands and worlds, and answers when done (or when a Pause ends it). Its steps are
+      // stored ahead (a Lease, synced with the tick's commands) before the first is taken.
+      bool leased = false;
+      Status ls = leaseTo(*sw, sw->tick + n, /*syncNow=*/false, &leased);
+      if (!ls.ok()) {
+        st = err(ls.code, "step: not stored: " + ls.message + "; the world did not step");
+        return finish();
+      }
       ServerWorld::StepJob job;
+      job.stored = !leased;
       job.requested = job.remaining = n;
       job.header = ctx.header;
       job.envelopeKey = current_->envelopeKey;

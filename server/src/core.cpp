@@ -513,6 +513,7 @@ void ServerCore::drainWaiting(uint32_t id) {
 
 void ServerCore::continueJob(ServerWorld& w, double seconds) {
   ServerWorld::StepJob& job = *w.job;
+  if (!job.stored) return;  // its lease is synced with the tick's commands first
   const auto t0 = std::chrono::steady_clock::now();
   const auto until = t0 + std::chrono::duration<double>(seconds);
   uint64_t n = 0;
@@ -548,12 +549,13 @@ void ServerCore::endJob(ServerWorld& w, Status status) {
   w.job.reset();
   ReplyHeader h = job.header;
   h.tick = w.tick;
-  // The tick the steps reached is journaled before the reply says it.
+  // Its steps were stored ahead (a Lease) before they were taken. One that ends early says
+  // where the world stopped, so that a restart does not step on to the lease's end (a step
+  // that failed has said so already, and a Pause that stopped it is in the journal).
   bool marked = false;
-  if (w.store && w.tick != w.journaledTick) {
+  if (w.store && job.stored && job.remaining > 0 && w.leaseUntil > w.tick) {
     Status ms = journalMark(w);
     marked = ms.ok();
-    if (!marked && status.ok()) status = Status::Error(ms.code, "step: not stored: " + ms.message);
   }
   if (!status.ok()) {
     status.message += " after " + std::to_string(job.requested - job.remaining) + " of " +
@@ -674,6 +676,7 @@ double ServerCore::stepTimed(ServerWorld& w, uint64_t n) {
   double ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   w.tick += taken;
+  w.reachedTick = std::max(w.reachedTick, w.tick);
   counters_.steps += taken;
   if (!failure.empty()) {
     // A step that was not taken (refused at the contact budget, or failed inside the engine):
@@ -706,23 +709,31 @@ double ServerCore::stepTimed(ServerWorld& w, uint64_t n) {
 
 void ServerCore::queueEvent(const ServerWorld& w, wire::Severity severity, std::string_view code,
                             std::string_view message) {
+  queueEvent(w.id, w.tick, severity, code, message);
+}
+
+void ServerCore::queueEvent(uint32_t world, uint64_t tick, wire::Severity severity,
+                            std::string_view code, std::string_view message) {
   if (replaying_) return;  // told when it first happened
   ReliableMessage m;
   m.type = ReliableMessage::Type::Event;
-  m.key = w.id;
-  m.world = w.id;
-  m.chunks.push_back(protocol::encodeEvent(w.id, w.tick, severity, code, message));
+  m.key = world;
+  m.world = world;
+  m.chunks.push_back(protocol::encodeEvent(world, tick, severity, code, message));
   out_.pushReliable(std::move(m));
 }
 
 Status ServerCore::stepWorld(uint32_t id, uint64_t n) {
   ServerWorld* w = world(id);
   if (!w) return Status::Error(Code::NotFound, "no world " + std::to_string(id));
+  // Applied directly (tests, Step without the queue): the steps are stored before they are
+  // taken, or not taken.
+  Status ls = leaseTo(*w, w->tick + n, /*syncNow=*/true);
+  if (!ls.ok())
+    return Status::Error(ls.code, "step: not stored: " + ls.message + "; the world did not step");
   const double ms = stepTimed(*w, n);
-  // Applied directly (tests, Step without the queue): the tick reached is on disk on return.
-  if (w->store && w->tick != w->journaledTick && !replaying_) {
-    Status s = journalMark(*w);
-    if (s.ok()) s = w->store->sync();
+  if (w->store && w->store->dirty() && !replaying_) {  // a step failed: its mark
+    Status s = w->store->sync();
     if (!s.ok()) log(true, "world " + std::to_string(id) + ": " + s.message);
   }
   if (!stepProblem_.ok()) {
@@ -779,6 +790,7 @@ uint64_t ServerCore::advance(double wallSeconds) {
     } else if (w.mode == RunMode::AsFastAsPossible) {
       n = 1;
     }
+    n = leaseForRun(w, n);  // no step the journal does not allow (0: the world is held)
     if (n > 0) {
       // Every step of real time is a tick its subscribers see: steps taken to catch up
       // (at most maxCatchUpSteps) get a frame each, not only the last one.
@@ -1045,6 +1057,15 @@ std::vector<protocol::WorldSummary> ServerCore::summaries() const {
     s.subscribers = it == subscribers_.end() ? 0 : it->second;
     out.push_back(std::move(s));
   }
+  // Worlds kept on disk but not restored: listed so that clients see why (not only absent).
+  for (auto& [id, d] : damaged_) {
+    protocol::WorldSummary s;
+    s.world = id;
+    s.name = d.name;
+    s.damage = d.damage;
+    out.push_back(std::move(s));
+  }
+  std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.world < b.world; });
   return out;
 }
 
@@ -1061,6 +1082,7 @@ protocol::ServerStatusInfo ServerCore::status() const {
   // resident set holds beyond this is the allocator's free pages (and code, stacks).
   const struct mallinfo2 mi = mallinfo2();
   s.heapBytes = mi.uordblks + mi.hblkhd;
+  s.readOnly = readOnly_;
   return s;
 }
 

@@ -7,19 +7,26 @@
 //   command answered with the error. Its reply is held (pushReply) until commitDurable has
 //   synced the journal: one fdatasync per world per tick however many commands it applied.
 // - Steps are not journaled one by one: stepping is deterministic, so a record's tick says
-//   how many steps came before it. A Step's end and a running world (every markPeriodS)
-//   journal a Mark with the tick reached and the run state.
+//   how many steps came before it. But no step is taken before the journal allows it: a Lease
+//   record ("from this tick the world may step up to tick H") is durable before the first
+//   step it allows (a Step's, synced with its tick's commands; a running world's, about
+//   leasePeriodS ahead, synced at once). A restart steps to the last lease's end unless a
+//   Mark (a Step ended early, a step failed) or a Pause says where the world stopped. If a
+//   lease cannot be stored, the Step is refused unchanged, a running world is held.
 // - A command that replaces the whole world (LoadScene, ResetWorld, RestoreSnapshot) writes a
 //   checkpoint before its reply, as does CreateWorld. Checkpoints are also taken every
 //   checkpointPeriodS while a world changes, and when its journal passes journalMaxBytes.
 // - At start-up each world is rebuilt from its checkpoint, then its records are replayed:
-//   step to the record's tick, apply the command (or take the mark's run state).
+//   step to the record's tick, apply the command (or take the mark's run state, or the
+//   lease), then the steps of a lease still open. A world whose journal is missing or damaged
+//   before its end is not restored (listed as damaged) unless the operator accepts the loss.
 #include <fcntl.h>
 #include <sys/file.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <cerrno>
+#include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -39,6 +46,12 @@ namespace {
 bool journaled(wire::Request t) {
   return protocol::isBatchable(t) || t == wire::Request::Batch || t == wire::Request::Run ||
          t == wire::Request::Pause || t == wire::Request::SetAccess;
+}
+
+std::vector<uint8_t> leasePayload(uint64_t until) {
+  std::vector<uint8_t> p(8);
+  std::memcpy(p.data(), &until, 8);
+  return p;
 }
 
 std::vector<uint8_t> markPayload(const ServerWorld& w) {
@@ -123,7 +136,8 @@ Status ServerCore::checkpointWorld(ServerWorld& w) {
   Status s = w.store->writeCheckpoint(std::move(c));
   if (!s.ok()) return s;
   w.checkpointFailed = false;
-  w.checkpointTick = w.journaledTick = w.tick;
+  // The new journal holds no lease: the next step needs one.
+  w.checkpointTick = w.leaseUntil = w.reachedTick = w.tick;
   return Status::Ok();
 }
 
@@ -148,10 +162,67 @@ Status ServerCore::durableReplaced(ServerWorld& w, const std::string& what) {
 
 Status ServerCore::journalMark(ServerWorld& w) {
   if (!w.store || replaying_) return Status::Ok();
+  if (!readOnly_.empty())
+    return Status::Error(Code::ResourceExhausted, "physd is read-only: " + readOnly_);
   Status s = w.store->append(w.tick, JournalRecord::Kind::Mark, markPayload(w));
-  w.markAt = std::chrono::steady_clock::now();
-  if (s.ok()) w.journaledTick = w.tick;
+  if (s.ok()) w.leaseUntil = w.tick;  // the world stopped here: its lease ends
   return s;
+}
+
+Status ServerCore::leaseTo(ServerWorld& w, uint64_t until, bool syncNow, bool* appended) {
+  if (appended) *appended = false;
+  if (!w.store || replaying_ || until <= w.leaseUntil) return Status::Ok();
+  if (!readOnly_.empty())
+    return Status::Error(Code::ResourceExhausted, "physd is read-only: " + readOnly_);
+  // Records appended before this one and not yet synced belong to replies still held; a
+  // failed sync below would cut them too, so those replies must fail with it.
+  const bool others = w.store->dirty();
+  Status s = w.store->append(w.tick, JournalRecord::Kind::Lease, leasePayload(until));
+  if (s.ok() && syncNow) {
+    s = w.store->sync();
+    if (!s.ok() && others) lostRecords_.emplace_back(w.id, s);
+  }
+  if (!s.ok()) return s;  // nothing of it is left in the journal
+  w.leaseUntil = until;
+  if (appended) *appended = true;
+  return Status::Ok();
+}
+
+uint64_t ServerCore::leaseForRun(ServerWorld& w, uint64_t n) {
+  if (!w.store || replaying_ || n == 0 || w.tick + n <= w.leaseUntil) return n;
+  // About leasePeriodS of the world's steps at once: at its rate, or (as fast as possible) at
+  // the pace of its last tick; at least this tick's.
+  uint64_t ahead = n;
+  if (config_.leasePeriodS > 0) {
+    const double perS = w.mode == RunMode::RealTime ? w.rateHz
+                        : w.tickMs > 0              ? 1000.0 / double(w.tickMs)
+                                                    : 1000.0;
+    ahead = std::max<uint64_t>(
+        ahead, uint64_t(std::min(std::ceil(perS * config_.leasePeriodS), double(1 << 20))));
+  }
+  Status s = leaseTo(w, w.tick + ahead, /*syncNow=*/true);
+  if (s.ok()) {
+    if (w.held) {
+      w.held = false;
+      const std::string m = "the world's progress is stored again; it goes on from tick " +
+                            std::to_string(w.tick);
+      queueEvent(w, wire::Severity::Info, "stored", m);
+      log(false, "world " + std::to_string(w.id) + ": " + m);
+    }
+    return n;
+  }
+  // Not a step past what is stored: the world waits at this tick (its time does not pile up
+  // meanwhile) and tries again at the next tick.
+  w.accumulator = 0;
+  if (!w.held) {
+    w.held = true;
+    const std::string m = "the world's progress cannot be stored (" + s.message +
+                          "); it is held at tick " + std::to_string(w.tick) +
+                          " and goes on by itself once its journal can be written";
+    queueEvent(w, wire::Severity::Error, "not_stored", m);
+    log(true, "world " + std::to_string(w.id) + ": " + m);
+  }
+  return 0;
 }
 
 void ServerCore::journalApplied(const Incoming& in, Bytes* reply) {
@@ -162,7 +233,8 @@ void ServerCore::journalApplied(const Incoming& in, Bytes* reply) {
   if (!w || !w->store) return;
   Status s = w->store->append(w->tick, JournalRecord::Kind::Command, in.command.bytes);
   if (s.ok()) {
-    w->journaledTick = w->tick;
+    // A Pause ends the world's lease (a restart stops there too).
+    if (c.request_type() == wire::Request::Pause) w->leaseUntil = w->tick;
     journaledWorld_ = w->id;
     if (current_) return;  // from the queue: synced with the tick's others (commitDurable)
     s = w->store->sync();  // applied directly (tests, start-up): durable before the reply
@@ -185,43 +257,53 @@ void ServerCore::journalApplied(const Incoming& in, Bytes* reply) {
 
 void ServerCore::commitDurable() {
   const auto now = std::chrono::steady_clock::now();
-  std::vector<uint32_t> failed;
+  // Worlds whose journal lost records that replies wait for: a failed sync here, or one a
+  // lease took (leaseTo).
+  std::vector<std::pair<uint32_t, Status>> failed = std::move(lostRecords_);
+  lostRecords_.clear();
   if (durable()) {
+    retryWritable();
     for (auto& [id, w] : worlds_) {
       if (!w->store) continue;
-      // A running world's progress, so that a restart resumes close to where it stopped.
-      if (!w->busy() && w->tick != w->journaledTick &&
-          now - w->markAt >= std::chrono::duration<double>(config_.markPeriodS))
-        journalMark(*w);
       Status s = w->store->sync();
       if (!s.ok()) {
-        failed.push_back(id);
         log(true, "world " + std::to_string(id) + ": " + s.message);
+        failed.emplace_back(id, std::move(s));
+        continue;
       }
+      if (w->job) w->job->stored = true;  // its lease is on disk: its steps may be taken
     }
   }
+  auto failure = [&](uint32_t id) -> const Status* {
+    for (const auto& [fid, st] : failed)
+      if (fid == id) return &st;
+    return nullptr;
+  };
+  // A Step whose lease was not stored takes no step: refused (its reply joins the others).
+  for (const auto& [id, st] : failed)
+    if (ServerWorld* w = world(id); w && w->job && !w->job->stored)
+      endJob(*w, Status::Error(st.code, "step: not stored: " + st.message));
   // The replies, now that what they acknowledge is on disk; those of a world whose journal
   // failed to sync become errors (the world goes back to what its files hold).
   for (HeldReply& r : held_) {
-    if (r.durableWorld && r.hasFailed &&
-        std::find(failed.begin(), failed.end(), r.durableWorld) != failed.end()) {
-      r.failed.status = Status::Error(Code::Internal,
-                                      "not stored: the world's journal could not be synced; the "
-                                      "world is as its files hold it");
+    const Status* f = r.durableWorld && r.hasFailed ? failure(r.durableWorld) : nullptr;
+    if (f) {
+      r.failed.status = Status::Error(f->code, "not stored: " + f->message +
+                                                   "; the world is as its files hold it");
       ++counters_.errors;
       r.reply = protocol::encodeReply(r.failed);
     }
     pushReplyNow(r.key, r.seq, std::move(r.reply));
   }
   held_.clear();
-  for (uint32_t id : failed) {
+  for (const auto& [id, st] : failed) {
     std::vector<std::string> notes;
     if (ServerWorld* w = world(id)) {
       Status s = reloadWorld(*w, &notes);
       if (!s.ok()) log(true, "world " + std::to_string(id) + ": reload failed: " + s.message);
     }
   }
-  if (!durable()) return;
+  if (!durable() || !readOnly_.empty()) return;
   // Checkpoints that are due: a long journal, or a period of changes.
   for (auto& [id, w] : worlds_) {
     if (!w->store || w->busy()) continue;
@@ -240,7 +322,7 @@ void ServerCore::commitDurable() {
 
 Status ServerCore::restoreInto(ServerWorld& w, const Checkpoint& c,
                                const std::vector<JournalRecord>& records,
-                               std::vector<std::string>* notes) {
+                               std::vector<std::string>* notes, uint64_t stopAt) {
   phys::WorldDef def;
   if (!phys::parseBackend(c.meta.backend, &def.backend)) def.backend = config_.backend;
   auto fresh = makeWorld(c.meta.name, c.meta.preset, def);
@@ -252,7 +334,7 @@ Status ServerCore::restoreInto(ServerWorld& w, const Checkpoint& c,
   w.world = std::move(fresh->world);
   w.name = c.meta.name;
   w.preset = c.meta.preset;
-  w.tick = w.checkpointTick = w.journaledTick = c.meta.tick;
+  w.tick = w.checkpointTick = c.meta.tick;
   w.revision = c.meta.revision;
   w.mode = RunMode(c.meta.mode);
   w.rateHz = c.meta.rateHz;
@@ -274,9 +356,12 @@ Status ServerCore::restoreInto(ServerWorld& w, const Checkpoint& c,
                      "); rebuilt from the engine");
     rebuildDefs(w);
   }
-  // Replay: steps up to each record's tick, then the record.
+  // Replay: steps up to each record's tick, then the record; then the steps of a lease that
+  // is still open (the world may have taken them, and subscribers seen them).
   replaying_ = true;
   size_t applied = 0;
+  uint64_t lease = 0;
+  bool leaseOpen = false, stopped = false;
   for (const JournalRecord& r : records) {
     while (w.tick < r.tick) {
       stepTimed(w, 1);
@@ -287,17 +372,23 @@ Status ServerCore::restoreInto(ServerWorld& w, const Checkpoint& c,
                        std::to_string(w.tick) + " (a step was not taken: " +
                        stepProblem_.message + "); " + std::to_string(records.size() - applied) +
                        " journal records not replayed");
+      stopped = true;
       break;
     }
     if (r.kind == JournalRecord::Kind::Mark && r.payload.size() == 9) {
       w.mode = RunMode(r.payload[0]);
       std::memcpy(&w.rateHz, r.payload.data() + 1, 8);
+      leaseOpen = false;  // the world stopped stepping here
+    } else if (r.kind == JournalRecord::Kind::Lease && r.payload.size() == 8) {
+      std::memcpy(&lease, r.payload.data(), 8);
+      leaseOpen = true;
     } else if (r.kind == JournalRecord::Kind::Command) {
       auto cmd = protocol::decodeCommand(r.payload, config_.limits);
       if (!cmd.ok()) {
         notes->push_back("world " + std::to_string(w.id) + ": journal record " +
                          std::to_string(applied) + " is not a command (" + cmd.status.message +
                          "); replay stopped");
+        stopped = true;
         break;
       }
       // Access was checked when it was first applied; nothing it does depends on who sent it.
@@ -307,15 +398,31 @@ Status ServerCore::restoreInto(ServerWorld& w, const Checkpoint& c,
                          std::to_string(applied) + " (" +
                          protocol::requestName(cmd->request_type()) +
                          ") was refused on replay: " + lastStatus_.message);
+      if (cmd->request_type() == wire::Request::Pause) leaseOpen = false;
     }
     ++applied;
   }
+  if (leaseOpen && !stopped) {
+    const uint64_t end = std::min(lease, stopAt);
+    while (w.tick < end) {
+      stepTimed(w, 1);
+      if (!stepProblem_.ok()) {
+        notes->push_back("world " + std::to_string(w.id) + ": replay stopped at tick " +
+                         std::to_string(w.tick) + " of its lease to " + std::to_string(lease) +
+                         " (a step was not taken: " + stepProblem_.message + ")");
+        leaseOpen = false;
+        break;
+      }
+    }
+  }
   replaying_ = false;
   ++w.revision;  // never behind what subscribers last saw (replay bumps it at least as often)
-  w.journaledTick = w.tick;
+  w.leaseUntil = leaseOpen ? std::max(lease, w.tick) : w.tick;
+  w.reachedTick = w.tick;
+  w.held = false;
   w.infoDirty = w.frameDirty = true;
   w.framesReplaced();
-  w.markAt = w.checkpointAt = std::chrono::steady_clock::now();
+  w.checkpointAt = std::chrono::steady_clock::now();
   return Status::Ok();
 }
 
@@ -325,22 +432,30 @@ Status ServerCore::reloadWorld(ServerWorld& w, std::vector<std::string>* notes) 
   std::vector<JournalRecord> records;
   Status s = w.store->load(&c, &records, notes);
   if (!s.ok()) return s;
+  const uint64_t reached = w.reachedTick;
   cancelJob(w, "the world was reloaded from its files");
-  return restoreInto(w, c, records, notes);
+  return restoreInto(w, c, records, notes, reached);
 }
 
-Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
-  if (!durable()) return Status::Ok();
-  std::error_code ec;
-  fs::create_directories(config_.dataDir + "/worlds", ec);
-  if (ec)
-    return Status::Error(Code::Internal,
-                         "cannot create " + config_.dataDir + "/worlds: " + ec.message());
+namespace {
+/// A failure to write that a full data disk explains (ENOSPC, EDQUOT, EFBIG: store.cpp).
+bool diskFull(const Status& s) {
+  return s.code == Code::ResourceExhausted;
+}
+bool diskFull(const std::error_code& ec) {
+  return ec.value() == ENOSPC || ec.value() == EDQUOT || ec.value() == EFBIG;
+}
+}  // namespace
+
+Status ServerCore::lockData() {
   // One daemon per data directory: a second would interleave its writes with ours.
   const std::string lockPath = config_.dataDir + "/lock";
   const int fd = ::open(lockPath.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
-  if (fd < 0)
-    return Status::Error(Code::Internal, "cannot open " + lockPath + ": " + std::strerror(errno));
+  if (fd < 0) {
+    const int e = errno;
+    return Status::Error(e == ENOSPC || e == EDQUOT ? Code::ResourceExhausted : Code::Internal,
+                         "cannot open " + lockPath + ": " + std::strerror(e));
+  }
   if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
     char pid[32] = {};
     const ssize_t n = ::pread(fd, pid, sizeof pid - 1, 0);
@@ -356,6 +471,63 @@ Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
   }
   if (dataLock_ >= 0) ::close(dataLock_);
   dataLock_ = fd;
+  return Status::Ok();
+}
+
+Status ServerCore::writeStarts() {
+  const std::string text = std::to_string(starts_) + "\n";
+  return writeFileAtomically(
+      config_.dataDir + "/starts",
+      std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(text.data()), text.size()));
+}
+
+void ServerCore::retryWritable() {
+  const auto now = std::chrono::steady_clock::now();
+  if (readOnly_.empty() || now < readOnlyRetryAt_) return;
+  readOnlyRetryAt_ = now + std::chrono::seconds(1);
+  std::error_code ec;
+  fs::create_directories(config_.dataDir + "/worlds", ec);
+  if (ec) return;
+  if (dataLock_ < 0) {
+    Status s = lockData();
+    if (!s.ok()) {
+      if (s.code == Code::IncorrectState) readOnly_ = s.message;  // another daemon took it
+      return;
+    }
+  }
+  if (!writeStarts().ok()) return;
+  readOnly_.clear();
+  log(false, "the data directory " + config_.dataDir +
+                 " takes writes again: physd is no longer read-only");
+}
+
+void ServerCore::addDamaged(uint32_t id, const std::string& name, const std::string& damage) {
+  damaged_[id] = DamagedWorld{id, name, damage};
+  nextWorldId_ = std::max(nextWorldId_, id + 1);
+  queueEvent(id, 0, wire::Severity::Error, "world_damaged",
+             "world " + std::to_string(id) + (name.empty() ? "" : " '" + name + "'") +
+                 " is not restored: " + damage +
+                 "; its files are kept as they are (physd --accept-loss " + std::to_string(id) +
+                 " restores what is good)");
+}
+
+Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
+  if (!durable()) return Status::Ok();
+  // A data disk that cannot be written (full) does not keep physd from serving what it holds:
+  // it starts read-only (readOnly_), and goes on writing when a write succeeds again.
+  auto goReadOnly = [&](const std::string& why) {
+    if (readOnly_.empty()) readOnly_ = why;
+    readOnlyRetryAt_ = std::chrono::steady_clock::now() + std::chrono::seconds(1);
+  };
+  std::error_code ec;
+  fs::create_directories(config_.dataDir + "/worlds", ec);
+  if (ec && !diskFull(ec))
+    return Status::Error(Code::Internal,
+                         "cannot create " + config_.dataDir + "/worlds: " + ec.message());
+  if (ec) goReadOnly("the data disk is full: cannot create " + config_.dataDir + "/worlds: " + ec.message());
+  Status s = lockData();
+  if (!s.ok() && !diskFull(s)) return s;
+  if (!s.ok()) goReadOnly("the data disk is full: " + s.message);
   {
     std::ifstream f(config_.dataDir + "/next_world_id");
     uint32_t next = 0;
@@ -366,16 +538,24 @@ Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
     // (phys/state/<world>/<interest>) that readers of the old daemon may still have: each
     // start of this data directory numbers them from its own base, so that a new interest
     // never takes a stale subscriber's topic (the SDK subscribes its interests again).
-    const std::string path = config_.dataDir + "/starts";
     uint64_t starts = 0;
-    std::ifstream(path) >> starts;
-    ++starts;
-    const std::string text = std::to_string(starts) + "\n";
-    Status st = writeFileAtomically(
-        path, std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(text.data()), text.size()));
-    if (!st.ok()) return st;
-    interestBase_ = uint32_t(starts % 32768) << 16;
+    std::ifstream(config_.dataDir + "/starts") >> starts;
+    starts_ = starts + 1;
+    if (readOnly_.empty()) {
+      s = writeStarts();
+      if (!s.ok() && !diskFull(s)) return s;
+      if (!s.ok()) goReadOnly("the data disk is full: " + s.message);
+    }
+    // A read-only start could not count itself: the next start will take the same number,
+    // so this one numbers its interests from the other half of the range.
+    interestBase_ = uint32_t((starts_ + (readOnly_.empty() ? 0 : 16384)) % 32768) << 16;
   }
+  if (!readOnly_.empty())
+    notes->push_back("physd is read-only: " + readOnly_ +
+                     "; worlds are restored and served, commands that must be stored are "
+                     "refused until the disk has room (retried every second)");
+  const bool acceptAll =
+      std::find(config_.acceptLoss.begin(), config_.acceptLoss.end(), 0u) != config_.acceptLoss.end();
   std::vector<uint32_t> ids;
   for (const auto& e : fs::directory_iterator(config_.dataDir + "/worlds", ec)) {
     const std::string n = e.path().filename().string();
@@ -389,32 +569,68 @@ Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
   }
   std::sort(ids.begin(), ids.end());
   for (uint32_t id : ids) {
+    const std::string dir = worldDir(config_.dataDir, id);
+    const bool accept =
+        acceptAll ||
+        std::find(config_.acceptLoss.begin(), config_.acceptLoss.end(), id) != config_.acceptLoss.end();
     auto w = std::make_unique<ServerWorld>();
     w->id = id;
-    w->store = std::make_unique<WorldStore>(worldDir(config_.dataDir, id));
+    w->store = std::make_unique<WorldStore>(dir);
     Checkpoint c;
     std::vector<JournalRecord> records;
-    Status s = w->store->load(&c, &records, notes);
-    if (s.ok() && c.meta.worldId != id)
-      s = Status::Error(Code::Malformed, "its checkpoint is of world " +
-                                             std::to_string(c.meta.worldId));
-    if (s.ok() && findWorld(c.meta.name))
-      s = Status::Error(Code::InvalidArgument, "name '" + c.meta.name + "' is taken");
-    if (!s.ok()) {
-      notes->push_back("world " + std::to_string(id) + " not restored: " + s.message +
-                       " (its files are left in place)");
+    LoadReport report;
+    s = w->store->load(&c, &records, notes, &report, accept);
+    if (!s.ok() && !report.damage.empty()) {
+      // Its journal would lose acknowledged records: not restored, nothing touched.
+      notes->push_back("world " + std::to_string(id) + " '" + c.meta.name +
+                       "' not restored: " + s.message + " (its files are left as they are; "
+                       "physd --accept-loss " + std::to_string(id) +
+                       " restores what is good and keeps them under " + config_.dataDir +
+                       "/damaged/)");
+      addDamaged(id, c.meta.name, report.damage);
       continue;
     }
+    if (s.ok() && c.meta.worldId != id)
+      s = Status::Error(Code::Malformed, dir + "/checkpoint is of world " +
+                                             std::to_string(c.meta.worldId));
+    if (s.ok() && (findWorld(c.meta.name) || std::any_of(damaged_.begin(), damaged_.end(),
+                                                          [&](const auto& d) {
+                                                            return d.second.name == c.meta.name;
+                                                          })))
+      s = Status::Error(Code::InvalidArgument, "name '" + c.meta.name + "' is taken");
     ServerWorld* sw = w.get();
-    worlds_[id] = std::move(w);
-    nextWorldId_ = std::max(nextWorldId_, id + 1);
     const auto t0 = std::chrono::steady_clock::now();
-    s = restoreInto(*sw, c, records, notes);
+    if (s.ok()) {
+      worlds_[id] = std::move(w);
+      nextWorldId_ = std::max(nextWorldId_, id + 1);
+      s = restoreInto(*sw, c, records, notes);
+      if (!s.ok()) {
+        s.message = dir + "/checkpoint: " + s.message;
+        sw->store.reset();
+        worlds_.erase(id);
+      }
+    }
     if (!s.ok()) {
+      // Its checkpoint cannot be used (none, unreadable, another world's): nothing to
+      // restore from. Left in place and listed, or, the loss accepted, moved aside whole.
+      if (s.code == Code::NotFound && unfinishedCreate(dir)) {
+        fs::remove_all(dir, ec);  // a CreateWorld a crash interrupted: never acknowledged
+        notes->push_back("world " + std::to_string(id) +
+                         ": an unfinished CreateWorld (no checkpoint) removed");
+        continue;
+      }
+      std::string where;
+      Status moved = accept ? setAside(dir, s.message, /*moveWhole=*/true, &where) : s;
+      if (accept && moved.ok()) {
+        notes->push_back("world " + std::to_string(id) + " dropped: " + s.message +
+                         "; the loss is accepted: its files are kept in " + where);
+        nextWorldId_ = std::max(nextWorldId_, id + 1);
+        continue;
+      }
       notes->push_back("world " + std::to_string(id) + " not restored: " + s.message +
+                       (accept ? "; accepting the loss failed: " + moved.message : "") +
                        " (its files are left in place)");
-      sw->store.reset();
-      worlds_.erase(id);
+      addDamaged(id, c.meta.name, s.message);
       continue;
     }
     const double ms =
@@ -423,6 +639,12 @@ Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
                      std::to_string(sw->tick) + " (checkpoint tick " +
                      std::to_string(c.meta.tick) + ", " + std::to_string(records.size()) +
                      " journal records replayed, " + std::to_string(int(ms)) + " ms)");
+    if (!report.setAside.empty())
+      queueEvent(*sw, wire::Severity::Warning, "loss_accepted",
+                 report.damage + "; the operator accepted the loss: the world is restored at "
+                 "tick " + std::to_string(sw->tick) + " from the records before the damage, "
+                 "and the files are kept in " + report.setAside);
+    if (!readOnly_.empty()) continue;
     // The replayed state becomes the new checkpoint, so the next start replays nothing twice.
     s = checkpointWorld(*sw);
     if (!s.ok()) notes->push_back("world " + std::to_string(id) + ": checkpoint: " + s.message);

@@ -75,9 +75,11 @@ void printWorlds(const std::vector<pc::WorldSummary>& worlds) {
     std::printf("%6u  %-20s %-12s %8u %8u %7u %8u %7.1f %10llu %10.2f %8s %6.0f %8llu %10llu  %s\n",
                 w.world, w.name.c_str(), w.preset.c_str(), w.awakeBodies, w.bodies, w.joints,
                 w.contacts, double(w.stepBufferBytes) / 1e6, (unsigned long long)w.tick,
-                w.time, w.running ? "running" : "paused", double(w.rateHz),
+                w.time, !w.damage.empty() ? "damaged" : w.running ? "running" : "paused",
+                double(w.rateHz),
                 (unsigned long long)w.overruns, (unsigned long long)w.frames, backend.c_str());
     if (!w.backendNote.empty()) std::printf("%6s  note: %s\n", "", w.backendNote.c_str());
+    if (!w.damage.empty()) std::printf("%6s  not restored: %s\n", "", w.damage.c_str());
   }
 }
 
@@ -117,17 +119,23 @@ int watch(pc::Client& c, const std::string& only) {
         else
           ++it;
       for (const auto& w : worlds)
-        if (!live.count(w.world)) live[w.world].sub = c.subscribe(w.world);
+        if (!live.count(w.world) && w.damage.empty()) live[w.world].sub = c.subscribe(w.world);
       std::snprintf(line, sizeof line, "%s %s  up %.0f s  commands %llu  errors %llu  heap %.1f MB\n",
                     status->serverName.c_str(), status->serverVersion.c_str(), status->uptimeS,
                     (unsigned long long)status->commands, (unsigned long long)status->errors,
                     double(status->heapBytes) / 1e6);
       out += line;
+      if (!status->readOnly.empty()) out += "READ-ONLY: " + status->readOnly + "\n";
       std::snprintf(line, sizeof line, "%5s  %-18s %10s %10s %8s %8s %15s %10s %8s %6s %5s\n",
                     "id", "world", "tick", "sim time", "tick ms", "max ms", "awake/bodies",
                     "bytes/tick", "state", "frm/s", "subs");
       out += line;
       for (const auto& w : worlds) {
+        if (!w.damage.empty()) {
+          std::snprintf(line, sizeof line, "%5u  %-18s ", w.world, w.name.c_str());
+          out += line + std::string("damaged, not restored: ") + w.damage + "\n";
+          continue;
+        }
         Live& l = live[w.world];
         uint64_t tick = w.tick;
         double time = w.time;

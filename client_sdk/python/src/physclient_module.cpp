@@ -1088,6 +1088,7 @@ PYBIND11_MODULE(physclient, m) {
       .def_readonly("frame_bytes", &pc::WorldSummary::frameBytes)
       .def_readonly("contacts", &pc::WorldSummary::contacts)
       .def_readonly("step_buffer_bytes", &pc::WorldSummary::stepBufferBytes)
+      .def_readonly("damage", &pc::WorldSummary::damage)
       .def("__repr__", [](const pc::WorldSummary& w) {
         return "WorldSummary(world=" + std::to_string(w.world) + ", name='" + w.name +
                "', bodies=" + std::to_string(w.bodies) + ", tick=" + std::to_string(w.tick) +
@@ -1102,7 +1103,8 @@ PYBIND11_MODULE(physclient, m) {
       .def_readonly("errors", &pc::ServerStatus::errors)
       .def_readonly("worlds", &pc::ServerStatus::worlds)
       .def_readonly("frames_dropped", &pc::ServerStatus::framesDropped)
-      .def_readonly("heap_bytes", &pc::ServerStatus::heapBytes);
+      .def_readonly("heap_bytes", &pc::ServerStatus::heapBytes)
+      .def_readonly("read_only", &pc::ServerStatus::readOnly);
 
   py::class_<pc::Event>(m, "Event", "A notice from the daemon (phys/events).")
       .def_readonly("world", &pc::Event::world)

@@ -137,6 +137,9 @@ struct ServerStatus {
   std::vector<WorldSummary> worlds;
   uint64_t framesDropped = 0;  ///< state frames the daemon's publisher dropped, total
   uint64_t heapBytes = 0;      ///< bytes in use in the daemon's heap (0: not reported)
+  /// Why the daemon refuses commands that change kept worlds (its data disk is full); empty
+  /// when it does not.
+  std::string readOnly;
 };
 
 /// A notice from the daemon (phys/events), e.g. the engine's guard rails redoing a step.

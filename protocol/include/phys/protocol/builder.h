@@ -213,6 +213,9 @@ struct WorldSummary {
   uint32_t frameBytes = 0;      ///< bytes of the last state frame (0: none encoded)
   uint32_t contacts = 0;        ///< contacts the last step collided
   uint64_t stepBufferBytes = 0; ///< bytes held by the world's step buffers
+  /// A world kept on disk but not restored (its files damaged): why; empty for a world
+  /// that runs.
+  std::string damage;
 };
 
 /// A reply without a result (errors; Pause, DestroyWorld, ...).
@@ -295,6 +298,7 @@ struct ServerStatusInfo {
   std::vector<WorldSummary> worlds;
   uint64_t framesDropped = 0;  ///< state frames dropped by the publisher's ring
   uint64_t heapBytes = 0;      ///< bytes in use in the daemon's heap (glibc mallinfo2)
+  std::string readOnly;        ///< why edits of kept worlds are refused; empty: they are not
 };
 Bytes encodeServerStatus(const ServerStatusInfo& status);
 

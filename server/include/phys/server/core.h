@@ -54,9 +54,16 @@ struct CoreConfig {
   /// whenever its journal passes journalMaxBytes: restoring replays at most that much.
   double checkpointPeriodS = 30;
   uint64_t journalMaxBytes = 64ull << 20;
-  /// A running world journals the tick it reached this often (s), so a restart resumes
-  /// within this much of where it stopped (restored worlds resume from the last record).
-  double markPeriodS = 1;
+  /// A running world's steps are promised to its journal ahead of time, this much (s of
+  /// simulated time at its rate) at once: a Lease record, synced before the first step it
+  /// allows (docs/ARCHITECTURE.md "Nothing runs ahead of the journal"). A restart resumes at
+  /// the last lease's end, at most this far beyond the last tick subscribers saw, never
+  /// behind it. 0: a lease per tick, of that tick's steps.
+  double leasePeriodS = 1;
+  /// Worlds whose journal is missing or damaged before its end are not restored unless
+  /// listed here (ids; 0: every world): then their files are copied to <dataDir>/damaged/
+  /// and they are restored from what is good (physd --accept-loss).
+  std::vector<uint32_t> acceptLoss;
   protocol::Limits limits;  ///< codec limits, also announced in HelloResult
   int threads = 1;          ///< WorldDef::threads of every world
   int maxCatchUpSteps = 4;  ///< steps one tick may take to catch up with real time
@@ -273,6 +280,8 @@ struct ServerWorld {
     uint64_t envelopeKey = 0, envelopeSeq = 0, sender = 0;
     uint64_t charge = 0;  ///< what the command holds of the queue's byte budgets
     double ms = 0;     ///< wall time spent so far
+    /// Its Lease is durable (or none was needed): until then it takes no step.
+    bool stored = true;
   };
   std::optional<StepJob> job;
   /// A LoadScene building on a loader thread: swapped in and answered by advance().
@@ -287,10 +296,18 @@ struct ServerWorld {
   // directory.
   bool ephemeral = false;
   std::unique_ptr<WorldStore> store;
-  uint64_t journaledTick = 0;  ///< the tick of the last record or checkpoint
   uint64_t checkpointTick = 0;
+  /// The journal lets the world step up to this tick (its last Lease, or the tick of its
+  /// last Mark, Pause or checkpoint): a step past it needs a new Lease first.
+  uint64_t leaseUntil = 0;
+  /// The furthest tick the world reached since its checkpoint: a reload (after a record
+  /// that could not be stored) replays up to here, not to the end of a lease.
+  uint64_t reachedTick = 0;
+  /// A running world whose next Lease could not be stored: it takes no step until one can
+  /// be (an event said so).
+  bool held = false;
   bool checkpointFailed = false;  ///< the last try; retried a checkpoint period later
-  std::chrono::steady_clock::time_point checkpointAt{}, markAt{};
+  std::chrono::steady_clock::time_point checkpointAt{};
   /// Commands for this world that arrived during its StepJob or LoadJob, applied in order
   /// after it.
   std::deque<Incoming> waiting;
@@ -330,6 +347,18 @@ class ServerCore {
   Status restoreWorlds(std::vector<std::string>* notes);
   /// The world of that name, or null.
   ServerWorld* findWorld(const std::string& name);
+  /// A world kept under dataDir that was not restored because restoring it would lose
+  /// acknowledged data (its journal missing or damaged, its checkpoint unreadable): listed
+  /// with `damage` (WorldSummary.damage), commands to it refused, its files untouched.
+  struct DamagedWorld {
+    uint32_t id = 0;
+    std::string name;  ///< from its checkpoint; empty when that cannot be read
+    std::string damage;
+  };
+  const std::map<uint32_t, DamagedWorld>& damagedWorlds() const { return damaged_; }
+  /// Why edits are refused: the data directory could not be written at start-up (a full
+  /// disk); empty when they are not. Retried every second; cleared when a write succeeds.
+  const std::string& readOnly() const { return readOnly_; }
   /// Where the core reports what it does not answer to a client (a journal that cannot be
   /// synced, a failed checkpoint): physd logs it; the default prints to stderr.
   void setLog(std::function<void(bool error, const std::string& line)> log) { log_ = std::move(log); }
@@ -492,13 +521,31 @@ class ServerCore {
   /// Journals an applied command (Ok, a kind that changes the world): false when it could
   /// not be stored (the world is then reloaded from its files and *reply says why).
   void journalApplied(const Incoming& in, Bytes* reply);
-  /// Journals the tick a world reached and its run state.
+  /// Journals the tick a world reached and its run state (ends its lease there).
   Status journalMark(ServerWorld& w);
+  /// Makes sure the world's journal lets it step to tick `until`: Ok at once when its lease
+  /// covers it (or the world is not kept), else appends a Lease to `until` and, with
+  /// syncNow, makes it durable. On failure nothing is left of the lease in the journal.
+  Status leaseTo(ServerWorld& w, uint64_t until, bool syncNow, bool* appended = nullptr);
+  /// Worlds whose journal a failed sync in leaseTo cut back past records that held replies
+  /// wait for: commitDurable fails those replies and reloads the world.
+  std::vector<std::pair<uint32_t, Status>> lostRecords_;
+  /// The steps a running world takes now (n), after its lease: 0 while it cannot be stored
+  /// (the world is held, and an event says so; another when it goes on).
+  uint64_t leaseForRun(ServerWorld& w, uint64_t n);
+  /// Why a command that must be stored is refused on a read-only server (Ok otherwise).
+  Status checkWritable(const ServerWorld* w, const wire::Command& c) const;
+  /// A world that could not be restored (restoreWorlds), listed and announced.
+  void addDamaged(uint32_t id, const std::string& name, const std::string& damage);
+  void queueEvent(uint32_t world, uint64_t tick, wire::Severity severity, std::string_view code,
+                  std::string_view message);
   /// Rebuilds a world in place from its store (checkpoint + journal): after a journal that
-  /// could not be written, and at start-up.
+  /// could not be written. It comes back at the tick it had reached (reachedTick), not past.
   Status reloadWorld(ServerWorld& w, std::vector<std::string>* notes);
+  /// Replays: the checkpoint, then each record at its tick, then the steps of a lease still
+  /// open at the end, up to stopAt.
   Status restoreInto(ServerWorld& w, const Checkpoint& c, const std::vector<JournalRecord>& records,
-                     std::vector<std::string>* notes);
+                     std::vector<std::string>* notes, uint64_t stopAt = UINT64_MAX);
   void log(bool error, const std::string& line) const;
   /// Replies held until the journals are synced (pushReply).
   struct HeldReply {
@@ -519,6 +566,16 @@ class ServerCore {
   /// `<dataDir>/lock`, flock'ed by restoreWorlds for the core's life: two daemons never
   /// write one data directory.
   int dataLock_ = -1;
+  std::map<uint32_t, DamagedWorld> damaged_;
+  std::string readOnly_;
+  uint64_t starts_ = 0;  ///< this start's number (<dataDir>/starts), written when writable
+  std::chrono::steady_clock::time_point readOnlyRetryAt_{};
+  /// Read-only: tries to write <dataDir>/starts again (once a second); clears readOnly_.
+  void retryWritable();
+  /// Takes <dataDir>/lock (dataLock_).
+  Status lockData();
+  /// Writes starts_ to <dataDir>/starts.
+  Status writeStarts();
   std::function<void(bool, const std::string&)> log_;
 
   CoreConfig config_;
