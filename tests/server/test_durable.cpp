@@ -416,6 +416,34 @@ TEST(Durable, CheckpointsFoldTheJournalAndACorruptCheckpointIsNotRestored) {
   fs::remove_all(data);
 }
 
+// A world whose owner proved its id (issue 39 point 4) keeps needing proven commands after a
+// restart: the flag lives in its checkpoint beside owner, editors and shared.
+TEST(Durable, AProofOwnedWorldStaysProofOwnedAfterARestart) {
+  const fs::path data = scratch("proof_owned");
+  std::vector<std::string> notes;
+  uint32_t id = 0;
+  {
+    ServerCore a(durableConfig(data));
+    ASSERT_TRUE(a.init().ok());
+    ASSERT_TRUE(a.restoreWorlds(&notes).ok());
+    CommandBuilder create;
+    create.createWorld({"proven", "", std::nullopt, 0});
+    Incoming in = queuedCommand(kClient, 1, create, 0);
+    in.proven = true;
+    Reply r = decode(a.apply(in));
+    ASSERT_EQ(r->status(), Code::Ok) << message(r);
+    id = r->world();
+    ASSERT_TRUE(a.world(id)->ownerProven);
+  }
+  auto b = restart(data, &notes);
+  ASSERT_TRUE(b->world(id));
+  EXPECT_TRUE(b->world(id)->ownerProven);
+  EXPECT_EQ(b->world(id)->owner, kClient);
+  Client plain{b.get(), 10};  // the owner's id, unproven
+  EXPECT_EQ(plain.send(CommandBuilder().step(1), id)->status(), Code::PermissionDenied);
+  fs::remove_all(data);
+}
+
 TEST(Durable, TwoDaemonsNeverShareADataDirectory) {
   const fs::path data = scratch("lock");
   std::vector<std::string> notes;
