@@ -213,6 +213,56 @@ void World::setContactBudget(uint32_t maxContactPairs, WorldDef::PairOverflow ov
   impl_->def.maxContactPairs = maxContactPairs;
   impl_->def.pairOverflow = overflow;
 }
+
+Status World::validate(const WorldDef& d) {
+  if (!isFinite(d.gravity)) return invalid("gravity must be finite");
+  if (!(finite(d.timeStep) && d.timeStep > 0 && d.timeStep <= 1))
+    return invalid("time step must be in (0, 1] s");
+  if (!positive(d.maxLinearSpeed) || !positive(d.maxAngularSpeed))
+    return invalid("max linear and angular speeds must be finite and > 0");
+  if (!finite(d.speculativeDistance) || d.speculativeDistance < 0 || !finite(d.aabbMargin) ||
+      d.aabbMargin < 0)
+    return invalid("speculative distance and aabb margin must be finite and >= 0");
+  if (!finite(d.guardEnergyJump) || d.guardEnergyJump < 0)
+    return invalid("guard energy jump must be finite and >= 0");
+  // As a snapshot's bound (snapshot.cpp): a step retried for hours is no guard.
+  if (d.guardRetries < 0 || d.guardRetries > 1000) return invalid("guard retries must be in [0, 1000]");
+  if (d.pairOverflow != WorldDef::PairOverflow::Drop &&
+      d.pairOverflow != WorldDef::PairOverflow::Refuse)
+    return invalid("pair overflow must be drop or refuse");
+  Status st = validate(d.solver);
+  if (!st.ok()) return st;
+  return validate(d.sleep);
+}
+
+Status World::setDef(const WorldDef& next) {
+  Impl& w = *impl_;
+  const WorldDef d = next;  // (next may be def() itself)
+  if (d.threads != w.def.threads || d.backend != w.def.backend ||
+      d.gpuAllowCpuDevice != w.def.gpuAllowCpuDevice)
+    return invalid("threads, backend and gpuAllowCpuDevice are fixed when a world is made");
+  Status st = validate(d);
+  if (!st.ok()) return st;
+  // Everything checked: the setters below cannot fail.
+  const WorldDef& old = w.def;
+  const bool margins =
+      d.speculativeDistance != old.speculativeDistance || d.aabbMargin != old.aabbMargin;
+  if (!(d.gravity == old.gravity)) setGravity(d.gravity);  // (the device's copy too)
+  setTimeStep(d.timeStep);
+  setSolverSettings(d.solver);
+  setSleepSettings(d.sleep);
+  if (margins) w.wakeAll();  // the sleepers' contacts and fat boxes were found with the old ones
+  w.def.maxLinearSpeed = d.maxLinearSpeed;
+  w.def.maxAngularSpeed = d.maxAngularSpeed;
+  w.def.speculativeDistance = d.speculativeDistance;
+  w.def.aabbMargin = d.aabbMargin;
+  w.def.maxContactPairs = d.maxContactPairs;
+  w.def.pairOverflow = d.pairOverflow;
+  w.def.guard = d.guard;
+  w.def.guardEnergyJump = d.guardEnergyJump;
+  w.def.guardRetries = d.guardRetries;
+  return Status::Ok();
+}
 const StepProfile& World::profile() const {
   return impl_->profile;
 }
@@ -579,6 +629,43 @@ Status World::getBody(BodyId id, BodyState* out) const {
   out->inertia = R * b->inertiaLocal * transpose(R);
   out->sleeping = b->asleep();
   out->allowSleep = b->allowSleep;
+  return Status::Ok();
+}
+
+Status World::getBodyDef(BodyId id, BodyDef* out, BodyMass* mass) const {
+  const Impl& w = *impl_;
+  const BodyRec* b = w.bodies.get(id);
+  if (!b) return notFound("body");
+  const bool dynamic = b->type == BodyType::Dynamic;
+  if (out) {
+    BodyDef d;
+    d.type = b->type;
+    d.position = b->xf.p;
+    d.rotation = b->xf.q;
+    d.linearVelocity = b->v;
+    d.angularVelocity = b->w;
+    d.linearDamping = b->linearDamping;
+    d.angularDamping = b->angularDamping;
+    d.gravityScale = b->gravityScale;
+    // Only a dynamic body has a mass (a body made static keeps what it was given, unused).
+    d.mass = dynamic && !b->autoMass ? b->givenMass : 0;
+    d.inertia = dynamic ? b->givenInertia : Vec3{};
+    d.gyroscopic = b->gyroscopic;
+    d.allowSleep = b->allowSleep;
+    d.name = b->name;
+    d.shapes.reserve(b->shapes.size());
+    for (ShapeId sid : b->shapes) d.shapes.push_back(w.shapes.get(sid)->def);
+    *out = std::move(d);
+  }
+  if (mass) {
+    *mass = BodyMass{};
+    if (dynamic) {
+      mass->mass = b->mass;
+      mass->localCenter = b->localCenter;
+      mass->inertia = b->principalMoments;
+      mass->inertiaRotation = b->principal;
+    }
+  }
   return Status::Ok();
 }
 

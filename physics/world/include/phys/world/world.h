@@ -242,6 +242,15 @@ struct BodyState {
   bool allowSleep = true;
 };
 
+/// The mass properties a world derived for a body (World::getBodyDef): what it simulates,
+/// whether its definition gave them (BodyDef::mass, inertia) or its shapes' densities did.
+struct BodyMass {
+  float mass = 0;        ///< kg (0 for static and kinematic bodies)
+  Vec3 localCenter;      ///< m, the centre of mass in the body frame
+  Vec3 inertia;          ///< kg m^2, principal moments about the centre of mass (0: not dynamic)
+  Quat inertiaRotation;  ///< the principal axes' frame in the body frame
+};
+
 /// A joint's state after the last step.
 struct JointState {
   JointId id;
@@ -291,6 +300,22 @@ class World {
   /// or changing a threshold, wakes every sleeping body.
   Status setSleepSettings(const SleepSettings& s);
   static Status validate(const SleepSettings& s);
+  /// Every setting of a living world at once, all-or-nothing: what differs between d and
+  /// def() changes (gravity, time step, speed clamps, collision margins, contact budget,
+  /// solver settings, guard, sleeping). threads, backend and gpuAllowCpuDevice are fixed when
+  /// a world is made (its thread pool, its device): d must carry the world's own, as def()
+  /// has them, or nothing changes (InvalidArgument). Each change wakes what it affects:
+  /// gravity, the time step, solver settings (as setSolverSettings), sleeping turned off or
+  /// its thresholds (as setSleepSettings) and the collision margins (a sleeping island keeps
+  /// the contacts found with the old ones) wake every sleeping body; the speed clamps, the
+  /// guard and the contact budget wake none (a sleeping body has no speed, is not stepped and
+  /// adds no pairs). Lowered clamps apply from the next step on, which clamps faster bodies
+  /// (and the guard, on, takes a body at its clamp for one that blew up: it stops it).
+  Status setDef(const WorldDef& d);
+  /// Every field setDef takes: finite gravity, time step in (0, 1] s, clamps > 0, margins
+  /// >= 0, guardEnergyJump >= 0, guardRetries in [0, 1000], and the solver and sleep settings
+  /// (validate above).
+  static Status validate(const WorldDef& d);
 
   // Bodies. createBody validates the whole definition (finite numbers, unit quaternion,
   // positive sizes and masses, planes only on static bodies) and creates nothing on error.
@@ -313,6 +338,12 @@ class World {
   int awakeBodyCount() const;        ///< bodies the step moves: not static, not asleep
   void awakeBodies(std::vector<BodyId>* out) const;  ///< those bodies, in index order
   Status getBody(BodyId id, BodyState* out) const;
+  /// A body's definition as the world holds it, the one source of what it simulates: type,
+  /// pose and velocities now, damping, gravity scale, gyroscopic, allowSleep, name and shapes
+  /// (materials as setMaterial left them); mass and inertia as given (0: from the shapes),
+  /// both 0 for static and kinematic bodies. Creating a body from it in a world of the same
+  /// settings makes the same body. mass (optional): what the world derived from it.
+  Status getBodyDef(BodyId id, BodyDef* out, BodyMass* mass = nullptr) const;
   bool isValid(BodyId id) const;
   std::vector<BodyId> bodies() const;  ///< live bodies in index order
   int bodyCount() const;
