@@ -187,6 +187,25 @@ Offset<wire::SolverSettings> writeSolver(Fbb& fbb, const SolverOverrides& s) {
   return b.Finish();
 }
 
+Offset<wire::WorldSettings> writeWorldSettings(Fbb& fbb, const WorldOverrides& s) {
+  wire::Vec3 g = toWire(s.gravity.value_or(phys::Vec3{}));
+  wire::WorldSettingsBuilder b(fbb);
+  if (s.gravity) b.add_gravity(&g);
+  if (s.timeStep) b.add_time_step(*s.timeStep);
+  if (s.sleep) b.add_sleep(*s.sleep);
+  if (s.sleepTime) b.add_sleep_time(*s.sleepTime);
+  if (s.sleepLinearSpeed) b.add_sleep_linear_speed(*s.sleepLinearSpeed);
+  if (s.sleepAngularSpeed) b.add_sleep_angular_speed(*s.sleepAngularSpeed);
+  if (s.maxLinearSpeed) b.add_max_linear_speed(*s.maxLinearSpeed);
+  if (s.maxAngularSpeed) b.add_max_angular_speed(*s.maxAngularSpeed);
+  if (s.speculativeDistance) b.add_speculative_distance(*s.speculativeDistance);
+  if (s.aabbMargin) b.add_aabb_margin(*s.aabbMargin);
+  if (s.guard) b.add_guard(*s.guard);
+  if (s.guardEnergyJump) b.add_guard_energy_jump(*s.guardEnergyJump);
+  if (s.guardRetries) b.add_guard_retries(*s.guardRetries);
+  return b.Finish();
+}
+
 Offset<wire::WorldSummary> writeWorldSummary(Fbb& fbb, const WorldSummary& w) {
   auto name = optString(fbb, w.name);
   auto preset = optString(fbb, w.preset);
@@ -261,6 +280,42 @@ bool SolverOverrides::empty() const {
          !jointDampingRatio && !maxPushout && !linearSlop && !warmStart && !restitution &&
          !restitutionThreshold && !equalitySolve && !blockContacts && !geometricStiffness &&
          !splitPushout && !patchFriction && !stackStiffening && !directContactRatio;
+}
+
+// ---------------------------------------------------------------------------------------------
+// WorldOverrides
+
+// A tripwire like SolverSettings': WorldDef gained or lost a field. A field a living world may
+// change goes into physics.fbs (WorldSettings, at the end), WorldOverrides and its
+// from()/empty(), detail::writeWorldSettings, convert.cpp, the decoder's and validate.cpp's
+// checks and docs/PROTOCOL.md "World settings"; then update the size here.
+#if defined(__GLIBCXX__) && UINTPTR_MAX == UINT64_MAX
+static_assert(sizeof(phys::WorldDef) == 164,
+              "phys::WorldDef changed: mirror a settable field in the protocol (see comment)");
+#endif
+
+WorldOverrides WorldOverrides::from(const phys::WorldDef& d) {
+  WorldOverrides o;
+  o.gravity = d.gravity;
+  o.timeStep = d.timeStep;
+  o.sleep = d.sleep.enabled;
+  o.sleepTime = d.sleep.time;
+  o.sleepLinearSpeed = d.sleep.linearSpeed;
+  o.sleepAngularSpeed = d.sleep.angularSpeed;
+  o.maxLinearSpeed = d.maxLinearSpeed;
+  o.maxAngularSpeed = d.maxAngularSpeed;
+  o.speculativeDistance = d.speculativeDistance;
+  o.aabbMargin = d.aabbMargin;
+  o.guard = d.guard;
+  o.guardEnergyJump = d.guardEnergyJump;
+  o.guardRetries = d.guardRetries;
+  return o;
+}
+
+bool WorldOverrides::empty() const {
+  return !gravity && !timeStep && !sleep && !sleepTime && !sleepLinearSpeed &&
+         !sleepAngularSpeed && !maxLinearSpeed && !maxAngularSpeed && !speculativeDistance &&
+         !aabbMargin && !guard && !guardEnergyJump && !guardRetries;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -472,6 +527,29 @@ CommandBuilder& CommandBuilder::restoreSnapshot(std::span<const uint8_t> snapsho
 CommandBuilder& CommandBuilder::restoreSnapshotFile(std::string_view file) {
   auto f = fbb_.CreateString(file.data(), file.size());
   return add(wire::Request::RestoreSnapshot, wire::CreateRestoreSnapshot(fbb_, 0, f).Union());
+}
+
+CommandBuilder& CommandBuilder::setWorld(const WorldOverrides& settings) {
+  auto t = detail::writeWorldSettings(fbb_, settings);
+  return add(wire::Request::SetWorld, wire::CreateSetWorld(fbb_, t).Union());
+}
+
+CommandBuilder& CommandBuilder::getWorld() {
+  return add(wire::Request::GetWorld, wire::CreateGetWorld(fbb_).Union());
+}
+
+CommandBuilder& CommandBuilder::getBodies(std::span<const uint64_t> ids, uint32_t first,
+                                          uint32_t maxCount) {
+  Offset<flatbuffers::Vector<uint64_t>> v;
+  if (!ids.empty()) v = fbb_.CreateVector(ids.data(), ids.size());
+  return add(wire::Request::GetBodies, wire::CreateGetBodies(fbb_, v, first, maxCount).Union());
+}
+
+CommandBuilder& CommandBuilder::getJoints(std::span<const uint64_t> ids, uint32_t first,
+                                          uint32_t maxCount) {
+  Offset<flatbuffers::Vector<uint64_t>> v;
+  if (!ids.empty()) v = fbb_.CreateVector(ids.data(), ids.size());
+  return add(wire::Request::GetJoints, wire::CreateGetJoints(fbb_, v, first, maxCount).Union());
 }
 
 Bytes CommandBuilder::finish(const CommandHeader& header) {
@@ -760,6 +838,8 @@ Bytes encodeSnapshot(const SnapshotData& s) {
   if (!s.engineState.empty()) engine = alignedBytes(fbb, s.engineState);
   auto name = optString(fbb, s.name);
   auto solver = detail::writeSolver(fbb, SolverOverrides::from(s.solver));
+  Offset<wire::WorldSettings> settings;
+  if (!s.settings.empty()) settings = detail::writeWorldSettings(fbb, s.settings);
   wire::Vec3 gravity = toWire(s.gravity);
   wire::SnapshotBuilder b(fbb);
   b.add_format_version(1);
@@ -772,7 +852,70 @@ Bytes encodeSnapshot(const SnapshotData& s) {
   b.add_bodies(bv);
   b.add_joints(jv);
   b.add_engine_state(engine);
+  if (!s.settings.empty()) b.add_settings(settings);
   return finishBytes(fbb, b.Finish(), wire::kSnapshotId);
+}
+
+// ---------------------------------------------------------------------------------------------
+// World settings and definitions
+
+Bytes encodeWorldSettingsReply(const ReplyHeader& header, const phys::WorldDef& def,
+                               std::string_view preset) {
+  Fbb fbb(1024);
+  auto settings = detail::writeWorldSettings(fbb, WorldOverrides::from(def));
+  auto solver = detail::writeSolver(fbb, SolverOverrides::from(def.solver));
+  auto name = optString(fbb, preset);
+  auto r = wire::CreateWorldSettingsResult(fbb, settings, solver, name);
+  return finishReply(fbb, header, wire::Result::WorldSettingsResult, r.Union());
+}
+
+Bytes encodeBodiesReply(const ReplyHeader& header, uint32_t total,
+                        std::span<const BodyInfo> bodies) {
+  size_t bytes = kReplyOverheadBytes;
+  for (const BodyInfo& b : bodies) bytes += encodedBytesBound(b);
+  Fbb fbb(std::min<size_t>(bytes, size_t(1) << 24));
+  std::vector<Offset<wire::BodyInfo>> v;
+  v.reserve(bodies.size());
+  for (const BodyInfo& b : bodies) {
+    auto def = detail::writeBodyDef(fbb, b.def);
+    const wire::Vec3 center = toWire(b.mass.localCenter), inertia = toWire(b.mass.inertia);
+    const wire::Quat axes = toWire(b.mass.inertiaRotation);
+    v.push_back(wire::CreateBodyInfo(fbb, b.id, def, b.mass.mass, &center, &inertia, &axes));
+  }
+  auto list = fbb.CreateVector(v);
+  auto r = wire::CreateBodiesResult(fbb, total, list);
+  return finishReply(fbb, header, wire::Result::BodiesResult, r.Union());
+}
+
+Bytes encodeJointsReply(const ReplyHeader& header, uint32_t total,
+                        std::span<const JointEntry> joints) {
+  size_t bytes = kReplyOverheadBytes;
+  for (const JointEntry& j : joints) bytes += encodedBytesBound(j);
+  Fbb fbb(std::min<size_t>(bytes, size_t(1) << 24));
+  std::vector<Offset<wire::JointEntry>> v;
+  v.reserve(joints.size());
+  for (const JointEntry& j : joints)
+    v.push_back(wire::CreateJointEntry(fbb, j.id, detail::writeJointDef(fbb, j.def)));
+  auto list = fbb.CreateVector(v);
+  auto r = wire::CreateJointsResult(fbb, total, list);
+  return finishReply(fbb, header, wire::Result::JointsResult, r.Union());
+}
+
+// Bounds, generous: a table costs its vtable (2 bytes a field, 4 more) and its fields, each
+// padded to 8 bytes at most; a string or vector its length word, its bytes and padding; every
+// offset 4 bytes. BodyDef has 13 fields (a pose of 28 bytes, three Vec3s), ShapeDef 4 (a pose,
+// a material), a geometry table at most 2 (a Vec3 or a vector), BodyInfo 6, JointDef 18.
+size_t encodedBytesBound(const BodyInfo& body) {
+  size_t n = 96 /* BodyInfo */ + 256 /* BodyDef */ + 16 + body.def.name.size();
+  for (const phys::ShapeDef& s : body.def.shapes) {
+    n += 4 + 96 /* ShapeDef */ + 48 /* geometry */;
+    if (s.geom.hull) n += 16 + 12 * s.geom.hull->vertices.size();
+  }
+  return n;
+}
+
+size_t encodedBytesBound(const JointEntry& joint) {
+  return 4 + 32 /* JointEntry */ + 256 /* JointDef */ + 16 + joint.def.name.size();
 }
 
 }  // namespace phys::protocol

@@ -192,6 +192,56 @@ void applySolverSettings(const wire::SolverSettings& in, phys::SolverSettings* o
   applyOverrides(toOverrides(in), out);
 }
 
+WorldOverrides toOverrides(const wire::WorldSettings& in) {
+  WorldOverrides o;
+  if (in.gravity()) o.gravity = toPhys(*in.gravity());
+  if (auto v = in.time_step()) o.timeStep = *v;
+  if (auto v = in.sleep()) o.sleep = *v;
+  if (auto v = in.sleep_time()) o.sleepTime = *v;
+  if (auto v = in.sleep_linear_speed()) o.sleepLinearSpeed = *v;
+  if (auto v = in.sleep_angular_speed()) o.sleepAngularSpeed = *v;
+  if (auto v = in.max_linear_speed()) o.maxLinearSpeed = *v;
+  if (auto v = in.max_angular_speed()) o.maxAngularSpeed = *v;
+  if (auto v = in.speculative_distance()) o.speculativeDistance = *v;
+  if (auto v = in.aabb_margin()) o.aabbMargin = *v;
+  if (auto v = in.guard()) o.guard = *v;
+  if (auto v = in.guard_energy_jump()) o.guardEnergyJump = *v;
+  if (auto v = in.guard_retries()) o.guardRetries = *v;
+  return o;
+}
+
+void applyOverrides(const WorldOverrides& o, phys::WorldDef* d) {
+  if (o.gravity) d->gravity = *o.gravity;
+  if (o.timeStep) d->timeStep = *o.timeStep;
+  if (o.sleep) d->sleep.enabled = *o.sleep;
+  if (o.sleepTime) d->sleep.time = *o.sleepTime;
+  if (o.sleepLinearSpeed) d->sleep.linearSpeed = *o.sleepLinearSpeed;
+  if (o.sleepAngularSpeed) d->sleep.angularSpeed = *o.sleepAngularSpeed;
+  if (o.maxLinearSpeed) d->maxLinearSpeed = *o.maxLinearSpeed;
+  if (o.maxAngularSpeed) d->maxAngularSpeed = *o.maxAngularSpeed;
+  if (o.speculativeDistance) d->speculativeDistance = *o.speculativeDistance;
+  if (o.aabbMargin) d->aabbMargin = *o.aabbMargin;
+  if (o.guard) d->guard = *o.guard;
+  if (o.guardEnergyJump) d->guardEnergyJump = *o.guardEnergyJump;
+  if (o.guardRetries) d->guardRetries = *o.guardRetries;
+}
+
+Status toBodyInfo(const wire::BodyInfo& in, BodyInfo* out, std::string_view path,
+                  HullCache* cache) {
+  BodyInfo b;
+  b.id = in.id();
+  if (in.def()) {
+    Status st = toBodyDef(*in.def(), &b.def, std::string(path) + ".def", cache);
+    if (!st.ok()) return st;
+  }
+  b.mass.mass = in.mass();
+  if (in.center_of_mass()) b.mass.localCenter = toPhys(*in.center_of_mass());
+  if (in.inertia()) b.mass.inertia = toPhys(*in.inertia());
+  if (in.inertia_axes()) b.mass.inertiaRotation = toPhys(*in.inertia_axes());
+  *out = std::move(b);
+  return Status::Ok();
+}
+
 WorldSummary toWorldSummary(const wire::WorldSummary& in) {
   auto str = [](const flatbuffers::String* s) { return s ? s->str() : std::string(); };
   WorldSummary s;
@@ -232,6 +282,7 @@ Status toSnapshotData(const wire::Snapshot& in, SnapshotData* out) {
   s.tick = in.tick();
   s.time = in.time();
   if (auto* e = in.engine_state()) s.engineState.assign(e->begin(), e->end());
+  if (in.settings()) s.settings = toOverrides(*in.settings());
   if (auto* bv = in.bodies()) {
     HullCache hulls;  // a hull table shared by many shapes is built once
     s.bodies.resize(bv->size());

@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <limits>
 #include <string>
 #include <string_view>
 #include <unordered_set>
@@ -29,7 +30,11 @@ using flatbuffers::Vector;
 
 using detail::kMaxDampingRatio;
 using detail::kMaxDirectContactRatio;
+using detail::kMaxGuardEnergyJump;
+using detail::kMaxGuardRetries;
 using detail::kMaxHertz;
+using detail::kMaxMargin;
+using detail::kMaxSleepTime;
 using detail::num;
 using detail::ValueRules;
 
@@ -45,7 +50,7 @@ std::string hexId(uint64_t v) {
 }
 
 
-constexpr std::array<const char*, 28> kRequestNames = {"none",
+constexpr std::array<const char*, 32> kRequestNames = {"none",
                                                        "hello",
                                                        "create_world",
                                                        "destroy_world",
@@ -72,7 +77,11 @@ constexpr std::array<const char*, 28> kRequestNames = {"none",
                                                        "batch",
                                                        "subscribe",
                                                        "unsubscribe",
-                                                       "set_access"};
+                                                       "set_access",
+                                                       "set_world",
+                                                       "get_world",
+                                                       "get_bodies",
+                                                       "get_joints"};
 static_assert(kRequestNames.size() == size_t(wire::Request::MAX) + 1,
               "a request kind without a name");
 
@@ -271,6 +280,9 @@ class Checker : public ValueRules<Checker> {
   bool body(const wire::BodyDef& b);
   bool joint(const wire::JointDef& j);
   bool solver(const wire::SolverSettings& s, int* fieldsSet);
+  bool worldSettings(const wire::WorldSettings& s, int* fieldsSet);
+  /// A definition read back (BodiesResult): the body's definition and its mass properties.
+  bool bodyInfo(const wire::BodyInfo& b);
 
   bool command(const wire::Command& c);
   bool request(wire::Request type, const void* table);
@@ -510,6 +522,61 @@ bool Checker::solver(const wire::SolverSettings& s, int* fieldsSet) {
   return true;
 }
 
+bool Checker::worldSettings(const wire::WorldSettings& s, int* fieldsSet) {
+  int n = 0;
+  // Each optional field: counted when present, then range-checked (as validate.cpp's
+  // checkWorldSettings on phys::WorldDef).
+  auto pos = [&](flatbuffers::Optional<float> v, float hi, const char* f) {
+    if (!v) return true;
+    ++n;
+    return positive(*v, hi, f);
+  };
+  auto nonNeg = [&](flatbuffers::Optional<float> v, float hi, const char* f) {
+    if (!v) return true;
+    ++n;
+    return nonNegative(*v, hi, f);
+  };
+  if (s.gravity()) {
+    ++n;
+    if (!vec(*s.gravity(), lim.maxGravity, "gravity")) return false;
+  }
+  if (auto v = s.time_step()) {
+    ++n;
+    if (!timeStep(*v, "time_step")) return false;
+  }
+  if (auto v = s.guard_retries()) {
+    ++n;
+    if (!range(int64_t(*v), 0, kMaxGuardRetries, "guard_retries")) return false;
+  }
+  bool ok = pos(s.sleep_time(), kMaxSleepTime, "sleep_time") &&
+            nonNeg(s.sleep_linear_speed(), lim.maxLinearSpeed, "sleep_linear_speed") &&
+            nonNeg(s.sleep_angular_speed(), lim.maxAngularSpeed, "sleep_angular_speed") &&
+            pos(s.max_linear_speed(), lim.maxLinearSpeed, "max_linear_speed") &&
+            pos(s.max_angular_speed(), lim.maxAngularSpeed, "max_angular_speed") &&
+            nonNeg(s.speculative_distance(), kMaxMargin, "speculative_distance") &&
+            nonNeg(s.aabb_margin(), kMaxMargin, "aabb_margin") &&
+            nonNeg(s.guard_energy_jump(), kMaxGuardEnergyJump, "guard_energy_jump");
+  if (!ok) return false;
+  n += s.sleep().has_value() + s.guard().has_value();
+  if (fieldsSet) *fieldsSet = n;
+  return true;
+}
+
+bool Checker::bodyInfo(const wire::BodyInfo& b) {
+  if (!id(b.id(), "id")) return false;
+  if (!b.def()) return invalid("def", "must be given");
+  {
+    Scope d(*this, "def");
+    if (!body(*b.def())) return false;
+  }
+  // Derived from the shapes' densities, a mass may pass max_mass (as the engine holds it).
+  if (!finite(b.mass(), "mass")) return false;
+  if (b.mass() < 0) return invalid("mass", "must be >= 0, got " + num(b.mass()));
+  return vec(b.center_of_mass(), lim.maxCoordinate, "center_of_mass") &&
+         vec(b.inertia(), std::numeric_limits<float>::max(), "inertia") &&
+         (!b.inertia_axes() || quat(*b.inertia_axes(), "inertia_axes"));
+}
+
 // ---------------------------------------------------------------------------------------------
 // Commands
 
@@ -698,6 +765,22 @@ bool Checker::request(wire::Request type, const void* table) {
       if (!r->preset() && set == 0) return invalid("", "needs a preset or at least one setting");
       return true;
     }
+    case wire::Request::SetWorld: {
+      auto* r = static_cast<const wire::SetWorld*>(table);
+      int set = 0;
+      if (r->settings()) {
+        Scope s(*this, "settings");
+        if (!worldSettings(*r->settings(), &set)) return false;
+      }
+      if (set == 0) return invalid("settings", "must set at least one field");
+      return true;
+    }
+    case wire::Request::GetWorld:
+      return true;
+    case wire::Request::GetBodies:
+      return idList(static_cast<const wire::GetBodies*>(table)->bodies(), "bodies", false, false);
+    case wire::Request::GetJoints:
+      return idList(static_cast<const wire::GetJoints*>(table)->joints(), "joints", false, false);
     case wire::Request::Step: {
       uint32_t n = static_cast<const wire::Step*>(table)->count();
       if (n == 0) return invalid("count", "must be >= 1, got 0");
@@ -786,6 +869,10 @@ bool Checker::snapshot(const wire::Snapshot& s) {
   if (s.solver()) {
     Scope ss(*this, "solver");
     if (!solver(*s.solver(), nullptr)) return false;
+  }
+  if (s.settings()) {
+    Scope ss(*this, "settings");
+    if (!worldSettings(*s.settings(), nullptr)) return false;
   }
   auto* bv = s.bodies();
   auto* jv = s.joints();
@@ -966,6 +1053,7 @@ bool isBatchable(wire::Request r) {
     case wire::Request::ApplyTorque:
     case wire::Request::SetMaterial:
     case wire::Request::SetSolver:
+    case wire::Request::SetWorld:
       return true;
     default:
       return false;
@@ -1020,6 +1108,49 @@ Decoded<wire::Reply> decodeReply(std::span<const uint8_t> bytes, const Limits& l
               return c.fail(Code::ResourceExhausted, "state_result.bodies",
                             "has " + std::to_string(b->size()) + " entries, the limit is " +
                                 std::to_string(c.lim.maxBodiesPerFrame));
+            return true;
+          }
+          // Settings and definitions: checked as commands' are (the SDK turns them into phys
+          // types); the solver's settings are the world's, whatever their origin (presets).
+          case wire::Result::WorldSettingsResult: {
+            auto* w = r.result_as_WorldSettingsResult();
+            if (!c.text(w->preset(), c.lim.maxFileNameBytes, "world_settings_result.preset", false))
+              return false;
+            if (!w->settings()) return true;
+            Scope s(c, "world_settings_result");
+            Scope t(c, "settings");
+            return c.worldSettings(*w->settings(), nullptr);
+          }
+          case wire::Result::BodiesResult: {
+            Scope s(c, "bodies_result");
+            auto* v = r.result_as_BodiesResult()->bodies();
+            if (!v) return true;
+            if (v->size() > c.lim.maxBodiesPerFrame)
+              return c.fail(Code::ResourceExhausted, "bodies",
+                            "has " + std::to_string(v->size()) + " entries, the limit is " +
+                                std::to_string(c.lim.maxBodiesPerFrame) +
+                                " (max_bodies_per_frame)");
+            for (uint32_t i = 0; i < v->size(); ++i) {
+              Scope e(c, "bodies", i);
+              if (!c.bodyInfo(*v->Get(i))) return false;
+            }
+            return true;
+          }
+          case wire::Result::JointsResult: {
+            Scope s(c, "joints_result");
+            auto* v = r.result_as_JointsResult()->joints();
+            if (!v) return true;
+            if (!c.budget(&c.joints, v->size(), c.lim.maxJointsPerCommand, "joints",
+                          "max_joints_per_command"))
+              return false;
+            for (uint32_t i = 0; i < v->size(); ++i) {
+              Scope e(c, "joints", i);
+              const wire::JointEntry* j = v->Get(i);
+              if (!c.id(j->id(), "id")) return false;
+              if (!j->def()) return c.invalid("def", "must be given");
+              Scope d(c, "def");
+              if (!c.joint(*j->def())) return false;
+            }
             return true;
           }
           default:

@@ -11,7 +11,11 @@ namespace phys::protocol {
 namespace {
 
 using detail::kMaxDampingRatio;
+using detail::kMaxGuardEnergyJump;
+using detail::kMaxGuardRetries;
 using detail::kMaxHertz;
+using detail::kMaxMargin;
+using detail::kMaxSleepTime;
 using detail::num;
 using detail::ValueRules;
 
@@ -250,6 +254,29 @@ Status checkWorldParams(phys::Vec3 gravity, float timeStep, const Limits& lim,
   if (!v.positive(timeStep, lim.maxTimeStep, "time_step")) return v.status;
   if (timeStep < lim.minTimeStep)
     v.invalid("time_step", "must be >= " + num(lim.minTimeStep) + ", got " + num(timeStep));
+  return v.status;
+}
+
+Status checkWorldSettings(const phys::WorldDef& d, const Limits& lim, std::string_view path) {
+  Status st = checkWorldParams(d.gravity, d.timeStep, lim, path);
+  if (!st.ok()) return st;
+  V v{lim, std::string(path)};
+  auto run = [&]() -> bool {
+    if (!v.positive(d.sleep.time, kMaxSleepTime, "sleep_time") ||
+        !v.nonNegative(d.sleep.linearSpeed, lim.maxLinearSpeed, "sleep_linear_speed") ||
+        !v.nonNegative(d.sleep.angularSpeed, lim.maxAngularSpeed, "sleep_angular_speed") ||
+        !v.positive(d.maxLinearSpeed, lim.maxLinearSpeed, "max_linear_speed") ||
+        !v.positive(d.maxAngularSpeed, lim.maxAngularSpeed, "max_angular_speed") ||
+        !v.nonNegative(d.speculativeDistance, kMaxMargin, "speculative_distance") ||
+        !v.nonNegative(d.aabbMargin, kMaxMargin, "aabb_margin") ||
+        !v.nonNegative(d.guardEnergyJump, kMaxGuardEnergyJump, "guard_energy_jump"))
+      return false;
+    if (d.guardRetries < 0 || d.guardRetries > kMaxGuardRetries)
+      return v.invalid("guard_retries", "must be in [0, " + std::to_string(kMaxGuardRetries) +
+                                            "], got " + std::to_string(d.guardRetries));
+    return true;
+  };
+  run();
   return v.status;
 }
 

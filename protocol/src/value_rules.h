@@ -17,6 +17,12 @@ namespace phys::protocol::detail {
 inline constexpr float kMaxHertz = 1e6f;         ///< spring, contact and joint stiffness, Hz
 inline constexpr float kMaxDampingRatio = 1e6f;  ///< spring, contact and joint damping ratios
 inline constexpr float kMaxDirectContactRatio = 1e6f;  ///< SolverSettings::directContactRatio
+// World settings (WorldSettings, phys::WorldDef).
+inline constexpr float kMaxMargin = 10.0f;  ///< m, speculative_distance and aabb_margin
+inline constexpr float kMaxSleepTime = 1e6f;  ///< s, sleep_time
+inline constexpr float kMaxGuardEnergyJump = 1e6f;  ///< guard_energy_jump
+/// guard_retries: a step the guard redoes costs up to this many steps more.
+inline constexpr int kMaxGuardRetries = 4;
 
 inline std::string num(double v) {
   char buf[32];

@@ -19,6 +19,7 @@ inline flatbuffers::Offset<flatbuffers::String> optString(Fbb& fbb, std::string_
 flatbuffers::Offset<wire::BodyDef> writeBodyDef(Fbb& fbb, const phys::BodyDef& def);
 flatbuffers::Offset<wire::JointDef> writeJointDef(Fbb& fbb, const phys::JointDef& def);
 flatbuffers::Offset<wire::SolverSettings> writeSolver(Fbb& fbb, const SolverOverrides& s);
+flatbuffers::Offset<wire::WorldSettings> writeWorldSettings(Fbb& fbb, const WorldOverrides& s);
 flatbuffers::Offset<wire::WorldSummary> writeWorldSummary(Fbb& fbb, const WorldSummary& w);
 flatbuffers::Offset<wire::LimitsInfo> writeLimits(Fbb& fbb, const Limits& l);
 

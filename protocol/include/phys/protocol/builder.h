@@ -89,6 +89,25 @@ struct SolverOverrides {
   bool empty() const;
 };
 
+/// World settings to change (SetWorld; WorldSettings in physics.fbs), named as
+/// phys::WorldDef's; unset fields keep the world's current value.
+struct WorldOverrides {
+  std::optional<phys::Vec3> gravity;
+  std::optional<float> timeStep;
+  std::optional<bool> sleep;  ///< SleepSettings::enabled
+  std::optional<float> sleepTime, sleepLinearSpeed, sleepAngularSpeed;
+  std::optional<float> maxLinearSpeed, maxAngularSpeed;
+  std::optional<float> speculativeDistance, aabbMargin;
+  std::optional<bool> guard;
+  std::optional<float> guardEnergyJump;
+  std::optional<int> guardRetries;
+
+  /// Every field set from d.
+  static WorldOverrides from(const phys::WorldDef& d);
+  /// Whether no field is set.
+  bool empty() const;
+};
+
 /// Builds one command. Each call appends a request; finish() makes a plain command of a
 /// single request and a Batch (all-or-nothing, one tick boundary) of several, which the
 /// server accepts only when every request is batchable (decoder.h: isBatchable).
@@ -151,6 +170,15 @@ class CommandBuilder {
   CommandBuilder& saveSnapshot(std::string_view file = {}, bool returnBytes = true);
   CommandBuilder& restoreSnapshot(std::span<const uint8_t> snapshot);
   CommandBuilder& restoreSnapshotFile(std::string_view file);
+  /// World settings (a world edit, batchable): those set change.
+  CommandBuilder& setWorld(const WorldOverrides& settings);
+  /// Reads (docs/PROTOCOL.md "Definitions"): the world's settings; the definitions of these
+  /// bodies or joints, or of every one paged by first / maxCount (0: as many as fit).
+  CommandBuilder& getWorld();
+  CommandBuilder& getBodies(std::span<const uint64_t> ids = {}, uint32_t first = 0,
+                            uint32_t maxCount = 0);
+  CommandBuilder& getJoints(std::span<const uint64_t> ids = {}, uint32_t first = 0,
+                            uint32_t maxCount = 0);
 
   /// Escape hatch for requests built by hand on fbb() (tests, extensions).
   CommandBuilder& raw(wire::Request type, flatbuffers::Offset<void> table);
@@ -317,7 +345,35 @@ struct SnapshotData {
   std::vector<BodyEntry> bodies;
   std::vector<JointEntry> joints;
   std::vector<uint8_t> engineState;  ///< phys::World::saveSnapshot bytes; then no bodies/joints
+  /// The world's other settings (sleeping, clamps, margins, guard; gravity and time step are
+  /// the fields above): empty in snapshots written without them.
+  WorldOverrides settings;
 };
 Bytes encodeSnapshot(const SnapshotData& snapshot);
+
+// ---------------------------------------------------------------------------------------------
+// World settings and definitions (GetWorld, GetBodies, GetJoints)
+
+/// A body as its world simulates it (BodiesResult): its definition (phys::World::getBodyDef)
+/// and the mass properties the world derived.
+struct BodyInfo {
+  uint64_t id = 0;
+  phys::BodyDef def;
+  phys::BodyMass mass;
+};
+/// The world's settings: every WorldSettings field from def, its solver settings, and the
+/// preset's name.
+Bytes encodeWorldSettingsReply(const ReplyHeader& header, const phys::WorldDef& def,
+                               std::string_view preset);
+/// total: what matched the request before paging.
+Bytes encodeBodiesReply(const ReplyHeader& header, uint32_t total, std::span<const BodyInfo> bodies);
+Bytes encodeJointsReply(const ReplyHeader& header, uint32_t total,
+                        std::span<const JointEntry> joints);
+/// Bytes a body or a joint adds to an encoded reply at most (each shape and hull counted
+/// where it is used), so that a server fills a reply without passing max_message_bytes.
+size_t encodedBytesBound(const BodyInfo& body);
+size_t encodedBytesBound(const JointEntry& joint);
+/// Bytes a reply takes besides its bodies or joints, at most (the header, an error message).
+inline constexpr size_t kReplyOverheadBytes = 4096;
 
 }  // namespace phys::protocol

@@ -60,6 +60,15 @@ SolverOverrides toOverrides(const wire::SolverSettings& in);
 /// Applies the overrides that are set.
 void applyOverrides(const SolverOverrides& in, phys::SolverSettings* out);
 
+/// World settings (SetWorld, WorldSettingsResult, Snapshot): the fields present.
+WorldOverrides toOverrides(const wire::WorldSettings& in);
+/// Applies the world settings that are set (gravity, time step, sleeping, clamps, margins,
+/// guard).
+void applyOverrides(const WorldOverrides& in, phys::WorldDef* out);
+/// A body of a BodiesResult as plain data (hulls rebuilt; fails like toBodyDef).
+Status toBodyInfo(const wire::BodyInfo& in, BodyInfo* out, std::string_view path = "body",
+                  HullCache* cache = nullptr);
+
 /// A world's summary (WorldList, ServerStatus) as plain data; absent strings are empty.
 WorldSummary toWorldSummary(const wire::WorldSummary& in);
 

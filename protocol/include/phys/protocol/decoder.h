@@ -74,7 +74,7 @@ const char* requestName(wire::Request r);
 bool needsWorld(wire::Request r);
 /// Whether the request may appear in a Batch: the world edits SpawnBodies, RemoveBodies,
 /// AddJoints, RemoveJoints, SetBodyPose, SetBodyVelocity, ApplyForce, ApplyImpulse,
-/// ApplyTorque, SetMaterial and SetSolver.
+/// ApplyTorque, SetMaterial, SetSolver and SetWorld.
 bool isBatchable(wire::Request r);
 
 }  // namespace phys::protocol

@@ -36,6 +36,11 @@ Status checkJointDef(const phys::JointDef& def, const Limits& limits, std::strin
 Status checkWorldParams(phys::Vec3 gravity, float timeStep, const Limits& limits,
                         std::string_view path);
 
+/// Every setting of a world that WorldSettings carries (gravity, time step, sleeping, speed
+/// clamps, margins, guard), by its wire name: what SetWorld may set and what physd lets a
+/// world hold (scenes, snapshots), so that GetWorld can always describe it.
+Status checkWorldSettings(const phys::WorldDef& def, const Limits& limits, std::string_view path);
+
 /// At most `maxBytes` of `text` for an error message (longer text is cut, with its length).
 std::string shortQuote(std::string_view text, size_t maxBytes = 64);
 
