@@ -56,26 +56,6 @@ bool liveJoint(const phys::World& w, uint64_t packed) {
   return w.getJoint(phys::JointId::fromPacked(packed), &d, &s).ok();
 }
 
-/// A body definition rebuilt from the engine (after an engine snapshot restore, which
-/// carries no definitions): type, pose, velocities and shapes; damping, gravity scale,
-/// explicit masses and names are not recoverable and take their defaults.
-phys::BodyDef defFromWorld(const phys::World& w, phys::BodyId id) {
-  phys::BodyDef d;
-  phys::BodyState s;
-  if (!w.getBody(id, &s).ok()) return d;
-  d.type = s.type;
-  d.position = s.position;
-  d.rotation = s.rotation;
-  d.linearVelocity = s.linearVelocity;
-  d.angularVelocity = s.angularVelocity;
-  for (phys::ShapeId sid : w.bodyShapes(id)) {
-    phys::ShapeDef sd;
-    phys::BodyId owner;
-    if (w.getShape(sid, &sd, &owner).ok()) d.shapes.push_back(sd);
-  }
-  return d;
-}
-
 /// Names are checked by the codec to be plain ([A-Za-z0-9._-], no leading dot).
 std::string underDir(const std::string& dir, const std::string& name, const char* ext) {
   return (fs::path(dir) / (name + ext)).string();
@@ -83,15 +63,10 @@ std::string underDir(const std::string& dir, const std::string& name, const char
 
 }  // namespace
 
-void rebuildDefs(ServerWorld& w) {
-  w.bodyDefs.clear();
-  w.jointDefs.clear();
-  for (phys::BodyId id : w.world->bodies()) w.bodyDefs[id.packed()] = defFromWorld(*w.world, id);
-  for (phys::JointId id : w.world->joints()) {
-    phys::JointDef d;
-    phys::JointState s;
-    if (w.world->getJoint(id, &d, &s).ok()) w.jointDefs[id.packed()] = d;
-  }
+phys::BodyDef bodyDefOf(const phys::World& w, phys::BodyId id) {
+  phys::BodyDef d;
+  w.getBodyDef(id, &d);
+  return d;
 }
 
 /// Whether a world edit carries the vectors and tables it must have.
@@ -234,7 +209,6 @@ struct ServerCore::Context {
           phys::BodyId id;
           phys::Status s = w.createBody(defs[i], &id);
           if (!s.ok()) return fromPhys(s, p + ".bodies[" + std::to_string(i) + "]");
-          sw.bodyDefs[id.packed()] = defs[i];
           ids.bodies.push_back(id.packed());
           sw.touched.push_back(id.packed());
         }
@@ -248,13 +222,9 @@ struct ServerCore::Context {
         for (uint32_t i = 0; i < v->size(); ++i) {
           phys::Status st = w.destroyBody(phys::BodyId::fromPacked(v->Get(i)));
           if (!st.ok()) return fromPhys(st, p + ".bodies[" + std::to_string(i) + "]");
-          sw.bodyDefs.erase(v->Get(i));
           sw.touched.push_back(v->Get(i));
         }
-        // Their joints went with them.
-        for (auto it = sw.jointDefs.begin(); it != sw.jointDefs.end();)
-          it = liveJoint(w, it->first) ? std::next(it) : sw.jointDefs.erase(it);
-        sw.infoDirty = true;
+        sw.infoDirty = true;  // (their joints went with them)
         return Status::Ok();
       }
       case wire::Request::AddJoints: {
@@ -276,7 +246,6 @@ struct ServerCore::Context {
           phys::JointId id;
           phys::Status st = w.createJoint(defs[i], &id);
           if (!st.ok()) return fromPhys(st, p + ".joints[" + std::to_string(i) + "]");
-          sw.jointDefs[id.packed()] = defs[i];
           ids.joints.push_back(id.packed());
         }
         sw.infoDirty = true;
@@ -292,7 +261,6 @@ struct ServerCore::Context {
         for (uint32_t i = 0; i < v->size(); ++i) {
           phys::Status st = w.destroyJoint(phys::JointId::fromPacked(v->Get(i)));
           if (!st.ok()) return fromPhys(st, p + ".joints[" + std::to_string(i) + "]");
-          sw.jointDefs.erase(v->Get(i));
         }
         sw.infoDirty = true;
         return Status::Ok();
@@ -374,9 +342,6 @@ struct ServerCore::Context {
         for (uint32_t i = 0; i < r->bodies()->size(); ++i) {
           phys::Status st = w.setMaterial(phys::BodyId::fromPacked(r->bodies()->Get(i)), m);
           if (!st.ok()) return fromPhys(st, p + ".bodies[" + std::to_string(i) + "]");
-          auto it = sw.bodyDefs.find(r->bodies()->Get(i));
-          if (it != sw.bodyDefs.end())
-            for (phys::ShapeDef& sd : it->second.shapes) sd.material = m;
         }
         sw.infoDirty = true;
         return Status::Ok();
@@ -399,6 +364,24 @@ struct ServerCore::Context {
         st = w.setSolverSettings(settings);
         if (!st.ok()) return fromPhys(st, p + ".settings");
         sw.preset = presetName;
+        return Status::Ok();
+      }
+      case wire::Request::SetWorld: {
+        // The world's definition with the settings given, checked whole (the codec's ranges,
+        // then the engine's), then set at once: each change wakes what it affects
+        // (phys::World::setDef). Gravity and the time step are in world info.
+        auto* r = static_cast<const wire::SetWorld*>(table);
+        if (!r->settings()) return err(Code::Malformed, p + ".settings is missing");
+        phys::WorldDef def = w.def();
+        protocol::applyOverrides(protocol::toOverrides(*r->settings()), &def);
+        Status s = protocol::checkWorldSettings(def, core.config_.limits, p + ".settings");
+        if (!s.ok()) return s;
+        phys::Status st = phys::World::validate(def);
+        if (!st.ok()) return fromPhys(st, p + ".settings");
+        if (dryRun) return Status::Ok();
+        st = w.setDef(def);
+        if (!st.ok()) return fromPhys(st, p + ".settings");
+        sw.infoDirty = true;
         return Status::Ok();
       }
       default:
@@ -438,12 +421,6 @@ struct ServerCore::Context {
     const bool rollback = calls > 1 && !motionOnly;
     std::vector<uint8_t> saved;
     phys::Status snap = rollback ? sw.world->saveSnapshot(&saved) : phys::Status::Ok();
-    std::map<uint64_t, phys::BodyDef> bodyDefs;
-    std::map<uint64_t, phys::JointDef> jointDefs;
-    if (rollback) {
-      bodyDefs = sw.bodyDefs;
-      jointDefs = sw.jointDefs;
-    }
     const std::string preset = sw.preset;
     const bool infoDirty = sw.infoDirty;
     for (size_t i = 0; i < items.size(); ++i) {
@@ -461,8 +438,6 @@ struct ServerCore::Context {
       phys::Status back = sw.world->restoreSnapshot(saved.data(), saved.size());
       if (!back.ok())
         return err(Code::Internal, s.message + " (rollback failed: " + back.message + ")");
-      sw.bodyDefs = std::move(bodyDefs);
-      sw.jointDefs = std::move(jointDefs);
       sw.preset = preset;
       sw.infoDirty = infoDirty;
       return s;
@@ -479,6 +454,9 @@ Status ServerCore::checkAccess(const ServerWorld& w, const wire::Command& c, uin
   Need need = Need::Edit;
   switch (c.request_type()) {
     case wire::Request::QueryState:
+    case wire::Request::GetWorld:
+    case wire::Request::GetBodies:
+    case wire::Request::GetJoints:
     case wire::Request::Subscribe:
     case wire::Request::Unsubscribe:  // its own interest: checked again in apply (others' need Edit)
       need = Need::Read;
@@ -764,8 +742,6 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
     case wire::Request::ResetWorld: {
       phys::WorldDef def = sw->world->def();
       sw->world = std::make_unique<phys::World>(def);
-      sw->bodyDefs.clear();
-      sw->jointDefs.clear();
       sw->tick = 0;
       sw->accumulator = 0;
       ++sw->revision;
@@ -990,6 +966,16 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
       reply = protocol::encodeStateReply(ctx.header, sw->world->time(), total, out);
       return finish();
     }
+    case wire::Request::GetWorld: {
+      ctx.header.tick = sw->tick;
+      reply = protocol::encodeWorldSettingsReply(ctx.header, sw->world->def(), sw->preset);
+      return finish();
+    }
+    case wire::Request::GetBodies:
+    case wire::Request::GetJoints: {
+      st = readDefinitions(*sw, c, &ctx.header, &reply);
+      return finish();
+    }
     case wire::Request::SaveSnapshot: {
       auto* r = c.request_as_SaveSnapshot();
       const std::string file = r->file() ? r->file()->str() : "";
@@ -1008,6 +994,7 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
       data.gravity = sw->world->def().gravity;
       data.timeStep = sw->world->def().timeStep;
       data.solver = sw->world->def().solver;
+      data.settings = protocol::WorldOverrides::from(sw->world->def());
       data.tick = sw->tick;
       data.time = sw->world->time();
       Bytes snap = protocol::encodeSnapshot(data);
@@ -1140,10 +1127,15 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
         if (!st.ok()) return finish();
         cancelJob(*sw, "replaced by restore_snapshot");
         sw->world = std::move(scratch);
-        rebuildDefs(*sw);
       } else {
-        st = protocol::checkWorldParams(data.gravity, data.timeStep, config_.limits,
-                                        "restore_snapshot.snapshot");
+        // Portable form: a fresh world from the definitions, saved ids mapped to new ones,
+        // with the snapshot's settings (those it lacks: this world's).
+        phys::WorldDef def = sw->world->def();
+        def.gravity = data.gravity;
+        def.timeStep = data.timeStep;
+        def.solver = data.solver;
+        protocol::applyOverrides(data.settings, &def);
+        st = protocol::checkWorldSettings(def, config_.limits, "restore_snapshot.snapshot");
         for (size_t i = 0; st.ok() && i < data.bodies.size(); ++i)
           st = protocol::checkBodyDef(data.bodies[i].def, config_.limits,
                                       "restore_snapshot.snapshot.bodies[" + std::to_string(i) +
@@ -1153,15 +1145,12 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
                                        "restore_snapshot.snapshot.joints[" + std::to_string(i) +
                                            "].def");
         if (!st.ok()) return finish();
-        // Portable form: a fresh world from the definitions, saved ids mapped to new ones.
-        phys::WorldDef def = sw->world->def();
-        def.gravity = data.gravity;
-        def.timeStep = data.timeStep;
-        def.solver = data.solver;
+        if (phys::Status ps = phys::World::validate(def); !ps.ok()) {
+          st = fromPhys(ps, "restore_snapshot.snapshot");
+          return finish();
+        }
         auto fresh = std::make_unique<phys::World>(def);
         std::map<uint64_t, phys::BodyId> map;
-        std::map<uint64_t, phys::BodyDef> bodyDefs;
-        std::map<uint64_t, phys::JointDef> jointDefs;
         for (size_t i = 0; i < data.bodies.size(); ++i) {
           phys::BodyId id;
           phys::Status ps = fresh->createBody(data.bodies[i].def, &id);
@@ -1170,7 +1159,6 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
             return finish();
           }
           map[data.bodies[i].id] = id;
-          bodyDefs[id.packed()] = data.bodies[i].def;
           ctx.ids.bodies.push_back(id.packed());
         }
         for (size_t i = 0; i < data.joints.size(); ++i) {
@@ -1183,13 +1171,10 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
             st = fromPhys(ps, "restore_snapshot.snapshot.joints[" + std::to_string(i) + "]");
             return finish();
           }
-          jointDefs[id.packed()] = d;
           ctx.ids.joints.push_back(id.packed());
         }
         cancelJob(*sw, "replaced by restore_snapshot");
         sw->world = std::move(fresh);
-        sw->bodyDefs = std::move(bodyDefs);
-        sw->jointDefs = std::move(jointDefs);
         ctx.header.tick = data.tick;
         sw->tick = data.tick;
         ++sw->revision;
@@ -1235,6 +1220,103 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
                std::string("request ") + protocol::requestName(type) + " is not supported");
       return finish();
   }
+}
+
+Status ServerCore::readDefinitions(const ServerWorld& sw, const wire::Command& c,
+                                   ReplyHeader* header, Bytes* reply) const {
+  // GetBodies and GetJoints: the ids asked for, or every body (joint) from `first` in index
+  // order; as many as one reply holds: max_count, max_bodies_per_frame bodies
+  // (max_joints_per_command joints), the shapes and hull points a message may carry, and
+  // max_message_bytes by a bound on each one's encoding. Its cost is that of the reply, plus
+  // listing the world's ids when paging over all of them (as QueryState).
+  const protocol::Limits& lim = config_.limits;
+  const phys::World& w = *sw.world;
+  const bool bodies = c.request_type() == wire::Request::GetBodies;
+  const char* what = bodies ? "get_bodies" : "get_joints";
+  const flatbuffers::Vector<uint64_t>* asked = nullptr;
+  uint32_t first = 0, maxCount = 0;
+  if (bodies) {
+    auto* r = c.request_as_GetBodies();
+    asked = r->bodies();
+    first = r->first();
+    maxCount = r->max_count();
+  } else {
+    auto* r = c.request_as_GetJoints();
+    asked = r->joints();
+    first = r->first();
+    maxCount = r->max_count();
+  }
+  // The ids, checked live before anything is read.
+  std::vector<uint64_t> ids;
+  if (asked && asked->size() > 0) {
+    ids.assign(asked->begin(), asked->end());
+    first = 0;
+    for (size_t i = 0; i < ids.size(); ++i) {
+      const bool live = bodies ? w.isValid(phys::BodyId::fromPacked(ids[i])) : liveJoint(w, ids[i]);
+      if (!live)
+        return err(Code::NotFound, std::string(what) + (bodies ? ".bodies[" : ".joints[") +
+                                       std::to_string(i) + "] " + hex(ids[i]) + " is not a live " +
+                                       (bodies ? "body" : "joint"));
+    }
+  } else if (bodies) {
+    for (phys::BodyId id : w.bodies()) ids.push_back(id.packed());
+  } else {
+    for (phys::JointId id : w.joints()) ids.push_back(id.packed());
+  }
+  const uint32_t total = uint32_t(ids.size());
+  const uint32_t perReply = bodies ? lim.maxBodiesPerFrame : lim.maxJointsPerCommand;
+  const uint32_t count = maxCount == 0 ? perReply : std::min(maxCount, perReply);
+  const size_t byteBudget = lim.maxMessageBytes > protocol::kReplyOverheadBytes
+                                ? lim.maxMessageBytes - protocol::kReplyOverheadBytes
+                                : 0;
+  size_t bytes = 0;
+  uint64_t shapes = 0, hullPoints = 0;
+  header->tick = sw.tick;
+  if (bodies) {
+    std::vector<protocol::BodyInfo> out;
+    for (size_t i = first; i < ids.size() && out.size() < count; ++i) {
+      protocol::BodyInfo b;
+      b.id = ids[i];
+      w.getBodyDef(phys::BodyId::fromPacked(b.id), &b.def, &b.mass);
+      uint64_t points = 0;
+      for (const phys::ShapeDef& s : b.def.shapes)
+        if (s.geom.hull) points += s.geom.hull->vertices.size();
+      const size_t n = protocol::encodedBytesBound(b);
+      if (bytes + n > byteBudget || shapes + b.def.shapes.size() > lim.maxShapesPerCommand ||
+          hullPoints + points > lim.maxHullPointsPerCommand) {
+        if (out.empty())
+          return err(Code::ResourceExhausted,
+                     std::string(what) + ": body " + hex(b.id) +
+                         " alone passes what one reply holds (max_message_bytes, "
+                         "max_shapes_per_command, max_hull_points_per_command)");
+        break;
+      }
+      bytes += n;
+      shapes += b.def.shapes.size();
+      hullPoints += points;
+      out.push_back(std::move(b));
+    }
+    *reply = protocol::encodeBodiesReply(*header, total, out);
+  } else {
+    std::vector<protocol::JointEntry> out;
+    for (size_t i = first; i < ids.size() && out.size() < count; ++i) {
+      protocol::JointEntry j;
+      j.id = ids[i];
+      phys::JointState js;
+      w.getJoint(phys::JointId::fromPacked(j.id), &j.def, &js);
+      const size_t n = protocol::encodedBytesBound(j);
+      if (bytes + n > byteBudget) {
+        if (out.empty())
+          return err(Code::ResourceExhausted, std::string(what) + ": joint " + hex(j.id) +
+                                                  " alone passes max_message_bytes");
+        break;
+      }
+      bytes += n;
+      out.push_back(std::move(j));
+    }
+    *reply = protocol::encodeJointsReply(*header, total, out);
+  }
+  return Status::Ok();
 }
 
 SceneLoad ServerCore::prepareScene(const SceneRequest& req) const {
@@ -1290,7 +1372,7 @@ SceneLoad ServerCore::prepareScene(const SceneRequest& req) const {
     return out;
   }
   // The codec's rules, so that every client can decode the world's description.
-  Status st = protocol::checkWorldParams(scene.world.gravity, scene.world.timeStep, lim, "load_scene:");
+  Status st = protocol::checkWorldSettings(scene.world, lim, "load_scene: world settings");
   for (size_t i = 0; st.ok() && i < scene.bodies.size(); ++i)
     st = protocol::checkBodyDef(scene.bodies[i], lim,
                                 "load_scene: body " + std::to_string(i) +
@@ -1326,21 +1408,8 @@ void ServerCore::commitScene(ServerWorld& sw, SceneLoad&& load, std::vector<uint
                              std::vector<uint64_t>* jointIds) {
   cancelJob(sw, "replaced by load_scene");
   sw.world = std::move(load.world);
-  sw.bodyDefs.clear();
-  sw.jointDefs.clear();
-  phys::Scene& scene = load.scene;
-  const std::vector<phys::BodyId>& bids = load.bodyIds;
-  for (size_t i = 0; i < bids.size(); ++i) {
-    sw.bodyDefs[bids[i].packed()] = std::move(scene.bodies[i]);
-    bodyIds->push_back(bids[i].packed());
-  }
-  for (size_t i = 0; i < load.jointIds.size(); ++i) {
-    phys::JointDef d = scene.joints[i].def;
-    d.bodyA = scene.joints[i].bodyA >= 0 ? bids[size_t(scene.joints[i].bodyA)] : phys::BodyId{};
-    d.bodyB = scene.joints[i].bodyB >= 0 ? bids[size_t(scene.joints[i].bodyB)] : phys::BodyId{};
-    sw.jointDefs[load.jointIds[i].packed()] = d;
-    jointIds->push_back(load.jointIds[i].packed());
-  }
+  for (phys::BodyId id : load.bodyIds) bodyIds->push_back(id.packed());
+  for (phys::JointId id : load.jointIds) jointIds->push_back(id.packed());
   sw.tick = 0;
   sw.accumulator = 0;
   ++sw.revision;
@@ -1378,7 +1447,8 @@ Status ServerCore::loadScene(ServerWorld& sw, const wire::LoadScene* r,
 
 Status ServerCore::checkRestored(const phys::World& w, const std::string& path) const {
   const protocol::Limits& lim = config_.limits;
-  Status st = protocol::checkWorldParams(w.def().gravity, w.def().timeStep, lim, path);
+  // Every setting GetWorld reports, as SetWorld may set it.
+  Status st = protocol::checkWorldSettings(w.def(), lim, path);
   if (!st.ok()) return st;
   phys::Status ps = phys::World::validate(w.def().solver);
   if (!ps.ok()) return fromPhys(ps, path + ".solver");
@@ -1386,7 +1456,7 @@ Status ServerCore::checkRestored(const phys::World& w, const std::string& path) 
     const std::string bp = path + ": body " + hex(id.packed());
     phys::BodyState s;
     w.getBody(id, &s);
-    phys::BodyDef d = defFromWorld(w, id);
+    phys::BodyDef d = bodyDefOf(w, id);
     // A dynamic body without a shape of volume had an explicit mass (the rest derive theirs
     // from densities, which may exceed max_mass legitimately: not an input here).
     bool volume = false;

@@ -11,6 +11,7 @@
 
 #include "phys/protocol/convert.h"
 #include "phys/scene/scene.h"
+#include "internal.h"
 
 namespace phys::server {
 
@@ -993,21 +994,18 @@ void ServerCore::publishWorldInfo() {
     ServerWorld& w = *wp;
     if (!w.infoDirty) continue;
     w.infoDirty = false;
+    // The definitions as the engine holds them (the one source), poses and velocities now.
     std::vector<protocol::BodyEntry> bodies;
-    bodies.reserve(w.bodyDefs.size());
-    phys::BodyState s;
-    for (auto& [packed, def] : w.bodyDefs) {
-      protocol::BodyEntry e{packed, def};
-      if (w.world->getBody(phys::BodyId::fromPacked(packed), &s).ok()) {
-        e.def.position = s.position;
-        e.def.rotation = s.rotation;
-        e.def.linearVelocity = s.linearVelocity;
-        e.def.angularVelocity = s.angularVelocity;
-      }
-      bodies.push_back(std::move(e));
-    }
+    bodies.reserve(size_t(w.world->bodyCount()));
+    for (phys::BodyId id : w.world->bodies())
+      bodies.push_back({id.packed(), bodyDefOf(*w.world, id)});
     std::vector<protocol::JointEntry> joints;
-    for (auto& [packed, def] : w.jointDefs) joints.push_back({packed, def});
+    joints.reserve(size_t(w.world->jointCount()));
+    phys::JointState js;
+    for (phys::JointId id : w.world->joints()) {
+      protocol::JointEntry e{id.packed(), {}};
+      if (w.world->getJoint(id, &e.def, &js).ok()) joints.push_back(std::move(e));
+    }
     protocol::WorldInfoHeader h;
     h.world = w.id;
     h.name = w.name;

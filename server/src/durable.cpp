@@ -65,13 +65,6 @@ std::string worldDir(const std::string& data, uint32_t id) {
   return data + "/worlds/" + std::to_string(id);
 }
 
-/// A file's limits, not a message's: a checkpoint's definitions may list a whole world.
-protocol::Limits fileLimits(protocol::Limits l) {
-  l.maxMessageBytes = uint32_t(std::min<uint64_t>(uint64_t(1) << 31, UINT32_MAX)) - 1;
-  l.maxTables = UINT32_MAX;
-  return l;
-}
-
 }  // namespace
 
 void ServerCore::log(bool error, const std::string& line) const {
@@ -125,14 +118,8 @@ Status ServerCore::checkpointWorld(ServerWorld& w) {
   if (!ps.ok())
     return Status::Error(Code::Internal, "checkpoint of world " + std::to_string(w.id) + ": " +
                                              ps.message);
-  protocol::SnapshotData defs;
-  defs.name = w.name;
-  defs.gravity = w.world->def().gravity;
-  defs.timeStep = w.world->def().timeStep;
-  defs.solver = w.world->def().solver;
-  for (auto& [id, d] : w.bodyDefs) defs.bodies.push_back({id, d});
-  for (auto& [id, d] : w.jointDefs) defs.joints.push_back({id, d});
-  c.defs = protocol::encodeSnapshot(defs);
+  // c.defs stays empty: the engine's state carries every definition (names, damping, masses
+  // as given) and every setting, the one source a restore reads them from.
   Status s = w.store->writeCheckpoint(std::move(c));
   if (!s.ok()) return s;
   w.checkpointFailed = false;
@@ -343,19 +330,8 @@ Status ServerCore::restoreInto(ServerWorld& w, const Checkpoint& c,
   w.ownerProven = c.meta.ownerProven;
   w.shared = c.meta.shared;
   w.accumulator = 0;
-  w.bodyDefs.clear();
-  w.jointDefs.clear();
-  auto defs = protocol::decodeSnapshot(c.defs, fileLimits(config_.limits));
-  protocol::SnapshotData data;
-  if (defs.ok() && protocol::toSnapshotData(*defs, &data).ok()) {
-    for (auto& b : data.bodies) w.bodyDefs[b.id] = b.def;
-    for (auto& j : data.joints) w.jointDefs[j.id] = j.def;
-  } else {
-    notes->push_back("world " + std::to_string(w.id) +
-                     ": the checkpoint's definitions cannot be read (" + defs.status.message +
-                     "); rebuilt from the engine");
-    rebuildDefs(w);
-  }
+  // (A checkpoint written before issue 40 also holds the definitions as a portable snapshot:
+  // a copy of what its engine state holds, not read.)
   // Replay: steps up to each record's tick, then the record; then the steps of a lease that
   // is still open (the world may have taken them, and subscribers seen them).
   replaying_ = true;

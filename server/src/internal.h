@@ -5,9 +5,9 @@
 
 namespace phys::server {
 
-/// A world's body and joint definitions rebuilt from its engine (after an engine snapshot
-/// restore, which carries none): type, pose, velocities, shapes and joints; damping, gravity
-/// scale, explicit masses and names take their defaults.
-void rebuildDefs(ServerWorld& w);
+/// A live body's definition as its world holds it (phys::World::getBodyDef: pose and
+/// velocities now), the one source of what physd says of a body (world info, GetBodies, the
+/// checks of a restored world); a default definition for a stale id.
+phys::BodyDef bodyDefOf(const phys::World& w, phys::BodyId id);
 
 }  // namespace phys::server

@@ -125,7 +125,6 @@ TEST_F(CoreTest, LoadScene) {
   ASSERT_EQ(r->status(), Code::Ok) << message(r);
   EXPECT_GT(bodyIds(r).size(), 1u);
   EXPECT_EQ(int(bodyIds(r).size()), engine().bodyCount());
-  EXPECT_EQ(core.world(world)->bodyDefs.size(), bodyIds(r).size());
 
   r = send(CommandBuilder().loadSceneNamed("ball_and_chain"));
   ASSERT_EQ(r->status(), Code::Ok) << message(r);
@@ -199,7 +198,6 @@ TEST_F(CoreTest, JointsAddAndRemove) {
   ASSERT_EQ(r->status(), Code::Ok);
   EXPECT_EQ(send(CommandBuilder().removeBodies(std::vector<uint64_t>{ids[0]}))->status(), Code::Ok);
   EXPECT_EQ(engine().jointCount(), 0);
-  EXPECT_TRUE(core.world(world)->jointDefs.empty());
 }
 
 TEST_F(CoreTest, PoseVelocityForcesMaterial) {
@@ -238,7 +236,6 @@ TEST_F(CoreTest, PoseVelocityForcesMaterial) {
   phys::BodyId owner;
   ASSERT_TRUE(engine().getShape(engine().bodyShapes(boxId)[0], &sd, &owner).ok());
   EXPECT_FLOAT_EQ(sd.material.restitution, 0.5f);
-  EXPECT_FLOAT_EQ(core.world(world)->bodyDefs.at(box).shapes[0].material.restitution, 0.5f);
 
   // Every per-body command with a stale id: NotFound and no change.
   EXPECT_EQ(send(CommandBuilder().removeBodies(std::vector<uint64_t>{box}))->status(), Code::Ok);
@@ -393,7 +390,6 @@ TEST_F(CoreTest, SnapshotBytesRoundTripIsExact) {
   ASSERT_EQ(r->status(), Code::Ok) << message(r);
   EXPECT_EQ(core.world(world)->tick, 20u);
   EXPECT_EQ(engine().bodyCount(), bodies);
-  EXPECT_EQ(int(core.world(world)->bodyDefs.size()), bodies);
   ASSERT_EQ(send(CommandBuilder().step(30))->status(), Code::Ok);
   EXPECT_EQ(engine().stateHash(), hash50);
 
@@ -480,7 +476,6 @@ TEST_F(CoreTest, BatchIsAllOrNothing) {
   auto ids = spawn({groundBody(), boxBody({0, 0, 1}), boxBody({0, 0, 3})});
   ASSERT_EQ(send(CommandBuilder().step(5))->status(), Code::Ok);
   Fingerprint before = fingerprint();
-  const size_t defs = core.world(world)->bodyDefs.size();
 
   // A stale id after valid items: caught by the check pass.
   {
@@ -505,7 +500,6 @@ TEST_F(CoreTest, BatchIsAllOrNothing) {
     EXPECT_EQ(r->status(), Code::NotFound) << message(r);
     EXPECT_EQ(fingerprint(), before);
     EXPECT_TRUE(engine().isValid(phys::BodyId::fromPacked(ids[2])));
-    EXPECT_EQ(core.world(world)->bodyDefs.size(), defs);
   }
   // NaN inside a batch after valid items: the codec rejects the whole command.
   {

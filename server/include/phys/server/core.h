@@ -190,7 +190,9 @@ struct LoadTask {
 enum class RunMode : uint8_t { Paused, RealTime, AsFastAsPossible };
 
 /// One world of the daemon: a phys::World plus what the protocol needs that the engine does
-/// not keep (the definitions its bodies were spawned from, names, time control, numbers).
+/// not keep (its name, access, time control, streams, numbers). What the world simulates,
+/// its settings and its bodies' and joints' definitions, is read from the engine, the one
+/// source (docs/ARCHITECTURE.md "One source of definitions").
 struct ServerWorld {
   uint32_t id = 0;
   std::string name;
@@ -206,10 +208,6 @@ struct ServerWorld {
   /// without DDS Security): only commands from a participant that proved its id may then act
   /// as the owner or an editor, so an id read off the wire is not enough to take the world.
   bool ownerProven = false;
-  /// Definitions of live bodies and joints by packed id (poses as spawned; world info
-  /// refreshes poses and velocities from the engine).
-  std::map<uint64_t, phys::BodyDef> bodyDefs;
-  std::map<uint64_t, phys::JointDef> jointDefs;
   uint64_t tick = 0;      ///< steps since creation, reset or restore (restore: the saved tick)
   uint64_t revision = 1;  ///< bumped on every structural change
   // Time control.
@@ -430,6 +428,10 @@ class ServerCore {
   friend struct Context;
   Bytes applyChecked(const wire::Command& command, uint64_t envelopeKey, uint64_t principal,
                      bool proven);
+  /// GetBodies and GetJoints: the definitions asked for, as many as one reply holds, read
+  /// from the engine (docs/PROTOCOL.md "Definitions"); *reply is set when Ok.
+  Status readDefinitions(const ServerWorld& w, const wire::Command& c, ReplyHeader* header,
+                         Bytes* reply) const;
   /// A world restored from engine state, against the codec's rules (the engine's own checks
   /// guard its invariants, not the protocol's ranges).
   Status checkRestored(const phys::World& w, const std::string& path) const;

@@ -48,8 +48,8 @@ struct CheckpointMeta {
 struct Checkpoint {
   CheckpointMeta meta;
   std::vector<uint8_t> engine;  ///< phys::World::saveSnapshot
-  /// The definitions bodies and joints were made from (names, damping, masses as given):
-  /// a portable protocol Snapshot (bodies and joints with their ids, no engine state).
+  /// Empty since issue 40 (the engine state carries every definition); before, a portable
+  /// protocol Snapshot of the bodies' and joints' definitions, which a restore now skips.
   std::vector<uint8_t> defs;
 };
 
