@@ -256,6 +256,27 @@ void request(wire::Request type, const void* table, int depth) {
       sink(r->shared());
       break;
     }
+    case wire::Request::SetWorld: {
+      // Settings the codec accepts are settings the server's own check (validate.h) accepts,
+      // over the defaults a world starts with.
+      auto* r = static_cast<const wire::SetWorld*>(table);
+      if (!r->settings()) die("a set_world without settings was accepted");
+      phys::WorldDef def;
+      applyOverrides(toOverrides(*r->settings()), &def);
+      Status st = checkWorldSettings(def, kLimits, "set_world.settings");
+      if (!st.ok()) die("set_world accepted by the decoder, refused by validate: " + st.message);
+      sink(def.gravity.x + def.timeStep);
+      break;
+    }
+    case wire::Request::GetBodies:
+    case wire::Request::GetJoints: {
+      auto* v = type == wire::Request::GetBodies
+                    ? static_cast<const wire::GetBodies*>(table)->bodies()
+                    : static_cast<const wire::GetJoints*>(table)->joints();
+      if (v)
+        for (uint64_t id : *v) sink(double(id));
+      break;
+    }
     case wire::Request::SaveSnapshot:
       sink(static_cast<const wire::SaveSnapshot*>(table)->file());
       break;
@@ -328,6 +349,31 @@ void reply(const wire::Reply& r) {
     }
     case wire::Result::InterestResult:
       sink(r.result_as_InterestResult()->topic());
+      break;
+    case wire::Result::WorldSettingsResult: {
+      auto* w = r.result_as_WorldSettingsResult();
+      phys::WorldDef def;
+      if (w->settings()) applyOverrides(toOverrides(*w->settings()), &def);
+      if (w->solver()) applySolverSettings(*w->solver(), &def.solver);
+      sink(def.sleep.time + def.solver.iterations);
+      sink(w->preset());
+      break;
+    }
+    case wire::Result::BodiesResult:
+      if (auto* v = r.result_as_BodiesResult()->bodies()) {
+        HullCache cache;
+        for (uint32_t i = 0; i < v->size(); ++i) {
+          BodyInfo info;
+          if (toBodyInfo(*v->Get(i), &info, "bodies_result.bodies", &cache).ok())
+            sink(info.mass.mass + info.mass.inertiaRotation.w);
+        }
+      }
+      break;
+    case wire::Result::JointsResult:
+      if (auto* v = r.result_as_JointsResult()->joints())
+        for (uint32_t i = 0; i < v->size(); ++i)
+          if (v->Get(i)->def())
+            joint(*v->Get(i)->def(), "joints_result.joints[" + std::to_string(i) + "]");
       break;
     default:
       break;
