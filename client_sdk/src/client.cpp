@@ -1182,7 +1182,110 @@ std::future<Ack> WorldHandle::restoreSnapshotFile(std::string_view file, CallOpt
   PHYS_WORLD_ACK(restoreSnapshotFile(file));
 }
 
+std::future<Ack> WorldHandle::setWorld(const WorldOverrides& settings, CallOptions o) {
+  PHYS_WORLD_ACK(setWorld(settings));
+}
+std::future<Ack> WorldHandle::setGravity(phys::Vec3 gravity, CallOptions o) {
+  WorldOverrides s;
+  s.gravity = gravity;
+  return setWorld(s, o);
+}
+std::future<Ack> WorldHandle::setTimeStep(float seconds, CallOptions o) {
+  WorldOverrides s;
+  s.timeStep = seconds;
+  return setWorld(s, o);
+}
+std::future<Ack> WorldHandle::setSleep(const phys::SleepSettings& sleep, CallOptions o) {
+  WorldOverrides s;
+  s.sleep = sleep.enabled;
+  s.sleepTime = sleep.time;
+  s.sleepLinearSpeed = sleep.linearSpeed;
+  s.sleepAngularSpeed = sleep.angularSpeed;
+  return setWorld(s, o);
+}
+
 #undef PHYS_WORLD_ACK
+
+std::future<WorldSettings> WorldHandle::settings(CallOptions o) {
+  CommandBuilder b;
+  b.getWorld();
+  return client_->impl_->request<WorldSettings>(b, id_, o, [](const wire::Reply& r) {
+    auto* s = r.result_as_WorldSettingsResult();
+    if (!s || !s->settings() || !s->solver())
+      throw Error(ErrorCode::BadReply, "get_world reply without WorldSettingsResult");
+    WorldSettings w;
+    protocol::applyOverrides(protocol::toOverrides(*s->settings()), &w.def);
+    protocol::applySolverSettings(*s->solver(), &w.def.solver);
+    w.preset = str(s->preset());
+    w.tick = r.tick();
+    return w;
+  });
+}
+
+std::future<BodiesPage> WorldHandle::getBodies(std::span<const uint64_t> ids, uint32_t first,
+                                               uint32_t maxCount, CallOptions o) {
+  CommandBuilder b;
+  b.getBodies(ids, first, maxCount);
+  return client_->impl_->request<BodiesPage>(b, id_, o, [](const wire::Reply& r) {
+    auto* s = r.result_as_BodiesResult();
+    if (!s) throw Error(ErrorCode::BadReply, "get_bodies reply without BodiesResult");
+    BodiesPage p;
+    p.tick = r.tick();
+    p.total = s->total();
+    if (s->bodies()) {
+      protocol::HullCache hulls;
+      p.bodies.resize(s->bodies()->size());
+      for (uint32_t i = 0; i < s->bodies()->size(); ++i) {
+        protocol::Status st = protocol::toBodyInfo(
+            *s->bodies()->Get(i), &p.bodies[i],
+            "bodies_result.bodies[" + std::to_string(i) + "]", &hulls);
+        if (!st.ok()) throw Error(ErrorCode::BadReply, st.message);
+      }
+    }
+    return p;
+  });
+}
+
+std::future<JointsPage> WorldHandle::getJoints(std::span<const uint64_t> ids, uint32_t first,
+                                               uint32_t maxCount, CallOptions o) {
+  CommandBuilder b;
+  b.getJoints(ids, first, maxCount);
+  return client_->impl_->request<JointsPage>(b, id_, o, [](const wire::Reply& r) {
+    auto* s = r.result_as_JointsResult();
+    if (!s) throw Error(ErrorCode::BadReply, "get_joints reply without JointsResult");
+    JointsPage p;
+    p.tick = r.tick();
+    p.total = s->total();
+    if (s->joints())
+      for (const wire::JointEntry* e : *s->joints())
+        if (e->def()) p.joints.push_back({e->id(), protocol::toJointDef(*e->def())});
+    return p;
+  });
+}
+
+std::future<std::vector<BodyInfo>> WorldHandle::allBodies(CallOptions o) {
+  WorldHandle w = *this;
+  return std::async(std::launch::async, [w, o]() mutable {
+    std::vector<BodyInfo> out;
+    for (;;) {
+      BodiesPage p = w.getBodies({}, uint32_t(out.size()), 0, o).get();
+      for (BodyInfo& b : p.bodies) out.push_back(std::move(b));
+      if (p.bodies.empty() || out.size() >= p.total) return out;
+    }
+  });
+}
+
+std::future<std::vector<JointInfo>> WorldHandle::allJoints(CallOptions o) {
+  WorldHandle w = *this;
+  return std::async(std::launch::async, [w, o]() mutable {
+    std::vector<JointInfo> out;
+    for (;;) {
+      JointsPage p = w.getJoints({}, uint32_t(out.size()), 0, o).get();
+      for (JointInfo& j : p.joints) out.push_back(std::move(j));
+      if (p.joints.empty() || out.size() >= p.total) return out;
+    }
+  });
+}
 
 Subscription WorldHandle::subscribe(std::function<void(const StateFrame&)> fn) {
   return client_->subscribe(id_, std::move(fn));

@@ -38,6 +38,14 @@ using SolverOverrides = protocol::SolverOverrides;
 using PointFrame = wire::PointFrame;
 using SecurityFiles = protocol::SecurityFiles;
 using protocol::identityKey;
+/// World settings to change (WorldHandle::setWorld): unset fields keep their value.
+using WorldOverrides = protocol::WorldOverrides;
+/// A body as its world simulates it (WorldHandle::getBodies): its definition, read from the
+/// engine (pose and velocities as of the reply's tick; mass and inertia as given, 0: from the
+/// shapes), and the mass properties the world derived (phys::BodyMass).
+using BodyInfo = protocol::BodyInfo;
+/// A joint's definition (bodyA / bodyB: ids of the world's bodies; a null bodyA: the world).
+using JointInfo = protocol::JointEntry;
 
 struct ClientOptions {
   uint32_t domain = 0;
@@ -116,6 +124,28 @@ struct StateFrame {
   /// The server's wall clock (ns since the Unix epoch) when it read these states; 0 for
   /// QueryState. Now minus this is the tick-to-subscriber latency (same host or synced clocks).
   uint64_t stampNs = 0;
+};
+
+/// A world's settings (GetWorld): every setting SetWorld takes and the solver's, in a
+/// phys::WorldDef (threads, backend and the contact budget are the daemon's and left at their
+/// defaults here), and the solver preset last applied.
+struct WorldSettings {
+  phys::WorldDef def;
+  std::string preset;
+  uint64_t tick = 0;  ///< the world's tick when it was read
+};
+
+/// One reply of getBodies / getJoints: total is what matched before paging (every body or
+/// joint of the world, or the ids asked for); the page holds as many as one reply does.
+struct BodiesPage {
+  uint64_t tick = 0;
+  uint32_t total = 0;
+  std::vector<BodyInfo> bodies;
+};
+struct JointsPage {
+  uint64_t tick = 0;
+  uint32_t total = 0;
+  std::vector<JointInfo> joints;
 };
 
 /// What a subscription asks for (docs/PROTOCOL.md "Interests"): every body (the default),
@@ -223,6 +253,28 @@ class WorldHandle {
                                CallOptions o = {});
   std::future<Ack> setSolver(std::string_view preset, const SolverOverrides& overrides = {},
                              CallOptions o = {});
+  /// World settings (docs/PROTOCOL.md "World settings"): the fields set change, all or
+  /// nothing, each waking what it affects (a gravity change wakes every body); an edit, so
+  /// only the owner and editors may (PermissionDenied), journaled on a durable daemon.
+  std::future<Ack> setWorld(const WorldOverrides& settings, CallOptions o = {});
+  std::future<Ack> setGravity(phys::Vec3 gravity, CallOptions o = {});
+  std::future<Ack> setTimeStep(float seconds, CallOptions o = {});
+  /// Sleeping on or off with its thresholds (phys::SleepSettings).
+  std::future<Ack> setSleep(const phys::SleepSettings& sleep, CallOptions o = {});
+  /// The world's settings (a read: any client).
+  std::future<WorldSettings> settings(CallOptions o = {});
+  /// Definitions as the world simulates them (docs/PROTOCOL.md "Definitions"; a read): these
+  /// ids in their order, or every body (joint) from `first` in id index order, at most
+  /// maxCount (0: as many as one reply holds). A page may hold fewer than asked: ask again
+  /// from where it ended (allBodies does).
+  std::future<BodiesPage> getBodies(std::span<const uint64_t> ids = {}, uint32_t first = 0,
+                                    uint32_t maxCount = 0, CallOptions o = {});
+  std::future<JointsPage> getJoints(std::span<const uint64_t> ids = {}, uint32_t first = 0,
+                                    uint32_t maxCount = 0, CallOptions o = {});
+  /// Every body's (joint's) definition, page after page on a thread of its own (the world may
+  /// change between pages: a body removed meanwhile may shift the rest by one).
+  std::future<std::vector<BodyInfo>> allBodies(CallOptions o = {});
+  std::future<std::vector<JointInfo>> allJoints(CallOptions o = {});
   /// Takes n steps now; Ack.tick is the tick after them.
   std::future<Ack> step(uint32_t n = 1, CallOptions o = {});
   /// Real time at rateHz (0: as fast as possible).

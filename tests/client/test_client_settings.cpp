@@ -1,0 +1,285 @@
+// World settings and definitions through the SDK (issue 40, points 2 and 3):
+// WorldHandle::setWorld / setGravity / setTimeStep / setSleep change a world (a gravity change
+// wakes a sleeping pile), settings() and getBodies / getJoints / allBodies / allJoints read
+// back what the world simulates, the same after an engine snapshot restore and after the
+// physd binary is killed and started again on its data directory.
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <sstream>
+#include <thread>
+
+#include "../common/bodies.h"
+#include "../common/sanitizer.h"
+#include "phys/client/client.h"
+#include "phys/server/core.h"
+#include "phys/server/endpoint.h"
+#include "physd_process.h"
+
+namespace phys::client {
+namespace {
+
+using namespace std::chrono_literals;
+constexpr auto kTimeout = std::chrono::milliseconds(int64_t(20000 * test::kTimeFactor));
+
+// As test_client.cpp: a domain of this process's range and a discovery tag of its own.
+uint32_t testDomain() {
+  return 230 + uint32_t(getpid() % 2);
+}
+
+std::string loopbackXml() {
+  std::ifstream in(std::string(PHYS_SOURCE_DIR) + "/configs/cyclonedds/loopback.xml");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  std::string xml = ss.str();
+  const std::string tag =
+      "<Discovery>\n      <Tag>physclient-settings-" + std::to_string(getpid()) + "</Tag>";
+  auto pos = xml.find("<Discovery>");
+  if (pos != std::string::npos) xml.replace(pos, std::string("<Discovery>").size(), tag);
+  return xml;
+}
+
+ClientOptions options(std::string name) {
+  ClientOptions o;
+  o.domain = testDomain();
+  o.cycloneXml = loopbackXml();
+  o.name = std::move(name);
+  o.connectTimeout = kTimeout;
+  o.requestTimeout = kTimeout;
+  return o;
+}
+
+/// The daemon's components in-process, as physd's main() wires them.
+struct Daemon {
+  Daemon() : core(config()), endpoint(&core, {testDomain(), loopbackXml()}) {
+    EXPECT_TRUE(core.init().ok());
+    auto s = endpoint.start();
+    EXPECT_TRUE(s.ok()) << s.message;
+    tick.start();
+  }
+  ~Daemon() {
+    tick.stop();
+    endpoint.stop();
+  }
+  static server::CoreConfig config() {
+    server::CoreConfig c;
+    c.presetsFile = std::string(PHYS_SOURCE_DIR) + "/configs/presets.json";
+    c.scenesDir = std::string(PHYS_SOURCE_DIR) + "/configs/scenes";
+    return c;
+  }
+  server::ServerCore core;
+  server::DdsEndpoint endpoint;
+  server::TickThread tick{&core, std::chrono::milliseconds(200)};
+};
+
+template <class F>
+ErrorCode codeOf(F&& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.code();
+  }
+  return ErrorCode::Ok;
+}
+
+/// Bodies with something other than the default in each definition field, and a joint.
+std::vector<phys::BodyDef> scenery() {
+  std::vector<phys::BodyDef> v{phys::test::groundBody(0.8f, 0.1f)};
+  v[0].name = "ground";
+  phys::BodyDef a = phys::test::boxBody({0, 0, 3}, {0.5f, 0.25f, 0.4f});
+  a.name = "crate";
+  a.linearDamping = 0.3f;
+  a.angularDamping = 0.6f;
+  a.gravityScale = 0.5f;
+  a.mass = 7;
+  a.inertia = {1, 2, 3};
+  a.gyroscopic = false;
+  a.allowSleep = false;
+  a.shapes[0].material = {0.2f, 0.4f, 700};
+  v.push_back(a);
+  phys::BodyDef b = phys::test::sphereBody({2, 0, 3}, 0.3f, 1500);
+  b.name = "ball";
+  b.gravityScale = -0.25f;
+  v.push_back(b);
+  return v;
+}
+
+phys::JointDef hinge(uint64_t a, uint64_t b) {
+  phys::JointDef j;
+  j.type = phys::JointType::Hinge;
+  j.bodyA = phys::BodyId::fromPacked(a);
+  j.bodyB = phys::BodyId::fromPacked(b);
+  j.anchorA = {1, 0, 0};
+  j.anchorB = {-1, 0, 0};
+  j.axisA = j.axisB = {0, 1, 0};
+  j.enableMotor = true;
+  j.motorSpeed = 0.5f;
+  j.maxMotorForce = 20;
+  j.name = "hinge";
+  return j;
+}
+
+void expectScenery(const std::vector<BodyInfo>& got, const std::vector<JointInfo>& joints,
+                   const std::string& when) {
+  SCOPED_TRACE(when);
+  const std::vector<phys::BodyDef> want = scenery();
+  ASSERT_EQ(got.size(), want.size());
+  for (size_t i = 0; i < want.size(); ++i) {
+    const phys::BodyDef &g = got[i].def, &w = want[i];
+    EXPECT_EQ(g.name, w.name);
+    EXPECT_EQ(g.type, w.type);
+    EXPECT_EQ(g.linearDamping, w.linearDamping);
+    EXPECT_EQ(g.angularDamping, w.angularDamping);
+    EXPECT_EQ(g.gravityScale, w.gravityScale);
+    EXPECT_EQ(g.mass, w.mass);
+    EXPECT_TRUE(g.inertia == w.inertia);
+    EXPECT_EQ(g.gyroscopic, w.gyroscopic);
+    EXPECT_EQ(g.allowSleep, w.allowSleep);
+    ASSERT_EQ(g.shapes.size(), w.shapes.size());
+    EXPECT_EQ(g.shapes[0].geom.type, w.shapes[0].geom.type);
+    EXPECT_EQ(g.shapes[0].material.friction, w.shapes[0].material.friction);
+    EXPECT_EQ(g.shapes[0].material.restitution, w.shapes[0].material.restitution);
+    EXPECT_EQ(g.shapes[0].material.density, w.shapes[0].material.density);
+  }
+  EXPECT_EQ(got[1].mass.mass, 7);
+  EXPECT_NEAR(got[2].mass.mass, 1500 * 4.0f / 3 * phys::kPi * 0.027f, 0.01f);
+  ASSERT_EQ(joints.size(), 1u);
+  EXPECT_EQ(joints[0].def.name, "hinge");
+  EXPECT_EQ(joints[0].def.type, phys::JointType::Hinge);
+  EXPECT_EQ(joints[0].def.maxMotorForce, 20);
+  EXPECT_EQ(joints[0].def.bodyA.packed(), got[1].id);
+  EXPECT_EQ(joints[0].def.bodyB.packed(), got[2].id);
+}
+
+TEST(ClientSettings, SettingsAndDefinitionsThroughTheSdk) {
+  Daemon d;
+  Client c(options("settings"));
+  c.connect();
+  WorldHandle w = c.createWorld({"settings", "", std::nullopt, 0}).get();
+  std::vector<uint64_t> ids = w.spawn(scenery()).get();
+  w.addJoints(std::vector<phys::JointDef>{hinge(ids[1], ids[2])}).get();
+
+  // Settings: one at a time and several at once; settings() reads them back.
+  w.setGravity({0, 0, -1.62f}).get();
+  w.setTimeStep(1.0f / 120).get();
+  w.setSleep({true, 1.5f, 0.02f, 0.3f}).get();
+  WorldOverrides more;
+  more.maxLinearSpeed = 300;
+  more.aabbMargin = 0.08f;
+  more.guardRetries = 1;
+  w.setWorld(more).get();
+  WorldSettings s = w.settings().get();
+  EXPECT_EQ(s.def.gravity.z, -1.62f);
+  EXPECT_EQ(s.def.timeStep, 1.0f / 120);
+  EXPECT_TRUE(s.def.sleep.enabled);
+  EXPECT_EQ(s.def.sleep.time, 1.5f);
+  EXPECT_EQ(s.def.sleep.linearSpeed, 0.02f);
+  EXPECT_EQ(s.def.sleep.angularSpeed, 0.3f);
+  EXPECT_EQ(s.def.maxLinearSpeed, 300);
+  EXPECT_EQ(s.def.aabbMargin, 0.08f);
+  EXPECT_EQ(s.def.guardRetries, 1);
+  EXPECT_FALSE(s.preset.empty());
+  EXPECT_GT(s.def.solver.iterations, 0);
+
+  // Bad values: typed errors, nothing changed.
+  EXPECT_EQ(codeOf([&] { w.setGravity({0, 0, std::numeric_limits<float>::quiet_NaN()}).get(); }),
+            ErrorCode::InvalidArgument);
+  EXPECT_EQ(codeOf([&] { w.setTimeStep(0).get(); }), ErrorCode::InvalidArgument);
+  EXPECT_EQ(codeOf([&] { w.setWorld({}).get(); }), ErrorCode::InvalidArgument);
+  EXPECT_EQ(w.settings().get().def.gravity.z, -1.62f);
+
+  // Definitions: pages, ids, all of them.
+  BodiesPage page = w.getBodies({}, 1, 1).get();
+  EXPECT_EQ(page.total, 3u);
+  ASSERT_EQ(page.bodies.size(), 1u);
+  EXPECT_EQ(page.bodies[0].def.name, "crate");
+  page = w.getBodies(std::vector<uint64_t>{ids[2]}).get();
+  ASSERT_EQ(page.bodies.size(), 1u);
+  EXPECT_EQ(page.bodies[0].def.name, "ball");
+  expectScenery(w.allBodies().get(), w.allJoints().get(), "as spawned");
+  EXPECT_EQ(codeOf([&] { w.getBodies(std::vector<uint64_t>{0x99900000001}).get(); }),
+            ErrorCode::NotFound);
+
+  // Another client reads but may not change the world.
+  Client other(options("other"));
+  other.connect();
+  WorldHandle ow = other.world(w.id());
+  EXPECT_EQ(codeOf([&] { ow.setGravity({0, 0, -3}).get(); }), ErrorCode::PermissionDenied);
+  EXPECT_EQ(ow.allBodies().get().size(), 3u);
+  EXPECT_EQ(ow.settings().get().def.gravity.z, -1.62f);
+
+  // An engine snapshot restored into another world: every definition and setting.
+  Bytes snap = w.saveSnapshot().get();
+  WorldHandle w2 = c.createWorld({"restored", "", std::nullopt, 0}).get();
+  w2.restoreSnapshot(snap).get();
+  expectScenery(w2.allBodies().get(), w2.allJoints().get(), "after an engine snapshot restore");
+  EXPECT_EQ(w2.settings().get().def.maxLinearSpeed, 300);
+  EXPECT_EQ(w2.settings().get().def.gravity.z, -1.62f);
+}
+
+TEST(ClientSettings, AGravityChangeWakesASleepingPile) {
+  Daemon d;
+  Client c(options("pile"));
+  c.connect();
+  WorldHandle w = c.createWorld({"pile", "", std::nullopt, 0}).get();
+  std::vector<phys::BodyDef> defs{phys::test::groundBody()};
+  for (int i = 0; i < 3; ++i) defs.push_back(phys::test::boxBody({0, 0, 0.5f + float(i)}));
+  std::vector<uint64_t> ids = w.spawn(defs).get();
+  auto summary = [&] {
+    for (const WorldSummary& s : c.listWorlds().get())
+      if (s.world == w.id()) return s;
+    return WorldSummary{};
+  };
+  for (int i = 0; i < 20 && summary().sleepingBodies < 3; ++i) w.step(30).get();
+  ASSERT_EQ(summary().sleepingBodies, 3u) << "the pile did not fall asleep";
+  const float x0 = w.queryState(std::vector<uint64_t>{ids[3]}).get().bodies.at(0).position.x;
+  w.setGravity({9.81f, 0, -9.81f}).get();
+  EXPECT_EQ(summary().sleepingBodies, 0u);
+  EXPECT_EQ(summary().awakeBodies, 3u);
+  w.step(60).get();
+  EXPECT_GT(w.queryState(std::vector<uint64_t>{ids[3]}).get().bodies.at(0).position.x, x0 + 0.2f);
+}
+
+TEST(ClientSettings, EverySettingAndDefinitionSurvivesAKilledDaemon) {
+  testing::ScratchDir dir("physd-settings");
+  const std::string data = (dir.path / "data").string();
+  testing::PhysdConfig cfg(dir.path, "physd-settings", 200 + uint32_t(getpid() % 29),
+                           "data = \"" + data + "\"\n");
+  Client c(cfg.clientOptions(20s));
+  pid_t pid = testing::spawnProcess(PHYSD_BINARY, {"--config", cfg.toml});
+  testing::ProcessGuard guard{pid};
+  ASSERT_GT(pid, 0);
+  c.connect();
+  WorldHandle w = c.createWorld({"kept", "", std::nullopt, 0}).get();
+  std::vector<uint64_t> ids = w.spawn(scenery()).get();
+  w.addJoints(std::vector<phys::JointDef>{hinge(ids[1], ids[2])}).get();
+  w.step(5).get();
+  WorldOverrides o;
+  o.gravity = phys::Vec3{0.5f, 0, -4};
+  o.sleepTime = 2.5f;
+  o.maxAngularSpeed = 120;
+  o.guard = false;
+  w.setWorld(o).get();
+  ASSERT_EQ(kill(pid, SIGKILL), 0);
+  int st = 0;
+  ASSERT_EQ(waitpid(pid, &st, 0), pid);
+  guard.pid = pid = testing::spawnProcess(PHYSD_BINARY, {"--config", cfg.toml});
+  ASSERT_GT(pid, 0);
+  ASSERT_TRUE(testing::awaitReconnects(c, 1));
+  expectScenery(w.allBodies().get(), w.allJoints().get(), "after a restart");
+  WorldSettings s = w.settings().get();
+  EXPECT_TRUE(s.def.gravity == *o.gravity);
+  EXPECT_EQ(s.def.sleep.time, 2.5f);
+  EXPECT_EQ(s.def.maxAngularSpeed, 120);
+  EXPECT_FALSE(s.def.guard);
+}
+
+}  // namespace
+}  // namespace phys::client
