@@ -14,6 +14,11 @@
 //                   [--bodies ID,ID,... | --region X0,Y0,Z0,X1,Y1,Z1]
 //                                      # receive state frames (of an interest); print
 //                                      # delivery, latency and bytes per tick
+//   physctl settings WORLD             # the world's settings (gravity, time step, sleeping...)
+//   physctl set WORLD [--gravity X,Y,Z] [--time-step S] [--sleep on|off] [--sleep-time S]
+//                   [--max-linear-speed V] ... # change them (docs/PROTOCOL.md "World settings")
+//   physctl bodies WORLD [ID ...]      # definitions as the world simulates them: names,
+//   physctl joints WORLD [ID ...]      # damping, masses, shapes, materials; joints
 //
 // WORLD is a world id or name. Errors print the server's code and message and exit 1.
 #include <unistd.h>
@@ -256,6 +261,85 @@ int subscribe(pc::Client& c, const std::string& world, double warmup, double sec
   return 0;
 }
 
+std::string num(float v) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%g", double(v));
+  return b;
+}
+
+std::string vec3(phys::Vec3 v) {
+  char b[96];
+  std::snprintf(b, sizeof b, "(%g, %g, %g)", double(v.x), double(v.y), double(v.z));
+  return b;
+}
+
+/// Every setting GetWorld reports, one "name value" line each (WorldSettings' names).
+void printSettings(const pc::WorldSettings& s) {
+  const phys::WorldDef& d = s.def;
+  auto onOff = [](bool b) { return b ? "on" : "off"; };
+  std::printf("gravity %s\ntime_step %g\nsleep %s\nsleep_time %g\nsleep_linear_speed %g\n"
+              "sleep_angular_speed %g\nmax_linear_speed %g\nmax_angular_speed %g\n"
+              "speculative_distance %g\naabb_margin %g\nguard %s\nguard_energy_jump %g\n"
+              "guard_retries %d\npreset %s\nsubsteps %d\niterations %d\n",
+              vec3(d.gravity).c_str(), double(d.timeStep), onOff(d.sleep.enabled),
+              double(d.sleep.time), double(d.sleep.linearSpeed), double(d.sleep.angularSpeed),
+              double(d.maxLinearSpeed), double(d.maxAngularSpeed), double(d.speculativeDistance),
+              double(d.aabbMargin), onOff(d.guard), double(d.guardEnergyJump), d.guardRetries,
+              s.preset.c_str(), d.solver.substeps, d.solver.iterations);
+}
+
+/// A body's definition: a line of its own fields, a line per shape.
+void printBody(const pc::BodyInfo& b) {
+  const phys::BodyDef& d = b.def;
+  std::printf("0x%llx %s %s mass %g kg%s damping %g %g gravity_scale %g%s%s\n",
+              (unsigned long long)b.id, d.name.empty() ? "-" : ("\"" + d.name + "\"").c_str(),
+              phys::toString(d.type), double(b.mass.mass),
+              d.type != phys::BodyType::Dynamic ? "" : d.mass > 0 ? " (given)" : " (shapes)",
+              double(d.linearDamping), double(d.angularDamping), double(d.gravityScale),
+              d.gyroscopic ? "" : " gyroscopic off", d.allowSleep ? "" : " allow_sleep off");
+  std::printf("    position %s velocity %s angular %s\n", vec3(d.position).c_str(),
+              vec3(d.linearVelocity).c_str(), vec3(d.angularVelocity).c_str());
+  for (const phys::ShapeDef& sh : d.shapes) {
+    const phys::ShapeGeom& g = sh.geom;
+    std::string size;
+    switch (g.type) {
+      case phys::ShapeType::Sphere:
+        size = "radius " + num(g.radius);
+        break;
+      case phys::ShapeType::Box:
+        size = "half_extents " + vec3(g.halfExtents);
+        break;
+      case phys::ShapeType::Capsule:
+        size = "radius " + num(g.radius) + " half_height " + num(g.halfHeight);
+        break;
+      case phys::ShapeType::Plane:
+        size = "normal " + vec3(g.normal) + " offset " + num(g.offset);
+        break;
+      case phys::ShapeType::Hull:
+        size = std::to_string(g.hull ? g.hull->vertices.size() : 0) + " vertices";
+        break;
+    }
+    std::printf("    %s %s at %s friction %g restitution %g density %g\n", phys::toString(g.type),
+                size.c_str(), vec3(sh.local.p).c_str(), double(sh.material.friction),
+                double(sh.material.restitution), double(sh.material.density));
+  }
+}
+
+void printJoint(const pc::JointInfo& j) {
+  const phys::JointDef& d = j.def;
+  std::printf("0x%llx %s %s bodies 0x%llx 0x%llx anchors %s %s", (unsigned long long)j.id,
+              d.name.empty() ? "-" : ("\"" + d.name + "\"").c_str(), phys::toString(d.type),
+              (unsigned long long)d.bodyA.packed(), (unsigned long long)d.bodyB.packed(),
+              vec3(d.anchorA).c_str(), vec3(d.anchorB).c_str());
+  if (d.enableLimit) std::printf(" limits %g %g", double(d.lower), double(d.upper));
+  if (d.enableMotor)
+    std::printf(" motor %g max %g", double(d.motorSpeed), double(d.maxMotorForce));
+  if (d.type == phys::JointType::Distance)
+    std::printf(" length %g spring %g Hz %g", double(d.length), double(d.springHertz),
+                double(d.springDampingRatio));
+  std::printf("%s\n", d.collideConnected ? " collide_connected" : "");
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -326,6 +410,33 @@ int main(int argc, char** argv) {
                            "only the bodies inside the box x0,y0,z0,x1,y1,z1 (m): an interest")
       ->delimiter(',')
       ->expected(6);
+  auto* settingsCmd = app.add_subcommand("settings", "print a world's settings");
+  settingsCmd->add_option("WORLD", world, "world id or name")->required();
+  // set: each option given becomes a field of one SetWorld (all or nothing).
+  auto* setCmd = app.add_subcommand(
+      "set", "change a world's settings (each option given; docs/PROTOCOL.md \"World settings\")");
+  setCmd->add_option("WORLD", world, "world id or name")->required();
+  std::vector<float> setGravity;
+  std::map<std::string, float> setNumbers;
+  std::map<std::string, std::string> setFlags;
+  int setRetries = -1;
+  setCmd->add_option("--gravity", setGravity, "m/s^2, x,y,z")->delimiter(',')->expected(3);
+  for (const char* n : {"time-step", "sleep-time", "sleep-linear-speed", "sleep-angular-speed",
+                        "max-linear-speed", "max-angular-speed", "speculative-distance",
+                        "aabb-margin", "guard-energy-jump"})
+    setCmd->add_option(std::string("--") + n, setNumbers[n], "")->check(CLI::Number);
+  for (const char* n : {"sleep", "guard"})
+    setCmd->add_option(std::string("--") + n, setFlags[n], "on or off")
+        ->check(CLI::IsMember({"on", "off"}));
+  setCmd->add_option("--guard-retries", setRetries, "0..4")->check(CLI::NonNegativeNumber);
+  std::vector<std::string> defIds;
+  auto* bodiesCmd = app.add_subcommand(
+      "bodies", "print bodies' definitions as the world simulates them (all, or the ids given)");
+  bodiesCmd->add_option("WORLD", world, "world id or name")->required();
+  bodiesCmd->add_option("ID", defIds, "body ids (hex 0x... or decimal)");
+  auto* jointsCmd = app.add_subcommand("joints", "print joints' definitions (all, or the ids given)");
+  jointsCmd->add_option("WORLD", world, "world id or name")->required();
+  jointsCmd->add_option("ID", defIds, "joint ids (hex 0x... or decimal)");
   auto* snapshot = app.add_subcommand("snapshot", "save or restore a world's snapshot");
   snapshot->require_subcommand(1);
   auto* save = snapshot->add_subcommand("save", "save WORLD's snapshot into a local FILE");
@@ -428,6 +539,65 @@ int main(int argc, char** argv) {
       pc::WorldHandle w = resolve(client, world);
       pc::Ack a = w.pause().get();
       std::printf("world %u: paused at tick %llu\n", w.id(), (unsigned long long)a.tick);
+    } else if (*settingsCmd) {
+      printSettings(resolve(client, world).settings().get());
+    } else if (*setCmd) {
+      pc::WorldOverrides o;
+      if (!setGravity.empty()) o.gravity = phys::Vec3{setGravity[0], setGravity[1], setGravity[2]};
+      auto number = [&](const char* n, std::optional<float>* field) {
+        if (setCmd->count(std::string("--") + n) > 0) *field = setNumbers[n];
+      };
+      number("time-step", &o.timeStep);
+      number("sleep-time", &o.sleepTime);
+      number("sleep-linear-speed", &o.sleepLinearSpeed);
+      number("sleep-angular-speed", &o.sleepAngularSpeed);
+      number("max-linear-speed", &o.maxLinearSpeed);
+      number("max-angular-speed", &o.maxAngularSpeed);
+      number("speculative-distance", &o.speculativeDistance);
+      number("aabb-margin", &o.aabbMargin);
+      number("guard-energy-jump", &o.guardEnergyJump);
+      if (setCmd->count("--sleep") > 0) o.sleep = setFlags["sleep"] == "on";
+      if (setCmd->count("--guard") > 0) o.guard = setFlags["guard"] == "on";
+      if (setRetries >= 0) o.guardRetries = setRetries;
+      if (o.empty()) {
+        std::fprintf(stderr, "physctl: set: give at least one setting (physctl set --help)\n");
+        return 2;
+      }
+      pc::WorldHandle w = resolve(client, world);
+      pc::Ack a = w.setWorld(o).get();
+      std::printf("world %u: settings changed at tick %llu\n", w.id(), (unsigned long long)a.tick);
+    } else if (*bodiesCmd || *jointsCmd) {
+      std::vector<uint64_t> ids;
+      for (const std::string& t : defIds) ids.push_back(std::stoull(t, nullptr, 0));
+      pc::WorldHandle w = resolve(client, world);
+      if (*bodiesCmd) {
+        // The ids asked for, page after page (a reply holds as many as fit); or all of them.
+        std::vector<pc::BodyInfo> bodies;
+        if (ids.empty()) {
+          bodies = w.allBodies().get();
+        } else {
+          for (size_t at = 0; at < ids.size();) {
+            pc::BodiesPage p = w.getBodies(std::span(ids).subspan(at)).get();
+            if (p.bodies.empty()) break;
+            at += p.bodies.size();
+            for (pc::BodyInfo& b : p.bodies) bodies.push_back(std::move(b));
+          }
+        }
+        for (const pc::BodyInfo& b : bodies) printBody(b);
+      } else {
+        std::vector<pc::JointInfo> joints;
+        if (ids.empty()) {
+          joints = w.allJoints().get();
+        } else {
+          for (size_t at = 0; at < ids.size();) {
+            pc::JointsPage p = w.getJoints(std::span(ids).subspan(at)).get();
+            if (p.joints.empty()) break;
+            at += p.joints.size();
+            for (pc::JointInfo& j : p.joints) joints.push_back(std::move(j));
+          }
+        }
+        for (const pc::JointInfo& j : joints) printJoint(j);
+      }
     } else if (*save) {
       pc::WorldHandle w = resolve(client, world);
       pc::Bytes bytes = w.saveSnapshot().get();
