@@ -281,5 +281,62 @@ TEST(ClientSettings, EverySettingAndDefinitionSurvivesAKilledDaemon) {
   EXPECT_FALSE(s.def.guard);
 }
 
+#ifdef PHYSCTL_BINARY
+std::string shq(const std::string& s) {
+  std::string q = "'";
+  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  return q + "'";
+}
+
+/// Runs a shell command line; its exit code and output (stdout and stderr).
+std::pair<int, std::string> shell(const std::string& line) {
+  std::string out;
+  FILE* f = popen((line + " 2>&1").c_str(), "r");
+  if (!f) return {-1, out};
+  char buf[512];
+  while (std::fgets(buf, sizeof buf, f)) out += buf;
+  const int st = pclose(f);
+  return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, out};
+}
+
+TEST(ClientSettings, PhysctlSetsSettingsAndPrintsDefinitions) {
+  // A start-up world (no owner: any client may change it) of a scene with names and joints.
+  testing::ScratchDir dir("physctl-settings");
+  testing::PhysdConfig cfg(dir.path, "physctl-settings", 200 + uint32_t(getpid() % 29),
+                           "[[worlds]]\nname = \"chain\"\nscene = \"ball_and_chain\"\n"
+                           "ephemeral = true\n");
+  pid_t pid = testing::spawnProcess(PHYSD_BINARY, {"--config", cfg.toml});
+  testing::ProcessGuard guard{pid};
+  ASSERT_GT(pid, 0);
+  Client c(cfg.clientOptions(20s));
+  c.connect();
+  const std::string physctl = shq(PHYSCTL_BINARY) + " --domain " + std::to_string(cfg.domain) +
+                              " --config " + shq(cfg.xml) + " ";
+  auto [code, out] = shell(physctl + "set chain --gravity 0,0,-1.62 --sleep on --guard-retries 3");
+  ASSERT_EQ(code, 0) << out;
+  std::tie(code, out) = shell(physctl + "settings chain");
+  ASSERT_EQ(code, 0) << out;
+  EXPECT_NE(out.find("gravity (0, 0, -1.62)"), std::string::npos) << out;
+  EXPECT_NE(out.find("sleep on"), std::string::npos) << out;
+  EXPECT_NE(out.find("guard_retries 3"), std::string::npos) << out;
+  // Refused values: the server's message, exit 1.
+  std::tie(code, out) = shell(physctl + "set chain --time-step 0");
+  EXPECT_EQ(code, 1);
+  EXPECT_NE(out.find("InvalidArgument: set_world.settings.time_step"), std::string::npos) << out;
+  std::tie(code, out) = shell(physctl + "bodies chain");
+  ASSERT_EQ(code, 0) << out;
+  EXPECT_NE(out.find("\"ground\" static"), std::string::npos) << out;
+  EXPECT_NE(out.find("\"chain/0\" dynamic mass 1 kg (given)"), std::string::npos) << out;
+  EXPECT_NE(out.find("capsule radius 0.05 half_height 0.25"), std::string::npos) << out;
+  std::tie(code, out) = shell(physctl + "joints chain");
+  ASSERT_EQ(code, 0) << out;
+  EXPECT_NE(out.find("\"chain/joint/1\" ball"), std::string::npos) << out;
+  std::tie(code, out) = shell(physctl + "bodies chain 0x100000001");
+  ASSERT_EQ(code, 0) << out;
+  EXPECT_NE(out.find("chain/0"), std::string::npos) << out;
+  EXPECT_EQ(out.find("ground"), std::string::npos) << out;
+}
+#endif
+
 }  // namespace
 }  // namespace phys::client
