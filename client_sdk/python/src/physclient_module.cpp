@@ -452,6 +452,16 @@ E enumByName(const py::handle& v, std::initializer_list<std::pair<const char*, E
   throw py::value_error(std::string("physclient: ") + what + " is one of " + all);
 }
 
+/// A keyword of set_world (for set_solver's error: "set_solver(gravity=...)").
+bool isWorldSetting(const std::string& k) {
+  for (const char* n : {"gravity", "time_step", "sleep", "sleep_time", "sleep_linear_speed",
+                        "sleep_angular_speed", "max_linear_speed", "max_angular_speed",
+                        "speculative_distance", "aabb_margin", "guard", "guard_energy_jump",
+                        "guard_retries"})
+    if (k == n) return true;
+  return false;
+}
+
 pc::SolverOverrides solverOverrides(const py::kwargs& kw) {
   using S = phys::SolverSettings;
   pc::SolverOverrides o;
@@ -510,11 +520,86 @@ pc::SolverOverrides solverOverrides(const py::kwargs& kw) {
           {{"Iterative", S::EqualitySolve::Iterative},
            {"DirectLdl", S::EqualitySolve::DirectLdl}},
           "equality_solve");
+    } else if (isWorldSetting(k)) {
+      throw py::type_error("set_solver() got an unexpected keyword argument '" + k + "': " + k +
+                           " is a world setting, set with set_world(" + k + "=...)");
     } else {
       throw py::type_error("set_solver() got an unexpected keyword argument '" + k + "'");
     }
   }
   return o;
+}
+
+// ---------------------------------------------------------------------------------------------
+// World settings from keyword arguments (set_world), and back (WorldSettings.solver).
+
+pc::WorldOverrides worldOverrides(const py::kwargs& kw) {
+  pc::WorldOverrides o;
+  for (auto item : kw) {
+    const std::string k = py::str(item.first);
+    const py::handle v = item.second;
+    if (v.is_none()) continue;  // as if not given: the world keeps its value
+#define PHYS_SETTING(name, field, type) \
+  if (k == name) {                      \
+    o.field = v.cast<type>();           \
+    continue;                           \
+  }
+    PHYS_SETTING("gravity", gravity, phys::Vec3)
+    PHYS_SETTING("time_step", timeStep, float)
+    PHYS_SETTING("sleep", sleep, bool)
+    PHYS_SETTING("sleep_time", sleepTime, float)
+    PHYS_SETTING("sleep_linear_speed", sleepLinearSpeed, float)
+    PHYS_SETTING("sleep_angular_speed", sleepAngularSpeed, float)
+    PHYS_SETTING("max_linear_speed", maxLinearSpeed, float)
+    PHYS_SETTING("max_angular_speed", maxAngularSpeed, float)
+    PHYS_SETTING("speculative_distance", speculativeDistance, float)
+    PHYS_SETTING("aabb_margin", aabbMargin, float)
+    PHYS_SETTING("guard", guard, bool)
+    PHYS_SETTING("guard_energy_jump", guardEnergyJump, float)
+    PHYS_SETTING("guard_retries", guardRetries, int)
+#undef PHYS_SETTING
+    throw py::type_error("set_world() got an unexpected keyword argument '" + k +
+                         "' (solver settings: set_solver)");
+  }
+  return o;
+}
+
+/// The solver's settings as set_solver's keywords: w.set_solver(**other.settings().solver).
+py::dict solverDict(const phys::SolverSettings& s) {
+  using S = phys::SolverSettings;
+  py::dict d;
+  d["scheme"] = s.scheme == S::Scheme::GaussSeidel ? "GaussSeidel"
+                : s.scheme == S::Scheme::Jacobi    ? "Jacobi"
+                                                   : "ColoredGaussSeidel";
+  d["position_pass"] = s.positionPass == S::PositionPass::None                   ? "None"
+                       : s.positionPass == S::PositionPass::NonlinearGaussSeidel ? "NonlinearGaussSeidel"
+                                                                                  : "NonlinearJacobi";
+  d["position_iterations"] = s.positionIterations;
+  d["position_baumgarte"] = s.positionBaumgarte;
+  d["max_position_correction"] = s.maxPositionCorrection;
+  d["substeps"] = s.substeps;
+  d["iterations"] = s.iterations;
+  d["tolerance"] = s.tolerance;
+  d["relax_iterations"] = s.relaxIterations;
+  d["stabilization"] = s.stabilization == S::Stabilization::Soft ? "Soft" : "Baumgarte";
+  d["baumgarte"] = s.baumgarte;
+  d["contact_hertz"] = s.contactHertz;
+  d["contact_damping_ratio"] = s.contactDampingRatio;
+  d["joint_hertz"] = s.jointHertz;
+  d["joint_damping_ratio"] = s.jointDampingRatio;
+  d["max_pushout"] = s.maxPushout;
+  d["linear_slop"] = s.linearSlop;
+  d["warm_start"] = s.warmStart;
+  d["restitution"] = s.restitution;
+  d["restitution_threshold"] = s.restitutionThreshold;
+  d["equality_solve"] = s.equalitySolve == S::EqualitySolve::DirectLdl ? "DirectLdl" : "Iterative";
+  d["block_contacts"] = s.blockContacts;
+  d["geometric_stiffness"] = s.geometricStiffness;
+  d["split_pushout"] = s.splitPushout;
+  d["patch_friction"] = s.patchFriction;
+  d["stack_stiffening"] = s.stackStiffening;
+  d["direct_contact_ratio"] = s.directContactRatio;
+  return d;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1095,6 +1180,88 @@ PYBIND11_MODULE(physclient, m) {
                ", running=" + (w.running ? "True" : "False") + ")";
       });
 
+  py::class_<pc::WorldSettings>(
+      m, "WorldSettings",
+      "A world's settings (World.settings()): every keyword set_world takes, the solver's\n"
+      "settings as set_solver's keywords (a dict), the preset last applied, and the tick.")
+      .def_property_readonly("gravity", [](const pc::WorldSettings& s) { return s.def.gravity; })
+      .def_property_readonly("time_step",
+                             [](const pc::WorldSettings& s) { return s.def.timeStep; })
+      .def_property_readonly("sleep",
+                             [](const pc::WorldSettings& s) { return s.def.sleep.enabled; })
+      .def_property_readonly("sleep_time",
+                             [](const pc::WorldSettings& s) { return s.def.sleep.time; })
+      .def_property_readonly("sleep_linear_speed",
+                             [](const pc::WorldSettings& s) { return s.def.sleep.linearSpeed; })
+      .def_property_readonly("sleep_angular_speed",
+                             [](const pc::WorldSettings& s) { return s.def.sleep.angularSpeed; })
+      .def_property_readonly("max_linear_speed",
+                             [](const pc::WorldSettings& s) { return s.def.maxLinearSpeed; })
+      .def_property_readonly("max_angular_speed",
+                             [](const pc::WorldSettings& s) { return s.def.maxAngularSpeed; })
+      .def_property_readonly("speculative_distance",
+                             [](const pc::WorldSettings& s) { return s.def.speculativeDistance; })
+      .def_property_readonly("aabb_margin",
+                             [](const pc::WorldSettings& s) { return s.def.aabbMargin; })
+      .def_property_readonly("guard", [](const pc::WorldSettings& s) { return s.def.guard; })
+      .def_property_readonly("guard_energy_jump",
+                             [](const pc::WorldSettings& s) { return s.def.guardEnergyJump; })
+      .def_property_readonly("guard_retries",
+                             [](const pc::WorldSettings& s) { return s.def.guardRetries; })
+      .def_property_readonly("solver",
+                             [](const pc::WorldSettings& s) { return solverDict(s.def.solver); })
+      .def_readonly("preset", &pc::WorldSettings::preset)
+      .def_readonly("tick", &pc::WorldSettings::tick)
+      .def("__repr__", [](const pc::WorldSettings& s) {
+        return "WorldSettings(gravity=" + reprOf(s.def.gravity) +
+               ", time_step=" + std::to_string(s.def.timeStep) +
+               ", sleep=" + (s.def.sleep.enabled ? "True" : "False") + ", preset='" + s.preset +
+               "')";
+      });
+
+  py::class_<pc::BodyInfo>(
+      m, "BodyInfo",
+      "A body as its world simulates it (World.get_bodies): id, definition (a BodyDef: pose\n"
+      "and velocities as of the reply's tick; mass and inertia as given, 0: from the shapes),\n"
+      "and the mass properties the world derived: mass (kg), center_of_mass (body frame),\n"
+      "inertia (principal moments), inertia_axes (their frame in the body's, x, y, z, w).")
+      .def_readonly("id", &pc::BodyInfo::id)
+      .def_readonly("definition", &pc::BodyInfo::def)
+      .def_property_readonly("mass", [](const pc::BodyInfo& b) { return b.mass.mass; })
+      .def_property_readonly("center_of_mass",
+                             [](const pc::BodyInfo& b) { return b.mass.localCenter; })
+      .def_property_readonly("inertia", [](const pc::BodyInfo& b) { return b.mass.inertia; })
+      .def_property_readonly("inertia_axes",
+                             [](const pc::BodyInfo& b) { return b.mass.inertiaRotation; })
+      .def("__repr__", [](const pc::BodyInfo& b) {
+        return "BodyInfo(id=" + std::to_string(b.id) + ", name='" + b.def.name +
+               "', mass=" + std::to_string(b.mass.mass) + ")";
+      });
+
+  py::class_<pc::JointInfo>(m, "JointInfo",
+                            "A joint's definition (World.get_joints): id, definition (a "
+                            "JointDef; body_a 0: the world).")
+      .def_readonly("id", &pc::JointInfo::id)
+      .def_readonly("definition", &pc::JointInfo::def)
+      .def("__repr__", [](const pc::JointInfo& j) {
+        return "JointInfo(id=" + std::to_string(j.id) + ", name='" + j.def.name + "')";
+      });
+
+  py::class_<pc::BodiesPage>(m, "BodiesPage",
+                             "One reply of get_bodies: tick, total (what matched before "
+                             "paging), bodies (a list of BodyInfo).")
+      .def_readonly("tick", &pc::BodiesPage::tick)
+      .def_readonly("total", &pc::BodiesPage::total)
+      .def_readonly("bodies", &pc::BodiesPage::bodies)
+      .def("__len__", [](const pc::BodiesPage& p) { return p.bodies.size(); });
+
+  py::class_<pc::JointsPage>(m, "JointsPage",
+                             "One reply of get_joints: tick, total, joints (JointInfo).")
+      .def_readonly("tick", &pc::JointsPage::tick)
+      .def_readonly("total", &pc::JointsPage::total)
+      .def_readonly("joints", &pc::JointsPage::joints)
+      .def("__len__", [](const pc::JointsPage& p) { return p.joints.size(); });
+
   py::class_<pc::ServerStatus>(m, "ServerStatus", "The latest phys/status sample.")
       .def_readonly("server_name", &pc::ServerStatus::serverName)
       .def_readonly("server_version", &pc::ServerStatus::serverVersion)
@@ -1280,6 +1447,69 @@ PYBIND11_MODULE(physclient, m) {
           py::arg("preset") = "", py::kw_only(), T,
           "A solver preset (\"\": keep the world's) and overrides as keywords: iterations=,\n"
           "substeps=, scheme='GaussSeidel'|'Jacobi'|'ColoredGaussSeidel', warm_start=, ...")
+      .def(
+          "set_world",
+          [](PyWorld& w, OptS t, const py::kwargs& kw) {
+            const pc::WorldOverrides ov = worldOverrides(kw);
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.setWorld(ov, o);
+            });
+          },
+          py::kw_only(), T,
+          "Changes the world's settings given as keywords, all or nothing (docs/PYTHON.md):\n"
+          "gravity=(x, y, z), time_step=, sleep=True|False, sleep_time=,\n"
+          "sleep_linear_speed=, sleep_angular_speed=, max_linear_speed=, max_angular_speed=,\n"
+          "speculative_distance=, aabb_margin=, guard=, guard_energy_jump=, guard_retries=.\n"
+          "A gravity change wakes every body. -> Ack")
+      .def(
+          "set_gravity",
+          [](PyWorld& w, phys::Vec3 g, OptS t) {
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.setGravity(g, o);
+            });
+          },
+          py::arg("gravity"), py::kw_only(), T, "set_world(gravity=...): wakes every body.")
+      .def(
+          "settings",
+          [](PyWorld& w, OptS t) {
+            return w.req(t, [](pc::WorldHandle h, pc::CallOptions o) { return h.settings(o); });
+          },
+          py::kw_only(), T, "The world's settings -> WorldSettings.")
+      .def(
+          "get_bodies",
+          [](PyWorld& w, const py::object& ids, uint32_t first, uint32_t maxCount, OptS t) {
+            auto v = idList(ids);
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.getBodies(std::span<const uint64_t>(v), first, maxCount, o);
+            });
+          },
+          py::arg("ids") = py::none(), py::arg("first") = 0, py::arg("max_count") = 0,
+          py::kw_only(), T,
+          "Definitions as the world simulates them, of these ids (None: every body, paged by\n"
+          "first / max_count) -> BodiesPage, which may hold fewer than asked: ask again from\n"
+          "where it ended, or use all_bodies().")
+      .def(
+          "get_joints",
+          [](PyWorld& w, const py::object& ids, uint32_t first, uint32_t maxCount, OptS t) {
+            auto v = idList(ids);
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) {
+              return h.getJoints(std::span<const uint64_t>(v), first, maxCount, o);
+            });
+          },
+          py::arg("ids") = py::none(), py::arg("first") = 0, py::arg("max_count") = 0,
+          py::kw_only(), T, "Joint definitions, as get_bodies -> JointsPage.")
+      .def(
+          "all_bodies",
+          [](PyWorld& w, OptS t) {
+            return w.req(t, [](pc::WorldHandle h, pc::CallOptions o) { return h.allBodies(o); });
+          },
+          py::kw_only(), T, "Every body's definition, page after page -> a list of BodyInfo.")
+      .def(
+          "all_joints",
+          [](PyWorld& w, OptS t) {
+            return w.req(t, [](pc::WorldHandle h, pc::CallOptions o) { return h.allJoints(o); });
+          },
+          py::kw_only(), T, "Every joint's definition -> a list of JointInfo.")
       .def(
           "step",
           [](PyWorld& w, uint32_t n, OptS t) {

@@ -120,6 +120,12 @@ def box(z, x=0.0, **kw):
                       **kw)
 
 
+def f32(x):
+    """x as the float32 the engine holds (so that == compares what the wire carries)."""
+    import struct
+    return struct.unpack("f", struct.pack("f", x))[0]
+
+
 def wait_until(predicate, timeout=15.0, period=0.02):
     end = time.monotonic() + timeout
     while time.monotonic() < end:
@@ -433,6 +439,121 @@ class Bindings(unittest.TestCase):
         with self.assertRaises(pc.Error):
             w.restore_snapshot(b"not a snapshot")
         self.assertStatesEqual(w.query_state(), saved)
+
+    # -- world settings and definitions ------------------------------------------------------
+
+    def test_world_settings(self):
+        w = self.new_world("settings")
+        ack = w.set_world(gravity=(0, 0, -1.62), time_step=1 / 120, sleep_time=1.5,
+                          max_linear_speed=300.0, guard_retries=1)
+        self.assertEqual(ack.world, w.id)
+        s = w.settings()
+        self.assertAlmostEqual(s.gravity[2], -1.62, places=6)
+        self.assertAlmostEqual(s.time_step, 1 / 120, places=7)
+        self.assertEqual((s.sleep_time, s.max_linear_speed, s.guard_retries), (1.5, 300.0, 1))
+        self.assertTrue(s.sleep)
+        self.assertTrue(s.preset)
+        self.assertGreater(s.solver["iterations"], 0)
+        # The solver's settings are set_solver's keywords.
+        w.set_solver(**s.solver)
+        # A value left out (or None) keeps the world's.
+        w.set_world(sleep=False, gravity=None)
+        s = w.settings()
+        self.assertFalse(s.sleep)
+        self.assertAlmostEqual(s.gravity[2], -1.62, places=6)
+        w.set_gravity((0, 0, -9.81))
+        self.assertAlmostEqual(w.settings().gravity[2], -9.81, places=5)
+        # Refused values change nothing; mistakes are TypeErrors that say where to go.
+        for bad in ({"gravity": (0, 0, math.nan)}, {"time_step": 0.0}, {"guard_retries": 99},
+                    {"aabb_margin": -1.0}):
+            with self.assertRaises(pc.InvalidArgument):
+                w.set_world(**bad)
+        with self.assertRaises(pc.InvalidArgument):
+            w.set_world()
+        self.assertAlmostEqual(w.settings().gravity[2], -9.81, places=5)
+        with self.assertRaises(TypeError) as cm:
+            w.set_solver(gravity=(0, 0, -1))
+        self.assertIn("set_world", str(cm.exception))
+        with self.assertRaises(TypeError):
+            w.set_world(iterations=3)
+        # Another client reads the settings but may not change them.
+        with DAEMON.client(name="settings-other") as other:
+            other.connect()
+            ow = other.world(w.id)
+            self.assertAlmostEqual(ow.settings().gravity[2], -9.81, places=5)
+            with self.assertRaises(pc.PermissionDenied):
+                ow.set_gravity((0, 0, -1))
+
+    def test_a_gravity_change_wakes_a_sleeping_pile(self):
+        w = self.new_world("wake")
+        ids = w.spawn([ground()] + [box(0.5 + i) for i in range(3)])
+        for _ in range(20):
+            if w.info().sleeping_bodies == 3:
+                break
+            w.step(30)
+        self.assertEqual(w.info().sleeping_bodies, 3)
+        x0 = w.query_state(ids[3]).bodies[0].position[0]
+        w.set_gravity((G, 0, -G))
+        self.assertEqual(w.info().sleeping_bodies, 0)
+        w.step(60)
+        self.assertGreater(w.query_state(ids[3]).bodies[0].position[0], x0 + 0.2)
+
+    def test_definitions_read_back(self):
+        w = self.new_world("defs")
+        crate = pc.BodyDef(position=(0, 0, 3), name="crate", linear_damping=0.3,
+                           angular_damping=0.6, gravity_scale=0.5, mass=7.0,
+                           inertia=(1.0, 2.0, 3.0), gyroscopic=False, allow_sleep=False,
+                           shapes=[pc.ShapeDef(pc.ShapeGeom.box((0.5, 0.25, 0.4)),
+                                               material=pc.Material(friction=0.2,
+                                                                    restitution=0.4,
+                                                                    density=700))])
+        ball = pc.BodyDef(position=(2, 0, 3), name="ball", gravity_scale=-0.25,
+                          shapes=[pc.ShapeDef(pc.ShapeGeom.sphere(0.3),
+                                              material=pc.Material(density=1500))])
+        g = ground()
+        g.name = "ground"
+        ids = w.spawn([g, crate, ball])
+        joints = w.add_joints(pc.JointDef(type=pc.JointType.Hinge, body_a=ids[1], body_b=ids[2],
+                                          anchor_a=(1, 0, 0), anchor_b=(-1, 0, 0),
+                                          axis_a=(0, 1, 0), axis_b=(0, 1, 0), name="hinge",
+                                          enable_motor=True, max_motor_force=20.0))
+
+        def check(world, when):
+            bodies = world.all_bodies()
+            self.assertEqual([b.definition.name for b in bodies], ["ground", "crate", "ball"],
+                             when)
+            c = bodies[1].definition
+            self.assertEqual((c.linear_damping, c.angular_damping, c.gravity_scale, c.mass),
+                             (f32(0.3), f32(0.6), 0.5, 7.0), when)
+            self.assertEqual(c.inertia, (1.0, 2.0, 3.0), when)
+            self.assertFalse(c.gyroscopic or c.allow_sleep, when)
+            self.assertAlmostEqual(c.shapes[0].material.restitution, 0.4, places=6)
+            self.assertEqual(c.shapes[0].geom.half_extents, (0.5, 0.25, f32(0.4)))
+            self.assertEqual(bodies[1].mass, 7.0)
+            self.assertEqual(bodies[2].definition.gravity_scale, -0.25)
+            self.assertAlmostEqual(bodies[2].mass, 1500 * 4 / 3 * math.pi * 0.027, places=2)
+            self.assertEqual(bodies[0].definition.type, pc.BodyType.Static)
+            js = world.all_joints()
+            self.assertEqual(len(js), 1)
+            self.assertEqual(js[0].definition.name, "hinge")
+            self.assertEqual(js[0].definition.type, pc.JointType.Hinge)
+            self.assertEqual(js[0].definition.max_motor_force, 20.0)
+            self.assertEqual((js[0].definition.body_a, js[0].definition.body_b),
+                             (bodies[1].id, bodies[2].id))
+
+        check(w, "as spawned")
+        page = w.get_bodies(first=1, max_count=1)
+        self.assertEqual((page.total, len(page)), (3, 1))
+        self.assertEqual(page.bodies[0].definition.name, "crate")
+        self.assertEqual(w.get_bodies([ids[2], ids[0]]).bodies[1].definition.name, "ground")
+        self.assertEqual(w.get_joints(joints).joints[0].id, joints[0])
+        with self.assertRaises(pc.NotFound):
+            w.get_bodies(0x99900000001)
+        # An engine snapshot restored into another world: every field.
+        snap = w.save_snapshot()
+        w2 = self.new_world("defs-restored")
+        w2.restore_snapshot(snap)
+        check(w2, "after an engine snapshot restore")
 
     # -- errors ------------------------------------------------------------------------------
 
