@@ -68,7 +68,7 @@ Status World::setSleepSettings(const SleepSettings& s) {
   const SleepSettings& old = impl_->def.sleep;
   if (!s.enabled || s.time != old.time || s.linearSpeed != old.linearSpeed ||
       s.angularSpeed != old.angularSpeed)
-    impl_->wakeAll();
+    impl_->wakeEverything();
   impl_->def.sleep = s;
   return st;
 }
@@ -201,6 +201,11 @@ void World::Impl::wakeIsland(int32_t k) {
 void World::Impl::wakeAll() {
   for (size_t k = 0; k < islands.size(); ++k)
     if (!islands[k].bodies.empty()) wakeIsland(int32_t(k));
+}
+
+void World::Impl::wakeEverything() {
+  wakeAll();
+  for (uint32_t slot : awakeBodies) bodies.at(slot).sleepTime = 0;
 }
 
 void World::Impl::wake(uint32_t slot) {

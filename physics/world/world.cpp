@@ -183,7 +183,7 @@ Status World::setGravity(Vec3 g) {
   if (!isFinite(g)) return invalid("gravity must be finite");
   if (!(g == impl_->def.gravity)) {
     impl_->forgetStacks();
-    impl_->wakeAll();
+    impl_->wakeEverything();
   }
   impl_->def.gravity = g;
   impl_->deviceStale();
@@ -193,7 +193,7 @@ Status World::setTimeStep(float dt) {
   if (!(finite(dt) && dt > 0 && dt <= 1)) return invalid("time step must be in (0, 1] s");
   if (dt != impl_->def.timeStep) {
     impl_->forgetStacks();
-    impl_->wakeAll();
+    impl_->wakeEverything();
   }
   impl_->def.timeStep = dt;
   return Status::Ok();
@@ -205,7 +205,7 @@ Status World::setSolverSettings(const SolverSettings& s) {
   if (s.stackStiffening != old.stackStiffening || s.contactHertz != old.contactHertz ||
       s.substeps != old.substeps)
     impl_->forgetStacks();
-  if (std::memcmp(&s, &old, sizeof s) != 0) impl_->wakeAll();
+  if (std::memcmp(&s, &old, sizeof s) != 0) impl_->wakeEverything();
   impl_->def.solver = s;
   return st;
 }
@@ -251,7 +251,7 @@ Status World::setDef(const WorldDef& next) {
   setTimeStep(d.timeStep);
   setSolverSettings(d.solver);
   setSleepSettings(d.sleep);
-  if (margins) w.wakeAll();  // the sleepers' contacts and fat boxes were found with the old ones
+  if (margins) w.wakeEverything();  // the sleepers' contacts and boxes were found with the old ones
   w.def.maxLinearSpeed = d.maxLinearSpeed;
   w.def.maxAngularSpeed = d.maxAngularSpeed;
   w.def.speculativeDistance = d.speculativeDistance;

@@ -195,6 +195,10 @@ struct World::Impl {
   /// again, their contacts rejoin the list. Inside a step the guard's copy gets them too.
   void wakeIsland(int32_t k);
   void wakeAll();
+  /// A change of a setting every body feels (gravity, time step, solver, sleep thresholds,
+  /// margins): wakes every island and resets the rest timer of every awake body too, so that
+  /// none falls asleep on time it rested under the old setting before the new one moved it.
+  void wakeEverything();
   /// An edit of body `slot`: wakes its island and resets its timer.
   void wake(uint32_t slot);
   /// ... and wakes whatever its shapes' fat boxes overlap and whatever is jointed to it (the

@@ -134,6 +134,24 @@ TEST(WorldSettings, AGravityChangeWakesEveryBody) {
   EXPECT_GT(test::stateOf(w, column.back()).position.x, x0 + 0.01f);
 }
 
+TEST(WorldSettings, ABodyAboutToSleepGetsTheWholeSleepTimeUnderTheNewGravity) {
+  // A flat box at rest, awake, its rest timer 27 steps into the 30 it needs. Gravity then
+  // pulls sideways a little past what friction holds (friction 0.6: 5.9 m/s^2): it starts
+  // sliding slowly (0.5 m/s^2). Had it kept its timer it would fall asleep three steps later,
+  // still slower than the sleep threshold, and hang on the slope of the new gravity.
+  World w(sleepy());
+  addGround(w);
+  const BodyId box = addBody(w, boxBody({0, 0, 0.1f}, {0.5f, 0.5f, 0.1f}));
+  for (int i = 0; i < 27; ++i) w.step();
+  ASSERT_FALSE(w.isSleeping(box));
+  WorldDef d = w.def();
+  d.gravity = {6.4f, 0, -9.81f};
+  ASSERT_TRUE(w.setDef(d).ok());
+  for (int i = 0; i < 60; ++i) w.step();
+  EXPECT_GT(test::stateOf(w, box).position.x, 0.1f);
+  EXPECT_FALSE(w.isSleeping(box));
+}
+
 TEST(WorldSettings, ChangesWakeWhatTheyAffectAndNoMore) {
   struct Case {
     const char* what;

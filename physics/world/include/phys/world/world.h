@@ -288,6 +288,8 @@ class World {
   World& operator=(const World&) = delete;
 
   const WorldDef& def() const;
+  /// A change of gravity or of the time step wakes every body: sleeping ones, and the rest
+  /// timers of the awake ones start again.
   Status setGravity(Vec3 g);
   Status setTimeStep(float dt);
   Status setSolverSettings(const SolverSettings& s);
@@ -297,7 +299,7 @@ class World {
   /// Validates solver settings without applying them.
   static Status validate(const SolverSettings& s);
   /// Sleeping on or off and its thresholds (time > 0, speeds >= 0, finite). Turning it off,
-  /// or changing a threshold, wakes every sleeping body.
+  /// or changing a threshold, wakes every body (as setGravity).
   Status setSleepSettings(const SleepSettings& s);
   static Status validate(const SleepSettings& s);
   /// Every setting of a living world at once, all-or-nothing: what differs between d and
@@ -307,7 +309,8 @@ class World {
   /// has them, or nothing changes (InvalidArgument). Each change wakes what it affects:
   /// gravity, the time step, solver settings (as setSolverSettings), sleeping turned off or
   /// its thresholds (as setSleepSettings) and the collision margins (a sleeping island keeps
-  /// the contacts found with the old ones) wake every sleeping body; the speed clamps, the
+  /// the contacts found with the old ones) wake every sleeping body and restart every awake
+  /// body's rest timer (none falls asleep on rest it had before the change); the speed clamps, the
   /// guard and the contact budget wake none (a sleeping body has no speed, is not stepped and
   /// adds no pairs). Lowered clamps apply from the next step on, which clamps faster bodies
   /// (and the guard, on, takes a body at its clamp for one that blew up: it stops it).
