@@ -107,6 +107,64 @@ struct type_caster<phys::Quat> {
   }
 };
 
+// The module's enums (py::enum_: BodyType, JointType, PointFrame, ...) as arguments and
+// attributes: a member (BodyType.Static) or its name as a string in any case
+// (BodyDef(type="static"), apply_force(..., frame="world")). Anything else raises one
+// sentence naming the valid values: ValueError for an unknown name, TypeError for another
+// type, instead of pybind11's listing of the function's signatures. The error is thrown from
+// load(), which pybind11 lets through as the call's exception; it is only thrown in the
+// converting pass (the functions that take these enums have no overloads to try next).
+std::string lowerAscii(std::string s) {
+  for (char& c : s)
+    if (c >= 'A' && c <= 'Z') c = char(c - 'A' + 'a');
+  return s;
+}
+
+template <class E>
+struct named_enum_caster : type_caster_base<E> {
+  E named{};
+  bool load(handle src, bool convert) {
+    if (type_caster_base<E>::load(src, convert)) return true;
+    if (!convert || !src) return false;
+    const type_info* ti = get_type_info(typeid(E));
+    if (!ti) return false;  // not bound (yet): as pybind11 would
+    const handle type(reinterpret_cast<PyObject*>(ti->type));
+    const std::string typeName = type.attr("__name__").cast<std::string>();
+    const dict members = type.attr("__members__");
+    std::string names;
+    size_t i = 0;
+    for (auto item : members) {
+      names += (i == 0 ? "" : i + 1 == members.size() ? " or " : ", ");
+      names += typeName + "." + std::string(str(item.first));
+      ++i;
+    }
+    if (PyUnicode_Check(src.ptr())) {
+      const std::string given = src.cast<std::string>();
+      for (auto item : members) {
+        if (lowerAscii(std::string(str(item.first))) == lowerAscii(given)) {
+          named = item.second.template cast<E>();
+          this->value = &named;
+          return true;
+        }
+      }
+      throw value_error("physclient: '" + given + "' is not a " + typeName + ": use " + names +
+                        " (or the name as a string)");
+    }
+    throw type_error("physclient: expected a " + typeName + " (" + names +
+                     ", or the name as a string), not " +
+                     std::string(str(type::handle_of(src).attr("__name__"))));
+  }
+};
+
+template <>
+struct type_caster<phys::BodyType> : named_enum_caster<phys::BodyType> {};
+template <>
+struct type_caster<phys::JointType> : named_enum_caster<phys::JointType> {};
+template <>
+struct type_caster<phys::ShapeType> : named_enum_caster<phys::ShapeType> {};
+template <>
+struct type_caster<phys::client::PointFrame> : named_enum_caster<phys::client::PointFrame> {};
+
 }  // namespace pybind11::detail
 
 namespace {
