@@ -811,6 +811,109 @@ void closeAllClients() {
   for (auto& b : boxes) closeBox(*b);
 }
 
+// ---------------------------------------------------------------------------------------------
+// StateFrame as a sequence of its bodies (defineFrameSequence): len(frame), frame[i] (negative
+// too) and frame[a:b] (a list), `for body in frame`, frame.get(id), `id in frame`. Each gives
+// copies of BodyState, as frame.bodies does, but without copying the whole list first:
+// frame[i] and frame.get(id) cost one body. frame.array() stays the fast path for every body
+// at once.
+
+/// The position of body `id` in f.bodies, or -1. A subscription's frames and a query_state
+/// answer for every body are in index order (the id's low 32 bits, docs/CLIENT.md), so a
+/// binary search by index finds a body in O(log n); an answer for given ids is in their
+/// order, so a miss falls back to a scan (an absent id costs one).
+ptrdiff_t bodyPosition(const pc::StateFrame& f, uint64_t id) {
+  const std::vector<pc::BodyState>& b = f.bodies;
+  const uint32_t index = uint32_t(id);
+  size_t lo = 0, hi = b.size();
+  while (lo < hi) {
+    const size_t mid = lo + (hi - lo) / 2;
+    if (uint32_t(b[mid].id) < index)
+      lo = mid + 1;
+    else
+      hi = mid;
+  }
+  if (lo < b.size() && b[lo].id == id) return ptrdiff_t(lo);
+  for (size_t i = 0; i < b.size(); ++i)
+    if (b[i].id == id) return ptrdiff_t(i);
+  return -1;
+}
+
+py::object bodyCopy(const pc::BodyState& b) { return py::cast(b, py::return_value_policy::copy); }
+
+void defineFrameSequence(py::module_& m) {
+  auto frame = py::reinterpret_borrow<py::class_<pc::StateFrame>>(m.attr("StateFrame"));
+  frame
+      .def(
+          "__getitem__",
+          [](const pc::StateFrame& f, const py::object& key) -> py::object {
+            const auto n = py::ssize_t(f.bodies.size());
+            if (PySlice_Check(key.ptr())) {
+              py::ssize_t start = 0, stop = 0, step = 0, count = 0;
+              if (!key.cast<py::slice>().compute(n, &start, &stop, &step, &count))
+                throw py::error_already_set();
+              py::list out(count);
+              for (py::ssize_t i = 0; i < count; ++i)
+                out[size_t(i)] = bodyCopy(f.bodies[size_t(start + i * step)]);
+              return out;
+            }
+            if (!PyIndex_Check(key.ptr()))
+              throw py::type_error(
+                  "physclient: a StateFrame is indexed by position (an int) or a slice, not " +
+                  std::string(py::str(py::type::handle_of(key).attr("__name__"))) +
+                  "; frame.get(id) looks a body up by its id");
+            py::ssize_t i = PyNumber_AsSsize_t(key.ptr(), nullptr);  // clipped when huge
+            if (i == -1 && PyErr_Occurred()) throw py::error_already_set();
+            if (i < 0) i += n;
+            if (i < 0 || i >= n)
+              throw py::index_error("physclient: StateFrame index " +
+                                    std::string(py::str(key)) + " out of range (" +
+                                    std::to_string(n) +
+                                    " bodies); frame.get(id) looks a body up by its id");
+            return bodyCopy(f.bodies[size_t(i)]);
+          },
+          py::arg("index"),
+          "frame[i]: the i-th body (BodyState; negative from the end); frame[a:b]: a list.")
+      .def(
+          "__iter__",
+          [](const pc::StateFrame& f) {
+            return py::make_iterator<py::return_value_policy::copy>(f.bodies.begin(),
+                                                                    f.bodies.end());
+          },
+          py::keep_alive<0, 1>(), "The bodies in order (BodyState, a copy each).")
+      .def(
+          "get",
+          [](const pc::StateFrame& f, uint64_t id, const py::object& dflt) -> py::object {
+            const ptrdiff_t i = bodyPosition(f, id);
+            return i < 0 ? dflt : bodyCopy(f.bodies[size_t(i)]);
+          },
+          py::arg("id"), py::arg("default") = py::none(),
+          "The state of body `id` (BodyState), or default (None) when the frame lacks it.")
+      .def(
+          "__contains__",
+          [](const pc::StateFrame& f, const py::object& what) {
+            if (py::isinstance<pc::BodyState>(what))
+              return bodyPosition(f, what.cast<const pc::BodyState&>().id) >= 0;
+            if (!PyLong_Check(what.ptr())) return false;
+            const uint64_t id = PyLong_AsUnsignedLongLong(what.ptr());
+            if (PyErr_Occurred()) {  // negative or past 64 bits: no body has it
+              PyErr_Clear();
+              return false;
+            }
+            return bodyPosition(f, id) >= 0;
+          },
+          "`id in frame`: whether the frame holds that body (an id, or a BodyState's id).")
+      .def_property_readonly(
+          "stamp",
+          [](const pc::StateFrame& f) -> py::object {
+            if (f.stampNs == 0) return py::none();
+            return py::float_(double(f.stampNs) * 1e-9);
+          },
+          "When the server read these states, in seconds since the Unix epoch (as time.time());\n"
+          "None when the server sent no time (stamp_ns 0). time.time() - frame.stamp is the\n"
+          "frame's age (same host or synced clocks).");
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------
@@ -1541,6 +1644,9 @@ PYBIND11_MODULE(physclient, m) {
           py::return_value_policy::take_ownership, "World(world).subscribe(callback).")
       .def("__enter__", [](py::object self) { return self; })
       .def("__exit__", [](PyClient& c, py::args) { c.close(); });
+
+  // StateFrame as a sequence (issue 40).
+  defineFrameSequence(m);
 
   // Clients still open at exit are closed before Python finalizes (their threads joined, so no
   // callback runs into a finalizing interpreter).
