@@ -701,6 +701,13 @@ class PyWorld {
   PyWorld(BoxPtr box, uint32_t id) : box_(std::move(box)), id_(id) {}
   uint32_t id() const { return id_; }
   const BoxPtr& box() const { return box_; }
+  /// Made by create_world() (or create_world_async()): the end of a `with` block destroys it
+  /// (defineWorldContext).
+  bool created() const { return created_; }
+  PyWorld& markCreated() {
+    created_ = true;
+    return *this;
+  }
 
   template <class F>
   auto req(std::optional<double> timeout, F&& f) {
@@ -740,6 +747,7 @@ class PyWorld {
  private:
   BoxPtr box_;
   uint32_t id_;
+  bool created_ = false;
 };
 
 class PyClient {
@@ -1480,7 +1488,7 @@ void defineAsync(py::module_& m) {
             return submitAsync(
                 box, [&](pc::Client& cl) { return cl.createWorld(a, o); },
                 [box](pc::WorldHandle h) -> py::object {
-                  return py::cast(PyWorld(box, h.id()));
+                  return py::cast(PyWorld(box, h.id()).markCreated());
                 });
           },
           py::arg("name"), py::arg("preset") = "", py::kw_only(), py::arg("gravity") = py::none(),
@@ -1528,6 +1536,53 @@ void defineAsync(py::module_& m) {
           },
           "`async for frame in sub`: each frame with a later tick than the one before (the\n"
           "first: the newest received, if any); ends when the subscription is closed.");
+}
+
+// ---------------------------------------------------------------------------------------------
+// World as a context manager (docs/PYTHON.md "Worlds are durable"): the end of a `with` (or
+// `async with`) block destroys a world that this World object created (create_world,
+// create_world_async), so that a script leaves no world on the daemon, in memory or on its
+// disk, unless it keeps one on purpose; a NotFound then (destroyed already, e.g. inside the
+// block) is not an error. A World for an existing world (world(id), world_named()) is left as
+// it is: the world may be another client's or shared, and destroying it cannot be undone.
+
+/// An asyncio.Future of the running loop with this result already.
+py::object resolvedFuture(py::object value) {
+  py::object future = loopAndFuture().second;
+  future.attr("set_result")(std::move(value));
+  return future;
+}
+
+void defineWorldContext(py::module_& m) {
+  auto world = py::reinterpret_borrow<py::class_<PyWorld>>(m.attr("World"));
+  world
+      .def_property_readonly(
+          "created", &PyWorld::created,
+          "Whether this World was made by create_world(): the end of a `with` block destroys\n"
+          "it.")
+      .def("__enter__", [](py::object self) { return self; })
+      .def(
+          "__exit__",
+          [](PyWorld& w, const py::args&) {
+            if (!w.created()) return;
+            try {
+              w.req(std::nullopt,
+                    [](pc::WorldHandle h, pc::CallOptions o) { return h.destroy(o); });
+            } catch (const pc::Error& e) {
+              if (e.code() != pc::ErrorCode::NotFound) throw;
+            }
+          },
+          "Destroys the world if this World created it (see created).")
+      .def("__aenter__", [](py::object self) { return resolvedFuture(std::move(self)); })
+      .def(
+          "__aexit__",
+          [](PyWorld& w, const py::args&) {
+            if (!w.created()) return resolvedFuture(py::none());
+            return worldAsync(
+                w, std::nullopt, [](pc::WorldHandle h, pc::CallOptions o) { return h.destroy(o); },
+                [](pc::Ack) { return py::object(py::none()); }, true);
+          },
+          "Destroys the world without blocking if this World created it (see created).");
 }
 
 }  // namespace
@@ -2212,7 +2267,7 @@ PYBIND11_MODULE(physclient, m) {
             a.shared = shared;
             pc::WorldHandle h = request(
                 c.box(), [&](pc::Client& cl) { return cl.createWorld(a, callOptions(t)); });
-            return PyWorld(c.box(), h.id());
+            return PyWorld(c.box(), h.id()).markCreated();
           },
           py::arg("name"), py::arg("preset") = "", py::kw_only(), py::arg("gravity") = py::none(),
           py::arg("time_step") = 0.0f, py::arg("backend") = "", py::arg("sleep") = true,
@@ -2261,9 +2316,10 @@ PYBIND11_MODULE(physclient, m) {
       .def("__enter__", [](py::object self) { return self; })
       .def("__exit__", [](PyClient& c, py::args) { c.close(); });
 
-  // StateFrame as a sequence, asyncio (issue 40).
+  // StateFrame as a sequence, asyncio, World as a context manager (issue 40).
   defineFrameSequence(m);
   defineAsync(m);
+  defineWorldContext(m);
 
   // Clients still open at exit are closed before Python finalizes (their threads joined, so no
   // callback runs into a finalizing interpreter); then the asyncio Completer stops (what the
