@@ -1241,9 +1241,9 @@ void defineAsync(py::module_& m) {
           "info_async",
           [](PyWorld& w, OptS t) {
             const uint32_t id = w.id();
+            const pc::CallOptions o = callOptions(t);
             return submitAsync(
-                w.box(),
-                [&](pc::Client& c) { return c.listWorlds(callOptions(t)); },
+                w.box(), [&](pc::Client& c) { return c.listWorlds(o); },
                 [id](std::vector<pc::WorldSummary> all) -> py::object {
                   for (pc::WorldSummary& s : all)
                     if (s.world == id) return py::cast(std::move(s));
