@@ -865,6 +865,20 @@ ptrdiff_t bodyPosition(const pc::StateFrame& f, uint64_t id) {
   return -1;
 }
 
+/// An int as a body id; nullopt for one no body has (negative, past 64 bits). TypeError for
+/// anything but an int.
+std::optional<uint64_t> bodyIdOf(const py::object& id) {
+  if (!PyLong_Check(id.ptr()))
+    throw py::type_error("physclient: a body id is an int, not " +
+                         std::string(py::str(py::type::handle_of(id).attr("__name__"))));
+  const uint64_t v = PyLong_AsUnsignedLongLong(id.ptr());
+  if (PyErr_Occurred()) {
+    PyErr_Clear();
+    return std::nullopt;
+  }
+  return v;
+}
+
 py::object bodyCopy(const pc::BodyState& b) { return py::cast(b, py::return_value_policy::copy); }
 
 void defineFrameSequence(py::module_& m) {
@@ -909,8 +923,9 @@ void defineFrameSequence(py::module_& m) {
           py::keep_alive<0, 1>(), "The bodies in order (BodyState, a copy each).")
       .def(
           "get",
-          [](const pc::StateFrame& f, uint64_t id, const py::object& dflt) -> py::object {
-            const ptrdiff_t i = bodyPosition(f, id);
+          [](const pc::StateFrame& f, const py::object& id, const py::object& dflt) -> py::object {
+            const std::optional<uint64_t> v = bodyIdOf(id);
+            const ptrdiff_t i = v ? bodyPosition(f, *v) : -1;
             return i < 0 ? dflt : bodyCopy(f.bodies[size_t(i)]);
           },
           py::arg("id"), py::arg("default") = py::none(),
@@ -921,12 +936,8 @@ void defineFrameSequence(py::module_& m) {
             if (py::isinstance<pc::BodyState>(what))
               return bodyPosition(f, what.cast<const pc::BodyState&>().id) >= 0;
             if (!PyLong_Check(what.ptr())) return false;
-            const uint64_t id = PyLong_AsUnsignedLongLong(what.ptr());
-            if (PyErr_Occurred()) {  // negative or past 64 bits: no body has it
-              PyErr_Clear();
-              return false;
-            }
-            return bodyPosition(f, id) >= 0;
+            const std::optional<uint64_t> id = bodyIdOf(what);
+            return id && bodyPosition(f, *id) >= 0;
           },
           "`id in frame`: whether the frame holds that body (an id, or a BodyState's id).")
       .def_property_readonly(

@@ -95,6 +95,10 @@ class FrameSequence(WithClient):
         self.assertEqual(f.get(ids[3]).position, f.bodies[3].position)
         self.assertIsNone(f.get(ids[1] + (7 << 32)))             # another generation
         self.assertEqual(f.get(12345, "none"), "none")
+        self.assertIsNone(f.get(-1))
+        self.assertIsNone(f.get(1 << 70))
+        with self.assertRaises(TypeError):
+            f.get("a")
         self.assertNotIn(12345, f)
         self.assertNotIn(-1, f)
         self.assertIn(f[2], f)                                   # a BodyState: by its id
@@ -421,7 +425,8 @@ class Asyncio(WithClient):
                 twin = getattr(cls, name + "_async", None)
                 self.assertIsNotNone(
                     twin, f"{cls.__name__}.{name} has no {name}_async: add one in the asyncio "
-                          "block of physclient_module.cpp (defineAsync), as step_async")
+                          "block of physclient_module.cpp (defineAsync), as step_async, and to "
+                          "docs/PYTHON.md's list (or, if it makes no request, to no_twin here)")
                 # The same parameters (pybind11's signature line, up to the return type).
                 sig = getattr(cls, name).__doc__.splitlines()[0]
                 twin_sig = twin.__doc__.splitlines()[0]
