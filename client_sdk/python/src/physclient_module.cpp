@@ -845,7 +845,7 @@ void closeAllClients() {
 // at once.
 
 /// The position of body `id` in f.bodies, or -1. A subscription's frames and a query_state
-/// answer for every body are in index order (the id's low 32 bits, docs/CLIENT.md), so a
+/// answer for every body are in index order (the id's low 32 bits: client.h, PROTOCOL.md), so a
 /// binary search by index finds a body in O(log n); an answer for given ids is in their
 /// order, so a miss falls back to a scan (an absent id costs one).
 ptrdiff_t bodyPosition(const pc::StateFrame& f, uint64_t id) {
