@@ -819,6 +819,9 @@ double ServerCore::secondsUntilDue(double idle) const {
   double best = idle;
   for (auto& [id, w] : worlds_) {
     if (w->mode == RunMode::AsFastAsPossible || w->job) return 0;
+    // Commands that waited for a job that has ended: the next tick applies them (not after a
+    // sleep of up to `idle` each, which held requests pipelined to one world to ~50 a second).
+    if (!w->busy() && !w->waiting.empty()) return 0;
     if (w->load) best = std::min(best, 0.001);  // look for the loader's result soon
     if (w->mode == RunMode::RealTime) {
       double s = std::max(0.0, (1.0 - w->accumulator) / w->rateHz);
