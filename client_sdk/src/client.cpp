@@ -13,6 +13,7 @@
 #include <deque>
 #include <map>
 #include <mutex>
+#include <random>
 #include <set>
 #include <thread>
 
@@ -430,9 +431,26 @@ struct Client::Impl {
     Clock::time_point deadline;
     bool sentWithServer = false;
     std::function<void(const wire::Reply*, const Error*)> done;
+    /// The command as sent, kept to send it again after a refusal at the door (retryBusy).
+    std::shared_ptr<const protocol::Bytes> bytes;
+    uint32_t retries = 0;  ///< times refused at the door so far
+    /// In the backlog (see `held`): not (or no longer) at the daemon, sent by the SDK thread
+    /// at `sendAt` at the earliest.
+    bool held = false;
+    Clock::time_point sendAt{};
   };
   std::mutex pendMutex;
-  std::map<uint64_t, Pending> pending;
+  std::map<uint64_t, Pending> pending;  ///< by seq, so in the order they were made
+  /// The backlog of refusals at the door (retryBusy), under pendMutex: from a client's first
+  /// refusal until its backlog is empty, its requests go out one at a time, in order (the
+  /// refused ones again after the wait the daemon names, the ones made meanwhile behind
+  /// them), each when the one before it is answered. A daemon counts no command against a
+  /// client's rate while none of its others waits, so the backlog drains at the round trip's
+  /// pace without being refused again, and a client refused for sending ahead cannot keep
+  /// flooding by retrying.
+  size_t held = 0;           ///< entries of `pending` held
+  uint64_t backlogSeq = 0;   ///< the backlog's request at the daemon now (0: none)
+  bool backlogged() const { return held > 0 || backlogSeq != 0; }  // pendMutex held
 
   mutable std::mutex infoMutex;
   ServerInfo server;
@@ -527,16 +545,31 @@ struct Client::Impl {
             std::function<void(const wire::Reply*, const Error*)> done) {
     const bool hello = b.requestCount() == 1 && b.requestType(0) == wire::Request::Hello;
     const uint64_t s = ++seq;
-    protocol::Bytes bytes = b.finish({clientId, s, world});
+    auto bytes = std::make_shared<const protocol::Bytes>(b.finish({clientId, s, world}));
+    bool later = false;
     {
       std::lock_guard<std::mutex> lk(pendMutex);
-      pending[s] = {Clock::now() + timeout, serversMatched.load() > 0, done};
+      Pending& p = pending[s];
+      p.deadline = Clock::now() + timeout;
+      p.sentWithServer = serversMatched.load() > 0;
+      p.done = done;
+      if (options.retryBusy) p.bytes = bytes;
+      if (options.retryBusy && backlogged()) {
+        // Behind the requests the daemon refused: the SDK thread sends it in its turn.
+        p.held = later = true;
+        p.sentWithServer = true;  // not lost to a missing daemon: sent later
+        ++held;
+      }
+    }
+    if (later) {
+      waitset.wake();
+      return;
     }
     dds_return_t rc;
     {
       std::lock_guard<std::mutex> lk(writeMutex);
       proveToNewDaemons(hello);
-      rc = cmdWriter.write(clientId, bytes, s);
+      rc = cmdWriter.write(clientId, *bytes, s);
     }
     if (rc < 0) {
       bool mine = false;
@@ -561,7 +594,7 @@ struct Client::Impl {
       try {
         if (e) throw *e;
         if (r->status() != wire::StatusCode::Ok)
-          throw Error(ErrorCode(uint8_t(r->status())), str(r->message()));
+          throw Error(ErrorCode(uint8_t(r->status())), str(r->message()), r->retry_after_ms());
         prom->set_value(parse(*r));
       } catch (...) {
         prom->set_exception(std::current_exception());
@@ -638,6 +671,7 @@ struct Client::Impl {
           ++it;
           continue;
         }
+        if (it->second.held) --held;
         failed.push_back(std::move(it->second));
         it = pending.erase(it);
       }
@@ -656,7 +690,22 @@ struct Client::Impl {
       {
         std::lock_guard<std::mutex> lk(pendMutex);
         auto it = pending.find(r.ok() ? r->seq() : env.seq);
-        if (it == pending.end()) return;
+        if (it == pending.end() || it->second.held) return;  // not this send's answer
+        if (it->first == backlogSeq) backlogSeq = 0;  // the next of the backlog may go
+        if (r.ok() && it->second.bytes && r->status() == wire::StatusCode::ResourceExhausted &&
+            r->retry_after_ms() > 0) {
+          // Refused at the door, nothing done: into the backlog, to go again after the wait
+          // the daemon names and a backoff, if that is before the request's deadline.
+          Pending& q = it->second;
+          const auto wait = retryWait(q.retries, r->retry_after_ms());
+          if (Clock::now() + wait < q.deadline) {
+            ++q.retries;
+            q.held = true;
+            q.sendAt = Clock::now() + wait;
+            ++held;
+            return;
+          }
+        }
         p = std::move(it->second);
         pending.erase(it);
       }
@@ -821,6 +870,61 @@ struct Client::Impl {
     }
   }
 
+  /// How long to wait before sending a refused command again: what the daemon says, and at
+  /// least 1, 2, 4, ... up to 200 ms as it keeps refusing; times 1 to 1.5 at random, so that
+  /// clients refused together do not come back together.
+  std::chrono::microseconds retryWait(uint32_t retries, uint32_t afterMs) {
+    const double backoffMs = double(1u << std::min(retries, 8u));
+    const double ms = std::max(double(afterMs), std::min(backoffMs, 200.0));
+    std::uniform_real_distribution<double> jitter(1.0, 1.5);
+    return std::chrono::microseconds(int64_t(ms * 1000 * jitter(rng)));
+  }
+  std::minstd_rand rng{std::random_device{}()};  ///< SDK thread only (retryWait)
+
+  /// The backlog's next request, when the one before it was answered and its wait is over
+  /// (SDK thread); returns when to look again (Clock::time_point::max(): at the next reply).
+  Clock::time_point sendBacklog() {
+    uint64_t s = 0;
+    std::shared_ptr<const protocol::Bytes> bytes;
+    {
+      std::lock_guard<std::mutex> lk(pendMutex);
+      if (backlogSeq != 0 && !pending.count(backlogSeq)) backlogSeq = 0;  // failed, expired
+      if (held == 0 || backlogSeq != 0) return Clock::time_point::max();
+      auto it = std::find_if(pending.begin(), pending.end(),
+                             [](const auto& e) { return e.second.held; });
+      if (it == pending.end()) {  // never expected: the count is kept with the flags
+        held = 0;
+        return Clock::time_point::max();
+      }
+      if (it->second.sendAt > Clock::now()) return it->second.sendAt;
+      s = it->first;
+      bytes = it->second.bytes;
+      it->second.held = false;
+      it->second.sentWithServer = serversMatched.load() > 0;
+      --held;
+      backlogSeq = s;
+    }
+    dds_return_t rc;
+    {
+      std::lock_guard<std::mutex> lk(writeMutex);
+      proveToNewDaemons(false);
+      rc = cmdWriter.write(clientId, *bytes, s);
+    }
+    if (rc >= 0) return Clock::time_point::max();
+    Pending p;
+    {
+      std::lock_guard<std::mutex> lk(pendMutex);
+      auto it = pending.find(s);
+      if (it == pending.end()) return Clock::now();
+      p = std::move(it->second);
+      pending.erase(it);
+      backlogSeq = 0;
+    }
+    Error e(ErrorCode::Transport, "dds_write on phys/cmd: " + dds::error(rc));
+    p.done(nullptr, &e);
+    return Clock::now();  // the next one now
+  }
+
   void expire() {
     const auto now = Clock::now();
     std::vector<Pending> expired;
@@ -828,6 +932,7 @@ struct Client::Impl {
       std::lock_guard<std::mutex> lk(pendMutex);
       for (auto it = pending.begin(); it != pending.end();) {
         if (it->second.deadline <= now) {
+          if (it->second.held) --held;
           expired.push_back(std::move(it->second));
           it = pending.erase(it);
         } else {
@@ -838,12 +943,21 @@ struct Client::Impl {
     if (expired.empty()) return;  // the usual case: runs after every wake-up
     Error e(ErrorCode::Timeout, "no reply from physd within the request's timeout (domain " +
                                     std::to_string(options.domain) + ")");
-    for (auto& p : expired) p.done(nullptr, &e);
+    Error behind(ErrorCode::Timeout,
+                 "still waiting behind requests physd refused at the door (its rate and queue "
+                 "budgets: docs/CLIENT.md \"Rate limits\") at the request's timeout");
+    for (auto& p : expired) p.done(nullptr, p.held ? &behind : &e);
   }
 
   void loop() {
+    auto resendAt = Clock::time_point::max();
     while (!stop) {
-      waitset.wait(DDS_MSECS(50));
+      // Up to 50 ms, or until a refused command is due again.
+      auto wait = std::chrono::milliseconds(50);
+      if (resendAt != Clock::time_point::max())
+        wait = std::clamp(std::chrono::ceil<std::chrono::milliseconds>(resendAt - Clock::now()),
+                          std::chrono::milliseconds(0), wait);
+      waitset.wait(DDS_MSECS(wait.count()));
       if (stop) break;
       takeReplies();
       takeStatus();
@@ -851,6 +965,7 @@ struct Client::Impl {
       takeStates();
       checkServers();
       expire();
+      resendAt = sendBacklog();
     }
   }
 

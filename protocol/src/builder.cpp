@@ -510,7 +510,7 @@ namespace {
 Bytes finishReply(Fbb& fbb, const ReplyHeader& h, wire::Result type, Offset<void> result) {
   auto message = optString(fbb, h.status.message);
   auto root = wire::CreateReply(fbb, h.clientId, h.seq, h.status.code, message, h.world, h.tick,
-                                type, result);
+                                type, result, h.retryAfterMs);
   return finishBytes(fbb, root, wire::kReplyId);
 }
 

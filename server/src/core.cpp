@@ -73,9 +73,9 @@ void ServerCore::finishLoad(ServerWorld& w) {
   h.tick = w.tick;
   if (!st.ok()) ++counters_.errors;
   h.status = st;
+  release(job.envelopeKey, job.sender, job.charge);  // before the reply (applyNow)
   pushReply(job.envelopeKey, job.envelopeSeq,
             st.ok() ? protocol::encodeIdsReply(h, bodies, joints) : protocol::encodeReply(h));
-  release(job.envelopeKey, job.sender, job.charge);
 }
 
 Status ServerCore::init() {
@@ -196,6 +196,7 @@ void ServerCore::setSubscribers(uint32_t world, uint32_t interest, uint32_t n) {
 
 void ServerCore::submit(Incoming in) {
   std::string refused;
+  uint32_t retryMs = 0;  // when the same command may come again (Reply.retry_after_ms)
   bool answer = true;
   {
     std::lock_guard<std::mutex> lock(inboxMutex_);
@@ -214,49 +215,69 @@ void ServerCore::submit(Incoming in) {
     Pending& p = pendingPerClient_[in.envelopeKey];
     RateBucket& bucket = bucketOf(in.envelopeKey, now);
     const uint64_t bytes = queueCharge(in);
-    if (sender && !sender->commands.ready(config_.maxParticipantCommandsPerS,
-                                          config_.maxParticipantBurst, now))
+    // The rates count only the commands sent while some of the sender's are still waiting
+    // to be answered: a client with one request in flight (a synchronous loop, however fast
+    // its round trip) cannot flood, since the queue is first come, first served and it is
+    // never in it twice; what it may cost is one command's turn at a time. A client that
+    // sends ahead of its replies is counted (docs/SERVER.md "Budgets").
+    const bool clientIdle = p.commands == 0;
+    const bool senderIdle = !sender || sender->pending.commands == 0;
+    // How long until a bucket has its next token, in whole ms (at least 1).
+    auto wait = [&](const RateBucket& b, double rate) {
+      return uint32_t(std::clamp(std::ceil((1 - b.tokens) / rate * 1000), 1.0, 60000.0));
+    };
+    if (sender && !senderIdle &&
+        !sender->commands.ready(config_.maxParticipantCommandsPerS,
+                                config_.maxParticipantBurst, now)) {
+      retryMs = wait(sender->commands, config_.maxParticipantCommandsPerS);
       refused = "this participant (client " + std::to_string(in.envelopeKey) +
                 " and any other ids it writes under) sends more than " +
                 std::to_string(int64_t(config_.maxParticipantCommandsPerS)) +
                 " commands a second (server.max_participant_commands_per_s, bursts of " +
                 std::to_string(int64_t(config_.maxParticipantBurst)) +
-                ": server.max_participant_burst); slow down";
-    else if (!bucket.ready(config_.maxClientCommandsPerS, config_.maxClientBurst, now))
+                ": server.max_participant_burst) while it has commands waiting; slow down";
+    } else if (!clientIdle &&
+               !bucket.ready(config_.maxClientCommandsPerS, config_.maxClientBurst, now)) {
+      retryMs = wait(bucket, config_.maxClientCommandsPerS);
       refused = "client " + std::to_string(in.envelopeKey) + " sends more than " +
                 std::to_string(int64_t(config_.maxClientCommandsPerS)) +
                 " commands a second (server.max_client_commands_per_s, bursts of " +
                 std::to_string(int64_t(config_.maxClientBurst)) +
-                ": server.max_client_burst); slow down";
-    else if (p.commands >= config_.maxQueuedPerClient)
+                ": server.max_client_burst) while it has commands waiting; slow down";
+    } else if (p.commands >= config_.maxQueuedPerClient) {
+      retryMs = kQueueRetryMs;
       refused = "client " + std::to_string(in.envelopeKey) + " has " +
                 std::to_string(p.commands) +
                 " commands waiting to be applied, the limit is " +
                 std::to_string(config_.maxQueuedPerClient) +
                 " (server.max_queued_per_client); wait for replies";
-    else if (p.bytes + bytes > config_.maxQueuedBytesPerClient)
+    } else if (p.bytes + bytes > config_.maxQueuedBytesPerClient) {
+      retryMs = kQueueRetryMs;
       refused = "client " + std::to_string(in.envelopeKey) + " has " + std::to_string(p.bytes) +
                 " bytes of commands waiting, the limit is " +
                 std::to_string(config_.maxQueuedBytesPerClient) +
                 " (server.max_queued_mb_per_client); wait for replies";
-    else if (sender &&
-             sender->pending.bytes + bytes > config_.maxQueuedBytesPerParticipant)
+    } else if (sender &&
+               sender->pending.bytes + bytes > config_.maxQueuedBytesPerParticipant) {
+      retryMs = kQueueRetryMs;
       refused = "this participant (client " + std::to_string(in.envelopeKey) +
                 " and any other ids it writes under) has " +
                 std::to_string(sender->pending.bytes) +
                 " bytes of commands waiting, the limit is " +
                 std::to_string(config_.maxQueuedBytesPerParticipant) +
                 " (server.max_queued_mb_per_participant); wait for replies";
-    else if (pendingBytes_ + bytes > config_.maxQueuedBytes)
+    } else if (pendingBytes_ + bytes > config_.maxQueuedBytes) {
+      retryMs = kServerQueueRetryMs;
       refused = "the server's command queue holds " + std::to_string(pendingBytes_) +
                 " bytes, the limit is " + std::to_string(config_.maxQueuedBytes) +
                 " (server.max_queued_mb); retry later";
+    }
     if (refused.empty()) {
-      if (config_.maxClientCommandsPerS > 0) bucket.tokens -= 1;
+      if (config_.maxClientCommandsPerS > 0 && !clientIdle) bucket.tokens -= 1;
       ++p.commands;
       p.bytes += bytes;
       if (sender) {
-        if (config_.maxParticipantCommandsPerS > 0) sender->commands.tokens -= 1;
+        if (config_.maxParticipantCommandsPerS > 0 && !senderIdle) sender->commands.tokens -= 1;
         ++sender->pending.commands;
         sender->pending.bytes += bytes;
       }
@@ -289,6 +310,7 @@ void ServerCore::submit(Incoming in) {
       h.world = in.command->world();
     }
     h.status = Status::Error(Code::ResourceExhausted, refused);
+    h.retryAfterMs = retryMs;
     pushReplyNow(in.envelopeKey, in.envelopeSeq, protocol::encodeReply(h));
     return;
   }
@@ -494,13 +516,15 @@ void ServerCore::applyNow(const Incoming& in) {
   Bytes reply = apply(in);
   current_ = nullptr;
   if (deferred_) return;  // a Step job answers when it ends
+  // Released before its reply can reach the client, so that the client's next command finds
+  // nothing of it waiting (the rates count only commands sent while some wait: submit).
+  release(in);
   if (journaledWorld_) {
     const ReplyHeader failed = protocol::replyTo(*in.command);
     pushReply(in.envelopeKey, in.envelopeSeq, std::move(reply), journaledWorld_, &failed);
   } else {
     pushReply(in.envelopeKey, in.envelopeSeq, std::move(reply));
   }
-  release(in);
 }
 
 void ServerCore::drainWaiting(uint32_t id) {
@@ -564,9 +588,9 @@ void ServerCore::endJob(ServerWorld& w, Status status) {
   }
   const ReplyHeader failed = h;
   h.status = std::move(status);
+  release(job.envelopeKey, job.sender, job.charge);  // before the reply (applyNow)
   pushReply(job.envelopeKey, job.envelopeSeq, protocol::encodeReply(h), marked ? w.id : 0,
             &failed);
-  release(job.envelopeKey, job.sender, job.charge);
 }
 
 void ServerCore::cancelJob(ServerWorld& w, const std::string& why) {

@@ -138,6 +138,7 @@ void DdsEndpoint::readLoop() {
                        participantName(who.participant), env.key, who.refusals, n);
         return;
       }
+      if (who.verdict == ClientKeys::Verdict::Ok) gate_.bind(writer, env.key);
       Incoming in;
       in.envelopeKey = env.key;
       in.envelopeSeq = env.seq;
@@ -289,6 +290,8 @@ void DdsEndpoint::publish(ReliableMessage& m) {
   dds_return_t rc = DDS_RETCODE_OK;
   switch (m.type) {
     case ReliableMessage::Type::Reply:
+      // Before the write: the client's next command may be here before write() returns.
+      gate_.answered(m.key);  // the writer's next command passes the gate free
       rc = replyWriter_.write(m.key, m.chunks.at(0), m.seq);
       if (rc == DDS_RETCODE_OK) counters_.repliesWritten.fetch_add(1);
       break;

@@ -198,6 +198,7 @@ py::object errorObject(const pc::Error& e) {
   exc.attr("code") = py::cast(e.code());
   exc.attr("message") = py::str(e.message());
   exc.attr("from_server") = py::bool_(e.fromServer());
+  exc.attr("retry_after_ms") = py::int_(e.retryAfterMs());
   return exc;
 }
 
@@ -755,7 +756,7 @@ class PyClient {
   PyClient(uint32_t domain, std::string name, std::optional<std::string> cycloneXml,
            uint64_t clientId, double connectTimeout, double requestTimeout, bool autoReconnect,
            std::optional<std::string> securityDir, std::optional<std::string> identity,
-           std::optional<std::string> keyFile) {
+           std::optional<std::string> keyFile, bool retryBusy) {
     pc::ClientOptions o;
     o.domain = domain;
     o.name = std::move(name);
@@ -765,6 +766,7 @@ class PyClient {
     o.connectTimeout = toMs(connectTimeout);
     o.requestTimeout = toMs(requestTimeout);
     o.autoReconnect = autoReconnect;
+    o.retryBusy = retryBusy;
     if (securityDir || identity) {
       if (!securityDir || !identity)
         throw py::value_error("physclient: security_dir and identity go together");
@@ -1652,7 +1654,9 @@ PYBIND11_MODULE(physclient, m) {
   gError = PyErr_NewExceptionWithDoc(
       "physclient.Error",
       "A failed request: code (ErrorCode), message (the server's or the SDK's, without the "
-      "code), from_server (whether the server answered with the code).",
+      "code), from_server (whether the server answered with the code), retry_after_ms (a "
+      "refusal of physd's rate or queue budgets: the same request may be sent again after so "
+      "many ms; 0 for every other error).",
       PyExc_Exception, nullptr);
   if (!gError) throw py::error_already_set();
   m.attr("Error") = py::handle(gError);
@@ -2217,17 +2221,21 @@ PYBIND11_MODULE(physclient, m) {
       "Cyclone's defaults). Timeouts are in seconds. security_dir and identity: DDS Security\n"
       "files as tools/make_security.sh writes them (docs/SECURITY.md). key_file: the client's\n"
       "key (made when missing): the same proven client id at every run, so the worlds it\n"
-      "creates stay its own (docs/SERVER.md \"Access\"). The connection lasts\n"
+      "creates stay its own (docs/SERVER.md \"Access\"). retry_busy: a request physd refuses\n"
+      "at the door (ResourceExhausted \"slow down\" / \"wait for replies\" from its rate and\n"
+      "queue budgets; nothing done) is sent again after a backoff until its timeout (False:\n"
+      "the refusal raises at once; docs/PYTHON.md \"Rate limits\"). The connection lasts\n"
       "while the Client or one of its World or Subscription objects does, or until close()\n"
       "(or the end of a with block).")
       .def(py::init<uint32_t, std::string, std::optional<std::string>, uint64_t, double, double,
                     bool, std::optional<std::string>, std::optional<std::string>,
-                    std::optional<std::string>>(),
+                    std::optional<std::string>, bool>(),
            py::kw_only(), py::arg("domain") = 0, py::arg("name") = "physclient-python",
            py::arg("cyclone_xml") = py::none(), py::arg("client_id") = 0,
            py::arg("connect_timeout") = 10.0, py::arg("request_timeout") = 10.0,
            py::arg("auto_reconnect") = true, py::arg("security_dir") = py::none(),
-           py::arg("identity") = py::none(), py::arg("key_file") = py::none())
+           py::arg("identity") = py::none(), py::arg("key_file") = py::none(),
+           py::arg("retry_busy") = true)
       .def(
           "connect",
           [](PyClient& c) {

@@ -516,6 +516,22 @@ class Bindings(unittest.TestCase):
             self.assertIsNotNone(sub.wait_for_frame(0, timeout=1e10))
             w.pause()
 
+    def test_a_synchronous_loop_is_never_refused(self):
+        # Issue 40: step(1); query_state(); info() in a loop, one request at a time, faster than
+        # the daemon's default 2,000 commands a second, is never answered "slow down" (without
+        # the SDK's retry, so that a refusal would show).
+        with DAEMON.client(name="loop", retry_busy=False) as c:
+            c.connect()
+            w = c.create_world(f"loop-{os.getpid()}", ephemeral=True)
+            self.addCleanup(self._destroy, w)
+            n, end = 0, time.monotonic() + 1.5
+            while time.monotonic() < end:
+                w.step(1)
+                w.query_state()
+                w.info()
+                n += 3
+            self.assertEqual(w.info().tick, n // 3)
+
     def test_definitions(self):
         b = pc.BodyDef(type=pc.BodyType.Kinematic, position=(1, 2, 3), rotation=(0, 0, 1, 0),
                        mass=2.5, name="k", shapes=[pc.ShapeDef(pc.ShapeGeom.sphere(0.25),

@@ -57,6 +57,13 @@ struct ClientOptions {
   std::chrono::milliseconds connectTimeout{10000};  ///< connect(): server match + Hello
   std::chrono::milliseconds requestTimeout{10000};  ///< default per-request deadline
   bool autoReconnect = true;                        ///< say Hello again when a (new) daemon appears
+  /// A request physd refused at the door ("slow down", "wait for replies": ResourceExhausted
+  /// from its rate and queue budgets, marked by Reply.retry_after_ms; nothing was done) is
+  /// sent again after the wait the daemon names, backing off (1, 2, 4, ... 200 ms, with
+  /// jitter) while it is refused again, until the request's deadline; then the refusal is
+  /// its error. false: the first refusal is (Error::retryAfterMs() says it may be retried).
+  /// docs/CLIENT.md "Rate limits".
+  bool retryBusy = true;
   /// DDS Security (docs/SECURITY.md): this client's identity and its files, e.g.
   /// SecurityFiles::fromDir("build/security", "client1") for what tools/make_security.sh
   /// made. Added to cycloneXml; the commands go out in the identity's partition, so that a

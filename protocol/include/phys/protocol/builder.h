@@ -176,6 +176,9 @@ struct ReplyHeader {
   uint32_t world = 0;  ///< the target world; CreateWorld: the new world's id
   uint64_t tick = 0;   ///< the world's tick when the command took effect
   Status status;
+  /// A refusal of the daemon's rate and queue budgets: the command may be sent again as it is
+  /// after this many ms (Reply.retry_after_ms); 0: not such a refusal.
+  uint32_t retryAfterMs = 0;
 };
 /// Header echoing a command's correlation and world, with the given status.
 ReplyHeader replyTo(const wire::Command& command, Status status = {});

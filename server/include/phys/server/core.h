@@ -83,7 +83,9 @@ struct CoreConfig {
   uint64_t maxQueuedBytesPerClient = 16ull << 20;  ///< payload bytes one client has waiting
   /// Commands one client may send per second, on average, and at once (a token bucket per
   /// envelope key, refilled at the rate up to the burst); past it a command is answered
-  /// ResourceExhausted at once. 0: no limit.
+  /// ResourceExhausted at once, with Reply.retry_after_ms. 0: no limit. Only the commands
+  /// that come while the client has some waiting are counted (here and per participant): a
+  /// client with one request in flight is never refused for its rate.
   double maxClientCommandsPerS = 2000;
   double maxClientBurst = 500;
   // The same per DDS participant (Incoming::sender), whatever client ids it writes under, so
@@ -628,6 +630,9 @@ class ServerCore {
   /// Removes the interests of clients that left.
   void applyLeft(const Left& l);
   uint64_t pendingBytes_ = 0;
+  /// Reply.retry_after_ms of a refusal for commands waiting (the client's or participant's
+  /// queue: its own replies free it) and for the server's whole queue.
+  static constexpr uint32_t kQueueRetryMs = 10, kServerQueueRetryMs = 50;
   std::atomic<uint64_t> refusedAtSubmit_{0};
   std::atomic<uint64_t> refusalsDropped_{0};
   /// Bytes a queued command holds of the queue's budgets: its payload and what holding it
