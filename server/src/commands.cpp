@@ -987,7 +987,12 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
         }
       }
       ctx.header.tick = sw->tick;
-      reply = protocol::encodeStateReply(ctx.header, sw->world->time(), total, out);
+      // Stamped as a state frame is (queueStream): the wall clock once the states are read.
+      const auto stamp = std::chrono::system_clock::now().time_since_epoch();
+      reply = protocol::encodeStateReply(
+          ctx.header, sw->world->time(), total, out,
+          uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(stamp).count()),
+          sw->epoch);
       return finish();
     }
     case wire::Request::SaveSnapshot: {
