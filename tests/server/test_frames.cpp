@@ -521,6 +521,17 @@ TEST_F(FramesTest, EditsToAPausedWorldGoOutAtOnceAtTheSameTick) {
   EXPECT_EQ(f[0].removed, std::vector<uint64_t>{ids[2]});
   seen.apply(f[0]);
   seen.expectWorld(*core->world(world)->world);
+  // A velocity set and an impulse change velocities at once: edit 3.
+  ASSERT_EQ(send(CommandBuilder().setBodyVelocity(ids[1], {0, 0, 2}, {}))->status(),
+            Code::Ok);
+  ASSERT_EQ(send(CommandBuilder().applyImpulse(added, {1, 0, 0}))->status(), Code::Ok);
+  core->advance(0);
+  f = frames();
+  ASSERT_EQ(f.size(), 1u) << "velocities set in a paused world are published without a step";
+  EXPECT_EQ(f[0].edit, 3u);
+  EXPECT_TRUE(f[0].bodies.count(ids[1]) && f[0].bodies.count(added));
+  seen.apply(f[0]);
+  seen.expectWorld(*core->world(world)->world);
   core->advance(0);
   EXPECT_TRUE(frames().empty()) << "nothing edited since: nothing sent";
   // The next step: tick 2, edit 0, a delta on edit 2 of tick 1.
