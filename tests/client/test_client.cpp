@@ -579,6 +579,19 @@ TEST(ClientSdk, ANewSubscriptionGetsTheWholeStateInEveryWorldState) {
     EXPECT_EQ(f->bodies.size(), truth.bodies.size()) << k.what;
     if (!running) expectWorldsState(w, *f, k.what);
   }
+  // Running and asleep (empty deltas, a slow refresh: 10 s a round for a world at rest): one
+  // opened just after another closed has the whole state at once, not after a round.
+  w.run(60).get();
+  std::this_thread::sleep_for(2s);  // the spawned boxes settle and sleep
+  {
+    Subscription r1 = w.subscribe();
+    ASSERT_TRUE(firstFrame(r1)) << "running";
+  }
+  Subscription r2 = w.subscribe();
+  auto fr = firstFrame(r2);
+  ASSERT_TRUE(fr) << "running, asleep, opened just after another closed";
+  EXPECT_EQ(fr->bodies.size(), w.queryState().get().total);
+  r2.reset();
   w.pause().get();
   const uint64_t count = w.queryState().get().total;
   // Closing and opening in any order, on the paused world: each new one gets its frame at once,
