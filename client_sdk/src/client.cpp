@@ -126,31 +126,42 @@ struct Subscription::State {
     deliveredBodies = &delivered.bodies;
   }
   uint64_t frames = 0;
+  /// The epoch of the last frame latest() or waitForFrame() returned (under m; handedOut:
+  /// whether one did): what a caller's afterTick refers to, unless it says (waitForFrame).
+  mutable uint64_t handedEpoch = 0;
+  mutable bool handedOut = false;
+  StateFrame handOut() const {
+    handedOut = true;
+    handedEpoch = delivered.epoch;
+    return copyDelivered();
+  }
 
   std::mutex ownerMutex;
   Client::Impl* owner = nullptr;
 
   uint64_t skipped = 0;
 
-  // Reassembly (SDK thread only): the chunks of a tick, then the tick applied to the full
-  // state (a keyframe replaces it, a delta on the tick it holds changes it).
+  // Reassembly (SDK thread only): the chunks of a frame, then the frame applied to the full
+  // state (a keyframe replaces it, a delta on the frame it holds changes it). Within an epoch
+  // a frame is named by its tick and edit number (docs/PROTOCOL.md "Order of frames").
+  using Key = std::pair<uint64_t, uint32_t>;  ///< (tick, edit)
   struct Partial {
     uint32_t chunkCount = 0;
     std::set<uint32_t> got;
     StateFrame frame;  ///< what the chunks carried (bodies changed this tick)
     std::vector<uint64_t> removed;
-    uint64_t baseTick = 0;
+    Key base;  ///< the frame a delta applies to
     uint64_t refreshLo = 0, refreshHi = 0;  ///< a rolling refresh's keys (hi 0: none)
   };
-  std::map<uint64_t, Partial> partial;
-  uint64_t lastComplete = 0;
+  std::map<Key, Partial> partial;
+  uint64_t epoch = 0;  ///< of the frames reassembled (0: none yet, or an older server)
+  Key lastComplete;
   bool any = false;
-  /// The full state at tick `fullTick`, sorted by body index then generation (the world's
-  /// order): a sorted vector, so that applying a delta is a binary search per carried body
-  /// and handing the frame out one copy.
+  /// The full state as of the last frame applied, sorted by body index then generation (the
+  /// world's order): a sorted vector, so that applying a delta is a binary search per
+  /// carried body and handing the frame out one copy.
   std::vector<BodyState> full;
-  uint64_t fullTick = 0;   ///< the last tick applied
-  uint64_t stateTick = 0;  ///< the last tick applied that carried something (deltas' base)
+  Key stateKey;  ///< the last frame applied that carried something (deltas' base)
   bool haveFull = false;
   /// Out of step with a stream that refreshes (the server's rolling refresh): a frame was
   /// lost, so the state is not the world's. The deltas are still applied, and once
@@ -170,10 +181,16 @@ struct Subscription::State {
   static uint64_t order(uint64_t id) { return (id << 32) | (id >> 32); }  // index, generation
   static bool before(const BodyState& a, const BodyState& b) { return order(a.id) < order(b.id); }
 
-  /// A new daemon's stream (after a restart, or an interest subscribed again): its ticks may
-  /// be behind the last one delivered (a restored world resumes at its last mark), so
-  /// nothing of the old stream's reassembly holds; it starts again from a keyframe.
+  /// A new daemon's stream (after a restart, or an interest subscribed again): its ticks and
+  /// epochs may be behind the last ones delivered (a restored world resumes at its last
+  /// mark; a daemon that keeps no worlds numbers epochs from 1 again), so nothing of the old
+  /// stream's reassembly holds; it starts again from a keyframe.
   void restart() {
+    startOver();
+    epoch = 0;
+  }
+  /// Nothing reassembled holds any more (a new daemon, or a new epoch of the world).
+  void startOver() {
     std::lock_guard<std::mutex> lk(m);
     partial.clear();
     any = false;
@@ -183,12 +200,22 @@ struct Subscription::State {
   }
 
   void onChunk(const wire::StateFrame& f, size_t bytes) {
+    // A newer epoch (the world was reset, restored, loaded) is followed at once, whatever its
+    // tick: the old epoch's reassembly and state are dropped, and its first frame (a
+    // keyframe, or deltas repaired by their refreshes) starts the state again. An older
+    // epoch's frames are late.
+    if (f.epoch() < epoch) return;
+    if (f.epoch() > epoch) {
+      startOver();
+      epoch = f.epoch();
+    }
     const uint64_t t = f.tick();
-    // Older ticks are superseded; the tick already delivered comes again only as a keyframe
-    // (sent for a new subscriber while the world is paused), which is applied again, so that
-    // the deltas after it (based on it) apply.
-    if (any && (t < lastComplete || (t == lastComplete && !f.keyframe()))) return;
-    Partial& p = partial[t];
+    const Key k{t, f.edit()};
+    // Older frames are superseded; the frame already delivered comes again only as a
+    // keyframe (sent for a new subscriber), which is applied again, so that the deltas after
+    // it (based on it) apply.
+    if (any && (k < lastComplete || (k == lastComplete && !f.keyframe()))) return;
+    Partial& p = partial[k];
     if (p.got.empty()) {
       p.chunkCount = f.chunk_count();
       p.frame.world = f.world();
@@ -197,7 +224,9 @@ struct Subscription::State {
       p.frame.total = f.total_bodies();
       p.frame.stampNs = f.stamp_ns();
       p.frame.keyframe = f.keyframe();
-      p.baseTick = f.base_tick();
+      p.frame.epoch = f.epoch();
+      p.frame.edit = f.edit();
+      p.base = {f.base_tick(), f.base_edit()};
       p.refreshLo = f.refresh_lo();
       p.refreshHi = f.refresh_hi();
       // Room for the tick once (a keyframe holds them all; a delta's chunks are about this
@@ -219,13 +248,13 @@ struct Subscription::State {
     }
     if (f.removed()) p.removed.insert(p.removed.end(), f.removed()->begin(), f.removed()->end());
     if (p.got.size() < p.chunkCount) {
-      while (partial.size() > 8) partial.erase(partial.begin());  // superseded ticks
+      while (partial.size() > 8) partial.erase(partial.begin());  // superseded frames
       return;
     }
     Partial done = std::move(p);
     any = true;
-    lastComplete = t;
-    partial.erase(partial.begin(), partial.upper_bound(t));
+    lastComplete = k;
+    partial.erase(partial.begin(), partial.upper_bound(k));
     // physd sends a tick's bodies in the world's order; applying them is then one walk.
     if (!std::is_sorted(done.frame.bodies.begin(), done.frame.bodies.end(), before))
       std::sort(done.frame.bodies.begin(), done.frame.bodies.end(), before);
@@ -279,18 +308,18 @@ struct Subscription::State {
       changedAtValid = false;
       resyncing = false;
     } else {
-      const bool inStep = haveFull && p.baseTick == stateTick;
+      const bool inStep = haveFull && p.base == stateKey;
       if (!inStep) keepDelivered();  // what follows may not be delivered
       if (!inStep) {
         if (!refresh && !resyncing) return drop();  // wait for the next keyframe
-        if (!resyncing || p.baseTick != stateTick) covering = false;  // (another) frame lost
+        if (!resyncing || p.base != stateKey) covering = false;  // (another) frame lost
         resyncing = true;
         haveFull = false;
       }
       applyDelta(p, /*refreshRemoves=*/!inStep);
     }
-    fullTick = p.frame.tick;
-    if (p.frame.keyframe || !p.frame.bodies.empty() || !p.removed.empty()) stateTick = fullTick;
+    if (p.frame.keyframe || !p.frame.bodies.empty() || !p.removed.empty())
+      stateKey = {p.frame.tick, p.frame.edit};
     if (resyncing) {
       if (refresh) {
         if (!covering || p.refreshLo != coveredTo) {  // the first since a loss, or a gap
@@ -1040,16 +1069,28 @@ std::optional<StateFrame> Subscription::latest() const {
   if (!state_) return std::nullopt;
   std::lock_guard<std::mutex> lk(state_->m);
   if (!state_->deliveredBodies) return std::nullopt;
-  return state_->copyDelivered();
+  return state_->handOut();
 }
 
 std::optional<StateFrame> Subscription::waitForFrame(uint64_t afterTick,
-                                                     std::chrono::milliseconds timeout) {
+                                                     std::chrono::milliseconds timeout,
+                                                     uint64_t epoch) {
   if (!state_) return std::nullopt;
   std::unique_lock<std::mutex> lk(state_->m);
-  auto ready = [&] { return state_->deliveredBodies && state_->delivered.tick > afterTick; };
+  // What afterTick refers to: the caller's epoch, or that of the last frame it was given (a
+  // frame of a newer epoch delivered meanwhile is then after it, whatever its tick: the
+  // world's ticks started again, and a caller waiting for the old ones would wait for
+  // nothing). Given none yet, afterTick 0 takes the first frame (a world just created or
+  // reset is at tick 0).
+  const bool first = afterTick == 0 && epoch == 0 && !state_->handedOut;
+  if (epoch == 0) epoch = state_->handedEpoch;
+  auto ready = [&] {
+    return state_->deliveredBodies &&
+           (first || state_->delivered.tick > afterTick ||
+            (epoch != 0 && state_->delivered.epoch != epoch));
+  };
   state_->cv.wait_for(lk, timeout, ready);
-  if (ready()) return state_->copyDelivered();
+  if (ready()) return state_->handOut();
   return std::nullopt;
 }
 
@@ -1271,6 +1312,8 @@ std::future<StateFrame> WorldHandle::queryState(std::span<const uint64_t> ids, u
     f.tick = r.tick();
     f.time = s->time();
     f.total = s->total();
+    f.stampNs = s->stamp_ns();
+    f.epoch = s->epoch();
     if (s->bodies())
       for (auto* b : *s->bodies()) f.bodies.push_back(toState(*b));
     return f;

@@ -112,6 +112,7 @@ std::unique_ptr<ServerWorld> ServerCore::makeWorld(const std::string& name,
   w->world = std::make_unique<phys::World>(d);
   w->rateHz = config_.defaultRateHz;
   w->nextInterest = interestBase_ + 1;
+  w->epoch = epochBase_ + 1;
   return w;
 }
 
@@ -187,8 +188,30 @@ void ServerCore::setSubscribers(uint32_t world, uint32_t n) {
   setSubscribers(world, 0, n);
 }
 void ServerCore::setSubscribers(uint32_t world, uint32_t interest, uint32_t n) {
-  std::lock_guard<std::mutex> lock(subscribersMutex_);
-  subscribers_[streamKey(world, interest)] = n;
+  uint64_t matched = 0;
+  {
+    std::lock_guard<std::mutex> lock(subscribersMutex_);
+    const Subscribers& s = subscribers_[streamKey(world, interest)];
+    matched = s.matched + (n > s.now ? n - s.now : 0);  // a count that grew: new ones
+  }
+  setSubscribers(world, interest, n, matched);
+}
+void ServerCore::setSubscribers(uint32_t world, uint32_t interest, uint32_t n,
+                                uint64_t matched) {
+  {
+    std::lock_guard<std::mutex> lock(subscribersMutex_);
+    Subscribers& s = subscribers_[streamKey(world, interest)];
+    if (s.now == n && s.matched == matched) return;  // the usual case: every 250 ms
+    s.now = n;
+    s.matched = matched;
+    subscribersChanged_.push_back(world);
+  }
+  // The tick thread looks at once (a paused world's new subscriber waits for nothing).
+  {
+    std::lock_guard<std::mutex> lock(inboxMutex_);
+    anySubscribersChanged_.store(true);
+  }
+  inboxCv_.notify_one();
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -424,7 +447,9 @@ void ServerCore::pushReplyNow(uint64_t key, uint64_t seq, Bytes reply) {
 
 void ServerCore::waitForCommands(std::chrono::microseconds timeout) {
   std::unique_lock<std::mutex> lock(inboxMutex_);
-  inboxCv_.wait_for(lock, timeout, [&] { return !inbox_.empty() || !left_.empty(); });
+  inboxCv_.wait_for(lock, timeout, [&] {
+    return !inbox_.empty() || !left_.empty() || anySubscribersChanged_.load();
+  });
 }
 
 size_t ServerCore::processPending() {
@@ -775,6 +800,17 @@ Status ServerCore::stepWorld(uint32_t id, uint64_t n) {
 uint64_t ServerCore::advance(double wallSeconds) {
   uint64_t total = 0;
   size_t busy = 0;
+  if (anySubscribersChanged_.exchange(false)) {
+    // Streams with new subscribers (or fewer) are looked at below, stepping or not: a new
+    // one's keyframe goes out now (queueStream), whatever the world is doing.
+    std::vector<uint32_t> changed;
+    {
+      std::lock_guard<std::mutex> lock(subscribersMutex_);
+      changed.swap(subscribersChanged_);
+    }
+    for (uint32_t id : changed)
+      if (ServerWorld* w = world(id)) w->frameDirty = true;
+  }
   for (auto& [id, w] : worlds_) busy += w->job.has_value();
   if (!loaders_.empty()) reapLoaders();
   for (auto& [id, wp] : worlds_) {
@@ -867,33 +903,44 @@ Status ServerCore::queueFrame(ServerWorld& w) {
   std::sort(awakeIds.begin(), awakeIds.end());
   std::sort(w.touched.begin(), w.touched.end());
   w.touched.erase(std::unique(w.touched.begin(), w.touched.end()), w.touched.end());
-  // An edit between ticks (a paused world) changes the world at the tick subscribers already
-  // hold: a delta for the same tick would be ignored by them, so its changes wait for the next
-  // tick's delta (touched is kept until then); a stream that needs a keyframe sends it now.
-  const bool newTick = w.tick != w.lastFrameTick;
+  // Frames are ordered by (epoch, tick, edit) (docs/PROTOCOL.md "Order of frames"). A new
+  // tick (or epoch) is frame edit 0. Edits between ticks of a world that does not step by
+  // itself (paused, no Step running) go out at once in a frame of their own at the same
+  // tick, the next edit number: its subscribers see poses set, bodies spawned and removed
+  // without a step. A running world's edits wait for its next tick's delta (within a period;
+  // touched is kept until then), so that edits do not double its frames. A frame that is
+  // neither (the same tick, nothing edited) goes only to streams that need a keyframe (a new
+  // subscriber), at the edit number their other subscribers already hold.
+  const bool newTick = w.tick != w.lastFrameTick || w.epoch != w.lastFrameEpoch;
+  const bool stepsByItself = w.mode != RunMode::Paused || w.busy();
+  const bool editFrame = !newTick && !w.touched.empty() && !stepsByItself;
+  if (newTick) w.edit = 0;
+  if (editFrame) ++w.edit;
+  const bool fresh = newTick || editFrame;
   // framesProduced counts the world's own stream's frames (WorldSummary.frames).
-  if (queueStream(w, 0, nullptr, &w.published, awakeIds, newTick)) ++w.framesProduced;
-  for (auto& [id, in] : w.interests) queueStream(w, id, &in, &in.published, awakeIds, newTick);
-  if (newTick) w.touched.clear();
+  if (queueStream(w, 0, nullptr, &w.published, awakeIds, fresh)) ++w.framesProduced;
+  for (auto& [id, in] : w.interests) queueStream(w, id, &in, &in.published, awakeIds, fresh);
+  if (fresh) w.touched.clear();
   w.lastFrameTick = w.tick;
+  w.lastFrameEpoch = w.epoch;
   return Status::Ok();
 }
 
 bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorld::Interest* filter,
                              ServerWorld::Published* streamState,
-                             const std::vector<uint64_t>& awakeIds, bool newTick) {
+                             const std::vector<uint64_t>& awakeIds, bool fresh) {
   // A keyframe holds every body of the stream; a delta the bodies whose state changed among
   // those awake now, awake at the last frame (one that just fell asleep sends its final state
   // once) and edited since, and those gone (removed, or out of the interest's region). A
   // stream nobody subscribes to encodes nothing.
   ServerWorld::Published& pub = *streamState;
-  uint32_t subscribers = 0;
+  Subscribers subscribers;
   {
     std::lock_guard<std::mutex> lock(subscribersMutex_);
     auto it = subscribers_.find(streamKey(w.id, interest));
-    subscribers = it == subscribers_.end() ? 0 : it->second;
+    if (it != subscribers_.end()) subscribers = it->second;
   }
-  if (subscribers == 0 && !config_.framesWithoutSubscribers) {
+  if (subscribers.now == 0 && !config_.framesWithoutSubscribers) {
     pub = ServerWorld::Published();  // the next subscriber starts from a keyframe
     return false;
   }
@@ -909,10 +956,13 @@ bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorl
   const uint64_t period =
       uint64_t(config_.keyframeTicks) *
       (quiet && config_.keyframeTicks > 1 ? std::max<uint32_t>(1, config_.quietKeyframeFactor) : 1);
-  const bool keyframe = !pub.valid || subscribers > pub.subscribers ||
+  // A new subscriber (a reader matched since the last frame) gets a keyframe now.
+  const bool keyframe = !pub.valid || subscribers.matched > pub.matched ||
                         dropped != pub.droppedSeen ||
                         (!rolling && pub.sinceKeyframe + 1 >= period);
-  if (!keyframe && !newTick) return false;  // the same tick again: in the next tick's delta
+  // The same tick and edit again: nothing for a stream that has it (what changed since waits
+  // for the next fresh frame).
+  if (!keyframe && !fresh) return false;
   phys::World& world = *w.world;
   std::vector<wire::BodyState> states;
   std::vector<uint64_t> removed;
@@ -997,14 +1047,20 @@ bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorl
   h.interest = interest;
   h.refreshLo = refreshLo;
   h.refreshHi = refreshHi;
+  h.epoch = w.epoch;
+  h.edit = w.edit;
+  h.baseEdit = pub.baseEdit;
   f.chunks = protocol::encodeStateFrames(h, states, std::max<uint32_t>(1, config_.bodiesPerChunk),
                                          removed, uint32_t(pub.sent.size()));
   pub.awake = awakeIds;
   pub.valid = true;
   const bool carried = keyframe || !states.empty() || !removed.empty();
-  if (carried) pub.baseTick = w.tick;
+  if (carried) {
+    pub.baseTick = w.tick;
+    pub.baseEdit = w.edit;
+  }
   pub.changedSinceKeyframe = !keyframe && (pub.changedSinceKeyframe || changed);
-  pub.subscribers = subscribers;
+  pub.matched = subscribers.matched;
   pub.droppedSeen = dropped;
   pub.bytes = 0;
   for (const protocol::Bytes& c : f.chunks) pub.bytes += c.size();
@@ -1081,7 +1137,7 @@ std::vector<protocol::WorldSummary> ServerCore::summaries() const {
     s.contacts = uint32_t(w->world->stats().contacts);
     s.stepBufferBytes = w->world->stepBufferBytes();
     auto it = subscribers_.find(streamKey(id, 0));
-    s.subscribers = it == subscribers_.end() ? 0 : it->second;
+    s.subscribers = it == subscribers_.end() ? 0 : it->second.now;
     out.push_back(std::move(s));
   }
   // Worlds kept on disk but not restored: listed so that clients see why (not only absent).

@@ -278,8 +278,13 @@ void DdsEndpoint::publishLoop() {
     if (item.frame) publish(*item.frame);
     auto now = std::chrono::steady_clock::now();
     if (now - lastSubscribers > std::chrono::milliseconds(250)) {
-      for (auto& [key, st] : state_)
-        core_->setSubscribers(uint32_t(key >> 32), uint32_t(key), st->writer.matched());
+      // Readers ever matched too: a reader that came while another went (the same count)
+      // is a new subscriber, owed a keyframe.
+      for (auto& [key, st] : state_) {
+        uint64_t total = 0;
+        const uint32_t n = st->writer.matched(&total);
+        core_->setSubscribers(uint32_t(key >> 32), uint32_t(key), n, total);
+      }
       lastSubscribers = now;
     }
     if (stop_ && !item.reliable && !item.frame) break;

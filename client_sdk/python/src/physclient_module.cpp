@@ -1886,6 +1886,11 @@ PYBIND11_MODULE(physclient, m) {
       .def_readonly("changed", &pc::StateFrame::changed)
       .def_readonly("bytes", &pc::StateFrame::bytes)
       .def_readonly("stamp_ns", &pc::StateFrame::stampNs)
+      .def_readonly("epoch", &pc::StateFrame::epoch,
+                    "Higher after the world was reset, restored or loaded (its ticks start "
+                    "again there).")
+      .def_readonly("edit", &pc::StateFrame::edit,
+                    "1, 2, ... for frames of edits to a paused world at this tick; else 0.")
       .def_property_readonly("ids",
                              [](const pc::StateFrame& f) {
                                std::vector<uint64_t> ids;
@@ -1973,7 +1978,10 @@ PYBIND11_MODULE(physclient, m) {
       .def("latest", &PySubscription::latest, "The newest complete frame, or None.")
       .def("wait_for_frame", &PySubscription::waitForFrame, py::arg("after_tick") = 0,
            py::arg("timeout") = 5.0,
-           "Waits up to timeout seconds for a frame with tick > after_tick; None if none came.")
+           "Waits up to timeout seconds for a frame with tick > after_tick, or of a newer\n"
+           "epoch than the last frame latest() or wait_for_frame() returned (the world was\n"
+           "reset or restored: its ticks started again); None if none came. Before they\n"
+           "returned any, after_tick 0 takes the first frame, whatever its tick.")
       .def_property_readonly("frames_received", &PySubscription::framesReceived)
       .def_property_readonly("frames_skipped", &PySubscription::framesSkipped)
       .def_property_readonly("world", &PySubscription::world)

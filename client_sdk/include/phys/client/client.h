@@ -110,7 +110,9 @@ struct BodyState {
 /// full state from the server's keyframes and deltas (docs/PROTOCOL.md "State frames"): its
 /// frames hold every body of the world at that one tick, in index order, never a mix of
 /// ticks; a tick whose delta cannot be applied (one was lost) is skipped until the next
-/// keyframe.
+/// keyframe. Frames come in (epoch, tick, edit) order (docs/CLIENT.md "Subscriptions"): a
+/// reset or restored world's first frame has a higher epoch and may have a lower tick, and
+/// an edit to a paused world comes as a frame of the same tick with the next edit number.
 struct StateFrame {
   uint32_t world = 0;
   uint64_t tick = 0;
@@ -120,9 +122,17 @@ struct StateFrame {
   bool keyframe = true;  ///< the server sent every body (else a delta: see BodyState::changed)
   uint32_t changed = 0;  ///< bodies the server sent for this tick
   uint64_t bytes = 0;    ///< the encoded size of what the server sent for this tick
-  /// The server's wall clock (ns since the Unix epoch) when it read these states; 0 for
-  /// QueryState. Now minus this is the tick-to-subscriber latency (same host or synced clocks).
+  /// The server's wall clock (ns since the Unix epoch) when it read these states (QueryState:
+  /// when it answered). Now minus this is the tick-to-subscriber latency (same host or
+  /// synced clocks). 0 from servers older than the field (QueryState: before issue 40).
   uint64_t stampNs = 0;
+  /// The world's epoch: one higher (or more) each time its state was replaced rather than
+  /// stepped (LoadScene, ResetWorld, RestoreSnapshot, a durable daemon's restart or reload),
+  /// its ticks then starting again from the new state's. 0 from older servers.
+  uint64_t epoch = 0;
+  /// Frames of edits applied to a paused world at this tick (SetBodyPose, SpawnBodies, ...):
+  /// 1, 2, ...; 0 for the tick's own frame (and in QueryState answers).
+  uint32_t edit = 0;
 };
 
 /// What a subscription asks for (docs/PROTOCOL.md "Interests"): every body (the default),
@@ -180,8 +190,15 @@ class Subscription {
   uint32_t world() const;
   /// The latest complete frame (every chunk of one tick), if any arrived.
   std::optional<StateFrame> latest() const;
-  /// Waits for a complete frame with tick > afterTick.
-  std::optional<StateFrame> waitForFrame(uint64_t afterTick, std::chrono::milliseconds timeout);
+  /// Waits for a complete frame with tick > afterTick, or of another epoch than afterTick's
+  /// (the world was reset or restored since: its ticks started again, docs/CLIENT.md
+  /// "Subscriptions"). afterTick's epoch is `epoch`, or (0) that of the last frame latest() or
+  /// waitForFrame() returned; before they returned any, afterTick 0 takes the first frame
+  /// whatever its tick (a world just created or reset is at tick 0). A paused world's edits
+  /// come as frames of the tick already delivered (StateFrame::edit): latest() and the
+  /// callback see them.
+  std::optional<StateFrame> waitForFrame(uint64_t afterTick, std::chrono::milliseconds timeout,
+                                         uint64_t epoch = 0);
   uint64_t framesReceived() const;  ///< complete frames
   /// Ticks skipped because a delta arrived without the frame it applies to (a lost chunk, a
   /// subscription started between keyframes): each is repaired by the next keyframe.
