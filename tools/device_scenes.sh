@@ -6,7 +6,7 @@
 # docs/BENCHMARKS.md keeps its table ("Whole scenes on the device").
 #
 #   tools/device_scenes.sh [--scenes "a b"] [--preset P] [--jobs N] [--build-dir DIR]
-#                          [--out DIR] [--timeout S]
+#                          [--out DIR] [--timeout S] [--seconds S]
 #
 # Defaults: the scenes ctest runs on the device CI-sized, which are every scene with criteria
 # but box_stack, pyramid_40, pyramid_100 and the scale scenes (many_pyramids, the piles,
@@ -15,7 +15,9 @@
 # (PHYS_GPU_ALLOW_CPU=1 is set). --timeout stops a run after S wall seconds (exit 124 in the
 # table). Each run's JSON and output go to DIR (default
 # build/device_scenes/); the Markdown table goes to stdout. The exit status is 1 when a run
-# failed a criterion the CPU run passed, or did not run every step on the device.
+# failed a criterion the CPU run passed, or did not run every step on the device. --seconds S
+# runs S simulated seconds instead of each scene's own length (ctest's bench.device_scenes:
+# one scene for a few steps, to keep the script working, not to judge the device).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -26,6 +28,7 @@ jobs=1
 build_dir=build
 out=""
 limit=()
+length=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --scenes) scenes=$2; shift 2 ;;
@@ -34,7 +37,8 @@ while [ $# -gt 0 ]; do
     --build-dir) build_dir=$2; shift 2 ;;
     --out) out=$2; shift 2 ;;
     --timeout) limit=(timeout "$2"); shift 2 ;;
-    -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
+    --seconds) length=(--seconds "$2"); shift 2 ;;
+    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
     *) echo "device_scenes.sh: unknown argument $1" >&2; exit 2 ;;
   esac
 done
@@ -46,7 +50,7 @@ export PHYS_GPU_ALLOW_CPU=1
 
 run_one() {
   local scene=$1 args=(--scene "configs/scenes/$1.json" --backend gpu --require-device
-                       --against-cpu --json "$out/$1.json")
+                       --against-cpu --json "$out/$1.json" "${length[@]}")
   [ -n "$preset" ] && args+=(--preset "$preset")
   local start end
   start=$(date +%s)

@@ -9,13 +9,24 @@
 # on configs/bench/sleep_device.json (240 cubes in 16 pyramids that fall asleep, one ball that
 # never does): sleeping on and off, and beside them the ball alone and the pyramids alone, so
 # what the sleeping bodies still cost the device is the difference from the ball alone.
+# --scenes "a b" (CPU runs: other scenes of configs/scenes/) and --seconds S (every run at most
+# S simulated seconds) make it small: ctest's bench.sleep and bench.sleep_device run it so (the
+# script, not the figures).
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
-device=0
-if [ "${1:-}" = --device ]; then
-  device=1
-  shift
-fi
+device=0 scenes="many_pyramids pile_10k" cap=""
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --device) device=1; shift ;;
+    --scenes) scenes=$2; shift 2 ;;
+    --seconds) cap=$2; shift 2 ;;
+    -*) echo "usage: $0 [--device] [--scenes \"a b\"] [--seconds S] [build dir]" >&2; exit 2 ;;
+    *) break ;;
+  esac
+done
+capped() {  # seconds: at most the --seconds cap
+  if [ -n "$cap" ]; then python3 -c "import sys; print(min(float(sys.argv[1]), float(sys.argv[2])))" "$1" "$cap"; else echo "$1"; fi
+}
 build=${1:-$root/build}
 bench=$build/tools/physbench
 out=$(mktemp -d)
@@ -46,7 +57,8 @@ json.dump(ball, open(sys.argv[2] + "/ball.json", "w"))
 json.dump(pyramids, open(sys.argv[2] + "/pyramids.json", "w"))
 PY
   gpu() {  # label scene sleep
-    "$bench" --scene "$2" --backend gpu --require-device --seconds 3 --sleep "$3" \
+    rm -f "$out/run.json"
+    "$bench" --scene "$2" --backend gpu --require-device --seconds "$(capped 3)" --sleep "$3" \
       --json "$out/run.json" > /dev/null || true
     row "$1" "$out/run.json"
   }
@@ -56,9 +68,10 @@ PY
   gpu "the pyramids alone: device, sleeping on" "$out/pyramids.json" on
   exit 0
 fi
-for scene in many_pyramids pile_10k; do
+for scene in $scenes; do
+  rm -f "$out"/*.json  # a run that writes none must not show the one before
   file=$root/configs/scenes/$scene.json
-  seconds=$([ "$scene" = pile_10k ] && echo 25 || echo 10)
+  seconds=$(capped "$([ "$scene" = pile_10k ] && echo 25 || echo 10)")
   "$bench" --scene "$file" --seconds "$seconds" --threads 2 --json "$out/ours.json" > /dev/null || true
   row "$scene: phys, sleeping on, 2 threads" "$out/ours.json"
   if "$bench" --scene "$file" --seconds "$seconds" --peer bullet --sleep on --json "$out/bullet.json" > /dev/null 2>&1 ||
@@ -67,6 +80,6 @@ for scene in many_pyramids pile_10k; do
   else
     echo "$scene: Bullet not compiled in (PHYS_WITH_PEERS)"
   fi
-  "$bench" --scene "$file" --seconds 3 --threads 2 --sleep off --json "$out/off.json" > /dev/null || true
-  row "$scene: phys, sleeping off, 3 s, 2 threads" "$out/off.json"
+  "$bench" --scene "$file" --seconds "$(capped 3)" --threads 2 --sleep off --json "$out/off.json" > /dev/null || true
+  row "$scene: phys, sleeping off, $(capped 3) s, 2 threads" "$out/off.json"
 done

@@ -13,6 +13,7 @@
 #include <deque>
 #include <map>
 #include <mutex>
+#include <random>
 #include <set>
 #include <thread>
 
@@ -125,31 +126,42 @@ struct Subscription::State {
     deliveredBodies = &delivered.bodies;
   }
   uint64_t frames = 0;
+  /// The epoch of the last frame latest() or waitForFrame() returned (under m; handedOut:
+  /// whether one did): what a caller's afterTick refers to, unless it says (waitForFrame).
+  mutable uint64_t handedEpoch = 0;
+  mutable bool handedOut = false;
+  StateFrame handOut() const {
+    handedOut = true;
+    handedEpoch = delivered.epoch;
+    return copyDelivered();
+  }
 
   std::mutex ownerMutex;
   Client::Impl* owner = nullptr;
 
   uint64_t skipped = 0;
 
-  // Reassembly (SDK thread only): the chunks of a tick, then the tick applied to the full
-  // state (a keyframe replaces it, a delta on the tick it holds changes it).
+  // Reassembly (SDK thread only): the chunks of a frame, then the frame applied to the full
+  // state (a keyframe replaces it, a delta on the frame it holds changes it). Within an epoch
+  // a frame is named by its tick and edit number (docs/PROTOCOL.md "Order of frames").
+  using Key = std::pair<uint64_t, uint32_t>;  ///< (tick, edit)
   struct Partial {
     uint32_t chunkCount = 0;
     std::set<uint32_t> got;
     StateFrame frame;  ///< what the chunks carried (bodies changed this tick)
     std::vector<uint64_t> removed;
-    uint64_t baseTick = 0;
+    Key base;  ///< the frame a delta applies to
     uint64_t refreshLo = 0, refreshHi = 0;  ///< a rolling refresh's keys (hi 0: none)
   };
-  std::map<uint64_t, Partial> partial;
-  uint64_t lastComplete = 0;
+  std::map<Key, Partial> partial;
+  uint64_t epoch = 0;  ///< of the frames reassembled (0: none yet, or an older server)
+  Key lastComplete;
   bool any = false;
-  /// The full state at tick `fullTick`, sorted by body index then generation (the world's
-  /// order): a sorted vector, so that applying a delta is a binary search per carried body
-  /// and handing the frame out one copy.
+  /// The full state as of the last frame applied, sorted by body index then generation (the
+  /// world's order): a sorted vector, so that applying a delta is a binary search per
+  /// carried body and handing the frame out one copy.
   std::vector<BodyState> full;
-  uint64_t fullTick = 0;   ///< the last tick applied
-  uint64_t stateTick = 0;  ///< the last tick applied that carried something (deltas' base)
+  Key stateKey;  ///< the last frame applied that carried something (deltas' base)
   bool haveFull = false;
   /// Out of step with a stream that refreshes (the server's rolling refresh): a frame was
   /// lost, so the state is not the world's. The deltas are still applied, and once
@@ -169,10 +181,16 @@ struct Subscription::State {
   static uint64_t order(uint64_t id) { return (id << 32) | (id >> 32); }  // index, generation
   static bool before(const BodyState& a, const BodyState& b) { return order(a.id) < order(b.id); }
 
-  /// A new daemon's stream (after a restart, or an interest subscribed again): its ticks may
-  /// be behind the last one delivered (a restored world resumes at its last mark), so
-  /// nothing of the old stream's reassembly holds; it starts again from a keyframe.
+  /// A new daemon's stream (after a restart, or an interest subscribed again): its ticks and
+  /// epochs may be behind the last ones delivered (a restored world resumes at its last
+  /// mark; a daemon that keeps no worlds numbers epochs from 1 again), so nothing of the old
+  /// stream's reassembly holds; it starts again from a keyframe.
   void restart() {
+    startOver();
+    epoch = 0;
+  }
+  /// Nothing reassembled holds any more (a new daemon, or a new epoch of the world).
+  void startOver() {
     std::lock_guard<std::mutex> lk(m);
     partial.clear();
     any = false;
@@ -182,12 +200,22 @@ struct Subscription::State {
   }
 
   void onChunk(const wire::StateFrame& f, size_t bytes) {
+    // A newer epoch (the world was reset, restored, loaded) is followed at once, whatever its
+    // tick: the old epoch's reassembly and state are dropped, and its first frame (a
+    // keyframe, or deltas repaired by their refreshes) starts the state again. An older
+    // epoch's frames are late.
+    if (f.epoch() < epoch) return;
+    if (f.epoch() > epoch) {
+      startOver();
+      epoch = f.epoch();
+    }
     const uint64_t t = f.tick();
-    // Older ticks are superseded; the tick already delivered comes again only as a keyframe
-    // (sent for a new subscriber while the world is paused), which is applied again, so that
-    // the deltas after it (based on it) apply.
-    if (any && (t < lastComplete || (t == lastComplete && !f.keyframe()))) return;
-    Partial& p = partial[t];
+    const Key k{t, f.edit()};
+    // Older frames are superseded; the frame already delivered comes again only as a
+    // keyframe (sent for a new subscriber), which is applied again, so that the deltas after
+    // it (based on it) apply.
+    if (any && (k < lastComplete || (k == lastComplete && !f.keyframe()))) return;
+    Partial& p = partial[k];
     if (p.got.empty()) {
       p.chunkCount = f.chunk_count();
       p.frame.world = f.world();
@@ -196,7 +224,9 @@ struct Subscription::State {
       p.frame.total = f.total_bodies();
       p.frame.stampNs = f.stamp_ns();
       p.frame.keyframe = f.keyframe();
-      p.baseTick = f.base_tick();
+      p.frame.epoch = f.epoch();
+      p.frame.edit = f.edit();
+      p.base = {f.base_tick(), f.base_edit()};
       p.refreshLo = f.refresh_lo();
       p.refreshHi = f.refresh_hi();
       // Room for the tick once (a keyframe holds them all; a delta's chunks are about this
@@ -218,13 +248,13 @@ struct Subscription::State {
     }
     if (f.removed()) p.removed.insert(p.removed.end(), f.removed()->begin(), f.removed()->end());
     if (p.got.size() < p.chunkCount) {
-      while (partial.size() > 8) partial.erase(partial.begin());  // superseded ticks
+      while (partial.size() > 8) partial.erase(partial.begin());  // superseded frames
       return;
     }
     Partial done = std::move(p);
     any = true;
-    lastComplete = t;
-    partial.erase(partial.begin(), partial.upper_bound(t));
+    lastComplete = k;
+    partial.erase(partial.begin(), partial.upper_bound(k));
     // physd sends a tick's bodies in the world's order; applying them is then one walk.
     if (!std::is_sorted(done.frame.bodies.begin(), done.frame.bodies.end(), before))
       std::sort(done.frame.bodies.begin(), done.frame.bodies.end(), before);
@@ -278,18 +308,18 @@ struct Subscription::State {
       changedAtValid = false;
       resyncing = false;
     } else {
-      const bool inStep = haveFull && p.baseTick == stateTick;
+      const bool inStep = haveFull && p.base == stateKey;
       if (!inStep) keepDelivered();  // what follows may not be delivered
       if (!inStep) {
         if (!refresh && !resyncing) return drop();  // wait for the next keyframe
-        if (!resyncing || p.baseTick != stateTick) covering = false;  // (another) frame lost
+        if (!resyncing || p.base != stateKey) covering = false;  // (another) frame lost
         resyncing = true;
         haveFull = false;
       }
       applyDelta(p, /*refreshRemoves=*/!inStep);
     }
-    fullTick = p.frame.tick;
-    if (p.frame.keyframe || !p.frame.bodies.empty() || !p.removed.empty()) stateTick = fullTick;
+    if (p.frame.keyframe || !p.frame.bodies.empty() || !p.removed.empty())
+      stateKey = {p.frame.tick, p.frame.edit};
     if (resyncing) {
       if (refresh) {
         if (!covering || p.refreshLo != coveredTo) {  // the first since a loss, or a gap
@@ -430,9 +460,26 @@ struct Client::Impl {
     Clock::time_point deadline;
     bool sentWithServer = false;
     std::function<void(const wire::Reply*, const Error*)> done;
+    /// The command as sent, kept to send it again after a refusal at the door (retryBusy).
+    std::shared_ptr<const protocol::Bytes> bytes;
+    uint32_t retries = 0;  ///< times refused at the door so far
+    /// In the backlog (see `held`): not (or no longer) at the daemon, sent by the SDK thread
+    /// at `sendAt` at the earliest.
+    bool held = false;
+    Clock::time_point sendAt{};
   };
   std::mutex pendMutex;
-  std::map<uint64_t, Pending> pending;
+  std::map<uint64_t, Pending> pending;  ///< by seq, so in the order they were made
+  /// The backlog of refusals at the door (retryBusy), under pendMutex: from a client's first
+  /// refusal until its backlog is empty, its requests go out one at a time, in order (the
+  /// refused ones again after the wait the daemon names, the ones made meanwhile behind
+  /// them), each when the one before it is answered. A daemon counts no command against a
+  /// client's rate while none of its others waits, so the backlog drains at the round trip's
+  /// pace without being refused again, and a client refused for sending ahead cannot keep
+  /// flooding by retrying.
+  size_t held = 0;           ///< entries of `pending` held
+  uint64_t backlogSeq = 0;   ///< the backlog's request at the daemon now (0: none)
+  bool backlogged() const { return held > 0 || backlogSeq != 0; }  // pendMutex held
 
   mutable std::mutex infoMutex;
   ServerInfo server;
@@ -527,16 +574,31 @@ struct Client::Impl {
             std::function<void(const wire::Reply*, const Error*)> done) {
     const bool hello = b.requestCount() == 1 && b.requestType(0) == wire::Request::Hello;
     const uint64_t s = ++seq;
-    protocol::Bytes bytes = b.finish({clientId, s, world});
+    auto bytes = std::make_shared<const protocol::Bytes>(b.finish({clientId, s, world}));
+    bool later = false;
     {
       std::lock_guard<std::mutex> lk(pendMutex);
-      pending[s] = {Clock::now() + timeout, serversMatched.load() > 0, done};
+      Pending& p = pending[s];
+      p.deadline = Clock::now() + timeout;
+      p.sentWithServer = serversMatched.load() > 0;
+      p.done = done;
+      if (options.retryBusy) p.bytes = bytes;
+      if (options.retryBusy && backlogged()) {
+        // Behind the requests the daemon refused: the SDK thread sends it in its turn.
+        p.held = later = true;
+        p.sentWithServer = true;  // not lost to a missing daemon: sent later
+        ++held;
+      }
+    }
+    if (later) {
+      waitset.wake();
+      return;
     }
     dds_return_t rc;
     {
       std::lock_guard<std::mutex> lk(writeMutex);
       proveToNewDaemons(hello);
-      rc = cmdWriter.write(clientId, bytes, s);
+      rc = cmdWriter.write(clientId, *bytes, s);
     }
     if (rc < 0) {
       bool mine = false;
@@ -561,7 +623,7 @@ struct Client::Impl {
       try {
         if (e) throw *e;
         if (r->status() != wire::StatusCode::Ok)
-          throw Error(ErrorCode(uint8_t(r->status())), str(r->message()));
+          throw Error(ErrorCode(uint8_t(r->status())), str(r->message()), r->retry_after_ms());
         prom->set_value(parse(*r));
       } catch (...) {
         prom->set_exception(std::current_exception());
@@ -638,6 +700,7 @@ struct Client::Impl {
           ++it;
           continue;
         }
+        if (it->second.held) --held;
         failed.push_back(std::move(it->second));
         it = pending.erase(it);
       }
@@ -656,7 +719,22 @@ struct Client::Impl {
       {
         std::lock_guard<std::mutex> lk(pendMutex);
         auto it = pending.find(r.ok() ? r->seq() : env.seq);
-        if (it == pending.end()) return;
+        if (it == pending.end() || it->second.held) return;  // not this send's answer
+        if (it->first == backlogSeq) backlogSeq = 0;  // the next of the backlog may go
+        if (r.ok() && it->second.bytes && r->status() == wire::StatusCode::ResourceExhausted &&
+            r->retry_after_ms() > 0) {
+          // Refused at the door, nothing done: into the backlog, to go again after the wait
+          // the daemon names and a backoff, if that is before the request's deadline.
+          Pending& q = it->second;
+          const auto wait = retryWait(q.retries, r->retry_after_ms());
+          if (Clock::now() + wait < q.deadline) {
+            ++q.retries;
+            q.held = true;
+            q.sendAt = Clock::now() + wait;
+            ++held;
+            return;
+          }
+        }
         p = std::move(it->second);
         pending.erase(it);
       }
@@ -821,6 +899,61 @@ struct Client::Impl {
     }
   }
 
+  /// How long to wait before sending a refused command again: what the daemon says, and at
+  /// least 1, 2, 4, ... up to 200 ms as it keeps refusing; times 1 to 1.5 at random, so that
+  /// clients refused together do not come back together.
+  std::chrono::microseconds retryWait(uint32_t retries, uint32_t afterMs) {
+    const double backoffMs = double(1u << std::min(retries, 8u));
+    const double ms = std::max(double(afterMs), std::min(backoffMs, 200.0));
+    std::uniform_real_distribution<double> jitter(1.0, 1.5);
+    return std::chrono::microseconds(int64_t(ms * 1000 * jitter(rng)));
+  }
+  std::minstd_rand rng{std::random_device{}()};  ///< SDK thread only (retryWait)
+
+  /// The backlog's next request, when the one before it was answered and its wait is over
+  /// (SDK thread); returns when to look again (Clock::time_point::max(): at the next reply).
+  Clock::time_point sendBacklog() {
+    uint64_t s = 0;
+    std::shared_ptr<const protocol::Bytes> bytes;
+    {
+      std::lock_guard<std::mutex> lk(pendMutex);
+      if (backlogSeq != 0 && !pending.count(backlogSeq)) backlogSeq = 0;  // failed, expired
+      if (held == 0 || backlogSeq != 0) return Clock::time_point::max();
+      auto it = std::find_if(pending.begin(), pending.end(),
+                             [](const auto& e) { return e.second.held; });
+      if (it == pending.end()) {  // never expected: the count is kept with the flags
+        held = 0;
+        return Clock::time_point::max();
+      }
+      if (it->second.sendAt > Clock::now()) return it->second.sendAt;
+      s = it->first;
+      bytes = it->second.bytes;
+      it->second.held = false;
+      it->second.sentWithServer = serversMatched.load() > 0;
+      --held;
+      backlogSeq = s;
+    }
+    dds_return_t rc;
+    {
+      std::lock_guard<std::mutex> lk(writeMutex);
+      proveToNewDaemons(false);
+      rc = cmdWriter.write(clientId, *bytes, s);
+    }
+    if (rc >= 0) return Clock::time_point::max();
+    Pending p;
+    {
+      std::lock_guard<std::mutex> lk(pendMutex);
+      auto it = pending.find(s);
+      if (it == pending.end()) return Clock::now();
+      p = std::move(it->second);
+      pending.erase(it);
+      backlogSeq = 0;
+    }
+    Error e(ErrorCode::Transport, "dds_write on phys/cmd: " + dds::error(rc));
+    p.done(nullptr, &e);
+    return Clock::now();  // the next one now
+  }
+
   void expire() {
     const auto now = Clock::now();
     std::vector<Pending> expired;
@@ -828,6 +961,7 @@ struct Client::Impl {
       std::lock_guard<std::mutex> lk(pendMutex);
       for (auto it = pending.begin(); it != pending.end();) {
         if (it->second.deadline <= now) {
+          if (it->second.held) --held;
           expired.push_back(std::move(it->second));
           it = pending.erase(it);
         } else {
@@ -838,12 +972,21 @@ struct Client::Impl {
     if (expired.empty()) return;  // the usual case: runs after every wake-up
     Error e(ErrorCode::Timeout, "no reply from physd within the request's timeout (domain " +
                                     std::to_string(options.domain) + ")");
-    for (auto& p : expired) p.done(nullptr, &e);
+    Error behind(ErrorCode::Timeout,
+                 "still waiting behind requests physd refused at the door (its rate and queue "
+                 "budgets: docs/CLIENT.md \"Rate limits\") at the request's timeout");
+    for (auto& p : expired) p.done(nullptr, p.held ? &behind : &e);
   }
 
   void loop() {
+    auto resendAt = Clock::time_point::max();
     while (!stop) {
-      waitset.wait(DDS_MSECS(50));
+      // Up to 50 ms, or until a refused command is due again.
+      auto wait = std::chrono::milliseconds(50);
+      if (resendAt != Clock::time_point::max())
+        wait = std::clamp(std::chrono::ceil<std::chrono::milliseconds>(resendAt - Clock::now()),
+                          std::chrono::milliseconds(0), wait);
+      waitset.wait(DDS_MSECS(wait.count()));
       if (stop) break;
       takeReplies();
       takeStatus();
@@ -851,6 +994,7 @@ struct Client::Impl {
       takeStates();
       checkServers();
       expire();
+      resendAt = sendBacklog();
     }
   }
 
@@ -925,16 +1069,28 @@ std::optional<StateFrame> Subscription::latest() const {
   if (!state_) return std::nullopt;
   std::lock_guard<std::mutex> lk(state_->m);
   if (!state_->deliveredBodies) return std::nullopt;
-  return state_->copyDelivered();
+  return state_->handOut();
 }
 
 std::optional<StateFrame> Subscription::waitForFrame(uint64_t afterTick,
-                                                     std::chrono::milliseconds timeout) {
+                                                     std::chrono::milliseconds timeout,
+                                                     uint64_t epoch) {
   if (!state_) return std::nullopt;
   std::unique_lock<std::mutex> lk(state_->m);
-  auto ready = [&] { return state_->deliveredBodies && state_->delivered.tick > afterTick; };
+  // What afterTick refers to: the caller's epoch, or that of the last frame it was given (a
+  // frame of a newer epoch delivered meanwhile is then after it, whatever its tick: the
+  // world's ticks started again, and a caller waiting for the old ones would wait for
+  // nothing). Given none yet, afterTick 0 takes the first frame (a world just created or
+  // reset is at tick 0).
+  const bool first = afterTick == 0 && epoch == 0 && !state_->handedOut;
+  if (epoch == 0) epoch = state_->handedEpoch;
+  auto ready = [&] {
+    return state_->deliveredBodies &&
+           (first || state_->delivered.tick > afterTick ||
+            (epoch != 0 && state_->delivered.epoch != epoch));
+  };
   state_->cv.wait_for(lk, timeout, ready);
-  if (ready()) return state_->copyDelivered();
+  if (ready()) return state_->handOut();
   return std::nullopt;
 }
 
@@ -1156,6 +1312,8 @@ std::future<StateFrame> WorldHandle::queryState(std::span<const uint64_t> ids, u
     f.tick = r.tick();
     f.time = s->time();
     f.total = s->total();
+    f.stampNs = s->stamp_ns();
+    f.epoch = s->epoch();
     if (s->bodies())
       for (auto* b : *s->bodies()) f.bodies.push_back(toState(*b));
     return f;

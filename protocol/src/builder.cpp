@@ -588,7 +588,7 @@ namespace {
 Bytes finishReply(Fbb& fbb, const ReplyHeader& h, wire::Result type, Offset<void> result) {
   auto message = optString(fbb, h.status.message);
   auto root = wire::CreateReply(fbb, h.clientId, h.seq, h.status.code, message, h.world, h.tick,
-                                type, result);
+                                type, result, h.retryAfterMs);
   return finishBytes(fbb, root, wire::kReplyId);
 }
 
@@ -628,10 +628,11 @@ Bytes encodeWorldListReply(const ReplyHeader& header, std::span<const WorldSumma
 }
 
 Bytes encodeStateReply(const ReplyHeader& header, double time, uint32_t total,
-                       std::span<const wire::BodyState> bodies) {
+                       std::span<const wire::BodyState> bodies, uint64_t stampNs,
+                       uint64_t epoch) {
   Fbb fbb(256 + sizeof(wire::BodyState) * bodies.size());
   auto v = fbb.CreateVectorOfStructs(bodies.data(), bodies.size());
-  auto r = wire::CreateStateResult(fbb, time, total, v);
+  auto r = wire::CreateStateResult(fbb, time, total, v, stampNs, epoch);
   return finishReply(fbb, header, wire::Result::StateResult, r.Union());
 }
 
@@ -702,6 +703,9 @@ Bytes encodeStateFrame(const FrameHeader& header, uint32_t chunkIndex, uint32_t 
     f.add_refresh_lo(header.refreshLo);
     f.add_refresh_hi(header.refreshHi);
   }
+  f.add_epoch(header.epoch);  // (zeros are left out by FlatBuffers' defaults)
+  f.add_edit(header.edit);
+  if (!header.keyframe) f.add_base_edit(header.baseEdit);
   return finishBytes(fbb, f.Finish(), wire::kStateFrameId);
 }
 

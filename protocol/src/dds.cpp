@@ -114,8 +114,13 @@ dds_return_t Writer::dispose(uint64_t key) {
 }
 
 uint32_t Writer::matched() const {
+  return matched(nullptr);
+}
+
+uint32_t Writer::matched(uint64_t* total) const {
   dds_publication_matched_status_t m{};
   if (dds_get_publication_matched_status(e_, &m) != DDS_RETCODE_OK) return 0;
+  if (total) *total = m.total_count;
   return m.current_count;
 }
 

@@ -221,6 +221,10 @@ bool InstanceGate::admit(uint64_t writer, uint64_t instance, Clock::time_point n
                         w.tokens + std::chrono::duration<double>(now - w.last).count() *
                                        limits_.rate);
     w.last = now;
+    if (w.answered) {  // its last command answered: one request in flight is no flood
+      w.answered = false;
+      return true;
+    }
     if (w.tokens < 1) {
       ++w.refusedRate;
       ++refused_;
@@ -229,6 +233,28 @@ bool InstanceGate::admit(uint64_t writer, uint64_t instance, Clock::time_point n
     w.tokens -= 1;
   }
   return true;
+}
+
+void InstanceGate::bind(uint64_t writer, uint64_t key) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  auto k = keyWriters_.find(key);
+  if (k != keyWriters_.end() && k->second == writer) return;  // the usual case
+  auto it = writers_.find(writer);
+  if (it == writers_.end()) return;  // swept meanwhile
+  WriterRec& w = it->second;
+  if (std::find(w.keys.begin(), w.keys.end(), key) == w.keys.end()) {
+    if (w.keys.size() >= limits_.instances) return;
+    w.keys.push_back(key);
+  }
+  keyWriters_[key] = writer;  // the key's holder now (another participant may have had it)
+}
+
+void InstanceGate::answered(uint64_t key) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  auto k = keyWriters_.find(key);
+  if (k == keyWriters_.end()) return;
+  auto it = writers_.find(k->second);
+  if (it != writers_.end()) it->second.answered = true;
 }
 
 std::vector<InstanceGate::Refused> InstanceGate::sweep(std::span<const uint64_t> live,
@@ -244,10 +270,15 @@ std::vector<InstanceGate::Refused> InstanceGate::sweep(std::span<const uint64_t>
       w.reported = refused;
       w.reportedAt = now;
     }
-    if (matched.count(it->first))
+    if (matched.count(it->first)) {
       ++it;
-    else
-      it = writers_.erase(it);
+      continue;
+    }
+    for (uint64_t key : w.keys) {
+      auto k = keyWriters_.find(key);
+      if (k != keyWriters_.end() && k->second == it->first) keyWriters_.erase(k);
+    }
+    it = writers_.erase(it);
   }
   return out;
 }

@@ -297,6 +297,8 @@ struct ServerCore::Context {
               w.setVelocity(phys::BodyId::fromPacked(it->id()), protocol::toPhys(it->linear()),
                             protocol::toPhys(it->angular()));
           if (!st.ok()) return fromPhys(st, p + ".items[" + std::to_string(i) + "]");
+          sw.touched.push_back(it->id());  // its published state changed now (a paused world's
+                                           // subscribers see it at once: queueFrame)
         }
         return Status::Ok();
       }
@@ -320,6 +322,8 @@ struct ServerCore::Context {
           phys::Vec3 vec = protocol::toPhys(it->vector());
           phys::Status st = impulse ? w.applyImpulse(id, vec, point) : w.applyForce(id, vec, point);
           if (!st.ok()) return fromPhys(st, ip);
+          if (impulse) sw.touched.push_back(it->id());  // its velocities changed now; a force
+                                                        // acts in the next step
         }
         return Status::Ok();
       }
@@ -963,7 +967,12 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey,
         }
       }
       ctx.header.tick = sw->tick;
-      reply = protocol::encodeStateReply(ctx.header, sw->world->time(), total, out);
+      // Stamped as a state frame is (queueStream): the wall clock once the states are read.
+      const auto stamp = std::chrono::system_clock::now().time_since_epoch();
+      reply = protocol::encodeStateReply(
+          ctx.header, sw->world->time(), total, out,
+          uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(stamp).count()),
+          sw->epoch);
       return finish();
     }
     case wire::Request::GetWorld: {

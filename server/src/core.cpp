@@ -74,9 +74,9 @@ void ServerCore::finishLoad(ServerWorld& w) {
   h.tick = w.tick;
   if (!st.ok()) ++counters_.errors;
   h.status = st;
+  release(job.envelopeKey, job.sender, job.charge);  // before the reply (applyNow)
   pushReply(job.envelopeKey, job.envelopeSeq,
             st.ok() ? protocol::encodeIdsReply(h, bodies, joints) : protocol::encodeReply(h));
-  release(job.envelopeKey, job.sender, job.charge);
 }
 
 Status ServerCore::init() {
@@ -113,6 +113,7 @@ std::unique_ptr<ServerWorld> ServerCore::makeWorld(const std::string& name,
   w->world = std::make_unique<phys::World>(d);
   w->rateHz = config_.defaultRateHz;
   w->nextInterest = interestBase_ + 1;
+  w->epoch = epochBase_ + 1;
   return w;
 }
 
@@ -188,8 +189,30 @@ void ServerCore::setSubscribers(uint32_t world, uint32_t n) {
   setSubscribers(world, 0, n);
 }
 void ServerCore::setSubscribers(uint32_t world, uint32_t interest, uint32_t n) {
-  std::lock_guard<std::mutex> lock(subscribersMutex_);
-  subscribers_[streamKey(world, interest)] = n;
+  uint64_t matched = 0;
+  {
+    std::lock_guard<std::mutex> lock(subscribersMutex_);
+    const Subscribers& s = subscribers_[streamKey(world, interest)];
+    matched = s.matched + (n > s.now ? n - s.now : 0);  // a count that grew: new ones
+  }
+  setSubscribers(world, interest, n, matched);
+}
+void ServerCore::setSubscribers(uint32_t world, uint32_t interest, uint32_t n,
+                                uint64_t matched) {
+  {
+    std::lock_guard<std::mutex> lock(subscribersMutex_);
+    Subscribers& s = subscribers_[streamKey(world, interest)];
+    if (s.now == n && s.matched == matched) return;  // the usual case: every 250 ms
+    s.now = n;
+    s.matched = matched;
+    subscribersChanged_.push_back(world);
+  }
+  // The tick thread looks at once (a paused world's new subscriber waits for nothing).
+  {
+    std::lock_guard<std::mutex> lock(inboxMutex_);
+    anySubscribersChanged_.store(true);
+  }
+  inboxCv_.notify_one();
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -197,6 +220,7 @@ void ServerCore::setSubscribers(uint32_t world, uint32_t interest, uint32_t n) {
 
 void ServerCore::submit(Incoming in) {
   std::string refused;
+  uint32_t retryMs = 0;  // when the same command may come again (Reply.retry_after_ms)
   bool answer = true;
   {
     std::lock_guard<std::mutex> lock(inboxMutex_);
@@ -215,49 +239,69 @@ void ServerCore::submit(Incoming in) {
     Pending& p = pendingPerClient_[in.envelopeKey];
     RateBucket& bucket = bucketOf(in.envelopeKey, now);
     const uint64_t bytes = queueCharge(in);
-    if (sender && !sender->commands.ready(config_.maxParticipantCommandsPerS,
-                                          config_.maxParticipantBurst, now))
+    // The rates count only the commands sent while some of the sender's are still waiting
+    // to be answered: a client with one request in flight (a synchronous loop, however fast
+    // its round trip) cannot flood, since the queue is first come, first served and it is
+    // never in it twice; what it may cost is one command's turn at a time. A client that
+    // sends ahead of its replies is counted (docs/SERVER.md "Budgets").
+    const bool clientIdle = p.commands == 0;
+    const bool senderIdle = !sender || sender->pending.commands == 0;
+    // How long until a bucket has its next token, in whole ms (at least 1).
+    auto wait = [&](const RateBucket& b, double rate) {
+      return uint32_t(std::clamp(std::ceil((1 - b.tokens) / rate * 1000), 1.0, 60000.0));
+    };
+    if (sender && !senderIdle &&
+        !sender->commands.ready(config_.maxParticipantCommandsPerS,
+                                config_.maxParticipantBurst, now)) {
+      retryMs = wait(sender->commands, config_.maxParticipantCommandsPerS);
       refused = "this participant (client " + std::to_string(in.envelopeKey) +
                 " and any other ids it writes under) sends more than " +
                 std::to_string(int64_t(config_.maxParticipantCommandsPerS)) +
                 " commands a second (server.max_participant_commands_per_s, bursts of " +
                 std::to_string(int64_t(config_.maxParticipantBurst)) +
-                ": server.max_participant_burst); slow down";
-    else if (!bucket.ready(config_.maxClientCommandsPerS, config_.maxClientBurst, now))
+                ": server.max_participant_burst) while it has commands waiting; slow down";
+    } else if (!clientIdle &&
+               !bucket.ready(config_.maxClientCommandsPerS, config_.maxClientBurst, now)) {
+      retryMs = wait(bucket, config_.maxClientCommandsPerS);
       refused = "client " + std::to_string(in.envelopeKey) + " sends more than " +
                 std::to_string(int64_t(config_.maxClientCommandsPerS)) +
                 " commands a second (server.max_client_commands_per_s, bursts of " +
                 std::to_string(int64_t(config_.maxClientBurst)) +
-                ": server.max_client_burst); slow down";
-    else if (p.commands >= config_.maxQueuedPerClient)
+                ": server.max_client_burst) while it has commands waiting; slow down";
+    } else if (p.commands >= config_.maxQueuedPerClient) {
+      retryMs = kQueueRetryMs;
       refused = "client " + std::to_string(in.envelopeKey) + " has " +
                 std::to_string(p.commands) +
                 " commands waiting to be applied, the limit is " +
                 std::to_string(config_.maxQueuedPerClient) +
                 " (server.max_queued_per_client); wait for replies";
-    else if (p.bytes + bytes > config_.maxQueuedBytesPerClient)
+    } else if (p.bytes + bytes > config_.maxQueuedBytesPerClient) {
+      retryMs = kQueueRetryMs;
       refused = "client " + std::to_string(in.envelopeKey) + " has " + std::to_string(p.bytes) +
                 " bytes of commands waiting, the limit is " +
                 std::to_string(config_.maxQueuedBytesPerClient) +
                 " (server.max_queued_mb_per_client); wait for replies";
-    else if (sender &&
-             sender->pending.bytes + bytes > config_.maxQueuedBytesPerParticipant)
+    } else if (sender &&
+               sender->pending.bytes + bytes > config_.maxQueuedBytesPerParticipant) {
+      retryMs = kQueueRetryMs;
       refused = "this participant (client " + std::to_string(in.envelopeKey) +
                 " and any other ids it writes under) has " +
                 std::to_string(sender->pending.bytes) +
                 " bytes of commands waiting, the limit is " +
                 std::to_string(config_.maxQueuedBytesPerParticipant) +
                 " (server.max_queued_mb_per_participant); wait for replies";
-    else if (pendingBytes_ + bytes > config_.maxQueuedBytes)
+    } else if (pendingBytes_ + bytes > config_.maxQueuedBytes) {
+      retryMs = kServerQueueRetryMs;
       refused = "the server's command queue holds " + std::to_string(pendingBytes_) +
                 " bytes, the limit is " + std::to_string(config_.maxQueuedBytes) +
                 " (server.max_queued_mb); retry later";
+    }
     if (refused.empty()) {
-      if (config_.maxClientCommandsPerS > 0) bucket.tokens -= 1;
+      if (config_.maxClientCommandsPerS > 0 && !clientIdle) bucket.tokens -= 1;
       ++p.commands;
       p.bytes += bytes;
       if (sender) {
-        if (config_.maxParticipantCommandsPerS > 0) sender->commands.tokens -= 1;
+        if (config_.maxParticipantCommandsPerS > 0 && !senderIdle) sender->commands.tokens -= 1;
         ++sender->pending.commands;
         sender->pending.bytes += bytes;
       }
@@ -290,6 +334,7 @@ void ServerCore::submit(Incoming in) {
       h.world = in.command->world();
     }
     h.status = Status::Error(Code::ResourceExhausted, refused);
+    h.retryAfterMs = retryMs;
     pushReplyNow(in.envelopeKey, in.envelopeSeq, protocol::encodeReply(h));
     return;
   }
@@ -403,7 +448,9 @@ void ServerCore::pushReplyNow(uint64_t key, uint64_t seq, Bytes reply) {
 
 void ServerCore::waitForCommands(std::chrono::microseconds timeout) {
   std::unique_lock<std::mutex> lock(inboxMutex_);
-  inboxCv_.wait_for(lock, timeout, [&] { return !inbox_.empty() || !left_.empty(); });
+  inboxCv_.wait_for(lock, timeout, [&] {
+    return !inbox_.empty() || !left_.empty() || anySubscribersChanged_.load();
+  });
 }
 
 size_t ServerCore::processPending() {
@@ -495,13 +542,15 @@ void ServerCore::applyNow(const Incoming& in) {
   Bytes reply = apply(in);
   current_ = nullptr;
   if (deferred_) return;  // a Step job answers when it ends
+  // Released before its reply can reach the client, so that the client's next command finds
+  // nothing of it waiting (the rates count only commands sent while some wait: submit).
+  release(in);
   if (journaledWorld_) {
     const ReplyHeader failed = protocol::replyTo(*in.command);
     pushReply(in.envelopeKey, in.envelopeSeq, std::move(reply), journaledWorld_, &failed);
   } else {
     pushReply(in.envelopeKey, in.envelopeSeq, std::move(reply));
   }
-  release(in);
 }
 
 void ServerCore::drainWaiting(uint32_t id) {
@@ -565,9 +614,9 @@ void ServerCore::endJob(ServerWorld& w, Status status) {
   }
   const ReplyHeader failed = h;
   h.status = std::move(status);
+  release(job.envelopeKey, job.sender, job.charge);  // before the reply (applyNow)
   pushReply(job.envelopeKey, job.envelopeSeq, protocol::encodeReply(h), marked ? w.id : 0,
             &failed);
-  release(job.envelopeKey, job.sender, job.charge);
 }
 
 void ServerCore::cancelJob(ServerWorld& w, const std::string& why) {
@@ -752,6 +801,17 @@ Status ServerCore::stepWorld(uint32_t id, uint64_t n) {
 uint64_t ServerCore::advance(double wallSeconds) {
   uint64_t total = 0;
   size_t busy = 0;
+  if (anySubscribersChanged_.exchange(false)) {
+    // Streams with new subscribers (or fewer) are looked at below, stepping or not: a new
+    // one's keyframe goes out now (queueStream), whatever the world is doing.
+    std::vector<uint32_t> changed;
+    {
+      std::lock_guard<std::mutex> lock(subscribersMutex_);
+      changed.swap(subscribersChanged_);
+    }
+    for (uint32_t id : changed)
+      if (ServerWorld* w = world(id)) w->frameDirty = true;
+  }
   for (auto& [id, w] : worlds_) busy += w->job.has_value();
   if (!loaders_.empty()) reapLoaders();
   for (auto& [id, wp] : worlds_) {
@@ -820,6 +880,9 @@ double ServerCore::secondsUntilDue(double idle) const {
   double best = idle;
   for (auto& [id, w] : worlds_) {
     if (w->mode == RunMode::AsFastAsPossible || w->job) return 0;
+    // Commands that waited for a job that has ended: the next tick applies them (not after a
+    // sleep of up to `idle` each, which held requests pipelined to one world to ~50 a second).
+    if (!w->busy() && !w->waiting.empty()) return 0;
     if (w->load) best = std::min(best, 0.001);  // look for the loader's result soon
     if (w->mode == RunMode::RealTime) {
       double s = std::max(0.0, (1.0 - w->accumulator) / w->rateHz);
@@ -841,33 +904,44 @@ Status ServerCore::queueFrame(ServerWorld& w) {
   std::sort(awakeIds.begin(), awakeIds.end());
   std::sort(w.touched.begin(), w.touched.end());
   w.touched.erase(std::unique(w.touched.begin(), w.touched.end()), w.touched.end());
-  // An edit between ticks (a paused world) changes the world at the tick subscribers already
-  // hold: a delta for the same tick would be ignored by them, so its changes wait for the next
-  // tick's delta (touched is kept until then); a stream that needs a keyframe sends it now.
-  const bool newTick = w.tick != w.lastFrameTick;
+  // Frames are ordered by (epoch, tick, edit) (docs/PROTOCOL.md "Order of frames"). A new
+  // tick (or epoch) is frame edit 0. Edits between ticks of a world that does not step by
+  // itself (paused, no Step running) go out at once in a frame of their own at the same
+  // tick, the next edit number: its subscribers see poses set, bodies spawned and removed
+  // without a step. A running world's edits wait for its next tick's delta (within a period;
+  // touched is kept until then), so that edits do not double its frames. A frame that is
+  // neither (the same tick, nothing edited) goes only to streams that need a keyframe (a new
+  // subscriber), at the edit number their other subscribers already hold.
+  const bool newTick = w.tick != w.lastFrameTick || w.epoch != w.lastFrameEpoch;
+  const bool stepsByItself = w.mode != RunMode::Paused || w.busy();
+  const bool editFrame = !newTick && !w.touched.empty() && !stepsByItself;
+  if (newTick) w.edit = 0;
+  if (editFrame) ++w.edit;
+  const bool fresh = newTick || editFrame;
   // framesProduced counts the world's own stream's frames (WorldSummary.frames).
-  if (queueStream(w, 0, nullptr, &w.published, awakeIds, newTick)) ++w.framesProduced;
-  for (auto& [id, in] : w.interests) queueStream(w, id, &in, &in.published, awakeIds, newTick);
-  if (newTick) w.touched.clear();
+  if (queueStream(w, 0, nullptr, &w.published, awakeIds, fresh)) ++w.framesProduced;
+  for (auto& [id, in] : w.interests) queueStream(w, id, &in, &in.published, awakeIds, fresh);
+  if (fresh) w.touched.clear();
   w.lastFrameTick = w.tick;
+  w.lastFrameEpoch = w.epoch;
   return Status::Ok();
 }
 
 bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorld::Interest* filter,
                              ServerWorld::Published* streamState,
-                             const std::vector<uint64_t>& awakeIds, bool newTick) {
+                             const std::vector<uint64_t>& awakeIds, bool fresh) {
   // A keyframe holds every body of the stream; a delta the bodies whose state changed among
   // those awake now, awake at the last frame (one that just fell asleep sends its final state
   // once) and edited since, and those gone (removed, or out of the interest's region). A
   // stream nobody subscribes to encodes nothing.
   ServerWorld::Published& pub = *streamState;
-  uint32_t subscribers = 0;
+  Subscribers subscribers;
   {
     std::lock_guard<std::mutex> lock(subscribersMutex_);
     auto it = subscribers_.find(streamKey(w.id, interest));
-    subscribers = it == subscribers_.end() ? 0 : it->second;
+    if (it != subscribers_.end()) subscribers = it->second;
   }
-  if (subscribers == 0 && !config_.framesWithoutSubscribers) {
+  if (subscribers.now == 0 && !config_.framesWithoutSubscribers) {
     pub = ServerWorld::Published();  // the next subscriber starts from a keyframe
     return false;
   }
@@ -883,10 +957,13 @@ bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorl
   const uint64_t period =
       uint64_t(config_.keyframeTicks) *
       (quiet && config_.keyframeTicks > 1 ? std::max<uint32_t>(1, config_.quietKeyframeFactor) : 1);
-  const bool keyframe = !pub.valid || subscribers > pub.subscribers ||
+  // A new subscriber (a reader matched since the last frame) gets a keyframe now.
+  const bool keyframe = !pub.valid || subscribers.matched > pub.matched ||
                         dropped != pub.droppedSeen ||
                         (!rolling && pub.sinceKeyframe + 1 >= period);
-  if (!keyframe && !newTick) return false;  // the same tick again: in the next tick's delta
+  // The same tick and edit again: nothing for a stream that has it (what changed since waits
+  // for the next fresh frame).
+  if (!keyframe && !fresh) return false;
   phys::World& world = *w.world;
   std::vector<wire::BodyState> states;
   std::vector<uint64_t> removed;
@@ -971,14 +1048,20 @@ bool ServerCore::queueStream(ServerWorld& w, uint32_t interest, const ServerWorl
   h.interest = interest;
   h.refreshLo = refreshLo;
   h.refreshHi = refreshHi;
+  h.epoch = w.epoch;
+  h.edit = w.edit;
+  h.baseEdit = pub.baseEdit;
   f.chunks = protocol::encodeStateFrames(h, states, std::max<uint32_t>(1, config_.bodiesPerChunk),
                                          removed, uint32_t(pub.sent.size()));
   pub.awake = awakeIds;
   pub.valid = true;
   const bool carried = keyframe || !states.empty() || !removed.empty();
-  if (carried) pub.baseTick = w.tick;
+  if (carried) {
+    pub.baseTick = w.tick;
+    pub.baseEdit = w.edit;
+  }
   pub.changedSinceKeyframe = !keyframe && (pub.changedSinceKeyframe || changed);
-  pub.subscribers = subscribers;
+  pub.matched = subscribers.matched;
   pub.droppedSeen = dropped;
   pub.bytes = 0;
   for (const protocol::Bytes& c : f.chunks) pub.bytes += c.size();
@@ -1052,7 +1135,7 @@ std::vector<protocol::WorldSummary> ServerCore::summaries() const {
     s.contacts = uint32_t(w->world->stats().contacts);
     s.stepBufferBytes = w->world->stepBufferBytes();
     auto it = subscribers_.find(streamKey(id, 0));
-    s.subscribers = it == subscribers_.end() ? 0 : it->second;
+    s.subscribers = it == subscribers_.end() ? 0 : it->second.now;
     out.push_back(std::move(s));
   }
   // Worlds kept on disk but not restored: listed so that clients see why (not only absent).

@@ -397,7 +397,8 @@ Status ServerCore::restoreInto(ServerWorld& w, const Checkpoint& c,
   w.reachedTick = w.tick;
   w.held = false;
   w.infoDirty = w.frameDirty = true;
-  w.framesReplaced();
+  w.epoch = std::max(w.epoch, epochBase_);  // this start's range (a reload: the world's own)
+  w.framesReplaced();                       // a new epoch
   w.checkpointAt = std::chrono::steady_clock::now();
   return Status::Ok();
 }
@@ -525,6 +526,9 @@ Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
     // A read-only start could not count itself: the next start will take the same number,
     // so this one numbers its interests from the other half of the range.
     interestBase_ = uint32_t((starts_ + (readOnly_.empty() ? 0 : 16384)) % 32768) << 16;
+    // Epochs the same way (wide enough not to wrap): a restored world starts a new one,
+    // above any it had before (a subscriber that did not notice the restart goes on).
+    epochBase_ = starts_ << 32;
   }
   if (!readOnly_.empty())
     notes->push_back("physd is read-only: " + readOnly_ +

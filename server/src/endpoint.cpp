@@ -138,6 +138,7 @@ void DdsEndpoint::readLoop() {
                        participantName(who.participant), env.key, who.refusals, n);
         return;
       }
+      if (who.verdict == ClientKeys::Verdict::Ok) gate_.bind(writer, env.key);
       Incoming in;
       in.envelopeKey = env.key;
       in.envelopeSeq = env.seq;
@@ -277,8 +278,13 @@ void DdsEndpoint::publishLoop() {
     if (item.frame) publish(*item.frame);
     auto now = std::chrono::steady_clock::now();
     if (now - lastSubscribers > std::chrono::milliseconds(250)) {
-      for (auto& [key, st] : state_)
-        core_->setSubscribers(uint32_t(key >> 32), uint32_t(key), st->writer.matched());
+      // Readers ever matched too: a reader that came while another went (the same count)
+      // is a new subscriber, owed a keyframe.
+      for (auto& [key, st] : state_) {
+        uint64_t total = 0;
+        const uint32_t n = st->writer.matched(&total);
+        core_->setSubscribers(uint32_t(key >> 32), uint32_t(key), n, total);
+      }
       lastSubscribers = now;
     }
     if (stop_ && !item.reliable && !item.frame) break;
@@ -289,6 +295,8 @@ void DdsEndpoint::publish(ReliableMessage& m) {
   dds_return_t rc = DDS_RETCODE_OK;
   switch (m.type) {
     case ReliableMessage::Type::Reply:
+      // Before the write: the client's next command may be here before write() returns.
+      gate_.answered(m.key);  // the writer's next command passes the gate free
       rc = replyWriter_.write(m.key, m.chunks.at(0), m.seq);
       if (rc == DDS_RETCODE_OK) counters_.repliesWritten.fetch_add(1);
       break;

@@ -11,6 +11,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <future>
 #include <limits>
 #include <map>
@@ -35,6 +36,9 @@ constexpr auto kTimeout = std::chrono::milliseconds(int64_t(20000 * test::kTimeF
 /// How long a frame may take to reach every matched reader before the test steps again (the
 /// warm-ups step until their readers are matched: a frame before that never arrives).
 constexpr auto kDelivery = std::chrono::milliseconds(int64_t(500 * test::kTimeFactor));
+/// A new subscription's whole state (docs/CLIENT.md "Subscriptions"): matching, the server's
+/// look at its subscribers (every 250 ms) and one turn of its tick thread: well under 2 s.
+constexpr auto kKeyframe = std::chrono::milliseconds(int64_t(2000 * test::kTimeFactor));
 
 uint32_t testDomain() {
   return 230 + uint32_t(getpid() % 2);
@@ -493,7 +497,8 @@ TEST(ClientSdk, ASecondSubscriberToAPausedWorldBreaksNobodysDeltas) {
     ASSERT_TRUE(a.waitForFrame(tick - 1, kTimeout));
   }
   Subscription b = w.subscribe();
-  // An edit while paused: b's keyframe goes out at once, at the tick a already has.
+  // An edit while paused (since issue 40 b's keyframe needs none): b's keyframe goes out at
+  // once, at the tick a already has.
   std::this_thread::sleep_for(400ms);  // physd counts b (every 250 ms)
   const std::vector<uint64_t> ids = {id};
   w.setMaterial(ids, phys::Material{0.3f, 0, 1000}).get();
@@ -507,6 +512,268 @@ TEST(ClientSdk, ASecondSubscriberToAPausedWorldBreaksNobodysDeltas) {
   }
   EXPECT_EQ(a.framesSkipped(), 0u);
   EXPECT_EQ(b.framesSkipped(), 0u);
+}
+
+/// The subscription's first frame, within kKeyframe (none: nullopt).
+std::optional<StateFrame> firstFrame(Subscription& s) {
+  return s.waitForFrame(0, kKeyframe);
+}
+
+/// Every body of f equals the world's now (QueryState), bit for bit, and f is at its tick.
+void expectWorldsState(WorldHandle& w, const StateFrame& f, const char* what) {
+  const StateFrame truth = w.queryState().get();
+  EXPECT_EQ(f.tick, truth.tick) << what;
+  EXPECT_EQ(f.epoch, truth.epoch) << what;
+  ASSERT_EQ(f.bodies.size(), truth.bodies.size()) << what;
+  std::map<uint64_t, BodyState> want;
+  for (const BodyState& b : truth.bodies) want[b.id] = b;
+  for (const BodyState& b : f.bodies) {
+    ASSERT_TRUE(want.count(b.id)) << what << ": body " << b.id;
+    const BodyState& t = want[b.id];
+    EXPECT_TRUE(std::memcmp(&b.position, &t.position, sizeof t.position) == 0 &&
+                std::memcmp(&b.rotation, &t.rotation, sizeof t.rotation) == 0)
+        << what << ": body " << b.id;
+  }
+}
+
+// Issue 40, finding 1: new subscribers to a paused world got nothing (a keyframe waited for a
+// step), and one opened just after another closed never got its keyframe. Now a new
+// subscription, the world's own or an interest, has the whole state within 2 s in every
+// state of the world, whatever the order subscriptions open and close in.
+TEST(ClientSdk, ANewSubscriptionGetsTheWholeStateInEveryWorldState) {
+  Env env;
+  Client& c = env.client;
+  c.connect();
+  WorldHandle w = c.createWorld({"states", "", std::nullopt, 0}).get();
+  w.spawn(grid(300)).get();
+  struct Case {
+    const char* what;
+    std::function<void()> setUp;
+  };
+  Bytes snapshot;
+  const std::vector<Case> cases = {
+      {"paused, never stepped (tick 0)", [] {}},
+      {"paused after steps, asleep", [&] { w.step(120).get(); }},
+      {"running, asleep",
+       [&] {
+         w.run(60).get();
+         std::this_thread::sleep_for(300ms);
+       }},
+      {"paused again", [&] {
+         w.pause().get();
+         snapshot = w.saveSnapshot().get();
+         w.step(30).get();
+       }},
+      {"just restored (paused)", [&] { w.restoreSnapshot(snapshot).get(); }},
+      {"just reset (paused, empty)", [&] { w.reset().get(); }},
+      {"bodies spawned after the reset", [&] { w.spawn(grid(50)).get(); }},
+  };
+  for (const Case& k : cases) {
+    k.setUp();
+    const bool running = std::string(k.what).starts_with("running");
+    Subscription s = w.subscribe();
+    auto f = firstFrame(s);
+    ASSERT_TRUE(f) << k.what << ": no frame within 2 s";
+    const StateFrame truth = w.queryState().get();
+    EXPECT_EQ(f->total, truth.total) << k.what;
+    EXPECT_EQ(f->bodies.size(), truth.bodies.size()) << k.what;
+    if (!running) expectWorldsState(w, *f, k.what);
+  }
+  // Running and asleep (empty deltas, a slow refresh: 10 s a round for a world at rest): one
+  // opened just after another closed has the whole state at once, not after a round.
+  w.run(60).get();
+  std::this_thread::sleep_for(2s);  // the spawned boxes settle and sleep
+  {
+    Subscription r1 = w.subscribe();
+    ASSERT_TRUE(firstFrame(r1)) << "running";
+  }
+  Subscription r2 = w.subscribe();
+  auto fr = firstFrame(r2);
+  ASSERT_TRUE(fr) << "running, asleep, opened just after another closed";
+  EXPECT_EQ(fr->bodies.size(), w.queryState().get().total);
+  r2.reset();
+  w.pause().get();
+  const uint64_t count = w.queryState().get().total;
+  // Closing and opening in any order, on the paused world: each new one gets its frame at once,
+  // each one still open goes on with the next tick.
+  Subscription a = w.subscribe();
+  ASSERT_TRUE(firstFrame(a)) << "a";
+  a.reset();
+  Subscription b = w.subscribe();  // just after a closed: the same count at physd's next look
+  ASSERT_TRUE(firstFrame(b)) << "b, opened just after a closed";
+  Subscription d = w.subscribe();
+  b.reset();
+  Subscription e = w.subscribe();
+  ASSERT_TRUE(firstFrame(d)) << "d";
+  ASSERT_TRUE(firstFrame(e)) << "e, opened just after b closed";
+  // An interest opened just after another on the same world closed.
+  const auto now = w.queryState().get();
+  std::vector<uint64_t> live;
+  for (size_t k = 0; k < 10 && k < now.bodies.size(); ++k) live.push_back(now.bodies[k].id);
+  Subscription i1 = w.subscribe(Interest{live, std::nullopt});
+  auto fi = firstFrame(i1);
+  ASSERT_TRUE(fi) << "an interest on a paused world";
+  EXPECT_EQ(fi->bodies.size(), live.size());
+  i1.reset();
+  Subscription i2 = w.subscribe(Interest{live, std::nullopt});
+  fi = firstFrame(i2);
+  ASSERT_TRUE(fi) << "an interest opened just after another closed";
+  EXPECT_EQ(fi->bodies.size(), live.size());
+  // A step: every open subscription has it.
+  const uint64_t next = w.step(1).get().tick;
+  for (Subscription* s : {&d, &e, &i2}) {
+    auto f = s->waitForFrame(next - 1, kKeyframe);
+    ASSERT_TRUE(f);
+    EXPECT_EQ(f->tick, next);
+  }
+  EXPECT_EQ(d.latest()->bodies.size(), count);
+}
+
+// Issue 40, finding 2: a restore to an earlier tick, or a reset, froze every subscription until
+// the world passed its old tick again (the SDK dropped frames whose tick was not above the
+// last one delivered). Both start a new epoch of the world's ticks: the subscription delivers
+// its first frame at once, with the epoch, and goes on from there; waitForFrame with the old
+// tick returns it too.
+TEST(ClientSdk, RestoreAndResetStartANewEpochThatSubscribersFollowAtOnce) {
+  Env env;
+  Client& c = env.client;
+  c.connect();
+  WorldHandle w = c.createWorld({"epochs", "", std::nullopt, 0}).get();
+  std::vector<phys::BodyDef> defs = grid(40);
+  for (int i = 0; i < 10; ++i) defs.push_back(boxBody({float(i) * 3, 30, 4 + float(i)}));  // falling
+  w.spawn(defs).get();
+  w.step(5).get();
+  const Bytes snapshot = w.saveSnapshot().get();
+  TickLog log;
+  Subscription sub = w.subscribe([&](const StateFrame& f) { log.add(f); });
+  ASSERT_TRUE(firstFrame(sub));
+  ASSERT_EQ(w.step(72).get().tick, 77u);
+  auto f = sub.waitForFrame(76, kTimeout);
+  ASSERT_TRUE(f);
+  ASSERT_EQ(f->tick, 77u);
+  const uint64_t before = f->epoch;
+  EXPECT_GE(before, 1u);
+  // Restored to tick 5 while paused: the frame of tick 5 within 2 s, no step needed.
+  w.restoreSnapshot(snapshot).get();
+  f = sub.waitForFrame(77, kKeyframe);
+  ASSERT_TRUE(f) << "the subscription froze after a restore to an earlier tick";
+  EXPECT_EQ(f->tick, 5u);
+  EXPECT_GT(f->epoch, before);
+  expectWorldsState(w, *f, "restored");
+  const uint64_t restored = f->epoch;
+  // And on from there, tick by tick.
+  for (uint64_t t = 6; t <= 8; ++t) {
+    ASSERT_EQ(w.step(1).get().tick, t);
+    f = sub.waitForFrame(t - 1, kTimeout);
+    ASSERT_TRUE(f) << "tick " << t;
+    EXPECT_EQ(f->tick, t);
+    EXPECT_EQ(f->epoch, restored);
+    expectWorldsState(w, *f, "after the restore");
+  }
+  // A running world restored: its subscribers follow too.
+  w.run(60).get();
+  ASSERT_TRUE(waitFor([&] { return sub.latest()->tick > 30; }));
+  w.restoreSnapshot(snapshot).get();
+  ASSERT_TRUE(waitFor([&] { return sub.latest()->epoch > restored; }, kKeyframe))
+      << "a running world's restore";
+  EXPECT_LT(sub.latest()->tick, 30u);
+  w.pause().get();
+  // A reset: tick 0 of a new epoch, an empty world, at once.
+  const uint64_t last = sub.latest()->tick, running = sub.latest()->epoch;
+  w.reset().get();
+  f = sub.waitForFrame(last, kKeyframe);
+  ASSERT_TRUE(f) << "the subscription froze after a reset";
+  EXPECT_EQ(f->tick, 0u);
+  EXPECT_GT(f->epoch, running);
+  EXPECT_EQ(f->total, 0u);
+  EXPECT_TRUE(f->bodies.empty());
+  EXPECT_EQ(sub.framesSkipped(), 0u);
+}
+
+// SERVER.md "Time control": a paused world's subscribers see spawns and pose edits. They did
+// not until the world stepped (issue 40); now each edit comes at once as a frame of the same
+// tick (its edit number 1, 2, ...), and the next step's frame follows it.
+TEST(ClientSdk, EditsToAPausedWorldReachSubscribersAtOnce) {
+  Env env;
+  Client& c = env.client;
+  c.connect();
+  WorldHandle w = c.createWorld({"edits", "", std::nullopt, 0}).get();
+  const auto ids = w.spawn(grid(100)).get();
+  TickLog log;
+  Subscription sub = w.subscribe([&](const StateFrame& f) { log.add(f); });
+  // Stepped once, so that what follows does not depend on the new subscriber's keyframe.
+  const uint64_t tick = w.step(1).get().tick;
+  auto f = sub.waitForFrame(tick - 1, kTimeout);
+  ASSERT_TRUE(f);
+  ASSERT_EQ(f->tick, tick);
+  // A pose set: delivered without a step.
+  w.setPose(ids[7], {3, 4, 5}).get();
+  ASSERT_TRUE(waitFor(
+      [&] {
+        auto l = sub.latest();
+        for (const BodyState& b : l->bodies)
+          if (b.id == ids[7]) return b.position.z == 5.0f;
+        return false;
+      },
+      kKeyframe))
+      << "a pose set in a paused world did not reach its subscriber";
+  f = sub.latest();
+  EXPECT_EQ(f->tick, tick);
+  EXPECT_EQ(f->edit, 1u);
+  EXPECT_FALSE(f->keyframe);
+  expectWorldsState(w, *f, "after the pose");
+  // A spawn and a removal.
+  const uint64_t added = w.spawn(boxBody({-20, 0, 4})).get()[0];
+  const std::vector<uint64_t> gone = {ids[3]};
+  w.removeBodies(gone).get();
+  ASSERT_TRUE(waitFor(
+      [&] {
+        auto l = sub.latest();
+        bool hasAdded = false, hasGone = false;
+        for (const BodyState& b : l->bodies) {
+          hasAdded |= b.id == added;
+          hasGone |= b.id == ids[3];
+        }
+        return hasAdded && !hasGone;
+      },
+      kKeyframe))
+      << "a spawn or removal in a paused world did not reach its subscriber";
+  f = sub.latest();
+  EXPECT_EQ(f->tick, tick);
+  EXPECT_GE(f->edit, 2u);
+  expectWorldsState(w, *f, "after the spawn and removal");
+  // The next step follows the edits.
+  const uint64_t next = w.step(1).get().tick;
+  f = sub.waitForFrame(tick, kTimeout);
+  ASSERT_TRUE(f);
+  EXPECT_EQ(f->tick, next);
+  EXPECT_EQ(f->edit, 0u);
+  expectWorldsState(w, *f, "the next step");
+  EXPECT_EQ(sub.framesSkipped(), 0u);
+}
+
+// Issue 40: frames from query_state carried timestamp 0. They carry the server's wall clock
+// when it read the states, as a subscription's frames do, and the world's epoch.
+TEST(ClientSdk, QueryStateFramesAreStamped) {
+  Env env;
+  Client& c = env.client;
+  c.connect();
+  WorldHandle w = c.createWorld({"stamped", "", std::nullopt, 0}).get();
+  w.spawn(grid(10)).get();
+  const auto before = std::chrono::duration_cast<std::chrono::nanoseconds>(
+      std::chrono::system_clock::now().time_since_epoch());
+  const StateFrame f = w.queryState().get();
+  const auto after = std::chrono::duration_cast<std::chrono::nanoseconds>(
+      std::chrono::system_clock::now().time_since_epoch());
+  EXPECT_GE(f.stampNs, uint64_t(before.count()));  // one clock: the daemon is in-process
+  EXPECT_LE(f.stampNs, uint64_t(after.count()));
+  EXPECT_GE(f.epoch, 1u);
+  Subscription sub = w.subscribe();
+  auto s = firstFrame(sub);
+  ASSERT_TRUE(s);
+  EXPECT_EQ(s->epoch, f.epoch);
+  w.reset().get();
+  EXPECT_GT(w.queryState().get().epoch, f.epoch);
 }
 
 // An interest: a subscription to some bodies (or a box) gets exactly those, rebuilt every

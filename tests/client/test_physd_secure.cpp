@@ -62,7 +62,8 @@ TEST(ClientPhysdSecure, AWorldBelongsToTheIdentityThatCreatedIt) {
   ASSERT_GT(pid, 0);
   auto physctl = [&](const std::string& identity, const std::string& args) {
     std::string line = shq(PHYSCTL_BINARY) + " --domain " + std::to_string(cfg.domain) +
-                       " --config " + shq(cfg.xml) + " --timeout 8000";
+                       " --config " + shq(cfg.xml) + " --timeout 8000 --key " +
+                       shq((dir.path / ("client_" + identity + ".key")).string());
     if (!identity.empty()) line += " --identity " + identity + " --security-dir " + shq(sec);
     return shell(line + " " + args);
   };

@@ -125,7 +125,11 @@ TEST(ClientProcessFaults, ClientKilledMidCommandLeavesTheDaemonHealthy) {
   ASSERT_GT(d.pid, 0);
   Client& c = d.client;
   const PhysdConfig& cfg = d.cfg;
-  WorldHandle w = c.createWorld({"victim", "", std::nullopt, 0}).get();
+  // Shared: physctl is another client (since issue 39 it was refused PermissionDenied here,
+  // and nothing it sent reached the world).
+  CreateWorldArgs args{"victim", "", std::nullopt, 0};
+  args.shared = true;
+  WorldHandle w = c.createWorld(args).get();
   ASSERT_EQ(w.loadScene("pyramid_20").get().bodies.size(), 211u);
 
   // A scene of 4000 explicit bodies (about 0.5 MB inline, many DDS fragments) for physctl to
@@ -147,8 +151,11 @@ TEST(ClientProcessFaults, ClientKilledMidCommandLeavesTheDaemonHealthy) {
     return spawnProcess(PHYSCTL_BINARY, all);
   };
   for (int delayMs : {0, 50, 150, 300, 500, 800, 1200}) {
-    const pid_t load = physctl({"load", "victim", bigFile});
-    const pid_t step = physctl({"step", "victim", "300"});
+    // Keys of their own (not the user's; one each, so that neither waits for the other's).
+    const pid_t load =
+        physctl({"--key", (d.dir.path / "load.key").string(), "load", "victim", bigFile});
+    const pid_t step =
+        physctl({"--key", (d.dir.path / "step.key").string(), "step", "victim", "300"});
     ASSERT_GT(load, 0);
     ASSERT_GT(step, 0);
     std::this_thread::sleep_for(std::chrono::milliseconds(delayMs));

@@ -679,16 +679,90 @@ TEST_F(SliceTest, AParticipantThatLeftIsForgotten) {
   c.maxParticipantCommandsPerS = 1;
   c.maxParticipantBurst = 1;
   makeCore(c);
+  submit(0xA, CommandBuilder().listWorlds(), 0, 7);  // nothing waiting: not counted
+  submit(0xA, CommandBuilder().listWorlds(), 0, 7);  // the one token
   submit(0xA, CommandBuilder().listWorlds(), 0, 7);
-  submit(0xA, CommandBuilder().listWorlds(), 0, 7);
-  ASSERT_EQ(replies().size(), 1u) << "the second is past its rate";
+  ASSERT_EQ(replies().size(), 1u) << "the third is past its rate";
   core->processPending();
   replies();
   core->clientsLeft(7, {0xA});
   // The same id under a new participant (a client restarted) starts with full budgets.
   submit(0xA, CommandBuilder().listWorlds(), 0, 9);
+  submit(0xA, CommandBuilder().listWorlds(), 0, 9);
   EXPECT_TRUE(replies().empty());
-  EXPECT_EQ(core->processPending(), 1u);
+  EXPECT_EQ(core->processPending(), 2u);
+}
+
+TEST_F(SliceTest, AClientWithOneRequestInFlightIsNeverRefusedForItsRate) {
+  // Issue 40: a synchronous loop on loopback (a 0.07-0.5 ms round trip) sent more than the
+  // 2,000 commands a second a client and a participant may, and was answered "slow down".
+  // Only the commands sent while some of the client's (or its participant's) wait are
+  // counted now: one request at a time never is, however many a second.
+  CoreConfig c = testConfig();
+  c.maxClientCommandsPerS = 10;
+  c.maxClientBurst = 5;
+  c.maxParticipantCommandsPerS = 10;
+  c.maxParticipantBurst = 5;
+  makeCore(c);
+  for (int i = 0; i < 1000; ++i) {
+    submit(0xA, CommandBuilder().listWorlds(), 0, 7);
+    ASSERT_EQ(core->processPending(), 1u) << "command " << i << " was refused";
+    std::vector<Reply> r = replies();
+    ASSERT_EQ(r.size(), 1u);
+    ASSERT_EQ(r[0]->status(), Code::Ok) << "command " << i << ": " << message(r[0]);
+  }
+  // Sent ahead of their replies, commands are counted: the burst, then refusals.
+  int refused = 0;
+  for (int i = 0; i < 20; ++i) submit(0xA, CommandBuilder().listWorlds(), 0, 7);
+  for (const Reply& r : replies()) refused += r->status() == Code::ResourceExhausted;
+  EXPECT_EQ(refused, 20 - 1 - 5) << "the first (nothing waiting) and the burst of 5 pass";
+  core->processPending();
+  replies();
+  // Two clients of one participant, each with one request in flight: the participant has
+  // some waiting when the second comes, so its rate counts that one.
+  for (int i = 0; i < 20; ++i) {
+    submit(0xA, CommandBuilder().listWorlds(), 0, 8);
+    submit(0xB, CommandBuilder().listWorlds(), 0, 8);
+    core->processPending();
+  }
+  refused = 0;
+  for (const Reply& r : replies()) refused += r->status() == Code::ResourceExhausted;
+  EXPECT_EQ(refused, 20 - 5) << "0xB's past the participant's burst";
+}
+
+TEST_F(SliceTest, ARefusalAtTheDoorSaysWhenToSendTheCommandAgain) {
+  // Reply.retry_after_ms marks the refusals of the rate and queue budgets (nothing done, the
+  // same command may come again): about when the bucket has its next token, or a short wait
+  // for the queue. Other ResourceExhausted replies carry 0 (sent again, they fail again).
+  CoreConfig c = testConfig();
+  c.maxClientCommandsPerS = 100;  // a token each 10 ms
+  c.maxClientBurst = 1;
+  c.maxQueuedPerClient = 4;
+  c.maxBodiesPerWorld = 250;
+  makeCore(c);
+  for (int i = 0; i < 3; ++i) submit(0xA, CommandBuilder().listWorlds(), 0);
+  std::vector<Reply> r = replies();
+  ASSERT_EQ(r.size(), 1u) << "the first passes free, the second takes the token";
+  EXPECT_EQ(r[0]->status(), Code::ResourceExhausted);
+  EXPECT_NE(message(r[0]).find("slow down"), std::string::npos) << message(r[0]);
+  EXPECT_GE(r[0]->retry_after_ms(), 1u);
+  EXPECT_LE(r[0]->retry_after_ms(), 10u);
+  core->processPending();
+  replies();
+  c.maxClientCommandsPerS = 0;
+  makeCore(c);
+  for (int i = 0; i < 5; ++i) submit(0xA, CommandBuilder().listWorlds(), 0);
+  r = replies();
+  ASSERT_EQ(r.size(), 1u);
+  EXPECT_NE(message(r[0]).find("max_queued_per_client"), std::string::npos) << message(r[0]);
+  EXPECT_GT(r[0]->retry_after_ms(), 0u);
+  core->processPending();
+  replies();
+  // Past a world's bodies: refused by the command itself, not at the door.
+  std::vector<phys::BodyDef> defs(300, boxBody({0, 0, 1}));
+  Reply big = send(CommandBuilder().spawnBodies(defs));
+  EXPECT_EQ(big->status(), Code::ResourceExhausted) << message(big);
+  EXPECT_EQ(big->retry_after_ms(), 0u);
 }
 
 }  // namespace

@@ -291,5 +291,31 @@ TEST(InstanceGate, AWriterPastItsRateIsFilteredAndOthersAreNot) {
   EXPECT_EQ(r[0].rate, 200000u - 2000u);
 }
 
+TEST(InstanceGate, AWriterThatWaitsForItsRepliesIsNeverFiltered) {
+  // A synchronous client on loopback sends a command every 0.07 ms, past twice the
+  // participant's rate: each sample after a reply to one of its keys passes free.
+  InstanceGate gate({32, 10, 5});
+  auto t = InstanceGate::Clock::time_point{} + std::chrono::hours(1);
+  ASSERT_TRUE(gate.admit(7, 1, t));
+  gate.bind(7, 0xA);
+  for (int i = 0; i < 10000; ++i) {
+    gate.answered(0xA);
+    ASSERT_TRUE(gate.admit(7, 1, t)) << "sample " << i;
+  }
+  // One free sample per reply, no more: a writer that sends ahead has its burst.
+  gate.answered(0xA);
+  int admitted = 0;
+  for (int i = 0; i < 100; ++i) admitted += gate.admit(7, 1, t);
+  EXPECT_EQ(admitted, 1 + 4) << "the free one and what is left of the burst";
+  // Replies to a key of no writer (or another's) free nothing here.
+  gate.answered(0xB);
+  EXPECT_FALSE(gate.admit(7, 1, t));
+  // A writer gone forgets its keys.
+  const uint64_t none[] = {8};
+  gate.sweep(none, t);
+  gate.answered(0xA);
+  EXPECT_EQ(gate.writers(), 0u);
+}
+
 }  // namespace
 }  // namespace phys::server::test

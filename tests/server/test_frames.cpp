@@ -19,6 +19,8 @@ using protocol::CommandBuilder;
 struct Frame {
   uint32_t interest = 0;
   uint64_t tick = 0, baseTick = 0;
+  uint64_t epoch = 0;
+  uint32_t edit = 0, baseEdit = 0;
   bool keyframe = true;
   uint32_t total = 0;
   std::map<uint64_t, wire::BodyState> bodies;
@@ -62,6 +64,9 @@ class FramesTest : public ::testing::Test {
         f.total = d->total_bodies();
         f.refreshLo = d->refresh_lo();
         f.refreshHi = d->refresh_hi();
+        f.epoch = d->epoch();
+        f.edit = d->edit();
+        f.baseEdit = d->base_edit();
         if (d->bodies())
           for (const wire::BodyState* s : *d->bodies()) f.bodies[s->id()] = *s;
         if (d->compact()) {
@@ -382,6 +387,256 @@ TEST_F(FramesTest, AnInterestDeliversExactlyTheBodiesAskedFor) {
             Code::InvalidArgument);
   EXPECT_EQ(send(CommandBuilder().subscribeBodies(std::vector<uint64_t>{ids[1], ids[1]}))->status(),
             Code::InvalidArgument);
+}
+
+// Issue 40, finding 1: a new subscriber to a paused world got nothing until the world stepped
+// (its keyframe waited for a frame), and one that came just after another left was not
+// counted as new (the count was the same at the publisher's next look). Now the publisher
+// also reports the readers ever matched, and a stream with a new one gets its keyframe at the
+// tick thread's next turn, whatever the world does.
+TEST_F(FramesTest, ANewSubscriberToAPausedWorldGetsAKeyframeWithoutAStep) {
+  start(withSubscribersOnly());
+  const auto ids = spawn({phys::test::groundBody(), phys::test::boxBody({0, 0, 3})});
+  ASSERT_EQ(send(CommandBuilder().step(30))->status(), Code::Ok);
+  core->advance(0);
+  EXPECT_TRUE(frames().empty()) << "nobody subscribes yet";
+  core->setSubscribers(world, 1);
+  core->advance(0);  // paused: no step
+  std::vector<Frame> f = frames();
+  ASSERT_EQ(f.size(), 1u) << "a paused world's new subscriber gets its keyframe without a step";
+  EXPECT_TRUE(f[0].keyframe);
+  EXPECT_EQ(f[0].tick, 30u);
+  EXPECT_EQ(f[0].bodies.size(), 2u);
+  core->advance(0);
+  EXPECT_TRUE(frames().empty()) << "nothing new: nothing sent";
+  // A reader left and another came between two looks of the publisher: the same count, one
+  // more ever matched. The newcomer gets a keyframe (the other reader applies it again).
+  core->setSubscribers(world, 0, 1, 2);
+  core->advance(0);
+  f = frames();
+  ASSERT_EQ(f.size(), 1u) << "a reader that replaced another is a new subscriber";
+  EXPECT_TRUE(f[0].keyframe);
+  EXPECT_EQ(f[0].tick, 30u);
+  // The last reader left (the stream forgets its state), then a new one came.
+  core->setSubscribers(world, 0, 0, 2);
+  core->advance(0);
+  EXPECT_TRUE(frames().empty());
+  core->setSubscribers(world, 0, 1, 3);
+  core->advance(0);
+  f = frames();
+  ASSERT_EQ(f.size(), 1u);
+  EXPECT_TRUE(f[0].keyframe);
+  EXPECT_EQ(f[0].bodies.size(), 2u);
+  // An interest opened on the paused world: its keyframe as soon as it has a reader, and
+  // nothing for the world's own stream, whose subscriber holds this tick already.
+  Reply r = send(CommandBuilder().subscribeBodies(std::vector<uint64_t>{ids[1]}));
+  ASSERT_EQ(r->status(), Code::Ok) << message(r);
+  const uint32_t interest = r->result_as_InterestResult()->interest();
+  core->advance(0);
+  EXPECT_TRUE(frames().empty()) << "the interest has no reader yet";
+  core->setSubscribers(world, interest, 1);
+  core->advance(0);
+  f = frames();
+  ASSERT_EQ(f.size(), 1u);
+  EXPECT_EQ(f[0].interest, interest);
+  EXPECT_TRUE(f[0].keyframe);
+  EXPECT_EQ(f[0].tick, 30u);
+  ASSERT_EQ(f[0].bodies.size(), 1u);
+  EXPECT_TRUE(f[0].bodies.count(ids[1]));
+}
+
+// The state a subscriber rebuilds from a stream's frames, as docs/PROTOCOL.md says: a keyframe
+// replaces it, a delta on the last frame that carried anything changes it, frames in
+// (epoch, tick, edit) order.
+struct Rebuilt {
+  std::map<uint64_t, wire::BodyState> bodies;
+  uint64_t epoch = 0, baseTick = 0;
+  uint32_t baseEdit = 0;
+  void apply(const Frame& f) {
+    if (f.keyframe) {
+      bodies.clear();
+    } else {
+      EXPECT_EQ(f.epoch, epoch);
+      EXPECT_EQ(f.baseTick, baseTick) << "tick " << f.tick << " edit " << f.edit;
+      EXPECT_EQ(f.baseEdit, baseEdit) << "tick " << f.tick << " edit " << f.edit;
+    }
+    for (uint64_t id : f.removed) bodies.erase(id);
+    for (auto& [id, s] : f.bodies) bodies[id] = s;
+    EXPECT_EQ(bodies.size(), f.total);
+    epoch = f.epoch;
+    if (f.keyframe || !f.bodies.empty() || !f.removed.empty()) {
+      baseTick = f.tick;
+      baseEdit = f.edit;
+    }
+  }
+  /// Bit for bit the world's bodies.
+  void expectWorld(const phys::World& w) {
+    EXPECT_EQ(bodies.size(), w.bodyCount());
+    for (auto& [id, s] : bodies) {
+      BodyState b;
+      ASSERT_TRUE(w.getBody(BodyId::fromPacked(id), &b).ok()) << "body " << id;
+      const wire::BodyState want = protocol::toWire(b);
+      EXPECT_EQ(std::memcmp(&s, &want, sizeof want), 0) << "body " << id;
+    }
+  }
+};
+
+// Issue 40: an edit to a paused world (SetBodyPose, a spawn, a removal) reached no subscriber
+// until the world stepped, though docs/SERVER.md "Time control" said its subscribers see them.
+// Now each goes out at once in a frame of the same tick with the next edit number, a delta on
+// the frame before; the next step's frame is edit 0 of the next tick. A running world's edits
+// ride its next tick's frame.
+TEST_F(FramesTest, EditsToAPausedWorldGoOutAtOnceAtTheSameTick) {
+  start(withSubscribersOnly());
+  core->setSubscribers(world, 1);
+  const auto ids = spawn({phys::test::groundBody(), phys::test::boxBody({0, 0, 0.5f}),
+                          phys::test::boxBody({3, 0, 0.5f})});
+  Rebuilt seen;
+  Frame k = step();
+  ASSERT_TRUE(k.keyframe);
+  EXPECT_EQ(k.tick, 1u);
+  EXPECT_EQ(k.edit, 0u);
+  seen.apply(k);
+  ASSERT_EQ(send(CommandBuilder().setBodyPose(ids[1], {1, 2, 3}, {}))->status(), Code::Ok);
+  core->advance(0);
+  std::vector<Frame> f = frames();
+  ASSERT_EQ(f.size(), 1u) << "a pose set in a paused world is published without a step";
+  EXPECT_FALSE(f[0].keyframe);
+  EXPECT_EQ(f[0].tick, 1u);
+  EXPECT_EQ(f[0].edit, 1u);
+  EXPECT_EQ(f[0].epoch, k.epoch);
+  ASSERT_TRUE(f[0].bodies.count(ids[1]));
+  EXPECT_EQ(f[0].bodies[ids[1]].position().y(), 2.0f);
+  seen.apply(f[0]);
+  seen.expectWorld(*core->world(world)->world);
+  // A spawn and a removal: edit 2, a delta on edit 1.
+  const uint64_t added = spawn({phys::test::sphereBody({-5, 0, 5}, 0.2f)})[0];
+  ASSERT_EQ(send(CommandBuilder().removeBodies(std::vector<uint64_t>{ids[2]}))->status(), Code::Ok);
+  core->advance(0);
+  f = frames();
+  ASSERT_EQ(f.size(), 1u);
+  EXPECT_EQ(f[0].tick, 1u);
+  EXPECT_EQ(f[0].edit, 2u);
+  EXPECT_TRUE(f[0].bodies.count(added));
+  EXPECT_EQ(f[0].removed, std::vector<uint64_t>{ids[2]});
+  seen.apply(f[0]);
+  seen.expectWorld(*core->world(world)->world);
+  // A velocity set and an impulse change velocities at once: edit 3.
+  ASSERT_EQ(send(CommandBuilder().setBodyVelocity(ids[1], {0, 0, 2}, {}))->status(),
+            Code::Ok);
+  ASSERT_EQ(send(CommandBuilder().applyImpulse(added, {1, 0, 0}))->status(), Code::Ok);
+  core->advance(0);
+  f = frames();
+  ASSERT_EQ(f.size(), 1u) << "velocities set in a paused world are published without a step";
+  EXPECT_EQ(f[0].edit, 3u);
+  EXPECT_TRUE(f[0].bodies.count(ids[1]) && f[0].bodies.count(added));
+  seen.apply(f[0]);
+  seen.expectWorld(*core->world(world)->world);
+  core->advance(0);
+  EXPECT_TRUE(frames().empty()) << "nothing edited since: nothing sent";
+  // The next step: tick 2, edit 0, a delta on edit 2 of tick 1.
+  Frame d = step();
+  EXPECT_EQ(d.tick, 2u);
+  EXPECT_EQ(d.edit, 0u);
+  seen.apply(d);
+  seen.expectWorld(*core->world(world)->world);
+  // A running world's edit waits for the next tick's delta: no frame of its own.
+  ASSERT_EQ(send(CommandBuilder().run(60))->status(), Code::Ok);
+  core->advance(0);
+  frames();
+  ASSERT_EQ(send(CommandBuilder().setBodyPose(ids[1], {1, 2, 4}, {}))->status(), Code::Ok);
+  core->advance(0);
+  EXPECT_TRUE(frames().empty()) << "a running world's edit rides its next tick";
+  core->advance(1.5 / 60);  // one step owed
+  f = frames();
+  ASSERT_EQ(f.size(), 1u);
+  EXPECT_EQ(f[0].tick, 3u);
+  EXPECT_EQ(f[0].edit, 0u);
+  EXPECT_TRUE(f[0].bodies.count(ids[1]));
+  seen.apply(f[0]);
+  seen.expectWorld(*core->world(world)->world);
+}
+
+// Issue 40, finding 2: after a restore to an earlier tick, or a reset, the SDK dropped every
+// frame until the world passed its old tick again. Replacing a world's state starts a new
+// epoch: every stream's next frame is a keyframe of it, whatever its tick, and the deltas
+// after it belong to it.
+TEST_F(FramesTest, ResetRestoreAndLoadStartANewEpochOnEveryStream) {
+  start(withSubscribersOnly());
+  core->setSubscribers(world, 1);
+  const auto ids = spawn({phys::test::groundBody(), phys::test::boxBody({0, 0, 3})});
+  Reply r = send(CommandBuilder().subscribeBodies(std::vector<uint64_t>{ids[1]}));
+  ASSERT_EQ(r->status(), Code::Ok) << message(r);
+  const uint32_t interest = r->result_as_InterestResult()->interest();
+  core->setSubscribers(world, interest, 1);
+  ASSERT_EQ(stepAll(5).size(), 2u);
+  Reply saved = send(CommandBuilder().saveSnapshot({}, true));
+  ASSERT_EQ(saved->status(), Code::Ok) << message(saved);
+  const auto* snap = saved->result_as_SnapshotResult()->snapshot();
+  const std::vector<uint8_t> snapshot(snap->begin(), snap->end());
+  std::vector<Frame> before = stepAll(72);  // tick 77
+  ASSERT_EQ(before.size(), 2u);
+  const uint64_t epoch = before[0].epoch;
+  EXPECT_GE(epoch, 1u);
+  EXPECT_EQ(before[1].epoch, epoch);
+  // Restored to tick 5: a keyframe of the next epoch on both streams, without a step.
+  ASSERT_EQ(send(CommandBuilder().restoreSnapshot(snapshot))->status(), Code::Ok);
+  core->advance(0);
+  std::vector<Frame> f = frames();
+  ASSERT_EQ(f.size(), 2u);
+  for (const Frame& x : f) {
+    EXPECT_TRUE(x.keyframe) << "interest " << x.interest;
+    EXPECT_EQ(x.tick, 5u);
+    EXPECT_EQ(x.edit, 0u);
+    EXPECT_GT(x.epoch, epoch) << "interest " << x.interest;
+  }
+  const uint64_t restored = f[0].epoch;
+  // Its deltas go on in it.
+  f = stepAll();
+  ASSERT_EQ(f.size(), 2u);
+  EXPECT_FALSE(f[0].keyframe);
+  EXPECT_EQ(f[0].tick, 6u);
+  EXPECT_EQ(f[0].epoch, restored);
+  EXPECT_EQ(f[0].baseTick, 5u);
+  // A reset, then a scene loaded: a new epoch each, at tick 0.
+  ASSERT_EQ(send(CommandBuilder().resetWorld())->status(), Code::Ok);
+  core->advance(0);
+  f = frames();
+  ASSERT_GE(f.size(), 1u);
+  EXPECT_TRUE(f[0].keyframe);
+  EXPECT_EQ(f[0].tick, 0u);
+  EXPECT_EQ(f[0].total, 0u);
+  EXPECT_GT(f[0].epoch, restored);
+  const uint64_t reset = f[0].epoch;
+  Reply l = send(CommandBuilder().loadSceneNamed("box_stack"));
+  ASSERT_EQ(l->status(), Code::Ok) << message(l);
+  core->advance(0);
+  f = frames();
+  ASSERT_GE(f.size(), 1u);
+  EXPECT_TRUE(f[0].keyframe);
+  EXPECT_EQ(f[0].tick, 0u);
+  EXPECT_GT(f[0].epoch, reset);
+  EXPECT_EQ(f[0].total, core->world(world)->world->bodyCount());
+}
+
+// Issue 40: frames from query_state carried no wall-clock stamp (0). Its answer is stamped as a
+// state frame is, and names the world's epoch.
+TEST_F(FramesTest, AQueryStateAnswerIsStampedAndNamesTheEpoch) {
+  start(withSubscribersOnly());
+  spawn({phys::test::boxBody({0, 0, 3})});
+  const auto before = std::chrono::system_clock::now().time_since_epoch();
+  Reply r = send(CommandBuilder().queryState());
+  const auto after = std::chrono::system_clock::now().time_since_epoch();
+  ASSERT_EQ(r->status(), Code::Ok) << message(r);
+  const wire::StateResult* s = r->result_as_StateResult();
+  ASSERT_TRUE(s);
+  EXPECT_GE(s->stamp_ns(),
+            uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(before).count()));
+  EXPECT_LE(s->stamp_ns(),
+            uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(after).count()));
+  EXPECT_EQ(s->epoch(), core->world(world)->epoch);
+  ASSERT_EQ(send(CommandBuilder().resetWorld())->status(), Code::Ok);
+  EXPECT_GT(send(CommandBuilder().queryState())->result_as_StateResult()->epoch(), s->epoch());
 }
 
 }  // namespace

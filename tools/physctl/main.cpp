@@ -1,16 +1,19 @@
 // physctl: a command-line client of physd over the client SDK (docs/CLIENT.md).
 //
-//   physctl [--domain N] [--config XML] [--identity NAME [--security-dir DIR]] list
-//   physctl create NAME [--preset P] [--backend cpu|gpu|auto]
+//   physctl [--domain N] [--config XML] [--identity NAME [--security-dir DIR]] [--key FILE]
+//           list [--json]
+//   physctl whoami [--json]           # this physctl's client id (its key file's), for --editors
+//   physctl create NAME [--preset P] [--backend cpu|gpu|auto] [--shared | --editors ID,...]
+//   physctl access WORLD [--editors ID,...] [--shared | --private]
 //   physctl load WORLD SCENE          # a server-side scene name, or a local .json file
 //   physctl step WORLD N
 //   physctl run WORLD [--rate HZ]
 //   physctl pause WORLD
-//   physctl watch [WORLD]             # live table, about twice a second; Ctrl-C exits
+//   physctl watch [WORLD] [--json]    # live table, about twice a second; Ctrl-C exits
 //   physctl snapshot save WORLD FILE  # the world's exact snapshot into a local file
 //   physctl snapshot restore WORLD FILE
-//   physctl ping [--count N]           # command round trip percentiles (a benchmark)
-//   physctl subscribe WORLD [--seconds S] [--warmup W] [--latency-log FILE]
+//   physctl ping [--count N] [--json]  # command round trip percentiles (a benchmark)
+//   physctl subscribe WORLD [--seconds S] [--warmup W] [--latency-log FILE] [--json]
 //                   [--bodies ID,ID,... | --region X0,Y0,Z0,X1,Y1,Z1]
 //                                      # receive state frames (of an interest); print
 //                                      # delivery, latency and bytes per tick
@@ -21,6 +24,18 @@
 //   physctl joints WORLD [ID ...]      # damping, masses, shapes, materials; joints
 //
 // WORLD is a world id or name. Errors print the server's code and message and exit 1.
+//
+// Identity: the commands that change worlds (create, load, step, run, pause, snapshot restore,
+// access) go out under the client id of a key file kept between runs, like ssh's (--key, else
+// $PHYSCTL_KEY, else $XDG_CONFIG_HOME/physd/client.key, else ~/.config/physd/client.key; made
+// mode 0600 on first use), so that the worlds one physctl creates the next one may change.
+// Such commands take a lock beside the key file while they run: two physctl processes with
+// one key at once would take the id from each other on the daemon (one participant holds an id
+// at a time), so they run one after the other. The commands that only read (list, watch, ping,
+// subscribe, snapshot save) use a fresh key each time and take no lock.
+#include <fcntl.h>
+#include <sys/file.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
@@ -39,7 +54,10 @@
 #include <string>
 #include <thread>
 
+#include <nlohmann/json.hpp>
+
 #include "phys/client/client.h"
+#include "phys/protocol/client_key.h"
 
 namespace pc = phys::client;
 
@@ -68,6 +86,120 @@ pc::WorldHandle resolve(pc::Client& c, const std::string& world) {
   return c.worldNamed(world);
 }
 
+using Json = nlohmann::ordered_json;
+
+/// A client id as physd's messages write it: 0x and 16 hex digits.
+std::string hexId(uint64_t id) {
+  char buf[24];
+  std::snprintf(buf, sizeof buf, "0x%016llx", (unsigned long long)id);
+  return buf;
+}
+
+/// A client id as physctl whoami prints it (0x...) or in decimal; nullopt when neither.
+std::optional<uint64_t> parseClientId(const std::string& s) {
+  const bool hex = s.size() > 2 && s[0] == '0' && (s[1] == 'x' || s[1] == 'X');
+  const std::string digits = hex ? s.substr(2) : s;
+  if (digits.empty() || digits.size() > (hex ? 16u : 20u)) return std::nullopt;
+  for (char c : digits)
+    if (!(hex ? std::isxdigit(uint8_t(c)) : std::isdigit(uint8_t(c)))) return std::nullopt;
+  errno = 0;
+  const unsigned long long v = std::strtoull(digits.c_str(), nullptr, hex ? 16 : 10);
+  if (errno == ERANGE || v == 0) return std::nullopt;
+  return uint64_t(v);
+}
+
+/// Where physctl keeps its key: --key, else $PHYSCTL_KEY, else the user's config directory
+/// ($XDG_CONFIG_HOME/physd/client.key, else ~/.config/physd/client.key); empty when there is
+/// no home to keep it in.
+std::string keyPath(const std::string& flag) {
+  if (!flag.empty()) return flag;
+  if (const char* env = std::getenv("PHYSCTL_KEY"); env && *env) return env;
+  if (const char* xdg = std::getenv("XDG_CONFIG_HOME"); xdg && *xdg == '/')
+    return std::string(xdg) + "/physd/client.key";
+  if (const char* home = std::getenv("HOME"); home && *home)
+    return std::string(home) + "/.config/physd/client.key";
+  return {};
+}
+
+/// Holds `path`.lock (flock) while physctl runs, so that physctl processes with one key take
+/// turns: on physd one participant holds a client id at a time, and a second process's Hello
+/// would take it from the first in the middle of its commands. Makes the key's folder (mode
+/// 0700, as XDG and ssh want it) when missing. Returns the lock's descriptor (closed at exit),
+/// or -1 with a message on stderr.
+int lockKey(const std::string& path) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::path(path).parent_path();
+  std::error_code ec;
+  if (!dir.empty() && !fs::exists(dir, ec)) {
+    fs::create_directories(dir, ec);
+    if (!ec) fs::permissions(dir, fs::perms::owner_all, ec);
+    if (ec) {
+      std::fprintf(stderr, "physctl: cannot make %s for the key file: %s\n", dir.c_str(),
+                   ec.message().c_str());
+      return -1;
+    }
+  }
+  const std::string lock = path + ".lock";
+  const int fd = ::open(lock.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0600);
+  if (fd < 0) {
+    std::fprintf(stderr, "physctl: cannot open %s: %s\n", lock.c_str(), std::strerror(errno));
+    return -1;
+  }
+  if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+    std::fprintf(stderr, "physctl: waiting for another physctl using %s ...\n", path.c_str());
+    while (::flock(fd, LOCK_EX) != 0 && errno == EINTR) {
+    }
+  }
+  return fd;
+}
+
+const char* stateOf(const pc::WorldSummary& w) {
+  return !w.damage.empty() ? "damaged" : w.running ? "running" : "paused";
+}
+
+/// A world's summary for --json: every field of WorldSummary, under snake_case names.
+Json worldJson(const pc::WorldSummary& w) {
+  Json j;
+  j["id"] = w.world;
+  j["name"] = w.name;
+  j["preset"] = w.preset;
+  j["state"] = stateOf(w);
+  j["running"] = w.running;
+  j["rate_hz"] = w.rateHz;
+  j["tick"] = w.tick;
+  j["time_s"] = w.time;
+  j["bodies"] = w.bodies;
+  j["awake_bodies"] = w.awakeBodies;
+  j["sleeping_bodies"] = w.sleepingBodies;
+  j["joints"] = w.joints;
+  j["contacts"] = w.contacts;
+  j["step_buffer_bytes"] = w.stepBufferBytes;
+  j["tick_ms"] = w.tickMs;
+  j["tick_ms_max"] = w.tickMsMax;
+  j["overruns"] = w.overruns;
+  j["frames"] = w.frames;
+  j["frame_bytes"] = w.frameBytes;
+  j["subscribers"] = w.subscribers;
+  j["backend"] = w.backend.empty() ? "cpu" : w.backend;
+  j["device"] = w.device;
+  j["backend_note"] = w.backendNote;
+  j["gpu_steps"] = w.gpuSteps;
+  j["cpu_steps"] = w.cpuSteps;
+  j["damage"] = w.damage;
+  return j;
+}
+
+Json worldsJson(const std::vector<pc::WorldSummary>& worlds) {
+  Json a = Json::array();
+  for (const auto& w : worlds) a.push_back(worldJson(w));
+  return a;
+}
+
+void printJson(const Json& j) {
+  std::printf("%s\n", j.dump().c_str());
+  std::fflush(stdout);
+}
+
 /// The worlds, one a line; a world's backend (and device) after its numbers, and below it
 /// why the CPU runs a world that asked for the GPU.
 void printWorlds(const std::vector<pc::WorldSummary>& worlds) {
@@ -80,16 +212,16 @@ void printWorlds(const std::vector<pc::WorldSummary>& worlds) {
     std::printf("%6u  %-20s %-12s %8u %8u %7u %8u %7.1f %10llu %10.2f %8s %6.0f %8llu %10llu  %s\n",
                 w.world, w.name.c_str(), w.preset.c_str(), w.awakeBodies, w.bodies, w.joints,
                 w.contacts, double(w.stepBufferBytes) / 1e6, (unsigned long long)w.tick,
-                w.time, !w.damage.empty() ? "damaged" : w.running ? "running" : "paused",
-                double(w.rateHz),
+                w.time, stateOf(w), double(w.rateHz),
                 (unsigned long long)w.overruns, (unsigned long long)w.frames, backend.c_str());
     if (!w.backendNote.empty()) std::printf("%6s  note: %s\n", "", w.backendNote.c_str());
     if (!w.damage.empty()) std::printf("%6s  not restored: %s\n", "", w.damage.c_str());
   }
 }
 
-/// Live table from phys/status and the worlds' state frames until Ctrl-C.
-int watch(pc::Client& c, const std::string& only) {
+/// Live table from phys/status and the worlds' state frames until Ctrl-C. json: one JSON
+/// object a line instead of each table (for scripts).
+int watch(pc::Client& c, const std::string& only, bool json) {
   struct Live {
     pc::Subscription sub;
     uint64_t lastFrames = 0;
@@ -108,9 +240,12 @@ int watch(pc::Client& c, const std::string& only) {
     std::optional<pc::ServerStatus> status = c.latestStatus();
     std::string out;
     char line[256];
+    Json j;
     if (!status) {
       std::snprintf(line, sizeof line, "waiting for physd on domain %u ...\n", c.options().domain);
       out += line;
+      j["waiting"] = true;
+      j["domain"] = c.options().domain;
     } else {
       std::vector<pc::WorldSummary> worlds;
       for (const auto& w : status->worlds)
@@ -130,12 +265,22 @@ int watch(pc::Client& c, const std::string& only) {
                     (unsigned long long)status->commands, (unsigned long long)status->errors,
                     double(status->heapBytes) / 1e6);
       out += line;
+      j["server"] = status->serverName;
+      j["version"] = status->serverVersion;
+      j["uptime_s"] = status->uptimeS;
+      j["commands"] = status->commands;
+      j["errors"] = status->errors;
+      j["heap_bytes"] = status->heapBytes;
+      j["frames_dropped"] = status->framesDropped;
+      j["read_only"] = status->readOnly;
+      j["worlds"] = Json::array();
       if (!status->readOnly.empty()) out += "READ-ONLY: " + status->readOnly + "\n";
       std::snprintf(line, sizeof line, "%5s  %-18s %10s %10s %8s %8s %15s %10s %8s %6s %5s\n",
                     "id", "world", "tick", "sim time", "tick ms", "max ms", "awake/bodies",
                     "bytes/tick", "state", "frm/s", "subs");
       out += line;
       for (const auto& w : worlds) {
+        Json& jw = j["worlds"].emplace_back(worldJson(w));
         if (!w.damage.empty()) {
           std::snprintf(line, sizeof line, "%5u  %-18s ", w.world, w.name.c_str());
           out += line + std::string("damaged, not restored: ") + w.damage + "\n";
@@ -164,16 +309,26 @@ int watch(pc::Client& c, const std::string& only) {
                       double(w.tickMsMax), awake.c_str(), (unsigned long long)bytes, w.running ? "running" : "paused", l.fps,
                       w.subscribers);
         out += line;
+        jw["frame_tick"] = tick;  // the newer of the status's tick and the last frame's
+        jw["frame_bytes"] = bytes;
+        jw["frames_per_s"] = l.fps;
       }
       if (worlds.empty()) out += only.empty() ? "(no worlds)\n" : "(no such world)\n";
       // The last few phys/events since watch started (guard rails).
       const std::vector<pc::Event> events = c.recentEvents();
+      j["events"] = Json::array();
       for (size_t i = events.size() > 3 ? events.size() - 3 : 0; i < events.size(); ++i) {
         const pc::Event& e = events[i];
+        j["events"].push_back({{"world", e.world}, {"tick", e.tick}, {"code", e.code},
+                               {"message", e.message}});
         std::snprintf(line, sizeof line, "event world %u tick %llu %s: ", e.world,
                       (unsigned long long)e.tick, e.code.c_str());
         out += line + e.message + "\n";
       }
+    }
+    if (json) {
+      printJson(j);
+      continue;
     }
     if (tty) std::fputs("\033[H\033[2J", stdout);
     std::fputs(out.c_str(), stdout);
@@ -188,8 +343,9 @@ int watch(pc::Client& c, const std::string& only) {
 /// tick-to-subscriber latency (this host's wall clock minus the frame's stamp_ns, taken when
 /// the SDK has reassembled the tick). A benchmark (tools/fanout_bench.sh runs eight).
 /// latencyLog: when not empty, a file that gets one line per tick received, "tick latency_ms".
+/// json: the line as one JSON object instead (for scripts).
 int subscribe(pc::Client& c, const std::string& world, double warmup, double seconds,
-              const std::string& latencyLog, const pc::Interest& interest) {
+              const std::string& latencyLog, const pc::Interest& interest, bool json) {
   std::unique_ptr<std::FILE, int (*)(std::FILE*)> log(nullptr, &std::fclose);
   if (!latencyLog.empty()) {
     log.reset(std::fopen(latencyLog.c_str(), "w"));
@@ -231,7 +387,12 @@ int subscribe(pc::Client& c, const std::string& world, double warmup, double sec
   sub.reset();
   std::lock_guard<std::mutex> lk(m);
   if (records.empty()) {
-    std::printf("subscriber %d: world %u: no frames in %.1f s\n", int(getpid()), w.id(), seconds);
+    if (json)
+      printJson({{"subscriber", int(getpid())}, {"world", w.id()}, {"seconds", seconds},
+                 {"received", 0}});
+    else
+      std::printf("subscriber %d: world %u: no frames in %.1f s\n", int(getpid()), w.id(),
+                  seconds);
     return 1;
   }
   const uint64_t first = records.front().tick, last = records.back().tick;
@@ -252,6 +413,20 @@ int subscribe(pc::Client& c, const std::string& world, double warmup, double sec
   auto pct = [&](double q) {
     return lat[std::min(lat.size() - 1, size_t(q * double(lat.size())))];
   };
+  if (json) {
+    printJson({{"subscriber", int(getpid())},
+               {"world", w.id()},
+               {"seconds", seconds},
+               {"first_tick", first},
+               {"last_tick", last},
+               {"received", records.size()},
+               {"expected", expected},
+               {"delivered_percent", 100.0 * double(records.size()) / double(expected)},
+               {"bodies_min", minBodies},
+               {"latency_ms", {{"p50", pct(0.5)}, {"p99", pct(0.99)}, {"max", lat.back()}}},
+               {"bytes_per_tick", bytes / double(records.size())}});
+    return 0;
+  }
   std::printf(
       "subscriber %d: world %u ticks %llu..%llu received %zu expected %llu delivered %.3f%% "
       "bodies_min %u latency_ms p50 %.3f p99 %.3f max %.3f bytes_per_tick %.0f\n",
@@ -361,17 +536,48 @@ int main(int argc, char** argv) {
   app.add_option("--security-dir", securityDir,
                  "the folder tools/make_security.sh wrote (default: the source tree's "
                  "build/security)");
+  std::string keyFlag;
+  app.add_option("--key", keyFlag,
+                 "this physctl's key file: its client id, kept between runs, owns the worlds "
+                 "it creates (default: $PHYSCTL_KEY, else $XDG_CONFIG_HOME/physd/client.key, "
+                 "else ~/.config/physd/client.key; made mode 0600 when missing)");
+  bool json = false;
 
   std::string world, name, preset, scene, file, backend;
   uint32_t steps = 1;
   float rate = 60;
 
   auto* list = app.add_subcommand("list", "list the worlds");
-  auto* create = app.add_subcommand("create", "create a world (paused)");
+  list->add_flag("--json", json, "a JSON array of the worlds (every field, for scripts)");
+  auto* whoami = app.add_subcommand(
+      "whoami", "print this physctl's client id (its key file's): what --editors names");
+  whoami->add_flag("--json", json, "the id and the key file as a JSON object");
+  std::vector<std::string> editors;
+  bool shared = false, isPrivate = false;
+  auto* create = app.add_subcommand("create", "create a world (paused), owned by this physctl");
   create->add_option("NAME", name, "world name")->required();
   create->add_option("--preset", preset, "solver preset");
   create->add_option("--backend", backend, "cpu, gpu or auto (default: the server's)")
       ->check(CLI::IsMember({"cpu", "gpu", "auto"}));
+  auto* createShared =
+      create->add_flag("--shared", shared, "every client may change the world (not destroy it)");
+  create->add_option("--editors", editors,
+                     "these clients (ids, comma-separated, as physctl whoami prints them) may "
+                     "change the world too")
+      ->delimiter(',')
+      ->excludes(createShared);
+  auto* access = app.add_subcommand(
+      "access", "set who besides its owner may change WORLD (the owner only; replaces the "
+                "world's editors and shared flag)");
+  access->add_option("WORLD", world, "world id or name")->required();
+  access->add_option("--editors", editors,
+                     "these clients (ids, comma-separated, as physctl whoami prints them); "
+                     "without it: none")
+      ->delimiter(',');
+  auto* accessShared = access->add_flag("--shared", shared, "every client may change it");
+  auto* accessPrivate =
+      access->add_flag("--private", isPrivate, "only the owner and --editors (the default)");
+  accessShared->excludes(accessPrivate);
   auto* load = app.add_subcommand("load", "load a scene into a world");
   load->add_option("WORLD", world, "world id or name")->required();
   load->add_option("SCENE", scene, "server-side scene name, or a local .json file")->required();
@@ -386,10 +592,12 @@ int main(int argc, char** argv) {
   pause->add_option("WORLD", world, "world id or name")->required();
   auto* watchCmd = app.add_subcommand("watch", "live table of the worlds (Ctrl-C exits)");
   watchCmd->add_option("WORLD", world, "only this world (id or name)");
+  watchCmd->add_flag("--json", json, "one JSON object a line instead of the table");
   int pings = 1000;
   auto* ping = app.add_subcommand(
       "ping", "command round trip: N ListWorlds requests one after another; prints percentiles");
   ping->add_option("--count", pings, "round trips (default 1000)")->check(CLI::Range(1, 1000000));
+  ping->add_flag("--json", json, "the percentiles as a JSON object");
   double subSeconds = 10, subWarmup = 2;
   auto* subscribeCmd = app.add_subcommand(
       "subscribe", "receive WORLD's state frames; print delivered ticks and latency percentiles");
@@ -401,6 +609,7 @@ int main(int argc, char** argv) {
   std::string latencyLog;
   subscribeCmd->add_option("--latency-log", latencyLog,
                            "write one line per received tick, \"tick latency_ms\", to this file");
+  subscribeCmd->add_flag("--json", json, "the result line as a JSON object");
   std::vector<uint64_t> interestBodies;
   std::vector<float> interestRegion;
   subscribeCmd->add_option("--bodies", interestBodies,
@@ -462,12 +671,54 @@ int main(int argc, char** argv) {
   }
   if (!identity.empty()) options.security = pc::SecurityFiles::fromDir(securityDir, identity);
 
+  std::vector<uint64_t> editorIds;
+  for (const std::string& e : editors) {
+    const std::optional<uint64_t> id = parseClientId(e);
+    if (!id) {
+      std::fprintf(stderr,
+                   "physctl: --editors: '%s' is not a client id (0x and up to 16 hex digits, "
+                   "as physctl whoami prints it, or a decimal number)\n",
+                   e.c_str());
+      return 2;
+    }
+    editorIds.push_back(*id);
+  }
+  // The commands that change worlds (and whoami) act as this physctl's kept key; the others
+  // only read and use a fresh one (no lock, any number at once).
+  const bool keyed = *whoami || *create || *load || *step || *run || *pause || *restore ||
+                     *access;
+  int keyLock = -1;
+  if (keyed) {
+    options.keyFile = keyPath(keyFlag);
+    if (options.keyFile.empty()) {
+      std::fprintf(stderr,
+                   "physctl: no home for the key file ($HOME unset): give --key FILE or "
+                   "$PHYSCTL_KEY\n");
+      return 2;
+    }
+    keyLock = lockKey(options.keyFile);
+    if (keyLock < 0) return 2;
+  }
+  if (*whoami) {
+    phys::protocol::ClientKey key;
+    const phys::protocol::Status s = phys::protocol::ClientKey::load(options.keyFile, true, &key);
+    if (!s.ok()) {
+      std::fprintf(stderr, "physctl: %s\n", s.message.c_str());
+      return 1;
+    }
+    if (json)
+      printJson({{"client_id", hexId(key.clientId())}, {"key_file", options.keyFile}});
+    else
+      std::printf("%s\n", hexId(key.clientId()).c_str());
+    return 0;
+  }
+
   try {
     pc::Client client(options);
     if (*watchCmd) {
       std::signal(SIGINT, onSignal);
       std::signal(SIGTERM, onSignal);
-      return watch(client, world);
+      return watch(client, world, json);
     }
     client.connect();
     if (*subscribeCmd) {
@@ -483,10 +734,13 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "physctl: give --bodies or --region, not both\n");
         return 2;
       }
-      return subscribe(client, world, subWarmup, subSeconds, latencyLog, interest);
+      return subscribe(client, world, subWarmup, subSeconds, latencyLog, interest, json);
     }
     if (*list) {
-      printWorlds(client.listWorlds().get());
+      if (json)
+        printJson(worldsJson(client.listWorlds().get()));
+      else
+        printWorlds(client.listWorlds().get());
     } else if (*ping) {
       // A benchmark, not a check: wall time from sending a request to its reply, through the
       // SDK, the envelope, DDS and the server's tick boundary (ListWorlds changes nothing).
@@ -504,12 +758,28 @@ int main(int argc, char** argv) {
       auto pct = [&](double q) {
         return us[std::min(us.size() - 1, size_t(q * double(us.size())))];
       };
-      std::printf(
-          "%d round trips (ListWorlds): p50 %.0f us, p90 %.0f us, p99 %.0f us, max %.0f us\n",
-          pings, pct(0.5), pct(0.9), pct(0.99), us.back());
+      if (json)
+        printJson({{"round_trips", pings},
+                   {"request", "ListWorlds"},
+                   {"us", {{"p50", pct(0.5)}, {"p90", pct(0.9)}, {"p99", pct(0.99)},
+                           {"max", us.back()}}}});
+      else
+        std::printf(
+            "%d round trips (ListWorlds): p50 %.0f us, p90 %.0f us, p99 %.0f us, max %.0f us\n",
+            pings, pct(0.5), pct(0.9), pct(0.99), us.back());
     } else if (*create) {
-      pc::WorldHandle w = client.createWorld({name, preset, std::nullopt, 0, backend}).get();
-      std::printf("created world %u '%s'\n", w.id(), name.c_str());
+      pc::CreateWorldArgs args{name, preset, std::nullopt, 0, backend};
+      args.editors = editorIds;
+      args.shared = shared;
+      pc::WorldHandle w = client.createWorld(args).get();
+      std::string who = options.security.enabled() ? "identity " + identity
+                                                   : "client " + hexId(client.clientId());
+      if (shared)
+        who += ", shared";
+      else if (!editorIds.empty())
+        who += " and " + std::to_string(editorIds.size()) + " editor" +
+               (editorIds.size() == 1 ? "" : "s");
+      std::printf("created world %u '%s' (owner %s)\n", w.id(), name.c_str(), who.c_str());
       // Where it runs (a world that asked for the GPU may run on the CPU; the note says why).
       for (const pc::WorldSummary& s : client.listWorlds().get())
         if (s.world == w.id()) {
@@ -520,9 +790,9 @@ int main(int argc, char** argv) {
     } else if (*load) {
       pc::WorldHandle w = resolve(client, world);
       pc::Ids ids;
-      std::string json;
-      if (scene.size() > 5 && scene.ends_with(".json") && readFile(scene, &json))
-        ids = w.loadSceneJson(json).get();
+      std::string sceneJson;
+      if (scene.size() > 5 && scene.ends_with(".json") && readFile(scene, &sceneJson))
+        ids = w.loadSceneJson(sceneJson).get();
       else
         ids = w.loadScene(scene).get();
       std::printf("world %u: loaded %s (%zu bodies, %zu joints)\n", w.id(), scene.c_str(),
@@ -617,6 +887,21 @@ int main(int argc, char** argv) {
       }
       w.restoreSnapshot({reinterpret_cast<const uint8_t*>(bytes.data()), bytes.size()}).get();
       std::printf("world %u: restored from %s\n", w.id(), file.c_str());
+    } else if (*access) {
+      pc::WorldHandle w = resolve(client, world);
+      w.setAccess(editorIds, shared).get();
+      if (shared) {
+        std::printf("world %u: shared (every client may change it; its owner alone destroys "
+                    "it or sets its access)\n",
+                    w.id());
+      } else if (editorIds.empty()) {
+        std::printf("world %u: private (its owner %s alone may change it)\n", w.id(),
+                    hexId(client.clientId()).c_str());
+      } else {
+        std::printf("world %u: its owner and these editors may change it:", w.id());
+        for (uint64_t id : editorIds) std::printf(" %s", hexId(id).c_str());
+        std::printf("\n");
+      }
     }
   } catch (const pc::Error& e) {
     std::fprintf(stderr, "physctl: %s: %s\n", pc::toString(e.code()), e.message().c_str());

@@ -27,22 +27,23 @@ def main(argv=None):
             server = client.connect()
             print(f"connected to {server.name} {server.version}")
 
-            world = client.create_world(f"drop-boxes-{client.client_id % 100000}")
-            ground = pc.BodyDef(type=pc.BodyType.Static,
-                                shapes=[pc.ShapeDef(pc.ShapeGeom.plane((0, 0, 1), 0))])
-            boxes = [pc.BodyDef(position=(0, 0, 1 + 1.5 * i),
-                                shapes=[pc.ShapeDef(pc.ShapeGeom.box((0.5, 0.5, 0.5)))])
-                     for i in range(args.boxes)]
-            ids = world.spawn([ground] + boxes)
-            print(f"world {world.id}: spawned {len(ids)} bodies")
+            # Worlds are durable (kept on physd's disk until destroyed): the end of the with
+            # block destroys this one (docs/PYTHON.md "Worlds are durable").
+            with client.create_world(f"drop-boxes-{client.client_id % 100000}") as world:
+                ground = pc.BodyDef(type="static",
+                                    shapes=[pc.ShapeDef(pc.ShapeGeom.plane((0, 0, 1), 0))])
+                boxes = [pc.BodyDef(position=(0, 0, 1 + 1.5 * i),
+                                    shapes=[pc.ShapeDef(pc.ShapeGeom.box((0.5, 0.5, 0.5)))])
+                         for i in range(args.boxes)]
+                ids = world.spawn([ground] + boxes)
+                print(f"world {world.id}: spawned {len(ids)} bodies")
 
-            ack = world.step(args.steps)
-            frame = world.query_state(ids[1:])
-            print(f"tick {ack.tick}, t = {frame.time:.2f} s")
-            for i, body in enumerate(frame.bodies):
-                x, y, z = body.position
-                print(f"box {i}: x={x:.3f} y={y:.3f} z={z:.3f}")
-            world.destroy()
+                ack = world.step(args.steps)
+                frame = world.query_state(ids[1:])
+                print(f"tick {ack.tick}, t = {frame.time:.2f} s")
+                for i, body in enumerate(frame):
+                    x, y, z = body.position
+                    print(f"box {i}: x={x:.3f} y={y:.3f} z={z:.3f}")
     except pc.Error as e:
         print(f"error: {e}", file=sys.stderr)
         return 1

@@ -33,7 +33,9 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <cstdint>
+#include <functional>
 #include <future>
 #include <memory>
 #include <mutex>
@@ -41,6 +43,7 @@
 #include <string>
 #include <system_error>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "phys/client/client.h"
@@ -107,6 +110,64 @@ struct type_caster<phys::Quat> {
   }
 };
 
+// The module's enums (py::enum_: BodyType, JointType, PointFrame, ...) as arguments and
+// attributes: a member (BodyType.Static) or its name as a string in any case
+// (BodyDef(type="static"), apply_force(..., frame="world")). Anything else raises one
+// sentence naming the valid values: ValueError for an unknown name, TypeError for another
+// type, instead of pybind11's listing of the function's signatures. The error is thrown from
+// load(), which pybind11 lets through as the call's exception; it is only thrown in the
+// converting pass (the functions that take these enums have no overloads to try next).
+std::string lowerAscii(std::string s) {
+  for (char& c : s)
+    if (c >= 'A' && c <= 'Z') c = char(c - 'A' + 'a');
+  return s;
+}
+
+template <class E>
+struct named_enum_caster : type_caster_base<E> {
+  E named{};
+  bool load(handle src, bool convert) {
+    if (type_caster_base<E>::load(src, convert)) return true;
+    if (!convert || !src) return false;
+    const type_info* ti = get_type_info(typeid(E));
+    if (!ti) return false;  // not bound (yet): as pybind11 would
+    const handle type(reinterpret_cast<PyObject*>(ti->type));
+    const std::string typeName = type.attr("__name__").cast<std::string>();
+    const dict members = type.attr("__members__");
+    std::string names;
+    size_t i = 0;
+    for (auto item : members) {
+      names += (i == 0 ? "" : i + 1 == members.size() ? " or " : ", ");
+      names += typeName + "." + std::string(str(item.first));
+      ++i;
+    }
+    if (PyUnicode_Check(src.ptr())) {
+      const std::string given = src.cast<std::string>();
+      for (auto item : members) {
+        if (lowerAscii(std::string(str(item.first))) == lowerAscii(given)) {
+          named = item.second.template cast<E>();
+          this->value = &named;
+          return true;
+        }
+      }
+      throw value_error("physclient: '" + given + "' is not a " + typeName + ": use " + names +
+                        " (or the name as a string)");
+    }
+    throw type_error("physclient: expected a " + typeName + " (" + names +
+                     ", or the name as a string), not " +
+                     std::string(str(type::handle_of(src).attr("__name__"))));
+  }
+};
+
+template <>
+struct type_caster<phys::BodyType> : named_enum_caster<phys::BodyType> {};
+template <>
+struct type_caster<phys::JointType> : named_enum_caster<phys::JointType> {};
+template <>
+struct type_caster<phys::ShapeType> : named_enum_caster<phys::ShapeType> {};
+template <>
+struct type_caster<phys::client::PointFrame> : named_enum_caster<phys::client::PointFrame> {};
+
 }  // namespace pybind11::detail
 
 namespace {
@@ -126,7 +187,9 @@ std::vector<ErrorClass>& errorClasses() {
   return *classes;
 }
 
-void raiseError(const pc::Error& e) {
+/// The exception object for e: an instance of its code's class, with code, message and
+/// from_server (raised by raiseError, or set on an asyncio.Future).
+py::object errorObject(const pc::Error& e) {
   PyObject* cls = gError;
   for (const ErrorClass& c : errorClasses())
     if (c.code == e.code()) cls = c.cls;
@@ -135,7 +198,13 @@ void raiseError(const pc::Error& e) {
   exc.attr("code") = py::cast(e.code());
   exc.attr("message") = py::str(e.message());
   exc.attr("from_server") = py::bool_(e.fromServer());
-  PyErr_SetObject(cls, exc.ptr());
+  exc.attr("retry_after_ms") = py::int_(e.retryAfterMs());
+  return exc;
+}
+
+void raiseError(const pc::Error& e) {
+  py::object exc = errorObject(e);
+  PyErr_SetObject(reinterpret_cast<PyObject*>(Py_TYPE(exc.ptr())), exc.ptr());
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -675,7 +744,15 @@ class PySubscription {
     return sub_ ? sub_->framesSkipped() : closedSkipped_;
   }
 
+  /// `async for frame in subscription` (defineAsync): the tick of the frame it gave last
+  /// (GIL held).
+  struct AsyncIteration {
+    bool started = false;
+    uint64_t tick = 0;
+  } aiter;
+
  private:
+  friend struct FrameOp;  // waits on current() without the GIL, as waitForFrame() does
   std::shared_ptr<pc::Subscription> current() const {
     std::lock_guard<std::mutex> lk(m_);
     return sub_;
@@ -710,6 +787,13 @@ class PyWorld {
   PyWorld(BoxPtr box, uint32_t id) : box_(std::move(box)), id_(id) {}
   uint32_t id() const { return id_; }
   const BoxPtr& box() const { return box_; }
+  /// Made by create_world() (or create_world_async()): the end of a `with` block destroys it
+  /// (defineWorldContext).
+  bool created() const { return created_; }
+  PyWorld& markCreated() {
+    created_ = true;
+    return *this;
+  }
 
   template <class F>
   auto req(std::optional<double> timeout, F&& f) {
@@ -749,6 +833,7 @@ class PyWorld {
  private:
   BoxPtr box_;
   uint32_t id_;
+  bool created_ = false;
 };
 
 class PyClient {
@@ -756,7 +841,7 @@ class PyClient {
   PyClient(uint32_t domain, std::string name, std::optional<std::string> cycloneXml,
            uint64_t clientId, double connectTimeout, double requestTimeout, bool autoReconnect,
            std::optional<std::string> securityDir, std::optional<std::string> identity,
-           std::optional<std::string> keyFile) {
+           std::optional<std::string> keyFile, bool retryBusy) {
     pc::ClientOptions o;
     o.domain = domain;
     o.name = std::move(name);
@@ -766,6 +851,7 @@ class PyClient {
     o.connectTimeout = toMs(connectTimeout);
     o.requestTimeout = toMs(requestTimeout);
     o.autoReconnect = autoReconnect;
+    o.retryBusy = retryBusy;
     if (securityDir || identity) {
       if (!securityDir || !identity)
         throw py::value_error("physclient: security_dir and identity go together");
@@ -838,6 +924,816 @@ void closeAllClients() {
   for (auto& b : boxes) closeBox(*b);
 }
 
+// ---------------------------------------------------------------------------------------------
+// StateFrame as a sequence of its bodies (defineFrameSequence): len(frame), frame[i] (negative
+// too) and frame[a:b] (a list), `for body in frame`, frame.get(id), `id in frame`. Each gives
+// copies of BodyState, as frame.bodies does, but without copying the whole list first:
+// frame[i] and frame.get(id) cost one body. frame.array() stays the fast path for every body
+// at once.
+
+/// The position of body `id` in f.bodies, or -1. A subscription's frames and a query_state
+/// answer for every body are in index order (the id's low 32 bits: client.h, PROTOCOL.md), so a
+/// binary search by index finds a body in O(log n); an answer for given ids is in their
+/// order, so a miss falls back to a scan (an absent id costs one).
+ptrdiff_t bodyPosition(const pc::StateFrame& f, uint64_t id) {
+  const std::vector<pc::BodyState>& b = f.bodies;
+  const uint32_t index = uint32_t(id);
+  size_t lo = 0, hi = b.size();
+  while (lo < hi) {
+    const size_t mid = lo + (hi - lo) / 2;
+    if (uint32_t(b[mid].id) < index)
+      lo = mid + 1;
+    else
+      hi = mid;
+  }
+  if (lo < b.size() && b[lo].id == id) return ptrdiff_t(lo);
+  for (size_t i = 0; i < b.size(); ++i)
+    if (b[i].id == id) return ptrdiff_t(i);
+  return -1;
+}
+
+/// An int as a body id; nullopt for one no body has (negative, past 64 bits). TypeError for
+/// anything but an int.
+std::optional<uint64_t> bodyIdOf(const py::object& id) {
+  if (!PyLong_Check(id.ptr()))
+    throw py::type_error("physclient: a body id is an int, not " +
+                         std::string(py::str(py::type::handle_of(id).attr("__name__"))));
+  const uint64_t v = PyLong_AsUnsignedLongLong(id.ptr());
+  if (PyErr_Occurred()) {
+    PyErr_Clear();
+    return std::nullopt;
+  }
+  return v;
+}
+
+py::object bodyCopy(const pc::BodyState& b) { return py::cast(b, py::return_value_policy::copy); }
+
+void defineFrameSequence(py::module_& m) {
+  auto frame = py::reinterpret_borrow<py::class_<pc::StateFrame>>(m.attr("StateFrame"));
+  frame
+      .def(
+          "__getitem__",
+          [](const pc::StateFrame& f, const py::object& key) -> py::object {
+            const auto n = py::ssize_t(f.bodies.size());
+            if (PySlice_Check(key.ptr())) {
+              py::ssize_t start = 0, stop = 0, step = 0, count = 0;
+              if (!key.cast<py::slice>().compute(n, &start, &stop, &step, &count))
+                throw py::error_already_set();
+              py::list out(count);
+              for (py::ssize_t i = 0; i < count; ++i)
+                out[size_t(i)] = bodyCopy(f.bodies[size_t(start + i * step)]);
+              return out;
+            }
+            if (!PyIndex_Check(key.ptr()))
+              throw py::type_error(
+                  "physclient: a StateFrame is indexed by position (an int) or a slice, not " +
+                  std::string(py::str(py::type::handle_of(key).attr("__name__"))) +
+                  "; frame.get(id) looks a body up by its id");
+            py::ssize_t i = PyNumber_AsSsize_t(key.ptr(), nullptr);  // clipped when huge
+            if (i == -1 && PyErr_Occurred()) throw py::error_already_set();
+            if (i < 0) i += n;
+            if (i < 0 || i >= n)
+              throw py::index_error("physclient: StateFrame index " +
+                                    std::string(py::str(key)) + " out of range (" +
+                                    std::to_string(n) +
+                                    " bodies); frame.get(id) looks a body up by its id");
+            return bodyCopy(f.bodies[size_t(i)]);
+          },
+          py::arg("index"),
+          "frame[i]: the i-th body (BodyState; negative from the end); frame[a:b]: a list.")
+      .def(
+          "__iter__",
+          [](const pc::StateFrame& f) {
+            return py::make_iterator<py::return_value_policy::copy>(f.bodies.begin(),
+                                                                    f.bodies.end());
+          },
+          py::keep_alive<0, 1>(), "The bodies in order (BodyState, a copy each).")
+      .def(
+          "get",
+          [](const pc::StateFrame& f, const py::object& id, const py::object& dflt) -> py::object {
+            const std::optional<uint64_t> v = bodyIdOf(id);
+            const ptrdiff_t i = v ? bodyPosition(f, *v) : -1;
+            return i < 0 ? dflt : bodyCopy(f.bodies[size_t(i)]);
+          },
+          py::arg("id"), py::arg("default") = py::none(),
+          "The state of body `id` (BodyState), or default (None) when the frame lacks it.")
+      .def(
+          "__contains__",
+          [](const pc::StateFrame& f, const py::object& what) {
+            if (py::isinstance<pc::BodyState>(what))
+              return bodyPosition(f, what.cast<const pc::BodyState&>().id) >= 0;
+            if (!PyLong_Check(what.ptr())) return false;
+            const std::optional<uint64_t> id = bodyIdOf(what);
+            return id && bodyPosition(f, *id) >= 0;
+          },
+          "`id in frame`: whether the frame holds that body (an id, or a BodyState's id).")
+      .def_property_readonly(
+          "stamp",
+          [](const pc::StateFrame& f) -> py::object {
+            if (f.stampNs == 0) return py::none();
+            return py::float_(double(f.stampNs) * 1e-9);
+          },
+          "When the server read these states, in seconds since the Unix epoch (as time.time());\n"
+          "None when the server sent no time (stamp_ns 0). time.time() - frame.stamp is the\n"
+          "frame's age (same host or synced clocks).");
+}
+
+// ---------------------------------------------------------------------------------------------
+// asyncio (docs/PYTHON.md "asyncio"): World.<request>_async, Client.<request>_async,
+// Subscription.wait_for_frame_async and `async for frame in subscription`.
+//
+// An *_async call sends its request at once, as the blocking call does, and returns an
+// asyncio.Future of the running loop; nothing waits in the call. The SDK's std::future goes to
+// the Completer: one thread for the process, which waits on the oldest pending operation for
+// up to kAsyncSlice with the GIL released, then checks the others (wait_for(0): an atomic load
+// each), and when some are done takes the GIL once for all of them, turns each outcome into a
+// result or an exception object (the typed physclient.Error) and hands it to its loop
+// (loop.call_soon_threadsafe), where the asyncio.Future is settled unless it was cancelled
+// meanwhile. So the event loop never blocks, no thread holds the GIL while waiting, and any
+// number of requests may be in flight on one thread (each is an entry in a list). std::future
+// has no completion callback, hence waiting on the oldest: replies mostly come in order, so
+// the Completer wakes as the oldest one's arrives; one that overtakes it (a quick request
+// behind a long step of another world) is seen within a slice.
+//
+// Every SDK future is resolved in the end, by the reply, the request's timeout or the client's
+// destruction (Disconnected), so no entry waits forever; a frame wait ends at its timeout,
+// when its subscription closes, or when its asyncio.Future is cancelled. A pending entry keeps
+// its connection (as a World does) until it is settled; close() fails it at once. At exit the
+// Completer is stopped after the clients are closed (the atexit hook).
+
+constexpr std::chrono::milliseconds kAsyncSlice{1};
+
+/// Settles an asyncio.Future on its loop: future.set_result(result), or set_exception(error)
+/// when error is not None; nothing when it is done already (cancelled). Made at import.
+py::object* gSettle = nullptr;
+
+struct AsyncOp {
+  BoxPtr box;         // keeps the connection while pending (null for none)
+  py::object loop;    // the caller's running loop
+  py::object future;  // its asyncio.Future
+  /// A NotFound failure is a result of None (the end of `async with world`: gone already).
+  bool notFoundIsNone = false;
+  AsyncOp() = default;
+  AsyncOp(const AsyncOp&) = delete;
+  AsyncOp& operator=(const AsyncOp&) = delete;
+  virtual ~AsyncOp() = default;  // with the GIL held (py::object members), or leaked at exit
+  /// Waits up to `slice` for the outcome, without the GIL; true once it is known.
+  virtual bool wait(std::chrono::milliseconds slice) = 0;
+  /// The outcome (GIL held): the result, or *error set to an exception object; a failure may
+  /// also be thrown (pc::Error, py::error_already_set, std::exception).
+  virtual py::object result(py::object* error) = 0;
+};
+
+template <class T>
+struct FutureOp : AsyncOp {
+  std::future<T> fut;
+  std::function<py::object(T)> convert;  // GIL held
+  bool wait(std::chrono::milliseconds slice) override {
+    return fut.wait_for(slice) == std::future_status::ready;
+  }
+  py::object result(py::object*) override { return convert(fut.get()); }
+};
+
+/// A frame of a subscription: wait_for_frame_async (the first with tick > after, or None at
+/// the deadline or when the subscription is closed) and `async for` (StopAsyncIteration when
+/// closed; no deadline; the first: the newest frame received already, if any).
+struct FrameOp : AsyncOp {
+  py::object subObject;  // keeps the PySubscription (sub) alive
+  PySubscription* sub = nullptr;
+  uint64_t after = 0;
+  bool anyFirst = false;  // async for's first frame: the newest there is, whatever its tick
+  bool iteration = false;
+  std::chrono::steady_clock::time_point deadline;
+  std::shared_ptr<std::atomic<bool>> cancelled = std::make_shared<std::atomic<bool>>(false);
+  std::optional<pc::StateFrame> frame;
+  bool closed = false;
+
+  bool wait(std::chrono::milliseconds slice) override {
+    if (cancelled->load()) return true;
+    const std::shared_ptr<pc::Subscription> s = sub->current();
+    if (!s) {
+      closed = true;
+      return true;
+    }
+    if (anyFirst && (frame = s->latest())) return true;
+    const auto now = std::chrono::steady_clock::now();
+    if (now >= deadline) return true;
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - now);
+    frame = s->waitForFrame(after, std::min(slice, left));
+    return frame || std::chrono::steady_clock::now() >= deadline;
+  }
+  py::object result(py::object* error) override {
+    if (frame) {
+      if (iteration) sub->aiter = {true, frame->tick};
+      return py::cast(std::move(*frame));
+    }
+    if (iteration && closed)
+      *error = py::reinterpret_steal<py::object>(PyObject_CallNoArgs(PyExc_StopAsyncIteration));
+    return py::none();
+  }
+};
+
+class Completer {
+ public:
+  /// Queues op (sent already); the thread starts with the first.
+  void add(std::unique_ptr<AsyncOp> op) {
+    std::lock_guard<std::mutex> lk(m_);
+    if (stopped_) throw std::runtime_error("physclient: the interpreter is exiting");
+    if (!thread_.joinable()) thread_ = std::thread([this] { run(); });
+    incoming_.push_back(std::move(op));
+    cv_.notify_one();
+  }
+  /// At exit, after the clients were closed (GIL released by the caller): what is still
+  /// pending is dropped without touching Python.
+  void stop() {
+    {
+      std::lock_guard<std::mutex> lk(m_);
+      stopped_ = true;
+      cv_.notify_one();
+    }
+    if (thread_.joinable()) thread_.join();
+  }
+
+ private:
+  void run() {
+    std::vector<std::unique_ptr<AsyncOp>> waiting, done;
+    for (;;) {
+      {
+        std::unique_lock<std::mutex> lk(m_);
+        cv_.wait(lk, [&] { return stopped_ || !incoming_.empty() || !waiting.empty(); });
+        for (auto& op : incoming_) waiting.push_back(std::move(op));
+        incoming_.clear();
+        if (stopped_) break;
+      }
+      waiting.front()->wait(kAsyncSlice);
+      size_t kept = 0;
+      for (size_t i = 0; i < waiting.size(); ++i) {
+        if (waiting[i]->wait(std::chrono::milliseconds(0)))
+          done.push_back(std::move(waiting[i]));
+        else if (kept++ != i)
+          waiting[kept - 1] = std::move(waiting[i]);
+      }
+      waiting.resize(kept);
+      if (!done.empty()) settleAll(done);
+    }
+    forget(waiting);
+  }
+
+  static void settleAll(std::vector<std::unique_ptr<AsyncOp>>& done) {
+    if (gExiting.load() || !Py_IsInitialized()) {
+      forget(done);
+      return;
+    }
+    py::gil_scoped_acquire gil;
+    for (auto& op : done) {
+      if (!gExiting.load()) settle(*op);
+      op.reset();  // its Python references, with the GIL (a last BoxPtr lets go of it too)
+    }
+    done.clear();
+  }
+
+  static void settle(AsyncOp& op) {
+    py::object result = py::none(), error = py::none();
+    try {
+      result = op.result(&error);
+    } catch (const pc::Error& e) {
+      if (op.notFoundIsNone && e.code() == pc::ErrorCode::NotFound)
+        result = py::none();
+      else
+        error = errorObject(e);
+    } catch (py::error_already_set& e) {
+      e.restore();
+      PyObject *type = nullptr, *value = nullptr, *trace = nullptr;
+      PyErr_Fetch(&type, &value, &trace);
+      PyErr_NormalizeException(&type, &value, &trace);
+      if (value && trace) PyException_SetTraceback(value, trace);
+      Py_XDECREF(type);
+      Py_XDECREF(trace);
+      error = value ? py::reinterpret_steal<py::object>(value) : py::none();
+    } catch (const std::exception& e) {
+      error = py::reinterpret_borrow<py::object>(PyExc_RuntimeError)(e.what());
+    }
+    try {
+      op.loop.attr("call_soon_threadsafe")(*gSettle, op.future, result, error);
+    } catch (py::error_already_set&) {
+      // The loop is closed: nobody can await the future any more.
+    }
+  }
+
+  /// Drops ops without Python (at exit): their Python references are left be.
+  static void forget(std::vector<std::unique_ptr<AsyncOp>>& ops) {
+    for (auto& op : ops) {
+      op->loop.release();
+      op->future.release();
+      if (auto* f = dynamic_cast<FrameOp*>(op.get())) f->subObject.release();
+      op.reset();
+    }
+    ops.clear();
+  }
+
+  std::mutex m_;
+  std::condition_variable cv_;
+  std::vector<std::unique_ptr<AsyncOp>> incoming_;
+  bool stopped_ = false;
+  std::thread thread_;
+};
+
+Completer& completer() {
+  static auto* c = new Completer;  // leaked: stopped by the atexit hook, never destroyed
+  return *c;
+}
+
+/// The running loop (RuntimeError outside one: asyncio.get_running_loop) and a new future.
+std::pair<py::object, py::object> loopAndFuture() {
+  py::object loop = py::module_::import("asyncio").attr("get_running_loop")();
+  py::object future = loop.attr("create_future")();
+  return {std::move(loop), std::move(future)};
+}
+
+template <class F>
+struct FutureValue;
+template <class T>
+struct FutureValue<std::future<T>> {
+  using type = T;
+};
+
+struct CastResult {
+  template <class T>
+  py::object operator()(T&& v) const {
+    return py::cast(std::forward<T>(v));
+  }
+};
+
+/// Sends a request as request() does (mk(client) with the GIL released) and returns an
+/// asyncio.Future that the Completer settles with convert(value) or the typed error.
+template <class MakeFuture, class Convert = CastResult>
+py::object submitAsync(const BoxPtr& box, MakeFuture&& mk, Convert convert = {},
+                       bool notFoundIsNone = false) {
+  auto [loop, future] = loopAndFuture();
+  Lease lease(box);
+  auto fut = [&] {
+    py::gil_scoped_release release;
+    return mk(*lease);
+  }();
+  using T = typename FutureValue<decltype(fut)>::type;
+  auto op = std::make_unique<FutureOp<T>>();
+  op->box = box;
+  op->loop = loop;
+  op->future = future;
+  op->notFoundIsNone = notFoundIsNone;
+  op->fut = std::move(fut);
+  op->convert = std::move(convert);
+  completer().add(std::move(op));
+  return future;
+}
+
+/// A World's request, as PyWorld::req sends it.
+template <class F, class Convert = CastResult>
+py::object worldAsync(const PyWorld& w, std::optional<double> timeout, F&& f,
+                      Convert convert = {}, bool notFoundIsNone = false) {
+  const pc::CallOptions o = callOptions(timeout);
+  const uint32_t id = w.id();
+  return submitAsync(
+      w.box(), [&](pc::Client& c) { return f(pc::WorldHandle(&c, id), o); }, std::move(convert),
+      notFoundIsNone);
+}
+
+/// A frame wait of a subscription (see FrameOp).
+py::object frameAsync(py::object self, uint64_t after, std::optional<double> timeoutS,
+                      bool iteration) {
+  auto [loop, future] = loopAndFuture();
+  auto op = std::make_unique<FrameOp>();
+  op->sub = &self.cast<PySubscription&>();
+  op->after = after;
+  op->iteration = iteration;
+  op->anyFirst = iteration && !op->sub->aiter.started;
+  op->deadline = timeoutS ? std::chrono::steady_clock::now() + toMs(*timeoutS)
+                          : std::chrono::steady_clock::time_point::max();
+  // A cancelled wait (asyncio.wait_for, a cancelled task) leaves the Completer at once.
+  future.attr("add_done_callback")(py::cpp_function(
+      [flag = op->cancelled](const py::object&) { flag->store(true); }));
+  op->subObject = std::move(self);
+  op->loop = loop;
+  op->future = future;
+  completer().add(std::move(op));
+  return future;
+}
+
+void defineAsync(py::module_& m) {
+  using OptS = std::optional<double>;
+  const auto T = py::arg("timeout") = py::none();
+  gSettle = new py::object(py::cpp_function(
+      [](const py::object& future, const py::object& result, const py::object& error) {
+        if (future.attr("done")().cast<bool>()) return;  // cancelled meanwhile
+        if (error.is_none())
+          future.attr("set_result")(result);
+        else
+          future.attr("set_exception")(error);
+      }));
+
+  auto world = py::reinterpret_borrow<py::class_<PyWorld>>(m.attr("World"));
+  using H = pc::WorldHandle;
+  using O = pc::CallOptions;
+  world
+      .def(
+          "info_async",
+          [](PyWorld& w, OptS t) {
+            const uint32_t id = w.id();
+            const pc::CallOptions o = callOptions(t);
+            return submitAsync(
+                w.box(), [&](pc::Client& c) { return c.listWorlds(o); },
+                [id](std::vector<pc::WorldSummary> all) -> py::object {
+                  for (pc::WorldSummary& s : all)
+                    if (s.world == id) return py::cast(std::move(s));
+                  throw pc::Error(pc::ErrorCode::NotFound, "no world " + std::to_string(id));
+                });
+          },
+          py::kw_only(), T, "info() without blocking: an asyncio.Future of WorldSummary.")
+      .def(
+          "destroy_async",
+          [](PyWorld& w, OptS t) {
+            return worldAsync(w, t, [](H h, O o) { return h.destroy(o); });
+          },
+          py::kw_only(), T)
+      .def(
+          "reset_async",
+          [](PyWorld& w, OptS t) { return worldAsync(w, t, [](H h, O o) { return h.reset(o); }); },
+          py::kw_only(), T)
+      .def(
+          "load_scene_async",
+          [](PyWorld& w, const std::string& name, OptS t) {
+            return worldAsync(w, t, [&](H h, O o) { return h.loadScene(name, o); });
+          },
+          py::arg("name"), py::kw_only(), T)
+      .def(
+          "load_scene_json_async",
+          [](PyWorld& w, const std::string& json, OptS t) {
+            return worldAsync(w, t, [&](H h, O o) { return h.loadSceneJson(json, o); });
+          },
+          py::arg("json"), py::kw_only(), T)
+      .def(
+          "spawn_async",
+          [](PyWorld& w, const py::object& bodies, OptS t) {
+            auto defs = oneOrMany<phys::BodyDef>(bodies, "BodyDef");
+            return worldAsync(w, t, [&](H h, O o) {
+              return h.spawn(std::span<const phys::BodyDef>(defs), o);
+            });
+          },
+          py::arg("bodies"), py::kw_only(), T)
+      .def(
+          "remove_bodies_async",
+          [](PyWorld& w, const py::object& ids, OptS t) {
+            auto v = idList(ids);
+            return worldAsync(
+                w, t, [&](H h, O o) { return h.removeBodies(std::span<const uint64_t>(v), o); });
+          },
+          py::arg("ids"), py::kw_only(), T)
+      .def(
+          "add_joints_async",
+          [](PyWorld& w, const py::object& joints, OptS t) {
+            auto defs = oneOrMany<phys::JointDef>(joints, "JointDef");
+            return worldAsync(w, t, [&](H h, O o) {
+              return h.addJoints(std::span<const phys::JointDef>(defs), o);
+            });
+          },
+          py::arg("joints"), py::kw_only(), T)
+      .def(
+          "remove_joints_async",
+          [](PyWorld& w, const py::object& ids, OptS t) {
+            auto v = idList(ids);
+            return worldAsync(
+                w, t, [&](H h, O o) { return h.removeJoints(std::span<const uint64_t>(v), o); });
+          },
+          py::arg("ids"), py::kw_only(), T)
+      .def(
+          "set_pose_async",
+          [](PyWorld& w, uint64_t body, phys::Vec3 p, phys::Quat q, OptS t) {
+            return worldAsync(w, t, [&](H h, O o) { return h.setPose(body, p, q, o); });
+          },
+          py::arg("body"), py::arg("position"), py::arg("rotation") = phys::Quat{}, py::kw_only(),
+          T)
+      .def(
+          "set_velocity_async",
+          [](PyWorld& w, uint64_t body, phys::Vec3 lin, phys::Vec3 ang, OptS t) {
+            return worldAsync(w, t, [&](H h, O o) { return h.setVelocity(body, lin, ang, o); });
+          },
+          py::arg("body"), py::arg("linear"), py::arg("angular") = phys::Vec3{}, py::kw_only(), T)
+      .def(
+          "apply_force_async",
+          [](PyWorld& w, uint64_t body, phys::Vec3 f, phys::Vec3 point, pc::PointFrame frame,
+             OptS t) {
+            return worldAsync(
+                w, t, [&](H h, O o) { return h.applyForce(body, f, point, frame, o); });
+          },
+          py::arg("body"), py::arg("force"), py::arg("point") = phys::Vec3{},
+          py::arg("frame") = pc::PointFrame::CenterOfMass, py::kw_only(), T)
+      .def(
+          "apply_impulse_async",
+          [](PyWorld& w, uint64_t body, phys::Vec3 j, phys::Vec3 point, pc::PointFrame frame,
+             OptS t) {
+            return worldAsync(
+                w, t, [&](H h, O o) { return h.applyImpulse(body, j, point, frame, o); });
+          },
+          py::arg("body"), py::arg("impulse"), py::arg("point") = phys::Vec3{},
+          py::arg("frame") = pc::PointFrame::CenterOfMass, py::kw_only(), T)
+      .def(
+          "apply_torque_async",
+          [](PyWorld& w, uint64_t body, phys::Vec3 torque, OptS t) {
+            return worldAsync(w, t, [&](H h, O o) { return h.applyTorque(body, torque, o); });
+          },
+          py::arg("body"), py::arg("torque"), py::kw_only(), T)
+      .def(
+          "set_material_async",
+          [](PyWorld& w, const py::object& bodies, const phys::Material& mt, OptS t) {
+            auto v = idList(bodies);
+            return worldAsync(w, t, [&](H h, O o) {
+              return h.setMaterial(std::span<const uint64_t>(v), mt, o);
+            });
+          },
+          py::arg("bodies"), py::arg("material"), py::kw_only(), T)
+      .def(
+          "set_solver_async",
+          [](PyWorld& w, const std::string& preset, OptS t, const py::kwargs& kw) {
+            const pc::SolverOverrides ov = solverOverrides(kw);
+            return worldAsync(w, t, [&](H h, O o) { return h.setSolver(preset, ov, o); });
+          },
+          py::arg("preset") = "", py::kw_only(), T)
+      .def(
+          "set_world_async",
+          [](PyWorld& w, OptS t, const py::kwargs& kw) {
+            const pc::WorldOverrides ov = worldOverrides(kw);
+            return worldAsync(w, t, [&](H h, O o) { return h.setWorld(ov, o); });
+          },
+          py::kw_only(), T)
+      .def(
+          "set_gravity_async",
+          [](PyWorld& w, phys::Vec3 g, OptS t) {
+            return worldAsync(w, t, [&](H h, O o) { return h.setGravity(g, o); });
+          },
+          py::arg("gravity"), py::kw_only(), T)
+      .def(
+          "settings_async",
+          [](PyWorld& w, OptS t) {
+            return worldAsync(w, t, [](H h, O o) { return h.settings(o); });
+          },
+          py::kw_only(), T)
+      .def(
+          "get_bodies_async",
+          [](PyWorld& w, const py::object& ids, uint32_t first, uint32_t maxCount, OptS t) {
+            auto v = idList(ids);
+            return worldAsync(w, t, [&](H h, O o) {
+              return h.getBodies(std::span<const uint64_t>(v), first, maxCount, o);
+            });
+          },
+          py::arg("ids") = py::none(), py::arg("first") = 0, py::arg("max_count") = 0,
+          py::kw_only(), T)
+      .def(
+          "get_joints_async",
+          [](PyWorld& w, const py::object& ids, uint32_t first, uint32_t maxCount, OptS t) {
+            auto v = idList(ids);
+            return worldAsync(w, t, [&](H h, O o) {
+              return h.getJoints(std::span<const uint64_t>(v), first, maxCount, o);
+            });
+          },
+          py::arg("ids") = py::none(), py::arg("first") = 0, py::arg("max_count") = 0,
+          py::kw_only(), T)
+      .def(
+          "all_bodies_async",
+          [](PyWorld& w, OptS t) {
+            return worldAsync(w, t, [](H h, O o) { return h.allBodies(o); });
+          },
+          py::kw_only(), T)
+      .def(
+          "all_joints_async",
+          [](PyWorld& w, OptS t) {
+            return worldAsync(w, t, [](H h, O o) { return h.allJoints(o); });
+          },
+          py::kw_only(), T)
+      .def(
+          "step_async",
+          [](PyWorld& w, uint32_t n, OptS t) {
+            return worldAsync(w, t, [&](H h, O o) { return h.step(n, o); });
+          },
+          py::arg("n") = 1, py::kw_only(), T,
+          "step(n) without blocking: sends it now -> an asyncio.Future of its Ack.")
+      .def(
+          "run_async",
+          [](PyWorld& w, float rate, OptS t) {
+            return worldAsync(w, t, [&](H h, O o) { return h.run(rate, o); });
+          },
+          py::arg("rate_hz") = 60.0f, py::kw_only(), T)
+      .def(
+          "pause_async",
+          [](PyWorld& w, OptS t) { return worldAsync(w, t, [](H h, O o) { return h.pause(o); }); },
+          py::kw_only(), T)
+      .def(
+          "set_access_async",
+          [](PyWorld& w, const py::object& editors, bool shared, OptS t) {
+            auto v = idList(editors);
+            return worldAsync(w, t, [&](H h, O o) {
+              return h.setAccess(std::span<const uint64_t>(v), shared, o);
+            });
+          },
+          py::arg("editors") = py::list(), py::arg("shared") = false, py::kw_only(), T)
+      .def(
+          "query_state_async",
+          [](PyWorld& w, const py::object& ids, uint32_t first, uint32_t maxCount, OptS t) {
+            auto v = idList(ids);
+            return worldAsync(w, t, [&](H h, O o) {
+              return h.queryState(std::span<const uint64_t>(v), first, maxCount, o);
+            });
+          },
+          py::arg("ids") = py::none(), py::arg("first") = 0, py::arg("max_count") = 0,
+          py::kw_only(), T)
+      .def(
+          "save_snapshot_async",
+          [](PyWorld& w, OptS t) {
+            return worldAsync(
+                w, t, [](H h, O o) { return h.saveSnapshot(o); },
+                [](pc::Bytes b) -> py::object {
+                  return py::bytes(reinterpret_cast<const char*>(b.data()), b.size());
+                });
+          },
+          py::kw_only(), T)
+      .def(
+          "save_snapshot_file_async",
+          [](PyWorld& w, const std::string& file, OptS t) {
+            return worldAsync(w, t, [&](H h, O o) { return h.saveSnapshotFile(file, o); });
+          },
+          py::arg("file"), py::kw_only(), T)
+      .def(
+          "restore_snapshot_async",
+          [](PyWorld& w, const py::buffer& data, OptS t) {
+            const std::vector<uint8_t> bytes = bytesOf(data);
+            return worldAsync(w, t, [&](H h, O o) {
+              return h.restoreSnapshot(std::span<const uint8_t>(bytes), o);
+            });
+          },
+          py::arg("snapshot"), py::kw_only(), T)
+      .def(
+          "restore_snapshot_file_async",
+          [](PyWorld& w, const std::string& file, OptS t) {
+            return worldAsync(w, t, [&](H h, O o) { return h.restoreSnapshotFile(file, o); });
+          },
+          py::arg("file"), py::kw_only(), T);
+
+  auto client = py::reinterpret_borrow<py::class_<PyClient>>(m.attr("Client"));
+  client
+      .def(
+          "connect_async",
+          [](PyClient& c) {
+            auto [loop, future] = loopAndFuture();
+            // The SDK's connect() blocks (it waits for a daemon to match): it runs on a thread
+            // of its own, which holds the client as a lease does.
+            std::shared_ptr<pc::Client> held = Lease(c.box()).client;
+            auto promise = std::make_shared<std::promise<pc::ServerInfo>>();
+            auto op = std::make_unique<FutureOp<pc::ServerInfo>>();
+            op->fut = promise->get_future();
+            op->convert = CastResult{};
+            op->box = c.box();
+            op->loop = loop;
+            op->future = future;
+            try {
+              std::thread([held, promise]() mutable {
+                try {
+                  promise->set_value(held->connect());
+                } catch (...) {
+                  promise->set_exception(std::current_exception());
+                }
+                held.reset();
+              }).detach();
+            } catch (const std::system_error& e) {
+              throw std::runtime_error(std::string("physclient: no thread for connect: ") +
+                                       e.what());
+            }
+            completer().add(std::move(op));
+            return future;
+          },
+          "connect() without blocking: an asyncio.Future of ServerInfo.")
+      .def(
+          "hello_async",
+          [](PyClient& c, OptS t) {
+            const pc::CallOptions o = callOptions(t);
+            return submitAsync(c.box(), [&](pc::Client& cl) { return cl.hello(o); });
+          },
+          py::kw_only(), T)
+      .def(
+          "create_world_async",
+          [](PyClient& c, const std::string& name, const std::string& preset,
+             std::optional<phys::Vec3> gravity, float timeStep, const std::string& backend,
+             bool sleep, bool ephemeral, const py::object& editors, bool shared, OptS t) {
+            pc::CreateWorldArgs a;
+            a.name = name;
+            a.preset = preset;
+            a.gravity = gravity;
+            a.timeStep = timeStep;
+            a.backend = backend;
+            a.sleep = sleep;
+            a.ephemeral = ephemeral;
+            a.editors = idList(editors);
+            a.shared = shared;
+            const pc::CallOptions o = callOptions(t);
+            BoxPtr box = c.box();
+            return submitAsync(
+                box, [&](pc::Client& cl) { return cl.createWorld(a, o); },
+                [box](pc::WorldHandle h) -> py::object {
+                  return py::cast(PyWorld(box, h.id()).markCreated());
+                });
+          },
+          py::arg("name"), py::arg("preset") = "", py::kw_only(), py::arg("gravity") = py::none(),
+          py::arg("time_step") = 0.0f, py::arg("backend") = "", py::arg("sleep") = true,
+          py::arg("ephemeral") = false, py::arg("editors") = py::list(), py::arg("shared") = false,
+          T, "create_world() without blocking: an asyncio.Future of the World.")
+      .def(
+          "list_worlds_async",
+          [](PyClient& c, OptS t) {
+            const pc::CallOptions o = callOptions(t);
+            return submitAsync(c.box(), [&](pc::Client& cl) { return cl.listWorlds(o); });
+          },
+          py::kw_only(), T)
+      .def(
+          "world_named_async",
+          [](PyClient& c, const std::string& name, OptS t) {
+            const pc::CallOptions o = callOptions(t);
+            BoxPtr box = c.box();
+            return submitAsync(
+                box, [&](pc::Client& cl) { return cl.listWorlds(o); },
+                [box, name](std::vector<pc::WorldSummary> all) -> py::object {
+                  for (const pc::WorldSummary& s : all)
+                    if (s.name == name) return py::cast(PyWorld(box, s.world));
+                  throw pc::Error(pc::ErrorCode::NotFound, "no world named '" + name + "'");
+                });
+          },
+          py::arg("name"), py::kw_only(), T);
+
+  auto subscription = py::reinterpret_borrow<py::class_<PySubscription>>(m.attr("Subscription"));
+  subscription
+      .def(
+          "wait_for_frame_async",
+          [](py::object self, uint64_t afterTick, double timeout) {
+            return frameAsync(std::move(self), afterTick, timeout, false);
+          },
+          py::arg("after_tick") = 0, py::arg("timeout") = 5.0,
+          "wait_for_frame() without blocking: an asyncio.Future of the first frame with a\n"
+          "later tick, or of None after timeout seconds or once the subscription is closed.")
+      .def("__aiter__", [](py::object self) { return self; })
+      .def(
+          "__anext__",
+          [](py::object self) {
+            const uint64_t after = self.cast<PySubscription&>().aiter.tick;
+            return frameAsync(std::move(self), after, std::nullopt, true);
+          },
+          "`async for frame in sub`: each frame with a later tick than the one before (the\n"
+          "first: the newest received, if any); ends when the subscription is closed.");
+}
+
+// ---------------------------------------------------------------------------------------------
+// World as a context manager (docs/PYTHON.md "Worlds are durable"): the end of a `with` (or
+// `async with`) block destroys a world that this World object created (create_world,
+// create_world_async), so that a script leaves no world on the daemon, in memory or on its
+// disk, unless it keeps one on purpose; a NotFound then (destroyed already, e.g. inside the
+// block) is not an error. A World for an existing world (world(id), world_named()) is left as
+// it is: the world may be another client's or shared, and destroying it cannot be undone.
+
+/// An asyncio.Future of the running loop with this result already.
+py::object resolvedFuture(py::object value) {
+  py::object future = loopAndFuture().second;
+  future.attr("set_result")(std::move(value));
+  return future;
+}
+
+void defineWorldContext(py::module_& m) {
+  auto world = py::reinterpret_borrow<py::class_<PyWorld>>(m.attr("World"));
+  world
+      .def_property_readonly(
+          "created", &PyWorld::created,
+          "Whether this World was made by create_world(): the end of a `with` block destroys\n"
+          "it.")
+      .def("__enter__", [](py::object self) { return self; })
+      .def(
+          "__exit__",
+          [](PyWorld& w, const py::args&) {
+            if (!w.created()) return;
+            try {
+              w.req(std::nullopt,
+                    [](pc::WorldHandle h, pc::CallOptions o) { return h.destroy(o); });
+            } catch (const pc::Error& e) {
+              if (e.code() != pc::ErrorCode::NotFound) throw;
+            }
+          },
+          "Destroys the world if this World created it (see created).")
+      .def("__aenter__", [](py::object self) { return resolvedFuture(std::move(self)); })
+      .def(
+          "__aexit__",
+          [](PyWorld& w, const py::args&) {
+            if (!w.created()) return resolvedFuture(py::none());
+            return worldAsync(
+                w, std::nullopt, [](pc::WorldHandle h, pc::CallOptions o) { return h.destroy(o); },
+                [](pc::Ack) { return py::object(py::none()); }, true);
+          },
+          "Destroys the world without blocking if this World created it (see created).");
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------
@@ -894,7 +1790,9 @@ PYBIND11_MODULE(physclient, m) {
   gError = PyErr_NewExceptionWithDoc(
       "physclient.Error",
       "A failed request: code (ErrorCode), message (the server's or the SDK's, without the "
-      "code), from_server (whether the server answered with the code).",
+      "code), from_server (whether the server answered with the code), retry_after_ms (a "
+      "refusal of physd's rate or queue budgets: the same request may be sent again after so "
+      "many ms; 0 for every other error).",
       PyExc_Exception, nullptr);
   if (!gError) throw py::error_already_set();
   m.attr("Error") = py::handle(gError);
@@ -1124,6 +2022,11 @@ PYBIND11_MODULE(physclient, m) {
       .def_readonly("changed", &pc::StateFrame::changed)
       .def_readonly("bytes", &pc::StateFrame::bytes)
       .def_readonly("stamp_ns", &pc::StateFrame::stampNs)
+      .def_readonly("epoch", &pc::StateFrame::epoch,
+                    "Higher after the world was reset, restored or loaded (its ticks start "
+                    "again there).")
+      .def_readonly("edit", &pc::StateFrame::edit,
+                    "1, 2, ... for frames of edits to a paused world at this tick; else 0.")
       .def_property_readonly("ids",
                              [](const pc::StateFrame& f) {
                                std::vector<uint64_t> ids;
@@ -1293,7 +2196,10 @@ PYBIND11_MODULE(physclient, m) {
       .def("latest", &PySubscription::latest, "The newest complete frame, or None.")
       .def("wait_for_frame", &PySubscription::waitForFrame, py::arg("after_tick") = 0,
            py::arg("timeout") = 5.0,
-           "Waits up to timeout seconds for a frame with tick > after_tick; None if none came.")
+           "Waits up to timeout seconds for a frame with tick > after_tick, or of a newer\n"
+           "epoch than the last frame latest() or wait_for_frame() returned (the world was\n"
+           "reset or restored: its ticks started again); None if none came. Before they\n"
+           "returned any, after_tick 0 takes the first frame, whatever its tick.")
       .def_property_readonly("frames_received", &PySubscription::framesReceived)
       .def_property_readonly("frames_skipped", &PySubscription::framesSkipped)
       .def_property_readonly("world", &PySubscription::world)
@@ -1604,17 +2510,21 @@ PYBIND11_MODULE(physclient, m) {
       "Cyclone's defaults). Timeouts are in seconds. security_dir and identity: DDS Security\n"
       "files as tools/make_security.sh writes them (docs/SECURITY.md). key_file: the client's\n"
       "key (made when missing): the same proven client id at every run, so the worlds it\n"
-      "creates stay its own (docs/SERVER.md \"Access\"). The connection lasts\n"
+      "creates stay its own (docs/SERVER.md \"Access\"). retry_busy: a request physd refuses\n"
+      "at the door (ResourceExhausted \"slow down\" / \"wait for replies\" from its rate and\n"
+      "queue budgets; nothing done) is sent again after a backoff until its timeout (False:\n"
+      "the refusal raises at once; docs/PYTHON.md \"Rate limits\"). The connection lasts\n"
       "while the Client or one of its World or Subscription objects does, or until close()\n"
       "(or the end of a with block).")
       .def(py::init<uint32_t, std::string, std::optional<std::string>, uint64_t, double, double,
                     bool, std::optional<std::string>, std::optional<std::string>,
-                    std::optional<std::string>>(),
+                    std::optional<std::string>, bool>(),
            py::kw_only(), py::arg("domain") = 0, py::arg("name") = "physclient-python",
            py::arg("cyclone_xml") = py::none(), py::arg("client_id") = 0,
            py::arg("connect_timeout") = 10.0, py::arg("request_timeout") = 10.0,
            py::arg("auto_reconnect") = true, py::arg("security_dir") = py::none(),
-           py::arg("identity") = py::none(), py::arg("key_file") = py::none())
+           py::arg("identity") = py::none(), py::arg("key_file") = py::none(),
+           py::arg("retry_busy") = true)
       .def(
           "connect",
           [](PyClient& c) {
@@ -1665,7 +2575,7 @@ PYBIND11_MODULE(physclient, m) {
             a.shared = shared;
             pc::WorldHandle h = request(
                 c.box(), [&](pc::Client& cl) { return cl.createWorld(a, callOptions(t)); });
-            return PyWorld(c.box(), h.id());
+            return PyWorld(c.box(), h.id()).markCreated();
           },
           py::arg("name"), py::arg("preset") = "", py::kw_only(), py::arg("gravity") = py::none(),
           py::arg("time_step") = 0.0f, py::arg("backend") = "", py::arg("sleep") = true,
@@ -1714,10 +2624,17 @@ PYBIND11_MODULE(physclient, m) {
       .def("__enter__", [](py::object self) { return self; })
       .def("__exit__", [](PyClient& c, py::args) { c.close(); });
 
+  // StateFrame as a sequence, asyncio, World as a context manager (issue 40).
+  defineFrameSequence(m);
+  defineAsync(m);
+  defineWorldContext(m);
+
   // Clients still open at exit are closed before Python finalizes (their threads joined, so no
-  // callback runs into a finalizing interpreter).
+  // callback runs into a finalizing interpreter); then the asyncio Completer stops (what the
+  // closing failed is dropped: no loop runs any more).
   py::module_::import("atexit").attr("register")(py::cpp_function([] {
     gExiting.store(true);
     closeAllClients();
+    withoutGil([] { completer().stop(); });
   }));
 }

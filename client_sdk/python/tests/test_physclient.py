@@ -368,6 +368,44 @@ class Bindings(unittest.TestCase):
             self.assertEqual(tuple(row[3:7]), body.rotation)
             self.assertEqual(tuple(row[7:10]), body.linear_velocity)
 
+    def test_subscriptions_through_pause_edits_restore_and_reset(self):
+        # Issue 40: a new subscriber to a paused world got nothing, a paused world's edits
+        # reached no subscriber, and a restore to an earlier tick or a reset froze every
+        # subscription until the world passed its old tick again. Bounds: 2 s each.
+        w = self.new_world("epochs")
+        ids = w.spawn([ground(), box(5.0)])
+        w.step(5)
+        snap = w.save_snapshot()
+        w.step(72)
+        with w.subscribe() as sub:
+            f = sub.wait_for_frame(0, timeout=2)  # paused: the whole state, no step needed
+            self.assertIsNotNone(f, "no frame for a new subscriber to a paused world")
+            self.assertEqual((f.tick, len(f.bodies), f.keyframe), (77, 2, True))
+            self.assertGreaterEqual(f.epoch, 1)
+            w.set_pose(ids[1], (1.0, 2.0, 3.0))
+            self.assertTrue(
+                wait_until(lambda: sub.latest().find(ids[1]).position == (1.0, 2.0, 3.0), 2),
+                "a pose set in a paused world did not reach its subscriber")
+            e = sub.latest()
+            self.assertEqual((e.tick, e.epoch), (77, f.epoch))
+            self.assertGreaterEqual(e.edit, 1)
+            w.restore_snapshot(snap)
+            g = sub.wait_for_frame(e.tick, timeout=2)
+            self.assertIsNotNone(g, "the subscription froze after a restore to an earlier tick")
+            self.assertEqual((g.tick, len(g.bodies)), (5, 2))
+            self.assertGreater(g.epoch, e.epoch)
+            self.assertStatesEqual(g, w.query_state())
+            w.reset()
+            h = sub.wait_for_frame(g.tick, timeout=2)
+            self.assertIsNotNone(h, "the subscription froze after a reset")
+            self.assertEqual((h.tick, len(h.bodies)), (0, 0))
+            self.assertGreater(h.epoch, g.epoch)
+        # query_state's frames are stamped by the server's clock too, and name the epoch.
+        before = time.time_ns()
+        q = w.query_state()
+        self.assertLessEqual(abs(q.stamp_ns - before), 30 * 10**9)
+        self.assertEqual(q.epoch, h.epoch)
+
     def test_callback_errors_and_requests_from_a_callback(self):
         w = self.new_world("cb", sleep=False)
         w.spawn([ground(), box(20.0)])
@@ -636,6 +674,22 @@ class Bindings(unittest.TestCase):
             w.run(60)
             self.assertIsNotNone(sub.wait_for_frame(0, timeout=1e10))
             w.pause()
+
+    def test_a_synchronous_loop_is_never_refused(self):
+        # Issue 40: step(1); query_state(); info() in a loop, one request at a time, faster than
+        # the daemon's default 2,000 commands a second, is never answered "slow down" (without
+        # the SDK's retry, so that a refusal would show).
+        with DAEMON.client(name="loop", retry_busy=False) as c:
+            c.connect()
+            w = c.create_world(f"loop-{os.getpid()}", ephemeral=True)
+            self.addCleanup(self._destroy, w)
+            n, end = 0, time.monotonic() + 1.5
+            while time.monotonic() < end:
+                w.step(1)
+                w.query_state()
+                w.info()
+                n += 3
+            self.assertEqual(w.info().tick, n // 3)
 
     def test_definitions(self):
         b = pc.BodyDef(type=pc.BodyType.Kinematic, position=(1, 2, 3), rotation=(0, 0, 1, 0),

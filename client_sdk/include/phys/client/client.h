@@ -65,6 +65,13 @@ struct ClientOptions {
   std::chrono::milliseconds connectTimeout{10000};  ///< connect(): server match + Hello
   std::chrono::milliseconds requestTimeout{10000};  ///< default per-request deadline
   bool autoReconnect = true;                        ///< say Hello again when a (new) daemon appears
+  /// A request physd refused at the door ("slow down", "wait for replies": ResourceExhausted
+  /// from its rate and queue budgets, marked by Reply.retry_after_ms; nothing was done) is
+  /// sent again after the wait the daemon names, backing off (1, 2, 4, ... 200 ms, with
+  /// jitter) while it is refused again, until the request's deadline; then the refusal is
+  /// its error. false: the first refusal is (Error::retryAfterMs() says it may be retried).
+  /// docs/CLIENT.md "Rate limits".
+  bool retryBusy = true;
   /// DDS Security (docs/SECURITY.md): this client's identity and its files, e.g.
   /// SecurityFiles::fromDir("build/security", "client1") for what tools/make_security.sh
   /// made. Added to cycloneXml; the commands go out in the identity's partition, so that a
@@ -111,7 +118,9 @@ struct BodyState {
 /// full state from the server's keyframes and deltas (docs/PROTOCOL.md "State frames"): its
 /// frames hold every body of the world at that one tick, in index order, never a mix of
 /// ticks; a tick whose delta cannot be applied (one was lost) is skipped until the next
-/// keyframe.
+/// keyframe. Frames come in (epoch, tick, edit) order (docs/CLIENT.md "Subscriptions"): a
+/// reset or restored world's first frame has a higher epoch and may have a lower tick, and
+/// an edit to a paused world comes as a frame of the same tick with the next edit number.
 struct StateFrame {
   uint32_t world = 0;
   uint64_t tick = 0;
@@ -121,9 +130,17 @@ struct StateFrame {
   bool keyframe = true;  ///< the server sent every body (else a delta: see BodyState::changed)
   uint32_t changed = 0;  ///< bodies the server sent for this tick
   uint64_t bytes = 0;    ///< the encoded size of what the server sent for this tick
-  /// The server's wall clock (ns since the Unix epoch) when it read these states; 0 for
-  /// QueryState. Now minus this is the tick-to-subscriber latency (same host or synced clocks).
+  /// The server's wall clock (ns since the Unix epoch) when it read these states (QueryState:
+  /// when it answered). Now minus this is the tick-to-subscriber latency (same host or
+  /// synced clocks). 0 from servers older than the field (QueryState: before issue 40).
   uint64_t stampNs = 0;
+  /// The world's epoch: one higher (or more) each time its state was replaced rather than
+  /// stepped (LoadScene, ResetWorld, RestoreSnapshot, a durable daemon's restart or reload),
+  /// its ticks then starting again from the new state's. 0 from older servers.
+  uint64_t epoch = 0;
+  /// Frames of edits applied to a paused world at this tick (SetBodyPose, SpawnBodies, ...):
+  /// 1, 2, ...; 0 for the tick's own frame (and in QueryState answers).
+  uint32_t edit = 0;
 };
 
 /// A world's settings (GetWorld): every setting SetWorld takes and the solver's, in a
@@ -203,8 +220,15 @@ class Subscription {
   uint32_t world() const;
   /// The latest complete frame (every chunk of one tick), if any arrived.
   std::optional<StateFrame> latest() const;
-  /// Waits for a complete frame with tick > afterTick.
-  std::optional<StateFrame> waitForFrame(uint64_t afterTick, std::chrono::milliseconds timeout);
+  /// Waits for a complete frame with tick > afterTick, or of another epoch than afterTick's
+  /// (the world was reset or restored since: its ticks started again, docs/CLIENT.md
+  /// "Subscriptions"). afterTick's epoch is `epoch`, or (0) that of the last frame latest() or
+  /// waitForFrame() returned; before they returned any, afterTick 0 takes the first frame
+  /// whatever its tick (a world just created or reset is at tick 0). A paused world's edits
+  /// come as frames of the tick already delivered (StateFrame::edit): latest() and the
+  /// callback see them.
+  std::optional<StateFrame> waitForFrame(uint64_t afterTick, std::chrono::milliseconds timeout,
+                                         uint64_t epoch = 0);
   uint64_t framesReceived() const;  ///< complete frames
   /// Ticks skipped because a delta arrived without the frame it applies to (a lost chunk, a
   /// subscription started between keyframes): each is repaired by the next keyframe.

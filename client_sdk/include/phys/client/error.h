@@ -31,11 +31,16 @@ const char* toString(ErrorCode c);
 /// What a failed request's future throws.
 class Error : public std::runtime_error {
  public:
-  Error(ErrorCode code, std::string message)
+  Error(ErrorCode code, std::string message, uint32_t retryAfterMs = 0)
       : std::runtime_error(std::string(toString(code)) + ": " + message),
         code_(code),
-        message_(std::move(message)) {}
+        message_(std::move(message)),
+        retryAfterMs_(retryAfterMs) {}
   ErrorCode code() const { return code_; }
+  /// A refusal of the daemon's rate or queue budgets (ResourceExhausted, nothing done): the
+  /// same request may be sent again after this many ms (ClientOptions::retryBusy does). 0:
+  /// any other error.
+  uint32_t retryAfterMs() const { return retryAfterMs_; }
   /// The server's message (or the SDK's), without the code.
   const std::string& message() const { return message_; }
   /// Whether the server answered with this code (else the SDK gave up on the request).
@@ -44,6 +49,7 @@ class Error : public std::runtime_error {
  private:
   ErrorCode code_;
   std::string message_;
+  uint32_t retryAfterMs_ = 0;
 };
 
 }  // namespace phys::client

@@ -204,6 +204,9 @@ struct ReplyHeader {
   uint32_t world = 0;  ///< the target world; CreateWorld: the new world's id
   uint64_t tick = 0;   ///< the world's tick when the command took effect
   Status status;
+  /// A refusal of the daemon's rate and queue budgets: the command may be sent again as it is
+  /// after this many ms (Reply.retry_after_ms); 0: not such a refusal.
+  uint32_t retryAfterMs = 0;
 };
 /// Header echoing a command's correlation and world, with the given status.
 ReplyHeader replyTo(const wire::Command& command, Status status = {});
@@ -252,8 +255,10 @@ Bytes encodeHelloReply(const ReplyHeader& header, const HelloInfo& info);
 Bytes encodeIdsReply(const ReplyHeader& header, std::span<const uint64_t> bodies,
                      std::span<const uint64_t> joints = {});
 Bytes encodeWorldListReply(const ReplyHeader& header, std::span<const WorldSummary> worlds);
+/// stampNs: the wall clock when the states were read (as a frame's); epoch: the world's.
 Bytes encodeStateReply(const ReplyHeader& header, double time, uint32_t total,
-                       std::span<const wire::BodyState> bodies);
+                       std::span<const wire::BodyState> bodies, uint64_t stampNs = 0,
+                       uint64_t epoch = 0);
 /// snapshot: a Snapshot buffer (encodeSnapshot), may be empty; file: where it was saved.
 Bytes encodeInterestReply(const ReplyHeader& header, uint32_t interest, std::string_view topic);
 Bytes encodeSnapshotReply(const ReplyHeader& header, std::span<const uint8_t> snapshot,
@@ -274,6 +279,11 @@ struct FrameHeader {
   /// A delta's refresh: it also carries every body of the stream whose order key
   /// (refreshKey) is in [refreshLo, refreshHi); refreshHi 0: none; UINT64_MAX: to the end.
   uint64_t refreshLo = 0, refreshHi = 0;
+  /// The order of frames (docs/PROTOCOL.md "Order of frames"): the world's epoch, the edit
+  /// number at this tick (0: the tick's own frame; 1, 2, ...: a paused world's edits), and the
+  /// edit number of the frame a delta applies to (with baseTick).
+  uint64_t epoch = 0;
+  uint32_t edit = 0, baseEdit = 0;
 };
 /// A body's place in a stream's rolling refresh: (index << 32) | generation, the world's
 /// order (a packed id is generation << 32 | index). Its own inverse.

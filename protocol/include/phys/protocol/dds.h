@@ -102,6 +102,9 @@ class Writer : public Entity {
   dds_return_t dispose(uint64_t key);
   /// Matched readers now.
   uint32_t matched() const;
+  /// Matched readers now and, in *total, readers ever matched (DDS's total_count: it grows
+  /// by one for each new reader, even when another went meanwhile).
+  uint32_t matched(uint64_t* total) const;
   /// Instance handles of the matched readers (a new handle: a new reader, e.g. a restarted
   /// daemon).
   std::vector<dds_instance_handle_t> matchedHandles() const;

@@ -173,6 +173,11 @@ class ClientKeys {
 /// make a writer's instance past `instances`, or come past the writer's rate (a token bucket
 /// of `rate` a second up to `burst`, set above what the core's per-participant budget answers),
 /// is filtered out before Cyclone stores it (and acknowledged, so the writer is not held up).
+/// As in the core's budgets, a writer that waits for its replies is not counted: the first
+/// sample after a reply to one of its keys (answered(), told by the endpoint as it writes the
+/// reply, for the keys bind() tied to the writer) passes free, so a synchronous client, however
+/// fast its round trip, is never filtered; a writer gets at most one free sample per reply,
+/// so its samples stay within the rate plus the replies it is sent.
 /// Thread-safe: admit() runs on Cyclone's delivery threads with the reader's cache locked (it
 /// calls nothing).
 class InstanceGate {
@@ -188,6 +193,11 @@ class InstanceGate {
   /// Whether `writer` may deliver a sample of `instance` (a reader's instance handle) now: one
   /// of its instances or a new one while it has fewer than `instances`, within its rate.
   bool admit(uint64_t writer, uint64_t instance, Clock::time_point now = Clock::now());
+  /// `key` (a client id) is the writer's (a command of it under that key came through): a
+  /// reply to the key frees the writer's next sample. At most `instances` keys a writer.
+  void bind(uint64_t writer, uint64_t key);
+  /// A reply to `key` was written: the next sample of the writer bound to it passes free.
+  void answered(uint64_t key);
   struct Refused {
     uint64_t writer = 0;
     uint64_t instances = 0;  ///< its samples filtered out for new instances, so far
@@ -203,6 +213,8 @@ class InstanceGate {
  private:
   struct WriterRec {
     std::vector<uint64_t> instances;
+    std::vector<uint64_t> keys;  ///< bound to it (bind)
+    bool answered = false;       ///< a reply went to one of its keys since its last sample
     double tokens = 0;
     Clock::time_point last{};
     uint64_t refusedInstances = 0, refusedRate = 0, reported = 0;
@@ -211,6 +223,7 @@ class InstanceGate {
   const Limits limits_;
   mutable std::mutex mutex_;
   std::unordered_map<uint64_t, WriterRec> writers_;
+  std::unordered_map<uint64_t, uint64_t> keyWriters_;  ///< key -> the writer it is bound to
   uint64_t refused_ = 0;
 };
 

@@ -83,7 +83,9 @@ struct CoreConfig {
   uint64_t maxQueuedBytesPerClient = 16ull << 20;  ///< payload bytes one client has waiting
   /// Commands one client may send per second, on average, and at once (a token bucket per
   /// envelope key, refilled at the rate up to the burst); past it a command is answered
-  /// ResourceExhausted at once. 0: no limit.
+  /// ResourceExhausted at once, with Reply.retry_after_ms. 0: no limit. Only the commands
+  /// that come while the client has some waiting are counted (here and per participant): a
+  /// client with one request in flight is never refused for its rate.
   double maxClientCommandsPerS = 2000;
   double maxClientBurst = 500;
   // The same per DDS participant (Incoming::sender), whatever client ids it writes under, so
@@ -209,6 +211,16 @@ struct ServerWorld {
   /// as the owner or an editor, so an id read off the wire is not enough to take the world.
   bool ownerProven = false;
   uint64_t tick = 0;      ///< steps since creation, reset or restore (restore: the saved tick)
+  /// The world's tick sequence (StateFrame.epoch, docs/PROTOCOL.md "Order of frames"): one
+  /// higher whenever its state is replaced rather than stepped or edited (framesReplaced:
+  /// LoadScene, ResetWorld, RestoreSnapshot, a reload from its files), so that subscribers
+  /// follow a world whose tick went back. A durable server starts each world's epochs above
+  /// those of its earlier starts (ServerCore::epochBase_).
+  uint64_t epoch = 1;
+  /// Frames of edits published at this tick while the world did not step (a paused world's
+  /// SetBodyPose, SpawnBodies, ...): 0 for the tick's own frame, then 1, 2, ...
+  /// (StateFrame.edit).
+  uint32_t edit = 0;
   uint64_t revision = 1;  ///< bumped on every structural change
   // Time control.
   RunMode mode = RunMode::Paused;
@@ -230,11 +242,15 @@ struct ServerWorld {
     std::vector<uint64_t> awake;
     bool valid = false;   ///< a keyframe went out and every frame since
     uint64_t sinceKeyframe = 0;
-    /// The tick of the last frame that carried something (a keyframe, a body, a removal):
-    /// deltas apply to the state as of then, so losing an empty delta costs nothing.
+    /// The tick (and edit) of the last frame that carried something (a keyframe, a body, a
+    /// removal): deltas apply to the state as of then, so losing an empty delta costs
+    /// nothing.
     uint64_t baseTick = 0;
+    uint32_t baseEdit = 0;
     bool changedSinceKeyframe = false;
-    uint32_t subscribers = 0;  ///< at the last frame
+    /// Readers ever matched to the stream's writer, as of the last frame: one more is a new
+    /// subscriber, owed a keyframe now (even when another left meanwhile, the count the same).
+    uint64_t matched = 0;
     uint64_t droppedSeen = 0;  ///< the publisher's dropped frames at the last frame
     uint64_t bytes = 0;        ///< of the last frame
     /// The rolling refresh: where the next one starts (a refreshKey) and whether a frame
@@ -244,6 +260,7 @@ struct ServerWorld {
   } published;
   std::vector<uint64_t> touched;  ///< bodies edited outside the step since the last frame
   uint64_t lastFrameTick = UINT64_MAX;  ///< the tick of the last queueFrame
+  uint64_t lastFrameEpoch = 0;          ///< and its epoch
   /// Interests (Subscribe): streams of some of the world's bodies, each on its own topic.
   struct Interest {
     std::vector<uint64_t> ids;  ///< sorted; empty for a region
@@ -265,8 +282,10 @@ struct ServerWorld {
   /// editors; everyone on a shared world or one without an owner): readers fill at most the
   /// rest.
   static constexpr size_t kInterestsForEditors = 16;
-  /// The world was replaced (load, reset, restore): every stream starts from a keyframe.
+  /// The world was replaced (load, reset, restore, reload): a new epoch, and every stream
+  /// starts it from a keyframe.
   void framesReplaced() {
+    ++epoch;
     published.valid = false;
     for (auto& [id, in] : interests) in.published.valid = false;
   }
@@ -421,6 +440,12 @@ class ServerCore {
   void setSubscribers(uint32_t world, uint32_t n);
   /// An interest's stream (Subscribe); interest 0 is the world's own.
   void setSubscribers(uint32_t world, uint32_t interest, uint32_t n);
+  /// The same with the readers ever matched (the DDS writer's total_count): one more than
+  /// before is a new subscriber even when the count is the same (another left meanwhile).
+  /// Without it, a count that grew stands for as many new ones. A stream with a new
+  /// subscriber gets a keyframe at the tick thread's next turn, whatever the world does
+  /// (paused, asleep, running).
+  void setSubscribers(uint32_t world, uint32_t interest, uint32_t n, uint64_t matched);
 
   struct Context;  // per-command state (commands.cpp)
 
@@ -445,12 +470,17 @@ class ServerCore {
   /// The first interest id of every world is this + 1: a durable server's count of its
   /// starts, times 65536 (restoreWorlds), so interest topics are never reused across starts.
   uint32_t interestBase_ = 0;
+  /// Every world's epoch is above this: a durable server's count of its starts, times 2^32
+  /// (restoreWorlds), so a kept world's epochs go on rising across restarts without being
+  /// stored (a read-only start does not count itself, but it cannot replace a world either).
+  uint64_t epochBase_ = 0;
   Status queueFrame(ServerWorld& w);
-  /// One stream of a world's frames (interest 0: the world's own); false when nobody
-  /// subscribes to it (nothing encoded).
+  /// One stream of a world's frames (interest 0: the world's own); false when nothing was
+  /// encoded (nobody subscribes to it, or nothing is owed: not fresh and no keyframe due).
+  /// fresh: a new (tick, edit) of the world, which every stream gets a frame of.
   bool queueStream(ServerWorld& w, uint32_t interest, const ServerWorld::Interest* filter,
                    ServerWorld::Published* streamState, const std::vector<uint64_t>& awakeIds,
-                   bool newTick);
+                   bool fresh);
   /// Applies one queued command: a reply is pushed now, or (a Step too long for one slice)
   /// when its job ends. Commands for a busy world wait for its job.
   void dispatch(Incoming in);
@@ -630,6 +660,9 @@ class ServerCore {
   /// Removes the interests of clients that left.
   void applyLeft(const Left& l);
   uint64_t pendingBytes_ = 0;
+  /// Reply.retry_after_ms of a refusal for commands waiting (the client's or participant's
+  /// queue: its own replies free it) and for the server's whole queue.
+  static constexpr uint32_t kQueueRetryMs = 10, kServerQueueRetryMs = 50;
   std::atomic<uint64_t> refusedAtSubmit_{0};
   std::atomic<uint64_t> refusalsDropped_{0};
   /// Bytes a queued command holds of the queue's budgets: its payload and what holding it
@@ -646,7 +679,16 @@ class ServerCore {
   std::vector<std::pair<std::thread, std::shared_ptr<LoadTask>>> loaders_;
 
   mutable std::mutex subscribersMutex_;
-  std::map<uint64_t, uint32_t> subscribers_;  ///< by streamKey(world, interest)
+  struct Subscribers {
+    uint32_t now = 0;      ///< matched readers
+    uint64_t matched = 0;  ///< readers ever matched
+  };
+  std::map<uint64_t, Subscribers> subscribers_;  ///< by streamKey(world, interest)
+  /// Worlds with a stream whose subscribers changed since the tick thread last looked
+  /// (under subscribersMutex_): advance() queues their frames, so a new subscriber's
+  /// keyframe goes out even while the world does not step.
+  std::vector<uint32_t> subscribersChanged_;
+  std::atomic<bool> anySubscribersChanged_{false};  ///< wakes waitForCommands
 };
 
 /// The tick thread: at each boundary applies queued commands, advances time, publishes
