@@ -381,7 +381,10 @@ class Asyncio(WithClient):
 
         async def main():
             with w.subscribe() as sub:
-                self.assertIsNone(await sub.wait_for_frame_async(0, timeout=0.2))  # paused
+                # A paused world: its whole state at once (tick 0), then nothing until it runs.
+                f0 = await sub.wait_for_frame_async(0, timeout=5)
+                self.assertEqual((f0.tick, len(f0)), (0, 2))
+                self.assertIsNone(await sub.wait_for_frame_async(0, timeout=0.2))
                 await w.run_async(60)
                 f1 = await sub.wait_for_frame_async(0, timeout=20)
                 f2 = await sub.wait_for_frame_async(f1.tick, timeout=20)
