@@ -1109,7 +1109,10 @@ struct FrameOp : AsyncOp {
   bool closed = false;
 
   bool wait(std::chrono::milliseconds slice) override {
-    if (cancelled->load()) return true;
+    // Once known, known: the Completer asks the oldest operation twice in a turn, and a
+    // second waitForFrame() would not hand out the frame the first one took (it counts as
+    // given), so the first frame of a paused world was lost and the wait ran to its deadline.
+    if (frame || closed || cancelled->load()) return true;
     const std::shared_ptr<pc::Subscription> s = sub->current();
     if (!s) {
       closed = true;
