@@ -150,10 +150,12 @@ inline Records records(const Bytes& b) {
 // ---------------------------------------------------------------------------------------------
 // The world: every record kind and both sleep states. After buildWorld:
 //   asleep  "stack0".."stack2" (boxes on the ground: an island with contacts), "hinged-a" and
-//           "hinged-b" (a hinge between two dynamic bodies, in one island), "tetra" (a hull)
+//           "hinged-b" (a hinge between two dynamic bodies, in one island), "tetra" (a hull),
+//           "pill" (a capsule)
 //   awake   "pendulum" (a ball joint to the world) and "bob" (a distance joint to it),
-//           swinging; "ball", rolling on the ground (awake contacts with points); "sweeper", a
-//           kinematic box turning in the air
+//           swinging; "ball", rolling on the ground (awake contacts with points); "slider",
+//           driven along a prismatic joint to the world; "sweeper", a kinematic box turning
+//           in the air
 //   static  "ground" (a plane), "ledge" (a box)
 //   gone    "doomed", destroyed after the last step: free body and shape slots, a freed
 //           island, and its contacts still in the awake list with stale shape ids
@@ -203,6 +205,11 @@ inline bool buildWorld(World& w) {
       &error);
   ok = ok && tetra;
   if (tetra) add(namedBody("tetra", BodyType::Dynamic, {6, 0, 0.2f}, ShapeGeom::convexHull(tetra)));
+  BodyDef pill = namedBody("pill", BodyType::Dynamic, {-3, -3, 0.15f}, ShapeGeom::capsule(0.15f, 0.3f));
+  pill.rotation = Quat::fromAxisAngle({1, 0, 0}, kPi / 2);  // lying on its side
+  add(pill);
+  const BodyId slider = add(namedBody("slider", BodyType::Dynamic, {12, 0, 3},
+                                      ShapeGeom::box({0.2f, 0.2f, 0.2f})));
   const BodyId pendulum = add(namedBody("pendulum", BodyType::Dynamic, {-2.5f, 0, 4},
                                         ShapeGeom::box({0.2f, 0.2f, 0.2f})));
   const BodyId bob =
@@ -244,6 +251,20 @@ inline bool buildWorld(World& w) {
   link.bodyB = bob;
   link.length = 1;
   ok = ok && w.createJoint(link, nullptr).ok();
+
+  JointDef rail;
+  rail.name = "rail";
+  rail.type = JointType::Prismatic;
+  rail.bodyB = slider;
+  rail.anchorA = {12, 0, 3};
+  rail.axisA = rail.axisB = {1, 0, 0};
+  rail.enableLimit = true;
+  rail.lower = -5;
+  rail.upper = 5;
+  rail.enableMotor = true;
+  rail.motorSpeed = 0.5f;
+  rail.maxMotorForce = 100;
+  ok = ok && w.createJoint(rail, nullptr).ok();
 
   for (int i = 0; i < 90 && ok; ++i) w.step();
   ok = ok && w.destroyBody(doomed).ok();

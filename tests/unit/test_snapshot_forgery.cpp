@@ -71,7 +71,7 @@ TEST(SnapshotForgery, TheWorldHoldsEveryRecordKindAndEveryCaseIsFound) {
   ASSERT_TRUE(forge::buildWorld(w));
   const StepStats& s = w.stats();
   EXPECT_GE(s.sleepingIslands, 2) << "the stack, the hinged pair and the hull sleep";
-  EXPECT_GE(w.awakeBodyCount(), 4) << "the pendulum, its bob, the ball and the sweeper";
+  EXPECT_GE(w.awakeBodyCount(), 5) << "the pendulum, its bob, the ball, the slider, the sweeper";
   const forge::Records r = forge::records(forgedFrom());
   ASSERT_FALSE(r.awakeContacts.empty());
   size_t islandContacts = 0;
@@ -136,7 +136,7 @@ TEST(SnapshotForgery, AnAwakeBodysSolverIndexIsNotRead) {
     return hashes;
   };
   const std::vector<uint64_t> expected = run(valid);
-  const uint32_t capacity = 13;  // forge::buildWorld's bodies (the destroyed one's slot stays)
+  const uint32_t capacity = forge::getU32(valid, forge::section(valid, "BODY").at);  // slots
   for (uint32_t v : {uint32_t(-1), 0u, 1u, capacity}) {
     Bytes b = valid;
     forge::putU32(&b, at + forge::body::kSolverIndex, v);
@@ -154,10 +154,11 @@ class SnapshotForgeryWords : public ::testing::TestWithParam<const char*> {};
 TEST_P(SnapshotForgeryWords, RefusedOrSafeToStep) {
   const char* tag = GetParam();
   const Bytes& valid = forgedFrom();
-  // Indices and counts out of range, -1, null ids, the body count (one past the last slot),
-  // the largest float.
+  // Indices and counts out of range, -1, null ids, small indices, the body pool's capacity
+  // (one past its last slot), the largest float.
+  const uint32_t capacity = forge::getU32(valid, forge::section(valid, "BODY").at);
   const uint32_t values[] = {0x7FFFFFFF, 0xFFFFFFFF, 0x80000000, 0x00000000,
-                             0x00000001, 0x00000002, 0x0000000D, 0x7F7FFFFF};
+                             0x00000001, 0x00000002, capacity,   0x7F7FFFFF};
   Target t;
   const uint64_t hash = t.w.stateHash();
   int refused = 0, accepted = 0;
