@@ -2,7 +2,7 @@
 # Fuzzing (issue 24): the libFuzzer targets of fuzz/ under AddressSanitizer and
 # UndefinedBehaviorSanitizer (LeakSanitizer with them), built with clang in build-fuzz/.
 #
-#   tools/fuzz.sh [--target codec|apply|scene|all] [--runs N] [--jobs J] [--seconds S]
+#   tools/fuzz.sh [--target codec|apply|scene|restore|all] [--runs N] [--jobs J] [--seconds S]
 #                 [--build DIR] [--keep DIR]
 #
 #   --target   which target (default all, one after the other)
@@ -26,7 +26,7 @@ set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 target=all runs=100000 jobs=1 seconds=0 build="$root/build-fuzz" keep=""
 usage() {
-  echo "usage: $0 [--target codec|apply|scene|all] [--runs N] [--jobs J] [--seconds S] [--build DIR] [--keep DIR]" >&2
+  echo "usage: $0 [--target codec|apply|scene|restore|all] [--runs N] [--jobs J] [--seconds S] [--build DIR] [--keep DIR]" >&2
   exit 2
 }
 while [[ $# -gt 0 ]]; do
@@ -41,8 +41,8 @@ while [[ $# -gt 0 ]]; do
   esac
 done
 case "$target" in
-  all) targets="codec apply scene" ;;
-  codec|apply|scene) targets="$target" ;;
+  all) targets="codec apply scene restore" ;;
+  codec|apply|scene|restore) targets="$target" ;;
   *) usage ;;
 esac
 [[ "$runs" =~ ^[0-9]+$ && "$jobs" =~ ^[1-9][0-9]*$ && "$seconds" =~ ^[0-9]+$ ]] || usage
