@@ -754,6 +754,27 @@ std::string checkShapeGeom(const ShapeGeom& g, BodyType bodyType) {
   return {};
 }
 
+/// What updateMass derives and the step then takes as it is: a dynamic body's principal frame
+/// and moments are its inertia's eigen decomposition (the rotation integrator uses them: a
+/// forged moment of 1.8e14 beside an inertia of 167 made a body non-finite at once), and its
+/// centre of mass is where its pose puts the local centre (finalize keeps the two together).
+/// Tolerances far above float rounding, far below what would matter.
+std::string checkMassFrame(const BodyRec& b) {
+  if (b.type == BodyType::Dynamic) {
+    const Mat3& I = b.inertiaLocal;
+    const float scale = std::fabs(I.c0.x) + std::fabs(I.c1.y) + std::fabs(I.c2.z);
+    const Mat3 R = toMat3(b.principal);
+    const Mat3 back = R * Mat3::diagonal(b.principalMoments) * transpose(R);
+    for (int c = 0; c < 3; ++c)
+      for (int r = 0; r < 3; ++r)
+        if (!(std::fabs((&back.c0)[c][r] - (&I.c0)[c][r]) <= 1e-3f * scale + 1e-9f))
+          return "principal moments and axes are not its inertia's";
+  }
+  if (!(length(apply(b.xf, b.localCenter) - b.com) <= 1e-3f * (1 + length(b.com))))
+    return "centre of mass is not where its pose puts it";
+  return {};
+}
+
 /// A parsed state, complete and checked, ready to be swapped into a world.
 struct Parsed {
   WorldDef def;
@@ -819,6 +840,8 @@ void readBodies(Reader& r, Parsed* st) {
     const Mat3& ii = b.invInertiaLocal;
     if (ii.c0.x < 0 || ii.c1.y < 0 || ii.c2.z < 0)
       return rr.fail("negative inverse moment of inertia");
+    std::string e = checkMassFrame(b);
+    if (!e.empty()) return rr.fail(e);
   });
   if (!r.ok()) return;
   // The solver index. The step numbers the awake bodies afresh (buildSolverBodies) before it
