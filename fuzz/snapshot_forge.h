@@ -9,6 +9,7 @@
 // a 4-character tag, a u64 length and the content. Little-endian throughout.
 #pragma once
 
+#include <bit>
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
@@ -99,6 +100,12 @@ inline size_t afterName(const Bytes& b, Section s, const std::string& name) {
 /// A body's, from just past its name (ioBody ends with the name and these).
 namespace body {
 constexpr size_t kSolverIndex = 0, kAllowSleep = 4, kSleepTime = 5, kIsland = 9;
+/// How far its principal moments lie before its name's length, for a body of `shapes` shapes
+/// and `joints` joints (then damping, gravity scale, two flags, given mass and inertia,
+/// force, torque, and the shape and joint id lists).
+constexpr size_t momentsBeforeName(size_t shapes, size_t joints) {
+  return 66 + (4 + 8 * shapes) + (4 + 8 * joints);
+}
 }
 /// A joint's, from just past its name (its definition's last field; ioJoint's state follows).
 namespace joint {
@@ -277,15 +284,17 @@ inline bool buildWorld(World& w) {
 // marked so crashed or read out of bounds in the steps after).
 
 struct Forgery {
-  std::string name;  ///< what was forged, a file name's part
-  Bytes bytes;       ///< empty when the field was not found (the layout changed)
+  std::string name;    ///< what was forged, a file name's part
+  Bytes bytes;         ///< empty when the field was not found (the layout changed)
+  std::string expect;  ///< words of the refusal (so each case is refused for its field)
 };
 
 inline std::vector<Forgery> forgeries(const Bytes& valid) {
   std::vector<Forgery> out;
   // Sets the u32 words at `where` to v (all of them found, or the forgery stays empty).
-  auto forge = [&](const std::string& what, const std::vector<size_t>& where, uint32_t v) {
-    Forgery f{what, {}};
+  auto forge = [&](const std::string& what, const std::vector<size_t>& where, uint32_t v,
+                   const std::string& expect) {
+    Forgery f{what, {}, expect};
     bool found = !where.empty();
     for (size_t p : where) found = found && p != kNone && p + 4 <= valid.size();
     if (found) {
@@ -308,37 +317,64 @@ inline std::vector<Forgery> forgeries(const Bytes& valid) {
   auto joint = [&](const char* name, size_t offset) {
     return field(afterName(valid, joints, name), offset);
   };
+  const uint32_t lastBody = bodies.found() ? getU32(valid, bodies.at) - 1 : 0;  // "doomed"
   // The finding: a static body's solver index (the step takes it as it is).
-  forge("static_solver_index_i32_max", {body("ground", body::kSolverIndex)}, 0x7FFFFFFF);
-  forge("static_solver_index_minus_one", {body("ground", body::kSolverIndex)}, 0xFFFFFFFF);
-  forge("static_solver_index_one", {body("ledge", body::kSolverIndex)}, 1);
-  forge("sleeping_solver_index_i32_max", {body("stack0", body::kSolverIndex)}, 0x7FFFFFFF);
-  forge("sleeping_solver_index_two", {body("tetra", body::kSolverIndex)}, 2);
-  forge("awake_solver_index_i32_max", {body("pendulum", body::kSolverIndex)}, 0x7FFFFFFF);
-  forge("awake_solver_index_minus_two", {body("ball", body::kSolverIndex)}, 0xFFFFFFFE);
-  forge("sleeping_island_i32_max", {body("stack1", body::kIsland)}, 0x7FFFFFFF);
-  forge("awake_body_island_zero", {body("pendulum", body::kIsland)}, 0);
-  forge("joint_row_count_i32_max", {joint("rope", joint::kRowCount)}, 0x7FFFFFFF);
-  forge("joint_first_row_minus_one", {joint("link", joint::kFirstRow)}, 0xFFFFFFFF);
-  forge("joint_impulse_count_nine", {joint("hinge", joint::kImpulseCount)}, 9);
-  forge("joint_length_zero", {joint("link", joint::kLength)}, 0);
-  forge("joint_reference_zero", vec3(joint("hinge", joint::kRefA)), 0);
+  const char* solverIndex = "solver index";
+  forge("static_solver_index_i32_max", {body("ground", body::kSolverIndex)}, 0x7FFFFFFF,
+        solverIndex);
+  forge("static_solver_index_minus_one", {body("ground", body::kSolverIndex)}, 0xFFFFFFFF,
+        solverIndex);
+  forge("static_solver_index_one", {body("ledge", body::kSolverIndex)}, 1, solverIndex);
+  forge("sleeping_solver_index_i32_max", {body("stack0", body::kSolverIndex)}, 0x7FFFFFFF,
+        solverIndex);
+  forge("sleeping_solver_index_two", {body("tetra", body::kSolverIndex)}, 2, solverIndex);
+  forge("awake_solver_index_i32_max", {body("pendulum", body::kSolverIndex)}, 0x7FFFFFFF,
+        solverIndex);
+  forge("awake_solver_index_minus_two", {body("ball", body::kSolverIndex)}, 0xFFFFFFFE,
+        solverIndex);
+  forge("sleeping_island_i32_max", {body("stack1", body::kIsland)}, 0x7FFFFFFF,
+        "not a dynamic body asleep in it");
+  forge("awake_body_island_zero", {body("pendulum", body::kIsland)}, 0, "does not list it");
+  {  // A principal moment that is not its inertia's (fuzz_restore's first finding).
+    const size_t name = afterName(valid, bodies, "ball");
+    const size_t at =
+        name == kNone ? kNone : name - std::strlen("ball") - 4 - body::momentsBeforeName(1, 0);
+    forge("awake_principal_moment_1e14", {field(at, 8)}, std::bit_cast<uint32_t>(1.8e14f),
+          "principal moments");
+  }
+  forge("joint_row_count_i32_max", {joint("rope", joint::kRowCount)}, 0x7FFFFFFF, "row range");
+  forge("joint_first_row_minus_one", {joint("link", joint::kFirstRow)}, 0xFFFFFFFF, "row range");
+  forge("joint_impulse_count_nine", {joint("hinge", joint::kImpulseCount)}, 9, "impulse count");
+  forge("joint_length_zero", {joint("link", joint::kLength)}, 0, "rest length");
+  forge("joint_reference_zero", vec3(joint("hinge", joint::kRefA)), 0, "reference vector");
   const Records r = records(valid);
   const size_t awake = r.awakeContacts.empty() ? kNone : r.awakeContacts.front();
-  forge("awake_contact_body_index_i32_max", {field(awake, contact::kBodyA)}, 0x7FFFFFFF);
-  forge("awake_contact_first_row_minus_two", {field(awake, contact::kFirstRow)}, 0xFFFFFFFE);
+  forge("awake_contact_body_index_i32_max", {field(awake, contact::kBodyA)}, 0x7FFFFFFF,
+        "another body's");
+  forge("awake_contact_first_row_minus_two", {field(awake, contact::kFirstRow)}, 0xFFFFFFFE,
+        "first row");
+  // A stale contact (its shape removed since the last step: the doomed body's) names a body
+  // that never existed.
+  size_t stale = kNone;
+  for (size_t c : r.awakeContacts)
+    if (stale == kNone && uint32_t(getU64(valid, c + contact::kBodyB)) == lastBody) stale = c;
+  forge("stale_contact_body_index_i32_max", {field(stale, contact::kBodyB)}, 0x7FFFFFFF,
+        "body that never existed");
   size_t sleeping = kNone;
   for (const std::vector<size_t>& list : r.islandContacts)
     if (!list.empty() && sleeping == kNone) sleeping = list.front();
-  forge("island_contact_body_index_i32_max", {field(sleeping, contact::kBodyA)}, 0x7FFFFFFF);
+  forge("island_contact_body_index_i32_max", {field(sleeping, contact::kBodyA)}, 0x7FFFFFFF,
+        "another body's");
   forge("island_contact_body_generation_i32_max", {field(sleeping, contact::kBodyA + 4)},
-        0x7FFFFFFF);
-  forge("island_contact_no_points", {field(sleeping, contact::kCount)}, 0);
-  forge("island_contact_zero_normal", vec3(field(sleeping, contact::kNormal)), 0);
+        0x7FFFFFFF, "another body's");
+  forge("island_contact_no_points", {field(sleeping, contact::kCount)}, 0, "without points");
+  forge("island_contact_zero_normal", vec3(field(sleeping, contact::kNormal)), 0,
+        "a unit normal");
   const size_t list = r.islandBodies.empty() ? kNone : r.islandBodies.front();
-  forge("island_body_slot_i32_max", {field(list, 4)}, 0x7FFFFFFF);
+  forge("island_body_slot_i32_max", {field(list, 4)}, 0x7FFFFFFF, "lists body slot 2147483647");
   const bool anyFree = r.freeIslands != kNone && getU32(valid, r.freeIslands) > 0;
-  forge("free_island_i32_max", {anyFree ? r.freeIslands + 4 : kNone}, 0x7FFFFFFF);
+  forge("free_island_i32_max", {anyFree ? r.freeIslands + 4 : kNone}, 0x7FFFFFFF,
+        "the free list names island 2147483647");
   return out;
 }
 
