@@ -28,6 +28,12 @@
 // Every record is described once, by a template over the archive (`io`), used both by the
 // Writer and the Reader, so the two cannot disagree on the order of fields.
 //
+// The checksum finds damage, not intent: anyone who may restore a world can compute one. So a
+// restore checks every field it takes against the world it describes (the read* functions
+// below: ranges, references between records both ways, islands and sleep state, mass data,
+// what the API would accept) or rebuilds it, and only then swaps the state in; a field the
+// step later uses as an index is never taken on trust (docs/ARCHITECTURE.md, "Snapshots").
+//
 // Not saved, because each step rebuilds it before use: the broad phase's trees and pair
 // list (pairs depend only on the live proxies' fat boxes and static flags), the solver's
 // bodies and rows, the LDL factorization, the body pairs that must not collide (rebuilt from
