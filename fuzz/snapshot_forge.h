@@ -161,8 +161,9 @@ inline Records records(const Bytes& b) {
 //           "pill" (a capsule)
 //   awake   "pendulum" (a ball joint to the world) and "bob" (a distance joint to it),
 //           swinging; "ball", rolling on the ground (awake contacts with points); "slider",
-//           driven along a prismatic joint to the world; "sweeper", a kinematic box turning
-//           in the air
+//           driven along a prismatic joint to the world; "anvil" on "plinth", 500 times
+//           lighter (their contacts solved directly), not allowed to sleep; "sweeper", a
+//           kinematic box turning in the air
 //   static  "ground" (a plane), "ledge" (a box)
 //   gone    "doomed", destroyed after the last step: free body and shape slots, a freed
 //           island, and its contacts still in the awake list with stale shape ids
@@ -217,6 +218,18 @@ inline bool buildWorld(World& w) {
   add(pill);
   const BodyId slider = add(namedBody("slider", BodyType::Dynamic, {12, 0, 3},
                                       ShapeGeom::box({0.2f, 0.2f, 0.2f})));
+  // 500 times heavier than what it stands on: a direct contacts island (directContactRatio),
+  // kept awake.
+  BodyDef plinth = namedBody("plinth", BodyType::Dynamic, {-6, -4, 0.1f},
+                             ShapeGeom::box({0.3f, 0.3f, 0.1f}));
+  plinth.shapes[0].material.density = 100;
+  plinth.allowSleep = false;
+  add(plinth);
+  BodyDef anvil = namedBody("anvil", BodyType::Dynamic, {-6, -4, 0.4f},
+                            ShapeGeom::box({0.2f, 0.2f, 0.2f}));
+  anvil.shapes[0].material.density = 50000;
+  anvil.allowSleep = false;
+  add(anvil);
   const BodyId pendulum = add(namedBody("pendulum", BodyType::Dynamic, {-2.5f, 0, 4},
                                         ShapeGeom::box({0.2f, 0.2f, 0.2f})));
   const BodyId bob =

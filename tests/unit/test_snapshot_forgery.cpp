@@ -71,7 +71,8 @@ TEST(SnapshotForgery, TheWorldHoldsEveryRecordKindAndEveryCaseIsFound) {
   ASSERT_TRUE(forge::buildWorld(w));
   const StepStats& s = w.stats();
   EXPECT_GE(s.sleepingIslands, 2) << "the stack, the hinged pair and the hull sleep";
-  EXPECT_GE(w.awakeBodyCount(), 5) << "the pendulum, its bob, the ball, the slider, the sweeper";
+  EXPECT_GE(w.awakeBodyCount(), 7)
+      << "the pendulum, its bob, the ball, the slider, the anvil, its plinth, the sweeper";
   const forge::Records r = forge::records(forgedFrom());
   ASSERT_FALSE(r.awakeContacts.empty());
   size_t islandContacts = 0;
