@@ -38,6 +38,7 @@
 // list (pairs depend only on the live proxies' fat boxes and static flags), the solver's
 // bodies and rows, the LDL factorization, the body pairs that must not collide (rebuilt from
 // the joints), the guard's rollback copy, the profile. The thread count is the host's.
+#include <algorithm>
 #include <bit>
 #include <cmath>
 #include <cstdint>
@@ -762,7 +763,8 @@ std::string checkShapeGeom(const ShapeGeom& g, BodyType bodyType) {
 
 /// What updateMass derives and the step then takes as it is: a dynamic body's principal frame
 /// and moments are its inertia's eigen decomposition (the rotation integrator uses them: a
-/// forged moment of 1.8e14 beside an inertia of 167 made a body non-finite at once), and its
+/// forged moment of 1.8e14 beside an inertia of 167 made a body non-finite at once), its
+/// inverse inertia the inertia's inverse (a forged one of 3.5e12 did the same), and its
 /// centre of mass is where its pose puts the local centre (finalize keeps the two together).
 /// Tolerances far above float rounding, far below what would matter.
 std::string checkMassFrame(const BodyRec& b) {
@@ -775,6 +777,19 @@ std::string checkMassFrame(const BodyRec& b) {
       for (int r = 0; r < 3; ++r)
         if (!(std::fabs((&back.c0)[c][r] - (&I.c0)[c][r]) <= 1e-3f * scale + 1e-9f))
           return "principal moments and axes are not its inertia's";
+    // Its inverse, as inverse() makes it in float: only as exact as the inertia's condition
+    // allows (a thin rod's is 1e7 and more), and zero for an inertia whose determinant is
+    // under 1e-30 (a millimetre sphere's): checked to the error that condition permits.
+    const Vec3 m = b.principalMoments;
+    const float lo = std::min({m.x, m.y, m.z}), hi = std::max({m.x, m.y, m.z});
+    if (std::fabs(determinant(I)) >= 1e-29f && lo > 0) {
+      const Mat3 P = b.invInertiaLocal * I;
+      const float tolerance = 1e-3f + 1e-5f * (hi / lo);
+      for (int c = 0; c < 3; ++c)
+        for (int r = 0; r < 3; ++r)
+          if (!(std::fabs((&P.c0)[c][r] - (c == r ? 1.0f : 0.0f)) <= tolerance))
+            return "inverse inertia is not its inertia's inverse";
+    }
   }
   if (!(length(apply(b.xf, b.localCenter) - b.com) <= 1e-3f * (1 + length(b.com))))
     return "centre of mass is not where its pose puts it";
