@@ -106,6 +106,9 @@ constexpr size_t kSolverIndex = 0, kAllowSleep = 4, kSleepTime = 5, kIsland = 9;
 constexpr size_t momentsBeforeName(size_t shapes, size_t joints) {
   return 66 + (4 + 8 * shapes) + (4 + 8 * joints);
 }
+/// Its inverse inertia's first element, before its principal moments (then the principal
+/// frame's quaternion).
+constexpr size_t kInverseInertiaBeforeMoments = 36 + 16;
 }
 /// A joint's, from just past its name (its definition's last field; ioJoint's state follows).
 namespace joint {
@@ -348,12 +351,16 @@ inline std::vector<Forgery> forgeries(const Bytes& valid) {
   forge("sleeping_island_i32_max", {body("stack1", body::kIsland)}, 0x7FFFFFFF,
         "not a dynamic body asleep in it");
   forge("awake_body_island_zero", {body("pendulum", body::kIsland)}, 0, "does not list it");
-  {  // A principal moment that is not its inertia's (fuzz_restore's first finding).
+  {  // Mass data that is not the inertia's (fuzz_restore's findings: the body went non-finite).
     const size_t name = afterName(valid, bodies, "ball");
-    const size_t at =
+    const size_t moments =
         name == kNone ? kNone : name - std::strlen("ball") - 4 - body::momentsBeforeName(1, 0);
-    forge("awake_principal_moment_1e14", {field(at, 8)}, std::bit_cast<uint32_t>(1.8e14f),
+    forge("awake_principal_moment_1e14", {field(moments, 8)}, std::bit_cast<uint32_t>(1.8e14f),
           "principal moments");
+    const size_t inverse =
+        moments == kNone ? kNone : moments - body::kInverseInertiaBeforeMoments;
+    forge("awake_inverse_inertia_3e12", {inverse}, std::bit_cast<uint32_t>(3.5e12f),
+          "inverse inertia");
   }
   forge("joint_row_count_i32_max", {joint("rope", joint::kRowCount)}, 0x7FFFFFFF, "row range");
   forge("joint_first_row_minus_one", {joint("link", joint::kFirstRow)}, 0xFFFFFFFF, "row range");
