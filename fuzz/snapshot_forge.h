@@ -13,6 +13,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -191,12 +192,14 @@ inline BodyDef namedBody(const char* name, BodyType type, Vec3 at, ShapeGeom geo
   return d;
 }
 
-/// Builds the world above into `w` (made with worldDef()); false if an edit failed.
-inline bool buildWorld(World& w) {
+/// Builds the world above into `w` (made with worldDef()); false if an edit failed. `ids`,
+/// if given, gets each body's id by name.
+inline bool buildWorld(World& w, std::map<std::string, BodyId>* ids = nullptr) {
   bool ok = true;
   auto add = [&](const BodyDef& d) {
     BodyId id;
     ok = ok && w.createBody(d, &id).ok();
+    if (ids) (*ids)[d.name] = id;
     return id;
   };
   add(namedBody("ground", BodyType::Static, {}, ShapeGeom::plane({0, 0, 1}, 0)));

@@ -7,6 +7,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -68,11 +69,15 @@ struct Target {
 
 TEST(SnapshotForgery, TheWorldHoldsEveryRecordKindAndEveryCaseIsFound) {
   World w(forge::worldDef());
-  ASSERT_TRUE(forge::buildWorld(w));
-  const StepStats& s = w.stats();
-  EXPECT_GE(s.sleepingIslands, 2) << "the stack, the hinged pair and the hull sleep";
-  EXPECT_GE(w.awakeBodyCount(), 7)
-      << "the pendulum, its bob, the ball, the slider, the anvil, its plinth, the sweeper";
+  std::map<std::string, BodyId> ids;
+  ASSERT_TRUE(forge::buildWorld(w, &ids));
+  for (const char* name : {"stack0", "stack1", "stack2", "hinged-a", "hinged-b", "tetra", "pill"})
+    EXPECT_TRUE(w.isSleeping(ids[name])) << name;
+  for (const char* name :
+       {"pendulum", "bob", "ball", "slider", "anvil", "plinth", "sweeper", "ground", "ledge"})
+    EXPECT_FALSE(w.isSleeping(ids[name])) << name;
+  EXPECT_FALSE(w.isValid(ids["doomed"]));
+  EXPECT_EQ(w.stats().sleepingIslands, 4) << "the stack, the hinged pair, the hull, the capsule";
   const forge::Records r = forge::records(forgedFrom());
   ASSERT_FALSE(r.awakeContacts.empty());
   size_t islandContacts = 0;
