@@ -13,7 +13,13 @@
 //           file), LoadScene (inline JSON, by name), Batch;
 //   codec/  the same commands and every published kind: Reply with each result, StateFrame
 //           (keyframe, delta, compact), WorldInfo, ServerStatus, Event, Snapshot (both forms);
-//   scene/  the small scenes of configs/scenes and one with every shape and joint kind.
+//   scene/  the small scenes of configs/scenes and one with every shape and joint kind;
+//   restore/ engine snapshots (World::saveSnapshot): an empty world, snapshot_forge.h's world
+//           (bodies awake and asleep, joints, contacts, free slots), restitution,
+//           friction_ramp and tunnelling after 30 steps (small: a step of ball_and_chain or
+//           mass_ratio_10 takes a tenth of a second under ASan, and their mutants filled the
+//           corpus), and each of snapshot_forge.h's forged cases
+//           (seed-forged-*: one field set to a value no world holds, the checksum sealed).
 //
 // Seeds are named seed-*; files named otherwise (regression-*) are never touched. The output
 // is deterministic: running it again rewrites the same bytes.
@@ -29,6 +35,8 @@
 
 #include "fuzz_server.h"
 #include "phys/protocol/convert.h"
+#include "phys/scene/scene.h"
+#include "snapshot_forge.h"
 
 namespace {
 
@@ -480,6 +488,52 @@ int main(int argc, char** argv) {
       return 1;
     }
     write("scene", std::string(s) + ".json", text);
+  }
+
+  // --- Engine snapshots: restore/ ---
+  auto saveTo = [](const World& w, const std::string& name) {
+    Bytes snap;
+    phys::Status st = w.saveSnapshot(&snap);
+    if (!st.ok()) {
+      std::fprintf(stderr, "restore/%s: %s\n", name.c_str(), st.message.c_str());
+      std::exit(1);
+    }
+    write("restore", name, snap);
+    return snap;
+  };
+  saveTo(World(forge::worldDef()), "empty_world");
+  {
+    World w(forge::worldDef());
+    if (!forge::buildWorld(w)) {
+      std::fprintf(stderr, "restore: snapshot_forge.h's world could not be built\n");
+      return 1;
+    }
+    const Bytes snap = saveTo(w, "forge_world");
+    for (const forge::Forgery& f : forge::forgeries(snap)) {
+      if (f.bytes.empty()) {
+        std::fprintf(stderr, "restore: forged case %s: its field is not in the snapshot\n",
+                     f.name.c_str());
+        return 1;
+      }
+      write("restore", "forged-" + f.name, f.bytes);
+    }
+  }
+  for (const char* name : {"restitution", "friction_ramp", "tunnelling"}) {
+    Scene scene;
+    phys::Status st =
+        loadSceneFile(std::string(PHYS_SOURCE_DIR) + "/configs/scenes/" + name + ".json", &scene);
+    WorldDef def = scene.world;
+    def.threads = 1;
+    def.backend = Backend::Cpu;
+    World w(def);
+    std::vector<BodyId> ids;
+    if (st.ok()) st = instantiateScene(scene, &w, &ids);
+    if (!st.ok()) {
+      std::fprintf(stderr, "restore/%s: %s\n", name, st.message.c_str());
+      return 1;
+    }
+    for (int i = 0; i < 30; ++i) w.step();
+    saveTo(w, name);
   }
 
   server.core.reset();

@@ -13,7 +13,6 @@ void DirectContacts::setup(Solver& s, std::vector<std::vector<uint32_t>> islands
   islands_.reserve(islands.size());
   std::vector<std::pair<int32_t, std::pair<int, int>>> refs;  // (body, (row, side))
   for (std::vector<uint32_t>& rows : islands) {
-    Island is;
     // Islands at rest only: one with a row approaching faster than kImpactSpeed at the step's
     // start, or deeper than the split push-out's depth (bodies spawned into each other), is
     // iterated that step. Solved exactly, a heavy body landing on a light one stops dead in
@@ -25,6 +24,10 @@ void DirectContacts::setup(Solver& s, std::vector<std::vector<uint32_t>> islands
       impact |= s.rowVelocity(s.rows[i]) < -kImpactSpeed ||
                 s.rows[i].C0 < -SolverSettings::kSplitDepth;
     if (impact) continue;
+    // Made in place (the reserve above: no reallocation moves one either): a moved Island
+    // copies its factors' Eigen::LLT, whose status Eigen leaves unset until a compute
+    // (UBSan: "load of value 24640, which is not a valid value for type ComputationInfo").
+    Island& is = islands_.emplace_back();
     is.rows = std::move(rows);
     const int n = int(is.rows.size());
     // Rows meet through the dynamic bodies they share; the world and kinematic bodies
@@ -53,7 +56,6 @@ void DirectContacts::setup(Solver& s, std::vector<std::vector<uint32_t>> islands
     // The warm start's active set: the rows that carried load last step.
     is.active.resize(size_t(n));
     for (int k = 0; k < n; ++k) is.active[size_t(k)] = s.rows[is.rows[size_t(k)]].lambda > 0;
-    islands_.push_back(std::move(is));
   }
 }
 

@@ -28,10 +28,17 @@
 // Every record is described once, by a template over the archive (`io`), used both by the
 // Writer and the Reader, so the two cannot disagree on the order of fields.
 //
+// The checksum finds damage, not intent: anyone who may restore a world can compute one. So a
+// restore checks every field it takes against the world it describes (the read* functions
+// below: ranges, references between records both ways, islands and sleep state, mass data,
+// what the API would accept) or rebuilds it, and only then swaps the state in; a field the
+// step later uses as an index is never taken on trust (docs/ARCHITECTURE.md, "Snapshots").
+//
 // Not saved, because each step rebuilds it before use: the broad phase's trees and pair
 // list (pairs depend only on the live proxies' fat boxes and static flags), the solver's
 // bodies and rows, the LDL factorization, the body pairs that must not collide (rebuilt from
 // the joints), the guard's rollback copy, the profile. The thread count is the host's.
+#include <algorithm>
 #include <bit>
 #include <cmath>
 #include <cstdint>
@@ -707,6 +714,9 @@ void readPool(Reader& r, Pool<T, Tag>* pool, const char* what, F&& record) {
 bool unitQuat(Quat q) {
   return std::fabs(lengthSquared(q) - 1) <= 2e-3f;
 }
+bool unitVec(Vec3 v) {
+  return std::fabs(lengthSquared(v) - 1) <= 2e-3f;
+}
 
 std::string checkHull(const ConvexHull& h) {
   const size_t nv = h.vertices.size(), nf = h.faces.size();
@@ -748,6 +758,41 @@ std::string checkShapeGeom(const ShapeGeom& g, BodyType bodyType) {
       break;
   }
   if (g.type != ShapeType::Hull && g.hull) return "a hull attached to a shape that is no hull";
+  return {};
+}
+
+/// What updateMass derives and the step then takes as it is: a dynamic body's principal frame
+/// and moments are its inertia's eigen decomposition (the rotation integrator uses them: a
+/// forged moment of 1.8e14 beside an inertia of 167 made a body non-finite at once), its
+/// inverse inertia the inertia's inverse (a forged one of 3.5e12 did the same), and its
+/// centre of mass is where its pose puts the local centre (finalize keeps the two together).
+/// Tolerances far above float rounding, far below what would matter.
+std::string checkMassFrame(const BodyRec& b) {
+  if (b.type == BodyType::Dynamic) {
+    const Mat3& I = b.inertiaLocal;
+    const float scale = std::fabs(I.c0.x) + std::fabs(I.c1.y) + std::fabs(I.c2.z);
+    const Mat3 R = toMat3(b.principal);
+    const Mat3 back = R * Mat3::diagonal(b.principalMoments) * transpose(R);
+    for (int c = 0; c < 3; ++c)
+      for (int r = 0; r < 3; ++r)
+        if (!(std::fabs((&back.c0)[c][r] - (&I.c0)[c][r]) <= 1e-3f * scale + 1e-9f))
+          return "principal moments and axes are not its inertia's";
+    // Its inverse, as inverse() makes it in float: only as exact as the inertia's condition
+    // allows (a thin rod's is 1e7 and more), and zero for an inertia whose determinant is
+    // under 1e-30 (a millimetre sphere's): checked to the error that condition permits.
+    const Vec3 m = b.principalMoments;
+    const float lo = std::min({m.x, m.y, m.z}), hi = std::max({m.x, m.y, m.z});
+    if (std::fabs(determinant(I)) >= 1e-29f && lo > 0) {
+      const Mat3 P = b.invInertiaLocal * I;
+      const float tolerance = 1e-3f + 1e-5f * (hi / lo);
+      for (int c = 0; c < 3; ++c)
+        for (int r = 0; r < 3; ++r)
+          if (!(std::fabs((&P.c0)[c][r] - (c == r ? 1.0f : 0.0f)) <= tolerance))
+            return "inverse inertia is not its inertia's inverse";
+    }
+  }
+  if (!(length(apply(b.xf, b.localCenter) - b.com) <= 1e-3f * (1 + length(b.com))))
+    return "centre of mass is not where its pose puts it";
   return {};
 }
 
@@ -816,7 +861,27 @@ void readBodies(Reader& r, Parsed* st) {
     const Mat3& ii = b.invInertiaLocal;
     if (ii.c0.x < 0 || ii.c1.y < 0 || ii.c2.z < 0)
       return rr.fail("negative inverse moment of inertia");
+    std::string e = checkMassFrame(b);
+    if (!e.empty()) return rr.fail(e);
   });
+  if (!r.ok()) return;
+  // The solver index. The step numbers the awake bodies afresh (buildSolverBodies) before it
+  // reads any, but takes a static body's as it is: solver body 0, the world. A sleeping
+  // body's is 0 too (readIslands). An awake body's is last step's number, 1 + its place
+  // among the bodies awake then (at most the capacity), -1 if it never took a step, or 0 if
+  // it was static or asleep since: not read, but bounded all the same.
+  const int64_t capacity = st->bodies.capacity();
+  for (uint32_t i = 0; i < st->bodies.capacity(); ++i) {
+    if (!st->bodies.alive(i)) continue;
+    const BodyRec& b = st->bodies.at(i);
+    r.where("body slot", i);
+    if (b.type == BodyType::Static && b.solverIndex != 0)
+      return r.fail("a static body's solver index is " + std::to_string(b.solverIndex) +
+                    ", not 0 (the world's)");
+    if (b.solverIndex < -1 || b.solverIndex > capacity)
+      return r.fail("solver index " + std::to_string(b.solverIndex) + " is out of range [-1, " +
+                    std::to_string(capacity) + "]");
+  }
 }
 
 void readShapes(Reader& r, Parsed* st) {
@@ -861,14 +926,26 @@ void readJoints(Reader& r, Parsed* st) {
     if (!st->bodies.get(d.bodyB)) return rr.fail("body_b does not exist");
     if (!d.bodyA.isNull() && !st->bodies.get(d.bodyA)) return rr.fail("body_a does not exist");
     if (d.bodyA == d.bodyB) return rr.fail("body_a and body_b are the same body");
-    if (!(length(d.axisA) >= 1e-6f && length(d.axisB) >= 1e-6f)) return rr.fail("zero axis");
+    // What World::createJoint accepts (it normalizes the axes) and initJoint makes.
+    if (!unitVec(d.axisA) || !unitVec(d.axisB)) return rr.fail("an axis is not a unit vector");
     if (d.enableLimit && d.lower > d.upper) return rr.fail("lower limit above upper");
+    if (d.type == JointType::Hinge && d.enableLimit && (d.lower < -kPi || d.upper > kPi))
+      return rr.fail("hinge limits outside [-pi, pi]");
+    if (d.type == JointType::Distance && d.enableLimit && d.lower < 0)
+      return rr.fail("negative distance limit");
     if (d.maxMotorForce < 0 || d.springHertz < 0 || d.springDampingRatio < 0)
       return rr.fail("negative motor force, spring hertz or damping");
+    if (d.type == JointType::Distance && (!d.enableLimit || d.springHertz > 0) &&
+        !(j.length >= JointRec::kMinDistanceLength))
+      return rr.fail("a distance joint's rest length is under 1 mm");
     if (!unitQuat(j.relRot0)) return rr.fail("reference rotation is not a unit quaternion");
+    if (!unitVec(j.refA) || !unitVec(j.refB))
+      return rr.fail("a reference vector is not a unit vector");
     if (j.impulseCount < 0 || j.impulseCount > JointRec::kMaxRows)
       return rr.fail("impulse count out of range");
-    if (j.rowCount < 0) return rr.fail("negative row count");
+    // Last step's rows (the step builds them again before it reads them).
+    if (j.firstRow < 0 || j.rowCount < 0 || j.rowCount > JointRec::kMaxRows)
+      return rr.fail("row range out of range");
   });
   if (!r.ok()) return;
   // Each joint's own id in its state; each joint listed once by each of its bodies.
@@ -907,6 +984,13 @@ bool contactShapeOk(const Pool<ShapeRec, ShapeTag>& shapes, uint32_t slot, Shape
   return id.generation < g;
 }
 
+// A contact's body id: a body that exists or did (a stale contact's), whose slot is there to
+// read (the step looks up both bodies of every contact by slot).
+bool contactBodyOk(const Pool<BodyRec, BodyTag>& bodies, BodyId id) {
+  return id.generation != 0 && id.index < bodies.capacity() &&
+         id.generation <= bodies.generationAt(id.index);
+}
+
 void writeContactList(Writer& w, const std::vector<Contact>& list) {
   w.u32(uint32_t(list.size()));
   for (size_t i = 0; i < list.size(); ++i) {
@@ -915,7 +999,8 @@ void writeContactList(Writer& w, const std::vector<Contact>& list) {
   }
 }
 
-void readContactList(Reader& r, Parsed* st, std::vector<Contact>* list) {
+/// The awake contacts (island -1) or sleeping island `island`'s.
+void readContactList(Reader& r, Parsed* st, std::vector<Contact>* list, int32_t island) {
   const uint32_t n = r.count(196, "contact");
   list->resize(n);
   for (uint32_t i = 0; i < n && r.ok(); ++i) {
@@ -932,14 +1017,35 @@ void readContactList(Reader& r, Parsed* st, std::vector<Contact>* list) {
     if (!contactShapeOk(st->shapes, c.shapeA, c.idA, c.bodyA) ||
         !contactShapeOk(st->shapes, c.shapeB, c.idB, c.bodyB))
       return r.fail("refers to a shape that never existed or to another body's");
+    if (!contactBodyOk(st->bodies, c.bodyA) || !contactBodyOk(st->bodies, c.bodyB) ||
+        c.bodyA == c.bodyB)
+      return r.fail("refers to a body that never existed, or twice to one body");
     if (c.manifold.count < 0 || c.manifold.count > Manifold::kMaxPoints)
       return r.fail("manifold point count out of range");
+    if (c.firstRow < -1) return r.fail("negative first row");  // last step's; set again
+    if (island < 0) continue;
+    // A sleeping island's contacts skip the broad and narrow phases when it wakes: they go
+    // to the solver as they are. They are what updateSleep puts there: touching contacts of
+    // live shapes between two bodies that no longer move (static or asleep), kept by the
+    // first body's island if it sleeps, else by the second's.
+    if (c.manifold.count == 0 || !unitVec(c.manifold.normal))
+      return r.fail("a sleeping island's contact without points or a unit normal");
+    if (!st->shapes.valid(c.idA) || !st->shapes.valid(c.idB))
+      return r.fail("a sleeping island's contact refers to a shape that is gone");
+    const BodyRec& A = st->bodies.at(c.bodyA.index);
+    const BodyRec& B = st->bodies.at(c.bodyB.index);
+    const bool aAsleep = A.type == BodyType::Dynamic && A.island >= 0;
+    const bool bAsleep = B.type == BodyType::Dynamic && B.island >= 0;
+    if (!(aAsleep || A.type == BodyType::Static) || !(bAsleep || B.type == BodyType::Static) ||
+        (aAsleep ? A.island : bAsleep ? B.island : -1) != island)
+      return r.fail("a contact kept by sleeping island " + std::to_string(island) +
+                    " whose bodies are not asleep in it (or static)");
   }
 }
 
 void readContacts(Reader& r, Parsed* st) {
   r.where("contact list");
-  readContactList(r, st, &st->contacts);
+  readContactList(r, st, &st->contacts, -1);
 }
 
 void readIslands(Reader& r, Parsed* st) {
@@ -967,9 +1073,13 @@ void readIslands(Reader& r, Parsed* st) {
       if (b.island != int32_t(k) || b.type != BodyType::Dynamic)
         return r.fail("lists body slot " + std::to_string(slot) +
                       ", which is not a dynamic body asleep in it");
+      // Out of the step, like a static body: the step takes its solver index as it is.
+      if (b.solverIndex != 0)
+        return r.fail("body slot " + std::to_string(slot) + " sleeps with solver index " +
+                      std::to_string(b.solverIndex) + ", not 0 (the world's)");
       listed[slot] = 1;
     }
-    readContactList(r, st, &is.contacts);
+    readContactList(r, st, &is.contacts, int32_t(k));
   }
   if (!r.ok()) return;
   r.where("sleeping islands");
@@ -977,10 +1087,18 @@ void readIslands(Reader& r, Parsed* st) {
   if (!r.ok()) return;
   std::vector<uint8_t> isFree(n, 0);
   for (uint32_t k : st->freeIslands) {
-    if (k >= n || isFree[k] || !st->islands[k].bodies.empty())
+    if (k >= n || isFree[k] || !st->islands[k].bodies.empty() ||
+        !st->islands[k].contacts.empty())
       return r.fail("the free list names island " + std::to_string(k) +
-                    ", which is out of range, listed twice or holds bodies");
+                    ", which is out of range, listed twice or holds bodies or contacts");
     isFree[k] = 1;
+  }
+  // An island without bodies is a free one (wakeIsland frees what it empties).
+  for (uint32_t k = 0; k < n; ++k) {
+    if (!isFree[k] && st->islands[k].bodies.empty()) {
+      r.where("island", k);
+      return r.fail("holds no bodies and is not on the free list");
+    }
   }
   for (uint32_t i = 0; i < st->bodies.capacity(); ++i) {
     if (!st->bodies.alive(i)) continue;
@@ -992,6 +1110,20 @@ void readIslands(Reader& r, Parsed* st) {
     if (!(b.sleepTime >= 0)) {
       r.where("body slot", i);
       return r.fail("negative rest time");
+    }
+  }
+  // A joint between two dynamic bodies keeps them in one island: both awake or both asleep
+  // in the same island (creating the joint woke both, and they fall asleep together).
+  for (uint32_t i = 0; i < st->joints.capacity(); ++i) {
+    if (!st->joints.alive(i)) continue;
+    const JointDef& d = st->joints.at(i).def;
+    if (d.bodyA.isNull()) continue;
+    const BodyRec& A = *st->bodies.get(d.bodyA);
+    const BodyRec& B = *st->bodies.get(d.bodyB);
+    if (A.type == BodyType::Dynamic && B.type == BodyType::Dynamic && A.island != B.island) {
+      r.where("joint slot", i);
+      return r.fail("joins bodies of different sleeping islands (" + std::to_string(A.island) +
+                    " and " + std::to_string(B.island) + ")");
     }
   }
 }

@@ -17,8 +17,6 @@ namespace phys {
 
 namespace {
 
-constexpr float kMinDistanceLength = 1e-3f;  ///< m, shortest rest length of a distance joint
-
 Status invalid(std::string m) {
   return Status::Error(StatusCode::InvalidArgument, std::move(m));
 }
@@ -770,7 +768,7 @@ Status World::createJoint(const JointDef& in, JointId* out) {
   // A rigid or sprung distance joint pulls along the line between its anchors; at zero
   // length that line has no direction and the joint holds nothing.
   if (def.type == JointType::Distance && (!def.enableLimit || def.springHertz > 0) &&
-      !(rec.length >= kMinDistanceLength))
+      !(rec.length >= JointRec::kMinDistanceLength))
     return invalid("joint: a distance joint needs a rest length of at least 1 mm (got " +
                    std::to_string(rec.length) + " m); a ball joint pins two points together");
   if (A) w.wake(def.bodyA.index);

@@ -72,7 +72,9 @@ struct JointRec {
   float length = 0;  ///< distance: rest length
   JointState state;
   int32_t firstRow = 0, rowCount = 0;  ///< this step's rows
-  static constexpr int kMaxRows = 8;
+  static constexpr int kMaxRows = 8;  ///< a hinge's or slider's 5 + 2 limit rows + motor
+  /// m, the shortest rest length of a distance joint that pulls along its anchors' line
+  static constexpr float kMinDistanceLength = 1e-3f;
   float impulses[kMaxRows] = {};  ///< last step's row impulses, for warm starting
   int32_t impulseCount = 0;
 };

@@ -4,6 +4,7 @@
 #include <limits>
 #include <set>
 
+#include "../../fuzz/snapshot_forge.h"
 #include "phys/scene/scene.h"
 #include "server_test_util.h"
 
@@ -400,6 +401,55 @@ TEST_F(CoreTest, SnapshotBytesRoundTripIsExact) {
   r = send(CommandBuilder().restoreSnapshot(protocol::encodeSnapshot(bad)));
   EXPECT_EQ(r->status(), Code::InvalidArgument) << message(r);
   EXPECT_EQ(fingerprint(), before);
+}
+
+// Issue 39: an engine snapshot with a valid checksum whose ground carries solver index
+// 0x7FFFFFFF was accepted, and the next step crashed physd (SIGSEGV in WideContacts::build).
+// Forged from this world's own snapshot, as a client would: refused, the world unchanged
+// and stepping. So is each of fuzz/snapshot_forge.h's forged cases.
+TEST_F(CoreTest, ForgedEngineSnapshotIsRefusedAndTheWorldStepsOn) {
+  phys::BodyDef ground = groundBody();
+  ground.name = "ground";
+  spawn({ground, boxBody({0, 0, 0.5f}), boxBody({0, 0, 1.5f})});
+  ASSERT_EQ(send(CommandBuilder().step(10))->status(), Code::Ok);
+  Reply r = send(CommandBuilder().saveSnapshot());
+  ASSERT_EQ(r->status(), Code::Ok) << message(r);
+  auto decoded = protocol::decodeSnapshot(std::span<const uint8_t>(
+      r->result_as_SnapshotResult()->snapshot()->data(),
+      r->result_as_SnapshotResult()->snapshot()->size()));
+  ASSERT_TRUE(decoded.ok());
+  protocol::SnapshotData data;
+  ASSERT_TRUE(protocol::toSnapshotData(*decoded, &data).ok());
+  forge::Bytes& engine = data.engineState;
+  const size_t at = forge::afterName(engine, forge::section(engine, "BODY"), "ground");
+  ASSERT_NE(at, forge::kNone);
+  ASSERT_EQ(forge::getU32(engine, at + forge::body::kSolverIndex), 0u);
+  forge::putU32(&engine, at + forge::body::kSolverIndex, 0x7FFFFFFF);
+  forge::seal(&engine);
+
+  const Fingerprint before = fingerprint();
+  r = send(CommandBuilder().restoreSnapshot(protocol::encodeSnapshot(data)));
+  EXPECT_EQ(r->status(), Code::InvalidArgument) << message(r);
+  EXPECT_NE(message(r).find("solver index"), std::string::npos) << message(r);
+  EXPECT_EQ(fingerprint(), before);
+  ASSERT_EQ(send(CommandBuilder().step(10))->status(), Code::Ok);
+  EXPECT_EQ(core.world(world)->tick, before.tick + 10);
+
+  // The forged cases of the fuzz corpus, each in a snapshot of its own.
+  phys::World src(forge::worldDef());
+  ASSERT_TRUE(forge::buildWorld(src));
+  forge::Bytes valid;
+  ASSERT_TRUE(src.saveSnapshot(&valid).ok());
+  const Fingerprint now = fingerprint();
+  for (const forge::Forgery& f : forge::forgeries(valid)) {
+    ASSERT_FALSE(f.bytes.empty()) << f.name;
+    protocol::SnapshotData forged;
+    forged.engineState = f.bytes;
+    r = send(CommandBuilder().restoreSnapshot(protocol::encodeSnapshot(forged)));
+    EXPECT_EQ(r->status(), Code::InvalidArgument) << f.name << ": " << message(r);
+    EXPECT_EQ(fingerprint(), now) << f.name;
+  }
+  ASSERT_EQ(send(CommandBuilder().step(10))->status(), Code::Ok);
 }
 
 // Restoring into a running world is allowed (docs/PROTOCOL.md, RestoreSnapshot): the content
