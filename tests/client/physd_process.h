@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "../common/sanitizer.h"
+#include "in_process_daemon.h"
 #include "phys/client/client.h"
 
 extern char** environ;
@@ -36,19 +37,6 @@ struct ScratchDir {
   }
 };
 
-/// configs/cyclonedds/loopback.xml with a discovery tag of this process, so tests running in
-/// parallel never see each other's daemons.
-inline std::string taggedLoopbackXml() {
-  std::ifstream in(std::string(PHYS_SOURCE_DIR) + "/configs/cyclonedds/loopback.xml");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  std::string xml = ss.str();
-  const std::string tag = "<Discovery><Tag>physclient-test-" + std::to_string(getpid()) + "</Tag>";
-  const auto pos = xml.find("<Discovery>");
-  EXPECT_NE(pos, std::string::npos);
-  if (pos != std::string::npos) xml.replace(pos, std::string("<Discovery>").size(), tag);
-  return xml;
-}
 
 /// Spawns `binary` with `args`; returns its pid (0 on failure).
 inline pid_t spawnProcess(const std::string& binary, const std::vector<std::string>& args) {

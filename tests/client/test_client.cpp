@@ -26,6 +26,7 @@
 #include "phys/client/client.h"
 #include "phys/server/core.h"
 #include "phys/server/endpoint.h"
+#include "in_process_daemon.h"
 
 namespace phys::client {
 namespace {
@@ -40,59 +41,21 @@ constexpr auto kDelivery = std::chrono::milliseconds(int64_t(500 * test::kTimeFa
 /// look at its subscribers (every 250 ms) and one turn of its tick thread: well under 2 s.
 constexpr auto kKeyframe = std::chrono::milliseconds(int64_t(2000 * test::kTimeFactor));
 
-uint32_t testDomain() {
-  return 230 + uint32_t(getpid() % 2);
-}
-
-/// configs/cyclonedds/loopback.xml with a discovery tag of this process.
-std::string loopbackXml() {
-  std::ifstream in(std::string(PHYS_SOURCE_DIR) + "/configs/cyclonedds/loopback.xml");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  std::string xml = ss.str();
-  const std::string tag =
-      "<Discovery>\n      <Tag>physclient-test-" + std::to_string(getpid()) + "</Tag>";
-  auto pos = xml.find("<Discovery>");
-  EXPECT_NE(pos, std::string::npos);
-  if (pos != std::string::npos) xml.replace(pos, std::string("<Discovery>").size(), tag);
-  return xml;
-}
-
 ClientOptions options(std::string name = "client-test") {
-  ClientOptions o;
-  o.domain = testDomain();
-  o.cycloneXml = loopbackXml();
-  o.name = std::move(name);
-  o.connectTimeout = kTimeout;
-  o.requestTimeout = kTimeout;
-  return o;
+  return testing::inProcessOptions(std::move(name));
 }
 
 server::CoreConfig coreConfig() {
-  server::CoreConfig c;
-  c.presetsFile = std::string(PHYS_SOURCE_DIR) + "/configs/presets.json";
-  c.scenesDir = std::string(PHYS_SOURCE_DIR) + "/configs/scenes";
+  server::CoreConfig c = testing::withSourceTree();
   c.snapshotDir = (std::filesystem::temp_directory_path() /
                    ("physclient_test_snapshots_" + std::to_string(getpid())))
                       .string();
   return c;
 }
 
-/// The daemon's components, as physd's main() wires them.
-struct Daemon {
-  Daemon() : core(coreConfig()), endpoint(&core, {testDomain(), loopbackXml()}) {
-    EXPECT_TRUE(core.init().ok());
-    auto s = endpoint.start();
-    EXPECT_TRUE(s.ok()) << s.message;
-    tick.start();
-  }
-  ~Daemon() {
-    tick.stop();
-    endpoint.stop();
-  }
-  server::ServerCore core;
-  server::DdsEndpoint endpoint;
-  server::TickThread tick{&core, std::chrono::milliseconds(200)};
+/// The daemon's components, as physd's main() wires them, with a snapshot folder.
+struct Daemon : testing::InProcessDaemon {
+  Daemon() : InProcessDaemon(coreConfig()) {}
 };
 
 using phys::test::boxBody;

@@ -19,6 +19,7 @@
 #include "phys/client/client.h"
 #include "phys/server/core.h"
 #include "phys/server/endpoint.h"
+#include "in_process_daemon.h"
 
 namespace phys::client {
 namespace {
@@ -26,54 +27,17 @@ namespace {
 using namespace std::chrono_literals;
 constexpr auto kTimeout = std::chrono::milliseconds(int64_t(20000 * test::kTimeFactor));
 
-uint32_t testDomain() {
-  return 230 + uint32_t(getpid() % 2);
-}
-
-std::string loopbackXml() {
-  std::ifstream in(std::string(PHYS_SOURCE_DIR) + "/configs/cyclonedds/loopback.xml");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  std::string xml = ss.str();
-  const std::string tag = "<Discovery><Tag>physclient-rates-" + std::to_string(getpid()) + "</Tag>";
-  const auto pos = xml.find("<Discovery>");
-  EXPECT_NE(pos, std::string::npos);
-  if (pos != std::string::npos) xml.replace(pos, std::string("<Discovery>").size(), tag);
-  return xml;
-}
-
 ClientOptions options(bool retryBusy) {
-  ClientOptions o;
-  o.domain = testDomain();
-  o.cycloneXml = loopbackXml();
-  o.name = "rates-test";
-  o.connectTimeout = o.requestTimeout = kTimeout;
+  ClientOptions o = testing::inProcessOptions("rates-test");
   o.retryBusy = retryBusy;
   return o;
 }
 
 /// The daemon's components, as physd's main() wires them, with `config`'s budgets (the
 /// defaults unless a test lowers them).
-struct Daemon {
+struct Daemon : testing::InProcessDaemon {
   explicit Daemon(server::CoreConfig config = {})
-      : core(withPaths(std::move(config))), endpoint(&core, {testDomain(), loopbackXml()}) {
-    EXPECT_TRUE(core.init().ok());
-    auto s = endpoint.start();
-    EXPECT_TRUE(s.ok()) << s.message;
-    tick.start();
-  }
-  ~Daemon() {
-    tick.stop();
-    endpoint.stop();
-  }
-  static server::CoreConfig withPaths(server::CoreConfig c) {
-    c.presetsFile = std::string(PHYS_SOURCE_DIR) + "/configs/presets.json";
-    c.scenesDir = std::string(PHYS_SOURCE_DIR) + "/configs/scenes";
-    return c;
-  }
-  server::ServerCore core;
-  server::DdsEndpoint endpoint;
-  server::TickThread tick{&core, std::chrono::milliseconds(200)};
+      : InProcessDaemon(testing::withSourceTree(std::move(config))) {}
 };
 
 TEST(ClientRates, ASynchronousLoopIsNeverRefusedAtTheDefaults) {

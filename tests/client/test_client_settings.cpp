@@ -21,6 +21,7 @@
 #include "phys/client/client.h"
 #include "phys/server/core.h"
 #include "phys/server/endpoint.h"
+#include "in_process_daemon.h"
 #include "physd_process.h"
 
 namespace phys::client {
@@ -29,55 +30,11 @@ namespace {
 using namespace std::chrono_literals;
 constexpr auto kTimeout = std::chrono::milliseconds(int64_t(20000 * test::kTimeFactor));
 
-// As test_client.cpp: a domain of this process's range and a discovery tag of its own.
-uint32_t testDomain() {
-  return 230 + uint32_t(getpid() % 2);
-}
-
-std::string loopbackXml() {
-  std::ifstream in(std::string(PHYS_SOURCE_DIR) + "/configs/cyclonedds/loopback.xml");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  std::string xml = ss.str();
-  const std::string tag =
-      "<Discovery>\n      <Tag>physclient-settings-" + std::to_string(getpid()) + "</Tag>";
-  auto pos = xml.find("<Discovery>");
-  if (pos != std::string::npos) xml.replace(pos, std::string("<Discovery>").size(), tag);
-  return xml;
-}
-
 ClientOptions options(std::string name) {
-  ClientOptions o;
-  o.domain = testDomain();
-  o.cycloneXml = loopbackXml();
-  o.name = std::move(name);
-  o.connectTimeout = kTimeout;
-  o.requestTimeout = kTimeout;
-  return o;
+  return testing::inProcessOptions(std::move(name));
 }
 
-/// The daemon's components in-process, as physd's main() wires them.
-struct Daemon {
-  Daemon() : core(config()), endpoint(&core, {testDomain(), loopbackXml()}) {
-    EXPECT_TRUE(core.init().ok());
-    auto s = endpoint.start();
-    EXPECT_TRUE(s.ok()) << s.message;
-    tick.start();
-  }
-  ~Daemon() {
-    tick.stop();
-    endpoint.stop();
-  }
-  static server::CoreConfig config() {
-    server::CoreConfig c;
-    c.presetsFile = std::string(PHYS_SOURCE_DIR) + "/configs/presets.json";
-    c.scenesDir = std::string(PHYS_SOURCE_DIR) + "/configs/scenes";
-    return c;
-  }
-  server::ServerCore core;
-  server::DdsEndpoint endpoint;
-  server::TickThread tick{&core, std::chrono::milliseconds(200)};
-};
+using Daemon = testing::InProcessDaemon;
 
 template <class F>
 ErrorCode codeOf(F&& f) {
@@ -282,21 +239,11 @@ TEST(ClientSettings, EverySettingAndDefinitionSurvivesAKilledDaemon) {
 }
 
 #ifdef PHYSCTL_BINARY
-std::string shq(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
+using testing::shq;
 
-/// Runs a shell command line; its exit code and output (stdout and stderr).
 std::pair<int, std::string> shell(const std::string& line) {
-  std::string out;
-  FILE* f = popen((line + " 2>&1").c_str(), "r");
-  if (!f) return {-1, out};
-  char buf[512];
-  while (std::fgets(buf, sizeof buf, f)) out += buf;
-  const int st = pclose(f);
-  return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, out};
+  testing::Shell r = testing::shell(line);
+  return {r.code, r.output};
 }
 
 TEST(ClientSettings, PhysctlSetsSettingsAndPrintsDefinitions) {

@@ -13,6 +13,7 @@
 #include <string>
 #include <thread>
 
+#include "in_process_daemon.h"
 #include "physd_process.h"
 
 namespace phys::client {
@@ -20,28 +21,9 @@ namespace {
 
 using namespace std::chrono_literals;
 
-std::string shq(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
-
-struct Shell {
-  int code = -1;
-  std::string output;
-};
-
-/// Runs a shell command line; its exit code and output (stdout and stderr).
-Shell shell(const std::string& line) {
-  Shell r;
-  FILE* f = popen((line + " 2>&1").c_str(), "r");
-  if (!f) return r;
-  char buf[512];
-  while (std::fgets(buf, sizeof buf, f)) r.output += buf;
-  const int st = pclose(f);
-  r.code = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-  return r;
-}
+using testing::Shell;
+using testing::shell;
+using testing::shq;
 
 TEST(ClientPhysdSecure, AWorldBelongsToTheIdentityThatCreatedIt) {
   for (const char* lib : {"auth", "ac", "crypto"}) {

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <thread>
 
+#include "in_process_daemon.h"
 #include "physd_process.h"
 
 namespace phys::client {
@@ -20,7 +21,7 @@ using testing::stopProcess;
 constexpr auto kTimeout = 20s;  // a loaded 2-core machine
 
 uint32_t testDomain() {
-  return 230 + uint32_t(getpid() % 2);
+  return testing::inProcessDomain();
 }
 
 /// nx x ny boxes in zero gravity, 2 m apart: cheap to step, big to publish.
