@@ -5,8 +5,8 @@
 // the missing impulse per sweep, so the heavy body sinks through it or squeezes it out.
 //
 // Only islands at rest: one with an impact (a row approaching faster than kImpactSpeed) or a
-// contact deeper than the split push-out's depth is iterated in that step (setup; why:
-// docs/ARCHITECTURE.md, "Islands at rest only").
+// contact deeper than kRestDepth (twice the split push-out's depth) is iterated in that step
+// (setup; why: docs/ARCHITECTURE.md, "Islands at rest only").
 //
 // The rows are unilateral, so the solve is an active-set one: the rows in the set are
 // rigid, (A + eps D) dlambda = -(J v + bias), with A = J M^-1 J^T, D its diagonal and bias the
@@ -37,15 +37,28 @@ class DirectContacts {
  public:
   /// Takes the islands' normal rows (solver row indices, a list per island), flags them
   /// Row::direct, and assembles each island's A from the rows' Jacobians and masses
-  /// (Solver::finishRows has run).
+  /// (Solver::finishRows has run). The equality rows of the joints on an island's bodies (the
+  /// LDL hybrid's, solved exactly after every direct solve) enter through their Schur
+  /// complement: A - U^T K^-1 U, with K = J_eq M^-1 J_eq^T and U = J_eq M^-1 J^T, the contact
+  /// rows' effective masses with the joints holding (docs/ARCHITECTURE.md, "Direct contacts
+  /// on jointed bodies").
   void setup(Solver& s, std::vector<std::vector<uint32_t>> islands);
+  /// Gives the islands with joints back to the iteration (the LDL hybrid could not factor
+  /// their joints this step: the direct rows would be solved without them).
+  void dropJointed(Solver& s);
   void clear() { islands_.clear(); }
+  /// clear(), and the scratch's storage back to the allocator (World::Impl::releaseStepBuffers).
+  void release() noexcept;
+  size_t capacityBytes() const;  ///< the per-body and per-row scratch held
   bool empty() const { return islands_.empty(); }
   size_t islandCount() const { return islands_.size(); }
   /// One exact solve of every island's normal rows under `rule` (the iteration's: biased or
   /// relaxing, soft or Baumgarte), applied to the bodies' velocities and the rows' lambda.
-  /// Returns the largest velocity change it made to a row (the convergence measure).
-  float solve(Solver& s, const ContactRule& rule);
+  /// Returns the largest velocity change it made to a row (the convergence measure). In an
+  /// island with joints, the rows are solved where the joints hold (their residual with the
+  /// joints' own at `equalityBias`, the LDL hybrid's, projected out), and the LDL solve that
+  /// follows carries the impulses through the joints.
+  float solve(Solver& s, const ContactRule& rule, float equalityBias);
 
   /// Active-set passes at most per solve (then the impulses are clamped at zero), the
   /// first kBlockPasses of them changing the set at every violation, the others at one.
@@ -53,11 +66,31 @@ class DirectContacts {
   static constexpr int kBlockPasses = 4;
   /// m/s: rows approaching faster than this at the step's start (impacts) stay iterated.
   static constexpr float kImpactSpeed = 1;
+  /// m: so do islands with a row deeper than this. Twice the split push-out's depth: an
+  /// island that sagged while iterated (an impact, a load it could not carry) is pushed back
+  /// to kSplitDepth and held there, and at kSplitDepth itself it would never come back to the
+  /// direct solve (measured: a pile of ragdolls held at 10.0 mm for seconds).
+  static constexpr float kRestDepth = 2 * SolverSettings::kSplitDepth;
+  /// An island with a jointed group of bodies holding more equality rows than this (each
+  /// group's K is factored densely), or with more than kMaxIslandJointRows in all, is
+  /// iterated.
+  static constexpr int kMaxGroupJointRows = 256;
+  static constexpr int kMaxIslandJointRows = 4096;
 
  private:
   struct Island {
     std::vector<uint32_t> rows;
-    Eigen::MatrixXd A;            ///< J M^-1 J^T of the rows
+    /// A jointed group of bodies on the island: its equality rows, K = L L^T, V = L^-1 U
+    /// over the island's rows in cols (A has had V^T V taken off).
+    struct Joints {
+      std::vector<uint32_t> rows;
+      Eigen::LLT<Eigen::MatrixXd> K;
+      Eigen::MatrixXd V;
+      std::vector<int> cols;
+    };
+    std::vector<Joints> joints;
+    bool jointed = false;         ///< A holds the Schur complement of joints' rows
+    Eigen::MatrixXd A;            ///< J M^-1 J^T of the rows (with the joints holding)
     std::vector<uint8_t> active;  ///< the last solve's active set (the next one's start)
     /// Kept factorizations of M = A + Gamma restricted to an active set: two, since the
     /// biased iterations (soft rows) and the relax pass (rigid rows) alternate.
@@ -72,11 +105,21 @@ class DirectContacts {
   };
   /// The factorization of M on set_ with compliance gamma_, kept or made.
   const Eigen::LLT<Eigen::MatrixXd>& factorFor(Island& is);
-  float solveIsland(Solver& s, Island& is, const ContactRule& rule);
+  float solveIsland(Solver& s, Island& is, const ContactRule& rule, float equalityBias);
+  /// Subtracts U^T K^-1 U of the joints on the island's bodies from is.A; false when the
+  /// island cannot be solved directly (too many joint rows, K not factorable).
+  bool addJoints(const Solver& s, Island& is);
   std::vector<Island> islands_;
+  bool jointed_ = false;
+  // Equality rows per dynamic body (CSR over solver bodies: row << 1 | side), from setup.
+  std::vector<uint32_t> eqStart_, eqRefs_;
+  std::vector<int32_t> bodyMark_;   ///< per solver body: the island (pass) that reached it
+  std::vector<int32_t> bodyGroup_;  ///< per solver body: its jointed group in that island
+  std::vector<int32_t> rowLocal_;   ///< per solver row: its index in its group's K, or -1
+  int32_t mark_ = 0;
   // Scratch.
-  Eigen::VectorXd gamma_, residual_, x_, rhs_, xs_;
-  std::vector<int> set_;
+  Eigen::VectorXd gamma_, residual_, x_, rhs_, xs_, w_, y_;
+  std::vector<int> set_, loaded_;
 };
 
 }  // namespace phys
