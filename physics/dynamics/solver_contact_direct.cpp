@@ -93,7 +93,8 @@ bool DirectContacts::addJoints(const Solver& s, Island& is) {
   // each group's equality rows K = J_eq M^-1 J_eq^T (the LDL hybrid's, with its
   // regularization), and per group U = J_eq M^-1 J^T over the island's rows that touch it.
   // The rows' matrix with the joints holding is A - U^T K^-1 U (K = L L^T: V = L^-1 U,
-  // A -= V^T V). Groups share no body, so K is block diagonal over them.
+  // A -= V^T V), and their residual J v - U^T K^-1 r_eq (W = K^-1 U kept for it). Groups
+  // share no body, so K is block diagonal over them.
   ++mark_;
   const int n = int(is.rows.size());
   auto hasEquality = [&](int32_t b) {
@@ -158,7 +159,7 @@ bool DirectContacts::addJoints(const Solver& s, Island& is) {
       // The island's rows on this group's bodies: one column of U each.
       Island::Joints& J = is.joints.emplace_back();
       std::vector<int>& cols = J.cols;
-      Eigen::MatrixXd& U = J.V;
+      Eigen::MatrixXd& U = J.W;
       for (int c = 0; c < n; ++c) {
         const Row& r = s.rows[is.rows[size_t(c)]];
         auto in = [&](int32_t b) {
@@ -179,10 +180,11 @@ bool DirectContacts::addJoints(const Solver& s, Island& is) {
       }
       release();
       J.rows.assign(groupRows.begin(), groupRows.end());
-      J.K.compute(K);
-      if (J.K.info() != Eigen::Success) return false;
-      J.K.matrixL().solveInPlace(U);
+      const Eigen::LLT<Eigen::MatrixXd> llt(K);
+      if (llt.info() != Eigen::Success) return false;
+      llt.matrixL().solveInPlace(U);  // V = L^-1 U
       C.noalias() = U.transpose() * U;
+      llt.matrixU().solveInPlace(U);  // W = L^-T V = K^-1 U, for the residuals
       for (int i = 0; i < int(cols.size()); ++i)
         for (int j = 0; j < int(cols.size()); ++j) is.A(cols[size_t(i)], cols[size_t(j)]) -= C(i, j);
       is.jointed = true;
@@ -228,23 +230,98 @@ float DirectContacts::solve(Solver& s, const ContactRule& rule, float equalityBi
   return change;
 }
 
-const Eigen::LLT<Eigen::MatrixXd>& DirectContacts::factorFor(Island& is) {
-  const int m = int(set_.size());
-  Eigen::VectorXd diag(m);
-  for (int a = 0; a < m; ++a) diag[a] = gamma_[set_[size_t(a)]];
-  for (Island::Factor& f : is.factors)
-    if (f.valid && f.set == set_ && f.diag == diag) return f.ldlt;
-  Island::Factor& f = is.factors[is.nextFactor];
-  is.nextFactor ^= 1;
-  Eigen::MatrixXd M(m, m);
-  for (int a = 0; a < m; ++a)
-    for (int b = 0; b < m; ++b) M(a, b) = is.A(set_[size_t(a)], set_[size_t(b)]);
-  M.diagonal() += diag;
-  f.ldlt.compute(M);
-  f.set = set_;
-  f.diag = std::move(diag);
-  f.valid = true;
-  return f.ldlt;
+void DirectContacts::factorFor(Island& is) {
+  if (is.factored) {
+    // The rows that left the set and those that joined it since the factorization: a few
+    // are deleted and appended, more are factored anew (each change costs about m^2, a new
+    // factorization m^3 / 3).
+    changed_.clear();
+    for (int k : is.order)
+      if (!is.active[size_t(k)]) changed_.push_back(k);
+    const size_t dropped = changed_.size();
+    for (int k : set_)
+      if (is.pos[size_t(k)] < 0) changed_.push_back(k);
+    if (changed_.empty()) return;
+    if (3 * changed_.size() <= set_.size()) {
+      bool ok = true;
+      for (size_t i = 0; i < changed_.size() && ok; ++i) {
+        if (i < dropped)
+          dropRow(is, changed_[i]);
+        else
+          ok = appendRow(is, changed_[i]);
+      }
+      if (ok) return;
+    }
+  }
+  refactor(is);
+}
+
+void DirectContacts::refactor(Island& is) {
+  const int n = int(is.rows.size()), m = int(set_.size());
+  if (is.L.rows() != n) is.L.resize(n, n);
+  is.order = set_;
+  is.pos.assign(size_t(n), -1);
+  for (int a = 0; a < m; ++a) is.pos[size_t(set_[size_t(a)])] = a;
+  auto M = is.L.topLeftCorner(m, m);
+  for (int b = 0; b < m; ++b)
+    for (int a = b; a < m; ++a) M(a, b) = is.A(set_[size_t(a)], set_[size_t(b)]);
+  for (int a = 0; a < m; ++a) M(a, a) += gamma_[set_[size_t(a)]];
+  Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(M);  // in place, the lower triangle
+  is.factored = true;
+}
+
+void DirectContacts::dropRow(Island& is, int k) {
+  // Row and column p out of L; the block below them, L22, then stands for L22 L22^T + x x^T
+  // (x: column p below the diagonal), which a rank-one update folds back in.
+  const int m = int(is.order.size()), p = is.pos[size_t(k)], t = m - 1 - p;
+  Eigen::MatrixXd& L = is.L;
+  col_ = L.col(p).segment(p + 1, t);
+  for (int j = 0; j < p; ++j) {  // the rows below p up by one (within a column: std::copy)
+    double* c = L.col(j).data();
+    std::copy(c + p + 1, c + m, c + p);
+  }
+  for (int j = p + 1; j < m; ++j) L.col(j - 1).segment(j - 1, m - j) = L.col(j).segment(j, m - j);
+  for (int j = 0; j < t; ++j) {
+    const int d = p + j;  // the column being updated
+    const double ljj = L(d, d), xj = col_[j];
+    const double r = std::sqrt(ljj * ljj + xj * xj), c = r / ljj, sn = xj / ljj;
+    L(d, d) = r;
+    const int below = t - j - 1;
+    if (below > 0) {
+      auto ld = L.col(d).segment(d + 1, below);
+      auto xs = col_.segment(j + 1, below);
+      ld = (ld + sn * xs) / c;
+      xs = c * xs - sn * ld;
+    }
+  }
+  is.order.erase(is.order.begin() + p);
+  is.pos[size_t(k)] = -1;
+  for (int a = p; a < m - 1; ++a) is.pos[size_t(is.order[size_t(a)])] = a;
+}
+
+bool DirectContacts::appendRow(Island& is, int k) {
+  // A new last row: l = L^-1 (its column of M), then its pivot; a pivot that is not clearly
+  // positive (rounding after many changes) asks for a new factorization instead.
+  const int m = int(is.order.size());
+  Eigen::MatrixXd& L = is.L;
+  col_.resize(m);
+  for (int a = 0; a < m; ++a) col_[a] = is.A(is.order[size_t(a)], k);
+  L.topLeftCorner(m, m).triangularView<Eigen::Lower>().solveInPlace(col_);
+  const double diag = is.A(k, k) + gamma_[k];
+  const double d2 = diag - col_.squaredNorm();
+  if (!(d2 > 1e-9 * diag)) return false;
+  L.row(m).head(m) = col_.transpose();
+  L(m, m) = std::sqrt(d2);
+  is.order.push_back(k);
+  is.pos[size_t(k)] = m;
+  return true;
+}
+
+void DirectContacts::solveFactor(const Island& is, Eigen::VectorXd& z) const {
+  const int m = int(is.order.size());
+  const auto L = is.L.topLeftCorner(m, m);
+  L.triangularView<Eigen::Lower>().solveInPlace(z);
+  L.transpose().triangularView<Eigen::Upper>().solveInPlace(z);
 }
 
 float DirectContacts::solveIsland(Solver& s, Island& is, const ContactRule& rule,
@@ -263,7 +340,7 @@ float DirectContacts::solveIsland(Solver& s, Island& is, const ContactRule& rule
     gamma_[k] = 1e-3 * is.A(k, k) + 1e-12;
   }
   // With joints: the residual where they hold, J v - U^T K^-1 r_eq (r_eq: the equality
-  // rows' residual as the LDL hybrid solves it, J_eq v + its bias).
+  // rows' residual as the LDL hybrid solves it, J_eq v + its bias; W = K^-1 U).
   for (const Island::Joints& J : is.joints) {
     const int m = int(J.rows.size());
     y_.resize(m);
@@ -272,8 +349,7 @@ float DirectContacts::solveIsland(Solver& s, Island& is, const ContactRule& rule
       y_[e] = double(s.rowVelocity(r)) +
               (rule.useBias ? double(equalityBias) * double(s.rowError(r)) : 0.0);
     }
-    J.K.matrixL().solveInPlace(y_);
-    w_.noalias() = J.V.transpose() * y_;
+    w_.noalias() = J.W.transpose() * y_;
     for (int c = 0; c < int(J.cols.size()); ++c) residual_[J.cols[size_t(c)]] -= w_[c];
   }
   // Rows at the edge (an unloaded side contact: its impulse a rounding error either side of
@@ -297,15 +373,16 @@ float DirectContacts::solveIsland(Solver& s, Island& is, const ContactRule& rule
     }
     const int m = int(set_.size());
     if (m > 0) {
-      rhs_.resize(m);
+      factorFor(is);
+      rhs_.resize(m);  // in the factorization's order
       for (int a = 0; a < m; ++a) {
-        const int k = set_[size_t(a)];
+        const int k = is.order[size_t(a)];
         double r = residual_[k];
         for (int j : loaded_) r += is.A(k, j) * x_[j];
         rhs_[a] = -r;
       }
-      xs_ = factorFor(is).solve(rhs_);
-      for (int a = 0; a < m; ++a) x_[set_[size_t(a)]] = xs_[a];
+      solveFactor(is, rhs_);
+      for (int a = 0; a < m; ++a) x_[is.order[size_t(a)]] = rhs_[a];
     }
     // The violations: a row in the set pulling (impulse below zero), a row outside still
     // approaching (velocity error below zero). The first passes change the set at every

@@ -80,31 +80,34 @@ class DirectContacts {
  private:
   struct Island {
     std::vector<uint32_t> rows;
-    /// A jointed group of bodies on the island: its equality rows, K = L L^T, V = L^-1 U
-    /// over the island's rows in cols (A has had V^T V taken off).
+    /// A jointed group of bodies on the island: its equality rows, and W = K^-1 U over the
+    /// island's rows in cols (A has had U^T K^-1 U taken off).
     struct Joints {
       std::vector<uint32_t> rows;
-      Eigen::LLT<Eigen::MatrixXd> K;
-      Eigen::MatrixXd V;
+      Eigen::MatrixXd W;
       std::vector<int> cols;
     };
     std::vector<Joints> joints;
     bool jointed = false;         ///< A holds the Schur complement of joints' rows
     Eigen::MatrixXd A;            ///< J M^-1 J^T of the rows (with the joints holding)
     std::vector<uint8_t> active;  ///< the last solve's active set (the next one's start)
-    /// Kept factorizations of M = A + Gamma restricted to an active set: two, since the
-    /// biased iterations (soft rows) and the relax pass (rigid rows) alternate.
-    struct Factor {
-      std::vector<int> set;
-      Eigen::VectorXd diag;  ///< Gamma on the set
-      Eigen::LLT<Eigen::MatrixXd> ldlt;
-      bool valid = false;
-    };
-    Factor factors[2];
-    int nextFactor = 0;
+    /// The factorization M = L L^T of A + Gamma restricted to the active set, kept through
+    /// the step and changed with the set: a row that leaves is deleted from L, one that
+    /// joins is appended (each O(m^2) against a new factorization's m^3 / 3). L's leading
+    /// m x m lower triangle holds it, its rows the island's rows `order`, `pos` each row's
+    /// place (-1: outside the set).
+    Eigen::MatrixXd L;
+    std::vector<int> order, pos;
+    bool factored = false;
   };
-  /// The factorization of M on set_ with compliance gamma_, kept or made.
-  const Eigen::LLT<Eigen::MatrixXd>& factorFor(Island& is);
+  /// Brings is's factorization to the active set set_ (the rows is.active marks), by
+  /// deleting and appending rows or, past a few changes, factoring anew.
+  void factorFor(Island& is);
+  void refactor(Island& is);
+  void dropRow(Island& is, int k);
+  bool appendRow(Island& is, int k);
+  /// z = M^-1 rhs, both in the order of is.order.
+  void solveFactor(const Island& is, Eigen::VectorXd& z) const;
   float solveIsland(Solver& s, Island& is, const ContactRule& rule, float equalityBias);
   /// Subtracts U^T K^-1 U of the joints on the island's bodies from is.A; false when the
   /// island cannot be solved directly (too many joint rows, K not factorable).
@@ -118,8 +121,8 @@ class DirectContacts {
   std::vector<int32_t> rowLocal_;   ///< per solver row: its index in its group's K, or -1
   int32_t mark_ = 0;
   // Scratch.
-  Eigen::VectorXd gamma_, residual_, x_, rhs_, xs_, w_, y_;
-  std::vector<int> set_, loaded_;
+  Eigen::VectorXd gamma_, residual_, x_, rhs_, xs_, w_, y_, col_;
+  std::vector<int> set_, loaded_, changed_;
 };
 
 }  // namespace phys
