@@ -22,8 +22,15 @@
 // error of about 1e-3 of the row's impulse times its inverse effective mass, corrected by
 // the bias (measured: 6 um of penetration under a 1000:1 load).
 // A is fixed for the step (contact rows do not change inside one), so the factorization of
-// an active set is kept and reused while the set holds. Friction stays iterated, bounded by
-// the exact normal impulses.
+// the active set is kept through the step and changed row by row as the set changes.
+// Friction stays iterated, bounded by the exact normal impulses.
+//
+// Jointed bodies (issue 41): joints solved by the LDL hybrid join the islands, and A is the
+// rows' matrix with the joints holding, A - U^T K^-1 U (K, U: the joints' rows among
+// themselves and against the contact rows), their residual likewise; the LDL solve after
+// every direct solve then carries the impulses through the joints. Solved as if the joints
+// were not there, the two exact blocks undid each other through every light jointed body
+// (docs/ARCHITECTURE.md, "Direct contacts on jointed bodies").
 #pragma once
 
 #include <Eigen/Dense>

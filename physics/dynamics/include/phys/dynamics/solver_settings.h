@@ -66,9 +66,12 @@ struct SolverSettings {
   /// carry a 1000:1 load (a light body between a heavy one and the ground passes on about
   /// 1/ratio of the missing impulse per sweep), and a soft contact's compliance, relative to
   /// its own effective mass, lets a light body's ground contact sag ratio times as far.
-  /// 0: never. Islands with more than kDirectContactMaxRows normal rows are iterated, and so,
-  /// in a step, is an island with an impact or a deep contact (DirectContacts::setup). The
-  /// Jacobi scheme and the GPU backend ignore it (they iterate every contact).
+  /// 0: never. Joints solved by the LDL hybrid join islands, and the direct solve takes them
+  /// into account (the Schur complement of their rows); with iterated joints, jointed bodies'
+  /// contacts are iterated. Islands with more than kDirectContactMaxRows touching normal rows
+  /// are iterated, and so, in a step, is an island with an impact or a deep contact
+  /// (DirectContacts::setup). The Jacobi scheme and the GPU backend ignore it (they iterate
+  /// every contact).
   float directContactRatio = 10;
   static constexpr int kDirectContactMaxRows = 256;
   /// m: a contact point further apart than this at the step's start carries no load (0.3 %
