@@ -79,10 +79,11 @@ class DirectContacts {
   /// direct solve (measured: a pile of ragdolls held at 10.0 mm for seconds).
   static constexpr float kRestDepth = 2 * SolverSettings::kSplitDepth;
   /// An island with a jointed group of bodies holding more equality rows than this (each
-  /// group's K is factored densely), or with more than kMaxIslandJointRows in all, is
+  /// group's K is factored densely, about N^3 / 3 flops a step), or with more than
+  /// kMaxIslandJointRows in all (four such groups, some 20 Mflop; a ragdoll is 54 rows), is
   /// iterated.
   static constexpr int kMaxGroupJointRows = 256;
-  static constexpr int kMaxIslandJointRows = 4096;
+  static constexpr int kMaxIslandJointRows = 1024;
 
  private:
   struct Island {
