@@ -189,6 +189,21 @@ void World::Impl::measureStacks(float dt, const SolverSettings& s) {
       l.wyy += w * y * y;
     }
   }
+  // Stacks standing on a contact that the direct solve takes (direct contacts: its rows are
+  // rigid there, whatever the contact frequency) are not the soft stacks this model is of: a
+  // light body under a heavy one asks for a stiffness it already has (a pile of ragdolls,
+  // held exactly, asked for 117 Hz and 8 substeps against none with every contact iterated;
+  // docs/ARCHITECTURE.md, "Direct contacts on jointed bodies").
+  stackOnDirect.assign(stackFirstLevel.size(), 0);
+  if (s.directContactRatio > 0) {
+    directContactsByBody(s);
+    for (size_t ci = 0; ci < contacts.size(); ++ci) {
+      if (!stackSupport[ci] || !stackDirectContact[ci]) continue;
+      const Contact& c = contacts[ci];
+      for (uint32_t b : {c.bodyA.index, c.bodyB.index})
+        if (stackDepth[b] > 0) stackOnDirect[size_t(stackIndex[size_t(root(int32_t(b)))])] = 1;
+    }
+  }
   // Each stack's critical frequency; the step takes the largest, kStackMargin times over,
   // unless the preset's contacts are that much stiffer already.
   const double margin = SolverSettings::kStackMargin;
@@ -200,6 +215,7 @@ void World::Impl::measureStacks(float dt, const SolverSettings& s) {
                                    2 * kPi * 0.25 * 64 / dt);  // a quarter of the most substeps
   double need = 0;
   for (size_t k = 0; k + 1 < stackFirstLevel.size(); ++k) {
+    if (stackOnDirect[k]) continue;
     stackModel.clear();
     bool degenerate = false;
     for (int32_t d = stackFirstLevel[k]; d < stackFirstLevel[k + 1]; ++d) {
@@ -224,6 +240,69 @@ void World::Impl::measureStacks(float dt, const SolverSettings& s) {
     if (omega <= omegaMax) need = std::max(need, omega);  // else no stiffness holds it
   }
   if (need > 0) stats.stackHertz = float(margin * need / (2 * kPi));
+}
+
+void World::Impl::directContactsByBody(const SolverSettings& s) {
+  // World::Impl::findDirectContactIslands's rule (step.cpp), over body indices: islands of
+  // touching dynamic bodies (joined by joints too where the LDL hybrid solves them, else
+  // without the jointed bodies) that hold a touching pair directContactRatio apart and at
+  // most kDirectContactMaxRows touching points. (The direct solve also leaves out, step by
+  // step, islands with an impact; a stack on one is stiffened again next time if it stays.)
+  stackDirectContact.assign(contacts.size(), 0);
+  if (!(s.directContactRatio > 0) || s.scheme == SolverSettings::Scheme::Jacobi) return;
+  const size_t nb = bodies.capacity();
+  auto dynamic = [&](uint32_t i) {
+    const BodyRec& b = bodies.at(i);
+    return b.type == BodyType::Dynamic && !b.asleep();
+  };
+  const bool jointsExact = s.equalitySolve == SolverSettings::EqualitySolve::DirectLdl;
+  DisjointSets& sets = directSets;
+  sets.reset(nb);
+  auto root = [&](int32_t i) { return sets.root(i); };
+  auto join = [&](int32_t a, int32_t b) { sets.join(a, b); };
+  std::vector<uint8_t>& jointed = directJointed;
+  jointed.assign(nb, 0);
+  for (uint32_t i = 0; i < joints.capacity(); ++i) {
+    if (!joints.alive(i)) continue;
+    const JointDef& d = joints.at(i).def;
+    const bool a = !d.bodyA.isNull() && dynamic(d.bodyA.index), b = dynamic(d.bodyB.index);
+    if (a) jointed[d.bodyA.index] = 1;
+    if (b) jointed[d.bodyB.index] = 1;
+    if (jointsExact && a && b) join(int32_t(d.bodyA.index), int32_t(d.bodyB.index));
+  }
+  auto excluded = [&](uint32_t i) { return !jointsExact && jointed[i]; };
+  std::vector<int32_t>& rows = directRows;  // per root: touching points, -1: no heavy pair
+  rows.assign(nb, -1);
+  std::vector<int32_t>& heavy = directHeavy;  // a body of each heavy pair
+  heavy.clear();
+  for (const Contact& c : contacts) {
+    if (c.manifold.count == 0) continue;
+    const uint32_t a = c.bodyA.index, b = c.bodyB.index;
+    if (!dynamic(a) || !dynamic(b) || excluded(a) || excluded(b)) continue;
+    join(int32_t(a), int32_t(b));
+    const float ma = bodies.at(a).mass, mb = bodies.at(b).mass;
+    if (std::max(ma, mb) >= s.directContactRatio * std::min(ma, mb)) heavy.push_back(int32_t(a));
+  }
+  for (int32_t a : heavy) rows[size_t(root(a))] = 0;
+  auto islandOf = [&](const Contact& c) -> int32_t {
+    const uint32_t a = c.bodyA.index, b = c.bodyB.index;
+    const bool da = dynamic(a), db = dynamic(b);
+    if ((!da && !db) || (da && excluded(a)) || (db && excluded(b))) return -1;
+    return root(int32_t(da ? a : b));
+  };
+  for (const Contact& c : contacts) {
+    if (c.manifold.count == 0) continue;
+    const int32_t r = islandOf(c);
+    if (r < 0 || rows[size_t(r)] < 0) continue;
+    for (int p = 0; p < c.manifold.count; ++p)
+      rows[size_t(r)] += c.manifold.points[p].separation <= SolverSettings::kDirectContactGap;
+  }
+  for (size_t ci = 0; ci < contacts.size(); ++ci) {
+    if (contacts[ci].manifold.count == 0) continue;
+    const int32_t r = islandOf(contacts[ci]);
+    stackDirectContact[ci] = r >= 0 && rows[size_t(r)] > 0 &&
+                             rows[size_t(r)] <= SolverSettings::kDirectContactMaxRows;
+  }
 }
 
 }  // namespace phys

@@ -196,11 +196,18 @@ void World::stepOnce(int substeps) {
     }
   }
   const float equalityBias = Solver::equalityBiasRate(s, h);
+  // Direct contacts on jointed bodies see the joints through the LDL hybrid (setup's Schur
+  // complement): without it this step, those islands are iterated.
+  if (!direct) w.directContacts.dropJointed(solver);
   const bool directContacts = !w.directContacts.empty();
   auto iterate = [&](bool useBias) {
     float change = solver.solveIteration(s, h, useBias, direct, directContacts);
+    // Direct contacts, then the joints: in an island with joints, the direct solve's
+    // impulses are those with the joints holding, which the LDL solve then carries through
+    // them (docs/ARCHITECTURE.md, "Direct contacts on jointed bodies").
     if (directContacts)
-      change = std::max(change, w.directContacts.solve(solver, Solver::contactRule(s, h, useBias)));
+      change = std::max(change, w.directContacts.solve(solver, Solver::contactRule(s, h, useBias),
+                                                       equalityBias));
     if (direct) change = std::max(change, w.ldl.solve(solver, equalityBias, useBias));
     return change;
   };
@@ -214,6 +221,7 @@ void World::stepOnce(int substeps) {
       StageTimer t(&p.prepare);
       w.refreshJoints(h);
       if (direct) direct = w.ldl.factor(solver);
+      if (!direct) w.directContacts.dropJointed(solver);
     }
     {
       StageTimer t(&p.warmStart);
@@ -418,7 +426,8 @@ void forEachStepScratch(Impl& w, F&& f) {
   f(w.equalityRowsAt);
   f(w.stackDepth), f(w.stackHead), f(w.stackNext), f(w.stackQueue), f(w.stackRoot);
   f(w.stackIndex), f(w.stackDeepest), f(w.stackFirstLevel), f(w.stackSupport), f(w.stackRise);
-  f(w.stackLevels), f(w.stackModel);
+  f(w.stackLevels), f(w.stackModel), f(w.stackDirectContact), f(w.stackOnDirect);
+  f(w.directJointed), f(w.directRows), f(w.directHeavy);
 }
 }  // namespace
 
@@ -427,6 +436,8 @@ void World::Impl::releaseStepBuffers() noexcept {
   solver.release();
   broadPhase.releaseScratch();
   islandSets.release();
+  directSets.release();
+  directContacts.release();
   wide.release();
 }
 
@@ -434,7 +445,8 @@ size_t World::stepBufferBytes() const {
   const Impl& w = *impl_;
   size_t bytes = w.contacts.capacity() * sizeof(Contact) + w.wide.capacityBytes() +
                  w.solver.capacityBytes() + w.broadPhase.scratchBytes() +
-                 w.islandSets.capacityBytes();
+                 w.islandSets.capacityBytes() + w.directSets.capacityBytes() +
+                 w.directContacts.capacityBytes();
   forEachStepScratch(w, [&](const auto& v) { bytes += v.capacity() * sizeof(v[0]); });
   return bytes;
 }
@@ -1034,7 +1046,8 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
         directRows.emplace_back();
       }
       for (int p = 0; p < c.manifold.count; ++p)
-        directRows[size_t(slot)].push_back(uint32_t(c.firstRow + p));
+        if (c.manifold.points[p].separation <= SolverSettings::kDirectContactGap)
+          directRows[size_t(slot)].push_back(uint32_t(c.firstRow + p));
     }
   }
   // Every field of a manifold is assigned below: resizing without a clear spares zeroing
@@ -1160,11 +1173,30 @@ bool World::Impl::findDirectContactIslands(const SolverSettings& s) {
     const BodyRec& b = bodies.at(id.index);
     return b.type == BodyType::Dynamic && b.solverIndex > 0 ? b.solverIndex : 0;
   };
+  // Joints (docs/ARCHITECTURE.md, "Direct contacts on jointed bodies"): solved by the LDL
+  // hybrid, they join their bodies' islands, and the direct solve sees them through the
+  // Schur complement of their rows (DirectContacts::setup). Iterated, they would fight the
+  // direct rows through every light jointed body: the contacts of jointed bodies are then
+  // iterated too.
+  const bool jointsExact = s.equalitySolve == SolverSettings::EqualitySolve::DirectLdl;
+  std::vector<uint8_t> jointed;
+  if (!stepJoints.empty()) {
+    jointed.assign(solver.bodies.size(), 0);
+    for (uint32_t i : stepJoints) {
+      const JointRec& j = joints.at(i);
+      const int32_t a = j.def.bodyA.isNull() ? 0 : dynamicIndex(j.def.bodyA);
+      const int32_t b = dynamicIndex(j.def.bodyB);
+      jointed[size_t(a)] = jointed[size_t(b)] = 1;
+      if (jointsExact && a != 0 && b != 0) sets.join(a, b);
+    }
+    jointed[0] = 0;
+  }
+  auto excluded = [&](int32_t i) { return !jointsExact && !jointed.empty() && jointed[size_t(i)]; };
   std::vector<std::pair<int32_t, int32_t>> heavyPairs;
   for (uint32_t ci : contactOrder) {
     const Contact& c = contacts[ci];
     const int32_t a = dynamicIndex(c.bodyA), b = dynamicIndex(c.bodyB);
-    if (a == 0 || b == 0) continue;
+    if (a == 0 || b == 0 || excluded(a) || excluded(b)) continue;
     sets.join(a, b);
     const float ma = bodies.at(c.bodyA.index).mass, mb = bodies.at(c.bodyB.index).mass;
     if (std::max(ma, mb) >= s.directContactRatio * std::min(ma, mb)) heavyPairs.push_back({a, b});
@@ -1176,18 +1208,21 @@ bool World::Impl::findDirectContactIslands(const SolverSettings& s) {
   std::vector<int32_t> root(contactOrder.size(), 0);
   for (size_t k = 0; k < contactOrder.size(); ++k) {
     const Contact& c = contacts[contactOrder[k]];
-    int32_t d = dynamicIndex(c.bodyA);
-    if (d == 0) d = dynamicIndex(c.bodyB);
-    if (d == 0) continue;
-    root[k] = find(d);
-    if (rowsOf[size_t(root[k])] >= 0) rowsOf[size_t(root[k])] += c.manifold.count;
+    const int32_t a = dynamicIndex(c.bodyA), b = dynamicIndex(c.bodyB);
+    if ((a == 0 && b == 0) || excluded(a) || excluded(b)) continue;
+    root[k] = find(a != 0 ? a : b);
+    if (rowsOf[size_t(root[k])] >= 0)
+      for (int p = 0; p < c.manifold.count; ++p)
+        rowsOf[size_t(root[k])] +=
+            c.manifold.points[p].separation <= SolverSettings::kDirectContactGap;
   }
   bool any = false;
   for (size_t k = 0; k < contactOrder.size(); ++k) {
     const int32_t r = root[k];
-    if (r == 0 || rowsOf[size_t(r)] < 0 ||
-        rowsOf[size_t(r)] > SolverSettings::kDirectContactMaxRows)
+    if (r == 0 || rowsOf[size_t(r)] <= 0 ||
+        rowsOf[size_t(r)] > SolverSettings::kDirectContactMaxRows) {
       continue;
+    }
     directIsland[k] = r;
     any = true;
   }

@@ -273,6 +273,16 @@ struct World::Impl {
   };
   std::vector<LevelSums> stackLevels;
   std::vector<StackLevel> stackModel;
+  /// Per contact, whether the direct solve would take it (directContactsByBody); per stack,
+  /// whether one of its support contacts is such (the stack is then not stiffened).
+  std::vector<uint8_t> stackDirectContact, stackOnDirect;
+  // directContactsByBody's scratch (per body).
+  DisjointSets directSets;
+  std::vector<uint8_t> directJointed;
+  std::vector<int32_t> directRows, directHeavy;
+  /// stackDirectContact for measureStacks: findDirectContactIslands's rule over the bodies'
+  /// own indices (it runs before the step's solver bodies exist), for every touching contact.
+  void directContactsByBody(const SolverSettings& s);
   /// Fills contactOrder; with halves (solver_wide.h) returns true and where the halves' end.
   bool orderContacts(const SolverSettings& s, uint32_t halfEnd[2]);
   /// Finds the islands of contactOrder's contacts in which a dynamic body touches one

@@ -99,6 +99,39 @@ TEST(StackStiffening, TallColumnFallsWithoutItAndStandsWithIt) {
   EXPECT_LT(drift[1], 0.03f);
 }
 
+TEST(StackStiffening, AColumnSolvedDirectlyIsLeftAlone) {
+  // The same column under a cube ten times heavier: its island is solved directly (direct
+  // contacts), its rows rigid whatever the contact frequency, and it stands at the preset's
+  // substeps; with direct contacts off the stack model stiffens it as above. (Before issue 41
+  // it was stiffened either way: a pile of ragdolls held exactly asked for 8 substeps.)
+  float drift[2] = {};
+  int substeps[2] = {};
+  for (int direct = 0; direct < 2; ++direct) {
+    WorldDef def;
+    def.solver.directContactRatio = direct ? 10.0f : 0.0f;
+    def.threads = 1;
+    World w(def);
+    addGround(w);
+    std::vector<BodyId> ids;
+    for (int i = 0; i < 40; ++i) {
+      BodyDef b = boxBody({0, 0, 0.5f + float(i)});
+      if (i == 39) b.mass = 10000;
+      ids.push_back(addBody(w, b));
+    }
+    int most = 0;
+    for (int i = 0; i < 12 * 60; ++i) {
+      w.step();
+      most = std::max(most, w.stats().substeps);
+    }
+    const Vec3 top = stateOf(w, ids.back()).position;
+    drift[direct] = std::hypot(top.x, top.y);
+    substeps[direct] = most;
+  }
+  EXPECT_GT(substeps[0], 6);
+  EXPECT_EQ(substeps[1], 6);
+  EXPECT_LT(drift[1], 1e-3f);
+}
+
 struct SceneRun {
   uint64_t hash = 0;
   int mostSubsteps = 0;  ///< over the run
