@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "phys/scene/metrics.h"
 #include "phys/scene/scene.h"
 #include "phys/world/world.h"
 #include "test_util.h"
@@ -129,6 +130,83 @@ TEST(ElasticImpacts, ARowStruckAlongItsLengthPassesTheImpactOn) {
   // ball leaves first.
   EXPECT_NEAR(momentum(w, row).x, 6.0f, 0.06f);
   EXPECT_GT(stateOf(w, row.back().id).linearVelocity.x, 1.0f);
+}
+
+/// A row of `n` equal free balls (radius 0.25 m, 1 kg, restitution 1, no friction) touching
+/// along x in zero gravity, the first struck by one more at `speed`: each contact is a
+/// collision of two equal masses, which exchange velocities, so the last ball leaves with
+/// the striker's speed and the others stay at rest. With `reversed` the bodies are created
+/// from the far end (the contacts then come in the reverse order of the shock). Returns the
+/// balls' x velocities after a second, the striker first.
+std::vector<float> strikeFreeRow(int n, float speed, bool reversed, double* energyRise) {
+  WorldDef def;
+  def.gravity = {};
+  def.threads = 1;
+  World w(def);
+  std::vector<BodyId> ids(size_t(n + 1));
+  for (int k = 0; k <= n; ++k) {
+    const int i = reversed ? n - k : k;  // 0 is the striker
+    BodyDef d = sphereBody({i == 0 ? -1.0f : 0.5f * float(i - 1), 0, 0}, 0.25f);
+    d.shapes[0].material.restitution = 1;
+    d.shapes[0].material.friction = 0;
+    d.mass = 1;
+    if (i == 0) d.linearVelocity = {speed, 0, 0};
+    ids[size_t(i)] = addBody(w, d);
+  }
+  const double e0 = w.energy();
+  double highest = e0;
+  for (int s = 0; s < 60; ++s) {
+    w.step();
+    highest = std::max(highest, w.energy());
+  }
+  *energyRise = highest / e0 - 1;
+  std::vector<float> vx;
+  for (BodyId id : ids) vx.push_back(stateOf(w, id).linearVelocity.x);
+  return vx;
+}
+
+void expectImpactPassedOn(int n, bool reversed) {
+  const float v = 3;
+  double rise = 0;
+  const std::vector<float> vx = strikeFreeRow(n, v, reversed, &rise);
+  std::string all;
+  for (float x : vx) all += " " + std::to_string(x);
+  SCOPED_TRACE("x velocities, striker first:" + all);
+  EXPECT_NEAR(vx.back(), v, 0.05f * v) << "the last ball leaves with the striker's speed";
+  for (size_t i = 0; i + 1 < vx.size(); ++i)
+    EXPECT_LT(std::fabs(vx[i]), 0.05f * v) << "ball " << i << " stays at rest";
+  EXPECT_LE(rise, 1e-4) << "energy rose by " << rise * 100 << " %";
+}
+
+TEST(ElasticImpacts, AFreeRowOfFiveStruckAtOneEndSendsOffTheLastBallAlone) {
+  expectImpactPassedOn(5, false);
+}
+
+TEST(ElasticImpacts, AFreeRowOfThreeStruckAtOneEndSendsOffTheLastBallAlone) {
+  expectImpactPassedOn(3, false);
+}
+
+TEST(ElasticImpacts, AFreeRowBuiltFromTheFarEndPassesTheImpactOnAlike) {
+  // The contacts are met against the shock's direction: the impact needs a sweep per ball.
+  expectImpactPassedOn(5, true);
+}
+
+TEST(ElasticImpacts, NewtonsCradlePassesTheImpactThrough) {
+  // configs/scenes/newtons_cradle.json with the default solver: the scene's own criteria.
+  Scene scene = test::loadScene("newtons_cradle");
+  scene.world.threads = 1;
+  World w(scene.world);
+  std::vector<BodyId> ids;
+  ASSERT_TRUE(instantiateScene(scene, &w, &ids).ok());
+  MetricsRecorder rec(scene, w, ids);
+  for (int i = 0; i < 60; ++i) {  // the impact comes at about 0.35 s
+    w.step();
+    rec.afterStep(w);
+  }
+  const MetricsSummary m = rec.summary();
+  ASSERT_TRUE(m.value("cradle.last_speed_ratio").has_value());
+  EXPECT_NEAR(*m.value("cradle.last_speed_ratio"), 1.0, 0.1);
+  EXPECT_LT(*m.value("cradle.others_speed_ratio_max"), 0.1);
 }
 
 }  // namespace
