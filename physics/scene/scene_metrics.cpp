@@ -7,8 +7,9 @@
 //   windmill_rotor        windmill.speed_error (relative, while the rotor touches nothing)
 //   bridge_car            bridge.cars_arrived (count of chassis past metrics.params.finish_x)
 //   cradle_ball           cradle.last_speed_ratio, cradle.others_speed_ratio_max (a row of
-//                         balls in order, the striker first: speeds over the 0.1 s after the
-//                         first impact relative to the striker's impact speed)
+//                         balls in order, the striker first: their fastest speeds over the
+//                         0.1 s from the first impact, when the striker has lost a fifth of
+//                         its speed, relative to the striker's fastest speed before it)
 #include "scene_metrics.h"
 
 #include <algorithm>
@@ -273,10 +274,9 @@ class CradleHook : public SceneMetricHook {
       speed.push_back(std::isfinite(v) ? v : 1e30);
     }
     if (!impactTime_) {
-      // The first impact: a ball other than the striker moves at 5 % of the striker's speed.
-      double others = 0;
-      for (size_t i = 1; i < speed.size(); ++i) others = std::max(others, speed[i]);
-      if (!(strikerMax_ > 0.1 && others > 0.05 * strikerMax_)) {
+      // The first impact: the striker, which gathers speed until it strikes (a pendulum
+      // released above the row), loses a fifth of its fastest speed so far.
+      if (!(strikerMax_ > 0.1 && speed[0] < 0.8 * strikerMax_)) {
         strikerMax_ = std::max(strikerMax_, speed[0]);
         return;
       }

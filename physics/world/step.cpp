@@ -204,6 +204,11 @@ void World::stepOnce(int substeps) {
     if (direct) change = std::max(change, w.ldl.solve(solver, equalityBias, useBias));
     return change;
   };
+  auto collide = [&](bool ahead) {
+    if (!s.restitution || w.impacts.empty()) return;
+    StageTimer t(&p.restitution);
+    w.impacts.resolve(solver.bodies, h, s.restitutionThreshold, ahead);
+  };
   int iterationsUsed = 0;
   for (int sub = 0; sub < s.substeps; ++sub) {
     {
@@ -215,6 +220,9 @@ void World::stepOnce(int substeps) {
       w.refreshJoints(h);
       if (direct) direct = w.ldl.factor(solver);
     }
+    // Restitution: the collision phase (impacts.h) on this substep's velocities, for the
+    // contacts that close within it.
+    collide(false);
     {
       StageTimer t(&p.warmStart);
       solver.warmStart();
@@ -232,18 +240,24 @@ void World::stepOnce(int substeps) {
       if (s.splitPushout) solver.solvePushout(s, h, s.iterations, direct ? &w.ldl : nullptr);
       solver.integratePositions(h);
     }
-    {
+    if (s.relaxIterations > 0) {
+      // The relax pass meets the gaps of the next substep: a contact that closes within it
+      // would be stopped there as a speculative contact (rigid, no bounce) before the next
+      // collision phase could see it approach. So the phase runs here too, ahead.
+      collide(true);
       StageTimer t(&p.relax);
       for (int it = 0; it < s.relaxIterations; ++it) iterate(false);
     }
   }
-  {
+  if (w.impacts.collisions() > 0) {
+    // The collisions' velocity changes, scaled back where an island would end with more
+    // energy than it began the step with plus its forces' work.
     StageTimer t(&p.restitution);
-    if (s.restitution) {
-      w.beforeRestitution.assign(solver.bodies.begin(), solver.bodies.end());
-      solver.applyRestitution(s.restitutionThreshold);
-      w.limitRestitutionEnergy(w.beforeRestitution);
-    }
+    const std::vector<Velocity>& dv = w.impacts.changes();
+    w.beforeRestitution.resize(solver.bodies.size());
+    for (size_t i = 0; i < solver.bodies.size(); ++i)
+      w.beforeRestitution[i] = {solver.bodies[i].v - dv[i].v, solver.bodies[i].w - dv[i].w};
+    w.limitRestitutionEnergy(w.beforeRestitution);
   }
   if (w.wide.active) {
     StageTimer t(&p.storeImpulses);
@@ -425,6 +439,7 @@ void forEachStepScratch(Impl& w, F&& f) {
 void World::Impl::releaseStepBuffers() noexcept {
   forEachStepScratch(*this, [](auto& v) { std::remove_reference_t<decltype(v)>().swap(v); });
   solver.release();
+  impacts.release();
   broadPhase.releaseScratch();
   islandSets.release();
   wide.release();
@@ -433,7 +448,8 @@ void World::Impl::releaseStepBuffers() noexcept {
 size_t World::stepBufferBytes() const {
   const Impl& w = *impl_;
   size_t bytes = w.contacts.capacity() * sizeof(Contact) + w.wide.capacityBytes() +
-                 w.solver.capacityBytes() + w.broadPhase.scratchBytes() +
+                 w.solver.capacityBytes() + w.impacts.capacityBytes() +
+                 w.broadPhase.scratchBytes() +
                  w.islandSets.capacityBytes();
   forEachStepScratch(w, [&](const auto& v) { bytes += v.capacity() * sizeof(v[0]); });
   return bytes;
@@ -1057,6 +1073,12 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   else
     wide.clear();
   directContacts.setup(solver, std::move(directRows));
+  // Restitution's collision phase: the elastic contacts' normal rows, with the bodies' own
+  // masses (impacts.h).
+  impacts.clear();
+  if (s.restitution)
+    for (uint32_t ci : contactOrder)
+      if (contacts[ci].restitution > 0) impacts.add(solverManifold(contacts[ci], s), solver.bodies);
   stats.vectorizedManifolds = int(manifolds.size());
 }
 
@@ -1125,12 +1147,15 @@ int World::Impl::limitRestitutionEnergy(const std::vector<Velocity>& before) {
     const Sums& s = sums[r];
     const double limit = s.budget + 1e-9 * std::fabs(s.budget);
     if (s.q2 + s.q1 + s.q0 <= limit) continue;
-    // The largest a in [0, 1] with q2 a^2 + q1 a + q0 <= limit; when even a = 0 is over (the
-    // solve itself ended above the budget), the a of least energy.
+    // The largest a in [0, 1] with q2 a^2 + q1 a + q0 <= limit (the larger root: a = 1 is
+    // over); when no a in [0, 1] is within, the a of least energy. (a = 0 itself can be over:
+    // a ball that bounced in mid-step has fallen less far than the velocity it had before
+    // the bounce would say.)
     double a = 0;
     const double disc = s.q1 * s.q1 - 4 * s.q2 * (s.q0 - limit);
-    if (s.q2 > 0 && disc >= 0 && s.q0 <= limit)
-      a = (-s.q1 + std::sqrt(disc)) / (2 * s.q2);
+    const double upper = s.q2 > 0 && disc >= 0 ? (-s.q1 + std::sqrt(disc)) / (2 * s.q2) : -1;
+    if (upper >= 0)
+      a = upper;
     else if (s.q2 > 0)
       a = -s.q1 / (2 * s.q2);
     scale[r] = float(std::clamp(a, 0.0, 1.0));
