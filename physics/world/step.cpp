@@ -830,8 +830,6 @@ SolverManifold World::Impl::solverManifold(const Contact& c, const SolverSetting
     m.rA[k] = cp.point - A.com;
     m.rB[k] = cp.point - B.com;
     m.separation[k] = cp.separation;
-    m.relativeVelocity[k] =
-        dot(m.normal, (B.v + cross(B.w, m.rB[k])) - (A.v + cross(A.w, m.rA[k])));
     m.normalImpulse[k] = s.warmStart ? c.normalImpulse[k] : 0;
     m.tangentImpulse[k][0] = s.warmStart ? c.tangentImpulse[k][0] : 0;
     m.tangentImpulse[k][1] = s.warmStart ? c.tangentImpulse[k][1] : 0;
@@ -862,7 +860,6 @@ void World::Impl::contactRowsOf(const Contact& c, const SolverManifold& m) {
     r.lambda = m.normalImpulse[k];
     r.restitution = m.restitution;
     r.groupStart = k == 0;
-    r.relativeVelocity = m.relativeVelocity[k];
     solver.rows.push_back(r);
   }
   if (m.patch) {
