@@ -55,6 +55,7 @@ void Impacts::add(const SolverManifold& m, const std::vector<SolverBody>& bodies
 void Impacts::applyImpulse(const Row& r, float impulse, std::vector<SolverBody>& bodies) {
   Solver::applyImpulse(r, impulse, bodies[size_t(r.a)], bodies[size_t(r.b)]);
   Solver::applyImpulse(r, impulse, change_[size_t(r.a)], change_[size_t(r.b)]);
+  stamp_[size_t(r.a)] = stamp_[size_t(r.b)] = sweep_;
 }
 
 void Impacts::shift(const Row& r, float lambda, float tau, std::vector<SolverBody>& bodies) {
@@ -159,18 +160,32 @@ void Impacts::clear() {
   rows_.clear();
   start_.clear();
   change_.clear();
+  stamp_.clear();
+  sweep_ = 0;
   collisions_ = 0;
 }
 
 int Impacts::resolve(std::vector<SolverBody>& bodies, float h, float threshold, bool ahead) {
   if (rows_.empty()) return 0;
   if (clock_.size() < bodies.size()) clock_.resize(bodies.size(), 0.0f);
-  if (change_.size() != bodies.size()) change_.assign(bodies.size(), Velocity{});
+  if (change_.size() != bodies.size()) {
+    change_.assign(bodies.size(), Velocity{});
+    stamp_.assign(bodies.size(), 0);
+  }
   int collisions = 0;
   const size_t contacts = start_.size() - 1;
   for (int sweep = 0; sweep < kMaxSweeps; ++sweep) {
+    // After the first sweep, only contacts whose bodies changed since the sweep before the
+    // last (in it, after the contact, or in this one, before it): the others were seen not
+    // to approach, and nothing about them changed since.
+    ++sweep_;
     int now = 0;
-    for (size_t k = 0; k < contacts; ++k) now += collide(k, bodies, h, threshold, ahead);
+    for (size_t k = 0; k < contacts; ++k) {
+      const Row& r = rows_[start_[k]];
+      if (sweep > 0 && stamp_[size_t(r.a)] + 1 < sweep_ && stamp_[size_t(r.b)] + 1 < sweep_)
+        continue;
+      now += collide(k, bodies, h, threshold, ahead);
+    }
     collisions += now;
     if (now == 0) break;
   }
@@ -186,12 +201,13 @@ void Impacts::release() noexcept {
   std::vector<float>().swap(clock_);
   std::vector<int32_t>().swap(clocked_);
   std::vector<Velocity>().swap(change_);
+  std::vector<uint32_t>().swap(stamp_);
 }
 
 size_t Impacts::capacityBytes() const {
   return rows_.capacity() * sizeof(Row) + start_.capacity() * sizeof(uint32_t) +
          clock_.capacity() * sizeof(float) + clocked_.capacity() * sizeof(int32_t) +
-         change_.capacity() * sizeof(Velocity);
+         change_.capacity() * sizeof(Velocity) + stamp_.capacity() * sizeof(uint32_t);
 }
 
 }  // namespace phys

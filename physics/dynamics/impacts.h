@@ -87,6 +87,8 @@ class Impacts {
   std::vector<float> clock_;     ///< per solver body: when its current velocity began
   std::vector<int32_t> clocked_;  ///< the bodies whose clock_ is not 0
   std::vector<Velocity> change_;  ///< per solver body: the velocity changes since clear()
+  std::vector<uint32_t> stamp_;   ///< per solver body: the sweep that last changed it
+  uint32_t sweep_ = 0;            ///< sweeps since clear()
   int collisions_ = 0;
 };
 
