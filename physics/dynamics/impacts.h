@@ -59,10 +59,14 @@ class Impacts {
 
   /// Before a step's contacts are added: no contacts, no collisions, no velocity changes.
   void clear();
-  bool empty() const { return rows_.empty(); }
-  /// Appends an elastic contact (restitution > 0): its normal rows with the bodies' own
-  /// masses (not the Jacobi scheme's split ones).
-  void add(const SolverManifold& m, const std::vector<SolverBody>& bodies);
+  bool empty() const { return contacts_.empty(); }
+  /// Appends an elastic contact (restitution > 0) between solver bodies a and b: its
+  /// points (rA, rB from the bodies' centres of mass, separation: the gap at the step's
+  /// start) along the normal from A to B, with the bodies' own masses (not the Jacobi
+  /// scheme's split ones).
+  void add(int32_t a, int32_t b, Vec3 normal, const Vec3* rA, const Vec3* rB,
+           const float* separation, int count, float restitution,
+           const std::vector<SolverBody>& bodies);
   /// The collision phase for a substep of length h: with `ahead`, for the next substep from
   /// the current positions and the velocities plus a h (see the file comment). Returns the
   /// collisions it resolved.
@@ -76,14 +80,34 @@ class Impacts {
   size_t capacityBytes() const;
 
  private:
+  /// A point's normal row, J = (-n, angA, n, angB): what a sweep reads of every point.
+  struct Point {
+    Vec3 n, angA, angB;
+    float C0;  ///< the gap at the step's start
+  };
+  /// A point's masses, read only when it collides: M^-1 J^T is (-n invMassA, angMassA,
+  /// n invMassB, angMassB).
+  struct Mass {
+    Vec3 angMassA, angMassB;
+    float invMassA, invMassB, effMass, restitution;
+  };
+  /// A contact: its two solver bodies and its points.
+  struct Contact {
+    int32_t a, b;
+    uint32_t first, count;
+  };
+  float velocity(const Contact& c, const Point& p, const std::vector<SolverBody>& bodies) const;
+  float gap(const Contact& c, const Point& p, const std::vector<SolverBody>& bodies) const;
   /// Resolves contact k if any of its points approaches: true when it did.
   bool collide(size_t k, std::vector<SolverBody>& bodies, float h, float threshold, bool ahead);
-  /// Applies an impulse to row r's bodies and records their velocity changes.
-  void applyImpulse(const Row& r, float impulse, std::vector<SolverBody>& bodies);
-  /// Moves row r's bodies as impulse `lambda` applied `tau` into the substep would have.
-  void shift(const Row& r, float lambda, float tau, std::vector<SolverBody>& bodies);
-  std::vector<Row> rows_;        ///< normal rows, contact after contact
-  std::vector<uint32_t> start_;  ///< contact k: rows_[start_[k], start_[k + 1])
+  /// Applies an impulse at point i of contact c and records the velocity changes.
+  void applyImpulse(const Contact& c, uint32_t i, float impulse, std::vector<SolverBody>& bodies);
+  /// Moves the bodies as impulse `lambda` at point i applied `tau` into the substep would have.
+  void shift(const Contact& c, uint32_t i, float lambda, float tau,
+             std::vector<SolverBody>& bodies);
+  std::vector<Contact> contacts_;
+  std::vector<Point> points_;
+  std::vector<Mass> masses_;
   std::vector<float> clock_;     ///< per solver body: when its current velocity began
   std::vector<int32_t> clocked_;  ///< the bodies whose clock_ is not 0
   std::vector<Velocity> change_;  ///< per solver body: the velocity changes since clear()

@@ -1073,9 +1073,23 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   // Restitution's collision phase: the elastic contacts' normal rows, with the bodies' own
   // masses (impacts.h).
   impacts.clear();
-  if (s.restitution)
-    for (uint32_t ci : contactOrder)
-      if (contacts[ci].restitution > 0) impacts.add(solverManifold(contacts[ci], s), solver.bodies);
+  if (s.restitution) {
+    for (uint32_t ci : contactOrder) {
+      const Contact& c = contacts[ci];
+      if (!(c.restitution > 0)) continue;
+      const BodyRec& A = *bodies.get(c.bodyA);
+      const BodyRec& B = *bodies.get(c.bodyB);
+      Vec3 rA[Manifold::kMaxPoints], rB[Manifold::kMaxPoints];
+      float separation[Manifold::kMaxPoints];
+      for (int k = 0; k < c.manifold.count; ++k) {
+        rA[k] = c.manifold.points[k].point - A.com;
+        rB[k] = c.manifold.points[k].point - B.com;
+        separation[k] = c.manifold.points[k].separation;
+      }
+      impacts.add(A.solverIndex, B.solverIndex, c.manifold.normal, rA, rB, separation,
+                  c.manifold.count, c.restitution, solver.bodies);
+    }
+  }
   stats.vectorizedManifolds = int(manifolds.size());
 }
 
