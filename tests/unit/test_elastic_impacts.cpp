@@ -127,8 +127,7 @@ TEST(ElasticImpacts, ARowStruckAlongItsLengthPassesTheImpactOn) {
   }
   EXPECT_LE(highest, e0 * (1 + 1e-4)) << "energy rose by " << (highest / e0 - 1) * 100 << " %";
   // Momentum along the row is kept (the frictionless ground takes none of it), and it all
-  // leaves with the last ball (issue 41; before the collision phase the last ball left at
-  // 0.5 of the striker's speed with the others moving).
+  // leaves with the last ball (issue 41: each contact is a collision of equal masses).
   EXPECT_NEAR(momentum(w, row).x, 6.0f, 0.06f);
   EXPECT_NEAR(stateOf(w, row.back().id).linearVelocity.x, 6.0f, 0.3f);
   for (size_t i = 0; i + 1 < row.size(); ++i)
