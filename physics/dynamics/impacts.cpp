@@ -25,7 +25,8 @@ void Impacts::add(int32_t a, int32_t b, Vec3 normal, const Vec3* rA, const Vec3*
   if (count <= 0) return;
   const SolverBody& A = bodies[size_t(a)];
   const SolverBody& B = bodies[size_t(b)];
-  contacts_.push_back({a, b, uint32_t(points_.size()), uint32_t(count)});
+  Contact c{a, b, uint32_t(points_.size()), uint32_t(count), normal, 0, 0,
+            dot(normal, B.linearAccel - A.linearAccel)};
   for (int k = 0; k < count; ++k) {
     Point p;
     p.n = normal;
@@ -42,7 +43,13 @@ void Impacts::add(int32_t a, int32_t b, Vec3 normal, const Vec3* rA, const Vec3*
     m.restitution = restitution;
     points_.push_back(p);
     masses_.push_back(m);
+    c.armA = std::max(c.armA, length(p.angA));
+    c.armB = std::max(c.armB, length(p.angB));
   }
+  // Rounded up a little: the bound must not rule out a point that approaches.
+  c.armA *= 1.0001f;
+  c.armB *= 1.0001f;
+  contacts_.push_back(c);
 }
 
 float Impacts::velocity(const Contact& c, const Point& p,
@@ -75,16 +82,6 @@ void Impacts::applyImpulse(const Contact& c, uint32_t i, float impulse,
   stamp_[size_t(c.a)] = stamp_[size_t(c.b)] = sweep_;
 }
 
-void Impacts::shift(const Contact& c, uint32_t i, float lambda, float tau,
-                    std::vector<SolverBody>& bodies) {
-  const float s = -lambda * tau;
-  if (s == 0) return;
-  const Point& p = points_[i];
-  const Mass& m = masses_[i];
-  if (m.invMassA > 0) move(bodies[size_t(c.a)], p.n * (-m.invMassA * s), m.angMassA * s);
-  if (m.invMassB > 0) move(bodies[size_t(c.b)], p.n * (m.invMassB * s), m.angMassB * s);
-}
-
 bool Impacts::collide(size_t k, std::vector<SolverBody>& bodies, float h, float threshold,
                       bool ahead) {
   const Contact& c = contacts_[k];
@@ -95,8 +92,7 @@ bool Impacts::collide(size_t k, std::vector<SolverBody>& bodies, float h, float 
   // bodies accelerate towards each other along the normal at g (gravity against the ground).
   const SolverBody& A = bodies[size_t(c.a)];
   const SolverBody& B = bodies[size_t(c.b)];
-  const float an = dot(points_[c.first].n, B.linearAccel - A.linearAccel);
-  const float offset = ahead ? an * h : 0.0f, g = std::max(0.0f, -an);
+  const float offset = ahead ? c.accel * h : 0.0f, g = std::max(0.0f, -c.accel);
   const Vec3 relative = B.v - A.v;
   int n = 0;
   for (uint32_t i = c.first; i < c.first + c.count && n < int(kMax); ++i) {
@@ -136,15 +132,20 @@ bool Impacts::collide(size_t k, std::vector<SolverBody>& bodies, float h, float 
     lambda[0] = masses_[active[0]].effMass * (target[0] - vn0[0]);
     applyImpulse(c, active[0], lambda[0], bodies);
   } else {
-    // Several points of one contact: their impulses together, projected Gauss-Seidel.
+    // Several points of one contact: their impulses together, projected Gauss-Seidel,
+    // until a pass changes no impulse by more than a millionth of the largest.
     for (int pass = 0; pass < kManifoldPasses; ++pass) {
+      float change = 0, largest = 0;
       for (int j = 0; j < n; ++j) {
         const uint32_t i = active[j];
         const float vn = velocity(c, points_[i], bodies) + offset;
         const float next = std::max(lambda[j] + masses_[i].effMass * (target[j] - vn), 0.0f);
         applyImpulse(c, i, next - lambda[j], bodies);
+        change = std::max(change, std::fabs(next - lambda[j]));
+        largest = std::max(largest, next);
         lambda[j] = next;
       }
+      if (change <= 1e-6f * largest) break;
     }
     // dKE = lambda . (vn0 + vn1) / 2 exactly (the impulses' work). Met exactly, the targets
     // would give sum lambda_i (vn0_i + target_i) / 2: <= 0 but for the integrator's gravity
@@ -164,12 +165,22 @@ bool Impacts::collide(size_t k, std::vector<SolverBody>& bodies, float h, float 
       }
     }
   }
-  // At the time of impact: positions shifted, clocks advanced.
+  // At the time of impact: positions shifted (each point's impulse as if applied at its
+  // tau: -lambda tau M^-1 J^T, summed over the points), clocks advanced.
   float latest = 0;
+  Vec3 dxA, dthetaA, dxB, dthetaB;
   for (int j = 0; j < n; ++j) {
-    shift(c, active[j], lambda[j], tau[j], bodies);
+    const float s = -lambda[j] * tau[j];
+    const Point& p = points_[active[j]];
+    const Mass& m = masses_[active[j]];
+    dxA += p.n * (-m.invMassA * s);
+    dthetaA += m.angMassA * s;
+    dxB += p.n * (m.invMassB * s);
+    dthetaB += m.angMassB * s;
     latest = std::max(latest, tau[j]);
   }
+  if (A.invMass > 0) move(bodies[size_t(c.a)], dxA, dthetaA);
+  if (B.invMass > 0) move(bodies[size_t(c.b)], dxB, dthetaB);
   for (int32_t b : {c.a, c.b}) {
     if (b == 0 || !(bodies[size_t(b)].invMass > 0) || clock_[size_t(b)] >= latest) continue;
     if (clock_[size_t(b)] == 0) clocked_.push_back(b);
@@ -206,6 +217,8 @@ int Impacts::resolve(std::vector<SolverBody>& bodies, float h, float threshold, 
       const Contact& c = contacts_[k];
       if (sweep > 0 && stamp_[size_t(c.a)] + 1 < sweep_ && stamp_[size_t(c.b)] + 1 < sweep_)
         continue;
+      // Most contacts rest: the bound on their points' normal velocities rules them out.
+      if (!mayApproach(c, bodies, ahead ? c.accel * h : 0.0f, threshold)) continue;
       now += collide(k, bodies, h, threshold, ahead);
     }
     collisions += now;

@@ -91,20 +91,31 @@ class Impacts {
     Vec3 angMassA, angMassB;
     float invMassA, invMassB, effMass, restitution;
   };
-  /// A contact: its two solver bodies and its points.
+  /// A contact: its two solver bodies, its points, and what rules most resting contacts
+  /// out at once: the normal, and the longest lever arm of its points on each body (|angA|,
+  /// |angB|), so that no point's normal velocity is below n . (vB - vA) - armA |wA| -
+  /// armB |wB|.
   struct Contact {
     int32_t a, b;
     uint32_t first, count;
+    Vec3 n;
+    float armA, armB;
+    float accel;  ///< n . (aB - aA): the bodies' constant accelerations along the normal
   };
+  /// Whether some point of contact c may approach faster than the threshold (the bound).
+  bool mayApproach(const Contact& c, const std::vector<SolverBody>& bodies, float offset,
+                   float threshold) const {
+    const SolverBody& A = bodies[size_t(c.a)];
+    const SolverBody& B = bodies[size_t(c.b)];
+    return dot(c.n, B.v - A.v) + offset - c.armA * length(A.w) - c.armB * length(B.w) <
+           -threshold;
+  }
   float velocity(const Contact& c, const Point& p, const std::vector<SolverBody>& bodies) const;
   float gap(const Contact& c, const Point& p, const std::vector<SolverBody>& bodies) const;
   /// Resolves contact k if any of its points approaches: true when it did.
   bool collide(size_t k, std::vector<SolverBody>& bodies, float h, float threshold, bool ahead);
   /// Applies an impulse at point i of contact c and records the velocity changes.
   void applyImpulse(const Contact& c, uint32_t i, float impulse, std::vector<SolverBody>& bodies);
-  /// Moves the bodies as impulse `lambda` at point i applied `tau` into the substep would have.
-  void shift(const Contact& c, uint32_t i, float lambda, float tau,
-             std::vector<SolverBody>& bodies);
   std::vector<Contact> contacts_;
   std::vector<Point> points_;
   std::vector<Mass> masses_;
