@@ -25,8 +25,13 @@ void Impacts::add(int32_t a, int32_t b, Vec3 normal, const Vec3* rA, const Vec3*
   if (count <= 0) return;
   const SolverBody& A = bodies[size_t(a)];
   const SolverBody& B = bodies[size_t(b)];
-  Contact c{a, b, uint32_t(points_.size()), uint32_t(count), normal, 0, 0,
-            dot(normal, B.linearAccel - A.linearAccel)};
+  Contact c;
+  c.a = a;
+  c.b = b;
+  c.first = uint32_t(points_.size());
+  c.count = uint32_t(count);
+  c.n = normal;
+  c.accel = dot(normal, B.linearAccel - A.linearAccel);
   for (int k = 0; k < count; ++k) {
     Point p;
     p.n = normal;

@@ -96,19 +96,19 @@ class Impacts {
   /// |angB|), so that no point's normal velocity is below n . (vB - vA) - armA |wA| -
   /// armB |wB|.
   struct Contact {
-    int32_t a, b;
-    uint32_t first, count;
+    int32_t a = 0, b = 0;
+    uint32_t first = 0, count = 0;
     Vec3 n;
-    float armA, armB;
-    float accel;  ///< n . (aB - aA): the bodies' constant accelerations along the normal
+    float armA = 0, armB = 0;
+    float accel = 0;  ///< n . (aB - aA): the bodies' constant accelerations along the normal
   };
   /// Whether some point of contact c may approach faster than the threshold (the bound).
   bool mayApproach(const Contact& c, const std::vector<SolverBody>& bodies, float offset,
                    float threshold) const {
     const SolverBody& A = bodies[size_t(c.a)];
     const SolverBody& B = bodies[size_t(c.b)];
-    return dot(c.n, B.v - A.v) + offset - c.armA * length(A.w) - c.armB * length(B.w) <
-           -threshold;
+    const float bound = dot(c.n, B.v - A.v) + offset - c.armA * length(A.w) - c.armB * length(B.w);
+    return bound < -threshold;
   }
   float velocity(const Contact& c, const Point& p, const std::vector<SolverBody>& bodies) const;
   float gap(const Contact& c, const Point& p, const std::vector<SolverBody>& bodies) const;
@@ -119,7 +119,7 @@ class Impacts {
   std::vector<Contact> contacts_;
   std::vector<Point> points_;
   std::vector<Mass> masses_;
-  std::vector<float> clock_;     ///< per solver body: when its current velocity began
+  std::vector<float> clock_;      ///< per solver body: when its current velocity began
   std::vector<int32_t> clocked_;  ///< the bodies whose clock_ is not 0
   std::vector<Velocity> change_;  ///< per solver body: the velocity changes since clear()
   std::vector<uint32_t> stamp_;   ///< per solver body: the sweep that last changed it

@@ -309,7 +309,8 @@ void makeElasticRows(Rng& r, Scene* sc) {
       sc->world.gravity = {};
       const int n = r.range(2, 8);
       const bool spheres = r.range(0, 2) > 0, both = r.range(0, 2) == 0;
-      for (int i = 0; i < n; ++i) body("free_row/" + std::to_string(i), {2 * size * float(i), 0, 5}, spheres);
+      for (int i = 0; i < n; ++i)
+        body("free_row/" + std::to_string(i), {2 * size * float(i), 0, 5}, spheres);
       const int first = body("striker/0", {-2 * size - r.uniform(0.05f, 0.5f), 0, 5}, spheres);
       sc->bodies[size_t(first)].linearVelocity = {r.uniform(2, 12), 0, 0};
       if (both) {
@@ -326,8 +327,8 @@ void makeElasticRows(Rng& r, Scene* sc) {
         for (int k = 0; k <= row; ++k)
           body("rack/" + std::to_string(row) + "/" + std::to_string(k),
                {dx * float(row), size * float(2 * k - row), size}, true);
-      const int cue = body("cue", {-2 * size - r.uniform(0.1f, 1.0f), r.uniform(-0.3f, 0.3f) * size, size},
-                           true);
+      const int cue = body(
+          "cue", {-2 * size - r.uniform(0.1f, 1.0f), r.uniform(-0.3f, 0.3f) * size, size}, true);
       sc->bodies[size_t(cue)].linearVelocity = {r.uniform(2, 12), 0, 0};
       break;
     }
