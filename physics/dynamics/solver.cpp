@@ -349,20 +349,7 @@ void Solver::warmStartGroup(const Group& g, Velocity& A, Velocity& B) {
   size_t begin, end;
   groupRows(*this, g, &begin, &end);
   for (size_t i = begin; i < end; ++i) {
-    Row& r = rows[i];
-    // The approach speed for restitution: the fastest seen at the start of any substep
-    // (before impulses). While still apart (gap C > 0), the speed at the moment of contact
-    // is extrapolated ballistically, vn^2 + 2 |a_n| C, with the bodies' constant
-    // accelerations: otherwise the substep before impact, which brakes the body to land
-    // exactly on the surface, hides up to one substep of gravity from the bounce.
-    if (r.kind == RowKind::ContactNormal) {
-      float vn = rowVelocity(r, A, B);
-      float C = rowError(r);
-      float an = dot(r.linA, bodies[size_t(r.a)].linearAccel) +
-                 dot(r.linB, bodies[size_t(r.b)].linearAccel);
-      if (vn < 0 && C > 0 && an < 0) vn = -std::sqrt(vn * vn - 2 * an * C);
-      r.relativeVelocity = std::min(r.relativeVelocity, vn);
-    }
+    const Row& r = rows[i];
     if (r.lambda != 0) applyImpulse(r, r.lambda, A, B);
   }
 }
@@ -900,35 +887,6 @@ float Solver::pushoutGroup(const Group& g, Velocity& A, Velocity& B, const Itera
     if (impulse != 0) applyImpulse(r, impulse, A, B);
   }
   return 0;
-}
-
-void Solver::applyRestitution(float threshold) {
-  forEachScheduled(
-      [&](const Group& g, Velocity& A, Velocity& B) {
-        restitutionGroup(g, threshold, A, B);
-        return 0.0f;
-      },
-      [&](uint32_t block) {
-        wide->restitution(block, bodies, threshold);
-        return 0.0f;
-      });
-}
-
-void Solver::restitutionGroup(const Group& g, float threshold, Velocity& A, Velocity& B) {
-  size_t begin, end;
-  groupRows(*this, g, &begin, &end);
-  for (size_t i = begin; i < end; ++i) {
-    Row& r = rows[i];
-    if (r.kind != RowKind::ContactNormal || r.restitution == 0) continue;
-    if (r.relativeVelocity > -threshold || r.maxLambda == 0) continue;
-    float vn = rowVelocity(r, A, B);
-    float impulse = -r.effMass * (vn + r.restitution * r.relativeVelocity);
-    float next = std::max(r.lambda + impulse, 0.0f);
-    impulse = next - r.lambda;
-    r.lambda = next;
-    r.maxLambda = std::max(r.maxLambda, next);
-    if (impulse != 0) applyImpulse(r, impulse, A, B);
-  }
 }
 
 double Solver::velocityResidual(float h) const {

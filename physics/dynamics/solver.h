@@ -73,8 +73,7 @@ struct Row {
   /// Patch friction and twist rows: the manifold's normal rows from `parent` whose impulses
   /// bound it (0: the parent alone).
   uint8_t patchPoints = 0;
-  float restitution = 0;              ///< normal rows
-  float relativeVelocity = 0;         ///< normal rows: J v before the solve
+  float restitution = 0;              ///< normal rows (the collision phase's, impacts.h)
   float maxLambda = 0;                ///< normal rows: largest impulse in the step
   float pushLambda = 0;               ///< normal rows: split push-out impulse, this substep
   float hertz = 0, dampingRatio = 0;  ///< spring rows
@@ -104,7 +103,6 @@ struct SolverManifold {
   float friction = 0, restitution = 0;
   Vec3 rA[4], rB[4];               ///< contact points relative to the bodies' centres of mass
   float separation[4] = {};        ///< C0 of the normal rows (m, negative when overlapping)
-  float relativeVelocity[4] = {};  ///< normal approach speed at the step's start
   /// In: the warm start (zero without). Out (WideContacts::store): the step's impulses.
   float normalImpulse[4] = {}, tangentImpulse[4][2] = {};
   /// Patch friction (SolverSettings::patchFriction): the tangent rows act at the points'
@@ -161,8 +159,8 @@ class Solver {
   bool jacobi() const { return scheme == SolverSettings::Scheme::Jacobi; }
   ThreadPool* pool = nullptr;  ///< parallel loops (colors, Jacobi, bodies); null: serial
   /// The Gauss-Seidel scheme's vectorized contacts (solver_wide.h), owned by the World. While
-  /// active, warmStart, solveIteration and applyRestitution run its schedule and the contact
-  /// rows' impulses live in its blocks until WideContacts::store. Null: rows only.
+  /// active, warmStart and solveIteration run its schedule and the contact rows' impulses
+  /// live in its blocks until WideContacts::store. Null: rows only.
   WideContacts* wide = nullptr;
   std::vector<float> split;     ///< per body: constraints sharing its mass (Jacobi), else 1
   std::vector<Mat3> blockInvK;  ///< inverse of J M^-1 J^T per row block (2x2 padded to 3x3)
@@ -197,7 +195,7 @@ class Solver {
 
   /// One substep's stages. h is the substep length.
   void integrateVelocities(float h, float maxLinearSpeed, float maxAngularSpeed);
-  /// Applies last impulses again; also records contacts' approach speed for restitution.
+  /// Applies last impulses again.
   void warmStart();
   /// One iteration over every solve unit. useBias=false is the relax pass. skipEquality
   /// leaves the joints' equality rows to a direct solve (EqualityLdl). Returns the largest
@@ -224,7 +222,6 @@ class Solver {
   void solvePushout(const SolverSettings& s, float h, int iterations, EqualityLdl* ldl = nullptr);
   /// Advances positions by the velocities (plus the push-out velocities when split).
   void integratePositions(float h);
-  void applyRestitution(float threshold);
   /// Norm of the rows' velocity error after the solve (see SOLVER_NOTES "Residual").
   double velocityResidual(float h) const;
 
@@ -276,7 +273,6 @@ class Solver {
   bool solveContactBlock(size_t first, const IterationParams& p, Velocity& A, Velocity& B,
                          float* change);
   void warmStartGroup(const Group& g, Velocity& A, Velocity& B);
-  void restitutionGroup(const Group& g, float threshold, Velocity& A, Velocity& B);
   void assignColors();
   void finishBlocks(size_t first, size_t last);
   template <class F>

@@ -224,10 +224,6 @@ void WideContacts::addLane(uint32_t block, const Solver& s, uint32_t index,
     }
     row(p.n, m.rA[k], m.rB[k], 0, m.normalImpulse[k]);
     p.C0[l] = m.separation[k];
-    p.maxLambda[l] = 0;
-    p.relativeVelocity[l] = m.relativeVelocity[k];
-    p.restitution[l] = m.restitution;
-    p.accelN[l] = dot(-m.normal, A.linearAccel) + dot(m.normal, B.linearAccel);
   }
 }
 
@@ -552,17 +548,14 @@ PHYS_WIDE_CLONES void WideContacts::warmStart(uint32_t block, std::vector<Solver
   gatherVelocities(bodies, blk.a, blk.b, s);
   V3 dpA, dtA, dpB, dtB;
   gatherDeltas(bodies, blk.a, blk.b, dpA, dtA, dpB, dtB);
-  // Solver::warmStartGroup: normal rows (recording the approach speed), then friction pairs.
+  // Solver::warmStartGroup: normal rows (their position errors at this substep's deltas,
+  // for the iterations), then friction pairs.
   for (int k = 0; k < blk.points; ++k) {
     Point& p = blk.pt[k];
     Dir& r = p.n;
-    vf vn = rowVelocity(blk.linA[0], blk.linB[0], r.angA, r.angB, s);
     const vf C =
         p.C0 + dot(blk.linA[0], dpA) + dot(r.angA, dtA) + dot(blk.linB[0], dpB) + dot(r.angB, dtB);
     p.C = C;
-    const vm apart = (vn < 0) & (C > 0) & (p.accelN < 0);
-    vn = select(apart, -vsqrt(vn * vn - 2.0f * p.accelN * C), vn);
-    p.relativeVelocity = vmin(p.relativeVelocity, vn);
     applyImpulse(r.lambda != 0, blk.mLinA[0], blk.mLinB[0], r.mAngA, r.mAngB, r.lambda, s);
   }
   if (patch_) {
@@ -622,7 +615,6 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
     const vf next = vmax(r.lambda + impulse, splat(0));
     impulse = next - r.lambda;
     r.lambda = next;
-    p.maxLambda = vmax(p.maxLambda, next);
     const vm moved = impulse != 0;
     applyImpulse(moved, blk.mLinA[0], blk.mLinB[0], r.mAngA, r.mAngB, impulse, s);
     if (prm.measure)
@@ -659,38 +651,6 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
   float m = 0;
   for (int l = 0; l < kLanes; ++l) m = std::max(m, change[l]);
   return m;
-}
-
-PHYS_WIDE_CLONES void WideContacts::restitution(uint32_t block, std::vector<SolverBody>& bodies,
-                                                float threshold) {
-  Block& blk = blocks_[block];
-  // Solver::restitutionGroup: normal rows that approached fast and carried an impulse. Most
-  // blocks have none (resting contacts): they are left without touching their bodies.
-  vm bounces[Manifold::kMaxPoints];
-  vm any = vm{} != vm{};
-  for (int k = 0; k < blk.points; ++k) {
-    const Point& p = blk.pt[k];
-    bounces[k] = (p.restitution != 0) & ~(p.relativeVelocity > -threshold) & (p.maxLambda != 0);
-    any |= bounces[k];
-  }
-  bool none = true;
-  for (int l = 0; l < kLanes; ++l) none = none && any[l] == 0;
-  if (none) return;
-  Lanes s;
-  gatherVelocities(bodies, blk.a, blk.b, s);
-  for (int k = 0; k < blk.points; ++k) {
-    Point& p = blk.pt[k];
-    Dir& r = p.n;
-    const vm bounce = bounces[k];
-    const vf vn = rowVelocity(blk.linA[0], blk.linB[0], r.angA, r.angB, s);
-    vf impulse = -r.effMass * (vn + p.restitution * p.relativeVelocity);
-    const vf next = vmax(r.lambda + impulse, splat(0));
-    impulse = next - r.lambda;
-    r.lambda = select(bounce, next, r.lambda);
-    p.maxLambda = select(bounce, vmax(p.maxLambda, next), p.maxLambda);
-    applyImpulse(bounce & (impulse != 0), blk.mLinA[0], blk.mLinB[0], r.mAngA, r.mAngB, impulse, s);
-  }
-  scatterVelocities(bodies, blk.a, blk.b, blk.writeA, blk.writeB, s);
 }
 
 }  // namespace phys

@@ -94,7 +94,6 @@ class WideContacts {
   void warmStart(uint32_t block, std::vector<SolverBody>& bodies);
   /// One Gauss-Seidel pass over a block; returns the largest velocity change (p.measure).
   float solve(uint32_t block, std::vector<SolverBody>& bodies, const WideParams& p);
-  void restitution(uint32_t block, std::vector<SolverBody>& bodies, float threshold);
 
   size_t blockCount() const { return blockCount_; }
   size_t laneCount() const;
@@ -109,10 +108,8 @@ class WideContacts {
   };
   struct Point {
     Dir n;
-    wide::vf C0, maxLambda, relativeVelocity;  ///< the normal row's
-    wide::vf C;  ///< position error at this substep's deltas (set by warmStart)
-    wide::vf restitution;
-    wide::vf accelN;  ///< the bodies' constant accelerations along the normal (warm start)
+    wide::vf C0;  ///< the normal row's
+    wide::vf C;   ///< position error at this substep's deltas (set by warmStart)
   };
   /// A point's friction pair (without patch friction).
   struct PointFriction {

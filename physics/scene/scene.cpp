@@ -674,6 +674,8 @@ const std::vector<MetricInfo>& metricTable() {
       {"free_flight.angular_momentum_drift", false, false, {"flight_spinner"}},
       {"windmill.speed_error", false, false, {"windmill_rotor"}},
       {"bridge.cars_arrived", false, false, {"bridge_car"}, {"finish_x"}},
+      {"cradle.last_speed_ratio", false, false, {"cradle_ball"}},
+      {"cradle.others_speed_ratio_max", false, false, {"cradle_ball"}},
   };
   return table;
 }

@@ -6,10 +6,15 @@
 //   flight_spinner        free_flight.angular_momentum_drift (relative)
 //   windmill_rotor        windmill.speed_error (relative, while the rotor touches nothing)
 //   bridge_car            bridge.cars_arrived (count of chassis past metrics.params.finish_x)
+//   cradle_ball           cradle.last_speed_ratio, cradle.others_speed_ratio_max (a row of
+//                         balls in order, the striker first: their fastest speeds over the
+//                         0.1 s from the first impact, when the striker has lost a fifth of
+//                         its speed, relative to the striker's fastest speed before it)
 #include "scene_metrics.h"
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 
 namespace phys {
 
@@ -259,6 +264,41 @@ class BridgeHook : public SceneMetricHook {
   int arrived_ = 0;
 };
 
+class CradleHook : public SceneMetricHook {
+ public:
+  explicit CradleHook(std::vector<BodyId> balls) : balls_(std::move(balls)) {}
+  void afterStep(const World& w) override {
+    std::vector<double> speed;
+    for (BodyId b : balls_) {
+      const double v = norm(d(state(w, b).linearVelocity));
+      speed.push_back(std::isfinite(v) ? v : 1e30);
+    }
+    if (!impactTime_) {
+      // The first impact: the striker, which gathers speed until it strikes (a pendulum
+      // released above the row), loses a fifth of its fastest speed so far.
+      if (!(strikerMax_ > 0.1 && speed[0] < 0.8 * strikerMax_)) {
+        strikerMax_ = std::max(strikerMax_, speed[0]);
+        return;
+      }
+      impactTime_ = w.time();
+    }
+    if (w.time() > *impactTime_ + kWindow) return;
+    lastMax_ = std::max(lastMax_, speed.back());
+    for (size_t i = 0; i + 1 < speed.size(); ++i) othersMax_ = std::max(othersMax_, speed[i]);
+  }
+  void summarize(std::map<std::string, double>* out) const override {
+    if (!impactTime_) return;
+    (*out)["cradle.last_speed_ratio"] = lastMax_ / strikerMax_;
+    (*out)["cradle.others_speed_ratio_max"] = othersMax_ / strikerMax_;
+  }
+
+ private:
+  static constexpr double kWindow = 0.1;  ///< s after the first impact
+  std::vector<BodyId> balls_;
+  std::optional<double> impactTime_;
+  double strikerMax_ = 0, lastMax_ = 0, othersMax_ = 0;
+};
+
 class Combined : public SceneMetricHook {
  public:
   std::vector<std::unique_ptr<SceneMetricHook>> hooks;
@@ -300,6 +340,8 @@ std::unique_ptr<SceneMetricHook> makeSceneMetricHook(const Scene& scene, const W
   auto finish = scene.metrics.params.find("finish_x");
   if (!cars.empty() && finish != scene.metrics.params.end())
     all->hooks.push_back(std::make_unique<BridgeHook>(cars, finish->second));
+  std::vector<BodyId> cradle = group("cradle_ball");
+  if (cradle.size() >= 2) all->hooks.push_back(std::make_unique<CradleHook>(cradle));
   if (all->hooks.empty()) return nullptr;
   return all;
 }

@@ -1,5 +1,5 @@
 // Scene-specific metrics (friction ramp, restitution, tunnelling, free flight, windmill,
-// bridge). Each hook watches the bodies of the groups its scene declares in "metrics.groups".
+// bridge, Newton's cradle). Each hook watches the bodies of the groups its scene declares in "metrics.groups".
 #pragma once
 
 #include <map>

@@ -12,6 +12,7 @@
 
 #include "phys/collision/broadphase.h"
 #include "phys/world/world.h"
+#include "dynamics/impacts.h"
 #include "dynamics/solver.h"
 #include "dynamics/solver_contact_direct.h"
 #include "dynamics/solver_ldl.h"
@@ -170,6 +171,8 @@ struct World::Impl {
   EqualityLdl ldl;  ///< the joints' direct solve (equality = direct_ldl)
   /// The contact normal rows of mass-ratio islands, solved directly (directContactRatio).
   DirectContacts directContacts;
+  /// The elastic contacts' normal rows for restitution's collision phase (impacts.h).
+  Impacts impacts;
   /// Per entry of contactOrder: the mass-ratio island whose direct solve takes its normal
   /// rows (a solver body index, the island's root), or -1.
   std::vector<int32_t> directIsland;
@@ -289,10 +292,11 @@ struct World::Impl {
   /// directContactRatio times lighter or heavier, small enough for the direct solve, and
   /// fills directIsland. Returns whether there are any.
   bool findDirectContactIslands(const SolverSettings& s);
-  /// After the restitution pass: in each island of touching bodies whose velocities the pass
-  /// changed (`before`: the solver bodies' velocities before it), scales the pass's velocity
-  /// changes down, where needed, so that the island's kinetic energy ends no higher than at
-  /// the step's start plus the work its forces did over the step. Returns the islands scaled.
+  /// At the end of a step with collisions (impacts.h): in each island of touching bodies
+  /// whose velocities the collisions changed (`before`: the solver bodies' velocities less
+  /// those changes), scales the changes down, where needed, so that the island's kinetic
+  /// energy ends no higher than at the step's start plus the work its forces did over the
+  /// step. Returns the islands scaled.
   int limitRestitutionEnergy(const std::vector<Velocity>& before);
   std::vector<Velocity> beforeRestitution;
   void buildSolverBodies(const SolverSettings& s);  ///< s: this step's (substeps may differ)

@@ -148,6 +148,8 @@ MainMetric mainMetricFor(const std::string& scene) {
   if (scene == "tunnelling") return {"tunnelling.passed_through", "spheres"};
   if (scene == "windmill") return {"windmill.speed_error", "relative"};
   if (scene == "free_flight") return {"free_flight.angular_momentum_drift", "relative"};
+  if (scene == "newtons_cradle")
+    return {"cradle.last_speed_ratio", "of the striker's speed, target 1"};
   // box_stack, overlap, default and any new scene: how far contacts stay apart once settled.
   return {"penetration_settled_max", "m"};
 }
