@@ -76,6 +76,44 @@ if [ "$quick" = 1 ]; then
   test_filter=(--gtest_filter='GpuSleep.*')
 fi
 
+# The driver's manifest. On some hosts it names its library without a path
+# (libGLX_nvidia.so.0) and the loader does not find it: vkCreateInstance fails (-9) and
+# physbench would measure the CPU. So probe the plain manifest with one short step that must
+# run on a device; if that fails, write a manifest naming the library by its full path and
+# use that one. Which manifest was used is printed (and kept in the summary).
+# (A short run fails the scene's criteria: exit 1 is fine, "FAILED: --require-device" not.)
+probe() {
+  timeout 60 "$bin/tools/physbench" --scene configs/scenes/restitution.json --backend gpu \
+    --require-device --seconds 0.02 >"$out/probe_$1.txt" 2>&1
+  [ $? -le 1 ] && ! grep -q 'FAILED: --require-device' "$out/probe_$1.txt"
+}
+if [ "$quick" = 0 ] && [ -n "${VK_DRIVER_FILES:-}" ] && ! probe plain; then
+  lib=$(sed -n 's/.*"library_path" *: *"\([^"]*\)".*/\1/p' "$VK_DRIVER_FILES" | head -1)
+  full=$lib
+  if [ -n "$lib" ] && [ "${lib#/}" = "$lib" ]; then
+    full=""
+    for d in /usr/local/nvidia/lib64 /usr/local/nvidia/lib /usr/lib/x86_64-linux-gnu; do
+      [ -e "$d/$lib" ] && { full=$d/$lib; break; }
+    done
+    [ -n "$full" ] || full=$(ldconfig -p | awk -v l="$lib" '$1 == l { print $NF; exit }')
+  fi
+  if [ -n "$full" ]; then
+    printf '{"file_format_version":"1.0.0","ICD":{"library_path":"%s","api_version":"1.3.0"}}\n' \
+      "$full" >"$root/nvidia_icd_full_path.json"
+    export VK_DRIVER_FILES=$root/nvidia_icd_full_path.json
+    if probe full_path; then
+      echo "manifest: the plain one failed ($(tail -1 "$out/probe_plain.txt")); using $VK_DRIVER_FILES ($full)"
+    else
+      echo "manifest: neither the plain one nor one naming $full gives a device:"
+      tail -3 "$out/probe_full_path.txt"
+    fi
+  else
+    echo "manifest: the plain one failed and its library ($lib) was not found"
+  fi
+else
+  echo "manifest: ${VK_DRIVER_FILES:-none set, the default search} (a step ran on the device, or --quick)"
+fi
+
 stamp "2. tools/gpu_bench.sh (tjsoft, then soft_step)"
 timeout 230 tools/gpu_bench.sh --no-build --build-dir "$bin" --seconds "$seconds" \
   --scenes "$scale_scenes" --timeout "$bench_limit" --out "$out/bench_tjsoft" \
