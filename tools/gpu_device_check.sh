@@ -22,7 +22,8 @@
 #      ratio of the two, side by side on one machine;
 #   4. tools/device_scenes.sh: the scenes at full length, judged against the CPU backend
 #      (criteria and the largest position difference: parity);
-#   5. the GPU test binary (parity and determinism tests written for lavapipe).
+#   5. the GPU test binary (parity and determinism tests written for lavapipe);
+#   6. the seed paper's Table 2: box_stack and overlap at full length with its five solvers.
 # Every part's whole output goes to ROOT/all.tgz (ROOT: the device tool's $OUT by default); a
 # summary is printed as it goes (and kept in ROOT/summary.txt). Every part has a time limit (in
 # all about 10 minutes at the most, 5 to 6 expected on an H100). --quick runs every part on
@@ -38,7 +39,7 @@ while [ $# -gt 0 ]; do
     --bin) bin=$2; shift 2 ;;
     --out) root=$2; shift 2 ;;
     --quick) quick=1; shift ;;
-    -h|--help) sed -n '2,27p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,30p' "$0"; exit 0 ;;
     *) echo "gpu_device_check.sh: unknown argument $1" >&2; exit 2 ;;
   esac
 done
@@ -144,6 +145,26 @@ stamp "5. the GPU tests"
 timeout 90 "$bin/phys_gpu_tests" --gtest_brief=1 "${test_filter[@]}" >"$out/gpu_tests.txt" 2>&1
 echo "exit $?"
 grep -E "^\[  (FAILED|PASSED) |^\[==========\]|Failure|Expected|Which is" "$out/gpu_tests.txt" | head -40
+
+stamp "6. the seed paper's Table 2: box_stack and overlap, the five Jacobi solvers, full length"
+# The paper's figures (ms/step on its GPU): box stack 7.09 / 54.83 / 7.65 / 10.34 / 10.50,
+# overlap 6.80 / 45.28 / 6.42 / 8.92 / 7.83 for PJ / PJNJ / PJSoft / TJ / TJSoft.
+table2_seconds=()
+[ "$quick" = 1 ] && table2_seconds=(--seconds 0.05)
+echo "| scene | preset | result | ms/step median | p99 |"
+echo "|---|---|---|---|---|"
+for scene in box_stack overlap; do
+  for preset in pj pjnj pjsoft tj tjsoft; do
+    f="$out/table2_${scene}_$preset.txt"
+    timeout 40 "$bin/tools/physbench" --scene "configs/scenes/$scene.json" --preset "$preset" \
+      --backend gpu --require-device "${table2_seconds[@]}" >"$f" 2>&1
+    rc=$?
+    result=$(tail -1 "$f")
+    [ "$rc" = 124 ] && result="timed out (40 s)"
+    timing=$(sed -n 's/.*ms\/step median \([^ ]*\) *p99 \([^ ]*\).*/\1 | \2/p' "$f" | head -1)
+    echo "| $scene | $preset | $result | ${timing:-- | -} |"
+  done
+done
 
 stamp "done"
 rm -rf "$out"
