@@ -70,7 +70,7 @@ for scene in $scenes; do
   out=$("${limit[@]}" "$bench" --scene "configs/scenes/$scene.json" --preset "$preset" \
     --backend gpu --require-device --seconds "$seconds" "${sleep_arg[@]}" 2>&1) || code=$?
   [ -n "$keep" ] && printf '%s\n' "$out" >"$keep/$scene.txt"
-  grep -E "^scene|ms/step|stages|FAILED: --require|physbench:" <<<"$out" || true
+  grep -E "^scene|ms/step|stages|gpu profile|FAILED: --require|physbench:" <<<"$out" || true
   echo "  wall $(( $(date +%s) - start )) s, exit $code"
   [ "$code" = 124 ] && echo "  STOPPED: over the --timeout" && status=1
   grep -q "FAILED: --require-device" <<<"$out" && status=1

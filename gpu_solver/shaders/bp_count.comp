@@ -1,5 +1,6 @@
 #version 450
-// BroadPhase, 2: how many pairs each sorted position has (broad_phase.glsl).
+// BroadPhase, 2: how many pairs each sorted position has (broad_phase.glsl), and the sweep's
+// candidate tests in all (PHYS_GPU_COUNTER_BP_TESTS).
 #extension GL_GOOGLE_include_directive : require
 #extension GL_ARB_gpu_shader_fp64 : require
 #include "shared.h"
@@ -7,15 +8,20 @@
 #include "broad_phase.glsl"
 layout(local_size_x = PHYS_GPU_GROUP) in;
 layout(std430, binding = 5) writeonly buffer Counts { uint counts[]; };
+layout(std430, binding = 7) buffer Counters { uint counters[]; };
+#include "bp_tests.glsl"
 
 void main() {
   uint p = globalIndex();
-  if (p >= k.shapeSortCount) return;
-  uint s = keys[p].y;
-  uint n = 0u;
-  if (s != 0xFFFFFFFFu) {
+  uint tests = 0u;
+  if (p < k.shapeSortCount) {
+    uint s = keys[p].y;
+    uint n = 0u;
+    if (s != 0xFFFFFFFFu) {
 #define COUNT(t) ++n
-    FOR_EACH_PAIR(p, s, COUNT)
+      FOR_EACH_PAIR(p, s, COUNT)
+    }
+    counts[p] = n;
   }
-  counts[p] = n;
+  addGroupTests(tests, PHYS_GPU_COUNTER_BP_TESTS, PHYS_GPU_COUNTER_BP_TESTS_HI);
 }

@@ -16,6 +16,7 @@ void main() {
   if (p >= k.shapeSortCount) return;
   uint s = keys[p].y;
   uint at = offsets[p];
+  uint tests = 0u;  // counted by bp_count.comp
   if (s != 0xFFFFFFFFu) {
 #define WRITE(t)                                                   \
   {                                                                \

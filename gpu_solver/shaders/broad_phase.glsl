@@ -4,6 +4,8 @@
 // pairs. Each static plane is paired with every shape whose box reaches below it.
 // Both passes enumerate the same pairs in the same order, so the counts of the first are
 // the offsets of the second after a prefix sum: no atomics, a deterministic pair list.
+// The sweep is GpuWorld::BroadPhase::Sweep, kept to measure the tree against (bvh.glsl);
+// the tree's query (bvh_query.glsl) uses the filters below too.
 #ifndef PHYS_GPU_BROAD_PHASE_GLSL
 #define PHYS_GPU_BROAD_PHASE_GLSL
 
@@ -54,13 +56,15 @@ bool belowPlane(uint s, uint plane) {
   return dot(pl.xyz, corner) <= pl.w + 0.5 * k.speculativeDistance;
 }
 
-// Calls PAIR(other) for every pair of the shape at sorted position p, in a fixed order.
+// Calls PAIR(other) for every pair of the shape at sorted position p, in a fixed order;
+// counts the box tests in `tests` (the candidate tests of the GPU profile).
 #define FOR_EACH_PAIR(p, s, PAIR)                                       \
   {                                                                     \
     float hiX = bounds[s].hi[k.sweepAxis];                              \
     for (uint q = p + 1u; q < k.shapeSortCount; ++q) {                  \
       uint t = keys[q].y;                                               \
       if (t == 0xFFFFFFFFu || bounds[t].lo[k.sweepAxis] > hiX) break;   \
+      ++tests;                                                          \
       if (overlaps(s, t) && canCollide(s, t)) PAIR(t);                  \
     }                                                                   \
     for (uint j = 0u; j < k.planeCount; ++j) {                          \

@@ -122,7 +122,26 @@ struct GpuManifold {
 #define PHYS_GPU_COUNTER_POINTS 4u      // contact points
 #define PHYS_GPU_COUNTER_DEEPEST 5u     // the deepest penetration (m), as float bits (>= 0)
 #define PHYS_GPU_COUNTER_COLORS 6u      // colors the coloring used (the overflow not counted)
-#define PHYS_GPU_COUNTER_COUNT 8u
+// The broad phase's candidate tests (box-against-box tests its query made, planes not
+// counted) as a 64-bit count: low word, then high word (bvh_count.comp, bp_count.comp).
+#define PHYS_GPU_COUNTER_BP_TESTS 7u
+#define PHYS_GPU_COUNTER_BP_TESTS_HI 8u
+#define PHYS_GPU_COUNTER_COUNT 12u
+
+// The broad phase's tree (a linear BVH over the non-plane shapes, bvh_build.comp): internal
+// node i of the L - 1; its children are internal nodes or leaves (PHYS_GPU_BVH_LEAF set: the
+// shape at that position of the Morton-sorted keys, whose box is in the leaf array).
+#define PHYS_GPU_BVH_LEAF 0x80000000u
+#define PHYS_GPU_BVH_NONE 0xFFFFFFFFu
+// The query's stack: one entry per level at most, and a Karras tree over 30-bit Morton codes
+// tie-broken by 32-bit positions is at most 63 levels deep.
+#define PHYS_GPU_BVH_STACK 64
+struct GpuBvhNode {
+  vec4 lo;    // xyz: the box of every shape below; w: 1 if a dynamic shape is below, else 0
+  vec4 hi;    // xyz; w: unused
+  uvec4 link; // x, y: the children; z: the last sorted position below (the query skips
+              // subtrees wholly at or before its own); w: unused
+};
 
 // Push constants of the step's stages.
 struct GpuStepConstants {

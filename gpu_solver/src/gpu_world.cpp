@@ -61,7 +61,8 @@ namespace {
 /// (then the device steps only worlds without contacts).
 struct Kernels {
   std::unique_ptr<Kernel> prepareBodies, integrateVelocities, integratePositions, finalize,
-      updateBounds, bpKeys, bpCount, bpWrite, bpPairs, narrowPhase, matchContacts, csrKeys,
+      updateBounds, bpKeys, bpCount, bpWrite, bpPairs, bvhScene, bvhKeys, bvhBuild, bvhFit,
+      bvhCount, bvhWrite, narrowPhase, matchContacts, csrKeys,
       csrRanges, prepareContacts, contactWarmStart, contactSolve, contactRestitution, applyDeltas,
       storeImpulses, contactStats, colorRound, colorKeys, colorRanges, contactGs, positionJacobi,
       applyPositions, prepareJoints, jointJacobi, storeJoints, jointLdl;
@@ -82,6 +83,12 @@ struct Kernels {
     bpCount = make("bp_count", 10, step);
     bpWrite = make("bp_write", 10, step);
     bpPairs = make("bp_pairs", 3, step);
+    bvhScene = make("bvh_scene", 3, step);
+    bvhKeys = make("bvh_keys", 4, step);
+    bvhBuild = make("bvh_build", 7, step);
+    bvhFit = make("bvh_fit", 4, step);
+    bvhCount = make("bvh_count", 12, step);
+    bvhWrite = make("bvh_write", 12, step);
     if (!shaderCode("narrow_phase").empty()) narrowPhase = make("narrow_phase", 7, step);
     matchContacts = make("match_contacts", 3, step);
     csrKeys = make("csr_keys", 6, solve);
@@ -269,6 +276,14 @@ struct GpuWorld::Impl {
   // the manifolds of this step and of the last (warm starts), and the counters.
   Buffer keyBuf, countBuf, pairKeyBuf, pairBuf, counterBuf;
   Buffer manifoldBuf[2];
+  // The tree's (bvh.glsl): the scene's bounds (8 uints), its internal nodes, its leaves' boxes
+  // in sorted order, every node's parent and the fit's visit flags.
+  Buffer sceneBuf, nodeBuf, leafBuf, parentBuf, flagBuf;
+  BroadPhase broadPhase = defaultBroadPhase();
+  static BroadPhase defaultBroadPhase() {
+    const char* e = std::getenv("PHYS_GPU_BROAD_PHASE");
+    return e && std::strcmp(e, "sweep") == 0 ? BroadPhase::Sweep : BroadPhase::Tree;
+  }
   // The contact solver's: rows per manifold, velocity changes per manifold, the bodies'
   // sorted references to their contacts and each body's range in them (and mass split).
   Buffer contactBuf, deltaBuf, refKeyBuf, refBuf;
@@ -300,6 +315,10 @@ struct GpuWorld::Impl {
 
   void sync(Stream& s, const GpuStepConstants& c);
   void recordBroadPhase(Stream& s, const GpuStepConstants& c);
+  /// The sweep's part of the broad phase (BroadPhase::Sweep): keys, sort, counted sweep.
+  void recordSweepQuery(Stream& s, const GpuStepConstants& c);
+  /// The tree's part of the broad phase: keys, sort, build, fit, then the counted query.
+  void recordTreeQuery(Stream& s, const GpuStepConstants& c);
   void recordNarrowPhase(Stream& s, const GpuStepConstants& c);
   void recordPrepareContacts(Stream& s, const GpuSolveConstants& sc);
   /// The joints' rows at the current poses (refresh: a later substep, impulses kept).
@@ -447,6 +466,15 @@ void GpuWorld::Impl::sync(Stream& s, const GpuStepConstants& c) {
   reserve(d, rangeBuf, (PHYS_GPU_MAX_COLORS + 1) * 16);
   reserve(d, argsBuf, (PHYS_GPU_MAX_COLORS + 1) * 12);
   reserve(d, countBuf, VkDeviceSize(c.shapeSortCount) * 4);
+  if (broadPhase == BroadPhase::Tree) {
+    // Sized by the sort's length, a power of two at or above the shapes in the tree.
+    const VkDeviceSize leaves = c.shapeSortCount;
+    reserve(d, sceneBuf, 8 * 4);
+    reserve(d, nodeBuf, leaves * sizeof(GpuBvhNode));
+    reserve(d, leafBuf, leaves * sizeof(GpuAabb));
+    reserve(d, parentBuf, 2 * leaves * 4);
+    reserve(d, flagBuf, (2 * leaves + PHYS_GPU_GROUP) * 4);
+  }
   bool pairsGrown = reserve(d, pairKeyBuf, VkDeviceSize(pairCapacity) * 8);
   pairsGrown |= reserve(d, pairBuf, VkDeviceSize(pairCapacity) * sizeof(GpuPair));
   for (Buffer& m : manifoldBuf)
@@ -503,18 +531,57 @@ void GpuWorld::Impl::recordBroadPhase(Stream& s, const GpuStepConstants& c) {
            4);
   const uint32_t zeros[4] = {0, 0, 0, 0};
   s.upload(counterBuf, PHYS_GPU_COUNTER_CONTACTS * 4, zeros, sizeof zeros);
+  s.upload(counterBuf, PHYS_GPU_COUNTER_BP_TESTS * 4, zeros, 8);
+  if (broadPhase == BroadPhase::Tree) {
+    recordTreeQuery(s, c);
+  } else {
+    recordSweepQuery(s, c);
+  }
+  // Either way the counts are now per sorted position: their prefix sum places each one's
+  // pairs, which are then sorted into the pair list.
+  const Buffer* write[] = {&boundsBuf, &shapeBuf,   &paramBuf,   &keyBuf,   &planeBuf, &countBuf,
+                           &pairKeyBuf, &counterBuf, &ownerBuf, &noCollideBuf, &nodeBuf, &leafBuf};
+  k.primitives.scan(s, countBuf, c.shapeSortCount, scanScratch);
+  s.fill(pairKeyBuf, 0xFFFFFFFFu);  // the unused tail sorts last
+  if (broadPhase == BroadPhase::Tree)
+    s.dispatch(*k.bvhWrite, write, &c, groupsFor(c.shapeSortCount));
+  else
+    s.dispatch(*k.bpWrite, std::span(write).first(10), &c, groupsFor(c.shapeSortCount));
+  k.primitives.sort(s, pairKeyBuf, c.pairCapacity);
+  const Buffer* pairs[] = {&pairKeyBuf, &pairBuf, &counterBuf};
+  s.dispatch(*k.bpPairs, pairs, &c, groupsFor(c.pairCapacity));
+}
+
+void GpuWorld::Impl::recordSweepQuery(Stream& s, const GpuStepConstants& c) {
+  Kernels& k = kernels();
   const Buffer* keys[] = {&boundsBuf, &shapeBuf, &keyBuf};
   s.dispatch(*k.bpKeys, keys, &c, groupsFor(c.shapeSortCount));
   k.primitives.sort(s, keyBuf, c.shapeSortCount);
   const Buffer* sweep[] = {&boundsBuf, &shapeBuf,   &paramBuf,   &keyBuf,   &planeBuf,
                            &countBuf,  &pairKeyBuf, &counterBuf, &ownerBuf, &noCollideBuf};
   s.dispatch(*k.bpCount, sweep, &c, groupsFor(c.shapeSortCount));
-  k.primitives.scan(s, countBuf, c.shapeSortCount, scanScratch);
-  s.fill(pairKeyBuf, 0xFFFFFFFFu);  // the unused tail sorts last
-  s.dispatch(*k.bpWrite, sweep, &c, groupsFor(c.shapeSortCount));
-  k.primitives.sort(s, pairKeyBuf, c.pairCapacity);
-  const Buffer* pairs[] = {&pairKeyBuf, &pairBuf, &counterBuf};
-  s.dispatch(*k.bpPairs, pairs, &c, groupsFor(c.pairCapacity));
+}
+
+void GpuWorld::Impl::recordTreeQuery(Stream& s, const GpuStepConstants& c) {
+  Kernels& k = kernels();
+  const uint32_t leaves = c.shapeCount - c.planeCount;
+  // The scene's bounds, reduced on the device (no readback): the Morton codes' cube.
+  s.fill(sceneBuf, 0xFFFFFFFFu);
+  const Buffer* scene[] = {&boundsBuf, &shapeBuf, &sceneBuf};
+  s.dispatch(*k.bvhScene, scene, &c, groupsFor(c.shapeCount));
+  const Buffer* keys[] = {&boundsBuf, &shapeBuf, &keyBuf, &sceneBuf};
+  s.dispatch(*k.bvhKeys, keys, &c, groupsFor(c.shapeSortCount));
+  k.primitives.sort(s, keyBuf, c.shapeSortCount);
+  // The links of every node at once, then their boxes bottom up.
+  const Buffer* build[] = {&boundsBuf, &shapeBuf, &paramBuf, &keyBuf,
+                           &nodeBuf,   &leafBuf,  &parentBuf};
+  s.dispatch(*k.bvhBuild, build, &c, groupsFor(leaves));
+  s.fill(flagBuf, 0);
+  const Buffer* fit[] = {&nodeBuf, &leafBuf, &parentBuf, &flagBuf};
+  s.dispatch(*k.bvhFit, fit, &c, groupsFor(leaves));
+  const Buffer* count[] = {&boundsBuf,  &shapeBuf,   &paramBuf, &keyBuf,       &planeBuf, &countBuf,
+                           &pairKeyBuf, &counterBuf, &ownerBuf, &noCollideBuf, &nodeBuf,  &leafBuf};
+  s.dispatch(*k.bvhCount, count, &c, groupsFor(c.shapeSortCount));
 }
 
 void GpuWorld::Impl::recordNarrowPhase(Stream& s, const GpuStepConstants& c) {
@@ -688,7 +755,7 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
     c.maxLinearSpeed = in.maxLinearSpeed;
     c.maxAngularSpeed = in.maxAngularSpeed;
     c.speculativeDistance = in.speculativeDistance;
-    if (attempt == 0) w.chooseSweepAxis();
+    if (attempt == 0 && w.broadPhase == BroadPhase::Sweep) w.chooseSweepAxis();
     c.sweepAxis = w.sweepAxis;
     c.bodyCount = n;
     c.shapeCount = m;
@@ -915,8 +982,26 @@ ContactStats GpuWorld::contactStats() const {
   const uint32_t* c = impl_->counters;
   float deepest;
   std::memcpy(&deepest, &c[PHYS_GPU_COUNTER_DEEPEST], 4);
-  return {c[PHYS_GPU_COUNTER_PAIRS], c[PHYS_GPU_COUNTER_CONTACTS], c[PHYS_GPU_COUNTER_POINTS],
-          deepest, c[PHYS_GPU_COUNTER_OVERFLOW]};
+  const uint64_t tests =
+      uint64_t(c[PHYS_GPU_COUNTER_BP_TESTS]) | uint64_t(c[PHYS_GPU_COUNTER_BP_TESTS_HI]) << 32;
+  return {c[PHYS_GPU_COUNTER_PAIRS],
+          c[PHYS_GPU_COUNTER_CONTACTS],
+          c[PHYS_GPU_COUNTER_POINTS],
+          deepest,
+          c[PHYS_GPU_COUNTER_OVERFLOW],
+          tests};
+}
+void GpuWorld::setBroadPhase(BroadPhase method) {
+  if (method == impl_->broadPhase) return;
+  impl_->broadPhase = method;
+  impl_->stepsSinceSweepAxis = ~uint64_t(0);  // the sweep chooses its axis at its first step
+}
+BroadPhase GpuWorld::broadPhase() const {
+  return impl_->broadPhase;
+}
+double GpuWorld::candidateTestsPerShape() const {
+  const size_t shapes = impl_->shapes.size() - impl_->planes.size();
+  return shapes > 0 ? double(contactStats().candidateTests) / double(shapes) : 0.0;
 }
 bool GpuWorld::hasNarrowPhase() const {
   return impl_->kernels().narrowPhase != nullptr;

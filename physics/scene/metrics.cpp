@@ -52,6 +52,8 @@ struct MetricsRecorder::Impl {
   std::vector<std::pair<BodyId, Vec3>> tops;  ///< top bodies and where they started
   std::vector<double> stepMs, settledStepMs;
   std::map<std::string, double> stageSum;
+  double bpTestsSum = 0;  ///< StepStats::broadPhaseTestsPerShape over the device's steps
+  int bpTestsSteps = 0;
   double energyStart = 0, energyEnd = 0;
   std::optional<double> energySettled;  ///< energy at the first step past the settle time
   double jointErrMax = 0, jointErrSq = 0, jointAngMax = 0;
@@ -86,6 +88,10 @@ void MetricsRecorder::afterStep(const World& world) {
   for (const auto& [name, field] : kStages) m.stageSum[name] += p.*field;
 
   const StepStats& st = world.stats();
+  if (st.broadPhaseTestsPerShape > 0) {
+    m.bpTestsSum += st.broadPhaseTestsPerShape;
+    m.bpTestsSteps++;
+  }
   s.energySolveDeltaMax = std::max(s.energySolveDeltaMax, st.energyAfter - st.energyBefore);
   s.velocityResidualMax = std::max(s.velocityResidualMax, st.velocityResidual);
   s.substepsMax = std::max(s.substepsMax, st.substeps);
@@ -155,6 +161,8 @@ MetricsSummary MetricsRecorder::summary() const {
   if (m.scene->metrics.conservesEnergy && m.energyStart != 0)
     s.energyDrift = (m.energyEnd - m.energyStart) / std::fabs(m.energyStart);
   for (const auto& [name, sum] : m.stageSum) s.stageMs[name] = s.steps ? sum / s.steps : 0;
+  if (m.bpTestsSteps > 0)
+    s.gpuProfile["broad_phase_tests_per_shape"] = m.bpTestsSum / m.bpTestsSteps;
   if (m.hook) m.hook->summarize(&s.extra);
   return s;
 }

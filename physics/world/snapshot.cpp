@@ -67,7 +67,7 @@ static_assert(sizeof(SolverSettings) == 88, "SolverSettings changed: update snap
 // WorldDef's backend and gpuAllowCpuDevice are not saved: where a world runs is the
 // restoring process's choice.
 static_assert(sizeof(WorldDef) == 164, "WorldDef changed: update snapshot.cpp");
-static_assert(sizeof(StepStats) == 200, "StepStats changed: update snapshot.cpp");
+static_assert(sizeof(StepStats) == 208, "StepStats changed: update snapshot.cpp");
 static_assert(sizeof(BodyRec) == 352, "BodyRec changed: update snapshot.cpp");
 static_assert(sizeof(ShapeGeom) == 56, "ShapeGeom changed: update snapshot.cpp");
 static_assert(sizeof(ShapeRec) == 112, "ShapeRec changed: update snapshot.cpp");
@@ -503,7 +503,8 @@ void ioStats(Ar& ar, D& s) {
   ar.i32(s.contactPoints);
   ar.i32(s.joints);
   ar.i32(s.pairs);
-  // s.vectorizedManifolds: how the host solved the last step, not the simulation's state.
+  // s.vectorizedManifolds: how the host solved the last step, not the simulation's state;
+  // s.broadPhaseTestsPerShape likewise (how the device found the last step's pairs).
   ar.f64(s.energyBefore);
   ar.f64(s.energyAfter);
   ar.f64(s.velocityResidual);

@@ -747,6 +747,7 @@ void World::Impl::broadPhaseStage() {
   }
   contacts.swap(contactScratch);
   stats.pairs = int(pairs.size());
+  stats.broadPhaseTestsPerShape = 0;  // the device's figure (world_gpu.cpp)
 }
 
 void World::Impl::narrowPhase(float dt) {

@@ -401,6 +401,7 @@ bool World::Impl::stepOnDevice(int substeps) {
       stats.bodies = int(bodies.size());
       stats.awake = 0;
       stats.pairs = stats.contacts = stats.contactPoints = stats.joints = 0;
+      stats.broadPhaseTestsPerShape = 0;
       stats.pairsDropped = 0;
       stats.pairLimit = pairLimit();
       stats.maxPenetration = 0;
@@ -545,6 +546,7 @@ bool World::Impl::stepOnDevice(int substeps) {
   stats.awake = int(awakeBodies.size());
   const gpu::ContactStats cs = g.contactStats();
   stats.pairs = int(cs.pairs);
+  stats.broadPhaseTestsPerShape = g.candidateTestsPerShape();
   stats.pairLimit = in.maxPairs;
   stats.pairsDropped = cs.dropped;
   stats.contacts = int(cs.manifolds);

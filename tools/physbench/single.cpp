@@ -234,6 +234,11 @@ int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResul
   for (const auto& [k, v] : m.stageMs)
     if (v > 0.0005) std::printf(" %s %.3f", k.c_str(), v);
   std::printf("\n");
+  if (!m.gpuProfile.empty()) {
+    std::printf("  gpu profile:");
+    for (const auto& [k, v] : m.gpuProfile) std::printf(" %s %.4g", k.c_str(), v);
+    std::printf("\n");
+  }
   for (const CriterionResult& c : results) {
     std::printf("  [%s] %s = %s (%s)\n", c.passed ? "PASS" : "FAIL", c.name.c_str(),
                 fmtNumber(c.value).c_str(), bounds(c).c_str());
@@ -294,6 +299,11 @@ int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResul
     nlohmann::json stages;
     for (const auto& [k, v] : m.stageMs) stages[k] = v;
     j["stage_ms"] = stages;
+    if (!m.gpuProfile.empty()) {
+      nlohmann::json profile;
+      for (const auto& [k, v] : m.gpuProfile) profile[k] = v;
+      j["gpu_profile"] = profile;
+    }
     std::ofstream f(opt.jsonOut);
     f << j.dump(2) << "\n";
     if (!f) {

@@ -94,6 +94,20 @@ struct ContactStats {
   uint32_t pairs = 0, manifolds = 0, points = 0;
   float deepest = 0;
   uint32_t dropped = 0;  ///< pairs left out for want of room (StepInput::maxPairs)
+  /// Box-against-box tests the broad phase's query made (planes not counted): its work,
+  /// the GPU profile's "candidate tests" (per shape: GpuWorld::candidateTestsPerShape).
+  uint64_t candidateTests = 0;
+};
+
+/// How the device's broad phase finds the candidate pairs; either gives the same sorted pair
+/// list, so the rest of the step is the same bits with both.
+enum class BroadPhase {
+  /// A linear BVH over Morton codes, built and queried on the device every step (the
+  /// default): its cost follows the pairs, not how the bodies lie.
+  Tree,
+  /// Sort and sweep along one axis, chosen on the host from the states: what the tree
+  /// replaced, kept to measure it against. A pile spread on a floor makes it quadratic.
+  Sweep,
 };
 
 class GpuWorld {
@@ -151,7 +165,15 @@ class GpuWorld {
   uint32_t pairCount() const;
   /// The axis (0 x, 1 y, 2 z) the last step's broad phase sorted and swept the bounds on: the
   /// one along which the shapes' bodies spread most, chosen every 16 steps and after setShapes.
+  /// BroadPhase::Sweep only (the tree has no axis).
   uint32_t sweepAxis() const;
+  /// The broad phase's method; the default is Tree, or Sweep when the environment has
+  /// PHYS_GPU_BROAD_PHASE=sweep (benchmarks: physbench runs the same scene with either).
+  void setBroadPhase(BroadPhase method);
+  BroadPhase broadPhase() const;
+  /// The last step's candidate tests (ContactStats::candidateTests) per shape in the broad
+  /// phase's query (the shapes but the planes); 0 when there are none.
+  double candidateTestsPerShape() const;
   /// The last step's contacts: candidate pairs, manifolds with points, points, deepest
   /// penetration (m).
   ContactStats contactStats() const;

@@ -14,6 +14,7 @@ static_assert(sizeof(GpuSolverBody) == 128);
 static_assert(sizeof(GpuShape) == 64 && offsetof(GpuShape, body) == 48);
 static_assert(sizeof(GpuAabb) == 32);
 static_assert(sizeof(GpuPair) == 16);
+static_assert(sizeof(GpuBvhNode) == 48);
 static_assert(sizeof(GpuManifold) == 160 && offsetof(GpuManifold, count) == 96 &&
               offsetof(GpuManifold, normalImpulse) == 112);
 static_assert(sizeof(GpuStepConstants) == 64);

@@ -38,6 +38,10 @@ struct MetricsSummary {
   std::map<std::string, double> extra;
   /// Average ms per step of each stage.
   std::map<std::string, double> stageMs;
+  /// The GPU profile's figures that are not times, averaged over the steps that ran on the
+  /// device: "broad_phase_tests_per_shape" (StepStats::broadPhaseTestsPerShape). Empty
+  /// when no step did.
+  std::map<std::string, double> gpuProfile;
 
   /// Value of a metric by its physbench name, if it applies.
   std::optional<double> value(const std::string& name) const;

@@ -179,6 +179,10 @@ struct StepStats {
   /// joints: the joints it solved; contacts: the contacts it collided (not those of sleeping
   /// islands).
   int bodies = 0, awake = 0, contacts = 0, contactPoints = 0, joints = 0, pairs = 0;
+  /// The GPU backend's broad phase: box tests its query made per shape (planes aside), the
+  /// measure of its work that does not depend on the machine (gpu_world.h, BroadPhase);
+  /// 0 after a CPU step (not measured there).
+  double broadPhaseTestsPerShape = 0;
   /// After the last step: dynamic bodies asleep, islands of awake dynamic bodies (as the
   /// last step found them) and sleeping islands.
   int sleepingBodies = 0, awakeIslands = 0, sleepingIslands = 0;
