@@ -6,6 +6,7 @@
 
 #include <Eigen/Dense>
 #include <cmath>
+#include <cstdio>
 #include <random>
 #include <set>
 #include <vector>
@@ -55,41 +56,111 @@ Eigen::MatrixXd couplingMatrix(const JointLdlPlan& plan, const std::vector<GpuJo
   return A;
 }
 
-/// joint_ldl.comp's factor and solve on the plan's lists, on the host: x = A^-1 b.
+/// L(i, k) D(k) L(j, k) summed over the columns k < j that rows i and j share (their row
+/// patterns, both ascending), as joint_ldl.comp's factor merges them.
+double sharedColumns(const JointLdlPlan& plan, const std::vector<double>& values,
+                     const std::vector<double>& diagonal, uint32_t i, uint32_t j) {
+  double sum = 0;
+  uint32_t a = plan.rows[i].patternBegin, b = plan.rows[j].patternBegin;
+  const uint32_t aEnd = plan.rows[i].patternEnd, bEnd = plan.rows[j].patternEnd;
+  while (a < aEnd && b < bEnd) {
+    const uint32_t ka = plan.pattern[2 * a], kb = plan.pattern[2 * b];
+    if (ka >= j) break;
+    if (ka < kb) {
+      ++a;
+    } else if (kb < ka) {
+      ++b;
+    } else {
+      sum += values[plan.pattern[2 * a + 1]] * diagonal[ka] * values[plan.pattern[2 * b + 1]];
+      ++a;
+      ++b;
+    }
+  }
+  return sum;
+}
+
+/// joint_ldl.comp's factor and solve on the plan's lists, on the host: x = A^-1 b. Level by
+/// level as the device's workgroup takes them (a level's columns and rows in any order: each
+/// reads only lower levels', which the plan's structure is checked for).
 Eigen::VectorXd solveWithPlan(const JointLdlPlan& plan, const Eigen::MatrixXd& A,
                               const Eigen::VectorXd& b) {
   const size_t n = plan.rows.size();
   std::vector<double> values(plan.entries(), 0.0), diagonal(n, 0.0), work(n, 0.0);
-  for (const uvec4& island : plan.islands) {
-    for (uint32_t r = island.x; r < island.x + island.y; ++r) {
-      const GpuLdlRow& R = plan.rows[r];
-      for (uint32_t e = R.patternBegin; e < R.patternEnd; ++e) {
-        const uint32_t i = plan.pattern[2 * e];
-        work[i] = A(i, r);
+  for (const GpuLdlIsland& island : plan.islands) {
+    for (uint32_t l = island.firstLevel; l < island.firstLevel + island.levels; ++l) {
+      const uint32_t begin = plan.levels[2 * l], end = plan.levels[2 * l + 1];
+      for (uint32_t j = begin; j < end; ++j) {
+        double d = A(j, j);
+        for (uint32_t e = plan.rows[j].patternBegin; e < plan.rows[j].patternEnd; ++e) {
+          const double l = values[plan.pattern[2 * e + 1]];
+          d -= l * l * diagonal[plan.pattern[2 * e]];
+        }
+        for (uint32_t p = plan.rows[j].columnBegin; p < plan.rows[j].columnEnd; ++p) {
+          const uint32_t i = plan.columnRows[p];
+          values[p] = (A(i, j) - sharedColumns(plan, values, diagonal, i, j)) / d;
+        }
+        diagonal[j] = d;
       }
-      double d = A(r, r);
-      for (uint32_t e = R.patternBegin; e < R.patternEnd; ++e) {
-        const uint32_t i = plan.pattern[2 * e], at = plan.pattern[2 * e + 1];
-        const double y = work[i];
-        work[i] = 0;
-        for (uint32_t p = plan.rows[i].columnBegin; p < at; ++p)
-          work[plan.columnRows[p]] -= values[p] * y;
-        const double l = y / diagonal[i];
-        d -= l * y;
-        values[at] = l;
-      }
-      diagonal[r] = d;
     }
   }
   for (size_t r = 0; r < n; ++r) work[r] = b[Eigen::Index(r)];
-  for (size_t r = 0; r < n; ++r)
-    for (uint32_t p = plan.rows[r].columnBegin; p < plan.rows[r].columnEnd; ++p)
-      work[plan.columnRows[p]] -= values[p] * work[r];
-  for (size_t r = 0; r < n; ++r) work[r] /= diagonal[r];
-  for (size_t r = n; r-- > 0;)
-    for (uint32_t p = plan.rows[r].columnBegin; p < plan.rows[r].columnEnd; ++p)
-      work[r] -= values[p] * work[plan.columnRows[p]];
+  for (const GpuLdlIsland& island : plan.islands) {
+    for (uint32_t l = island.firstLevel; l < island.firstLevel + island.levels; ++l)
+      for (uint32_t r = plan.levels[2 * l]; r < plan.levels[2 * l + 1]; ++r)
+        for (uint32_t e = plan.rows[r].patternBegin; e < plan.rows[r].patternEnd; ++e)
+          work[r] -= values[plan.pattern[2 * e + 1]] * work[plan.pattern[2 * e]];
+    for (uint32_t l = island.firstLevel + island.levels; l-- > island.firstLevel;)
+      for (uint32_t r = plan.levels[2 * l]; r < plan.levels[2 * l + 1]; ++r) {
+        work[r] /= diagonal[r];
+        for (uint32_t p = plan.rows[r].columnBegin; p < plan.rows[r].columnEnd; ++p)
+          work[r] -= values[p] * work[plan.columnRows[p]];
+      }
+  }
   return Eigen::Map<Eigen::VectorXd>(work.data(), Eigen::Index(n));
+}
+
+/// What joint_ldl.comp relies on: each island's levels cover its rows in order; a row's
+/// entries of L lie in lower levels (so a level's columns and rows can go side by side);
+/// the entries' columns and rows agree with the patterns; every dynamic body's rows are its
+/// joints' rows, ascending.
+void expectWellFormed(const JointLdlPlan& plan, const std::vector<GpuJoint>& joints,
+                      const std::vector<GpuBodyParams>& params) {
+  ASSERT_EQ(plan.entryColumns.size(), plan.entries());
+  for (const GpuLdlIsland& island : plan.islands) {
+    uint32_t next = island.firstRow;
+    for (uint32_t l = island.firstLevel; l < island.firstLevel + island.levels; ++l) {
+      const uint32_t begin = plan.levels[2 * l], end = plan.levels[2 * l + 1];
+      ASSERT_EQ(begin, next);
+      ASSERT_LT(begin, end);
+      next = end;
+      for (uint32_t r = begin; r < end; ++r)
+        for (uint32_t e = plan.rows[r].patternBegin; e < plan.rows[r].patternEnd; ++e) {
+          EXPECT_LT(plan.pattern[2 * e], begin) << "row " << r << " needs its own level";
+          EXPECT_GE(plan.pattern[2 * e], island.firstRow);
+          EXPECT_EQ(plan.entryColumns[plan.pattern[2 * e + 1]], plan.pattern[2 * e]);
+          EXPECT_EQ(plan.columnRows[plan.pattern[2 * e + 1]], r);
+        }
+    }
+    EXPECT_EQ(next, island.firstRow + island.rows);
+    std::set<uint32_t> rowsOnBodies;
+    for (uint32_t k = island.firstBody; k < island.firstBody + island.bodies; ++k) {
+      const uvec4& body = plan.bodies[k];
+      EXPECT_TRUE(dynamic(params, int(body.x)));
+      for (uint32_t e = body.y; e < body.z; ++e) {
+        const uint32_t r = plan.bodyRows[e];
+        if (e > body.y) {
+          EXPECT_LT(plan.bodyRows[e - 1], r);
+        }
+        EXPECT_GE(r, island.firstRow);
+        EXPECT_LT(r, island.firstRow + island.rows);
+        const GpuJoint& j = joints[plan.rows[r].joint];
+        EXPECT_TRUE(j.bodyA == int(body.x) || j.bodyB == int(body.x));
+        rowsOnBodies.insert(r);
+      }
+    }
+    // Every row reaches a dynamic body (a joint in the solve has one).
+    EXPECT_EQ(rowsOnBodies.size(), island.rows);
+  }
 }
 
 TEST(GpuJointLdlPlan, EqualityRowsOfEveryJointType) {
@@ -110,9 +181,11 @@ TEST(GpuJointLdlPlan, AChainIsOneIslandWithoutFill) {
   for (int i = 0; i < 40; ++i) joints.push_back(joint(PHYS_GPU_JOINT_BALL, i - 1, i));
   const JointLdlPlan plan = planJointLdl(joints, bodies(40));
   ASSERT_EQ(plan.islands.size(), 1u);
-  EXPECT_EQ(plan.islands[0].x, 0u);
-  EXPECT_EQ(plan.islands[0].y, 120u);
+  EXPECT_EQ(plan.islands[0].firstRow, 0u);
+  EXPECT_EQ(plan.islands[0].rows, 120u);
   EXPECT_LE(plan.entries(), 120u * 6);
+  expectWellFormed(plan, joints, bodies(40));
+  std::printf("chain of 40: %u levels, %zu entries\n", plan.islands[0].levels, plan.entries());
 }
 
 TEST(GpuJointLdlPlan, IslandsSplitAtStaticAndKinematicBodies) {
@@ -127,11 +200,12 @@ TEST(GpuJointLdlPlan, IslandsSplitAtStaticAndKinematicBodies) {
       joint(PHYS_GPU_JOINT_DISTANCE, 3, 4, false)};
   const JointLdlPlan plan = planJointLdl(joints, bodies(5, {2}));
   ASSERT_EQ(plan.islands.size(), 2u);
-  EXPECT_EQ(plan.islands[0].y, 3u + 5u + 3u);  // joints 0-2 (joint 2 through body 1)
-  EXPECT_EQ(plan.islands[1].y, 6u + 3u);       // joints 3-4
+  EXPECT_EQ(plan.islands[0].rows, 3u + 5u + 3u);  // joints 0-2 (joint 2 through body 1)
+  EXPECT_EQ(plan.islands[1].rows, 6u + 3u);       // joints 3-4
   std::set<uint32_t> first, second;
-  for (uint32_t r = 0; r < plan.islands[0].y; ++r) first.insert(plan.rows[r].joint);
-  for (uint32_t r = plan.islands[1].x; r < plan.islands[1].x + plan.islands[1].y; ++r)
+  for (uint32_t r = 0; r < plan.islands[0].rows; ++r) first.insert(plan.rows[r].joint);
+  for (uint32_t r = plan.islands[1].firstRow; r < plan.islands[1].firstRow + plan.islands[1].rows;
+       ++r)
     second.insert(plan.rows[r].joint);
   EXPECT_EQ(first, (std::set<uint32_t>{0, 1, 2}));
   EXPECT_EQ(second, (std::set<uint32_t>{3, 4}));
@@ -163,6 +237,7 @@ TEST(GpuJointLdlPlan, FactorOnThePlanSolvesLikeADenseFactorization) {
       joints.push_back(joint(uint32_t(rng() % 5), a, b, rng() % 4 != 0));
     }
     const JointLdlPlan plan = planJointLdl(joints, params);
+    expectWellFormed(plan, joints, params);
     if (plan.rows.empty()) continue;
     const Eigen::MatrixXd A = couplingMatrix(plan, joints, params, rng);
     Eigen::VectorXd b(Eigen::Index(plan.rows.size()));
