@@ -101,7 +101,7 @@ struct Kernels {
     prepareJoints = make("prepare_joints", 8, solve);
     jointJacobi = make("joint_jacobi", 6, solve);
     storeJoints = make("store_joints", 2, solve);
-    jointLdl = make("joint_ldl", 14, solve);
+    jointLdl = make("joint_ldl", 18, solve);
     applyPositions = make("apply_positions", 4, solve);
   }
 };
@@ -283,6 +283,9 @@ struct GpuWorld::Impl {
   // by column, and the numbers: L, D and a work vector (doubles). Planned again when the
   // joints or the set of dynamic bodies change.
   Buffer ldlIslandBuf, ldlRowBuf, ldlPatternBuf, ldlColumnBuf, ldlValueBuf, ldlDiagBuf, ldlWorkBuf;
+  // The plan's lists for a workgroup per island: each entry's column, the levels' row ranges,
+  // each dynamic body's rows.
+  Buffer ldlEntryColumnBuf, ldlLevelBuf, ldlBodyBuf, ldlBodyRowBuf;
   bool ldlDirty = true;
   uint32_t ldlIslands = 0;
   /// The broad phase's sweep axis: the one along which the shapes' bodies spread most (a
@@ -558,17 +561,25 @@ uint32_t GpuWorld::Impl::syncLdl(Stream& s) {
   const JointLdlPlan plan = planJointLdl(joints, params);
   const std::shared_ptr<Device>& d = shared->device;
   const size_t rows = plan.rows.size(), entries = plan.entries();
-  reserve(d, ldlIslandBuf, plan.islands.size() * sizeof(uvec4));
+  reserve(d, ldlIslandBuf, plan.islands.size() * sizeof(GpuLdlIsland));
   reserve(d, ldlRowBuf, rows * sizeof(GpuLdlRow));
   reserve(d, ldlPatternBuf, plan.pattern.size() * 4);
   reserve(d, ldlColumnBuf, entries * 4);
   reserve(d, ldlValueBuf, entries * 8);
   reserve(d, ldlDiagBuf, rows * 8);
   reserve(d, ldlWorkBuf, rows * 8);
-  s.upload(ldlIslandBuf, 0, plan.islands.data(), plan.islands.size() * sizeof(uvec4));
+  reserve(d, ldlEntryColumnBuf, entries * 4);
+  reserve(d, ldlLevelBuf, plan.levels.size() * 4);
+  reserve(d, ldlBodyBuf, plan.bodies.size() * sizeof(uvec4));
+  reserve(d, ldlBodyRowBuf, plan.bodyRows.size() * 4);
+  s.upload(ldlIslandBuf, 0, plan.islands.data(), plan.islands.size() * sizeof(GpuLdlIsland));
   s.upload(ldlRowBuf, 0, plan.rows.data(), rows * sizeof(GpuLdlRow));
   s.upload(ldlPatternBuf, 0, plan.pattern.data(), plan.pattern.size() * 4);
   s.upload(ldlColumnBuf, 0, plan.columnRows.data(), entries * 4);
+  s.upload(ldlEntryColumnBuf, 0, plan.entryColumns.data(), entries * 4);
+  s.upload(ldlLevelBuf, 0, plan.levels.data(), plan.levels.size() * 4);
+  s.upload(ldlBodyBuf, 0, plan.bodies.data(), plan.bodies.size() * sizeof(uvec4));
+  s.upload(ldlBodyRowBuf, 0, plan.bodyRows.data(), plan.bodyRows.size() * 4);
   ldlIslands = uint32_t(plan.islands.size());
   ldlDirty = false;
   return ldlIslands;
@@ -579,10 +590,13 @@ void GpuWorld::Impl::recordLdl(Stream& s, GpuSolveConstants sc, uint32_t mode, b
   sc.mode = mode;
   sc.useBias = useBias ? 1 : 0;
   sc.jacobi = 0;  // whole masses: the direct solve is not split among constraints
-  const Buffer* b[] = {&solverBuf,    &paramBuf,   &refBuf,        &jointBuf,     &jointRowBuf,
-                       &ldlIslandBuf, &ldlRowBuf,  &ldlPatternBuf, &ldlColumnBuf, &ldlValueBuf,
-                       &ldlDiagBuf,   &ldlWorkBuf, &pushBuf,       &counterBuf};
-  s.dispatch(*kernels().jointLdl, b, &sc, groupsFor(sc.ldlIslands));
+  const Buffer* b[] = {&solverBuf,         &paramBuf,    &refBuf,        &jointBuf,
+                       &jointRowBuf,       &ldlIslandBuf, &ldlRowBuf,    &ldlPatternBuf,
+                       &ldlColumnBuf,      &ldlValueBuf, &ldlDiagBuf,    &ldlWorkBuf,
+                       &pushBuf,           &counterBuf,  &ldlEntryColumnBuf, &ldlLevelBuf,
+                       &ldlBodyBuf,        &ldlBodyRowBuf};
+  // A workgroup per island (joint_ldl.comp).
+  s.dispatch(*kernels().jointLdl, b, &sc, sc.ldlIslands);
 }
 
 void GpuWorld::Impl::recordColoring(Stream& s, const GpuSolveConstants& sc) {
