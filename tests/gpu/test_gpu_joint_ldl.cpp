@@ -1,7 +1,9 @@
 // The joints' direct solve as the host plans it (gpu_solver/src/joint_ldl.h): islands, the
 // rows' order and L's fixed pattern. No device needed: a reference of joint_ldl.comp's
 // arithmetic on the plan's index lists is checked against a dense factorization, so a
-// pattern that misses an entry of L (or of A) fails here.
+// pattern that misses an entry of L (or of A) fails here. Then on the device
+// (GpuJointLdl): islands of many sizes in one world, each solved by its own workgroup,
+// against the CPU backend.
 #include <gtest/gtest.h>
 
 #include <Eigen/Dense>
@@ -11,7 +13,10 @@
 #include <set>
 #include <vector>
 
+#include "../common/bodies.h"
+#include "gpu_test_util.h"
 #include "joint_ldl.h"
+#include "phys/world/world.h"
 
 namespace phys::gpu {
 namespace {
@@ -247,6 +252,181 @@ TEST(GpuJointLdlPlan, FactorOnThePlanSolvesLikeADenseFactorization) {
     EXPECT_LT((x - expected).norm(), 1e-9 * (1 + expected.norm()));
     EXPECT_LT((A * x - b).norm(), 1e-9 * (1 + b.norm()));
   }
+}
+
+TEST(GpuJointLdlPlan, ALongChainAndATreeHaveLevelsSideBySide) {
+  // A 240-link chain (720 rows: past joint_ldl.comp's shared memory, on the global buffers)
+  // and a binary tree of 31 bodies hanging from the world by its root: the tree's
+  // subtrees are eliminated side by side, in far fewer levels than rows. (Rows on one body
+  // all couple: a star of links on one hub is dense, one row a level.)
+  std::vector<GpuJoint> joints;
+  for (int i = 0; i < 240; ++i) joints.push_back(joint(PHYS_GPU_JOINT_BALL, i - 1, i));
+  joints.push_back(joint(PHYS_GPU_JOINT_BALL, -1, 240));
+  for (int i = 1; i < 31; ++i) joints.push_back(joint(PHYS_GPU_JOINT_BALL, 240 + (i - 1) / 2, 240 + i));
+  const std::vector<GpuBodyParams> params = bodies(271);
+  const JointLdlPlan plan = planJointLdl(joints, params);
+  ASSERT_EQ(plan.islands.size(), 2u);
+  expectWellFormed(plan, joints, params);
+  EXPECT_EQ(plan.islands[0].rows, 720u);
+  EXPECT_GT(plan.entries(), 2048u - 2 * 720u);  // the chain is beyond the shared memory
+  EXPECT_EQ(plan.islands[1].rows, 93u);
+  std::printf("chain of 240: %u levels; tree of 31: %u levels\n", plan.islands[0].levels,
+              plan.islands[1].levels);
+  EXPECT_LT(plan.islands[1].levels, 93u * 2 / 3);
+  std::mt19937 rng(3);
+  const Eigen::MatrixXd A = couplingMatrix(plan, joints, params, rng);
+  Eigen::VectorXd b = Eigen::VectorXd::Random(Eigen::Index(plan.rows.size()));
+  const Eigen::VectorXd x = solveWithPlan(plan, A, b);
+  EXPECT_LT((A * x - b).norm(), 1e-9 * (1 + b.norm()));
+}
+
+}  // namespace
+
+// On the device: a workgroup per island.
+namespace {
+
+using phys::Backend;
+using phys::BodyId;
+using phys::JointDef;
+using phys::JointId;
+using phys::JointState;
+using phys::JointType;
+using phys::Vec3;
+using phys::World;
+using phys::WorldDef;
+
+/// Joint islands of very different sizes in one world, far apart (nothing collides): a
+/// 240-link chain hanging straight down, nudged (720 rows, beyond the kernel's shared
+/// memory); a 20-link chain ending in a 1000:1 ball, released horizontally; a 5-link hinge
+/// chain; a chandelier of 8 links on a hub hanging from the world; a box welded to the world.
+struct JointIslands {
+  World world;
+  std::vector<BodyId> bodies;
+  std::vector<JointId> joints;
+  BodyId longChainEnd;
+  double longChainMass = 0;
+  JointId longChainAnchor;
+
+  explicit JointIslands(Backend backend) : world(def(backend)) {
+    if (world.backendState().active != Backend::Gpu && backend == Backend::Gpu) return;
+    auto link = [&](phys::BodyDef d) {
+      const BodyId id = phys::test::addBody(world, d);
+      bodies.push_back(id);
+      return id;
+    };
+    auto join = [&](JointType type, BodyId a, BodyId b, Vec3 anchorA, Vec3 anchorB) {
+      JointDef j;
+      j.type = type;
+      j.bodyA = a;
+      j.bodyB = b;
+      j.anchorA = anchorA;
+      j.anchorB = anchorB;
+      j.axisA = j.axisB = {0, 1, 0};
+      JointId id;
+      EXPECT_TRUE(world.createJoint(j, &id).ok());
+      joints.push_back(id);
+      return id;
+    };
+    // The long chain: links of 0.5 m from z = 130 down.
+    BodyId prev;
+    for (int i = 0; i < 240; ++i) {
+      const BodyId id = link(phys::test::boxBody({0, 0, 129.75f - 0.5f * float(i)},
+                                                 {0.05f, 0.05f, 0.2f}));
+      const JointId jid = join(JointType::Ball, prev, id,
+                               prev.isNull() ? Vec3{0, 0, 130} : Vec3{0, 0, -0.25f},
+                               Vec3{0, 0, 0.25f});
+      if (prev.isNull()) longChainAnchor = jid;
+      longChainMass += phys::test::stateOf(world, id).mass;
+      prev = id;
+    }
+    longChainEnd = prev;
+    EXPECT_TRUE(world.setVelocity(prev, {0.5f, 0, 0}, {}).ok());
+    // The heavy-ended chain, horizontal from (20, 0, 20).
+    prev = {};
+    for (int i = 0; i < 20; ++i) {
+      const BodyId id = link(phys::test::boxBody({20.5f + float(i), 0, 20}, {0.4f, 0.1f, 0.1f}));
+      join(JointType::Ball, prev, id, prev.isNull() ? Vec3{20, 0, 20} : Vec3{0.5f, 0, 0},
+           Vec3{-0.5f, 0, 0});
+      prev = id;
+    }
+    EXPECT_TRUE(world.setMass(prev, 1000 * phys::test::stateOf(world, prev).mass).ok());
+    // The hinge chain.
+    prev = {};
+    for (int i = 0; i < 5; ++i) {
+      const BodyId id = link(phys::test::boxBody({40.5f + float(i), 0, 20}, {0.4f, 0.1f, 0.1f}));
+      join(JointType::Hinge, prev, id, prev.isNull() ? Vec3{40, 0, 20} : Vec3{0.5f, 0, 0},
+           Vec3{-0.5f, 0, 0});
+      prev = id;
+    }
+    // The chandelier: a hub hanging from the world, 8 links hanging from a ring around it
+    // (apart: they never touch), the hub pushed. Every row acts on the hub: a dense island.
+    const BodyId hub = link(phys::test::boxBody({60, 0, 19}, {0.2f, 0.2f, 0.2f}));
+    join(JointType::Ball, {}, hub, {60, 0, 20}, {0, 0, 1});
+    for (int i = 0; i < 8; ++i) {
+      const float a = 0.785398f * float(i);
+      const Vec3 ring{0.6f * std::cos(a), 0.6f * std::sin(a), 0};
+      const BodyId id = link(phys::test::boxBody(Vec3{60, 0, 18.6f} + ring, {0.1f, 0.1f, 0.1f}));
+      join(JointType::Ball, hub, id, ring, {0, 0, 0.4f});
+    }
+    EXPECT_TRUE(world.setVelocity(hub, {0, 0.5f, 0}, {0, 0, 0.5f}).ok());
+    // The welded box.
+    const BodyId box = link(phys::test::boxBody({80, 0, 20}, {0.3f, 0.3f, 0.3f}));
+    join(JointType::Fixed, {}, box, {80, 0, 20.5f}, {0, 0, 0.5f});
+  }
+  static WorldDef def(Backend backend) {
+    WorldDef d;
+    d.backend = backend;
+    d.gpuAllowCpuDevice = true;
+    d.threads = 1;
+    return d;  // the default solver: soft_step, the joints' LDL hybrid on both backends
+  }
+  float worstJointError() const {
+    float worst = 0;
+    for (JointId j : joints) {
+      JointState st;
+      EXPECT_TRUE(world.getJoint(j, nullptr, &st).ok());
+      worst = std::max(worst, st.positionError);
+    }
+    return worst;
+  }
+};
+
+TEST(GpuJointLdl, IslandsOfEverySizeMatchTheCpuAndRunsAreBitIdentical) {
+  JointIslands gpu(Backend::Gpu), cpu(Backend::Cpu);
+  REQUIRE_DEVICE(gpu.world);
+  ASSERT_EQ(gpu.world.def().solver.equalitySolve, phys::SolverSettings::EqualitySolve::DirectLdl);
+  constexpr int kSteps = 30;
+  float worstGpu = 0, worstCpu = 0;
+  for (int i = 0; i < kSteps; ++i) {
+    gpu.world.step();
+    cpu.world.step();
+    worstGpu = std::max(worstGpu, gpu.worstJointError());
+    worstCpu = std::max(worstCpu, cpu.worstJointError());
+  }
+  EXPECT_EQ(gpu.world.backendState().gpuSteps, uint64_t(kSteps));
+  EXPECT_EQ(gpu.world.backendState().cpuSteps, 0u) << gpu.world.backendState().lastFallback;
+  EXPECT_EQ(gpu.world.stats().joints, int(gpu.joints.size()));
+  // Every joint held as on the CPU, every body where the CPU has it.
+  EXPECT_LT(worstGpu, 0.01f);
+  EXPECT_LT(worstGpu, worstCpu + 1e-3f) << "cpu " << worstCpu;
+  float farthest = 0;
+  for (size_t i = 0; i < gpu.bodies.size(); ++i) {
+    const float d = length(phys::test::stateOf(gpu.world, gpu.bodies[i]).position -
+                           phys::test::stateOf(cpu.world, cpu.bodies[i]).position);
+    EXPECT_LT(d, 5e-4f) << "body " << i;
+    farthest = std::max(farthest, d);
+  }
+  std::printf("largest difference to the CPU %.3g m; joint error %.3g m (cpu %.3g m)\n", farthest,
+              worstGpu, worstCpu);
+  // The long chain hangs: its anchor carries its weight.
+  JointState anchor;
+  ASSERT_TRUE(gpu.world.getJoint(gpu.longChainAnchor, nullptr, &anchor).ok());
+  EXPECT_NEAR(anchor.reactionForce.z, gpu.longChainMass * 9.81, 0.02 * gpu.longChainMass * 9.81);
+  EXPECT_GT(phys::test::stateOf(gpu.world, gpu.longChainEnd).position.x, 0.01f);
+  // The same bits again from the same start (fixed sums, no atomics).
+  JointIslands again(Backend::Gpu);
+  for (int i = 0; i < kSteps; ++i) again.world.step();
+  EXPECT_EQ(again.world.stateHash(), gpu.world.stateHash());
 }
 
 }  // namespace
