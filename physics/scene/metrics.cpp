@@ -52,6 +52,7 @@ struct MetricsRecorder::Impl {
   std::vector<std::pair<BodyId, Vec3>> tops;  ///< top bodies and where they started
   std::vector<double> stepMs, settledStepMs;
   std::map<std::string, double> stageSum;
+  double readbackSum = 0;
   double energyStart = 0, energyEnd = 0;
   std::optional<double> energySettled;  ///< energy at the first step past the settle time
   double jointErrMax = 0, jointErrSq = 0, jointAngMax = 0;
@@ -84,6 +85,7 @@ void MetricsRecorder::afterStep(const World& world) {
   const StepProfile& p = world.profile();
   m.stepMs.push_back(p.total);
   for (const auto& [name, field] : kStages) m.stageSum[name] += p.*field;
+  m.readbackSum += double(world.backendState().readbackBytes);
 
   const StepStats& st = world.stats();
   s.energySolveDeltaMax = std::max(s.energySolveDeltaMax, st.energyAfter - st.energyBefore);
@@ -155,6 +157,7 @@ MetricsSummary MetricsRecorder::summary() const {
   if (m.scene->metrics.conservesEnergy && m.energyStart != 0)
     s.energyDrift = (m.energyEnd - m.energyStart) / std::fabs(m.energyStart);
   for (const auto& [name, sum] : m.stageSum) s.stageMs[name] = s.steps ? sum / s.steps : 0;
+  s.readbackBytesPerStep = s.steps ? m.readbackSum / s.steps : 0;
   if (m.hook) m.hook->summarize(&s.extra);
   return s;
 }

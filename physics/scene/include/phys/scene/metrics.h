@@ -38,6 +38,8 @@ struct MetricsSummary {
   std::map<std::string, double> extra;
   /// Average ms per step of each stage.
   std::map<std::string, double> stageMs;
+  /// Average bytes a step brought back from the GPU backend's device (0 on the CPU).
+  double readbackBytesPerStep = 0;
 
   /// Value of a metric by its physbench name, if it applies.
   std::optional<double> value(const std::string& name) const;
