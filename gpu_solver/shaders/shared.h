@@ -316,7 +316,20 @@ struct GpuLdlRow {
   uint pad0;
   uint pad1;
 };
-// An island: uvec4(first row, rows, 0, 0).
+// An island, solved by one workgroup (joint_ldl.comp). Its rows are ordered by level of the
+// elimination tree (a row's level is one more than its highest child's, leaves at 0), so a
+// level is a contiguous range of rows whose columns of L depend only on lower levels: the
+// workgroup factors and solves a level's rows side by side, level after level.
+struct GpuLdlIsland {
+  uint firstRow;    // its rows: [firstRow, firstRow + rows)
+  uint rows;
+  uint firstLevel;  // its levels: levels[firstLevel, firstLevel + levels), uvec2(row begin, end)
+  uint levels;
+  uint firstBody;   // its dynamic bodies: bodies[firstBody, firstBody + bodies), each a
+  uint bodies;      //   uvec4(body, begin, end, 0) of its rows in bodyRows[], ascending
+  uint pad0;
+  uint pad1;
+};
 // GpuSolveConstants.mode of joint_ldl.comp.
 #define PHYS_GPU_LDL_FACTOR 0u  // assemble A from the rows now and factor it
 #define PHYS_GPU_LDL_SOLVE 1u   // solve every equality row at once (useBias: with the error)

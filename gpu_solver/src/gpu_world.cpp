@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <bit>
+#include <chrono>
 #include <cstdlib>
 #include <cstring>
 #include <iterator>
@@ -65,7 +66,7 @@ struct Kernels {
       bvhCount, bvhWrite, narrowPhase, matchContacts, csrKeys,
       csrRanges, prepareContacts, contactWarmStart, contactSolve, contactRestitution, applyDeltas,
       storeImpulses, contactStats, colorRound, colorKeys, colorRanges, contactGs, positionJacobi,
-      applyPositions, prepareJoints, jointJacobi, storeJoints, jointLdl;
+      applyPositions, prepareJoints, jointJacobi, storeJoints, jointLdl, touchFlags, touchWrite;
   Primitives primitives;
   explicit Kernels(const std::shared_ptr<Device>& d) : primitives(d) {
     auto make = [&](const char* name, uint32_t bindings, uint32_t push) {
@@ -108,8 +109,10 @@ struct Kernels {
     prepareJoints = make("prepare_joints", 8, solve);
     jointJacobi = make("joint_jacobi", 6, solve);
     storeJoints = make("store_joints", 2, solve);
-    jointLdl = make("joint_ldl", 14, solve);
+    jointLdl = make("joint_ldl", 18, solve);
     applyPositions = make("apply_positions", 4, solve);
+    touchFlags = make("touch_flags", 4, step);
+    touchWrite = make("touch_write", 5, step);
   }
 };
 
@@ -268,6 +271,9 @@ struct GpuWorld::Impl {
   std::vector<GpuAabb> bounds;
   std::vector<GpuPair> pairs;
   std::vector<GpuManifold> manifolds;
+  std::vector<Touch> touches;
+  uint32_t touchHeader[2] = {};  ///< the touch list's length, then 0
+  uint64_t readbackBytes = 0;
   uint32_t counters[PHYS_GPU_COUNTER_COUNT] = {};
   // Device buffers: bodies and shapes.
   Buffer stateBuf, paramBuf, solverBuf, shapeBuf, boundsBuf, planeBuf, ownerBuf, noCollideBuf,
@@ -298,8 +304,15 @@ struct GpuWorld::Impl {
   // by column, and the numbers: L, D and a work vector (doubles). Planned again when the
   // joints or the set of dynamic bodies change.
   Buffer ldlIslandBuf, ldlRowBuf, ldlPatternBuf, ldlColumnBuf, ldlValueBuf, ldlDiagBuf, ldlWorkBuf;
+  // The plan's lists for a workgroup per island: each entry's column, the levels' row ranges,
+  // each dynamic body's rows.
+  Buffer ldlEntryColumnBuf, ldlLevelBuf, ldlBodyBuf, ldlBodyRowBuf;
   bool ldlDirty = true;
   uint32_t ldlIslands = 0;
+  // The touch list (touch_list.glsl): a flag per manifold slot, scanned into places, and the
+  // list (its length first), with its own prefix-sum scratch.
+  Buffer touchFlagBuf, touchBuf;
+  Primitives::ScanScratch touchScratch;
   /// The broad phase's sweep axis: the one along which the shapes' bodies spread most (a
   /// column or a stack along x would otherwise make the sweep quadratic in its length).
   /// Chosen again every kSweepAxisPeriod steps from the host's copy of the states.
@@ -625,17 +638,25 @@ uint32_t GpuWorld::Impl::syncLdl(Stream& s) {
   const JointLdlPlan plan = planJointLdl(joints, params);
   const std::shared_ptr<Device>& d = shared->device;
   const size_t rows = plan.rows.size(), entries = plan.entries();
-  reserve(d, ldlIslandBuf, plan.islands.size() * sizeof(uvec4));
+  reserve(d, ldlIslandBuf, plan.islands.size() * sizeof(GpuLdlIsland));
   reserve(d, ldlRowBuf, rows * sizeof(GpuLdlRow));
   reserve(d, ldlPatternBuf, plan.pattern.size() * 4);
   reserve(d, ldlColumnBuf, entries * 4);
   reserve(d, ldlValueBuf, entries * 8);
   reserve(d, ldlDiagBuf, rows * 8);
   reserve(d, ldlWorkBuf, rows * 8);
-  s.upload(ldlIslandBuf, 0, plan.islands.data(), plan.islands.size() * sizeof(uvec4));
+  reserve(d, ldlEntryColumnBuf, entries * 4);
+  reserve(d, ldlLevelBuf, plan.levels.size() * 4);
+  reserve(d, ldlBodyBuf, plan.bodies.size() * sizeof(uvec4));
+  reserve(d, ldlBodyRowBuf, plan.bodyRows.size() * 4);
+  s.upload(ldlIslandBuf, 0, plan.islands.data(), plan.islands.size() * sizeof(GpuLdlIsland));
   s.upload(ldlRowBuf, 0, plan.rows.data(), rows * sizeof(GpuLdlRow));
   s.upload(ldlPatternBuf, 0, plan.pattern.data(), plan.pattern.size() * 4);
   s.upload(ldlColumnBuf, 0, plan.columnRows.data(), entries * 4);
+  s.upload(ldlEntryColumnBuf, 0, plan.entryColumns.data(), entries * 4);
+  s.upload(ldlLevelBuf, 0, plan.levels.data(), plan.levels.size() * 4);
+  s.upload(ldlBodyBuf, 0, plan.bodies.data(), plan.bodies.size() * sizeof(uvec4));
+  s.upload(ldlBodyRowBuf, 0, plan.bodyRows.data(), plan.bodyRows.size() * 4);
   ldlIslands = uint32_t(plan.islands.size());
   ldlDirty = false;
   return ldlIslands;
@@ -646,10 +667,13 @@ void GpuWorld::Impl::recordLdl(Stream& s, GpuSolveConstants sc, uint32_t mode, b
   sc.mode = mode;
   sc.useBias = useBias ? 1 : 0;
   sc.jacobi = 0;  // whole masses: the direct solve is not split among constraints
-  const Buffer* b[] = {&solverBuf,    &paramBuf,   &refBuf,        &jointBuf,     &jointRowBuf,
-                       &ldlIslandBuf, &ldlRowBuf,  &ldlPatternBuf, &ldlColumnBuf, &ldlValueBuf,
-                       &ldlDiagBuf,   &ldlWorkBuf, &pushBuf,       &counterBuf};
-  s.dispatch(*kernels().jointLdl, b, &sc, groupsFor(sc.ldlIslands));
+  const Buffer* b[] = {&solverBuf,         &paramBuf,    &refBuf,        &jointBuf,
+                       &jointRowBuf,       &ldlIslandBuf, &ldlRowBuf,    &ldlPatternBuf,
+                       &ldlColumnBuf,      &ldlValueBuf, &ldlDiagBuf,    &ldlWorkBuf,
+                       &pushBuf,           &counterBuf,  &ldlEntryColumnBuf, &ldlLevelBuf,
+                       &ldlBodyBuf,        &ldlBodyRowBuf};
+  // A workgroup per island (joint_ldl.comp).
+  s.dispatch(*kernels().jointLdl, b, &sc, sc.ldlIslands);
 }
 
 void GpuWorld::Impl::recordColoring(Stream& s, const GpuSolveConstants& sc) {
@@ -748,6 +772,7 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
     w.pairCapacity = maxCapacity;
     w.allBodiesDirty = w.shapesDirty = w.jointsDirty = w.ldlDirty = true;
   }
+  std::vector<double> stageMs;  // the step's submit's (a later transfer adds to the readback)
   for (int attempt = 0;; ++attempt) {
     GpuStepConstants c{};
     c.h = in.dt / float(substeps);
@@ -878,21 +903,40 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
       s.dispatch(*k.finalize, finalize, &c, groupsFor(n));
       s.mark(int(Stage::Finalize));
       // Only what the host mirror needs comes back (and what tests ask for).
-      s.download(w.stateBuf, 0, result.data(), n * sizeof(GpuBodyState));
-      s.download(w.counterBuf, 0, w.counters, sizeof w.counters);
+      w.readbackBytes = 0;
+      auto download = [&](const Buffer& src, void* out, VkDeviceSize bytes) {
+        s.download(src, 0, out, bytes);
+        w.readbackBytes += bytes;
+      };
+      const bool touches = in.readTouches && k.narrowPhase != nullptr;
+      if (touches) {
+        // The sleep pass's touch list: its length comes back now, the list after (readTouches).
+        const std::shared_ptr<Device>& d = w.shared->device;
+        reserve(d, w.touchFlagBuf, VkDeviceSize(w.pairCapacity) * 4);
+        reserve(d, w.touchBuf, VkDeviceSize(w.pairCapacity + 1) * 8);
+        const Buffer* flags[] = {&w.manifoldBuf[w.current], &w.shapeBuf, &w.counterBuf,
+                                 &w.touchFlagBuf};
+        s.dispatch(*k.touchFlags, flags, &c, groupsFor(w.pairCapacity));
+        k.primitives.scan(s, w.touchFlagBuf, w.pairCapacity, w.touchScratch);
+        const Buffer* write[] = {&w.manifoldBuf[w.current], &w.shapeBuf, &w.counterBuf,
+                                 &w.touchFlagBuf, &w.touchBuf};
+        s.dispatch(*k.touchWrite, write, &c, groupsFor(w.pairCapacity));
+        download(w.touchBuf, w.touchHeader, sizeof w.touchHeader);
+      }
+      download(w.stateBuf, result.data(), n * sizeof(GpuBodyState));
+      download(w.counterBuf, w.counters, sizeof w.counters);
       if (in.readBounds) {
         w.bounds.resize(m);
-        s.download(w.boundsBuf, 0, w.bounds.data(), m * sizeof(GpuAabb));
+        download(w.boundsBuf, w.bounds.data(), m * sizeof(GpuAabb));
       }
       if (solve && !w.joints.empty())
-        s.download(w.jointOutBuf, 0, jointResults.data(),
-                   jointResults.size() * sizeof(GpuJointOut));
+        download(w.jointOutBuf, jointResults.data(), jointResults.size() * sizeof(GpuJointOut));
       if (in.readContacts) {
         w.pairs.resize(w.pairCapacity);
         w.manifolds.resize(w.pairCapacity);
-        s.download(w.pairBuf, 0, w.pairs.data(), w.pairs.size() * sizeof(GpuPair));
-        s.download(w.manifoldBuf[w.current], 0, w.manifolds.data(),
-                   w.manifolds.size() * sizeof(GpuManifold));
+        download(w.pairBuf, w.pairs.data(), w.pairs.size() * sizeof(GpuPair));
+        download(w.manifoldBuf[w.current], w.manifolds.data(),
+                 w.manifolds.size() * sizeof(GpuManifold));
       }
       s.mark(int(Stage::Readback));
       if (!s.submit(error)) {
@@ -900,6 +944,25 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
         w.allBodiesDirty = w.shapesDirty = w.jointsDirty = w.ldlDirty = true;
         forgetShared(w.shared);
         return false;
+      }
+      stageMs = s.stageMs();
+      w.touches.clear();
+      if (touches && w.touchHeader[0] > 0) {
+        // The list itself, now that its length is known: 8 bytes a touch, one more transfer
+        // (its time counts as the readback's).
+        const auto start = std::chrono::steady_clock::now();
+        w.touches.resize(std::min(w.touchHeader[0], w.pairCapacity));
+        s.begin();
+        s.download(w.touchBuf, 8, w.touches.data(), w.touches.size() * sizeof(Touch));
+        w.readbackBytes += w.touches.size() * sizeof(Touch);
+        if (!s.submit(error)) {
+          w.allBodiesDirty = w.shapesDirty = w.jointsDirty = w.ldlDirty = true;
+          forgetShared(w.shared);
+          return false;
+        }
+        const std::chrono::duration<double, std::milli> took =
+            std::chrono::steady_clock::now() - start;
+        if (size_t(Stage::Readback) < stageMs.size()) stageMs[size_t(Stage::Readback)] += took.count();
       }
     } catch (const std::exception& e) {
       if (error) *error = e.what();
@@ -939,8 +1002,7 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
     break;
   }
   w.stageMs.assign(kStageCount, 0.0);
-  const std::vector<double>& ms = s.stageMs();
-  for (size_t i = 0; i < ms.size() && i < w.stageMs.size(); ++i) w.stageMs[i] = ms[i];
+  for (size_t i = 0; i < stageMs.size() && i < w.stageMs.size(); ++i) w.stageMs[i] = stageMs[i];
   return true;
 }
 
@@ -971,6 +1033,12 @@ std::span<const GpuPair> GpuWorld::pairs() const {
 }
 std::span<const GpuManifold> GpuWorld::manifolds() const {
   return impl_->manifolds;
+}
+std::span<const Touch> GpuWorld::touches() const {
+  return impl_->touches;
+}
+uint64_t GpuWorld::readbackBytes() const {
+  return impl_->readbackBytes;
 }
 uint32_t GpuWorld::sweepAxis() const {
   return impl_->sweepAxis;

@@ -3,6 +3,7 @@
 #include <Eigen/OrderingMethods>
 #include <Eigen/SparseCore>
 #include <algorithm>
+#include <map>
 #include <numeric>
 
 namespace phys::gpu {
@@ -52,6 +53,28 @@ struct RowRef {
   uint32_t joint, row;
 };
 
+/// Davis' symbolic LDL in a given order: row k of L is the set of nodes reached from
+/// above[k] (A's entries (i, k), i < k) walking up the elimination tree; a node without a
+/// parent yet gets k as its parent. Each row's pattern comes out ascending.
+void symbolic(const std::vector<std::vector<int>>& above, std::vector<std::vector<int>>& rowPattern,
+              std::vector<int>& parent) {
+  const size_t N = above.size();
+  parent.assign(N, -1);
+  rowPattern.assign(N, {});
+  std::vector<int> flag(N, -1);
+  for (int k = 0; k < int(N); ++k) {
+    flag[size_t(k)] = k;
+    for (int i : above[size_t(k)]) {
+      for (int j = i; flag[size_t(j)] != k; j = parent[size_t(j)]) {
+        if (parent[size_t(j)] == -1) parent[size_t(j)] = k;
+        rowPattern[size_t(k)].push_back(j);
+        flag[size_t(j)] = k;
+      }
+    }
+    std::sort(rowPattern[size_t(k)].begin(), rowPattern[size_t(k)].end());
+  }
+}
+
 /// One island's rows: ordered, and L's pattern appended to the plan.
 void planIsland(const std::vector<RowRef>& refs, std::span<const GpuJoint> joints,
                 std::span<const GpuBodyParams> params, JointLdlPlan& plan) {
@@ -82,36 +105,59 @@ void planIsland(const std::vector<RowRef>& refs, std::span<const GpuJoint> joint
   amd(A, perm);
   std::vector<int> order(N), position(N);
   for (int i = 0; i < n; ++i) order[size_t(i)] = perm.indices()[i];
-  for (int i = 0; i < n; ++i) position[size_t(order[size_t(i)])] = i;
 
-  // Upper pattern of the permuted A by column: above[k] = {i < k : A(i, k) != 0}.
-  std::vector<std::vector<int>> above(N);
-  for (int c = 0; c < A.outerSize(); ++c)
-    for (Eigen::SparseMatrix<double>::InnerIterator it(A, c); it; ++it) {
-      const int i = position[size_t(it.row())], k = position[size_t(c)];
-      if (i < k) above[size_t(k)].push_back(i);
-    }
-
-  // Davis' symbolic LDL: row k of L is the set of nodes reached from above[k] walking up the
-  // elimination tree; a node without a parent yet gets k as its parent.
-  std::vector<int> parent(N, -1), flag(N, -1), count(N, 0);
-  std::vector<std::vector<int>> rowPattern(N);
-  for (int k = 0; k < n; ++k) {
-    flag[size_t(k)] = k;
-    for (int i : above[size_t(k)]) {
-      for (int j = i; flag[size_t(j)] != k; j = parent[size_t(j)]) {
-        if (parent[size_t(j)] == -1) parent[size_t(j)] = k;
-        rowPattern[size_t(k)].push_back(j);
-        flag[size_t(j)] = k;
+  // Upper pattern of A permuted by `order`, by column: above[k] = {i < k : A(i, k) != 0}.
+  auto upper = [&](const std::vector<int>& order) {
+    for (int i = 0; i < n; ++i) position[size_t(order[size_t(i)])] = i;
+    std::vector<std::vector<int>> above(N);
+    for (int c = 0; c < A.outerSize(); ++c)
+      for (Eigen::SparseMatrix<double>::InnerIterator it(A, c); it; ++it) {
+        const int i = position[size_t(it.row())], k = position[size_t(c)];
+        if (i < k) above[size_t(k)].push_back(i);
       }
-    }
-    std::sort(rowPattern[size_t(k)].begin(), rowPattern[size_t(k)].end());
+    return above;
+  };
+  std::vector<std::vector<int>> rowPattern;
+  std::vector<int> parent;
+  symbolic(upper(order), rowPattern, parent);
+
+  // Levels of AMD's elimination tree: a leaf's is 0, a parent's one more than its highest
+  // child's (children come before their parent, so one pass upwards does it). Rows stably
+  // sorted by level are still an order in which children come before parents, which gives
+  // the same fill; a level's columns then depend only on lower levels' and are contiguous.
+  std::vector<int> level(N, 0);
+  for (int k = 0; k < n; ++k)
+    if (parent[size_t(k)] >= 0)
+      level[size_t(parent[size_t(k)])] =
+          std::max(level[size_t(parent[size_t(k)])], level[size_t(k)] + 1);
+  std::vector<int> byLevel(N);
+  std::iota(byLevel.begin(), byLevel.end(), 0);
+  std::stable_sort(byLevel.begin(), byLevel.end(),
+                   [&](int a, int b) { return level[size_t(a)] < level[size_t(b)]; });
+  std::vector<int> levelOrder(N);
+  for (size_t m = 0; m < N; ++m) levelOrder[m] = order[size_t(byLevel[m])];
+  std::vector<int> rowLevel(N);
+  for (size_t m = 0; m < N; ++m) rowLevel[m] = level[size_t(byLevel[m])];
+  order.swap(levelOrder);
+  symbolic(upper(order), rowPattern, parent);
+  std::vector<int> count(N, 0);
+  for (int k = 0; k < n; ++k)
     for (int j : rowPattern[size_t(k)]) ++count[size_t(j)];
-  }
 
   const uint32_t first = uint32_t(plan.rows.size());
   const uint32_t base = uint32_t(plan.columnRows.size());
-  plan.islands.push_back({first, uint32_t(n), 0, 0});
+  GpuLdlIsland island{};
+  island.firstRow = first;
+  island.rows = uint32_t(n);
+  island.firstLevel = uint32_t(plan.levels.size() / 2);
+  for (int k = 0; k < n;) {
+    int end = k;
+    while (end < n && rowLevel[size_t(end)] == rowLevel[size_t(k)]) ++end;
+    plan.levels.push_back(first + uint32_t(k));
+    plan.levels.push_back(first + uint32_t(end));
+    k = end;
+  }
+  island.levels = uint32_t(plan.levels.size() / 2) - island.firstLevel;
   std::vector<uint32_t> columnBegin(N), filled(N, 0);
   uint32_t at = base;
   for (int k = 0; k < n; ++k) {
@@ -119,6 +165,7 @@ void planIsland(const std::vector<RowRef>& refs, std::span<const GpuJoint> joint
     at += uint32_t(count[size_t(k)]);
   }
   plan.columnRows.resize(at);
+  plan.entryColumns.resize(at);
   for (int k = 0; k < n; ++k) {
     GpuLdlRow row{};
     const RowRef& ref = refs[size_t(order[size_t(k)])];
@@ -129,6 +176,7 @@ void planIsland(const std::vector<RowRef>& refs, std::span<const GpuJoint> joint
       // Column j's entries go in row order: L(k, j) is its next one.
       const uint32_t index = columnBegin[size_t(j)] + filled[size_t(j)]++;
       plan.columnRows[index] = first + uint32_t(k);
+      plan.entryColumns[index] = first + uint32_t(j);
       plan.pattern.push_back(first + uint32_t(j));
       plan.pattern.push_back(index);
     }
@@ -137,6 +185,24 @@ void planIsland(const std::vector<RowRef>& refs, std::span<const GpuJoint> joint
     row.columnEnd = columnBegin[size_t(k)] + uint32_t(count[size_t(k)]);
     plan.rows.push_back(row);
   }
+
+  // Each dynamic body's rows, ascending (the order the one-thread solve applied them in), the
+  // bodies by index.
+  std::map<int, std::vector<uint32_t>> rowsOf;
+  for (int k = 0; k < n; ++k) {
+    const GpuJoint& j = joints[refs[size_t(order[size_t(k)])].joint];
+    if (dynamic(params, j.bodyA)) rowsOf[j.bodyA].push_back(first + uint32_t(k));
+    if (dynamic(params, j.bodyB) && j.bodyB != j.bodyA)
+      rowsOf[j.bodyB].push_back(first + uint32_t(k));
+  }
+  island.firstBody = uint32_t(plan.bodies.size());
+  for (const auto& [body, rows] : rowsOf) {
+    const uint32_t begin = uint32_t(plan.bodyRows.size());
+    plan.bodyRows.insert(plan.bodyRows.end(), rows.begin(), rows.end());
+    plan.bodies.push_back({uint32_t(body), begin, uint32_t(plan.bodyRows.size()), 0});
+  }
+  island.bodies = uint32_t(plan.bodies.size()) - island.firstBody;
+  plan.islands.push_back(island);
 }
 
 }  // namespace

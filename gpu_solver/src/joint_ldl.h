@@ -6,6 +6,12 @@
 // dynamic: the islands, a fill-reducing order of each island's rows (Eigen's AMD) and the
 // pattern of L (the elimination tree's row patterns, Davis' LDL symbolic step). The device
 // then only does arithmetic on fixed index lists.
+//
+// A workgroup solves an island (joint_ldl.comp), so the plan also says what can run side by
+// side: the island's rows are ordered by their level in the elimination tree (any order in
+// which children come before parents gives the same L: the level order keeps AMD's fill), and
+// a level's columns are factored, and its rows solved, at once. The impulses go to each
+// dynamic body from its own list of rows, in row order, by one thread per body.
 #pragma once
 
 #include <cstdint>
@@ -23,10 +29,14 @@ namespace phys::gpu {
 uint32_t equalityRowCount(const GpuJoint& j);
 
 struct JointLdlPlan {
-  std::vector<uvec4> islands;        ///< (first row, rows, 0, 0)
-  std::vector<GpuLdlRow> rows;       ///< every island's rows, in elimination order
-  std::vector<uint32_t> pattern;     ///< pairs (i, index of L(k, i)), GpuLdlRow's pattern
-  std::vector<uint32_t> columnRows;  ///< the row of each entry of L, column by column
+  std::vector<GpuLdlIsland> islands;
+  std::vector<GpuLdlRow> rows;          ///< every island's rows, in elimination order
+  std::vector<uint32_t> pattern;        ///< pairs (i, index of L(k, i)), GpuLdlRow's pattern
+  std::vector<uint32_t> columnRows;     ///< the row of each entry of L, column by column
+  std::vector<uint32_t> entryColumns;   ///< the column of each entry of L
+  std::vector<uint32_t> levels;         ///< pairs (first row, end row), GpuLdlIsland's levels
+  std::vector<uvec4> bodies;            ///< (body, begin, end, 0) in bodyRows
+  std::vector<uint32_t> bodyRows;       ///< each body's rows, ascending
   size_t entries() const { return columnRows.size(); }
 };
 

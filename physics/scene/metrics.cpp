@@ -54,6 +54,7 @@ struct MetricsRecorder::Impl {
   std::map<std::string, double> stageSum;
   double bpTestsSum = 0;  ///< StepStats::broadPhaseTestsPerShape over the device's steps
   int bpTestsSteps = 0;
+  double readbackSum = 0;
   double energyStart = 0, energyEnd = 0;
   std::optional<double> energySettled;  ///< energy at the first step past the settle time
   double jointErrMax = 0, jointErrSq = 0, jointAngMax = 0;
@@ -86,6 +87,7 @@ void MetricsRecorder::afterStep(const World& world) {
   const StepProfile& p = world.profile();
   m.stepMs.push_back(p.total);
   for (const auto& [name, field] : kStages) m.stageSum[name] += p.*field;
+  m.readbackSum += double(world.backendState().readbackBytes);
 
   const StepStats& st = world.stats();
   if (st.broadPhaseTestsPerShape > 0) {
@@ -163,6 +165,7 @@ MetricsSummary MetricsRecorder::summary() const {
   for (const auto& [name, sum] : m.stageSum) s.stageMs[name] = s.steps ? sum / s.steps : 0;
   if (m.bpTestsSteps > 0)
     s.gpuProfile["broad_phase_tests_per_shape"] = m.bpTestsSum / m.bpTestsSteps;
+  s.readbackBytesPerStep = s.steps ? m.readbackSum / s.steps : 0;
   if (m.hook) m.hook->summarize(&s.extra);
   return s;
 }

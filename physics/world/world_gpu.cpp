@@ -5,7 +5,7 @@
 // The device takes the whole step for every shape (hulls packed once per structure change),
 // joint and preset, with these differences (docs/ARCHITECTURE.md, "The GPU backend"): the
 // Gauss-Seidel schemes run on colors, direct_ldl joints by the device's own sparse
-// L D L^T (joint_ldl.comp; double precision, one thread per joint island), a few settings
+// L D L^T (joint_ldl.comp; double precision, a workgroup per joint island), a few settings
 // (contactsOffDevice) are the CPU's alone. A world that needs one of those has each step
 // with a contact or joint taken by the CPU backend from the same host mirror, counted in
 // BackendState::cpuSteps with the reason; the device's copy is refreshed before its next
@@ -369,17 +369,17 @@ void World::Impl::uploadToDevice() {
 }
 
 /// After a device step: the sleeping islands an awake body (or a moving kinematic one) now
-/// touches wake, as the CPU's wakeTouched. The pairs come back with the step (readContacts);
-/// the device finds no pair between two bodies that are asleep or static. Returns whether
-/// any woke.
+/// touches wake, as the CPU's wakeTouched. The touching pairs come back with the step (the
+/// device's touch list, readTouches: pairs of non-static bodies with contact points); the
+/// device finds no pair between two bodies that are asleep or static. Returns whether any
+/// woke.
 bool World::Impl::wakeTouchedOnDevice() {
   const DeviceWorld& d = *device;
   if (sleepingBodyCount == 0) return false;
   std::vector<int32_t> wake;
-  for (const gpu::GpuManifold& m : d.world->manifolds()) {
-    if (m.count == 0) continue;
-    const BodyRec& A = bodies.at(d.owners[m.shapeA]);
-    const BodyRec& B = bodies.at(d.owners[m.shapeB]);
+  for (const gpu::Touch& t : d.world->touches()) {
+    const BodyRec& A = bodies.at(d.slots[t.a]);
+    const BodyRec& B = bodies.at(d.slots[t.b]);
     if (A.asleep() == B.asleep()) continue;
     const BodyRec& sleeper = A.asleep() ? A : B;
     if (wakesSleeper(A.asleep() ? B : A)) wake.push_back(sleeper.island);
@@ -408,6 +408,7 @@ bool World::Impl::stepOnDevice(int substeps) {
       stats.velocityResidual = 0;
       stats.iterationsUsed = 0;
       deviceTouches.clear();
+      backend.readbackBytes = 0;
       backend.gpuSteps++;
       return true;
     }
@@ -450,8 +451,9 @@ bool World::Impl::stepOnDevice(int substeps) {
   in.solveContacts = solveOnDevice;
   in.contacts = contactSettings(def.solver);
   in.maxPairs = pairLimit();
-  // With sleeping on, the touching pairs come back: the islands are found on the host.
-  in.readContacts = sleeping;
+  // With sleeping on, the touching pairs come back (the device's touch list, not the
+  // manifolds): the islands are found on the host.
+  in.readTouches = sleeping;
   // Past the pair bound under PairOverflow::Refuse the step is not taken: refused before the
   // host mirror is written (the device's copy is marked stale by the refusal), so the world
   // is as it was even without the guard.
@@ -504,8 +506,7 @@ bool World::Impl::stepOnDevice(int substeps) {
   if (sleeping) {
     // The islands' edges (updateSleep) and the awake bodies' numbering it unions by.
     deviceTouches.clear();
-    for (const gpu::GpuManifold& m : g.manifolds())
-      if (m.count > 0) deviceTouches.push_back({d.owners[m.shapeA], d.owners[m.shapeB]});
+    for (const gpu::Touch& t : g.touches()) deviceTouches.push_back({d.slots[t.a], d.slots[t.b]});
     for (size_t i = 0; i < awakeBodies.size(); ++i)
       bodies.at(awakeBodies[i]).solverIndex = int32_t(i + 1);
   }
@@ -556,6 +557,7 @@ bool World::Impl::stepOnDevice(int substeps) {
   stats.velocityResidual = 0;
   stats.iterationsUsed = 0;
   backend.validationErrors = g.validationErrors();
+  backend.readbackBytes = g.readbackBytes();
   backend.gpuSteps++;
   return true;
 }

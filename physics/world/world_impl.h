@@ -193,8 +193,9 @@ struct World::Impl {
   void awakeErase(uint32_t slot);     ///< a body left the step (destroyed, made static)
   void rebuildAwake();                ///< awakeBodies and the counts from the bodies (restore)
   bool sleepActive() const { return def.sleep.enabled; }
-  /// A device step's touching pairs (body slots, contacts with points), read back for the
-  /// islands (updateSleep's edges when the device took the step).
+  /// A device step's touching pairs (body slots, contacts with points between non-static
+  /// bodies: the device's touch list), read back for the islands (updateSleep's edges when
+  /// the device took the step).
   std::vector<std::pair<uint32_t, uint32_t>> deviceTouches;
   /// Wakes island k: its bodies join the step with their timers reset, their proxies move
   /// again, their contacts rejoin the list. Inside a step the guard's copy gets them too.

@@ -2,15 +2,18 @@
 // device's step found and makes the same decisions as the CPU; a sleeping body goes up as a
 // body the step does not move, makes no pairs with static or sleeping bodies, and an awake
 // body that touches it wakes it in the step that found the touch (the step is undone and
-// taken again); a world whose bodies all sleep gives the device nothing to do.
+// taken again); a world whose bodies all sleep gives the device nothing to do. The touching
+// pairs come back as the device's touch list (touch_list.glsl), not as manifolds.
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <random>
 #include <string>
 #include <vector>
 
 #include "../common/bodies.h"
 #include "gpu_test_util.h"
+#include "phys/gpu/gpu_world.h"
 #include "phys/world/world.h"
 
 namespace phys {
@@ -218,6 +221,143 @@ TEST(GpuSleep, AHangingChainSleepsWithItsJointsAndHoldsWhenWoken) {
   ASSERT_TRUE(w.getJoint(joints[0], nullptr, &anchor).ok());
   EXPECT_NEAR(anchor.reactionForce.z, mass * 9.81, 0.02 * mass * 9.81);
   EXPECT_EQ(w.backendState().cpuSteps, 0u);
+}
+
+TEST(GpuSleep, TheTouchListIsTheManifoldsWithPointsBetweenNonStaticBodies) {
+  // What the host's sleep pass read from the manifolds before (each manifold with points;
+  // those with a static body change nothing there) now comes back as the touch list: the same
+  // pairs in the same order, 8 bytes each, whatever else the step brings back.
+  gpu::DeviceOptions o;
+  o.allowCpu = true;
+  std::string error;
+  auto world = gpu::GpuWorld::create(o, &error);
+  if (!world || !world->hasNarrowPhase()) GTEST_SKIP() << "no Vulkan device or narrow phase";
+  // A heap of boxes and spheres over a ground plane and a static box, every fifth body
+  // kinematic and every seventh asleep.
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(0, 1);
+  std::vector<gpu::GpuBodyState> states;
+  std::vector<gpu::GpuBodyParams> params;
+  std::vector<gpu::GpuShape> shapes;
+  auto shape = [](int body, uint32_t type, gpu::vec4 size, gpu::vec4 p) {
+    gpu::GpuShape s;
+    s.body = body;
+    s.type = type;
+    s.size = size;
+    s.localP = p;
+    s.localQ = {0, 0, 0, 1};
+    s.friction = 0.6f;
+    return s;
+  };
+  for (int i = 0; i < 120; ++i) {
+    gpu::GpuBodyState st;
+    st.com = {4 * u(rng), 4 * u(rng), 0.4f + 3 * u(rng), 0};
+    st.q = {0, 0, 0, 1};
+    gpu::GpuBodyParams p;
+    const bool kinematic = i % 5 == 4, asleep = i % 7 == 6;
+    p.flags.x = kinematic || asleep ? (asleep ? PHYS_GPU_BODY_ASLEEP : 0u) : PHYS_GPU_BODY_DYNAMIC;
+    if (p.flags.x == PHYS_GPU_BODY_DYNAMIC) {
+      p.accel = {0, 0, -9.81f, 1};
+      for (int r = 0; r < 3; ++r) (&p.invInertia[r].x)[r] = 6;
+    }
+    p.principal = {0, 0, 0, 1};
+    p.moments = {1 / 6.0f, 1 / 6.0f, 1 / 6.0f, 0};
+    states.push_back(st);
+    params.push_back(p);
+    shapes.push_back(i % 2 ? shape(i, PHYS_GPU_SHAPE_SPHERE, {0.4f, 0, 0, 0}, {0, 0, 0, 0.4f})
+                           : shape(i, PHYS_GPU_SHAPE_BOX, {0.3f, 0.3f, 0.3f, 0},
+                                   {0, 0, 0, 0.52f}));
+  }
+  shapes.push_back(shape(-1, PHYS_GPU_SHAPE_PLANE, {0, 0, 1, 0}, {0, 0, 0, 0}));
+  shapes.push_back(shape(-1, PHYS_GPU_SHAPE_BOX, {1, 1, 0.5f, 0}, {2, 2, 0.5f, 1.5f}));
+  world->setBodies(states, params);
+  world->setShapes(shapes);
+  gpu::StepInput in;
+  in.readContacts = in.readTouches = true;
+  in.contacts.jacobi = false;
+  size_t touching = 0, withStatic = 0;
+  for (int step = 0; step < 20; ++step) {
+    SCOPED_TRACE("step " + std::to_string(step));
+    ASSERT_TRUE(world->step(in, &error)) << error;
+    std::vector<std::pair<uint32_t, uint32_t>> expected;
+    for (const gpu::GpuManifold& m : world->manifolds()) {
+      if (m.count == 0) continue;
+      const int a = shapes[m.shapeA].body, b = shapes[m.shapeB].body;
+      if (a >= 0 && b >= 0)
+        expected.push_back({uint32_t(a), uint32_t(b)});
+      else
+        ++withStatic;
+    }
+    std::vector<std::pair<uint32_t, uint32_t>> got;
+    for (const gpu::Touch& t : world->touches()) got.push_back({t.a, t.b});
+    EXPECT_EQ(got, expected);
+    touching += got.size();
+    // The states, the counters, the list's length and the list, then what readContacts adds.
+    const uint64_t base = states.size() * sizeof(gpu::GpuBodyState) + 8 * 4 + 8 + 8 * got.size();
+    EXPECT_GT(world->readbackBytes(), base);  // plus the capacity's pairs and manifolds
+    EXPECT_EQ((world->readbackBytes() - base) % (sizeof(gpu::GpuPair) + sizeof(gpu::GpuManifold)),
+              0u);
+  }
+  EXPECT_GT(touching, 100u);  // the heap touches itself...
+  EXPECT_GT(withStatic, 20u);  // ...and the ground
+  // Without readContacts only the list comes back.
+  in.readContacts = false;
+  ASSERT_TRUE(world->step(in, &error)) << error;
+  EXPECT_EQ(world->readbackBytes(),
+            states.size() * sizeof(gpu::GpuBodyState) + 8 * 4 + 8 + 8 * world->touches().size());
+}
+
+TEST(GpuSleep, APileFallsAsleepOnTheTouchListAsOnTheCpu) {
+  // A pile of 30 boxes dropped in a heap: it falls asleep on the device from the touch list
+  // as on the CPU (islands, sleep step, the bodies where they rest), the same every run, and
+  // what a step brings back is the states and 8 bytes a touching pair, no manifolds.
+  auto run = [](Backend backend, int* asleepAt, uint64_t* maxReadback, int* contactsAtMax) {
+    World w(sleepyDef(backend));
+    if (w.backendState().active != backend) return std::vector<BodyState>{};
+    add(w, groundBody());
+    std::vector<BodyId> ids;
+    for (int i = 0; i < 30; ++i)
+      ids.push_back(add(w, boxBody({0.3f * float(i % 3), 0.3f * float((i / 3) % 3),
+                                    0.5f + 1.05f * float(i / 9) + 0.1f * float(i % 2)})));
+    *asleepAt = -1;
+    *maxReadback = 0;
+    for (int i = 0; i < 400 && *asleepAt < 0; ++i) {
+      w.step();
+      if (w.backendState().readbackBytes > *maxReadback) {
+        *maxReadback = w.backendState().readbackBytes;
+        *contactsAtMax = w.stats().contacts;
+      }
+      if (allAsleep(w, ids)) *asleepAt = i;
+    }
+    std::vector<BodyState> out;
+    for (BodyId id : ids) out.push_back(state(w, id));
+    if (backend == Backend::Gpu) {
+      EXPECT_EQ(w.backendState().cpuSteps, 0u);
+    }
+    return out;
+  };
+  int gpuAt = -1, cpuAt = -1, again = -1, contacts = 0, contacts2 = 0;
+  uint64_t bytes = 0, bytes2 = 0;
+  const std::vector<BodyState> g = run(Backend::Gpu, &gpuAt, &bytes, &contacts);
+  if (g.empty()) GTEST_SKIP() << "no Vulkan device";
+  const std::vector<BodyState> c = run(Backend::Cpu, &cpuAt, &bytes2, &contacts2);
+  ASSERT_GE(gpuAt, 0) << "the pile never slept on the device";
+  ASSERT_GE(cpuAt, 0);
+  std::printf("asleep at step %d on the device, %d on the CPU; at most %llu bytes back a step\n",
+              gpuAt, cpuAt, static_cast<unsigned long long>(bytes));
+  // The pile's heap is chaotic: the boxes settle near, not at, the CPU's places.
+  EXPECT_LE(std::abs(gpuAt - cpuAt), 30);
+  // At most the states (64 bytes a body), counters and joints' results (none), the list's
+  // length and 8 bytes a touching pair (the manifolds with points, those on the ground too,
+  // bound them): a manifold's record alone is 160 bytes.
+  EXPECT_LE(bytes, 31u * 64 + 32 + 8 + 8u * uint64_t(contacts));
+  const std::vector<BodyState> g2 = run(Backend::Gpu, &again, &bytes2, &contacts2);
+  EXPECT_EQ(again, gpuAt);
+  ASSERT_EQ(g2.size(), g.size());
+  for (size_t i = 0; i < g.size(); ++i) {
+    EXPECT_EQ(g2[i].position, g[i].position) << "box " << i;
+    EXPECT_EQ(g2[i].rotation.w, g[i].rotation.w) << "box " << i;
+  }
 }
 
 }  // namespace

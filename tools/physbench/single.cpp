@@ -239,6 +239,8 @@ int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResul
     for (const auto& [k, v] : m.gpuProfile) std::printf(" %s %.4g", k.c_str(), v);
     std::printf("\n");
   }
+  if (m.readbackBytesPerStep > 0)
+    std::printf("  device readback (bytes/step) %.0f\n", m.readbackBytesPerStep);
   for (const CriterionResult& c : results) {
     std::printf("  [%s] %s = %s (%s)\n", c.passed ? "PASS" : "FAIL", c.name.c_str(),
                 fmtNumber(c.value).c_str(), bounds(c).c_str());
@@ -304,6 +306,7 @@ int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResul
       for (const auto& [k, v] : m.gpuProfile) profile[k] = v;
       j["gpu_profile"] = profile;
     }
+    j["readback_bytes_per_step"] = m.readbackBytesPerStep;
     std::ofstream f(opt.jsonOut);
     f << j.dump(2) << "\n";
     if (!f) {

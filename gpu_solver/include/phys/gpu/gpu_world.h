@@ -79,6 +79,9 @@ struct StepInput {
   float speculativeDistance = 0.02f;  ///< m, as WorldDef::speculativeDistance
   bool readBounds = false;            ///< bring the shapes' bounds back too (tests, diagnostics)
   bool readContacts = false;          ///< bring the pairs and manifolds back too
+  /// Bring back the touch list (touches()): what the host's islands and sleeping need of
+  /// the contacts, 8 bytes a touching pair instead of the manifolds' records.
+  bool readTouches = false;
   /// Solve contacts (needs the narrow phase in the build); without, bodies pass through
   /// each other and only the collision stages run.
   bool solveContacts = true;
@@ -88,6 +91,11 @@ struct StepInput {
   /// them are left out (ContactStats::dropped). Between the bound and the buffers' size
   /// pairs are kept: pairs + dropped is what the broad phase found, to compare with it.
   uint32_t maxPairs = UINT32_MAX;
+};
+
+/// Two non-static bodies (GpuWorld body indices) whose manifold has points this step.
+struct Touch {
+  uint32_t a = 0, b = 0;
 };
 
 struct ContactStats {
@@ -161,6 +169,13 @@ class GpuWorld {
   /// narrow phase, their manifolds (same index); both only with readContacts.
   std::span<const GpuPair> pairs() const;
   std::span<const GpuManifold> manifolds() const;
+  /// After a step with readTouches (and the narrow phase): every manifold with points
+  /// between two bodies that are not static (dynamic, kinematic or asleep), in the
+  /// manifolds' order (pairs with a static body neither join islands nor wake them).
+  std::span<const Touch> touches() const;
+  /// Bytes the last step brought back from the device (states, counters, and what the
+  /// StepInput asked for).
+  uint64_t readbackBytes() const;
   /// The last step's candidate pairs (always read back).
   uint32_t pairCount() const;
   /// The axis (0 x, 1 y, 2 z) the last step's broad phase sorted and swept the bounds on: the

@@ -28,4 +28,5 @@ static_assert(sizeof(GpuJointRow) == 80);
 static_assert(sizeof(GpuJointRows) == 8 * 80 + 96 + 16);
 static_assert(sizeof(GpuJointOut) == 64);
 static_assert(sizeof(GpuLdlRow) == 32);
+static_assert(sizeof(GpuLdlIsland) == 32);
 }  // namespace phys::gpu

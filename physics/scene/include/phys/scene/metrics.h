@@ -42,6 +42,8 @@ struct MetricsSummary {
   /// device: "broad_phase_tests_per_shape" (StepStats::broadPhaseTestsPerShape). Empty
   /// when no step did.
   std::map<std::string, double> gpuProfile;
+  /// Average bytes a step brought back from the GPU backend's device (0 on the CPU).
+  double readbackBytesPerStep = 0;
 
   /// Value of a metric by its physbench name, if it applies.
   std::optional<double> value(const std::string& name) const;

@@ -84,6 +84,8 @@ struct BackendState {
   int validationErrors = 0;
   bool validationRequested = false;  ///< PHYS_GPU_VALIDATION asked for the validation layer
   bool validation = false;           ///< the validation layer is loaded on the world's device
+  /// Bytes the last device step brought back to the host (0 when every body slept).
+  uint64_t readbackBytes = 0;
 };
 
 /// Vulkan validation errors reported in this process so far, by every GPU world's device,
