@@ -32,10 +32,10 @@ struct CpuIslands {
   /// (kHold steps after its island last had one: a bouncing ball or a pile that opens for
   /// a step does not go back and forth, losing its warm start each time).
   std::vector<uint64_t> holdUntil;
+  std::vector<uint8_t> whyOf;  ///< host slot -> why its island was last held (kDirect | kElastic)
   /// The touching pairs (host body slots, static bodies included) of the last step: the
   /// device's and the CPU part's.
   std::vector<std::pair<uint32_t, uint32_t>> deviceTouches, cpuTouches;
-  uint32_t reasons = 0;  ///< kDirect | kElastic of the held islands, this step
   int islandCount = 0;   ///< held islands this step
   static constexpr uint64_t kHold = 30;
   static constexpr uint32_t kDirect = 1, kElastic = 2;
@@ -119,6 +119,7 @@ std::vector<uint32_t> World::Impl::chooseCpuIslands(
   const uint64_t step = stats.step;
   const size_t n = bodies.capacity();
   if (c.holdUntil.size() < n) c.holdUntil.resize(n, 0);
+  if (c.whyOf.size() < n) c.whyOf.resize(n, 0);
   auto dynamic = [&](uint32_t slot) {
     const BodyRec& b = bodies.at(slot);
     return b.type == BodyType::Dynamic && b.awake();
@@ -165,7 +166,10 @@ std::vector<uint32_t> World::Impl::chooseCpuIslands(
     const size_t r = size_t(sets.root(int32_t(slot)));
     if (!why[r] && !held[r]) continue;
     out.push_back(slot);
-    if (why[r]) c.holdUntil[slot] = step + CpuIslands::kHold;
+    if (why[r]) {
+      c.holdUntil[slot] = step + CpuIslands::kHold;
+      c.whyOf[slot] = why[r];
+    }
     all |= why[r];
     count += r == slot;
   }
@@ -204,6 +208,7 @@ bool World::Impl::holdCpuIslands(std::vector<uint32_t> next) {
         next.push_back(slot);
         if (c.holdUntil.size() <= slot) c.holdUntil.resize(slot + 1, 0);
         c.holdUntil[slot] = stats.step + CpuIslands::kHold;
+        if (c.whyOf.size() <= slot) c.whyOf.resize(slot + 1, 0);
       }
       wakeIsland(k);
     }
@@ -253,7 +258,7 @@ bool World::Impl::cpuIslandsBegin(bool structureChanged) {
   }
   std::vector<std::pair<uint32_t, uint32_t>> touches = c.deviceTouches;
   touches.insert(touches.end(), c.cpuTouches.begin(), c.cpuTouches.end());
-  holdCpuIslands(chooseCpuIslands(touches, &c.reasons, &c.islandCount));
+  holdCpuIslands(chooseCpuIslands(touches, nullptr, &c.islandCount));
   // The held bodies' states go up (the CPU moved them last step): where a device body
   // meets them this step.
   for (uint32_t slot : c.members) deviceEdited(slot);
@@ -265,15 +270,14 @@ bool World::Impl::cpuIslandsGrow(const std::vector<std::pair<uint32_t, uint32_t>
   c.deviceTouches = deviceNow;
   std::vector<std::pair<uint32_t, uint32_t>> touches = deviceNow;
   touches.insert(touches.end(), c.cpuTouches.begin(), c.cpuTouches.end());
-  uint32_t reasons = 0;
   int count = 0;
-  std::vector<uint32_t> next = chooseCpuIslands(touches, &reasons, &count);
+  std::vector<uint32_t> next = chooseCpuIslands(touches, nullptr, &count);
   // Within a step the held set only grows (a body released goes at the next step's start).
   std::vector<uint32_t> grown;
   std::set_union(next.begin(), next.end(), c.members.begin(), c.members.end(),
                  std::back_inserter(grown));
   if (grown == c.members) return false;
-  c.reasons |= reasons;
+  c.islandCount = count;
   holdCpuIslands(std::move(grown));
   backend.cpuIslandRetakes++;
   return true;
@@ -400,11 +404,15 @@ void World::Impl::cpuIslandsFinish() {
   stats.iterationsUsed = std::max(stats.iterationsUsed, cs.iterationsUsed);
   backend.cpuIslandSteps++;
   backend.cpuIslandBodySteps += c.members.size();
+  // Why, as each held body's island last needed the CPU (a ball in the air between two
+  // bounces is held for its elastic contacts).
+  uint32_t reasons = 0;
+  for (uint32_t slot : c.members) reasons |= slot < c.whyOf.size() ? c.whyOf[slot] : 0;
   std::string why;
-  if (c.reasons & CpuIslands::kDirect) why = "direct contacts (a touching pair of mass ratio >= directContactRatio)";
-  if (c.reasons & CpuIslands::kElastic)
+  if (reasons & CpuIslands::kDirect) why = "direct contacts (a touching pair of mass ratio >= directContactRatio)";
+  if (reasons & CpuIslands::kElastic)
     why += std::string(why.empty() ? "" : " and ") + "restitution (an elastic contact)";
-  if (c.reasons == 0) why = "held after its reason ended";
+  if (reasons == 0) why = "a sleeping island the held ones reach";
   backend.cpuIslandReason = why;
 }
 
