@@ -17,6 +17,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
+#include <string>
 
 #include "world/world_impl.h"
 
@@ -93,6 +95,13 @@ void copyState(const BodyRec& from, BodyRec* to) {
 }  // namespace
 
 bool World::Impl::cpuIslandsWatch() const {
+  // PHYS_GPU_CPU_ISLANDS=0 turns them off (the device iterates every island, as before
+  // issue 42 point 5): a diagnostic, to measure what they change (docs/BENCHMARKS.md).
+  static const bool off = [] {
+    const char* e = std::getenv("PHYS_GPU_CPU_ISLANDS");
+    return e && std::string(e) == "0";
+  }();
+  if (off) return false;
   // Whether any island could need the CPU: a cheap test over the world, so that a world
   // without (the common one) reads no contacts back and is stepped exactly as before.
   const SolverSettings& s = def.solver;
