@@ -89,7 +89,8 @@ gpu::GpuBodyState stateOf(const BodyRec& b) {
 // with it treat it as immovable, and an awake body that touches it wakes it (stepOnDevice).
 gpu::GpuBodyParams paramsOf(const BodyRec& b, Vec3 gravity, float stiffness) {
   gpu::GpuBodyParams p;
-  const bool dynamic = b.type == BodyType::Dynamic && !b.asleep();
+  // A body the CPU steps this step (BodyRec::held) goes up as a sleeping one.
+  const bool dynamic = b.type == BodyType::Dynamic && !b.asleep() && !b.held;
   p.accel = v4(dynamic ? gravity * b.gravityScale + b.force * b.invMass : Vec3{}, b.invMass);
   p.torque = v4(dynamic ? b.torque : Vec3{}, b.linearDamping);
   p.principal = q4(b.principal);
@@ -102,7 +103,7 @@ gpu::GpuBodyParams paramsOf(const BodyRec& b, Vec3 gravity, float stiffness) {
   const bool gyroscopic = b.gyroscopic && spread > 1e-5f * std::max({I.x, I.y, I.z});
   p.flags.x = (dynamic ? PHYS_GPU_BODY_DYNAMIC : 0u) |
               (dynamic && gyroscopic ? PHYS_GPU_BODY_GYROSCOPIC : 0u) |
-              (b.asleep() ? PHYS_GPU_BODY_ASLEEP : 0u);
+              (b.asleep() || b.held ? PHYS_GPU_BODY_ASLEEP : 0u);
   return p;
 }
 
@@ -358,6 +359,7 @@ void World::Impl::uploadToDevice() {
       const BodyRec* A = j.def.bodyA.isNull() ? nullptr : bodies.get(j.def.bodyA);
       const BodyRec& B = *bodies.get(j.def.bodyB);
       if (B.asleep() || (A && A->asleep())) continue;
+      if (B.held || (A && A->held)) continue;  // the CPU steps it (world_gpu_islands.cpp)
       d.jointSlots.push_back(i);
       jointRecs.push_back(jointOf(j, A, B));
       jointWarm.push_back(jointImpulses(j));
@@ -388,6 +390,13 @@ bool World::Impl::wakeTouchedOnDevice() {
   wake.erase(std::unique(wake.begin(), wake.end()), wake.end());
   for (int32_t k : wake) wakeIsland(k);
   return !wake.empty();
+}
+
+void World::Impl::deviceTouchingPairs(std::vector<std::pair<uint32_t, uint32_t>>* out) const {
+  out->clear();
+  const DeviceWorld& d = *device;
+  for (const gpu::GpuManifold& m : d.world->manifolds())
+    if (m.count > 0) out->push_back({d.owners[m.shapeA], d.owners[m.shapeB]});
 }
 
 bool World::Impl::stepOnDevice(int substeps) {
@@ -426,6 +435,9 @@ bool World::Impl::stepOnDevice(int substeps) {
     d.stiffness.clear();
   }
   gpu::GpuWorld& g = *d.world;
+  // Islands that need the CPU's physics are held on the device and stepped by the CPU
+  // (world_gpu_islands.cpp).
+  const bool cpuIslandsOn = cpuIslandsBegin(d.stale);
   uploadToDevice();
 
   // A world whose contacts or joints the device cannot solve yet steps on the device only
@@ -452,8 +464,11 @@ bool World::Impl::stepOnDevice(int substeps) {
   in.contacts = contactSettings(def.solver);
   in.maxPairs = pairLimit();
   // With sleeping on, the touching pairs come back (the device's touch list, not the
-  // manifolds): the islands are found on the host.
+  // manifolds): the islands are found on the host. The CPU's islands (world_gpu_islands.cpp)
+  // judge each contact by its shapes' materials, the ground's too, which the touch list
+  // leaves out: for them the manifolds come back (only in worlds that have such contacts).
   in.readTouches = sleeping;
+  in.readContacts = cpuIslandsOn;
   // Past the pair bound under PairOverflow::Refuse the step is not taken: refused before the
   // host mirror is written (the device's copy is marked stale by the refusal), so the world
   // is as it was even without the guard.
@@ -485,13 +500,26 @@ bool World::Impl::stepOnDevice(int substeps) {
     // in the next step's narrow phase).
     wakeTouchedOnDevice();
   }
+  if (cpuIslandsOn) {
+    // Islands this step's contacts show needing the CPU (or touching one it holds) join the
+    // CPU's part, and the device step is taken again without them: no island is split.
+    std::vector<std::pair<uint32_t, uint32_t>> touches;
+    deviceTouchingPairs(&touches);
+    while (cpuIslandsGrow(touches)) {
+      g.undoStep();
+      uploadToDevice();
+      if (!take()) return false;
+      deviceTouchingPairs(&touches);
+    }
+    cpuIslandsStep(substeps);
+  }
 
   // The host mirror of the awake bodies (a sleeping body is where it fell asleep, at rest).
   // Forces last one step: a body that had some goes up again without.
   std::span<const gpu::GpuBodyState> out = g.states();
   for (size_t i = 0; i < d.slots.size(); ++i) {
     BodyRec& b = bodies.at(d.slots[i]);
-    if (b.asleep()) continue;
+    if (b.asleep() || b.held) continue;
     const gpu::GpuBodyState& s = out[i];
     b.com = {s.com.x, s.com.y, s.com.z};
     b.xf.q = {s.q.x, s.q.y, s.q.z, s.q.w};
@@ -556,6 +584,7 @@ bool World::Impl::stepOnDevice(int substeps) {
   stats.maxPenetration = cs.deepest;
   stats.velocityResidual = 0;
   stats.iterationsUsed = 0;
+  if (cpuIslandsOn) cpuIslandsFinish();
   backend.validationErrors = g.validationErrors();
   backend.readbackBytes = g.readbackBytes();
   backend.gpuSteps++;

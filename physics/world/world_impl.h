@@ -61,6 +61,9 @@ struct BodyRec {
   bool allowSleep = true;
   float sleepTime = 0;  ///< s, how long the body has been slow enough to sleep
   int32_t island = -1;  ///< its sleeping island (World::Impl::islands), -1 when awake
+  /// Stepped by the CPU inside a device step (world_gpu_islands.cpp): on the device as a
+  /// sleeping body (not moved, immovable to what touches it).
+  bool held = false;
   bool asleep() const { return island >= 0; }
   /// In the step: not static and not asleep (World::Impl::awakeBodies).
   bool awake() const { return type != BodyType::Static && island < 0; }
@@ -145,6 +148,12 @@ struct Snapshot {
 struct DeviceWorld;
 struct DeviceWorldDeleter {
   void operator()(DeviceWorld* d) const;
+};
+
+/// The GPU backend's islands stepped by the CPU (world_gpu_islands.cpp).
+struct CpuIslands;
+struct CpuIslandsDeleter {
+  void operator()(CpuIslands* c) const;
 };
 
 struct World::Impl {
@@ -319,6 +328,26 @@ struct World::Impl {
   bool stepOnDevice(int substeps);
   void uploadToDevice();        ///< stepOnDevice's: what changed on the host goes up
   bool wakeTouchedOnDevice();   ///< stepOnDevice's: wakes what its step found touched
+  // Islands on the CPU beside the device (world_gpu_islands.cpp; docs/ARCHITECTURE.md
+  // "Islands on the CPU beside the device").
+  std::unique_ptr<CpuIslands, CpuIslandsDeleter> cpuIslands;
+  /// Before the device step: which islands the CPU steps (from the last step's touching
+  /// pairs), held on the device. Returns whether any island could need the CPU (the device
+  /// then reads its touching pairs back).
+  bool cpuIslandsBegin(bool structureChanged);
+  /// After a device step, its touching pairs (body slots): whether islands joined the held
+  /// set (the device step is then undone and taken again).
+  bool cpuIslandsGrow(const std::vector<std::pair<uint32_t, uint32_t>>& deviceNow);
+  void cpuIslandsStep(int substeps);  ///< the held islands' step on the CPU, into the mirror
+  void cpuIslandsFinish();            ///< their touches and statistics into the step's
+  bool cpuIslandsWatch() const;
+  std::vector<uint32_t> chooseCpuIslands(const std::vector<std::pair<uint32_t, uint32_t>>& touches,
+                                         uint32_t* reasons, int* islandCount);
+  bool holdCpuIslands(std::vector<uint32_t> next);
+  void buildCpuIslandWorld();
+  /// The device step's touching pairs (body slots of manifolds with points, static bodies
+  /// included), read back with StepInput::readContacts.
+  void deviceTouchingPairs(std::vector<std::pair<uint32_t, uint32_t>>* out) const;
   /// The contact pair bound this step runs under (WorldDef::maxContactPairs resolved).
   uint32_t pairLimit() const;
   /// Whether the joints' direct solve (DirectLdl) stays small this step: no dynamic body in

@@ -126,6 +126,7 @@ struct StressOptions {
   double seconds = 5;            ///< simulated seconds per run
   int jobs = 0;                  ///< runs in parallel (0: the machine's threads)
   std::string csvOut, dumpScene;
+  std::string backend;  ///< cpu, gpu or auto (empty: the scenes' own, the CPU)
   /// The kinds to run (stress.cpp's kKinds); empty: the five of the default rotation (seed
   /// mod 5), without "elastic". Given, seed s runs kinds[s mod kinds.size()].
   std::vector<std::string> kinds;

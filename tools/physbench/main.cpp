@@ -268,6 +268,7 @@ int main(int argc, char** argv) {
     stress.presets = suite.presets;
     stress.jobs = app.count("--jobs") ? suite.jobs : 0;
     stress.csvOut = suite.csvOut;
+    stress.backend = backend;
     if (app.count("--seed")) stress.seed = replaySeed;
     return bench::runStress(stress);
   }

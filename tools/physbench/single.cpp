@@ -24,6 +24,16 @@ std::string backendLabel(const World& world) {
   std::string label = "gpu (" + b.device + "; " + std::to_string(b.gpuSteps) +
                       " steps on the device, " + std::to_string(b.cpuSteps) + " on the CPU";
   if (b.cpuSteps > 0) label += ": " + b.lastFallback;
+  // Islands the CPU stepped inside device steps: those steps count on the device, but the
+  // CPU did their islands' physics (docs/ARCHITECTURE.md, "Islands on the CPU beside the
+  // device").
+  if (b.cpuIslandSteps > 0) {
+    char mean[32];
+    std::snprintf(mean, sizeof mean, "%.1f", double(b.cpuIslandBodySteps) / double(b.cpuIslandSteps));
+    label += "; in " + std::to_string(b.cpuIslandSteps) + " of them islands on the CPU (" + mean +
+             " bodies a step, " + std::to_string(b.cpuIslandRetakes) +
+             " device steps retaken): " + b.cpuIslandReason;
+  }
   return label + ")";
 }
 

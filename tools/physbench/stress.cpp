@@ -438,6 +438,11 @@ struct RunResult {
   bool checkEnergy = true;
   double energyBound = kEnergyRise;  ///< the rise that fails it
   std::string firstFailure;  ///< when and where it first failed (replays of failed runs only)
+  /// With --backend: steps on the device, steps the CPU took whole, device steps with
+  /// islands on the CPU (world_gpu_islands.cpp), and the run's wall time.
+  unsigned long long gpuSteps = 0, cpuSteps = 0, cpuIslandSteps = 0;
+  double ms = 0;
+  int steps = 0;
   bool exploded() const {
     return maxSpeed > speedBound || (checkEnergy && energyRise > energyBound);
   }
@@ -551,10 +556,12 @@ std::string describeFailure(const Scene& sc, const World& world, const std::vect
 /// deterministic with one thread), the measures are checked after every step as well and the
 /// first step that fails is described in RunResult::firstFailure.
 RunResult runOne(uint64_t seed, int kind, const std::string& presetName,
-                 const SolverSettings& settings, double seconds, bool explain = false) {
+                 const SolverSettings& settings, double seconds, const std::string& backend,
+                 bool explain = false) {
   Scene sc = makeScene(seed, kind);
   sc.world.solver = settings;
   sc.world.threads = 1;
+  if (!backend.empty()) parseBackend(backend, &sc.world.backend);
   RunResult res;
   res.seed = seed;
   res.kind = kKinds[kind];
@@ -582,6 +589,7 @@ RunResult runOne(uint64_t seed, int kind, const std::string& presetName,
   }
   MetricsRecorder rec(sc, world, ids);
   const int steps = int(std::lround(seconds / sc.world.timeStep));
+  const auto t0 = std::chrono::steady_clock::now();
   for (int i = 0; i < steps; ++i) {
     world.step();
     rec.afterStep(world);
@@ -593,6 +601,12 @@ RunResult runOne(uint64_t seed, int kind, const std::string& presetName,
   }
   takeSummary(rec.summary(), &res);
   res.guardEvents = world.stats().guardEvents;
+  res.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  res.steps = steps;
+  const BackendState& b = world.backendState();
+  res.gpuSteps = b.gpuSteps;
+  res.cpuSteps = b.cpuSteps;
+  res.cpuIslandSteps = b.cpuIslandSteps;
   return res;
 }
 
@@ -670,7 +684,7 @@ int runStress(const StressOptions& opt) {
     for (size_t k; (k = next.fetch_add(1)) < jobs.size();) {
       const Job& j = jobs[k];
       results[k] = runOne(j.seed, kindFor(j.seed), names[j.preset],
-                          presets[names[j.preset]].settings, opt.seconds);
+                          presets[names[j.preset]].settings, opt.seconds, opt.backend);
       const size_t d = ++done;
       if (d % 50 == 0 || d == jobs.size()) {
         std::lock_guard<std::mutex> lock(printMutex);
@@ -710,6 +724,19 @@ int runStress(const StressOptions& opt) {
   };
   say("stress: %zu seeds from %llu, %.3g s each, %zu presets\n", seeds.size(),
       static_cast<unsigned long long>(seeds.front()), opt.seconds, names.size());
+  if (!opt.backend.empty()) {
+    // Where the steps ran, and their wall time per step (jobs in parallel share the cores).
+    unsigned long long gpu = 0, cpu = 0, islands = 0, steps = 0;
+    double ms = 0;
+    for (const RunResult& r : results) {
+      gpu += r.gpuSteps, cpu += r.cpuSteps, islands += r.cpuIslandSteps;
+      steps += static_cast<unsigned long long>(r.steps);
+      ms += r.ms;
+    }
+    say("backend %s: %llu steps on the device (%llu of them with islands on the CPU), %llu "
+        "taken whole by the CPU; %.3f ms/step\n",
+        opt.backend.c_str(), gpu, islands, cpu, steps ? ms / double(steps) : 0.0);
+  }
   say("| preset | runs | nan | explosion | joint > 10 cm | failed | failure rate | guard "
       "events |\n|---|---|---|---|---|---|---|---|\n");
   bool anyFailed = false, anyError = false;
@@ -750,7 +777,7 @@ int runStress(const StressOptions& opt) {
     // Replayed step by step to say when it first failed, on what, and what touched it.
     const RunResult replay =
         runOne(r.seed, kindFor(r.seed), r.preset, presets[r.preset].settings, opt.seconds,
-               /*explain=*/true);
+               opt.backend, /*explain=*/true);
     if (!replay.firstFailure.empty()) say("    %s\n", replay.firstFailure.c_str());
   }
   if (shown > 20) say("  ... and %d more (see --csv)\n", shown - 20);

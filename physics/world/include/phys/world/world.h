@@ -79,6 +79,17 @@ struct BackendState {
                                   ///< need no device work and count here too)
   uint64_t cpuSteps = 0;          ///< steps taken by the CPU backend (all of a CPU world's)
   std::string lastFallback;       ///< why the last CPU step of a GPU world was not on the device
+  /// Islands the CPU stepped inside device steps (docs/ARCHITECTURE.md, "Islands on the CPU
+  /// beside the device"): those with a touching pair of mass ratio directContactRatio or
+  /// more (direct contacts) or with an elastic contact (restitution's collision phase). Those
+  /// steps count in gpuSteps; the rest of the world was on the device.
+  int cpuIslands = 0;                 ///< islands the CPU stepped in the last step
+  int cpuIslandBodies = 0;            ///< their bodies
+  double cpuIslandMs = 0;             ///< ms, the CPU's part of the last step (wall)
+  uint64_t cpuIslandSteps = 0;        ///< device steps with islands on the CPU
+  uint64_t cpuIslandBodySteps = 0;    ///< bodies the CPU stepped, summed over those steps
+  uint64_t cpuIslandRetakes = 0;      ///< device steps taken again: an island joined the CPU's
+  std::string cpuIslandReason;        ///< why, in the last step that had any
   /// Errors the Vulkan validation layer reported on the world's device so far (only with
   /// PHYS_GPU_VALIDATION=1; tests and physbench --require-device fail on any).
   int validationErrors = 0;
