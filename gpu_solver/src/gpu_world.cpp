@@ -297,6 +297,7 @@ struct GpuWorld::Impl {
   uint32_t pairCapacity = 64;
   Primitives::ScanScratch scanScratch;
   std::vector<double> stageMs = std::vector<double>(kStageCount, 0.0);
+  StepCounts counts;
 
   void sync(Stream& s, const GpuStepConstants& c);
   void recordBroadPhase(Stream& s, const GpuStepConstants& c);
@@ -874,6 +875,8 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
   w.stageMs.assign(kStageCount, 0.0);
   const std::vector<double>& ms = s.stageMs();
   for (size_t i = 0; i < ms.size() && i < w.stageMs.size(); ++i) w.stageMs[i] = ms[i];
+  const Stream::Counts& counts = s.counts();
+  w.counts = {counts.dispatches, counts.indirect, counts.barriers, counts.transfers};
   return true;
 }
 
@@ -923,6 +926,9 @@ bool GpuWorld::hasNarrowPhase() const {
 }
 std::span<const double> GpuWorld::stageMs() const {
   return impl_->stageMs;
+}
+StepCounts GpuWorld::stepCounts() const {
+  return impl_->counts;
 }
 
 }  // namespace phys::gpu

@@ -541,6 +541,11 @@ bool World::Impl::stepOnDevice(int substeps) {
   profile.storeImpulses = stage(gpu::Stage::StoreImpulses);
   profile.finalize = stage(gpu::Stage::Finalize);
   profile.readback = stage(gpu::Stage::Readback);
+  const gpu::StepCounts counts = g.stepCounts();
+  profile.dispatches = int(counts.dispatches);
+  profile.barriers = int(counts.barriers);
+  backend.gpuDispatches += counts.dispatches;
+  backend.gpuBarriers += counts.barriers;
   stats.bodies = int(bodies.size());
   stats.awake = int(awakeBodies.size());
   const gpu::ContactStats cs = g.contactStats();

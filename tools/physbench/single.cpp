@@ -166,6 +166,10 @@ int runSingle(SingleOptions opt) {
   SingleResult result{usedPreset,         backendLabel(*world), world->def().threads,
                       world->bodyCount(), world->jointCount(),  steps,
                       run.metrics,        {}};
+  if (const BackendState& b = world->backendState(); b.gpuSteps > 0 && b.gpuDispatches > 0) {
+    result.dispatchesPerStep = double(b.gpuDispatches) / double(b.gpuSteps);
+    result.barriersPerStep = double(b.gpuBarriers) / double(b.gpuSteps);
+  }
   if (opt.againstCpu) {
     if (scene.world.backend == Backend::Cpu)
       std::cerr << "physbench: --against-cpu on the CPU backend compares it with itself "
@@ -234,6 +238,9 @@ int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResul
   for (const auto& [k, v] : m.stageMs)
     if (v > 0.0005) std::printf(" %s %.3f", k.c_str(), v);
   std::printf("\n");
+  if (r.dispatchesPerStep)
+    std::printf("  device launches: %.1f dispatches/step, %.1f barriers/step\n",
+                *r.dispatchesPerStep, *r.barriersPerStep);
   for (const CriterionResult& c : results) {
     std::printf("  [%s] %s = %s (%s)\n", c.passed ? "PASS" : "FAIL", c.name.c_str(),
                 fmtNumber(c.value).c_str(), bounds(c).c_str());
@@ -294,6 +301,10 @@ int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResul
     nlohmann::json stages;
     for (const auto& [k, v] : m.stageMs) stages[k] = v;
     j["stage_ms"] = stages;
+    if (r.dispatchesPerStep) {
+      j["gpu"] = {{"dispatches_per_step", *r.dispatchesPerStep},
+                  {"barriers_per_step", *r.barriersPerStep}};
+    }
     std::ofstream f(opt.jsonOut);
     f << j.dump(2) << "\n";
     if (!f) {

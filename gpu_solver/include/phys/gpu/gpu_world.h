@@ -96,6 +96,16 @@ struct ContactStats {
   uint32_t dropped = 0;  ///< pairs left out for want of room (StepInput::maxPairs)
 };
 
+/// What the last step recorded into its command buffer: beyond its arithmetic, a step costs
+/// the device a launch and a drain per dispatch and barrier (a few microseconds each on a
+/// GPU), which is all a small world's step is. Pinned by tests (GpuDispatch.*).
+struct StepCounts {
+  uint32_t dispatches = 0;  ///< dispatches recorded, the indirect ones included
+  uint32_t indirect = 0;    ///< of them, sized on the device (some may run no workgroup)
+  uint32_t barriers = 0;    ///< pipeline barriers
+  uint32_t transfers = 0;   ///< uploads, downloads, fills and copies
+};
+
 class GpuWorld {
  public:
   /// A world on the device the options choose (one device per process and options, shared
@@ -160,6 +170,9 @@ class GpuWorld {
   /// Device time of each stage in the last step (ms), indexed by Stage; zeros without
   /// timestamp support.
   std::span<const double> stageMs() const;
+  /// The last step's dispatches and barriers (the attempt that stood, when a step was taken
+  /// again with larger pair buffers).
+  StepCounts stepCounts() const;
 
  private:
   struct Impl;

@@ -84,6 +84,9 @@ struct BackendState {
   int validationErrors = 0;
   bool validationRequested = false;  ///< PHYS_GPU_VALIDATION asked for the validation layer
   bool validation = false;           ///< the validation layer is loaded on the world's device
+  /// Dispatches and barriers the device's steps recorded, summed over gpuSteps (divide for
+  /// the per-step figure physbench reports).
+  uint64_t gpuDispatches = 0, gpuBarriers = 0;
 };
 
 /// Vulkan validation errors reported in this process so far, by every GPU world's device,
@@ -170,6 +173,9 @@ struct StepProfile {
   double applyCommands = 0, updateBounds = 0, broadPhase = 0, narrowPhase = 0, buildIslands = 0,
          prepare = 0, integrateVelocities = 0, warmStart = 0, solve = 0, integratePositions = 0,
          relax = 0, restitution = 0, positionPass = 0, storeImpulses = 0, finalize = 0, total = 0;
+  /// GPU backend: the dispatches and pipeline barriers the step recorded (0 for a step the
+  /// CPU took): a small world's device step costs about this many launches and drains.
+  int dispatches = 0, barriers = 0;
 };
 
 /// What the last step did, for metrics and monitors (double precision).
