@@ -24,6 +24,7 @@ std::string backendLabel(const World& world) {
   std::string label = "gpu (" + b.device + "; " + std::to_string(b.gpuSteps) +
                       " steps on the device, " + std::to_string(b.cpuSteps) + " on the CPU";
   if (b.cpuSteps > 0) label += ": " + b.lastFallback;
+  if (b.requested == Backend::Auto) label += "; " + b.note;
   return label + ")";
 }
 

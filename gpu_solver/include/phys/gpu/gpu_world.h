@@ -88,6 +88,13 @@ struct StepInput {
   /// them are left out (ContactStats::dropped). Between the bound and the buffers' size
   /// pairs are kept: pairs + dropped is what the broad phase found, to compare with it.
   uint32_t maxPairs = UINT32_MAX;
+  /// A small world: up to this many constraints (joints + pair slots), the colored passes
+  /// and the coloring rounds run in one workgroup, a dispatch for a whole run of passes
+  /// instead of one per color and pass (the same arithmetic in the same order: the same
+  /// bits). 0: never (tests compare the two). World's default (world_gpu.cpp): 256 on a GPU,
+  /// 0 on a CPU implementation, where lavapipe runs such a workgroup's barriers some 20-80
+  /// times slower than the dispatches and takes minutes to compile it.
+  uint32_t smallWorldConstraints = 256;
 };
 
 struct ContactStats {

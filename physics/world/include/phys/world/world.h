@@ -60,7 +60,10 @@ struct BodyDef {
   std::vector<ShapeDef> shapes;
 };
 
-/// Where a world's step runs. `Gpu` and `Auto` open a Vulkan device (gpu_solver/): a
+/// Where a world's step runs. `Auto`: the faster backend for the world's size, by a
+/// calibration of the device against the CPU taken once per process when the device opens
+/// (docs/ARCHITECTURE.md "backend = auto"), chosen at the first step and again when the
+/// world's body count has doubled or halved since. `Gpu` and `Auto` open a Vulkan device (gpu_solver/): a
 /// discrete GPU first, then an integrated one; a CPU implementation (lavapipe) only with
 /// WorldDef::gpuAllowCpuDevice or PHYS_GPU_ALLOW_CPU=1. With no usable device both run on
 /// the CPU and World::backendState() says why. The GPU backend does not cover every stage
@@ -87,6 +90,10 @@ struct BackendState {
   /// Dispatches and barriers the device's steps recorded, summed over gpuSteps (divide for
   /// the per-step figure physbench reports).
   uint64_t gpuDispatches = 0, gpuBarriers = 0;
+  /// Backend::Auto: the body count above which the device's step is the faster, from the
+  /// calibration taken when the device opened (+inf: never; 0: not an auto world on a
+  /// device). `active` is the backend auto chose for the world's size (`note` says why).
+  double autoCrossoverBodies = 0;
 };
 
 /// Vulkan validation errors reported in this process so far, by every GPU world's device,
