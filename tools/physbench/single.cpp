@@ -19,6 +19,8 @@ namespace phys::bench {
 std::string backendLabel(const World& world) {
   const BackendState& b = world.backendState();
   if (b.requested == Backend::Cpu) return "cpu";
+  if (b.active == Backend::Cpu && b.note.rfind("auto: ", 0) == 0)
+    return "cpu (" + b.note + ")";  // auto chose the CPU for the world's size
   if (b.active == Backend::Cpu)
     return "cpu (" + std::string(toString(b.requested)) + ": " + b.note + ")";
   std::string label = "gpu (" + b.device + "; " + std::to_string(b.gpuSteps) +
