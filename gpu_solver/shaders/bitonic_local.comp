@@ -4,6 +4,9 @@
 // c.k = 0: every pass for k = 2 .. tile (sorting each tile in the direction the global
 // network gives it); else the passes j = tile/2 .. 1 of sequence length c.k. The same
 // compare-exchange as bitonic_sort.comp, so the same network and the same result.
+// A sort shorter than a tile (c.n < tile, c.k = 0) is one workgroup: the tile's tail is
+// padded with (~0u, ~0u), which sorts last, and only the first c.n come back. The order is
+// total, so the result is the one the global passes give, bit for bit, in one dispatch.
 #extension GL_GOOGLE_include_directive : require
 #extension GL_ARB_gpu_shader_fp64 : require
 #include "shared.h"
@@ -32,8 +35,9 @@ void main() {
   uint base = groupIndex() * PHYS_GPU_SORT_TILE;
   if (base >= c.n) return;
   uint t = gl_LocalInvocationID.x;
-  tile[t] = keys[base + t];
-  tile[t + PHYS_GPU_SORT_TILE / 2u] = keys[base + t + PHYS_GPU_SORT_TILE / 2u];
+  uint hi = t + PHYS_GPU_SORT_TILE / 2u;
+  tile[t] = base + t < c.n ? keys[base + t] : uvec2(0xFFFFFFFFu);
+  tile[hi] = base + hi < c.n ? keys[base + hi] : uvec2(0xFFFFFFFFu);
   barrier();
   if (c.k == 0u) {
     for (uint k = 2u; k <= PHYS_GPU_SORT_TILE; k <<= 1) {
@@ -48,6 +52,6 @@ void main() {
       barrier();
     }
   }
-  keys[base + t] = tile[t];
-  keys[base + t + PHYS_GPU_SORT_TILE / 2u] = tile[t + PHYS_GPU_SORT_TILE / 2u];
+  if (base + t < c.n) keys[base + t] = tile[t];
+  if (base + hi < c.n) keys[base + hi] = tile[hi];
 }

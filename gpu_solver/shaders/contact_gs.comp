@@ -4,23 +4,42 @@
 // slot is walked by one thread in contact order. The pass (warm start, solve or relax,
 // restitution, the position pass, the split push-out's passes) is GpuSolveConstants.mode;
 // contact.glsl has the rows.
+// Compiled twice (gpu_solver/CMakeLists.txt): contact_gs, a dispatch per color, and
+// contact_gs_group (PHYS_GPU_GROUP_PASSES, a small world): one workgroup runs
+// GpuSolveConstants.groupPasses passes over every color in one dispatch, a barrier after each
+// color; the first pass is k.mode, the
+// next ones solve (after a warm start) or push out (after the push-out's warm start). Each
+// contact runs the same arithmetic in the same color order as with a dispatch per color, so
+// the bits are the same. The push-out's warm start then zeroes the pseudo velocities itself
+// (the host's fill is left out).
 #extension GL_GOOGLE_include_directive : require
 #extension GL_ARB_gpu_shader_fp64 : require
 #include "shared.h"
 #include "common.glsl"
 layout(local_size_x = PHYS_GPU_GROUP) in;
-layout(std430, binding = 0) buffer Bodies { GpuSolverBody bodies[]; };
+#ifdef PHYS_GPU_GROUP_PASSES
+// Coherent: the workgroup reads in one color what it wrote in the last, after a barrier.
+#define PHYS_GPU_COHERENT coherent
+#else
+#define PHYS_GPU_COHERENT
+#endif
+layout(std430, binding = 0) PHYS_GPU_COHERENT buffer Bodies { GpuSolverBody bodies[]; };
 layout(std430, binding = 1) readonly buffer Params { GpuBodyParams params[]; };
-layout(std430, binding = 2) buffer Contacts { GpuContact contacts[]; };
+layout(std430, binding = 2) PHYS_GPU_COHERENT buffer Contacts { GpuContact contacts[]; };
 layout(std430, binding = 3) readonly buffer Keys { uvec2 colorKeys[]; };
 layout(std430, binding = 4) readonly buffer Ranges { uvec4 ranges[]; };
 layout(std430, binding = 5) readonly buffer Refs { uvec4 refs[]; };
 layout(std430, binding = 6) readonly buffer Joints { GpuJoint joints[]; };
-layout(std430, binding = 7) buffer Rows { GpuJointRows jointRows[]; };
+layout(std430, binding = 7) PHYS_GPU_COHERENT buffer Rows { GpuJointRows jointRows[]; };
 layout(std430, binding = 8) readonly buffer Counters { uint counters[]; };
 // The split push-out's pseudo velocities: body b's linear at 2b, angular at 2b + 1.
-layout(std430, binding = 9) buffer PushVelocities { vec4 pushVelocity[]; };
+layout(std430, binding = 9) PHYS_GPU_COHERENT buffer PushVelocities { vec4 pushVelocity[]; };
 layout(push_constant) uniform Push { GpuSolveConstants k; };
+#ifdef PHYS_GPU_GROUP_PASSES
+uint passMode;  // this pass's PHYS_GPU_PASS_* (k.mode, or a later pass of the workgroup's run)
+#else
+#define passMode k.mode
+#endif
 #include "contact.glsl"
 #include "joint.glsl"
 
@@ -42,7 +61,7 @@ void moveBody(int b, vec3 dp, vec3 dth) {
 void solveJointOne(uint ji) {
   GpuJoint j = joints[ji];
   Side A = loadSide(j.bodyA), B = loadSide(j.bodyB);
-  if (k.mode == PHYS_GPU_PASS_POSITION) {
+  if (passMode == PHYS_GPU_PASS_POSITION) {
     // Row by row, each from the poses the previous rows left (Solver::positionPass).
     GpuJointRows J = jointRows[ji];
     for (uint i = 0u; i < J.count; ++i) {
@@ -56,9 +75,9 @@ void solveJointOne(uint ji) {
     }
     return;
   }
-  if (k.mode == PHYS_GPU_PASS_RESTITUTION) return;
+  if (passMode == PHYS_GPU_PASS_RESTITUTION) return;
   vec3 va = A.v, wa = A.w, vb = B.v, wb = B.w;
-  if (k.mode == PHYS_GPU_PASS_WARM_START) {
+  if (passMode == PHYS_GPU_PASS_WARM_START) {
     warmStartJoint(jointRows[ji], A, B, va, wa, vb, wb);
   } else {
     GpuJointRows J = jointRows[ji];
@@ -88,7 +107,7 @@ void pushOne(uint i) {
   vec3 va, wa, vb, wb;
   loadPush(c.bodyA, va, wa);
   loadPush(c.bodyB, vb, wb);
-  if (k.mode == PHYS_GPU_PASS_PUSH_WARM) {
+  if (passMode == PHYS_GPU_PASS_PUSH_WARM) {
     pushWarmStartContact(c, A, B, va, wa, vb, wb);
   } else {
     pushoutContact(c, A, B, va, wa, vb, wb);
@@ -120,11 +139,11 @@ void pushJointOne(uint ji) {
 }
 
 void solveOne(uint id) {
-  bool push = k.mode == PHYS_GPU_PASS_PUSH_WARM || k.mode == PHYS_GPU_PASS_PUSHOUT;
+  bool push = passMode == PHYS_GPU_PASS_PUSH_WARM || passMode == PHYS_GPU_PASS_PUSHOUT;
   if (id < k.jointCount) {
     if (!push)
       solveJointOne(id);
-    else if (k.mode == PHYS_GPU_PASS_PUSHOUT)
+    else if (passMode == PHYS_GPU_PASS_PUSHOUT)
       pushJointOne(id);
     return;
   }
@@ -135,7 +154,7 @@ void solveOne(uint id) {
   }
   GpuContact c = contacts[i];
   Side A = loadSide(c.bodyA), B = loadSide(c.bodyB);
-  if (k.mode == PHYS_GPU_PASS_POSITION) {
+  if (passMode == PHYS_GPU_PASS_POSITION) {
     // Row by row, each from the poses the previous rows left (Solver::positionPass).
     vec3 n = c.normal.xyz;
     for (uint p = 0u; p < c.count; ++p) {
@@ -154,9 +173,9 @@ void solveOne(uint id) {
     return;
   }
   vec3 va = A.v, wa = A.w, vb = B.v, wb = B.w;
-  if (k.mode == PHYS_GPU_PASS_WARM_START)
+  if (passMode == PHYS_GPU_PASS_WARM_START)
     warmStartContact(c, A, B, va, wa, vb, wb);
-  else if (k.mode == PHYS_GPU_PASS_SOLVE)
+  else if (passMode == PHYS_GPU_PASS_SOLVE)
     solveContact(c, A, B, k.useBias != 0u, va, wa, vb, wb);
   else
     restituteContact(c, A, B, va, wa, vb, wb);
@@ -170,6 +189,7 @@ void main() {
   // corrects (the CPU's rule, from the same narrow phase's deepest penetration).
   splitActive = k.splitPushout != 0u &&
                 uintBitsToFloat(counters[PHYS_GPU_COUNTER_DEEPEST]) > PHYS_GPU_SPLIT_DEPTH;
+#ifndef PHYS_GPU_GROUP_PASSES
   if ((k.mode == PHYS_GPU_PASS_PUSH_WARM || k.mode == PHYS_GPU_PASS_PUSHOUT) && !splitActive)
     return;
   uvec4 range = ranges[k.color];
@@ -180,4 +200,33 @@ void main() {
   }
   uint e = range.x + globalIndex();
   if (e < range.y) solveOne(colorKeys[e].y);
+#else
+  // A small world: this workgroup runs every color of k.groupPasses passes.
+  bool push = k.mode == PHYS_GPU_PASS_PUSH_WARM || k.mode == PHYS_GPU_PASS_PUSHOUT;
+  passMode = k.mode;
+  uint t = gl_LocalInvocationID.x;
+  if (k.mode == PHYS_GPU_PASS_PUSH_WARM) {
+    for (uint b = t; b < k.bodyCount; b += PHYS_GPU_GROUP) {
+      pushVelocity[2 * b] = vec4(0);
+      pushVelocity[2 * b + 1] = vec4(0);
+    }
+    memoryBarrierBuffer();
+    barrier();
+  }
+  if (push && !splitActive) return;
+  for (uint p = 0u; p < k.groupPasses; ++p) {
+    if (p > 0u && k.mode == PHYS_GPU_PASS_WARM_START) passMode = PHYS_GPU_PASS_SOLVE;
+    if (p > 0u && k.mode == PHYS_GPU_PASS_PUSH_WARM) passMode = PHYS_GPU_PASS_PUSHOUT;
+    for (uint color = 0u; color <= k.colorLimit; ++color) {
+      // One call site of solveOne (the overflow's first thread walks it in order).
+      uvec4 range = ranges[color];
+      bool overflow = color == k.colorLimit;
+      uint e = overflow ? (t == 0u ? range.x : range.y) : range.x + t;
+      uint stride = overflow ? 1u : PHYS_GPU_GROUP;
+      for (; e < range.y; e += stride) solveOne(colorKeys[e].y);
+      memoryBarrierBuffer();
+      barrier();
+    }
+  }
+#endif
 }

@@ -234,7 +234,9 @@ struct GpuSolveConstants {
   float jointBiasRate;          // joints' equality rows: soft (Catto 2011) or Baumgarte
   float jointMassScale;
   float jointImpulseScale;
-  float pad3;
+  uint groupPasses;             // a small world (GpuWorld's kSmallConstraints): one workgroup
+                                // runs this many passes (colors, rounds) in one dispatch, a
+                                // barrier between them; 0: a dispatch per color or round
 };
 
 // GpuJoint.type, as phys::JointType; GpuJoint.flags.

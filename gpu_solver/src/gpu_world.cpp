@@ -65,8 +65,9 @@ struct Kernels {
       updateBounds, bpKeys, bpCount, bpWrite, bpPairs, bvhScene, bvhKeys, bvhBuild, bvhFit,
       bvhCount, bvhWrite, narrowPhase, matchContacts, csrKeys,
       csrRanges, prepareContacts, contactWarmStart, contactSolve, contactRestitution, applyDeltas,
-      storeImpulses, contactStats, colorRound, colorKeys, colorRanges, contactGs, positionJacobi,
-      applyPositions, prepareJoints, jointJacobi, storeJoints, jointLdl, touchFlags, touchWrite;
+      storeImpulses, contactStats, colorRound, colorKeys, colorRanges, contactGs, contactGsGroup,
+      positionJacobi, applyPositions, prepareJoints, jointJacobi, storeJoints, jointLdl,
+      touchFlags, touchWrite;
   Primitives primitives;
   explicit Kernels(const std::shared_ptr<Device>& d) : primitives(d) {
     auto make = [&](const char* name, uint32_t bindings, uint32_t push) {
@@ -105,6 +106,7 @@ struct Kernels {
     colorKeys = make("color_keys", 3, solve);
     colorRanges = make("color_ranges", 3, solve);
     contactGs = make("contact_gs", 10, solve);
+    contactGsGroup = make("contact_gs_group", 10, solve);
     positionJacobi = make("position_jacobi", 6, solve);
     prepareJoints = make("prepare_joints", 8, solve);
     jointJacobi = make("joint_jacobi", 6, solve);
@@ -321,10 +323,14 @@ struct GpuWorld::Impl {
   static constexpr uint64_t kSweepAxisPeriod = 16;
   void chooseSweepAxis();
   uint32_t colorLimit = 16;  ///< colors dispatched (then the serial overflow), from the last step
+  /// This step's world is small (StepInput::smallWorldConstraints): the colored passes and
+  /// the coloring run in one workgroup, a run of passes in one dispatch.
+  bool smallWorld = false;
   int current = 0;           ///< manifoldBuf[current] is this step's
   uint32_t pairCapacity = 64;
   Primitives::ScanScratch scanScratch;
   std::vector<double> stageMs = std::vector<double>(kStageCount, 0.0);
+  StepCounts counts;
 
   void sync(Stream& s, const GpuStepConstants& c);
   void recordBroadPhase(Stream& s, const GpuStepConstants& c);
@@ -344,8 +350,10 @@ struct GpuWorld::Impl {
   void recordLdl(Stream& s, GpuSolveConstants sc, uint32_t mode, bool useBias);
   /// Colors the contacts (no two of a color share a dynamic body) and sorts them by color.
   void recordColoring(Stream& s, const GpuSolveConstants& sc);
-  /// One colored Gauss-Seidel pass over every color (mode: warm start, solve, restitution).
-  void recordColoredPass(Stream& s, GpuSolveConstants sc, uint32_t mode);
+  /// `passes` colored Gauss-Seidel passes over every color (mode: warm start, solve,
+  /// restitution, ...; after a warm start the later passes solve, after the push-out's warm
+  /// start they push out). A small world's run is one dispatch of one workgroup.
+  void recordColoredPass(Stream& s, GpuSolveConstants sc, uint32_t mode, uint32_t passes = 1);
   /// One Jacobi pass of `kernel` over the contacts, then every body takes its average.
   void recordContactPass(Stream& s, const Kernel& kernel, const GpuSolveConstants& sc);
   Kernels& kernels() { return *shared->kernels; }
@@ -682,7 +690,16 @@ void GpuWorld::Impl::recordColoring(Stream& s, const GpuSolveConstants& sc) {
   // after them go to the serial overflow, as do colors past the limit.
   constexpr int kRounds = 24;
   const uint32_t constraints = sc.jointCount + pairCapacity;
-  for (int r = 0; r < kRounds; ++r) {
+  if (smallWorld) {
+    // Every round in one workgroup, which ping-pongs the buffers itself (round r reads
+    // colorBuf[r % 2], as below).
+    GpuSolveConstants one = sc;
+    one.groupPasses = kRounds;
+    const Buffer* b[] = {&refKeyBuf, &refBuf,       &contactBuf, &paramBuf,
+                         &colorBuf[0], &colorBuf[1], &counterBuf, &jointBuf};
+    s.dispatch(*k.colorRound, b, &one, 1);
+  }
+  for (int r = 0; r < kRounds && !smallWorld; ++r) {
     const Buffer* b[] = {&refKeyBuf,  &refBuf,          &contactBuf,
                          &paramBuf,   &colorBuf[r % 2], &colorBuf[1 - r % 2],
                          &counterBuf, &jointBuf};
@@ -695,13 +712,24 @@ void GpuWorld::Impl::recordColoring(Stream& s, const GpuSolveConstants& sc) {
   s.dispatch(*k.colorRanges, ranges, &sc, groupsFor(sc.colorLimit + 1));
 }
 
-void GpuWorld::Impl::recordColoredPass(Stream& s, GpuSolveConstants sc, uint32_t mode) {
+void GpuWorld::Impl::recordColoredPass(Stream& s, GpuSolveConstants sc, uint32_t mode,
+                                       uint32_t passes) {
   sc.mode = mode;
   const Buffer* b[] = {&solverBuf, &paramBuf, &contactBuf,  &colorKeyBuf, &rangeBuf,
                        &refBuf,    &jointBuf, &jointRowBuf, &counterBuf,  &pushBuf};
-  for (uint32_t color = 0; color <= sc.colorLimit; ++color) {
-    sc.color = color;
-    s.dispatchIndirect(*kernels().contactGs, b, &sc, argsBuf, VkDeviceSize(color) * 12);
+  if (smallWorld) {
+    // One workgroup, every color of every pass, a barrier between colors (contact_gs.comp).
+    sc.groupPasses = passes;
+    s.dispatch(*kernels().contactGsGroup, b, &sc, 1);
+    return;
+  }
+  for (uint32_t p = 0; p < passes; ++p) {
+    if (p > 0 && mode == PHYS_GPU_PASS_WARM_START) sc.mode = PHYS_GPU_PASS_SOLVE;
+    if (p > 0 && mode == PHYS_GPU_PASS_PUSH_WARM) sc.mode = PHYS_GPU_PASS_PUSHOUT;
+    for (uint32_t color = 0; color <= sc.colorLimit; ++color) {
+      sc.color = color;
+      s.dispatchIndirect(*kernels().contactGs, b, &sc, argsBuf, VkDeviceSize(color) * 12);
+    }
   }
 }
 
@@ -773,6 +801,7 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
     w.allBodiesDirty = w.shapesDirty = w.jointsDirty = w.ldlDirty = true;
   }
   std::vector<double> stageMs;  // the step's submit's (a later transfer adds to the readback)
+  Stream::Counts counts;        // the same: the touch list's transfer is added to it
   for (int attempt = 0;; ++attempt) {
     GpuStepConstants c{};
     c.h = in.dt / float(substeps);
@@ -797,6 +826,10 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
     sc.colorLimit = w.colorLimit;
     sc.jointCount = uint32_t(w.joints.size());
     sc.refCount = 2 * Primitives::pow2(sc.jointCount + w.pairCapacity);
+    // A small world's colored passes run in one workgroup (the Jacobi passes are several
+    // kernels each: they stay as they are).
+    w.smallWorld = !jacobi && in.smallWorldConstraints > 0 &&
+                   uint64_t(sc.jointCount) + w.pairCapacity <= in.smallWorldConstraints;
     std::vector<GpuBodyState> result(n);
     std::vector<GpuJointOut> jointResults(w.joints.size());
     try {
@@ -839,14 +872,34 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
           w.recordPrepareJoints(s, sc, true);
           s.mark(int(Stage::Prepare));
         }
-        if (solve) {
+        if (solve && w.smallWorld && sc.ldlIslands == 0) {
+          // The warm start and every iteration in one dispatch (timed as the solve).
+          GpuSolveConstants p = sc;
+          p.useBias = 1;
+          w.recordColoredPass(s, p, PHYS_GPU_PASS_WARM_START,
+                              1 + uint32_t(std::max(in.contacts.iterations, 0)));
+          s.mark(int(Stage::Solve));
+        } else if (solve) {
           pass(*k.contactWarmStart, PHYS_GPU_PASS_WARM_START, true);
           s.mark(int(Stage::WarmStart));
           for (int it = 0; it < in.contacts.iterations; ++it)
             pass(*k.contactSolve, PHYS_GPU_PASS_SOLVE, true);
           s.mark(int(Stage::Solve));
         }
-        if (sc.splitPushout != 0) {
+        if (sc.splitPushout != 0 && w.smallWorld) {
+          // The split push-out in one workgroup, which zeroes the pseudo velocities itself;
+          // with the joints' direct solve between the passes, a dispatch per pass.
+          if (sc.ldlIslands == 0) {
+            w.recordColoredPass(s, sc, PHYS_GPU_PASS_PUSH_WARM,
+                                1 + uint32_t(std::max(in.contacts.iterations, 0)));
+          } else {
+            w.recordColoredPass(s, sc, PHYS_GPU_PASS_PUSH_WARM);
+            for (int it = 0; it < in.contacts.iterations; ++it) {
+              w.recordColoredPass(s, sc, PHYS_GPU_PASS_PUSHOUT);
+              w.recordLdl(s, sc, PHYS_GPU_LDL_PUSH, false);
+            }
+          }
+        } else if (sc.splitPushout != 0) {
           // The split push-out (the kernels do nothing in a step without deep contacts).
           s.fill(w.pushBuf, 0);
           w.recordColoredPass(s, sc, PHYS_GPU_PASS_PUSH_WARM);
@@ -859,7 +912,12 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
         const Buffer* positions[] = {&w.paramBuf, &w.solverBuf, &w.pushBuf};
         s.dispatch(*k.integratePositions, positions, &c, groupsFor(n));
         s.mark(int(Stage::IntegratePositions));
-        if (solve && in.contacts.relaxIterations > 0) {
+        if (solve && in.contacts.relaxIterations > 0 && w.smallWorld && sc.ldlIslands == 0) {
+          GpuSolveConstants p = sc;
+          p.useBias = 0;
+          w.recordColoredPass(s, p, PHYS_GPU_PASS_SOLVE, uint32_t(in.contacts.relaxIterations));
+          s.mark(int(Stage::Relax));
+        } else if (solve && in.contacts.relaxIterations > 0) {
           for (int it = 0; it < in.contacts.relaxIterations; ++it)
             pass(*k.contactSolve, PHYS_GPU_PASS_SOLVE, false);
           s.mark(int(Stage::Relax));
@@ -870,7 +928,11 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
           pass(*k.contactRestitution, PHYS_GPU_PASS_RESTITUTION, true);
           s.mark(int(Stage::Restitution));
         }
-        if (in.contacts.positionIterations > 0) {
+        if (in.contacts.positionIterations > 0 && w.smallWorld) {
+          w.recordColoredPass(s, sc, PHYS_GPU_PASS_POSITION,
+                              uint32_t(in.contacts.positionIterations));
+          s.mark(int(Stage::PositionPass));
+        } else if (in.contacts.positionIterations > 0) {
           for (int it = 0; it < in.contacts.positionIterations; ++it) {
             if (jacobi) {
               GpuSolveConstants pp = sc;
@@ -946,6 +1008,7 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
         return false;
       }
       stageMs = s.stageMs();
+      counts = s.counts();
       w.touches.clear();
       if (touches && w.touchHeader[0] > 0) {
         // The list itself, now that its length is known: 8 bytes a touch, one more transfer
@@ -963,6 +1026,8 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
         const std::chrono::duration<double, std::milli> took =
             std::chrono::steady_clock::now() - start;
         if (size_t(Stage::Readback) < stageMs.size()) stageMs[size_t(Stage::Readback)] += took.count();
+        counts.transfers += s.counts().transfers;
+        counts.barriers += s.counts().barriers;
       }
     } catch (const std::exception& e) {
       if (error) *error = e.what();
@@ -1003,6 +1068,7 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
   }
   w.stageMs.assign(kStageCount, 0.0);
   for (size_t i = 0; i < stageMs.size() && i < w.stageMs.size(); ++i) w.stageMs[i] = stageMs[i];
+  w.counts = {counts.dispatches, counts.indirect, counts.barriers, counts.transfers};
   return true;
 }
 
@@ -1076,6 +1142,9 @@ bool GpuWorld::hasNarrowPhase() const {
 }
 std::span<const double> GpuWorld::stageMs() const {
   return impl_->stageMs;
+}
+StepCounts GpuWorld::stepCounts() const {
+  return impl_->counts;
 }
 
 }  // namespace phys::gpu

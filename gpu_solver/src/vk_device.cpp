@@ -480,6 +480,7 @@ void Stream::begin() {
   stagingUsed_ = 0;
   downloads_.clear();
   markStages_.clear();
+  counts_ = {};
   if (queries_) {
     vkCmdResetQueryPool(cmd_, queries_, 0, kMaxTimestamps);
     vkCmdWriteTimestamp(cmd_, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, queries_, 0);
@@ -506,6 +507,7 @@ void Stream::upload(const Buffer& dst, VkDeviceSize offset, const void* data, Vk
   std::memcpy(static_cast<char*>(staging_.back().mapped()) + at, data, size_t(bytes));
   VkBufferCopy copy{at, offset, bytes};
   vkCmdCopyBuffer(cmd_, staging_.back().handle(), dst.handle(), 1, &copy);
+  counts_.transfers++;
   barrier();
 }
 
@@ -516,11 +518,13 @@ void Stream::download(const Buffer& src, VkDeviceSize offset, void* out, VkDevic
   vkCmdCopyBuffer(cmd_, src.handle(), staging_.back().handle(), 1, &copy);
   // A later growth keeps this staging buffer alive until the submit.
   downloads_.push_back({staging_.size() - 1, at, bytes, out});
+  counts_.transfers++;
   barrier();
 }
 
 void Stream::fill(const Buffer& dst, uint32_t value) {
   vkCmdFillBuffer(cmd_, dst.handle(), 0, VK_WHOLE_SIZE, value);
+  counts_.transfers++;
   barrier();
 }
 
@@ -529,6 +533,7 @@ void Stream::copy(const Buffer& src, VkDeviceSize srcOffset, const Buffer& dst,
   if (bytes == 0) return;
   VkBufferCopy c{srcOffset, dstOffset, bytes};
   vkCmdCopyBuffer(cmd_, src.handle(), dst.handle(), 1, &c);
+  counts_.transfers++;
   barrier();
 }
 
@@ -557,6 +562,7 @@ void Stream::dispatch(const Kernel& k, std::span<const Buffer* const> buffers, c
   bind(k, buffers, push);
   const uint32_t x = std::min(groups, device_->maxGroupsX);
   vkCmdDispatch(cmd_, x, (groups + x - 1) / x, 1);
+  counts_.dispatches++;
   barrier();
 }
 
@@ -564,6 +570,8 @@ void Stream::dispatchIndirect(const Kernel& k, std::span<const Buffer* const> bu
                               const void* push, const Buffer& args, VkDeviceSize offset) {
   bind(k, buffers, push);
   vkCmdDispatchIndirect(cmd_, args.handle(), offset);
+  counts_.dispatches++;
+  counts_.indirect++;
   barrier();
 }
 
@@ -577,6 +585,7 @@ void Stream::barrier() {
                                       VK_PIPELINE_STAGE_TRANSFER_BIT |
                                       VK_PIPELINE_STAGE_DRAW_INDIRECT_BIT;
   vkCmdPipelineBarrier(cmd_, stages, stages, 0, 1, &mb, 0, nullptr, 0, nullptr);
+  counts_.barriers++;
 }
 
 void Stream::mark(int stage) {

@@ -145,6 +145,15 @@ class Stream {
   bool submit(std::string* error);
   /// ms of each stage marked in the last submitted stream (index = stage), summed.
   const std::vector<double>& stageMs() const { return stageMs_; }
+  /// What the stream recorded since begin(): what a step costs the device beyond its
+  /// arithmetic (each dispatch and barrier is a launch and a drain of the whole device).
+  struct Counts {
+    uint32_t dispatches = 0;  ///< every dispatch, the indirect ones included
+    uint32_t indirect = 0;    ///< of them, sized on the device (possibly zero workgroups)
+    uint32_t barriers = 0;    ///< pipeline barriers (one after each dispatch and copy)
+    uint32_t transfers = 0;   ///< uploads, downloads, fills and copies
+  };
+  const Counts& counts() const { return counts_; }
 
  private:
   struct Download {
@@ -166,6 +175,7 @@ class Stream {
   std::vector<Download> downloads_;
   std::vector<int> markStages_;
   std::vector<double> stageMs_;
+  Counts counts_;
 };
 
 }  // namespace phys::gpu

@@ -136,8 +136,11 @@ void World::stepOnce(int substeps) {
   w.lastStepOnCpu = false;
   // The GPU backend takes the whole step when it covers everything the step needs
   // (world_gpu.cpp); otherwise the CPU stages below take it from the same host mirror.
-  if (w.device) w.rescaleWarmStarts(dt / float(substeps));  // joints' go up when stale
-  if (w.device && w.stepOnDevice(substeps)) {
+  // (An auto world its calibration puts on the CPU takes the CPU's path alone: its results
+  // are a CPU world's, bit for bit.)
+  const bool onDevice = w.device && w.deviceTakesStep();
+  if (onDevice) w.rescaleWarmStarts(dt / float(substeps));  // joints' go up when stale
+  if (onDevice && w.stepOnDevice(substeps)) {
     // The device does not measure stacks: it runs the preset's substeps. Its joint impulses
     // come back to the host in that unit.
     w.stats.substeps = substeps;

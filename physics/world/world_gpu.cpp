@@ -13,8 +13,15 @@
 #include <algorithm>
 #include <bit>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
+#include <limits>
+#include <map>
+#include <mutex>
+#include <string>
+#include <tuple>
 #include <unordered_map>
+#include <vector>
 
 #include "world/world_impl.h"
 
@@ -46,6 +53,9 @@ int gpuValidationErrorsInProcess() {
 void World::Impl::deviceEdited(uint32_t) {}
 void World::Impl::deviceStale() {}
 void World::Impl::deviceJointsChanged() {}
+bool World::Impl::deviceTakesStep() {
+  return false;
+}
 bool World::Impl::stepOnDevice(int) {
   return false;
 }
@@ -66,6 +76,12 @@ struct DeviceWorld {
   std::vector<uint32_t> edited;      ///< body slots edited since the last upload
   bool stale = true;                 ///< bodies or shapes changed: upload everything
   bool jointsChanged = false;        ///< a joint fell asleep or woke: the joints go up again
+  // Backend::Auto (deviceTakesStep): the calibrated crossover and the last choice.
+  bool autoBackend = false;
+  double crossover = 0;     ///< bodies; the device above, the CPU below (+inf: never)
+  std::string calibration;  ///< the calibration's figures, for the note
+  bool autoOnDevice = false;
+  size_t decidedAt = 0;  ///< body count at the last choice (0: none yet)
 };
 
 void DeviceWorldDeleter::operator()(DeviceWorld* d) const {
@@ -198,6 +214,113 @@ int gpuValidationErrorsInProcess() {
   return gpu::validationErrorsInProcess();
 }
 
+namespace {
+
+/// Backend::Auto's calibration of one device (per process and device options): the median
+/// wall time of a step of a small and of a medium synthetic world (spheres resting on a
+/// plane, the default solver settings, one thread) on the device and on the CPU, taken
+/// once, when the first auto world opens the device. A line through each pair of points is
+/// that backend's cost; where they cross is the size above which the device is the faster.
+struct AutoCalibration {
+  double deviceMs[2] = {0, 0}, cpuMs[2] = {0, 0};
+  double crossover = 0;  ///< bodies
+  std::string text;
+};
+
+double medianStepMs(World& w, int steps) {
+  for (int i = 0; i < 2; ++i) w.step();  // first steps: buffers, pipelines
+  std::vector<double> ms;
+  for (int i = 0; i < steps; ++i) {
+    w.step();
+    ms.push_back(w.profile().total);
+  }
+  std::sort(ms.begin(), ms.end());
+  return ms[ms.size() / 2];
+}
+
+constexpr int kCalibrationBodies[2] = {2, 65};  ///< the ground and 1 or 64 spheres
+
+AutoCalibration calibrate(const WorldDef& like) {
+  AutoCalibration c;
+  for (int size = 0; size < 2; ++size) {
+    for (int onDevice = 0; onDevice < 2; ++onDevice) {
+      WorldDef d;
+      d.backend = onDevice ? Backend::Gpu : Backend::Cpu;
+      d.gpuAllowCpuDevice = like.gpuAllowCpuDevice;
+      d.threads = 1;
+      World w(d);
+      BodyDef ground;
+      ground.type = BodyType::Static;
+      ShapeDef plane;
+      plane.geom = ShapeGeom::plane({0, 0, 1}, 0);
+      ground.shapes.push_back(plane);
+      BodyId id;
+      w.createBody(ground, &id);
+      for (int i = 0; i < kCalibrationBodies[size] - 1; ++i) {
+        BodyDef b;
+        b.position = {float(i % 8) * 1.5f, float(i / 8) * 1.5f, 0.25f};
+        ShapeDef sphere;
+        sphere.geom = ShapeGeom::sphere(0.25f);
+        b.shapes.push_back(sphere);
+        w.createBody(b, &id);
+      }
+      (onDevice ? c.deviceMs : c.cpuMs)[size] = medianStepMs(w, 7);
+    }
+  }
+  // ms = a + b n for each backend; the device is the faster above n = (ad - ac) / (bc - bd).
+  const double dn = kCalibrationBodies[1] - kCalibrationBodies[0];
+  const double bd = std::max(0.0, (c.deviceMs[1] - c.deviceMs[0]) / dn);
+  const double bc = std::max(0.0, (c.cpuMs[1] - c.cpuMs[0]) / dn);
+  const double ad = c.deviceMs[0] - bd * kCalibrationBodies[0];
+  const double ac = c.cpuMs[0] - bc * kCalibrationBodies[0];
+  if (ad <= ac)
+    c.crossover = 0;
+  else
+    c.crossover = bc > bd ? (ad - ac) / (bc - bd) : std::numeric_limits<double>::infinity();
+  char text[256];
+  std::snprintf(text, sizeof text,
+                "a step of %d / %d bodies: %.3g / %.3g ms on the device, %.3g / %.3g ms on the "
+                "CPU (one thread)",
+                kCalibrationBodies[0], kCalibrationBodies[1], c.deviceMs[0], c.deviceMs[1],
+                c.cpuMs[0], c.cpuMs[1]);
+  c.text = text;
+  return c;
+}
+
+/// The calibration for these device options, taken the first time an auto world asks.
+const AutoCalibration& calibrationFor(const WorldDef& like, const gpu::DeviceOptions& o) {
+  static std::mutex mutex;
+  static std::map<std::tuple<bool, bool, std::string>, AutoCalibration> done;
+  std::lock_guard<std::mutex> lock(mutex);
+  const auto key = std::make_tuple(o.allowCpu, o.validation, o.nameContains);
+  auto it = done.find(key);
+  if (it == done.end()) it = done.emplace(key, calibrate(like)).first;
+  return it->second;
+}
+
+}  // namespace
+
+bool World::Impl::deviceTakesStep() {
+  DeviceWorld& d = *device;
+  if (!d.autoBackend) return true;
+  // Chosen at the first step, and again when the body count has doubled or halved since:
+  // a world is usually made empty and filled before it runs, and switching costs a full
+  // upload and cold contacts, so not at every body. A margin of a quarter around the
+  // crossover keeps a world near it from flipping.
+  const size_t n = bodies.size();
+  if (d.decidedAt == 0 || n >= 2 * d.decidedAt || 2 * n <= d.decidedAt) {
+    const double margin = d.decidedAt == 0 ? 1.0 : d.autoOnDevice ? 0.8 : 1.25;
+    d.autoOnDevice = double(n) > d.crossover * margin;
+    d.decidedAt = std::max<size_t>(n, 1);
+    char text[160];
+    std::snprintf(text, sizeof text, "auto: %s for %zu bodies (the device is the faster above %.4g; ",
+                  d.autoOnDevice ? "the device" : "the CPU backend", n, d.crossover);
+    backend.note = text + d.calibration + ")";
+    backend.active = d.autoOnDevice ? Backend::Gpu : Backend::Cpu;
+  }
+  return d.autoOnDevice;
+}
+
 void World::Impl::openDevice() {
   backend.requested = def.backend;
   if (def.backend == Backend::Cpu) return;
@@ -220,6 +343,13 @@ void World::Impl::openDevice() {
   backend.validation = world->device().validation;
   backend.active = Backend::Gpu;
   device->world = std::move(world);
+  if (def.backend == Backend::Auto) {
+    const AutoCalibration& c = calibrationFor(def, options);
+    device->autoBackend = true;
+    device->crossover = c.crossover;
+    device->calibration = c.text;
+    backend.autoCrossoverBodies = c.crossover;
+  }
 }
 
 void World::Impl::deviceEdited(uint32_t slot) {
@@ -463,6 +593,11 @@ bool World::Impl::stepOnDevice(int substeps) {
   in.solveContacts = solveOnDevice;
   in.contacts = contactSettings(def.solver);
   in.maxPairs = pairLimit();
+  // A small world's colored passes in one workgroup on a GPU; not on a CPU implementation
+  // (lavapipe), where it is the slower path. PHYS_GPU_SMALL_WORLD=0 or 1 says otherwise.
+  in.smallWorldConstraints = g.device().isCpu ? 0 : 256;
+  if (const char* e = std::getenv("PHYS_GPU_SMALL_WORLD"); e && *e)
+    in.smallWorldConstraints = std::string(e) == "0" ? 0 : 256;
   // With sleeping on, the touching pairs come back (the device's touch list, not the
   // manifolds): the islands are found on the host. The CPU's islands (world_gpu_islands.cpp)
   // judge each contact by its shapes' materials, the ground's too, which the touch list
@@ -571,6 +706,11 @@ bool World::Impl::stepOnDevice(int substeps) {
   profile.storeImpulses = stage(gpu::Stage::StoreImpulses);
   profile.finalize = stage(gpu::Stage::Finalize);
   profile.readback = stage(gpu::Stage::Readback);
+  const gpu::StepCounts counts = g.stepCounts();
+  profile.dispatches = int(counts.dispatches);
+  profile.barriers = int(counts.barriers);
+  backend.gpuDispatches += counts.dispatches;
+  backend.gpuBarriers += counts.barriers;
   stats.bodies = int(bodies.size());
   stats.awake = int(awakeBodies.size());
   const gpu::ContactStats cs = g.contactStats();

@@ -324,6 +324,9 @@ struct World::Impl {
   void deviceEdited(uint32_t slot);  ///< a body's pose, velocity or forces changed
   void deviceStale();                ///< anything else changed: everything goes up again
   void deviceJointsChanged();        ///< a joint fell asleep or woke: the device's set changes
+  /// Whether this step goes to the device: a GPU world's always, an auto world's when its
+  /// size is past the calibrated crossover (chosen again when its body count doubles or halves).
+  bool deviceTakesStep();
   /// The step on the device; false (the CPU takes it) when the device cannot take it.
   bool stepOnDevice(int substeps);
   void uploadToDevice();        ///< stepOnDevice's: what changed on the host goes up

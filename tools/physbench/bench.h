@@ -56,6 +56,9 @@ struct SingleResult {
   int threads = 0, bodies = 0, joints = 0, steps = 0;
   MetricsSummary metrics;
   std::optional<CpuComparison> againstCpu;
+  /// The GPU backend's launches: dispatches and barriers per device step (BackendState's
+  /// sums over its gpuSteps); empty when no step ran on a device.
+  std::optional<double> dispatchesPerStep, barriersPerStep;
 };
 /// Prints a run's metrics and criteria and writes opt.jsonOut; returns runSingle's status.
 int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResult& r);

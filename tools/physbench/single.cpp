@@ -19,6 +19,8 @@ namespace phys::bench {
 std::string backendLabel(const World& world) {
   const BackendState& b = world.backendState();
   if (b.requested == Backend::Cpu) return "cpu";
+  if (b.active == Backend::Cpu && b.note.rfind("auto: ", 0) == 0)
+    return "cpu (" + b.note + ")";  // auto chose the CPU for the world's size
   if (b.active == Backend::Cpu)
     return "cpu (" + std::string(toString(b.requested)) + ": " + b.note + ")";
   std::string label = "gpu (" + b.device + "; " + std::to_string(b.gpuSteps) +
@@ -34,6 +36,7 @@ std::string backendLabel(const World& world) {
              " bodies a step, " + std::to_string(b.cpuIslandRetakes) +
              " device steps retaken): " + b.cpuIslandReason;
   }
+  if (b.requested == Backend::Auto) label += "; " + b.note;
   return label + ")";
 }
 
@@ -176,6 +179,10 @@ int runSingle(SingleOptions opt) {
   SingleResult result{usedPreset,         backendLabel(*world), world->def().threads,
                       world->bodyCount(), world->jointCount(),  steps,
                       run.metrics,        {}};
+  if (const BackendState& b = world->backendState(); b.gpuSteps > 0 && b.gpuDispatches > 0) {
+    result.dispatchesPerStep = double(b.gpuDispatches) / double(b.gpuSteps);
+    result.barriersPerStep = double(b.gpuBarriers) / double(b.gpuSteps);
+  }
   if (opt.againstCpu) {
     if (scene.world.backend == Backend::Cpu)
       std::cerr << "physbench: --against-cpu on the CPU backend compares it with itself "
@@ -251,6 +258,9 @@ int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResul
   }
   if (m.readbackBytesPerStep > 0)
     std::printf("  device readback (bytes/step) %.0f\n", m.readbackBytesPerStep);
+  if (r.dispatchesPerStep)
+    std::printf("  device launches: %.1f dispatches/step, %.1f barriers/step\n",
+                *r.dispatchesPerStep, *r.barriersPerStep);
   for (const CriterionResult& c : results) {
     std::printf("  [%s] %s = %s (%s)\n", c.passed ? "PASS" : "FAIL", c.name.c_str(),
                 fmtNumber(c.value).c_str(), bounds(c).c_str());
@@ -317,6 +327,10 @@ int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResul
       j["gpu_profile"] = profile;
     }
     j["readback_bytes_per_step"] = m.readbackBytesPerStep;
+    if (r.dispatchesPerStep) {
+      j["gpu"] = {{"dispatches_per_step", *r.dispatchesPerStep},
+                  {"barriers_per_step", *r.barriersPerStep}};
+    }
     std::ofstream f(opt.jsonOut);
     f << j.dump(2) << "\n";
     if (!f) {

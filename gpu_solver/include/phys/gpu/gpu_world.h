@@ -91,6 +91,13 @@ struct StepInput {
   /// them are left out (ContactStats::dropped). Between the bound and the buffers' size
   /// pairs are kept: pairs + dropped is what the broad phase found, to compare with it.
   uint32_t maxPairs = UINT32_MAX;
+  /// A small world: up to this many constraints (joints + pair slots), the colored passes
+  /// and the coloring rounds run in one workgroup, a dispatch for a whole run of passes
+  /// instead of one per color and pass (the same arithmetic in the same order: the same
+  /// bits). 0: never (tests compare the two). World's default (world_gpu.cpp): 256 on a GPU,
+  /// 0 on a CPU implementation, where lavapipe runs such a workgroup's barriers some 20-80
+  /// times slower than the dispatches and takes minutes to compile it.
+  uint32_t smallWorldConstraints = 256;
 };
 
 /// Two non-static bodies (GpuWorld body indices) whose manifold has points this step.
@@ -116,6 +123,16 @@ enum class BroadPhase {
   /// Sort and sweep along one axis, chosen on the host from the states: what the tree
   /// replaced, kept to measure it against. A pile spread on a floor makes it quadratic.
   Sweep,
+};
+
+/// What the last step recorded into its command buffer: beyond its arithmetic, a step costs
+/// the device a launch and a drain per dispatch and barrier (a few microseconds each on a
+/// GPU), which is all a small world's step is. Pinned by tests (GpuDispatch.*).
+struct StepCounts {
+  uint32_t dispatches = 0;  ///< dispatches recorded, the indirect ones included
+  uint32_t indirect = 0;    ///< of them, sized on the device (some may run no workgroup)
+  uint32_t barriers = 0;    ///< pipeline barriers
+  uint32_t transfers = 0;   ///< uploads, downloads, fills and copies
 };
 
 class GpuWorld {
@@ -197,6 +214,9 @@ class GpuWorld {
   /// Device time of each stage in the last step (ms), indexed by Stage; zeros without
   /// timestamp support.
   std::span<const double> stageMs() const;
+  /// The last step's dispatches and barriers (the attempt that stood, when a step was taken
+  /// again with larger pair buffers).
+  StepCounts stepCounts() const;
 
  private:
   struct Impl;

@@ -60,7 +60,10 @@ struct BodyDef {
   std::vector<ShapeDef> shapes;
 };
 
-/// Where a world's step runs. `Gpu` and `Auto` open a Vulkan device (gpu_solver/): a
+/// Where a world's step runs. `Auto`: the faster backend for the world's size, by a
+/// calibration of the device against the CPU taken once per process when the device opens
+/// (docs/ARCHITECTURE.md "backend = auto"), chosen at the first step and again when the
+/// world's body count has doubled or halved since. `Gpu` and `Auto` open a Vulkan device (gpu_solver/): a
 /// discrete GPU first, then an integrated one; a CPU implementation (lavapipe) only with
 /// WorldDef::gpuAllowCpuDevice or PHYS_GPU_ALLOW_CPU=1. With no usable device both run on
 /// the CPU and World::backendState() says why. The GPU backend does not cover every stage
@@ -97,6 +100,13 @@ struct BackendState {
   bool validation = false;           ///< the validation layer is loaded on the world's device
   /// Bytes the last device step brought back to the host (0 when every body slept).
   uint64_t readbackBytes = 0;
+  /// Dispatches and barriers the device's steps recorded, summed over gpuSteps (divide for
+  /// the per-step figure physbench reports).
+  uint64_t gpuDispatches = 0, gpuBarriers = 0;
+  /// Backend::Auto: the body count above which the device's step is the faster, from the
+  /// calibration taken when the device opened (+inf: never; 0: not an auto world on a
+  /// device). `active` is the backend auto chose for the world's size (`note` says why).
+  double autoCrossoverBodies = 0;
 };
 
 /// Vulkan validation errors reported in this process so far, by every GPU world's device,
@@ -183,6 +193,9 @@ struct StepProfile {
   double applyCommands = 0, updateBounds = 0, broadPhase = 0, narrowPhase = 0, buildIslands = 0,
          prepare = 0, integrateVelocities = 0, warmStart = 0, solve = 0, integratePositions = 0,
          relax = 0, restitution = 0, positionPass = 0, storeImpulses = 0, finalize = 0, total = 0;
+  /// GPU backend: the dispatches and pipeline barriers the step recorded (0 for a step the
+  /// CPU took): a small world's device step costs about this many launches and drains.
+  int dispatches = 0, barriers = 0;
 };
 
 /// What the last step did, for metrics and monitors (double precision).
