@@ -213,7 +213,9 @@ TEST(GpuAuto, ASmallWorldRunsOnTheFasterBackendAndSaysWhich) {
   o.allowCpu = true;
   std::string error;
   auto g = gpu::GpuWorld::create(o, &error);
-  if (g && g->device().isCpu) EXPECT_EQ(b.active, Backend::Cpu) << b.note;
+  if (g && g->device().isCpu) {
+    EXPECT_EQ(b.active, Backend::Cpu) << b.note;
+  }
 }
 
 }  // namespace

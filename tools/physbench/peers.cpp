@@ -156,7 +156,9 @@ int runSinglePeer(const SingleOptions& opt) {
                  int(scene.joints.size()),
                  run.summary.steps,
                  run.summary,
-                 {}};
+                 {},
+                 std::nullopt,
+                 std::nullopt};
   return reportSingle(opt, scene, r);
 }
 

@@ -178,7 +178,8 @@ int runSingle(SingleOptions opt) {
   std::unique_ptr<World>& world = run.world;
   SingleResult result{usedPreset,         backendLabel(*world), world->def().threads,
                       world->bodyCount(), world->jointCount(),  steps,
-                      run.metrics,        {}};
+                      run.metrics,        {},
+                      std::nullopt,       std::nullopt};
   if (const BackendState& b = world->backendState(); b.gpuSteps > 0 && b.gpuDispatches > 0) {
     result.dispatchesPerStep = double(b.gpuDispatches) / double(b.gpuSteps);
     result.barriersPerStep = double(b.gpuBarriers) / double(b.gpuSteps);
