@@ -293,7 +293,9 @@ TEST(GpuSleep, TheTouchListIsTheManifoldsWithPointsBetweenNonStaticBodies) {
     EXPECT_EQ(got, expected);
     touching += got.size();
     // The states, the counters, the list's length and the list, then what readContacts adds.
-    const uint64_t base = states.size() * sizeof(gpu::GpuBodyState) + 8 * 4 + 8 + 8 * got.size();
+    const uint64_t counters = PHYS_GPU_COUNTER_COUNT * 4;
+    const uint64_t base =
+        states.size() * sizeof(gpu::GpuBodyState) + counters + 8 + 8 * got.size();
     EXPECT_GT(world->readbackBytes(), base);  // plus the capacity's pairs and manifolds
     EXPECT_EQ((world->readbackBytes() - base) % (sizeof(gpu::GpuPair) + sizeof(gpu::GpuManifold)),
               0u);
@@ -304,7 +306,8 @@ TEST(GpuSleep, TheTouchListIsTheManifoldsWithPointsBetweenNonStaticBodies) {
   in.readContacts = false;
   ASSERT_TRUE(world->step(in, &error)) << error;
   EXPECT_EQ(world->readbackBytes(),
-            states.size() * sizeof(gpu::GpuBodyState) + 8 * 4 + 8 + 8 * world->touches().size());
+            states.size() * sizeof(gpu::GpuBodyState) + PHYS_GPU_COUNTER_COUNT * 4 + 8 +
+                8 * world->touches().size());
 }
 
 TEST(GpuSleep, APileFallsAsleepOnTheTouchListAsOnTheCpu) {
