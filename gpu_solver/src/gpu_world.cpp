@@ -65,11 +65,24 @@ struct Kernels {
       updateBounds, bpKeys, bpCount, bpWrite, bpPairs, bvhScene, bvhKeys, bvhBuild, bvhFit,
       bvhCount, bvhWrite, narrowPhase, matchContacts, csrKeys,
       csrRanges, prepareContacts, contactWarmStart, contactSolve, contactRestitution, applyDeltas,
-      storeImpulses, contactStats, colorRound, colorKeys, colorRanges, contactGs, contactGsGroup,
+      storeImpulses, contactStats, colorRound, colorKeys, colorRanges, contactGs,
       positionJacobi, applyPositions, prepareJoints, jointJacobi, storeJoints, jointLdl,
       touchFlags, touchWrite;
   Primitives primitives;
-  explicit Kernels(const std::shared_ptr<Device>& d) : primitives(d) {
+  /// The one-workgroup build of contact_gs (a small world's colored passes, on GPUs): made
+  /// at its first use, not with the others. Lavapipe never runs it (the slower path there)
+  /// and takes minutes to compile it: made eagerly, it cost every process opening a device
+  /// with a cold shader cache (CI's gpu.shader_cache: 287 s against about 150).
+  const Kernel& contactGsGroup() {
+    std::call_once(contactGsGroupMade_, [&] {
+      std::span<const uint32_t> c = shaderCode("contact_gs_group");
+      if (c.empty()) throw std::runtime_error("shader not embedded: contact_gs_group");
+      contactGsGroup_ = std::make_unique<Kernel>(device_, "contact_gs_group", c, 10,
+                                                 uint32_t(sizeof(GpuSolveConstants)));
+    });
+    return *contactGsGroup_;
+  }
+  explicit Kernels(const std::shared_ptr<Device>& d) : primitives(d), device_(d) {
     auto make = [&](const char* name, uint32_t bindings, uint32_t push) {
       std::span<const uint32_t> c = shaderCode(name);
       if (c.empty()) throw std::runtime_error(std::string("shader not embedded: ") + name);
@@ -106,7 +119,6 @@ struct Kernels {
     colorKeys = make("color_keys", 3, solve);
     colorRanges = make("color_ranges", 3, solve);
     contactGs = make("contact_gs", 10, solve);
-    contactGsGroup = make("contact_gs_group", 10, solve);
     positionJacobi = make("position_jacobi", 6, solve);
     prepareJoints = make("prepare_joints", 8, solve);
     jointJacobi = make("joint_jacobi", 6, solve);
@@ -116,6 +128,11 @@ struct Kernels {
     touchFlags = make("touch_flags", 4, step);
     touchWrite = make("touch_write", 5, step);
   }
+
+ private:
+  std::shared_ptr<Device> device_;
+  std::once_flag contactGsGroupMade_;
+  std::unique_ptr<Kernel> contactGsGroup_;
 };
 
 /// A device and its kernels, shared by every world opened with the same options.
@@ -720,7 +737,7 @@ void GpuWorld::Impl::recordColoredPass(Stream& s, GpuSolveConstants sc, uint32_t
   if (smallWorld) {
     // One workgroup, every color of every pass, a barrier between colors (contact_gs.comp).
     sc.groupPasses = passes;
-    s.dispatch(*kernels().contactGsGroup, b, &sc, 1);
+    s.dispatch(kernels().contactGsGroup(), b, &sc, 1);
     return;
   }
   for (uint32_t p = 0; p < passes; ++p) {
