@@ -56,6 +56,14 @@ bool belowPlane(uint s, uint plane) {
   return dot(pl.xyz, corner) <= pl.w + 0.5 * k.speculativeDistance;
 }
 
+// Calls PAIR(plane) for every plane the shape s reaches, in the planes' order (after its
+// other pairs, for the sweep and the tree alike).
+#define FOR_EACH_PLANE_PAIR(s, PAIR)                         \
+  for (uint j = 0u; j < k.planeCount; ++j) {                 \
+    uint pl = planes[j];                                     \
+    if (canCollide(s, pl) && belowPlane(s, pl)) PAIR(pl);    \
+  }
+
 // Calls PAIR(other) for every pair of the shape at sorted position p, in a fixed order;
 // counts the box tests in `tests` (the candidate tests of the GPU profile).
 #define FOR_EACH_PAIR(p, s, PAIR)                                       \
@@ -67,10 +75,7 @@ bool belowPlane(uint s, uint plane) {
       ++tests;                                                          \
       if (overlaps(s, t) && canCollide(s, t)) PAIR(t);                  \
     }                                                                   \
-    for (uint j = 0u; j < k.planeCount; ++j) {                          \
-      uint pl = planes[j];                                              \
-      if (canCollide(s, pl) && belowPlane(s, pl)) PAIR(pl);             \
-    }                                                                   \
+    FOR_EACH_PLANE_PAIR(s, PAIR)                                        \
   }
 
 #endif

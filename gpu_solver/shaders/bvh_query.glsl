@@ -58,10 +58,7 @@ bool boxesMeet(vec3 lo, vec3 hi, vec4 otherLo, vec4 otherHi) {
              : depth > 0u               ? stack[--depth]                            \
                                         : PHYS_GPU_BVH_NONE;                        \
     }                                                                               \
-    for (uint j = 0u; j < k.planeCount; ++j) {                                      \
-      uint pl = planes[j];                                                          \
-      if (canCollide(s, pl) && belowPlane(s, pl)) PAIR(pl);                         \
-    }                                                                               \
+    FOR_EACH_PLANE_PAIR(s, PAIR)                                                    \
   }
 
 #endif
