@@ -630,31 +630,34 @@ Status World::getBody(BodyId id, BodyState* out) const {
   return Status::Ok();
 }
 
+BodyDef bodyDefOf(const Pool<ShapeRec, ShapeTag>& shapes, const BodyRec& b) {
+  const bool dynamic = b.type == BodyType::Dynamic;
+  BodyDef d;
+  d.type = b.type;
+  d.position = b.xf.p;
+  d.rotation = b.xf.q;
+  d.linearVelocity = b.v;
+  d.angularVelocity = b.w;
+  d.linearDamping = b.linearDamping;
+  d.angularDamping = b.angularDamping;
+  d.gravityScale = b.gravityScale;
+  // Only a dynamic body has a mass (a body made static keeps what it was given, unused).
+  d.mass = dynamic && !b.autoMass ? b.givenMass : 0;
+  d.inertia = dynamic ? b.givenInertia : Vec3{};
+  d.gyroscopic = b.gyroscopic;
+  d.allowSleep = b.allowSleep;
+  d.name = b.name;
+  d.shapes.reserve(b.shapes.size());
+  for (ShapeId sid : b.shapes) d.shapes.push_back(shapes.get(sid)->def);
+  return d;
+}
+
 Status World::getBodyDef(BodyId id, BodyDef* out, BodyMass* mass) const {
   const Impl& w = *impl_;
   const BodyRec* b = w.bodies.get(id);
   if (!b) return notFound("body");
   const bool dynamic = b->type == BodyType::Dynamic;
-  if (out) {
-    BodyDef d;
-    d.type = b->type;
-    d.position = b->xf.p;
-    d.rotation = b->xf.q;
-    d.linearVelocity = b->v;
-    d.angularVelocity = b->w;
-    d.linearDamping = b->linearDamping;
-    d.angularDamping = b->angularDamping;
-    d.gravityScale = b->gravityScale;
-    // Only a dynamic body has a mass (a body made static keeps what it was given, unused).
-    d.mass = dynamic && !b->autoMass ? b->givenMass : 0;
-    d.inertia = dynamic ? b->givenInertia : Vec3{};
-    d.gyroscopic = b->gyroscopic;
-    d.allowSleep = b->allowSleep;
-    d.name = b->name;
-    d.shapes.reserve(b->shapes.size());
-    for (ShapeId sid : b->shapes) d.shapes.push_back(w.shapes.get(sid)->def);
-    *out = std::move(d);
-  }
+  if (out) *out = bodyDefOf(w.shapes, *b);
   if (mass) {
     *mass = BodyMass{};
     if (dynamic) {

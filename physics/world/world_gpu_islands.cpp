@@ -61,26 +61,6 @@ float reachOf(const Pool<ShapeRec, ShapeTag>& shapes, const BodyRec& b) {
   return r;
 }
 
-BodyDef bodyDefOf(const Pool<ShapeRec, ShapeTag>& shapes, const BodyRec& b) {
-  // As World::getBodyDef: what makes the same body in a world of the same settings.
-  const bool dynamic = b.type == BodyType::Dynamic;
-  BodyDef d;
-  d.type = b.type;
-  d.position = b.xf.p;
-  d.rotation = b.xf.q;
-  d.linearVelocity = b.v;
-  d.angularVelocity = b.w;
-  d.linearDamping = b.linearDamping;
-  d.angularDamping = b.angularDamping;
-  d.gravityScale = b.gravityScale;
-  d.mass = dynamic && !b.autoMass ? b.givenMass : 0;
-  d.inertia = dynamic ? b.givenInertia : Vec3{};
-  d.gyroscopic = b.gyroscopic;
-  d.allowSleep = b.allowSleep;
-  for (ShapeId sid : b.shapes) d.shapes.push_back(shapes.get(sid)->def);
-  return d;
-}
-
 /// The pose and motion a step changes, copied between the host and the private world (the
 /// same bits: the CPU part starts from exactly the host's state).
 void copyState(const BodyRec& from, BodyRec* to) {

@@ -150,6 +150,10 @@ struct DeviceWorldDeleter {
   void operator()(DeviceWorld* d) const;
 };
 
+/// What makes the same body in a world of the same settings (World::getBodyDef, and the
+/// GPU backend's private CPU world, world_gpu_islands.cpp).
+BodyDef bodyDefOf(const Pool<ShapeRec, ShapeTag>& shapes, const BodyRec& b);
+
 /// The GPU backend's islands stepped by the CPU (world_gpu_islands.cpp).
 struct CpuIslands;
 struct CpuIslandsDeleter {
