@@ -742,16 +742,7 @@ TEST(GpuJoints, AStaticBodyCanBeEitherSide) {
   }
 }
 
-/// Largest joint error (m) in a world now.
-float worstJointError(const World& w, const std::vector<JointId>& joints) {
-  float worst = 0;
-  for (JointId j : joints) {
-    JointState st;
-    EXPECT_TRUE(w.getJoint(j, nullptr, &st).ok());
-    worst = std::max(worst, st.positionError);
-  }
-  return worst;
-}
+using test::worstJointError;
 
 TEST(GpuJoints, DirectSolveMatchesTheCpuForEveryJointType) {
   // The default preset (soft_step) solves the joints' equality rows with the LDL hybrid on

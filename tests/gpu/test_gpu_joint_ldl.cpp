@@ -380,15 +380,7 @@ struct JointIslands {
     d.threads = 1;
     return d;  // the default solver: soft_step, the joints' LDL hybrid on both backends
   }
-  float worstJointError() const {
-    float worst = 0;
-    for (JointId j : joints) {
-      JointState st;
-      EXPECT_TRUE(world.getJoint(j, nullptr, &st).ok());
-      worst = std::max(worst, st.positionError);
-    }
-    return worst;
-  }
+  float worstJointError() const { return test::worstJointError(world, joints); }
 };
 
 TEST(GpuJointLdl, IslandsOfEverySizeMatchTheCpuAndRunsAreBitIdentical) {
