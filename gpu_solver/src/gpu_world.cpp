@@ -280,6 +280,11 @@ struct GpuWorld::Impl {
   // impulses before it; prevJointOut holds something only when the step changed them.
   std::vector<GpuBodyState> prevStates;
   std::vector<GpuJointOut> prevJointOut;
+  /// Where the next step's states and joint results land: the arrays the step before last
+  /// left (kept rather than allocated and zeroed every step: at a million bodies a fresh
+  /// 64 MB array a step, page faults and all, was most of the host's readback).
+  std::vector<GpuBodyState> nextStates;
+  std::vector<GpuJointOut> nextJointOut;
   bool undoable = false, jointOutStepped = false;
   /// After an undo the counters' previous pair count is still the one before the undone
   /// step: the next broad phase must not overwrite it with the undone step's.
@@ -292,7 +297,8 @@ struct GpuWorld::Impl {
   std::vector<GpuManifold> manifolds;
   std::vector<Touch> touches;
   uint32_t touchHeader[2] = {};  ///< the touch list's length, then 0
-  uint64_t readbackBytes = 0;
+  uint64_t readbackBytes = 0, uploadBytes = 0;
+  HostTimes hostMs;
   uint32_t counters[PHYS_GPU_COUNTER_COUNT] = {};
   // Device buffers: bodies and shapes.
   Buffer stateBuf, paramBuf, solverBuf, shapeBuf, boundsBuf, planeBuf, ownerBuf, noCollideBuf,
@@ -819,7 +825,9 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
   }
   std::vector<double> stageMs;  // the step's submit's (a later transfer adds to the readback)
   Stream::Counts counts;        // the same: the touch list's transfer is added to it
+  HostTimes host;               // the attempt that stands
   for (int attempt = 0;; ++attempt) {
+    const auto recordStart = std::chrono::steady_clock::now();
     GpuStepConstants c{};
     c.h = in.dt / float(substeps);
     c.dt = in.dt;
@@ -847,8 +855,11 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
     // kernels each: they stay as they are).
     w.smallWorld = !jacobi && in.smallWorldConstraints > 0 &&
                    uint64_t(sc.jointCount) + w.pairCapacity <= in.smallWorldConstraints;
-    std::vector<GpuBodyState> result(n);
-    std::vector<GpuJointOut> jointResults(w.joints.size());
+    // Every element is written by the download (or the step fails): no zeroing needed.
+    std::vector<GpuBodyState>& result = w.nextStates;
+    std::vector<GpuJointOut>& jointResults = w.nextJointOut;
+    result.resize(n);
+    jointResults.resize(w.joints.size());
     try {
       s.begin();
       w.sync(s, c);
@@ -1018,6 +1029,9 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
                  w.manifolds.size() * sizeof(GpuManifold));
       }
       s.mark(int(Stage::Readback));
+      host.record = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() -
+                                                              recordStart)
+                        .count();
       if (!s.submit(error)) {
         // What went up is not to be trusted, nor the device for the next world.
         w.allBodiesDirty = w.shapesDirty = w.jointsDirty = w.ldlDirty = true;
@@ -1026,6 +1040,7 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
       }
       stageMs = s.stageMs();
       counts = s.counts();
+      host.copyOut = s.copyOutMs();
       w.touches.clear();
       if (touches && w.touchHeader[0] > 0) {
         // The list itself, now that its length is known: 8 bytes a touch, one more transfer
@@ -1045,6 +1060,8 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
         if (size_t(Stage::Readback) < stageMs.size()) stageMs[size_t(Stage::Readback)] += took.count();
         counts.transfers += s.counts().transfers;
         counts.barriers += s.counts().barriers;
+        counts.downloadBytes += s.counts().downloadBytes;
+        host.copyOut += s.copyOutMs();
       }
     } catch (const std::exception& e) {
       if (error) *error = e.what();
@@ -1086,6 +1103,8 @@ bool GpuWorld::step(const StepInput& in, std::string* error) {
   w.stageMs.assign(kStageCount, 0.0);
   for (size_t i = 0; i < stageMs.size() && i < w.stageMs.size(); ++i) w.stageMs[i] = stageMs[i];
   w.counts = {counts.dispatches, counts.indirect, counts.barriers, counts.transfers};
+  w.uploadBytes = counts.uploadBytes;
+  w.hostMs = host;
   return true;
 }
 
@@ -1122,6 +1141,12 @@ std::span<const Touch> GpuWorld::touches() const {
 }
 uint64_t GpuWorld::readbackBytes() const {
   return impl_->readbackBytes;
+}
+uint64_t GpuWorld::uploadBytes() const {
+  return impl_->uploadBytes;
+}
+HostTimes GpuWorld::hostMs() const {
+  return impl_->hostMs;
 }
 uint32_t GpuWorld::sweepAxis() const {
   return impl_->sweepAxis;

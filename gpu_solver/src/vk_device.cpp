@@ -1,6 +1,7 @@
 #include "vk_device.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -508,6 +509,7 @@ void Stream::upload(const Buffer& dst, VkDeviceSize offset, const void* data, Vk
   VkBufferCopy copy{at, offset, bytes};
   vkCmdCopyBuffer(cmd_, staging_.back().handle(), dst.handle(), 1, &copy);
   counts_.transfers++;
+  counts_.uploadBytes += bytes;
   barrier();
 }
 
@@ -519,6 +521,7 @@ void Stream::download(const Buffer& src, VkDeviceSize offset, void* out, VkDevic
   // A later growth keeps this staging buffer alive until the submit.
   downloads_.push_back({staging_.size() - 1, at, bytes, out});
   counts_.transfers++;
+  counts_.downloadBytes += bytes;
   barrier();
 }
 
@@ -610,10 +613,14 @@ bool Stream::submit(std::string* error) {
     if (error) *error = vkError("GPU step submit", r);
     return false;
   }
+  const auto copyStart = std::chrono::steady_clock::now();
   for (const Download& d : downloads_) {
     const char* from = static_cast<const char*>(staging_[d.staging].mapped());
     std::memcpy(d.out, from + d.offset, size_t(d.bytes));
   }
+  copyOutMs_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() -
+                                                         copyStart)
+                   .count();
   stageMs_.assign(stageMs_.size(), 0.0);
   if (queries_ && !markStages_.empty()) {
     std::vector<uint64_t> t(markStages_.size() + 1);

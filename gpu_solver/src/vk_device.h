@@ -152,8 +152,13 @@ class Stream {
     uint32_t indirect = 0;    ///< of them, sized on the device (possibly zero workgroups)
     uint32_t barriers = 0;    ///< pipeline barriers (one after each dispatch and copy)
     uint32_t transfers = 0;   ///< uploads, downloads, fills and copies
+    uint64_t uploadBytes = 0;    ///< host bytes staged by upload()
+    uint64_t downloadBytes = 0;  ///< bytes download() brings back
   };
   const Counts& counts() const { return counts_; }
+  /// Host ms the last submit spent copying the downloads out of the staging memory (what
+  /// the readback costs the host, beside the device's copy).
+  double copyOutMs() const { return copyOutMs_; }
 
  private:
   struct Download {
@@ -176,6 +181,7 @@ class Stream {
   std::vector<int> markStages_;
   std::vector<double> stageMs_;
   Counts counts_;
+  double copyOutMs_ = 0;
 };
 
 }  // namespace phys::gpu

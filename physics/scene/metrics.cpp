@@ -30,6 +30,12 @@ const std::pair<const char*, StageField> kStages[] = {
     {"finalize", &StepProfile::finalize},
     {"readback", &StepProfile::readback},
 };
+/// The host's part of a step (StepProfile::hostUpload and the rest; guard: outside total).
+const std::pair<const char*, StageField> kHostParts[] = {
+    {"upload", &StepProfile::hostUpload}, {"readback", &StepProfile::hostReadback},
+    {"mirror", &StepProfile::hostMirror}, {"other", &StepProfile::hostOther},
+    {"guard", &StepProfile::guard},
+};
 
 double percentile(std::vector<double> v, double p) {
   if (v.empty()) return 0;
@@ -51,7 +57,8 @@ struct MetricsRecorder::Impl {
   std::vector<BodyId> ids;
   std::vector<std::pair<BodyId, Vec3>> tops;  ///< top bodies and where they started
   std::vector<double> stepMs, settledStepMs;
-  std::map<std::string, double> stageSum;
+  std::map<std::string, double> stageSum, hostSum;
+  double uploadSum = 0;
   double bpTestsSum = 0;  ///< StepStats::broadPhaseTestsPerShape over the device's steps
   int bpTestsSteps = 0;
   double readbackSum = 0;
@@ -87,7 +94,9 @@ void MetricsRecorder::afterStep(const World& world) {
   const StepProfile& p = world.profile();
   m.stepMs.push_back(p.total);
   for (const auto& [name, field] : kStages) m.stageSum[name] += p.*field;
+  for (const auto& [name, field] : kHostParts) m.hostSum[name] += p.*field;
   m.readbackSum += double(world.backendState().readbackBytes);
+  m.uploadSum += double(world.backendState().uploadBytes);
 
   const StepStats& st = world.stats();
   if (st.broadPhaseTestsPerShape > 0) {
@@ -166,6 +175,8 @@ MetricsSummary MetricsRecorder::summary() const {
   if (m.bpTestsSteps > 0)
     s.gpuProfile["broad_phase_tests_per_shape"] = m.bpTestsSum / m.bpTestsSteps;
   s.readbackBytesPerStep = s.steps ? m.readbackSum / s.steps : 0;
+  s.uploadBytesPerStep = s.steps ? m.uploadSum / s.steps : 0;
+  for (const auto& [name, sum] : m.hostSum) s.hostMs[name] = s.steps ? sum / s.steps : 0;
   if (m.hook) m.hook->summarize(&s.extra);
   return s;
 }

@@ -61,16 +61,21 @@ void World::step() {
   Impl& w = *impl_;
   // Nothing thrown inside a step leaves it (a daemon steps worlds built from its clients'
   // messages): the step is undone instead (stepFailed).
-  w.snapshotValid = w.stepTouched = false;
+  w.snapshotValid = w.stepTouched = w.snapshotEnergyKnown = false;
   try {
     w.stats.guardRetries = 0;
+    double guardMs = 0;  // StepProfile::guard (stepOnce starts the profile afresh)
     if (!w.def.guard) {
       stepOnce(w.def.solver.substeps);
     } else {
+      double t = nowMs();
       w.takeSnapshot();
+      guardMs += nowMs() - t;
       int substeps = w.def.solver.substeps;
       stepOnce(substeps);
+      t = nowMs();
       std::string fault = w.checkHealth();
+      guardMs += nowMs() - t;
       for (int retry = 0; !fault.empty() && retry < w.def.guardRetries; ++retry) {
         // Roll back and redo with a safer setting: twice the substeps.
         w.stats.guardRetries++;
@@ -96,7 +101,12 @@ void World::step() {
     if (w.stats.pairsDropped > 0) w.stats.pairLimitSteps++;
     // Bodies past the world's extent stop at its edge (a body falling forever, a kinematic
     // body sent away): beyond it no state could be sent, and floats lose the centimetre.
-    w.keepInsideWorld();
+    {
+      const double t = nowMs();
+      w.keepInsideWorld();
+      guardMs += nowMs() - t;
+    }
+    w.profile.guard = guardMs;
     // Islands and sleeping, once the step is accepted (islands.cpp): rest timers, and the
     // islands that rested long enough fall asleep. Part of the step's time.
     {
@@ -127,7 +137,9 @@ void World::stepOnce(int substeps) {
   StepProfile& p = w.profile;
   p = StepProfile();
   const double t0 = nowMs();
-  w.stats.energyBefore = energy();
+  // The guard's copy, taken just before, summed it (one pass over the bodies, not two).
+  w.stats.energyBefore = w.snapshotEnergyKnown ? w.snapshotEnergy : energy();
+  w.snapshotEnergyKnown = false;
 
   {
     StageTimer t(&p.applyCommands);
@@ -152,6 +164,13 @@ void World::stepOnce(int substeps) {
     w.stats.step++;
     w.stats.energyAfter = energy();
     p.total = nowMs() - t0;
+    // What the host did beside the device's stages and the parts stepOnDevice measured.
+    const double device = p.syncToDevice + p.updateBounds + p.broadPhase + p.narrowPhase +
+                          p.prepare + p.integrateVelocities + p.integratePositions +
+                          p.warmStart + p.solve + p.relax + p.restitution + p.positionPass +
+                          p.storeImpulses + p.finalize + p.readback;
+    p.hostOther = std::max(
+        0.0, p.total - device - p.applyCommands - p.hostUpload - p.hostReadback - p.hostMirror);
     return;
   }
   {
@@ -363,12 +382,26 @@ void World::Impl::storeImpulses() {
 
 void World::Impl::takeSnapshot() {
   // The awake bodies and their contacts and joints: a sleeping island does not change in a
-  // step (one woken inside it is added by wakeIsland).
+  // step (one woken inside it is added by wakeIsland). One pass over the bodies: their
+  // copy, the kinetic energy and lift the health check allows for, and the world's energy
+  // (World::energy's terms in its order), which the step's energyBefore takes from here.
+  snapshotEnergyKnown = false;
   snapshot.bodies.clear();
+  snapshot.kinetic = 0;
+  snapshot.liftEnergy = 1;
+  const double g = length(def.gravity);
+  double energy = 0;
   for (uint32_t i : awakeBodies) {
     const BodyRec& b = bodies.at(i);
     snapshot.bodies.push_back({i, b.xf, b.com, b.v, b.w, b.force, b.torque});
+    if (b.type != BodyType::Dynamic) continue;
+    snapshot.kinetic +=
+        0.5 * b.mass * double(lengthSquared(b.v)) +
+        0.5 * double(dot(invRotate(b.xf.q, b.w), b.inertiaLocal * invRotate(b.xf.q, b.w)));
+    snapshot.liftEnergy += 0.1 * g * b.mass;
+    energy += bodyEnergy(b, def.gravity);
   }
+  if (sleepingBodyCount > 0) energy += sleepingPotential();
   snapshot.contacts = contacts;
   snapshot.jointImpulses.clear();
   collectStepJoints();
@@ -381,18 +414,9 @@ void World::Impl::takeSnapshot() {
   snapshot.time = time;
   snapshot.step = stats.step;
   snapshot.substepTime = stats.substepTime;
-  snapshot.kinetic = 0;
-  snapshot.liftEnergy = 1;
-  const double g = length(def.gravity);
-  for (const Snapshot::Body& s : snapshot.bodies) {
-    const BodyRec& b = bodies.at(s.index);
-    if (b.type != BodyType::Dynamic) continue;
-    snapshot.kinetic +=
-        0.5 * b.mass * double(lengthSquared(b.v)) +
-        0.5 * double(dot(invRotate(b.xf.q, b.w), b.inertiaLocal * invRotate(b.xf.q, b.w)));
-    snapshot.liftEnergy += 0.1 * g * b.mass;
-  }
   snapshotValid = true;
+  snapshotEnergy = energy;
+  snapshotEnergyKnown = true;
 }
 
 bool World::Impl::directSolveFits() {
@@ -604,8 +628,29 @@ const char* World::Impl::bodyFault(const BodyRec& b, const Snapshot::Body& befor
 }
 
 std::string World::Impl::checkHealth() const {
+  // Nearly every body is far inside bodyFault's bounds: a test without square roots accepts
+  // those, and only the rest take bodyFault's exact tests, whose verdict it is (the same
+  // faults, found with less work a body: this runs over every awake body every step).
+  // |x| < bound / 1.75 on every axis puts a vector's length below the bound with room to
+  // spare for rounding (length <= sqrt(3) max |x|); a NaN or an infinity fails it.
+  const float vMax = 0.999f * def.maxLinearSpeed / 1.75f;
+  const float wMax = 0.999f * def.maxAngularSpeed / 1.75f;
+  const float dMax = float(2.0 * (double(def.maxLinearSpeed) + double(def.solver.maxPushout)) *
+                           def.timeStep / 1.75);
+  const auto inside = [](Vec3 a, float m) {
+    return std::fabs(a.x) < m && std::fabs(a.y) < m && std::fabs(a.z) < m;
+  };
+  constexpr float big = std::numeric_limits<float>::max();
   for (const Snapshot::Body& s : snapshot.bodies) {
-    if (const char* fault = bodyFault(bodies.at(s.index), s))
+    const BodyRec& b = bodies.at(s.index);
+    const Quat q = b.xf.q;
+    const bool clear =
+        inside(b.v, vMax) && inside(b.w, wMax) && inside(b.xf.p, big) &&
+        inside({q.x, q.y, q.z}, big) && std::fabs(q.w) < big &&
+        (b.type != BodyType::Dynamic ||
+         inside({b.com.x - s.com.x, b.com.y - s.com.y, b.com.z - s.com.z}, dMax));
+    if (clear) continue;
+    if (const char* fault = bodyFault(b, s))
       return "body " + std::to_string(s.index) + " " + fault;
   }
   // A joint's impulses are kept for the next step's warm start and saved with the world: a

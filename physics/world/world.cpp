@@ -931,17 +931,11 @@ double World::energy() const {
   double e = 0;
   const Vec3 g = w.def.gravity;
   // The awake bodies, then the sleeping ones (at rest: their islands' potential energy).
+  // (takeSnapshot sums the same terms in the same order: keep them alike.)
   for (uint32_t i : w.awakeBodies) {
     const BodyRec& b = w.bodies.at(i);
     if (b.type != BodyType::Dynamic) continue;
-    Vec3 wb = invRotate(b.xf.q, b.w);
-    Vec3 Iw = b.inertiaLocal * wb;
-    double ke =
-        0.5 * b.mass * (double(b.v.x) * b.v.x + double(b.v.y) * b.v.y + double(b.v.z) * b.v.z) +
-        0.5 * (double(wb.x) * Iw.x + double(wb.y) * Iw.y + double(wb.z) * Iw.z);
-    double pe = -double(b.mass) * b.gravityScale *
-                (double(g.x) * b.com.x + double(g.y) * b.com.y + double(g.z) * b.com.z);
-    e += ke + pe;
+    e += bodyEnergy(b, g);
   }
   if (w.sleepingBodyCount > 0) e += w.sleepingPotential();
   return e;

@@ -12,6 +12,7 @@
 // step.
 #include <algorithm>
 #include <bit>
+#include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -548,6 +549,7 @@ bool World::Impl::stepOnDevice(int substeps) {
       stats.iterationsUsed = 0;
       deviceTouches.clear();
       backend.readbackBytes = 0;
+      backend.uploadBytes = 0;
       backend.gpuSteps++;
       return true;
     }
@@ -568,7 +570,18 @@ bool World::Impl::stepOnDevice(int substeps) {
   // Islands that need the CPU's physics are held on the device and stepped by the CPU
   // (world_gpu_islands.cpp).
   const bool cpuIslandsOn = cpuIslandsBegin(d.stale);
-  uploadToDevice();
+  // The host's part of the step (StepProfile::hostUpload and the others).
+  using Clock = std::chrono::steady_clock;
+  const auto msSince = [](Clock::time_point t) {
+    return std::chrono::duration<double, std::milli>(Clock::now() - t).count();
+  };
+  double hostUpload = 0, hostReadback = 0;
+  const auto upload = [&]() {
+    const Clock::time_point t = Clock::now();
+    uploadToDevice();
+    hostUpload += msSince(t);
+  };
+  upload();
 
   // A world whose contacts or joints the device cannot solve yet steps on the device only
   // while it has none (the CPU's broad phase tells).
@@ -614,6 +627,8 @@ bool World::Impl::stepOnDevice(int substeps) {
       d.stale = true;
       return false;
     }
+    hostUpload += g.hostMs().record;
+    hostReadback += g.hostMs().copyOut;
     const gpu::ContactStats cs = g.contactStats();
     const uint64_t found = uint64_t(cs.pairs) + cs.dropped;
     if (def.pairOverflow == WorldDef::PairOverflow::Refuse && found > in.maxPairs) {
@@ -629,7 +644,7 @@ bool World::Impl::stepOnDevice(int substeps) {
     // step (wakeTouched). The device found it only after its step: the step is undone and
     // taken again with the island awake (a wake is rare: one more step's work then).
     g.undoStep();
-    uploadToDevice();
+    upload();
     if (!take()) return false;
     // Islands the woken ones touch wake for the next step (as on the CPU, which finds them
     // in the next step's narrow phase).
@@ -642,7 +657,7 @@ bool World::Impl::stepOnDevice(int substeps) {
     deviceTouchingPairs(&touches);
     while (cpuIslandsGrow(touches)) {
       g.undoStep();
-      uploadToDevice();
+      upload();
       if (!take()) return false;
       deviceTouchingPairs(&touches);
     }
@@ -651,6 +666,7 @@ bool World::Impl::stepOnDevice(int substeps) {
 
   // The host mirror of the awake bodies (a sleeping body is where it fell asleep, at rest).
   // Forces last one step: a body that had some goes up again without.
+  const Clock::time_point mirrorStart = Clock::now();
   std::span<const gpu::GpuBodyState> out = g.states();
   for (size_t i = 0; i < d.slots.size(); ++i) {
     BodyRec& b = bodies.at(d.slots[i]);
@@ -688,6 +704,9 @@ bool World::Impl::stepOnDevice(int substeps) {
     j.state.reactionTorque = {jout[k].torque.x, jout[k].torque.y, jout[k].torque.z};
   }
   if (!d.jointSlots.empty()) measureJoints();
+  profile.hostMirror = msSince(mirrorStart);
+  profile.hostUpload = hostUpload;
+  profile.hostReadback = hostReadback;
 
   std::span<const double> ms = g.stageMs();
   auto stage = [&](gpu::Stage s) { return ms[size_t(s)]; };
@@ -727,6 +746,7 @@ bool World::Impl::stepOnDevice(int substeps) {
   if (cpuIslandsOn) cpuIslandsFinish();
   backend.validationErrors = g.validationErrors();
   backend.readbackBytes = g.readbackBytes();
+  backend.uploadBytes = g.uploadBytes();
   backend.gpuSteps++;
   return true;
 }

@@ -39,6 +39,11 @@ struct CpuIslands {
   /// device's and the CPU part's.
   std::vector<std::pair<uint32_t, uint32_t>> deviceTouches, cpuTouches;
   int islandCount = 0;   ///< held islands this step
+  /// Whether a shape has a restitution above 0 (cpuIslandsWatch), as found since the
+  /// world's structure last changed (-1: not looked at since). Shapes and materials change
+  /// only with the structure (the device's shape records go up again then), so a step need
+  /// not scan every shape of a world (a million of them, every step, before).
+  int elasticShapes = -1;
   static constexpr uint64_t kHold = 30;
   static constexpr uint32_t kDirect = 1, kElastic = 2;
 };
@@ -85,9 +90,15 @@ bool World::Impl::cpuIslandsWatch() const {
   // Whether any island could need the CPU: a cheap test over the world, so that a world
   // without (the common one) reads no contacts back and is stepped exactly as before.
   const SolverSettings& s = def.solver;
-  if (s.restitution)
-    for (uint32_t i = 0; i < shapes.capacity(); ++i)
-      if (shapes.alive(i) && shapes.at(i).def.material.restitution > 0) return true;
+  if (s.restitution) {
+    int& elastic = cpuIslands->elasticShapes;
+    if (elastic < 0) {
+      elastic = 0;
+      for (uint32_t i = 0; i < shapes.capacity() && elastic == 0; ++i)
+        if (shapes.alive(i) && shapes.at(i).def.material.restitution > 0) elastic = 1;
+    }
+    if (elastic > 0) return true;
+  }
   if (!(s.directContactRatio > 0) || s.scheme == SolverSettings::Scheme::Jacobi) return false;
   float lo = 0, hi = 0;
   for (uint32_t slot : awakeBodies) {
@@ -225,7 +236,10 @@ bool World::Impl::holdCpuIslands(std::vector<uint32_t> next) {
 bool World::Impl::cpuIslandsBegin(bool structureChanged) {
   if (!cpuIslands) cpuIslands.reset(new CpuIslands);
   CpuIslands& c = *cpuIslands;
-  if (structureChanged) c.rebuild = true;
+  if (structureChanged) {
+    c.rebuild = true;
+    c.elasticShapes = -1;
+  }
   // Members that died, fell asleep or stopped being dynamic leave without a word.
   std::erase_if(c.members, [&](uint32_t slot) {
     if (!bodies.alive(slot)) return true;

@@ -103,6 +103,21 @@ struct Contact {
 /// Warm-start impulses are per substep: the factor that takes impulses solved with substeps of
 /// `before` s to substeps of `after` s, keeping the forces they stand for; 1 when there is
 /// nothing to scale. Bounded, so that a corrupt or absurd unit cannot blow them up.
+/// A dynamic body's kinetic plus potential energy (J), as World::energy sums it. Shared by
+/// energy() and the guard's copy (takeSnapshot), which sums the same terms in the same
+/// order in the pass it makes anyway (the build has no floating-point contraction: the same
+/// bits in either place).
+inline double bodyEnergy(const BodyRec& b, Vec3 g) {
+  const Vec3 wb = invRotate(b.xf.q, b.w);
+  const Vec3 Iw = b.inertiaLocal * wb;
+  const double ke =
+      0.5 * b.mass * (double(b.v.x) * b.v.x + double(b.v.y) * b.v.y + double(b.v.z) * b.v.z) +
+      0.5 * (double(wb.x) * Iw.x + double(wb.y) * Iw.y + double(wb.z) * Iw.z);
+  const double pe = -double(b.mass) * b.gravityScale *
+                    (double(g.x) * b.com.x + double(g.y) * b.com.y + double(g.z) * b.com.z);
+  return ke + pe;
+}
+
 inline float impulseScale(float before, float after) {
   if (!(before > 0) || !(after > 0) || before == after) return 1;
   return std::clamp(after / before, 1e-4f, 1e4f);
@@ -397,6 +412,10 @@ struct World::Impl {
   /// counted as refused.
   void stepRefused() noexcept;
   bool snapshotValid = false;  ///< `snapshot` holds this step's start (takeSnapshot finished)
+  /// The world's energy (World::energy) summed by takeSnapshot in its pass over the awake
+  /// bodies, for the stepOnce that follows it at once (its energyBefore); used once.
+  bool snapshotEnergyKnown = false;
+  double snapshotEnergy = 0;
   bool stepTouched = false;    ///< this step's stepOnce has begun changing the world
   /// The broad phase built again from its proxies' fat boxes (the same pairs), aside and
   /// swapped in; the shapes get their new proxies.

@@ -259,6 +259,14 @@ int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResul
   }
   if (m.readbackBytesPerStep > 0)
     std::printf("  device readback (bytes/step) %.0f\n", m.readbackBytesPerStep);
+  if (m.uploadBytesPerStep > 0)
+    std::printf("  device upload (bytes/step) %.0f\n", m.uploadBytesPerStep);
+  {
+    // The host's parts (device steps; guard: around the step, not in ms/step).
+    std::printf("  host (ms/step):");
+    for (const auto& [k, v] : m.hostMs) std::printf(" %s %.3f", k.c_str(), v);
+    std::printf("\n");
+  }
   if (r.dispatchesPerStep)
     std::printf("  device launches: %.1f dispatches/step, %.1f barriers/step\n",
                 *r.dispatchesPerStep, *r.barriersPerStep);
@@ -328,6 +336,10 @@ int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResul
       j["gpu_profile"] = profile;
     }
     j["readback_bytes_per_step"] = m.readbackBytesPerStep;
+    j["upload_bytes_per_step"] = m.uploadBytesPerStep;
+    nlohmann::json host;
+    for (const auto& [k, v] : m.hostMs) host[k] = v;
+    j["host_ms"] = host;
     if (r.dispatchesPerStep) {
       j["gpu"] = {{"dispatches_per_step", *r.dispatchesPerStep},
                   {"barriers_per_step", *r.barriersPerStep}};

@@ -135,6 +135,16 @@ struct StepCounts {
   uint32_t transfers = 0;   ///< uploads, downloads, fills and copies
 };
 
+/// The host's own work in the last step (ms), beside the device's stages (stageMs): what
+/// a step costs the CPU that drives the device. Measured with the host's clock.
+struct HostTimes {
+  /// Recording the step's commands, with the uploads' copies into the staging memory and
+  /// the host's buffers for what comes back.
+  double record = 0;
+  /// Copying what came back out of the staging memory into the host's arrays.
+  double copyOut = 0;
+};
+
 class GpuWorld {
  public:
   /// A world on the device the options choose (one device per process and options, shared
@@ -193,6 +203,11 @@ class GpuWorld {
   /// Bytes the last step brought back from the device (states, counters, and what the
   /// StepInput asked for).
   uint64_t readbackBytes() const;
+  /// Bytes the last step sent up (edited records, or all of them after setBodies,
+  /// setShapes, setJoints or an undo; the LDL plan when it changed; the counters' resets).
+  uint64_t uploadBytes() const;
+  /// The last step's host work (HostTimes).
+  HostTimes hostMs() const;
   /// The last step's candidate pairs (always read back).
   uint32_t pairCount() const;
   /// The axis (0 x, 1 y, 2 z) the last step's broad phase sorted and swept the bounds on: the

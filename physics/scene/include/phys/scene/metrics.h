@@ -44,6 +44,11 @@ struct MetricsSummary {
   std::map<std::string, double> gpuProfile;
   /// Average bytes a step brought back from the GPU backend's device (0 on the CPU).
   double readbackBytesPerStep = 0;
+  /// Average bytes a step sent up to the GPU backend's device (0 on the CPU).
+  double uploadBytesPerStep = 0;
+  /// Average ms per step of the host's parts (StepProfile::hostUpload ... and guard):
+  /// "upload", "readback", "mirror", "other", "guard".
+  std::map<std::string, double> hostMs;
 
   /// Value of a metric by its physbench name, if it applies.
   std::optional<double> value(const std::string& name) const;

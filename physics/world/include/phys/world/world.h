@@ -100,6 +100,9 @@ struct BackendState {
   bool validation = false;           ///< the validation layer is loaded on the world's device
   /// Bytes the last device step brought back to the host (0 when every body slept).
   uint64_t readbackBytes = 0;
+  /// Bytes the last device step sent up: the records edited since the step before (all of
+  /// them after a structure change), not the world's size.
+  uint64_t uploadBytes = 0;
   /// Dispatches and barriers the device's steps recorded, summed over gpuSteps (divide for
   /// the per-step figure physbench reports).
   uint64_t gpuDispatches = 0, gpuBarriers = 0;
@@ -196,6 +199,17 @@ struct StepProfile {
   /// GPU backend: the dispatches and pipeline barriers the step recorded (0 for a step the
   /// CPU took): a small world's device step costs about this many launches and drains.
   int dispatches = 0, barriers = 0;
+  /// GPU backend: the host's own work in a device step (ms, inside total; 0 after a CPU
+  /// step), which should follow what changed, not the world's size. hostUpload: the edited
+  /// records built and staged (uploadToDevice, recording the commands with the uploads'
+  /// copies); hostReadback: what came back copied out of the staging memory; hostMirror: the
+  /// host mirror written from it (states, joints, touches); hostOther: the rest of total
+  /// outside the device's stages (the energies, the statistics, the submit and the wait
+  /// beyond the stages' timestamps).
+  double hostUpload = 0, hostReadback = 0, hostMirror = 0, hostOther = 0;
+  /// The guard's work around the step (ms; not in total, which is the step's own): its copy
+  /// for a rollback, the health check, and keeping the bodies inside the world's extent.
+  double guard = 0;
 };
 
 /// What the last step did, for metrics and monitors (double precision).
