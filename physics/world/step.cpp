@@ -5,11 +5,11 @@
 #include "phys/world/world.h"
 
 #include <algorithm>
-#include <limits>
 #include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <new>
 #include <type_traits>
 
@@ -61,7 +61,7 @@ void World::step() {
   Impl& w = *impl_;
   // Nothing thrown inside a step leaves it (a daemon steps worlds built from its clients'
   // messages): the step is undone instead (stepFailed).
-  w.snapshotValid = w.stepTouched = w.snapshotEnergyKnown = false;
+  w.snapshotValid = w.stepTouched = w.snapshotEnergyKnown = w.mirrorScan.valid = false;
   try {
     w.stats.guardRetries = 0;
     double guardMs = 0;  // StepProfile::guard (stepOnce starts the profile afresh)
@@ -138,8 +138,8 @@ void World::stepOnce(int substeps) {
   p = StepProfile();
   const double t0 = nowMs();
   // The guard's copy, taken just before, summed it (one pass over the bodies, not two).
-  w.stats.energyBefore = w.snapshotEnergyKnown ? w.snapshotEnergy : energy();
-  w.snapshotEnergyKnown = false;
+  w.stats.energyBefore = w.snapshotEnergyKnown ? w.snapshotEnergy : w.stepEnergy();
+  w.snapshotEnergyKnown = w.mirrorScan.valid = false;
 
   {
     StageTimer t(&p.applyCommands);
@@ -162,7 +162,8 @@ void World::stepOnce(int substeps) {
     w.stats.contactsBetweenHalves = -1;
     w.time += dt;
     w.stats.step++;
-    w.stats.energyAfter = energy();
+    // The mirror pass summed it on its way (mirrorScan), as World::energy would.
+    w.stats.energyAfter = w.mirrorScan.valid ? w.mirrorScan.energy : w.stepEnergy();
     p.total = nowMs() - t0;
     // What the host did beside the device's stages and the parts stepOnDevice measured.
     const double device = p.syncToDevice + p.updateBounds + p.broadPhase + p.narrowPhase +
@@ -315,7 +316,7 @@ void World::stepOnce(int substeps) {
 
   w.time += dt;
   w.stats.step++;
-  w.stats.energyAfter = energy();
+  w.stats.energyAfter = w.stepEnergy();
   p.total = nowMs() - t0;
 }
 
@@ -382,24 +383,41 @@ void World::Impl::storeImpulses() {
 
 void World::Impl::takeSnapshot() {
   // The awake bodies and their contacts and joints: a sleeping island does not change in a
-  // step (one woken inside it is added by wakeIsland). One pass over the bodies: their
-  // copy, the kinetic energy and lift the health check allows for, and the world's energy
-  // (World::energy's terms in its order), which the step's energyBefore takes from here.
+  // step (one woken inside it is added by wakeIsland). One pass over the bodies, on the
+  // world's threads: their copy, the kinetic energy and lift the health check allows for,
+  // and the world's energy (World::energy's terms), which the step's energyBefore takes
+  // from here. The terms are summed afterwards in World::energy's order: the same bits.
   snapshotEnergyKnown = false;
-  snapshot.bodies.clear();
+  const size_t n = awakeBodies.size();
+  // Every slot is written below: resize only initializes those the copy did not have (at a
+  // million bodies, clearing and refilling zeroed some 80 MB a step).
+  snapshot.bodies.resize(n);
+  energyTerms.resize(n);
+  const Vec3 gravity = def.gravity;
+  const double g = length(gravity);
+  forEachRange(n, [&](size_t begin, size_t end) {
+    for (size_t k = begin; k < end; ++k) {
+      const uint32_t i = awakeBodies[k];
+      const BodyRec& b = bodies.at(i);
+      snapshot.bodies[k] = {i, b.xf, b.com, b.v, b.w, b.force, b.torque};
+      if (b.type != BodyType::Dynamic) {
+        energyTerms[k] = {0, 0, 0};
+        continue;
+      }
+      energyTerms[k] = {
+          bodyEnergy(b, gravity),
+          0.5 * b.mass * double(lengthSquared(b.v)) +
+              0.5 * double(dot(invRotate(b.xf.q, b.w), b.inertiaLocal * invRotate(b.xf.q, b.w))),
+          0.1 * g * b.mass};
+    }
+  });
   snapshot.kinetic = 0;
   snapshot.liftEnergy = 1;
-  const double g = length(def.gravity);
   double energy = 0;
-  for (uint32_t i : awakeBodies) {
-    const BodyRec& b = bodies.at(i);
-    snapshot.bodies.push_back({i, b.xf, b.com, b.v, b.w, b.force, b.torque});
-    if (b.type != BodyType::Dynamic) continue;
-    snapshot.kinetic +=
-        0.5 * b.mass * double(lengthSquared(b.v)) +
-        0.5 * double(dot(invRotate(b.xf.q, b.w), b.inertiaLocal * invRotate(b.xf.q, b.w)));
-    snapshot.liftEnergy += 0.1 * g * b.mass;
-    energy += bodyEnergy(b, def.gravity);
+  for (size_t k = 0; k < n; ++k) {  // a body that is not dynamic adds +0.0: no bit changes
+    snapshot.kinetic += energyTerms[k].kinetic;
+    snapshot.liftEnergy += energyTerms[k].lift;
+    energy += energyTerms[k].energy;
   }
   if (sleepingBodyCount > 0) energy += sleepingPotential();
   snapshot.contacts = contacts;
@@ -460,6 +478,7 @@ void forEachStepScratch(Impl& w, F&& f) {
   f(w.directIsland);
   // Body-sized.
   f(w.snapshot.bodies);
+  f(w.energyTerms);
   f(w.snapshot.jointImpulses);
   f(w.solverCom);
   f(w.solverHalf);
@@ -583,6 +602,7 @@ void World::Impl::rebuildBroadPhase() {
 }
 
 void World::Impl::restoreSnapshot(bool moveContacts) {
+  mirrorScan.valid = false;  // the bodies change
   for (const Snapshot::Body& s : snapshot.bodies) {
     BodyRec& b = bodies.at(s.index);
     b.xf = s.xf;
@@ -627,31 +647,59 @@ const char* World::Impl::bodyFault(const BodyRec& b, const Snapshot::Body& befor
   return nullptr;
 }
 
-std::string World::Impl::checkHealth() const {
-  // Nearly every body is far inside bodyFault's bounds: a test without square roots accepts
-  // those, and only the rest take bodyFault's exact tests, whose verdict it is (the same
-  // faults, found with less work a body: this runs over every awake body every step).
+World::Impl::QuickHealth World::Impl::quickHealth() const {
   // |x| < bound / 1.75 on every axis puts a vector's length below the bound with room to
   // spare for rounding (length <= sqrt(3) max |x|); a NaN or an infinity fails it.
-  const float vMax = 0.999f * def.maxLinearSpeed / 1.75f;
-  const float wMax = 0.999f * def.maxAngularSpeed / 1.75f;
-  const float dMax = float(2.0 * (double(def.maxLinearSpeed) + double(def.solver.maxPushout)) *
-                           def.timeStep / 1.75);
+  return {0.999f * def.maxLinearSpeed / 1.75f, 0.999f * def.maxAngularSpeed / 1.75f,
+          float(2.0 * (double(def.maxLinearSpeed) + double(def.solver.maxPushout)) *
+                def.timeStep / 1.75)};
+}
+
+bool World::Impl::QuickHealth::clear(const BodyRec& b, const Snapshot::Body& s) const {
   const auto inside = [](Vec3 a, float m) {
     return std::fabs(a.x) < m && std::fabs(a.y) < m && std::fabs(a.z) < m;
   };
   constexpr float big = std::numeric_limits<float>::max();
-  for (const Snapshot::Body& s : snapshot.bodies) {
-    const BodyRec& b = bodies.at(s.index);
-    const Quat q = b.xf.q;
-    const bool clear =
-        inside(b.v, vMax) && inside(b.w, wMax) && inside(b.xf.p, big) &&
-        inside({q.x, q.y, q.z}, big) && std::fabs(q.w) < big &&
-        (b.type != BodyType::Dynamic ||
-         inside({b.com.x - s.com.x, b.com.y - s.com.y, b.com.z - s.com.z}, dMax));
-    if (clear) continue;
-    if (const char* fault = bodyFault(b, s))
-      return "body " + std::to_string(s.index) + " " + fault;
+  const Quat q = b.xf.q;
+  return inside(b.v, vMax) && inside(b.w, wMax) && inside(b.xf.p, big) &&
+         inside({q.x, q.y, q.z}, big) && std::fabs(q.w) < big &&
+         (b.type != BodyType::Dynamic ||
+          inside({b.com.x - s.com.x, b.com.y - s.com.y, b.com.z - s.com.z}, dMax));
+}
+
+bool World::Impl::insideExtent(const BodyRec& b) {
+  constexpr float e = WorldDef::kWorldExtent;
+  const Vec3 p = b.xf.p;
+  return std::fabs(p.x) < e && std::fabs(p.y) < e && std::fabs(p.z) < e;
+}
+
+std::string World::Impl::checkHealth() const {
+  // Nearly every body is far inside bodyFault's bounds: the quick test accepts those, and
+  // only the rest take bodyFault's exact tests, whose verdict it is (the same faults, found
+  // with less work a body: this runs over every awake body every step). A device step's
+  // mirror pass ran the quick test already (mirrorScan): only the bodies from the first it
+  // did not clear are looked at again. On the world's threads; the fault reported is the
+  // first in the copy's order, as from one thread (the lowest index at fault, whichever
+  // thread found it).
+  const QuickHealth quick = quickHealth();
+  const size_t from = mirrorScan.valid ? mirrorScan.healthFrom : 0;
+  const size_t n = snapshot.bodies.size();
+  std::atomic<size_t> first{n};
+  forEachRange(n - std::min(from, n), [&](size_t begin, size_t end) {
+    for (size_t k = from + begin; k < from + end && k < first.load(std::memory_order_relaxed);
+         ++k) {
+      const Snapshot::Body& s = snapshot.bodies[k];
+      const BodyRec& b = bodies.at(s.index);
+      if (quick.clear(b, s) || !bodyFault(b, s)) continue;
+      size_t seen = first.load(std::memory_order_relaxed);
+      while (k < seen && !first.compare_exchange_weak(seen, k, std::memory_order_relaxed)) {
+      }
+      return;  // later bodies of this range come after k
+    }
+  });
+  if (const size_t k = first.load(); k < n) {
+    const Snapshot::Body& s = snapshot.bodies[k];
+    return "body " + std::to_string(s.index) + " " + bodyFault(bodies.at(s.index), s);
   }
   // A joint's impulses are kept for the next step's warm start and saved with the world: a
   // step whose solve left one non-finite failed there even if its bodies look sound (the
@@ -673,6 +721,7 @@ std::string World::Impl::checkHealth() const {
 void World::Impl::quarantine() {
   // Retries did not help: put each body at fault back where it was, at rest, and let the
   // rest of the world keep its step. A bad body never poisons the others.
+  mirrorScan.valid = false;  // the bodies change
   for (const Snapshot::Body& s : snapshot.bodies) {
     BodyRec& b = bodies.at(s.index);
     if (!bodyFault(b, s)) continue;
@@ -707,7 +756,24 @@ void World::Impl::quarantine() {
 
 void World::Impl::keepInsideWorld() {
   constexpr float e = WorldDef::kWorldExtent;
-  for (uint32_t i : awakeBodies) {
+  // Nearly always every body is inside: the world's threads look for the first that is not
+  // (as checkHealth does; from where a device step's mirror pass stopped finding them all
+  // inside), and only from there on does the loop below run.
+  const size_t from = mirrorScan.valid ? mirrorScan.insideFrom : 0;
+  const size_t n = awakeBodies.size();
+  std::atomic<size_t> first{n};
+  forEachRange(n - std::min(from, n), [&](size_t begin, size_t end) {
+    for (size_t k = from + begin; k < from + end && k < first.load(std::memory_order_relaxed);
+         ++k) {
+      if (insideExtent(bodies.at(awakeBodies[k]))) continue;
+      size_t seen = first.load(std::memory_order_relaxed);
+      while (k < seen && !first.compare_exchange_weak(seen, k, std::memory_order_relaxed)) {
+      }
+      return;
+    }
+  });
+  for (size_t k = first.load(); k < n; ++k) {
+    const uint32_t i = awakeBodies[k];
     BodyRec& b = bodies.at(i);
     const Vec3 p = b.xf.p;
     const Vec3 in{std::clamp(p.x, -e, e), std::clamp(p.y, -e, e), std::clamp(p.z, -e, e)};

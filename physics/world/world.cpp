@@ -941,6 +941,24 @@ double World::energy() const {
   return e;
 }
 
+double World::Impl::stepEnergy() {
+  // World::energy's terms, formed on the world's threads and summed in its order (a body
+  // that is not dynamic adds +0.0, which changes no bit of a sum that began at +0.0).
+  const size_t n = awakeBodies.size();
+  energyTerms.resize(n);
+  const Vec3 g = def.gravity;
+  forEachRange(n, [&](size_t begin, size_t end) {
+    for (size_t k = begin; k < end; ++k) {
+      const BodyRec& b = bodies.at(awakeBodies[k]);
+      energyTerms[k].energy = b.type == BodyType::Dynamic ? bodyEnergy(b, g) : 0.0;
+    }
+  });
+  double e = 0;
+  for (size_t k = 0; k < n; ++k) e += energyTerms[k].energy;
+  if (sleepingBodyCount > 0) e += sleepingPotential();
+  return e;
+}
+
 uint64_t World::stateHash() const {
   // FNV-1a over the bits of every body's position and rotation, in id order.
   uint64_t h = 1469598103934665603ull;

@@ -11,6 +11,7 @@
 // BackendState::cpuSteps with the reason; the device's copy is refreshed before its next
 // step.
 #include <algorithm>
+#include <atomic>
 #include <bit>
 #include <chrono>
 #include <cstdio>
@@ -75,6 +76,7 @@ struct DeviceWorld {
   std::vector<uint32_t> slots;       ///< device body index -> body slot
   std::vector<uint32_t> owners;      ///< device shape index -> its body's slot
   std::vector<uint32_t> edited;      ///< body slots edited since the last upload
+  std::vector<uint8_t> forcesCleared;  ///< per awake body: the mirror cleared its forces
   bool stale = true;                 ///< bodies or shapes changed: upload everything
   bool jointsChanged = false;        ///< a joint fell asleep or woke: the joints go up again
   // Backend::Auto (deviceTakesStep): the calibrated crossover and the last choice.
@@ -664,31 +666,72 @@ bool World::Impl::stepOnDevice(int substeps) {
     cpuIslandsStep(substeps);
   }
 
-  // The host mirror of the awake bodies (a sleeping body is where it fell asleep, at rest).
-  // Forces last one step: a body that had some goes up again without.
+  // The host mirror of the awake bodies (a sleeping body is where it fell asleep, at rest),
+  // in one pass over them on the world's threads, each body its own. The pass also forms
+  // what the passes after the step would otherwise go over every body again for
+  // (mirrorScan): each body's energy term, summed afterwards in World::energy's order (the
+  // same bits), and the first body that the guard's health check and keepInsideWorld must
+  // look at (the same quick tests on the same states). Forces last one step: a body that
+  // had some goes up again without (listed afterwards in awakeBodies' order).
   const Clock::time_point mirrorStart = Clock::now();
   std::span<const gpu::GpuBodyState> out = g.states();
-  for (size_t i = 0; i < d.slots.size(); ++i) {
-    BodyRec& b = bodies.at(d.slots[i]);
-    if (b.asleep() || b.held) continue;
-    const gpu::GpuBodyState& s = out[i];
-    b.com = {s.com.x, s.com.y, s.com.z};
-    b.xf.q = {s.q.x, s.q.y, s.q.z, s.q.w};
-    b.xf.p = b.com - rotate(b.xf.q, b.localCenter);
-    b.v = {s.v.x, s.v.y, s.v.z};
-    b.w = {s.w.x, s.w.y, s.w.z};
-    if (b.force != Vec3{} || b.torque != Vec3{}) {
-      b.force = b.torque = {};
-      d.edited.push_back(d.slots[i]);
+  const size_t n = awakeBodies.size();
+  energyTerms.resize(n);
+  d.forcesCleared.resize(n);
+  const QuickHealth quick = quickHealth();
+  const Vec3 gravity = def.gravity;
+  std::atomic<size_t> healthFrom{n}, insideFrom{n};
+  const auto lower = [](std::atomic<size_t>& first, size_t k) {
+    size_t seen = first.load(std::memory_order_relaxed);
+    while (k < seen && !first.compare_exchange_weak(seen, k, std::memory_order_relaxed)) {
     }
+  };
+  forEachRange(n, [&](size_t begin, size_t end) {
+    bool healthy = true, inside = true;  // every body of this range so far
+    for (size_t k = begin; k < end; ++k) {
+      const uint32_t slot = awakeBodies[k];
+      BodyRec& b = bodies.at(slot);
+      d.forcesCleared[k] = 0;
+      if (!b.asleep() && !b.held && b.deviceIndex >= 0) {  // held: the CPU stepped it
+        const gpu::GpuBodyState& s = out[size_t(b.deviceIndex)];
+        b.com = {s.com.x, s.com.y, s.com.z};
+        b.xf.q = {s.q.x, s.q.y, s.q.z, s.q.w};
+        b.xf.p = b.com - rotate(b.xf.q, b.localCenter);
+        b.v = {s.v.x, s.v.y, s.v.z};
+        b.w = {s.w.x, s.w.y, s.w.z};
+        if (b.force != Vec3{} || b.torque != Vec3{}) {
+          b.force = b.torque = {};
+          d.forcesCleared[k] = 1;
+        }
+      }
+      if (sleeping) b.solverIndex = int32_t(k + 1);  // updateSleep's numbering
+      energyTerms[k].energy = b.type == BodyType::Dynamic ? bodyEnergy(b, gravity) : 0.0;
+      // The guard's copy lists the awake bodies in this order (takeSnapshot); a body it
+      // does not have at k (woken during the step) ends the quick tests' run here.
+      const bool clear = snapshotValid && k < snapshot.bodies.size() &&
+                         snapshot.bodies[k].index == slot && quick.clear(b, snapshot.bodies[k]);
+      if (healthy && !clear) {
+        lower(healthFrom, k);
+        healthy = false;
+      }
+      if (inside && !insideExtent(b)) {
+        lower(insideFrom, k);
+        inside = false;
+      }
+    }
+  });
+  double energy = 0;  // World::energy's sum (a body that is not dynamic adds +0.0)
+  for (size_t k = 0; k < n; ++k) {
+    energy += energyTerms[k].energy;
+    if (d.forcesCleared[k]) d.edited.push_back(awakeBodies[k]);
   }
+  if (sleepingBodyCount > 0) energy += sleepingPotential();
   if (sleeping) {
-    // The islands' edges (updateSleep) and the awake bodies' numbering it unions by.
+    // The islands' edges (updateSleep).
     deviceTouches.clear();
     for (const gpu::Touch& t : g.touches()) deviceTouches.push_back({d.slots[t.a], d.slots[t.b]});
-    for (size_t i = 0; i < awakeBodies.size(); ++i)
-      bodies.at(awakeBodies[i]).solverIndex = int32_t(i + 1);
   }
+  mirrorScan = {true, energy, healthFrom.load(), insideFrom.load()};
 
   // Joints: impulses (next step's warm start on either backend, snapshots), reactions, and
   // their errors at the new poses.

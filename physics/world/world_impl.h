@@ -186,6 +186,28 @@ struct World::Impl {
   std::vector<Contact> contactScratch;
   std::unordered_set<uint64_t> noCollide;  ///< body index pairs joined without collideConnected
   std::unique_ptr<ThreadPool> pool;        ///< null with one thread
+  /// The passes over every awake body that the step's guard and the device step's mirror
+  /// make (the guard's copy and check, keepInsideWorld, the step's energies, the mirror):
+  /// fn(begin, end) over [0, n) on the world's threads, inline without a pool. Each index
+  /// writes its own slots; sums are formed afterwards in index order (the same bits as one
+  /// thread, whatever the threads: thread_pool.h).
+  template <class F>
+  void forEachRange(size_t n, F&& fn) const {
+    constexpr size_t kBodyGrain = 2048;  // a pass over a few thousand bodies runs inline
+    if (pool)
+      pool->parallelFor(n, kBodyGrain, fn);
+    else if (n > 0)
+      fn(size_t(0), n);
+  }
+  /// Per awake body, the terms that a pass sums afterwards in order (forEachRange): the
+  /// world's energy (bodyEnergy), and for the guard's copy the kinetic energy and the lift.
+  struct EnergyTerms {
+    double energy, kinetic, lift;
+  };
+  std::vector<EnergyTerms> energyTerms;
+  /// World::energy's sum, its per-body terms formed on the world's threads (the step's
+  /// energyAfter and energyBefore): the same bits as World::energy.
+  double stepEnergy();
   Solver solver;
   WideContacts wide;  ///< the Gauss-Seidel scheme's contacts in SIMD lanes (solver_wide.h)
   /// With wide contacts: this step's manifolds (instead of contact rows) and their contacts.
@@ -425,6 +447,27 @@ struct World::Impl {
   /// copied (nothing allocates: a failed step's undo), leaving the copy without them.
   void restoreSnapshot(bool moveContacts = false);
   std::string checkHealth() const;                ///< empty when the step was healthy
+  /// The health check's quick test, without square roots: true when a body is certainly
+  /// healthy after the step (`before`: its state when the step began); the others take
+  /// bodyFault's exact tests, whose verdict it is.
+  struct QuickHealth {
+    float vMax, wMax, dMax;
+    bool clear(const BodyRec& b, const Snapshot::Body& before) const;
+  };
+  QuickHealth quickHealth() const;
+  /// A body strictly inside WorldDef::kWorldExtent on every axis (keepInsideWorld leaves it).
+  static bool insideExtent(const BodyRec& b);
+  /// What the device step's mirror pass (stepOnDevice) found on its way over the awake
+  /// bodies, so that the passes after it need not go over them again: the step's energy
+  /// (World::energy's sum, for energyAfter), and where the health check (in the guard's
+  /// copy) and keepInsideWorld (in awakeBodies) must begin: every body before those was
+  /// found clear by the same quick tests on the same states. Valid from that pass until the
+  /// bodies change again (a retry's restore, quarantine, the next stepOnce).
+  struct MirrorScan {
+    bool valid = false;
+    double energy = 0;
+    size_t healthFrom = 0, insideFrom = 0;
+  } mirrorScan;
   /// What is wrong with a body after a step (before: its state when the step began), or null.
   const char* bodyFault(const BodyRec& b, const Snapshot::Body& before) const;
   void quarantine();  ///< joint rows at the current poses, inside the substep loop

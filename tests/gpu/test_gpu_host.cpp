@@ -2,7 +2,8 @@
 // what goes up is the records edited since the step before (and the counters' resets),
 // what comes back is what the host mirror and publishing read (every body's state, the
 // counters), and the guard's copy sums the step's starting energy in its own pass, the same
-// bits as World::energy. Byte counts, not times: they fail on a change that makes a step
+// bits as World::energy (and the mirror pass the step's ending energy, and the guard's quick
+// tests, with the same verdicts). Byte counts, not times: they fail on a change that makes a step
 // upload the world again or read back a buffer nobody reads, on any device.
 #include <gtest/gtest.h>
 
@@ -142,6 +143,63 @@ TEST(GpuHost, TheGuardsCopySumsTheEnergyWorldEnergyDoes) {
     }
     EXPECT_GT(sleepers, 0);  // the potential of sleeping islands was part of it
   }
+}
+
+TEST(GpuHost, TheMirrorPassJudgesAsTheGuardsOwnPassesDo) {
+  // The device step's mirror pass also sums the step's energy and runs the guard's quick
+  // tests (World::Impl::mirrorScan), so that the health check and keepInsideWorld look only
+  // at the bodies from the first it did not clear. They must still find every fault: two
+  // runaways far apart in a field of 3,000 spheres (past a pass's grain: on two threads in
+  // different ranges) and a kinematic body that leaves the world's extent, the same bodies
+  // stopped and the same event on one thread and on two, and energyAfter the bits of
+  // World::energy after every step.
+  constexpr float e = WorldDef::kWorldExtent;
+  auto run = [&](int threads) {
+    WorldDef d;
+    d.backend = Backend::Gpu;
+    d.gpuAllowCpuDevice = true;
+    d.threads = threads;
+    d.gravity = {0, 0, 0};
+    d.guardRetries = 1;  // the retry fails too: the event names the first body at fault
+    auto w = std::make_unique<World>(d);
+    std::vector<BodyId> ids;
+    for (int i = 0; i < 3000; ++i)
+      ids.push_back(test::addBody(
+          *w, test::sphereBody({3.0f * float(i % 60), 3.0f * float(i / 60), 0}, 0.5f)));
+    BodyDef k = test::boxBody({e - 5, -20, 0}, {0.5f, 0.5f, 0.5f}, BodyType::Kinematic);
+    k.linearVelocity = {400, 0, 0};
+    test::addBody(*w, k);
+    for (int step = 0; step < 4; ++step) {
+      if (step == 1) {
+        for (int i : {2400, 700}) {
+          EXPECT_TRUE(w->applyForce(ids[size_t(i)], {1e30f, 0, 0}, {}).ok());
+        }
+      }
+      w->step();
+      EXPECT_EQ(w->stats().energyAfter, w->energy()) << "step " << step;
+      if (step == 0) {  // it crossed the extent in this step: stopped on its edge at once
+        EXPECT_EQ(w->stats().guardQuarantined, 1u);
+        EXPECT_NE(w->stats().lastGuardEvent.find("left the world's extent"), std::string::npos)
+            << w->stats().lastGuardEvent;
+      }
+    }
+    return w;
+  };
+  auto one = run(1);
+  REQUIRE_DEVICE(*one);
+  auto two = run(2);
+  EXPECT_EQ(one->backendState().cpuSteps, 0u) << one->backendState().lastFallback;
+  EXPECT_EQ(one->stats().guardQuarantined, 3u) << one->stats().lastGuardEvent;
+  // Found as a body at fault (the health check's body tests), not by the energy's rise that
+  // the same runaways also cause.
+  EXPECT_EQ(one->stats().lastGuardEvent.find("energy rose"), std::string::npos)
+      << one->stats().lastGuardEvent;
+  EXPECT_NE(one->stats().lastGuardEvent.find(": body "), std::string::npos)
+      << one->stats().lastGuardEvent;
+  EXPECT_EQ(two->stats().guardQuarantined, one->stats().guardQuarantined);
+  EXPECT_EQ(two->stats().lastGuardEvent, one->stats().lastGuardEvent);
+  EXPECT_EQ(two->stats().energyAfter, one->stats().energyAfter);
+  EXPECT_EQ(two->stateHash(), one->stateHash());
 }
 
 }  // namespace

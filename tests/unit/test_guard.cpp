@@ -178,3 +178,42 @@ TEST(Guard, ASleepingJointKeepsItsImpulsesThroughOtherIslandsRetries) {
     EXPECT_NEAR(woken[i], atRest[i], 0.05f * atRest[i]) << "link " << i;
   }
 }
+
+TEST(Guard, ThePassesOverTheBodiesGiveTheSameVerdictsOnAnyNumberOfThreads) {
+  // The guard's copy, its health check, keepInsideWorld and the step's energies run on the
+  // world's threads once a pass has more than a few thousand bodies (World::Impl::
+  // forEachRange). Their verdicts must be those of one thread: the first body at fault in the
+  // copy's order named, the same bodies stopped, the same energies to the bit. Two runaways
+  // far apart in a field of 6,000 spheres (past the pass's grain: on two threads each
+  // runaway is in another thread's range) and one body that leaves the world's extent.
+  constexpr float e = WorldDef::kWorldExtent;
+  auto run = [&](int threads) {
+    WorldDef def;
+    def.threads = threads;
+    def.gravity = {0, 0, 0};
+    def.guardRetries = 1;  // a retry fails as well: its event names the first body at fault
+    auto w = std::make_unique<World>(def);
+    std::vector<BodyId> ids;
+    for (int i = 0; i < 6000; ++i)
+      ids.push_back(addBody(*w, sphereBody({float(i % 100) * 3, float(i / 100) * 3, 0}, 0.5f)));
+    BodyDef k = boxBody({e - 5, -20, 0}, {0.5f, 0.5f, 0.5f}, BodyType::Kinematic);
+    k.linearVelocity = {400, 0, 0};
+    addBody(*w, k);
+    for (int step = 0; step < 4; ++step) {
+      if (step == 1) {
+        for (int i : {4900, 1100}) {
+          EXPECT_TRUE(w->applyForce(ids[size_t(i)], {1e30f, 0, 0}, {}).ok());
+        }
+      }
+      w->step();
+    }
+    return w;
+  };
+  auto one = run(1), two = run(2);
+  EXPECT_EQ(one->stats().guardQuarantined, 3u) << one->stats().lastGuardEvent;
+  EXPECT_EQ(two->stats().guardQuarantined, one->stats().guardQuarantined);
+  EXPECT_EQ(two->stats().lastGuardEvent, one->stats().lastGuardEvent);
+  EXPECT_EQ(two->stats().energyBefore, one->stats().energyBefore);
+  EXPECT_EQ(two->stats().energyAfter, one->stats().energyAfter);
+  EXPECT_EQ(two->stateHash(), one->stateHash());
+}
