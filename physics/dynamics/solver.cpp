@@ -805,6 +805,17 @@ void rotateFree(SolverBody& b, float h) {
 
 }  // namespace
 
+void Solver::markTrackedRotations(std::span<const SolverManifold> manifolds) {
+  // dtheta is read by the rows' position error (C0 + J . deltas), the joints' rows rebuilt
+  // each substep, the manifolds' wide blocks, the collision phase (its contacts are rows or
+  // manifolds too), the position pass (rows) and the forces' work (the torque's): a body in
+  // none of those is free, and its rotation vector would be computed for nobody.
+  for (SolverBody& b : bodies) b.tracksRotation = b.torque != Vec3{};
+  for (const Row& r : rows) bodies[size_t(r.a)].tracksRotation = bodies[size_t(r.b)].tracksRotation = true;
+  for (const SolverManifold& m : manifolds)
+    bodies[size_t(m.a)].tracksRotation = bodies[size_t(m.b)].tracksRotation = true;
+}
+
 void Solver::integratePositions(float h) {
   if (wide) wide->errorsCurrent = false;
   parallel(bodies.size(), kBodyGrain, [&](size_t begin, size_t end) {
@@ -824,7 +835,7 @@ void Solver::integratePositions(float h) {
           b.q = integrateRotation(b.q, b.w, h);
         }
       }
-      b.dtheta += rotationVector(b.q * conjugate(q0));
+      if (b.tracksRotation) b.dtheta += rotationVector(b.q * conjugate(q0));
     }
   });
   pushActive = false;

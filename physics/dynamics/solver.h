@@ -13,6 +13,7 @@
 
 #include <array>
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include "phys/base/math.h"
@@ -47,6 +48,10 @@ struct SolverBody : Velocity {
   Vec3 principalMoments{1, 1, 1};  ///< kg m^2
   float linearDamping = 0, angularDamping = 0;
   bool dynamic = false, gyroscopic = false;
+  /// Its accumulated rotation (dtheta) is read this step: it is in a constraint row or a
+  /// manifold, or has a torque (the forces' work). A free body's is not kept: the rotation
+  /// vector costs an atan2 per body and substep (markTrackedRotations).
+  bool tracksRotation = true;
 };
 
 enum class RowKind : uint8_t {
@@ -220,6 +225,9 @@ class Solver {
   /// to instead of pulling the joint apart. With `ldl` they are solved exactly after each
   /// pass (EqualityLdl::solvePush), else iterated with the contacts.
   void solvePushout(const SolverSettings& s, float h, int iterations, EqualityLdl* ldl = nullptr);
+  /// Which bodies' accumulated rotation the step reads (SolverBody::tracksRotation): those
+  /// of the rows, of `manifolds` and those with a torque. Once the step's rows are built.
+  void markTrackedRotations(std::span<const SolverManifold> manifolds);
   /// Advances positions by the velocities (plus the push-out velocities when split).
   void integratePositions(float h);
   /// Norm of the rows' velocity error after the solve (see SOLVER_NOTES "Residual").

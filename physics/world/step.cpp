@@ -1197,6 +1197,7 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   else
     wide.clear();
   directContacts.setup(solver, std::move(directRows));
+  solver.markTrackedRotations(manifolds);
   // Restitution's collision phase: the elastic contacts' normal rows, with the bodies' own
   // masses (impacts.h).
   impacts.clear();

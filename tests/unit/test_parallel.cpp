@@ -154,6 +154,9 @@ TEST(Determinism, SameStateForAnyThreadCount) {
     const uint64_t one = runMixed(scheme, 1, 90);
     EXPECT_EQ(runMixed(scheme, 2, 90), one) << int(scheme);
     EXPECT_EQ(runMixed(scheme, 3, 90), one) << int(scheme);
+    // More threads than this machine's cores: the chunks are split otherwise, the bits not.
+    EXPECT_EQ(runMixed(scheme, 8, 90), one) << int(scheme);
+    EXPECT_EQ(runMixed(scheme, 16, 90), one) << int(scheme);
   }
   // The schemes really differ (the setting is not ignored).
   EXPECT_NE(runMixed(S::GaussSeidel, 2, 90), runMixed(S::ColoredGaussSeidel, 2, 90));
