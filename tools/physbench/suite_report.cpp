@@ -183,8 +183,11 @@ std::string markdownReport(const SuiteReport& r, bool table) {
      << (o.jobs == 1 ? std::string("one at a time (--jobs 1)")
                      : std::to_string(o.jobs) + " in parallel threads (--jobs " +
                            std::to_string(o.jobs) + "; timings share the cores)")
-     << ", " << r.worldThreads << (r.worldThreads == 1 ? " thread" : " threads") << " per World, "
-     << durationText(r.wallSeconds) << " in all\n";
+     << ", " << r.worldThreads << (r.worldThreads == 1 ? " thread" : " threads") << " per World";
+  if (!r.peerVersions.empty())
+    md << " (peers: Box3D with " << r.peerThreads
+       << (r.peerThreads == 1 ? " worker" : " workers") << ", the others on one thread)";
+  md << ", " << durationText(r.wallSeconds) << " in all\n";
   md << "- Presets: `" << shortPath(o.presetsPath) << "` as it was at the run (default `"
      << r.defaultPreset << "`); one World per run";
   std::vector<std::string> limits;
