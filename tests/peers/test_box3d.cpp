@@ -293,12 +293,6 @@ TEST(Box3d, ReportsWhatItCannotExpress) {
   Scene gyro = scene;
   gyro.bodies[0].gyroscopic = false;
   expectUnsupported(gyro, {}, "gyroscopic");
-  Scene dynamicPlane;
-  BodyDef p = ground();
-  p.type = BodyType::Dynamic;
-  p.mass = 1;
-  dynamicPlane.bodies = {p};
-  expectUnsupported(dynamicPlane, {}, "plane");
 }
 
 }  // namespace
