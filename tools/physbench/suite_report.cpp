@@ -183,11 +183,8 @@ std::string markdownReport(const SuiteReport& r, bool table) {
      << (o.jobs == 1 ? std::string("one at a time (--jobs 1)")
                      : std::to_string(o.jobs) + " in parallel threads (--jobs " +
                            std::to_string(o.jobs) + "; timings share the cores)")
-     << ", " << r.worldThreads << (r.worldThreads == 1 ? " thread" : " threads") << " per World";
-  if (!r.peerVersions.empty())
-    md << " (peers: Box3D with " << r.peerThreads
-       << (r.peerThreads == 1 ? " worker" : " workers") << ", the others on one thread)";
-  md << ", " << durationText(r.wallSeconds) << " in all\n";
+     << ", " << r.worldThreads << (r.worldThreads == 1 ? " thread" : " threads") << " per World, "
+     << durationText(r.wallSeconds) << " in all\n";
   md << "- Presets: `" << shortPath(o.presetsPath) << "` as it was at the run (default `"
      << r.defaultPreset << "`); one World per run";
   std::vector<std::string> limits;
@@ -205,8 +202,9 @@ std::string markdownReport(const SuiteReport& r, bool table) {
     md << "- Peers: ";
     for (size_t i = 0; i < r.peerVersions.size(); ++i) md << (i ? ", " : "") << r.peerVersions[i];
     md << "; their columns read \"engine (N it)\" for N solver iterations (no N: the engine's "
-          "default), one thread; the same scene files and the same metrics code "
-          "(docs/PEERS.md)\n";
+          "default), one thread (Box3D: "
+       << r.peerThreads << (r.peerThreads == 1 ? " worker thread" : " worker threads")
+       << ", --threads); the same scene files and the same metrics code (docs/PEERS.md)\n";
   }
   if (!table) {
     // The sweep's tables (sweep_report.cpp) carry the runs, their failures and peer errors.
