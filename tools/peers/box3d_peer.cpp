@@ -62,8 +62,7 @@ Quat basis(Vec3 x, Vec3 z) {
 }
 
 bool isIdentity(const Transform& t) {
-  return lengthSquared(t.p) == 0 && t.q.x == 0 && t.q.y == 0 && t.q.z == 0 &&
-         std::fabs(t.q.w) == 1;
+  return lengthSquared(t.p) == 0 && t.q.x == 0 && t.q.y == 0 && t.q.z == 0 && std::fabs(t.q.w) == 1;
 }
 
 class Box3dPeer : public PeerEngine {
@@ -153,7 +152,8 @@ class Box3dPeer : public PeerEngine {
   /// every body of the scene lies over it with 100 m to spare.
   float planeHalfSide(const Scene& scene) const {
     float reach = 0;
-    for (const BodyDef& b : scene.bodies) reach = std::max(reach, length(b.position - planeCentre_));
+    for (const BodyDef& b : scene.bodies)
+      reach = std::max(reach, length(b.position - planeCentre_));
     return std::max(400.0f, reach + 100);
   }
 
@@ -191,8 +191,8 @@ class Box3dPeer : public PeerEngine {
         break;
       }
       case ShapeType::Box: {
-        const b3BoxHull box =
-            b3MakeTransformedBoxHull(g.halfExtents.x, g.halfExtents.y, g.halfExtents.z, b3(s.local));
+        const b3BoxHull box = b3MakeTransformedBoxHull(g.halfExtents.x, g.halfExtents.y,
+                                                       g.halfExtents.z, b3(s.local));
         id = b3CreateHullShape(body, &sd, &box.base);
         break;
       }
@@ -203,15 +203,16 @@ class Box3dPeer : public PeerEngine {
           return unsupported(what + ": a hull of " + std::to_string(g.hull->vertices.size()) +
                              " vertices that b3CreateHull rejects (Box3D's hulls have at most " +
                              std::to_string(B3_MAX_HULL_VERTICES) + " vertices and faces)");
-        id = isIdentity(s.local) ? b3CreateHullShape(body, &sd, hull)
-                                 : b3CreateTransformedHullShape(body, &sd, hull, b3(s.local),
-                                                                b3Vec3{1, 1, 1});
+        id = isIdentity(s.local)
+                 ? b3CreateHullShape(body, &sd, hull)
+                 : b3CreateTransformedHullShape(body, &sd, hull, b3(s.local), b3Vec3{1, 1, 1});
         break;
       }
       case ShapeType::Plane: {
         if (def.type != BodyType::Static)
-          return unsupported(what + ": a plane on a body that is not static (Box3D has no "
-                                    "plane; a static one becomes a large box)");
+          return unsupported(what +
+                             ": a plane on a body that is not static (Box3D has no "
+                             "plane; a static one becomes a large box)");
         id = planeBox(scene, def, body, s, sd);
         break;
       }
@@ -258,8 +259,9 @@ class Box3dPeer : public PeerEngine {
   Status addBody(const Scene& scene, const BodyDef& def, const PeerBodyMass& m,
                  const std::string& what) {
     if (def.type == BodyType::Dynamic && !def.gyroscopic)
-      return unsupported(what + ": gyroscopic false (Box3D always integrates the gyroscopic "
-                                "torque, implicitly)");
+      return unsupported(what +
+                         ": gyroscopic false (Box3D always integrates the gyroscopic "
+                         "torque, implicitly)");
     b3BodyDef bd = b3DefaultBodyDef();
     bd.type = def.type == BodyType::Static      ? b3_staticBody
               : def.type == BodyType::Kinematic ? b3_kinematicBody
