@@ -1,4 +1,4 @@
-// Peer engines: Bullet, ODE and MuJoCo driven through one small interface so physbench can run
+// Peer engines: Bullet, ODE, MuJoCo and Box3D driven through one small interface so physbench can run
 // the same scene files in them and measure them with our own metrics code (see runner.h).
 //
 // An adapter builds a scene in its engine with the scene's own masses, inertias and centres of
@@ -29,13 +29,16 @@ struct PeerBodyState {
 struct PeerBudget {
   int iterations = 0;  ///< solver iterations per step (Bullet numIterations, ODE QuickStep
                        ///< iterations, MuJoCo opt.iterations)
-  int substeps = 1;    ///< steps of timeStep / substeps per scene step
+  int substeps = 1;    ///< steps of timeStep / substeps per scene step (Box3D: its substep
+                       ///< count when > 1, else its default 4)
+  int threads = 1;     ///< threads the engine may step with (Box3D's workerCount; Bullet, ODE
+                       ///< and MuJoCo step on the caller's thread whatever this says)
 };
 
 class PeerEngine {
  public:
   virtual ~PeerEngine() = default;
-  /// "bullet", "ode", "mujoco".
+  /// "bullet", "ode", "mujoco", "box3d".
   virtual std::string name() const = 0;
   /// The library's version as the engine reports it (or as the package pins it).
   virtual std::string version() const = 0;
@@ -51,7 +54,7 @@ class PeerEngine {
 };
 
 /// The peers compiled into this build (PHYS_WITH_PEERS and the packages found), in a fixed
-/// order: bullet, ode, mujoco.
+/// order: bullet, ode, mujoco, box3d.
 std::vector<std::string> peerNames();
 /// nullptr when `name` is not compiled in.
 std::unique_ptr<PeerEngine> makePeer(const std::string& name);
@@ -60,5 +63,6 @@ std::unique_ptr<PeerEngine> makePeer(const std::string& name);
 std::unique_ptr<PeerEngine> makeBulletPeer();
 std::unique_ptr<PeerEngine> makeOdePeer();
 std::unique_ptr<PeerEngine> makeMujocoPeer();
+std::unique_ptr<PeerEngine> makeBox3dPeer();
 
 }  // namespace phys::peers

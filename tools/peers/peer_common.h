@@ -3,7 +3,9 @@
 // centre-of-mass frame.
 //
 // Bullet, ODE and MuJoCo all place a dynamic body's frame at its centre of mass, most with the
-// axes along the principal axes of inertia (a diagonal inertia tensor). phys places a body's
+// axes along the principal axes of inertia (a diagonal inertia tensor). (Box3D does not: it
+// takes a centre of mass and a full inertia tensor in any body frame, so box3d_peer.cpp uses
+// phys's body frame as it is and only the masses from step 1 below.) phys places a body's
 // frame wherever the scene says (BodyDef::position, the shapes' `local` transforms) and keeps
 // the centre of mass and a full inertia tensor relative to it. So an adapter:
 //   1. calls computePeerBodies(scene) once: it instantiates the scene in a phys::World and

@@ -1,5 +1,5 @@
 // Which peers this build has: each adapter's .cmake defines PHYS_PEER_<ENGINE> when its
-// package was found.
+// package was found (Box3D's: when PHYS_BOX3D_DIR names its source tree).
 #include "peers/peer.h"
 
 namespace phys::peers {
@@ -15,6 +15,9 @@ std::vector<std::string> peerNames() {
 #ifdef PHYS_PEER_MUJOCO
   names.push_back("mujoco");
 #endif
+#ifdef PHYS_PEER_BOX3D
+  names.push_back("box3d");
+#endif
   return names;
 }
 
@@ -27,6 +30,9 @@ std::unique_ptr<PeerEngine> makePeer(const std::string& name) {
 #endif
 #ifdef PHYS_PEER_MUJOCO
   if (name == "mujoco") return makeMujocoPeer();
+#endif
+#ifdef PHYS_PEER_BOX3D
+  if (name == "box3d") return makeBox3dPeer();
 #endif
   (void)name;
   return nullptr;

@@ -63,7 +63,8 @@ struct SingleResult {
 /// Prints a run's metrics and criteria and writes opt.jsonOut; returns runSingle's status.
 int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResult& r);
 
-// Peer engines (peers.cpp; Bullet, ODE and MuJoCo through tools/peers when the build has them).
+// Peer engines (peers.cpp; Bullet, ODE, MuJoCo and Box3D through tools/peers when the build has
+// them).
 /// The peers this build can run, in peers::peerNames() order (empty without PHYS_WITH_PEERS).
 std::vector<std::string> compiledPeers();
 /// Expands "all" and checks every name; returns an error message naming the unknown or not

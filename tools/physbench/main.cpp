@@ -11,7 +11,7 @@
 //     every preset on every scene (see suite.cpp); exit status 2 when a run could not be
 //     executed, 1 with --fail-on-criteria when a run failed its criteria, else 0.
 //   physbench --scene FILE --peer NAME [--peer-iterations N] [--seconds S] [--json OUT]
-//   physbench --suite ... --peers bullet,ode,mujoco|all [--peer-iterations 10,100]
+//   physbench --suite ... --peers bullet,ode,mujoco,box3d|all [--peer-iterations 10,100]
 //     the same scenes in peer engines, measured by the same metrics code (docs/PEERS.md);
 //     an unknown or not compiled-in peer exits 2.
 //   physbench --sweep [--sweep-dir DIR] [--substeps 1,2,4,8] [--iterations 1,2,4]
@@ -91,7 +91,8 @@ int main(int argc, char** argv) {
       app.add_option("--json", single.jsonOut, "write the result as JSON to this file");
   int threads = 0;
   app.add_option("--threads", threads,
-                 "threads per world (default 0: the machine's; with --jobs, divided among them)")
+                 "threads per world (default 0: the machine's; with --jobs, divided among them); "
+                 "for a peer, Box3D's worker threads (default 1; the other peers use one)")
       ->check(CLI::Range(0, 64));
   std::string backend;
   app.add_option("--backend", backend,
@@ -122,7 +123,8 @@ int main(int argc, char** argv) {
 
   // Peer engines (docs/PEERS.md): --peer in single-scene mode, --peers in the suite.
   CLI::Option* peerOpt = app.add_option(
-      "--peer", single.peer, "run the scene in this peer engine (bullet, ode, mujoco) instead");
+      "--peer", single.peer,
+      "run the scene in this peer engine (bullet, ode, mujoco, box3d) instead");
   std::vector<int> peerIterations;
   CLI::Option* peerItOpt =
       app.add_option("--peer-iterations", peerIterations,

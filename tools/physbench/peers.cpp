@@ -18,7 +18,7 @@ namespace phys::bench {
 namespace {
 
 /// Every peer physbench knows of, compiled in or not.
-const std::vector<std::string> kKnownPeers = {"bullet", "ode", "mujoco"};
+const std::vector<std::string> kKnownPeers = {"bullet", "ode", "mujoco", "box3d"};
 
 std::string joined(const std::vector<std::string>& v) {
   std::string out;
@@ -74,8 +74,8 @@ std::vector<std::string> peerVersions(const std::vector<std::string>& names) {
   return out;
 }
 
-void runPeerJob(const Scene& scene, const std::string& peerName, int iterations, int steps,
-                double maxWallSeconds, RunResult* r, std::atomic<int>* stepsDone) {
+void runPeerJob(const Scene& scene, const std::string& peerName, int iterations, int threads,
+                int steps, double maxWallSeconds, RunResult* r, std::atomic<int>* stepsDone) {
   r->bodies = int(scene.bodies.size());
   r->joints = int(scene.joints.size());
   std::unique_ptr<peers::PeerEngine> peer = peers::makePeer(peerName);
@@ -87,7 +87,10 @@ void runPeerJob(const Scene& scene, const std::string& peerName, int iterations,
   const double seconds = steps * double(scene.world.timeStep);
   const auto start = std::chrono::steady_clock::now();
   bool overTime = false;
-  peers::PeerRun run = peers::runPeer(scene, *peer, {iterations, 1}, seconds, [&](int n) {
+  peers::PeerBudget budget;
+  budget.iterations = iterations;
+  budget.threads = std::max(threads, 1);
+  peers::PeerRun run = peers::runPeer(scene, *peer, budget, seconds, [&](int n) {
     stepsDone->store(n, std::memory_order_relaxed);
     overTime = maxWallSeconds > 0 &&
                std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() >
@@ -141,8 +144,13 @@ int runSinglePeer(const SingleOptions& opt) {
   }
   if (!opt.sleep.empty()) scene.world.sleep.enabled = opt.sleep == "on";
   std::unique_ptr<peers::PeerEngine> peer = peers::makePeer(names[0]);
-  peers::PeerRun run = peers::runPeer(scene, *peer, {opt.peerIterations, 1},
-                                      opt.seconds < 0 ? scene.duration : opt.seconds);
+  // --threads: the peer's worker threads (Box3D's; the others step on one thread), 1 unless
+  // given.
+  peers::PeerBudget budget;
+  budget.iterations = opt.peerIterations;
+  budget.threads = std::max(opt.threads, 1);
+  peers::PeerRun run =
+      peers::runPeer(scene, *peer, budget, opt.seconds < 0 ? scene.duration : opt.seconds);
   if (!run.status.ok()) {
     std::cerr << "physbench: " << scene.name << ": cannot run in " << run.engine << " "
               << run.version << ": " << run.status.message << "\n";
@@ -151,7 +159,7 @@ int runSinglePeer(const SingleOptions& opt) {
   if (!run.stopped.empty()) std::cerr << "physbench: " << run.engine << " " << run.stopped << "\n";
   SingleResult r{peerLabel(run.engine, opt.peerIterations),
                  run.engine + " " + run.version,
-                 1,
+                 run.engine == "box3d" ? budget.threads : 1,
                  int(scene.bodies.size()),
                  int(scene.joints.size()),
                  run.summary.steps,
@@ -168,7 +176,7 @@ std::vector<std::string> peerVersions(const std::vector<std::string>&) {
   return {};
 }
 
-void runPeerJob(const Scene&, const std::string& peerName, int, int, double, RunResult* r,
+void runPeerJob(const Scene&, const std::string& peerName, int, int, int, double, RunResult* r,
                 std::atomic<int>*) {
   r->status = RunStatus::Error;
   r->error = "peer '" + peerName + "' is not compiled in (built without PHYS_WITH_PEERS)";

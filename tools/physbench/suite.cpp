@@ -100,8 +100,8 @@ bool finiteWorld(const World& world, const std::vector<BodyId>& ids) {
 }
 
 /// Runs one job; every failure ends up in job.result (status Error), never thrown.
-void runJob(const SceneEntry& se, Job& job, int threads, const std::string& backend,
-            double maxWallSeconds) {
+void runJob(const SceneEntry& se, Job& job, int threads, int peerThreads,
+            const std::string& backend, double maxWallSeconds) {
   RunResult& r = job.result;
   r.main = mainMetricFor(se.name);
   if (!job.error.empty()) {
@@ -111,8 +111,8 @@ void runJob(const SceneEntry& se, Job& job, int threads, const std::string& back
   }
   try {
     if (!job.peer.empty()) {
-      runPeerJob(se.scene, job.peer, job.peerIterations, se.steps, maxWallSeconds, &r,
-                 &job.stepsDone);
+      runPeerJob(se.scene, job.peer, job.peerIterations, peerThreads, se.steps, maxWallSeconds,
+                 &r, &job.stepsDone);
       return;
     }
     Scene scene = se.scene;  // a copy per run: the recorder keeps a pointer to it
@@ -598,6 +598,8 @@ int runSuite(const SuiteOptions& opt) {
           ? opt.threads
           : std::clamp(int(std::thread::hardware_concurrency()) / std::max(1, nThreads), 1, 8);
   rep.worldThreads = worldThreads;
+  // The peers' threads (Box3D's workers; the other peers step on one): --threads, else 1.
+  rep.peerThreads = std::max(opt.threads, 1);
   auto worker = [&] {
     for (size_t n; (n = next.fetch_add(1)) < order.size();) {
       Job& job = jobs[order[n]];
@@ -606,7 +608,8 @@ int runSuite(const SuiteOptions& opt) {
       job.result.plannedSteps = scenes[job.scene].steps;
       job.state.store(1);
       progress.started(job);
-      runJob(scenes[job.scene], job, worldThreads, opt.backend, opt.maxRunWallSeconds);
+      runJob(scenes[job.scene], job, worldThreads, rep.peerThreads, opt.backend,
+             opt.maxRunWallSeconds);
       job.result.wallSeconds = secondsSince(job.started);
       job.state.store(2);
       progress.finished(job);

@@ -63,13 +63,15 @@ struct SuiteReport {
   double wallSeconds = 0;
   int errors = 0;        ///< runs that could not be executed
   int worldThreads = 1;  ///< threads of each run's World
+  int peerThreads = 1;   ///< PeerBudget::threads of the peer runs (--threads, else 1)
 };
 
 /// Runs `scene` in a peer engine for `steps` steps (peers.cpp) into *r (whose main metric is
 /// set); a peer that cannot build the scene gives CannotRun with its error.
-/// Stops at maxWallSeconds of wall time (0: never) with CannotRun.
-void runPeerJob(const Scene& scene, const std::string& peer, int iterations, int steps,
-                double maxWallSeconds, RunResult* r, std::atomic<int>* stepsDone);
+/// Stops at maxWallSeconds of wall time (0: never) with CannotRun. `threads`: the peer's
+/// worker threads (PeerBudget::threads; only Box3D uses more than one).
+void runPeerJob(const Scene& scene, const std::string& peer, int iterations, int threads,
+                int steps, double maxWallSeconds, RunResult* r, std::atomic<int>* stepsDone);
 
 /// The CannotRun message of a run stopped by SuiteOptions::maxRunWallSeconds.
 std::string wallLimitMessage(double limitSeconds, int stepsDone, int stepsPlanned);

@@ -202,8 +202,9 @@ std::string markdownReport(const SuiteReport& r, bool table) {
     md << "- Peers: ";
     for (size_t i = 0; i < r.peerVersions.size(); ++i) md << (i ? ", " : "") << r.peerVersions[i];
     md << "; their columns read \"engine (N it)\" for N solver iterations (no N: the engine's "
-          "default), one thread; the same scene files and the same metrics code "
-          "(docs/PEERS.md)\n";
+          "default), one thread (Box3D: "
+       << r.peerThreads << (r.peerThreads == 1 ? " worker thread" : " worker threads")
+       << ", --threads); the same scene files and the same metrics code (docs/PEERS.md)\n";
   }
   if (!table) {
     // The sweep's tables (sweep_report.cpp) carry the runs, their failures and peer errors.
