@@ -31,6 +31,93 @@ inline BodyDef ball(Vec3 position, float radius, Vec3 shapeOffset = {}) {
   return b;
 }
 
+/// A dynamic box of `halfExtents` at `position`.
+inline BodyDef box(Vec3 position, Vec3 halfExtents) {
+  BodyDef b;
+  b.position = position;
+  b.shapes.push_back({ShapeGeom::box(halfExtents), {}, {}});
+  return b;
+}
+
+/// The joints' sign conventions, in zero gravity: a 1 x 1 x 0.2 m plate at (0, 0, 1) hinged
+/// to the world about +z through its centre. With `motor`, driven at +1.5 rad/s (100 N m):
+/// phys turns B at +1.5 rad/s about A's axis. Else spinning at +2 rad/s against the limit
+/// [-0.5, 0.3] rad: phys stops it at +0.3 (a flipped angle would stop at 0.5).
+inline Scene hingedPlate(bool motor) {
+  Scene scene;
+  scene.world.gravity = {};
+  BodyDef b = box({0, 0, 1}, {0.5f, 0.5f, 0.1f});
+  SceneJoint j;
+  j.def.type = JointType::Hinge;
+  j.def.anchorA = {0, 0, 1};
+  if (motor) {
+    j.def.enableMotor = true;
+    j.def.motorSpeed = 1.5f;
+    j.def.maxMotorForce = 100;
+  } else {
+    b.angularVelocity = {0, 0, 2};
+    j.def.enableLimit = true;
+    j.def.lower = -0.5f;
+    j.def.upper = 0.3f;
+  }
+  j.bodyB = 0;
+  scene.bodies = {b};
+  scene.joints = {j};
+  return scene;
+}
+
+/// The largest hinge angle about +z of body 0 over `steps` single steps (hingedPlate(false)).
+inline double largestTurnAboutZ(PeerEngine& peer, int steps) {
+  double largest = 0;
+  std::vector<PeerBodyState> s;
+  for (int i = 0; i < steps; ++i) {
+    peer.step();
+    peer.read(&s);
+    largest = std::max(largest, 2 * std::atan2(double(s[0].rotation.z), s[0].rotation.w));
+  }
+  return largest;
+}
+
+/// A 0.4 m box at (0, 0, 1) on a slider along +x, in zero gravity, driven at +0.5 m/s
+/// (1000 N) up to the limit [-0.1, 0.2] m: phys's translation is dot(axis, pB - pA).
+inline Scene drivenSlider() {
+  Scene scene;
+  scene.world.gravity = {};
+  scene.bodies = {box({0, 0, 1}, {0.2f, 0.2f, 0.2f})};
+  SceneJoint j;
+  j.def.type = JointType::Prismatic;
+  j.def.anchorA = {0, 0, 1};
+  j.def.axisA = j.def.axisB = {1, 0, 0};
+  j.def.enableMotor = true;
+  j.def.motorSpeed = 0.5f;
+  j.def.maxMotorForce = 1000;
+  j.def.enableLimit = true;
+  j.def.lower = -0.1f;
+  j.def.upper = 0.2f;
+  j.bodyB = 0;
+  scene.joints = {j};
+  return scene;
+}
+
+/// A 0.4 m box at (1, 2, 5) on a vertical slider whose anchors start 0.5 m apart (phys's
+/// translation 0.5), under gravity, limited to [-0.5, 1]: it falls to -0.5 and stops at
+/// z = 4, 1 m below its start.
+inline Scene fallingSlider() {
+  Scene scene;
+  scene.bodies = {box({1, 2, 5}, {0.2f, 0.2f, 0.2f})};
+  SceneJoint slider;
+  slider.def.type = JointType::Prismatic;
+  slider.def.anchorA = {1, 2, 4.5f};
+  slider.def.axisA = slider.def.axisB = {0, 0, 1};
+  slider.def.enableLimit = true;
+  slider.def.lower = -0.5f;
+  slider.def.upper = 1;
+  slider.bodyA = -1;
+  slider.bodyB = 0;
+  scene.joints = {slider};
+  return scene;
+}
+
 /// Steps `n` times and returns the states of all bodies.
 inline std::vector<PeerBodyState> stepAndRead(PeerEngine& peer, int n) {
   for (int k = 0; k < n; ++k) peer.step();

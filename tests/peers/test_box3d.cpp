@@ -25,13 +25,6 @@ std::unique_ptr<PeerEngine> makeBox3d() {
   return peer;
 }
 
-BodyDef boxBody(Vec3 p, Vec3 halfExtents) {
-  BodyDef b;
-  b.position = p;
-  b.shapes.push_back({ShapeGeom::box(halfExtents), {}, {}});
-  return b;
-}
-
 /// Symplectic Euler over n steps of h in s substeps: z0 - g (h/s)^2 N (N + 1) / 2, N = s n.
 double substeppedFall(double z0, double h, int n, int s) {
   const double hs = h / s, N = double(s) * n;
@@ -72,7 +65,7 @@ TEST(Box3d, BoxRestsOnTheGroundPlane) {
   auto peer = makeBox3d();
   ASSERT_TRUE(peer);
   Scene scene;
-  scene.bodies = {ground(), boxBody({3, -2, 0.5f}, {0.5f, 0.5f, 0.5f})};
+  scene.bodies = {ground(), box({3, -2, 0.5f}, {0.5f, 0.5f, 0.5f})};
   scene.metrics.topBodies = {1};
   PeerRun run = runPeer(scene, *peer, {}, 3.0);
   ASSERT_TRUE(run.status.ok()) << run.status.message;
@@ -101,72 +94,25 @@ TEST(Box3d, PlaneWithOffsetAndTiltIsItsTopFace) {
 }
 
 TEST(Box3d, HingeMotorAndLimitFollowPhysSigns) {
-  // Motor: B turns at +1.5 rad/s about A's +z.
   {
     auto peer = makeBox3d();
     ASSERT_TRUE(peer);
-    Scene scene;
-    scene.world.gravity = {};
-    scene.bodies = {boxBody({0, 0, 1}, {0.5f, 0.5f, 0.1f})};
-    SceneJoint j;
-    j.def.type = JointType::Hinge;
-    j.def.anchorA = {0, 0, 1};
-    j.def.enableMotor = true;
-    j.def.motorSpeed = 1.5f;
-    j.def.maxMotorForce = 100;
-    j.bodyB = 0;
-    scene.joints = {j};
-    ASSERT_TRUE(peer->build(scene, {}).ok());
+    ASSERT_TRUE(peer->build(hingedPlate(/*motor=*/true), {}).ok());
     EXPECT_NEAR(run(*peer, 60, 0).angularVelocity.z, 1.5, 0.02);
   }
-  // Limit: spinning at +2 rad/s, it stops at the upper limit 0.3 rad, not at 0.5.
   {
     auto peer = makeBox3d();
     ASSERT_TRUE(peer);
-    Scene scene;
-    scene.world.gravity = {};
-    BodyDef b = boxBody({0, 0, 1}, {0.5f, 0.5f, 0.1f});
-    b.angularVelocity = {0, 0, 2};
-    scene.bodies = {b};
-    SceneJoint j;
-    j.def.type = JointType::Hinge;
-    j.def.anchorA = {0, 0, 1};
-    j.def.enableLimit = true;
-    j.def.lower = -0.5f;
-    j.def.upper = 0.3f;
-    j.bodyB = 0;
-    scene.joints = {j};
-    ASSERT_TRUE(peer->build(scene, {}).ok());
-    double maxAngle = 0;
-    for (int i = 0; i < 30; ++i) {
-      PeerBodyState s = run(*peer, 1, 0);
-      maxAngle = std::max(maxAngle, 2 * std::atan2(double(s.rotation.z), s.rotation.w));
-    }
-    EXPECT_NEAR(maxAngle, 0.3, 0.02);
+    ASSERT_TRUE(peer->build(hingedPlate(/*motor=*/false), {}).ok());
+    EXPECT_NEAR(largestTurnAboutZ(*peer, 30), 0.3, 0.02);
   }
 }
 
 TEST(Box3d, SliderMotorAndLimitFollowPhysSigns) {
   auto peer = makeBox3d();
   ASSERT_TRUE(peer);
-  Scene scene;
-  scene.world.gravity = {};
-  scene.bodies = {boxBody({0, 0, 1}, {0.2f, 0.2f, 0.2f})};
-  SceneJoint j;
-  j.def.type = JointType::Prismatic;
-  j.def.anchorA = {0, 0, 1};
-  j.def.axisA = j.def.axisB = {1, 0, 0};
-  j.def.enableMotor = true;
-  j.def.motorSpeed = 0.5f;
-  j.def.maxMotorForce = 1000;
-  j.def.enableLimit = true;
-  j.def.lower = -0.1f;
-  j.def.upper = 0.2f;
-  j.bodyB = 0;
-  scene.joints = {j};
-  ASSERT_TRUE(peer->build(scene, {}).ok());
+  ASSERT_TRUE(peer->build(drivenSlider(), {}).ok());
   PeerBodyState s = run(*peer, 12, 0);
-  // phys: translation dot(axis, pB - pA), driven at +0.5 m/s, up to the upper limit 0.2 m.
   EXPECT_NEAR(s.linearVelocity.x, 0.5, 0.02);
   s = run(*peer, 60, 0);
   EXPECT_NEAR(s.position.x, 0.2, 0.01);
@@ -175,22 +121,9 @@ TEST(Box3d, SliderMotorAndLimitFollowPhysSigns) {
 }
 
 TEST(Box3d, PrismaticLimitUnderGravityStopsTheSlide) {
-  // As ODE's test: a box on a vertical slider whose anchors start 0.5 m apart (phys's
-  // translation 0.5) falls to its lower limit -0.5, 1 m below its start.
   auto peer = makeBox3d();
   ASSERT_TRUE(peer);
-  Scene scene;
-  scene.bodies = {boxBody({1, 2, 5}, {0.2f, 0.2f, 0.2f})};
-  SceneJoint slider;
-  slider.def.type = JointType::Prismatic;
-  slider.def.anchorA = {1, 2, 4.5f};
-  slider.def.axisA = slider.def.axisB = {0, 0, 1};
-  slider.def.enableLimit = true;
-  slider.def.lower = -0.5f;
-  slider.def.upper = 1;
-  slider.bodyB = 0;
-  scene.joints = {slider};
-  ASSERT_TRUE(peer->build(scene, {}).ok());
+  ASSERT_TRUE(peer->build(fallingSlider(), {}).ok());
   PeerBodyState s = run(*peer, 120, 0);
   EXPECT_NEAR(s.position.z, 4, 0.01);
   EXPECT_NEAR(s.position.x, 1, 1e-4);

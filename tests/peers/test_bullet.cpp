@@ -178,18 +178,7 @@ TEST(Bullet, HingePendulumHoldsItsJoint) {
 TEST(Bullet, HingeMotorTurnsTheWayPhysDoes) {
   auto peer = bulletOrSkip();
   REQUIRE_BULLET(peer);
-  Scene scene;
-  scene.world.gravity = {0, 0, 0};
-  scene.bodies = {shapeBody({0, 0, 1}, ShapeGeom::box({0.5f, 0.5f, 0.1f}))};
-  SceneJoint j;
-  j.def.type = JointType::Hinge;
-  j.def.anchorA = {0, 0, 1};
-  j.def.enableMotor = true;
-  j.def.motorSpeed = 1.5f;
-  j.def.maxMotorForce = 100;
-  j.bodyB = 0;
-  scene.joints = {j};
-  ASSERT_TRUE(peer->build(scene, {}).ok());
+  ASSERT_TRUE(peer->build(testutil::hingedPlate(/*motor=*/true), {}).ok());
   auto s = stepAndRead(*peer, 60);
   // phys: the motor drives B's angular velocity relative to A along A's axis to the speed.
   EXPECT_NEAR(s[0].angularVelocity.z, 1.5, 0.02);
@@ -198,51 +187,15 @@ TEST(Bullet, HingeMotorTurnsTheWayPhysDoes) {
 TEST(Bullet, HingeLimitStopsAtPhysAngles) {
   auto peer = bulletOrSkip();
   REQUIRE_BULLET(peer);
-  Scene scene;
-  scene.world.gravity = {0, 0, 0};
-  BodyDef b = shapeBody({0, 0, 1}, ShapeGeom::box({0.5f, 0.5f, 0.1f}));
-  b.angularVelocity = {0, 0, 2};
-  scene.bodies = {b};
-  SceneJoint j;
-  j.def.type = JointType::Hinge;
-  j.def.anchorA = {0, 0, 1};
-  j.def.enableLimit = true;
-  j.def.lower = -0.5f;
-  j.def.upper = 0.3f;
-  j.bodyB = 0;
-  scene.joints = {j};
-  ASSERT_TRUE(peer->build(scene, {}).ok());
-  double maxAngle = 0;
-  for (int i = 0; i < 30; ++i) {
-    auto s = stepAndRead(*peer, 1);
-    maxAngle = std::max(maxAngle, 2 * std::atan2(double(s[0].rotation.z), s[0].rotation.w));
-  }
-  // Positive phys angle = rotation of B about +z: it stops at the upper limit, 0.3 rad (not at
-  // 0.5 rad, where a flipped angle would stop).
-  EXPECT_NEAR(maxAngle, 0.3, 0.05);
+  ASSERT_TRUE(peer->build(testutil::hingedPlate(/*motor=*/false), {}).ok());
+  EXPECT_NEAR(testutil::largestTurnAboutZ(*peer, 30), 0.3, 0.05);
 }
 
 TEST(Bullet, SliderMotorAndLimitFollowPhysSigns) {
   auto peer = bulletOrSkip();
   REQUIRE_BULLET(peer);
-  Scene scene;
-  scene.world.gravity = {0, 0, 0};
-  scene.bodies = {shapeBody({0, 0, 1}, ShapeGeom::box({0.2f, 0.2f, 0.2f}))};
-  SceneJoint j;
-  j.def.type = JointType::Prismatic;
-  j.def.anchorA = {0, 0, 1};
-  j.def.axisA = j.def.axisB = {1, 0, 0};
-  j.def.enableMotor = true;
-  j.def.motorSpeed = 0.5f;
-  j.def.maxMotorForce = 1000;
-  j.def.enableLimit = true;
-  j.def.lower = -0.1f;
-  j.def.upper = 0.2f;
-  j.bodyB = 0;
-  scene.joints = {j};
-  ASSERT_TRUE(peer->build(scene, {}).ok());
+  ASSERT_TRUE(peer->build(testutil::drivenSlider(), {}).ok());
   auto s = stepAndRead(*peer, 12);
-  // phys: translation dot(axis, pB - pA), driven at +0.5 m/s, up to the upper limit 0.2 m.
   EXPECT_NEAR(s[0].linearVelocity.x, 0.5, 0.02);
   s = stepAndRead(*peer, 60);
   EXPECT_NEAR(s[0].position.x, 0.2, 0.01);

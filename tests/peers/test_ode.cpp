@@ -33,23 +33,7 @@ TEST(OdePeer, HingeMotorTurnsBodyBRelativeToA) {
 TEST(OdePeer, PrismaticLimitStopsTheSlide) {
   auto peer = makeOde();
   if (!peer) GTEST_SKIP() << "ODE is not compiled in";
-  // A box on a vertical slider whose anchors start 0.5 m apart (phys's position 0.5), falling
-  // to its lower limit -0.5: it stops 1 m below its start.
-  Scene scene;
-  BodyDef box;
-  box.position = {1, 2, 5};
-  box.shapes.push_back({ShapeGeom::box({0.2f, 0.2f, 0.2f}), {}, {}});
-  scene.bodies.push_back(box);
-  SceneJoint slider;
-  slider.def.type = JointType::Prismatic;
-  slider.def.anchorA = {1, 2, 4.5f};
-  slider.def.axisA = slider.def.axisB = {0, 0, 1};
-  slider.def.enableLimit = true;
-  slider.def.lower = -0.5f;
-  slider.def.upper = 1;
-  slider.bodyA = -1;
-  slider.bodyB = 0;
-  scene.joints.push_back(slider);
+  Scene scene = fallingSlider();
   ASSERT_TRUE(peer->build(scene, {}).ok());
   PeerBodyState s = run(*peer, 120, 0);
   EXPECT_NEAR(s.position.z, 4, 0.01);
