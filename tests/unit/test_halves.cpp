@@ -197,22 +197,25 @@ TEST(Halves, ScheduleRunsTheHalvesApartAfterTheRowGroups) {
   for (uint32_t k : colorOrder(s.bodies, parts[2])) add(parts[2][k]);
   const uint32_t halfEnd[2] = {uint32_t(parts[0].size()),
                                uint32_t(parts[0].size() + parts[1].size())};
+  ContactParts one;
+  one.levels = 1;
+  one.end = {halfEnd[0], halfEnd[1], uint32_t(manifolds.size())};
   WideContacts w;
-  w.build(s, manifolds, halfEnd);
-  ASSERT_TRUE(w.halves());
-  ASSERT_LE(w.part(0), w.part(1));
-  ASSERT_LE(w.part(1), w.part(2));
-  ASSERT_LE(w.part(2), w.schedule.size());
+  w.build(s, manifolds, &one);
+  ASSERT_EQ(w.levels(), 1);
+  ASSERT_LE(w.segment(0), w.segment(1));
+  ASSERT_LE(w.segment(1), w.segment(2));
+  ASSERT_LE(w.segment(2), w.schedule.size());
 
   // The joint's group alone before the halves; each half's blocks hold only its manifolds
   // (so only its dynamic bodies); the rest after.
-  ASSERT_EQ(w.part(0), 1u);
+  ASSERT_EQ(w.segment(0), 1u);
   EXPECT_FALSE(w.schedule[0].wide);
   std::multiset<uint32_t> seen;
-  for (size_t k = w.part(0); k < w.schedule.size(); ++k) {
+  for (size_t k = w.segment(0); k < w.schedule.size(); ++k) {
     const WideContacts::Item& item = w.schedule[k];
     ASSERT_TRUE(item.wide) << k;
-    const int part = k < w.part(1) ? 0 : k < w.part(2) ? 1 : 2;
+    const int part = k < w.segment(1) ? 0 : k < w.segment(2) ? 1 : 2;
     for (uint32_t m : w.manifoldsOf(item.index)) {
       seen.insert(m);
       const uint32_t first = part == 0 ? 0 : part == 1 ? halfEnd[0] : halfEnd[1];
@@ -225,7 +228,7 @@ TEST(Halves, ScheduleRunsTheHalvesApartAfterTheRowGroups) {
   EXPECT_EQ(std::set<uint32_t>(seen.begin(), seen.end()).size(), manifolds.size());
   // Each dynamic body still meets its manifolds in their order.
   std::map<int32_t, uint32_t> last;
-  for (size_t k = w.part(0); k < w.schedule.size(); ++k) {
+  for (size_t k = w.segment(0); k < w.schedule.size(); ++k) {
     for (uint32_t m : w.manifoldsOf(w.schedule[k].index)) {
       for (int32_t body : {manifolds[m].a, manifolds[m].b}) {
         if (body == 0) continue;
@@ -238,7 +241,7 @@ TEST(Halves, ScheduleRunsTheHalvesApartAfterTheRowGroups) {
     }
   }
   // The contacts across the cut fill blocks: fewer blocks than contacts.
-  EXPECT_LT(w.schedule.size() - w.part(2), parts[2].size());
+  EXPECT_LT(w.schedule.size() - w.segment(2), parts[2].size());
 }
 
 TEST(NestedParts, LevelsGrowWithTheContactsAlone) {
@@ -458,12 +461,13 @@ Outcome runScene(const std::string& name, int threads, int steps, bool vectorize
 }
 
 TEST(Halves, SameBitsWithAnyThreadCountAndWithTheScalarRows) {
-  // pyramid_20 (about 600 contacts) and the windmill (joints beside 1000 contacts) are split;
-  // the restitution scene (a few balls) is below the threshold and is not.
+  // pyramid_20 (about 600 contacts) is cut in halves, the windmill (joints beside about
+  // 1,000 contacts) in two or four parts (partLevels: 1,024 and more get two levels); the
+  // restitution scene (a few balls) is below the threshold and is not.
   for (const char* name : {"pyramid_20", "windmill"}) {
     const Outcome one = runScene(name, 1, 60);
     EXPECT_GT(one.between, 0) << name;
-    EXPECT_EQ(one.parts, 2) << name;
+    EXPECT_EQ(one.parts, std::string(name) == "pyramid_20" ? 2 : 4) << name;
     EXPECT_EQ(runScene(name, 2, 60).hash, one.hash) << name;
     EXPECT_EQ(runScene(name, 3, 60).hash, one.hash) << name;
     EXPECT_EQ(runScene(name, 2, 60, false).hash, one.hash) << name << " (scalar rows)";
