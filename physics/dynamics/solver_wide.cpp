@@ -51,8 +51,7 @@ int partLevels(size_t manifolds) {
   if (manifolds < kHalvesMinManifolds) return 0;
   if (const int forced = gPartLevels.load(); forced > 0) return forced;
   int levels = 1;
-  for (size_t n = manifolds / 4; n >= kHalvesMinManifolds && levels < kMaxPartLevels; n /= 4)
-    ++levels;
+  while (levels < kMaxPartLevels && (manifolds >> (levels + 1)) >= kMinLeafManifolds) ++levels;
   return levels;
 }
 
@@ -433,6 +432,7 @@ void splitParts(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& 
   };
   std::vector<Set> sets = {{0, dyn.size(), 0, inner.size()}}, next;
   std::vector<uint8_t> side(bodies.size(), 0);  // per body: its side of the cut being tried
+  std::vector<std::pair<float, uint32_t>> keyed;  // the set's bodies by (coordinate, index)
   std::vector<uint32_t> keep[2];                // a set's contacts on either side
   for (int depth = 0; depth < levels; ++depth) {
     next.clear();
@@ -442,18 +442,18 @@ void splitParts(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& 
       const auto mid = first + std::ptrdiff_t((set.end - set.begin) / 2);
       // Each axis's median cut, by (coordinate, index): the same split whatever order the
       // bodies came in. The cut that the fewest of the set's contacts cross wins (the first
-      // of equals).
+      // of equals). The keys are copied out first: nth_element over indices into `com`
+      // takes a cache miss per comparison in a large world.
       auto cut = [&](int axis) {
-        // A total order even for a body gone non-finite (the guard rolls such steps back).
-        auto coord = [&](uint32_t i) {
-          const float c = axis == 0 ? com[i].x : axis == 1 ? com[i].y : com[i].z;
-          return std::isnan(c) ? std::numeric_limits<float>::infinity() : c;
-        };
-        std::nth_element(first, mid, last, [&](uint32_t a, uint32_t b) {
-          const float ca = coord(a), cb = coord(b);
-          return ca < cb || (ca == cb && a < b);
-        });
-        for (auto it = first; it != last; ++it) side[*it] = it < mid ? 0 : 1;
+        keyed.clear();
+        for (auto it = first; it != last; ++it) {
+          const float c = axis == 0 ? com[*it].x : axis == 1 ? com[*it].y : com[*it].z;
+          // A total order even for a body gone non-finite (the guard rolls such steps back).
+          keyed.push_back({std::isnan(c) ? std::numeric_limits<float>::infinity() : c, *it});
+        }
+        const auto median = keyed.begin() + (mid - first);
+        std::nth_element(keyed.begin(), median, keyed.end());  // (coordinate, index)
+        for (auto it = keyed.begin(); it != keyed.end(); ++it) side[it->second] = it < median ? 0 : 1;
       };
       size_t fewest = SIZE_MAX;
       int best = 0;
@@ -469,7 +469,8 @@ void splitParts(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& 
           best = axis;
         }
       }
-      if (best != 2) cut(best);  // the range as the best cut arranges it
+      if (best != 2) cut(best);
+      for (size_t k = 0; k < keyed.size(); ++k) first[std::ptrdiff_t(k)] = keyed[k].second;
       for (auto it = first; it != last; ++it) part[*it] = uint8_t(2 * part[*it] + side[*it]);
       // The set's contacts that stay on one side are the halves' own; those that cross go to
       // this cut's separator and out of the recursion.

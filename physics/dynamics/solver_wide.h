@@ -203,11 +203,15 @@ class WideContacts {
 /// Nested parts (see the file comment) from this many contact manifolds: below it, one more
 /// fork-join per pass costs about what the second core saves.
 constexpr size_t kHalvesMinManifolds = 256;
+/// Deeper than halves only while every leaf keeps this many manifolds: a leaf's blocks fill
+/// less than the whole sweep's (its dependency chain is not much shorter), so each level
+/// costs one thread time; measured on pyramid_40, leaves of about 600 cost a few per cent,
+/// of 300 a fifth (docs/ARCHITECTURE.md, "Nested parts").
+constexpr size_t kMinLeafManifolds = 512;
 /// The levels of nested parts for a step with `manifolds` touching contacts: 0 below
-/// kHalvesMinManifolds, then one more each time the count quadruples (1 from 256, 2 from
-/// 1,024, 3 from 4,096, 4 from 16,384), at most kMaxPartLevels: each leaf keeps at least 256
-/// manifolds and the leaves grow with the world. A function of the world alone, never of the
-/// thread count (docs/ARCHITECTURE.md, "Nested parts", says how these were chosen).
+/// kHalvesMinManifolds, 1 (halves) from there, then one more each time the count doubles past
+/// 2,048 (2 from 2,048, 3 from 4,096, 4 from 8,192: leaves of at least kMinLeafManifolds), at
+/// most kMaxPartLevels. A function of the world alone, never of the thread count.
 int partLevels(size_t manifolds);
 /// (setPartLevelsOverride, solver_settings.h, replaces the rule for measurements and tests.)
 constexpr uint8_t kNoPart = 0xff;

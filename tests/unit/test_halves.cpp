@@ -248,12 +248,12 @@ TEST(NestedParts, LevelsGrowWithTheContactsAlone) {
   EXPECT_EQ(partLevels(0), 0);
   EXPECT_EQ(partLevels(kHalvesMinManifolds - 1), 0);
   EXPECT_EQ(partLevels(256), 1);
-  EXPECT_EQ(partLevels(1023), 1);
-  EXPECT_EQ(partLevels(1024), 2);
+  EXPECT_EQ(partLevels(2047), 1);
+  EXPECT_EQ(partLevels(2048), 2);  // leaves of kMinLeafManifolds
   EXPECT_EQ(partLevels(4095), 2);
   EXPECT_EQ(partLevels(4096), 3);
-  EXPECT_EQ(partLevels(16383), 3);
-  EXPECT_EQ(partLevels(16384), 4);
+  EXPECT_EQ(partLevels(8191), 3);
+  EXPECT_EQ(partLevels(8192), 4);
   EXPECT_EQ(partLevels(size_t(1) << 30), kMaxPartLevels);
   setPartLevelsOverride(3);
   EXPECT_EQ(partLevels(255), 0);  // too few to cut at all, as without the override
@@ -461,13 +461,12 @@ Outcome runScene(const std::string& name, int threads, int steps, bool vectorize
 }
 
 TEST(Halves, SameBitsWithAnyThreadCountAndWithTheScalarRows) {
-  // pyramid_20 (about 600 contacts) is cut in halves, the windmill (joints beside about
-  // 1,000 contacts) in two or four parts (partLevels: 1,024 and more get two levels); the
-  // restitution scene (a few balls) is below the threshold and is not.
+  // pyramid_20 (about 600 contacts) and the windmill (joints beside 1000 contacts) are cut in
+  // halves; the restitution scene (a few balls) is below the threshold and is not.
   for (const char* name : {"pyramid_20", "windmill"}) {
     const Outcome one = runScene(name, 1, 60);
     EXPECT_GT(one.between, 0) << name;
-    EXPECT_EQ(one.parts, std::string(name) == "pyramid_20" ? 2 : 4) << name;
+    EXPECT_EQ(one.parts, 2) << name;
     EXPECT_EQ(runScene(name, 2, 60).hash, one.hash) << name;
     EXPECT_EQ(runScene(name, 3, 60).hash, one.hash) << name;
     EXPECT_EQ(runScene(name, 2, 60, false).hash, one.hash) << name << " (scalar rows)";
