@@ -44,7 +44,7 @@ bool vectorizedContacts() {
 }
 
 void setPartLevelsOverride(int levels) {
-  gPartLevels = levels < 1 ? -1 : std::min(levels, kMaxPartLevels);
+  gPartLevels = levels < 1 ? -1 : std::min(levels, kPartLevelsLimit);
 }
 
 int partLevels(size_t manifolds) {
@@ -278,7 +278,7 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
   clear();
   active = true;
   levels_ = parts ? parts->levels : 0;
-  assert(levels_ >= 0 && levels_ <= kMaxPartLevels);
+  assert(levels_ >= 0 && levels_ <= kPartLevelsLimit);
   patch_ = !manifolds.empty() && manifolds.front().patch;
 #ifndef NDEBUG
   for (const SolverManifold& m : manifolds) assert(m.patch == patch_);  // one setting per step

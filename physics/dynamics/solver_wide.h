@@ -62,9 +62,12 @@ struct WideParams {
   bool soft = true, useBias = true, measure = false;
 };
 
-/// Nested parts (see the file comment): at most this many levels, 16 leaf parts, enough for
-/// the pool's default of at most 8 threads (resolveThreadCount) to take two leaves each.
-constexpr int kMaxPartLevels = 4;
+/// Nested parts (see the file comment): at most this many levels, 8 leaf parts, one for each
+/// of the pool's default of at most 8 threads (resolveThreadCount). A fourth level cost more
+/// than the third on this 2-core VM with one thread and with two (docs/ARCHITECTURE.md).
+constexpr int kMaxPartLevels = 3;
+/// The most levels the code handles (setPartLevelsOverride may ask for a fourth, to measure).
+constexpr int kPartLevelsLimit = 4;
 /// The leaves (2^levels), then the separators (2^levels - 1).
 constexpr size_t segmentCount(int levels) {
   return levels > 0 ? (size_t(2) << levels) - 1 : 0;
@@ -75,7 +78,7 @@ constexpr size_t segmentCount(int levels) {
 constexpr size_t phaseBegin(int levels, int k) {
   return (size_t(2) << levels) - ((size_t(2) << levels) >> k);
 }
-constexpr size_t kMaxSegments = segmentCount(kMaxPartLevels);
+constexpr size_t kMaxSegments = segmentCount(kPartLevelsLimit);
 
 /// The World's contact order in nested parts: manifolds [end[i-1], end[i]) are segment i's
 /// (end[-1] = 0), the segments in the order above.
@@ -209,9 +212,9 @@ constexpr size_t kHalvesMinManifolds = 256;
 /// of 300 a fifth (docs/ARCHITECTURE.md, "Nested parts").
 constexpr size_t kMinLeafManifolds = 512;
 /// The levels of nested parts for a step with `manifolds` touching contacts: 0 below
-/// kHalvesMinManifolds, 1 (halves) from there, then one more each time the count doubles past
-/// 2,048 (2 from 2,048, 3 from 4,096, 4 from 8,192: leaves of at least kMinLeafManifolds), at
-/// most kMaxPartLevels. A function of the world alone, never of the thread count.
+/// kHalvesMinManifolds, 1 (halves) from there, 2 from 2,048 and 3 from 4,096 (leaves of at
+/// least kMinLeafManifolds), at most kMaxPartLevels. A function of the world alone, never of
+/// the thread count.
 int partLevels(size_t manifolds);
 /// (setPartLevelsOverride, solver_settings.h, replaces the rule for measurements and tests.)
 constexpr uint8_t kNoPart = 0xff;

@@ -253,7 +253,7 @@ TEST(NestedParts, LevelsGrowWithTheContactsAlone) {
   EXPECT_EQ(partLevels(4095), 2);
   EXPECT_EQ(partLevels(4096), 3);
   EXPECT_EQ(partLevels(8191), 3);
-  EXPECT_EQ(partLevels(8192), 4);
+  EXPECT_EQ(partLevels(8192), 3);  // at most kMaxPartLevels
   EXPECT_EQ(partLevels(size_t(1) << 30), kMaxPartLevels);
   setPartLevelsOverride(3);
   EXPECT_EQ(partLevels(255), 0);  // too few to cut at all, as without the override
@@ -313,7 +313,7 @@ TEST(NestedParts, EachSetIsCutByTheHalvesRule) {
   const Grid g(16);
   std::vector<uint8_t> half, part;
   splitHalves(g.bodies, g.com, g.pairs, half);
-  for (int levels = 1; levels <= kMaxPartLevels; ++levels) {
+  for (int levels = 1; levels <= kPartLevelsLimit; ++levels) {
     splitParts(g.bodies, g.com, g.pairs, levels, part);
     ASSERT_EQ(part.size(), g.bodies.size());
     EXPECT_EQ(part[0], kNoPart);
