@@ -431,9 +431,9 @@ void splitParts(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& 
     size_t begin, end, innerBegin, innerEnd;
   };
   std::vector<Set> sets = {{0, dyn.size(), 0, inner.size()}}, next;
-  std::vector<uint8_t> side(bodies.size(), 0);  // per body: its side of the cut being tried
+  std::vector<uint8_t> side(bodies.size(), 0);    // per body: its side of the cut being tried
   std::vector<std::pair<float, uint32_t>> keyed;  // the set's bodies by (coordinate, index)
-  std::vector<uint32_t> keep[2];                // a set's contacts on either side
+  std::vector<uint32_t> keep[2];                  // a set's contacts on either side
   for (int depth = 0; depth < levels; ++depth) {
     next.clear();
     for (const Set& set : sets) {
@@ -453,7 +453,8 @@ void splitParts(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& 
         }
         const auto median = keyed.begin() + (mid - first);
         std::nth_element(keyed.begin(), median, keyed.end());  // (coordinate, index)
-        for (auto it = keyed.begin(); it != keyed.end(); ++it) side[it->second] = it < median ? 0 : 1;
+        for (auto it = keyed.begin(); it != keyed.end(); ++it)
+          side[it->second] = it < median ? 0 : 1;
       };
       size_t fewest = SIZE_MAX;
       int best = 0;
@@ -484,8 +485,8 @@ void splitParts(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& 
       const size_t midIndex = size_t(mid - dyn.begin());
       for (int h = 0; h < 2; ++h) {
         std::copy(keep[h].begin(), keep[h].end(), inner.begin() + std::ptrdiff_t(at));
-        next.push_back({h == 0 ? set.begin : midIndex, h == 0 ? midIndex : set.end, at,
-                        at + keep[h].size()});
+        next.push_back(
+            {h == 0 ? set.begin : midIndex, h == 0 ? midIndex : set.end, at, at + keep[h].size()});
         at += keep[h].size();
       }
     }

@@ -242,8 +242,7 @@ std::vector<uint32_t> colorOrder(const std::vector<SolverBody>& bodies,
 /// A manifold's segment (see ContactParts) from its bodies' parts: the leaf of its dynamic
 /// bodies (a contact with the world or a kinematic body belongs to its dynamic body's leaf),
 /// or the separator of the deepest cut that has them both below it and on its two sides.
-inline uint32_t contactSegment(const std::vector<uint8_t>& part, int levels, int32_t a,
-                               int32_t b) {
+inline uint32_t contactSegment(const std::vector<uint8_t>& part, int levels, int32_t a, int32_t b) {
   const uint32_t pa = part[size_t(a)], pb = part[size_t(b)];
   if (pa == kNoPart) return pb == kNoPart ? 0 : pb;
   if (pb == kNoPart || pb == pa) return pa;

@@ -363,7 +363,8 @@ TEST(NestedParts, SegmentsOfAPhaseShareNoDynamicBody) {
   s.indexUnits();
   s.finishRows(0, s.rows.size());
   std::vector<Pairs> bySegment(segmentCount(levels));
-  for (const auto& p : g.pairs) bySegment[contactSegment(part, levels, p.first, p.second)].push_back(p);
+  for (const auto& p : g.pairs)
+    bySegment[contactSegment(part, levels, p.first, p.second)].push_back(p);
   std::vector<SolverManifold> manifolds;
   ContactParts parts;
   parts.levels = levels;
@@ -483,8 +484,8 @@ TEST(NestedParts, SameBitsWithAnyThreadCountAndWithTheScalarRows) {
     const char* name;
     int levels, parts, steps;
   };
-  for (const Case& c : {Case{"pyramid_40", -1, 4, 30}, Case{"pyramid_20", 3, 8, 60},
-                        Case{"windmill", 4, 16, 60}}) {
+  for (const Case& c :
+       {Case{"pyramid_40", -1, 4, 30}, Case{"pyramid_20", 3, 8, 60}, Case{"windmill", 4, 16, 60}}) {
     const Outcome one = runScene(c.name, 1, c.steps, true, c.levels);
     EXPECT_EQ(one.parts, c.parts) << c.name;
     EXPECT_GT(one.between, 0) << c.name;
