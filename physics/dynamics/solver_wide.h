@@ -206,13 +206,14 @@ class WideContacts {
 /// Nested parts (see the file comment) from this many contact manifolds: below it, one more
 /// fork-join per pass costs about what the second core saves.
 constexpr size_t kHalvesMinManifolds = 256;
-/// Deeper than halves only while every leaf keeps this many manifolds: a leaf's blocks fill
-/// less than the whole sweep's (its dependency chain is not much shorter), so each level
-/// costs one thread time; measured on pyramid_40, leaves of about 600 cost a few per cent,
-/// of 300 a fifth (docs/ARCHITECTURE.md, "Nested parts").
-constexpr size_t kMinLeafManifolds = 512;
+/// Deeper than halves only while every leaf keeps this many manifolds. A leaf's blocks fill
+/// less than the whole sweep's (its dependency chain is not much shorter) and each level adds
+/// a fork-join per pass: measured on this 2-core VM, pyramid_40 (2,380 manifolds) in four
+/// parts took 12-16 % longer than in halves with two threads, while pyramid_100 (14,950) in
+/// four or eight took about as long (docs/ARCHITECTURE.md, "Nested parts").
+constexpr size_t kMinLeafManifolds = 1024;
 /// The levels of nested parts for a step with `manifolds` touching contacts: 0 below
-/// kHalvesMinManifolds, 1 (halves) from there, 2 from 2,048 and 3 from 4,096 (leaves of at
+/// kHalvesMinManifolds, 1 (halves) from there, 2 from 4,096 and 3 from 8,192 (leaves of at
 /// least kMinLeafManifolds), at most kMaxPartLevels. A function of the world alone, never of
 /// the thread count.
 int partLevels(size_t manifolds);

@@ -248,12 +248,11 @@ TEST(NestedParts, LevelsGrowWithTheContactsAlone) {
   EXPECT_EQ(partLevels(0), 0);
   EXPECT_EQ(partLevels(kHalvesMinManifolds - 1), 0);
   EXPECT_EQ(partLevels(256), 1);
-  EXPECT_EQ(partLevels(2047), 1);
-  EXPECT_EQ(partLevels(2048), 2);  // leaves of kMinLeafManifolds
-  EXPECT_EQ(partLevels(4095), 2);
-  EXPECT_EQ(partLevels(4096), 3);
-  EXPECT_EQ(partLevels(8191), 3);
-  EXPECT_EQ(partLevels(8192), 3);  // at most kMaxPartLevels
+  EXPECT_EQ(partLevels(4095), 1);
+  EXPECT_EQ(partLevels(4096), 2);  // leaves of kMinLeafManifolds
+  EXPECT_EQ(partLevels(8191), 2);
+  EXPECT_EQ(partLevels(8192), 3);
+  EXPECT_EQ(partLevels(1 << 20), 3);  // at most kMaxPartLevels
   EXPECT_EQ(partLevels(size_t(1) << 30), kMaxPartLevels);
   setPartLevelsOverride(3);
   EXPECT_EQ(partLevels(255), 0);  // too few to cut at all, as without the override
@@ -478,14 +477,15 @@ TEST(Halves, SameBitsWithAnyThreadCountAndWithTheScalarRows) {
 }
 
 TEST(NestedParts, SameBitsWithAnyThreadCountAndWithTheScalarRows) {
-  // pyramid_40 (2,380 contacts) by the rule: four parts. pyramid_20 and the windmill (joints
-  // first) forced to three and four levels: eight and sixteen parts of a few dozen contacts.
+  // Forced depths (setPartLevelsOverride; the rule cuts worlds this size in halves at most):
+  // pyramid_40 (2,380 contacts) in four parts, pyramid_20 in eight and the windmill (joints
+  // first) in sixteen, of a few dozen contacts each.
   struct Case {
     const char* name;
     int levels, parts, steps;
   };
   for (const Case& c :
-       {Case{"pyramid_40", -1, 4, 30}, Case{"pyramid_20", 3, 8, 60}, Case{"windmill", 4, 16, 60}}) {
+       {Case{"pyramid_40", 2, 4, 30}, Case{"pyramid_20", 3, 8, 60}, Case{"windmill", 4, 16, 60}}) {
     const Outcome one = runScene(c.name, 1, c.steps, true, c.levels);
     EXPECT_EQ(one.parts, c.parts) << c.name;
     EXPECT_GT(one.between, 0) << c.name;
