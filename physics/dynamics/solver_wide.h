@@ -64,7 +64,7 @@ struct WideParams {
 
 /// Nested parts (see the file comment): at most this many levels, 8 leaf parts, one for each
 /// of the pool's default of at most 8 threads (resolveThreadCount). A fourth level cost more
-/// than the third on this 2-core VM with one thread and with two (docs/ARCHITECTURE.md).
+/// than the third in most runs on this 2-core VM (docs/ARCHITECTURE.md, "Nested parts").
 constexpr int kMaxPartLevels = 3;
 /// The most levels the code handles (setPartLevelsOverride may ask for a fourth, to measure).
 constexpr int kPartLevelsLimit = 4;

@@ -233,7 +233,7 @@ struct StepStats {
   /// threads when the contacts are solved in SIMD lanes (vectorizedManifolds > 0); otherwise
   /// the rows are in the split order and solved serially.
   int contactsBetweenHalves = -1;
-  /// The leaf parts of the step's contact order (2, 4, 8 or 16: solver_wide.h's partLevels,
+  /// The leaf parts of the step's contact order (2, 4 or 8: solver_wide.h's partLevels,
   /// a function of the contact count alone); 0 when not split.
   int contactParts = 0;
   double energyBefore = 0;      ///< J, kinetic + potential at step start
