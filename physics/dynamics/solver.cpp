@@ -1,6 +1,7 @@
 #include "dynamics/solver.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <bit>
 #include <cassert>
@@ -240,17 +241,17 @@ float Solver::forEachScheduled(F&& f, W&& w) {
     }
     return m;
   };
-  if (!wide->halves()) return run(0, wide->schedule.size());
-  // The row groups, then the two halves at once (they share no dynamic body, and hold only
-  // wide blocks, which write dynamic bodies alone), then the blocks between them: the bits
-  // of the serial pass (solver_wide.h, "Halves").
-  float m = run(0, wide->part(0));
-  float half[2] = {0, 0};
-  parallel(2, 1, [&](size_t begin, size_t end) {
-    for (size_t h = begin; h < end; ++h) half[h] = run(wide->part(int(h)), wide->part(int(h) + 1));
-  });
-  m = std::max({m, half[0], half[1]});
-  return std::max(m, run(wide->part(2), wide->schedule.size()));
+  if (wide->levels() == 0) return run(0, wide->schedule.size());
+  // The row groups, then the nested parts' segments phase by phase, a phase's at once (they
+  // share no dynamic body, and hold only wide blocks, which write dynamic bodies alone): the
+  // bits of the serial pass (solver_wide.h, "Nested parts"). Each segment's largest change
+  // in its own slot; max is exact and order-free.
+  float m = run(0, wide->segment(0));
+  std::array<float, kMaxSegments> segmentMax{};
+  wide->forEachSegment(
+      [&](size_t i) { segmentMax[i] = run(wide->segment(i), wide->segment(i + 1)); });
+  for (float x : segmentMax) m = std::max(m, x);
+  return m;
 }
 
 template <class F>

@@ -266,8 +266,8 @@ class Solver {
   float forEachGroup(F&& f, bool pushChannel = false);
   /// forEachGroup, or with active wide contacts their schedule: w(block) for blocks of
   /// manifolds, f(group, A, B) for the groups between them. Returns the largest result. With
-  /// halves (solver_wide.h) w runs on two threads at once, on blocks that share no dynamic
-  /// body; f always on the calling thread.
+  /// nested parts (solver_wide.h) w runs on all threads at once, on blocks that share no
+  /// dynamic body; f always on the calling thread.
   template <class F, class W>
   float forEachScheduled(F&& f, W&& w);
   float solveGroup(const Group& g, Velocity& A, Velocity& B, const IterationParams& p);

@@ -33,6 +33,7 @@ namespace phys {
 
 namespace {
 std::atomic<bool> gVectorizedContacts{true};
+std::atomic<int> gPartLevels{-1};
 }  // namespace
 
 void setVectorizedContacts(bool on) {
@@ -40,6 +41,18 @@ void setVectorizedContacts(bool on) {
 }
 bool vectorizedContacts() {
   return gVectorizedContacts;
+}
+
+void setPartLevelsOverride(int levels) {
+  gPartLevels = levels < 1 ? -1 : std::min(levels, kPartLevelsLimit);
+}
+
+int partLevels(size_t manifolds) {
+  if (manifolds < kHalvesMinManifolds) return 0;
+  if (const int forced = gPartLevels.load(); forced > 0) return forced;
+  int levels = 1;
+  while (levels < kMaxPartLevels && (manifolds >> (levels + 1)) >= kMinLeafManifolds) ++levels;
+  return levels;
 }
 
 using wide::kLanes;
@@ -230,7 +243,7 @@ void WideContacts::addLane(uint32_t block, const Solver& s, uint32_t index,
 void WideContacts::clear() {
   schedule.clear();
   blockCount_ = 0;  // the blocks' storage stays for the next step (see build)
-  halves_ = false;
+  levels_ = 0;
   laneOf_.clear();
   active = false;
   errorsCurrent = false;
@@ -254,22 +267,18 @@ size_t WideContacts::capacityBytes() const {
 
 template <class F>
 void WideContacts::forEachPart(F&& fn) const {
-  if (halves_ && pool_) {
-    // Each half's blocks on the thread that solves them (see build).
-    pool_->parallelFor(2, 1, [&](size_t begin, size_t end) {
-      for (size_t h = begin; h < end; ++h) fn(partBlock_[h], partBlock_[h + 1]);
-    });
-    fn(partBlock_[2], blockCount_);
-  } else {
+  if (levels_ > 0)
+    forEachSegment([&](size_t i) { fn(segmentBlock_[i], segmentBlock_[i + 1]); });
+  else
     fn(size_t(0), blockCount_);
-  }
 }
 
 void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& manifolds,
-                         const uint32_t* halfEnd) {
+                         const ContactParts* parts) {
   clear();
   active = true;
-  halves_ = halfEnd != nullptr;
+  levels_ = parts ? parts->levels : 0;
+  assert(levels_ >= 0 && levels_ <= kPartLevelsLimit);
   patch_ = !manifolds.empty() && manifolds.front().patch;
 #ifndef NDEBUG
   for (const SolverManifold& m : manifolds) assert(m.patch == patch_);  // one setting per step
@@ -279,9 +288,9 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
   // may run in any order, while each body still meets its constraints in the serial order
   // (the solver's row groups, the joints, then the manifolds). A manifold may also take a
   // free lane of a block a few levels further on, which fills blocks at the price of
-  // pushing its bodies' later constraints back. With halves, each part (the row groups, the
-  // first half, the second, those between) starts on a level of its own (`floor`), so the
-  // parts follow one another in the schedule.
+  // pushing its bodies' later constraints back. With parts, each segment (the leaves, then
+  // the separators) starts on a level of its own (`floor`), so the segments follow one
+  // another in the schedule and no block mixes two.
   struct Level {
     std::vector<Item> items;  ///< blocks numbered in the order they were opened
     int32_t open = -1;        ///< a block of this level with a free lane
@@ -309,14 +318,17 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
   std::vector<uint8_t> used;
   laneOf_.resize(manifolds.size());
   const uint32_t n = uint32_t(manifolds.size());
-  const uint32_t partEnd[3] = {halves_ ? halfEnd[0] : n, halves_ ? halfEnd[1] : n, n};
-  assert(partEnd[0] <= partEnd[1] && partEnd[1] <= n);
-  size_t partLevel[3] = {};  // the level each part of the manifolds begins on
+  // Without parts: one segment, which may share levels with the row groups.
+  const size_t segments = levels_ > 0 ? segmentCount(levels_) : 1;
+  assert(levels_ == 0 || parts->end.size() == segments);
+  size_t segmentLevel[kMaxSegments] = {};  // the level each segment begins on
   uint32_t mi = 0;
-  for (int part = 0; part < 3; ++part) {
-    if (halves_) floor = int32_t(levels.size());
-    partLevel[part] = levels.size();
-    for (; mi < partEnd[part]; ++mi) {
+  for (size_t seg = 0; seg < segments; ++seg) {
+    const uint32_t end = levels_ > 0 ? parts->end[seg] : n;
+    assert(mi <= end && end <= n);
+    if (levels_ > 0) floor = int32_t(levels.size());
+    segmentLevel[seg] = levels.size();
+    for (; mi < end; ++mi) {
       const SolverManifold& m = manifolds[mi];
       int32_t at = place(m.a, m.b);
       for (int32_t lv = at; lv < at + kLevelSearch && size_t(lv) < levels.size(); ++lv) {
@@ -338,23 +350,24 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
       if (used[blk] == kLanes) level.open = -1;
     }
   }
+  assert(mi == n);
   // The schedule, level by level, and the blocks numbered in its order, so that the passes
   // stream through them; then each block is filled in one go, by the thread that solves it
-  // (forEachPart). Without halves all on the caller: filling the blocks of one sweep on two
+  // (forEachPart). Without parts all on the caller: filling the blocks of one sweep on two
   // cores made the step slower on this 2-core VM, the first pass then fetching every other
   // block from the other core.
   schedule.reserve(s.groups.size() + lanes.size());
   std::vector<uint32_t> openedAs;  // per block in schedule order: its index as opened
   openedAs.reserve(lanes.size());
-  auto startParts = [&](size_t level) {
-    for (int p = 0; p < 3; ++p) {
-      if (partLevel[p] != level) continue;
-      part_[p] = schedule.size();
-      partBlock_[p] = openedAs.size();
+  size_t nextSegment = 0;
+  auto startSegments = [&](size_t level) {  // the segments that begin on this level
+    for (; nextSegment < segments && segmentLevel[nextSegment] == level; ++nextSegment) {
+      segment_[nextSegment] = schedule.size();
+      segmentBlock_[nextSegment] = openedAs.size();
     }
   };
   for (size_t li = 0; li < levels.size(); ++li) {
-    startParts(li);
+    startSegments(li);
     for (Item item : levels[li].items) {
       if (item.wide) {
         openedAs.push_back(item.index);
@@ -363,7 +376,9 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
       schedule.push_back(item);
     }
   }
-  startParts(levels.size());  // empty parts at the end
+  startSegments(levels.size());  // empty segments at the end
+  segment_[segments] = schedule.size();
+  segmentBlock_[segments] = openedAs.size();
   // The storage only grows; each block is zeroed just before it is filled (empty lanes and
   // points must read as zeros), while its cache lines are about to be written anyway.
   // Zeroing all of it up front (vector::resize after clear) cost 0.1 ms on pyramid_40.
@@ -390,42 +405,92 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
       }
     }
   };
-  assert(!halves_ || partBlock_[0] == 0);  // the row groups' levels hold no blocks
+  assert(levels_ == 0 || segmentBlock_[0] == 0);  // the row groups' levels hold no blocks
   pool_ = s.pool;
   forEachPart(fill);
 }
 
-void splitHalves(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& com,
-                 const std::vector<std::pair<int32_t, int32_t>>& pairs,
-                 std::vector<uint8_t>& half) {
-  half.assign(bodies.size(), kNoHalf);
-  std::vector<uint32_t> dyn;
-  for (uint32_t i = 1; i < bodies.size(); ++i)
-    if (bodies[i].dynamic) dyn.push_back(i);
-  if (dyn.empty()) return;
-  // Each axis's median cut, by (coordinate, index): the same split whatever order the bodies
-  // came in. The cut that the fewest contacts cross wins (the first of equals).
-  std::vector<uint8_t> trial(bodies.size(), kNoHalf);
-  size_t fewest = SIZE_MAX;
-  for (int axis = 0; axis < 3; ++axis) {
-    // A total order even for a body gone non-finite (the guard rolls such steps back).
-    auto coord = [&](uint32_t i) {
-      const float c = axis == 0 ? com[i].x : axis == 1 ? com[i].y : com[i].z;
-      return std::isnan(c) ? std::numeric_limits<float>::infinity() : c;
-    };
-    const auto mid = dyn.begin() + std::ptrdiff_t(dyn.size() / 2);
-    std::nth_element(dyn.begin(), mid, dyn.end(), [&](uint32_t a, uint32_t b) {
-      const float ca = coord(a), cb = coord(b);
-      return ca < cb || (ca == cb && a < b);
-    });
-    for (auto it = dyn.begin(); it != dyn.end(); ++it) trial[*it] = it < mid ? 0 : 1;
-    size_t crossing = 0;
-    for (const auto& [a, b] : pairs) crossing += manifoldPart(trial, a, b) == 2;
-    if (crossing < fewest) {
-      fewest = crossing;
-      half.swap(trial);
-      trial.assign(bodies.size(), kNoHalf);
+void splitParts(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& com,
+                const std::vector<std::pair<int32_t, int32_t>>& pairs, int levels,
+                std::vector<uint8_t>& part) {
+  assert(levels >= 1 && levels <= 7);
+  part.assign(bodies.size(), kNoPart);
+  // The sets of one depth, left to right: each a range of `dyn` (its bodies) and of `inner`
+  // (its contacts between two of its dynamic bodies, the only ones a cut of it can cross).
+  std::vector<uint32_t> dyn, inner;
+  for (uint32_t i = 1; i < bodies.size(); ++i) {
+    if (!bodies[i].dynamic) continue;
+    dyn.push_back(i);
+    part[i] = 0;
+  }
+  for (uint32_t k = 0; k < pairs.size(); ++k) {
+    const auto [a, b] = pairs[k];
+    if (bodies[size_t(a)].dynamic && bodies[size_t(b)].dynamic) inner.push_back(k);
+  }
+  struct Set {
+    size_t begin, end, innerBegin, innerEnd;
+  };
+  std::vector<Set> sets = {{0, dyn.size(), 0, inner.size()}}, next;
+  std::vector<uint8_t> side(bodies.size(), 0);    // per body: its side of the cut being tried
+  std::vector<std::pair<float, uint32_t>> keyed;  // the set's bodies by (coordinate, index)
+  std::vector<uint32_t> keep[2];                  // a set's contacts on either side
+  for (int depth = 0; depth < levels; ++depth) {
+    next.clear();
+    for (const Set& set : sets) {
+      const auto first = dyn.begin() + std::ptrdiff_t(set.begin);
+      const auto last = dyn.begin() + std::ptrdiff_t(set.end);
+      const auto mid = first + std::ptrdiff_t((set.end - set.begin) / 2);
+      // Each axis's median cut, by (coordinate, index): the same split whatever order the
+      // bodies came in. The cut that the fewest of the set's contacts cross wins (the first
+      // of equals). The keys are copied out first: nth_element over indices into `com`
+      // takes a cache miss per comparison in a large world.
+      auto cut = [&](int axis) {
+        keyed.clear();
+        for (auto it = first; it != last; ++it) {
+          const float c = axis == 0 ? com[*it].x : axis == 1 ? com[*it].y : com[*it].z;
+          // A total order even for a body gone non-finite (the guard rolls such steps back).
+          keyed.push_back({std::isnan(c) ? std::numeric_limits<float>::infinity() : c, *it});
+        }
+        const auto median = keyed.begin() + (mid - first);
+        std::nth_element(keyed.begin(), median, keyed.end());  // (coordinate, index)
+        for (auto it = keyed.begin(); it != keyed.end(); ++it)
+          side[it->second] = it < median ? 0 : 1;
+      };
+      size_t fewest = SIZE_MAX;
+      int best = 0;
+      for (int axis = 0; axis < 3; ++axis) {
+        cut(axis);
+        size_t crossing = 0;
+        for (size_t k = set.innerBegin; k < set.innerEnd; ++k) {
+          const auto [a, b] = pairs[inner[k]];
+          crossing += side[size_t(a)] != side[size_t(b)];
+        }
+        if (crossing < fewest) {
+          fewest = crossing;
+          best = axis;
+        }
+      }
+      if (best != 2) cut(best);
+      for (size_t k = 0; k < keyed.size(); ++k) first[std::ptrdiff_t(k)] = keyed[k].second;
+      for (auto it = first; it != last; ++it) part[*it] = uint8_t(2 * part[*it] + side[*it]);
+      // The set's contacts that stay on one side are the halves' own; those that cross go to
+      // this cut's separator and out of the recursion.
+      keep[0].clear();
+      keep[1].clear();
+      for (size_t k = set.innerBegin; k < set.innerEnd; ++k) {
+        const auto [a, b] = pairs[inner[k]];
+        if (side[size_t(a)] == side[size_t(b)]) keep[side[size_t(a)]].push_back(inner[k]);
+      }
+      size_t at = set.innerBegin;
+      const size_t midIndex = size_t(mid - dyn.begin());
+      for (int h = 0; h < 2; ++h) {
+        std::copy(keep[h].begin(), keep[h].end(), inner.begin() + std::ptrdiff_t(at));
+        next.push_back(
+            {h == 0 ? set.begin : midIndex, h == 0 ? midIndex : set.end, at, at + keep[h].size()});
+        at += keep[h].size();
+      }
     }
+    sets.swap(next);
   }
 }
 

@@ -14,25 +14,29 @@
 // rows in a compact structure-of-arrays form (about 190 bytes per contact point instead of
 // three 164-byte rows) and owns the contact impulses between build() and store().
 //
-// Halves: in a world with many contacts, the World splits the dynamic bodies into two halves
-// (splitHalves: at the median, on the axis whose cut the fewest contacts cross) and orders the
-// contacts as the first half's, the second half's, then those between the halves. That order
-// is the world's, not the threads': it is the Gauss-Seidel order of the scalar rows too,
-// whatever the thread count. The first two parts share no dynamic body, so they commute:
-// their blocks run on two threads at once, then the few between the halves on one, and the
+// Nested parts: in a world with many contacts, the World cuts the dynamic bodies in two
+// (at the median, on the axis whose cut the fewest contacts cross), and each half again by the
+// same rule, `levels` times (partLevels: more levels for more contacts, never by the thread
+// count), into 2^levels leaf parts. The contacts are ordered as: each leaf's, leaf by leaf,
+// then the separators, from the deepest cuts up to the first: a cut's separator holds the
+// contacts between the two sides of that cut (contactSegment). That order is the world's, not
+// the threads': it is the Gauss-Seidel order of the scalar rows too, whatever the thread count.
+// The leaves share no dynamic body, so they commute: their blocks run on all threads at once,
+// then the separators of each depth (which also share none), the first cut's last. The
 // result is the same bits as the serial pass. Scalar groups (joints) come first, serially.
+// One level is "Gauss-Seidel in halves" (docs/ARCHITECTURE.md).
 #pragma once
 
+#include <bit>
 #include <cstdint>
 #include <utility>
 #include <vector>
 
+#include "base/thread_pool.h"
 #include "dynamics/solver.h"
 #include "phys/collision/shapes.h"
 
 namespace phys {
-
-class ThreadPool;
 
 namespace wide {
 constexpr int kLanes = 8;
@@ -58,6 +62,31 @@ struct WideParams {
   bool soft = true, useBias = true, measure = false;
 };
 
+/// Nested parts (see the file comment): at most this many levels, 8 leaf parts, one for each
+/// of the pool's default of at most 8 threads (resolveThreadCount). A fourth level cost more
+/// than the third in most runs on this 2-core VM (docs/ARCHITECTURE.md, "Nested parts").
+constexpr int kMaxPartLevels = 3;
+/// The most levels the code handles (setPartLevelsOverride may ask for a fourth, to measure).
+constexpr int kPartLevelsLimit = 4;
+/// The leaves (2^levels), then the separators (2^levels - 1).
+constexpr size_t segmentCount(int levels) {
+  return levels > 0 ? (size_t(2) << levels) - 1 : 0;
+}
+/// The segments run in levels + 1 phases: phase 0 the leaves, phase k >= 1 the separators of
+/// the cuts at depth levels - k (the first cut is depth 0); phase k is the segments
+/// [phaseBegin(levels, k), phaseBegin(levels, k + 1)).
+constexpr size_t phaseBegin(int levels, int k) {
+  return (size_t(2) << levels) - ((size_t(2) << levels) >> k);
+}
+constexpr size_t kMaxSegments = segmentCount(kPartLevelsLimit);
+
+/// The World's contact order in nested parts: manifolds [end[i-1], end[i]) are segment i's
+/// (end[-1] = 0), the segments in the order above.
+struct ContactParts {
+  int levels = 0;  ///< 0: one part, not cut
+  std::vector<uint32_t> end;
+};
+
 class WideContacts {
  public:
   /// One entry of the schedule: a block of manifolds, or one group solved by the scalar code.
@@ -72,15 +101,33 @@ class WideContacts {
   bool errorsCurrent = false;
 
   /// Packs the manifolds into blocks and orders them after the solver's row groups (the
-  /// joints; see the file comment). The rows must be finished; sets active. With halves,
-  /// manifolds [0, halfEnd[0]) are the first half's, [halfEnd[0], halfEnd[1]) the second's,
-  /// and the rest lie between them (see "Halves" above); without, all are one part.
+  /// joints; see the file comment). The rows must be finished; sets active. With parts
+  /// (levels > 0) each segment's manifolds get blocks of their own (see "Nested parts"
+  /// above); without, all are one part.
   void build(const Solver& s, const std::vector<SolverManifold>& manifolds,
-             const uint32_t* halfEnd = nullptr);
-  /// With halves: the schedule's parts, [0, part(0)) the row groups, [part(0), part(1)) the
-  /// first half's blocks, [part(1), part(2)) the second half's, then those between.
-  bool halves() const { return halves_; }
-  size_t part(int i) const { return part_[i]; }
+             const ContactParts* parts = nullptr);
+  /// With parts: their levels (0 without), and the schedule's segments: [0, segment(0)) the
+  /// row groups, [segment(i), segment(i + 1)) segment i's blocks (segment(segments) is the
+  /// schedule's end).
+  int levels() const { return levels_; }
+  size_t segment(size_t i) const { return segment_[i]; }
+  /// fn(i) for every segment i, phase by phase, the segments of a phase on all threads at
+  /// once, each on the thread that normally runs it (the pool gives a loop's chunk to the same
+  /// thread unless that one is late, when another takes it: only speed depends on it). fn must
+  /// touch only segment i's bodies and data.
+  template <class F>
+  void forEachSegment(F&& fn) const {
+    for (int k = 0; k <= levels_; ++k) {
+      const size_t first = phaseBegin(levels_, k), count = phaseBegin(levels_, k + 1) - first;
+      if (pool_) {
+        pool_->parallelFor(count, 1, [&](size_t begin, size_t end) {
+          for (size_t i = begin; i < end; ++i) fn(first + i);
+        });
+      } else {
+        for (size_t i = 0; i < count; ++i) fn(first + i);
+      }
+    }
+  }
   /// Writes the contact impulses into the manifolds and deactivates: the solver passes run
   /// over the rows alone again. The blocks stay for residual().
   void store(std::vector<SolverManifold>& manifolds);
@@ -143,14 +190,12 @@ class WideContacts {
   size_t blockCount_ = 0;
   std::vector<std::pair<uint32_t, uint32_t>> laneOf_;  ///< per manifold: block, lane
   bool patch_ = false;  ///< every manifold has patch friction (else every one per point)
-  bool halves_ = false;
-  size_t part_[3] = {};       ///< see part()
-  size_t partBlock_[3] = {};  ///< with halves: the blocks before each part
+  int levels_ = 0;
+  size_t segment_[kMaxSegments + 1] = {};       ///< see segment()
+  size_t segmentBlock_[kMaxSegments + 1] = {};  ///< with parts: the blocks before each segment
   ThreadPool* pool_ = nullptr;
   mutable std::vector<double> residualTerms_;  ///< residual(): per manifold, kMaxPoints
-  /// fn(firstBlock, endBlock) over the blocks: with halves each half's on the thread that
-  /// normally solves it (the pool gives a loop's chunk h to the same thread unless that one is
-  /// late, when another takes it: only speed depends on it), then the rest.
+  /// fn(firstBlock, endBlock) over the blocks: with parts each segment's, by forEachSegment.
   template <class F>
   void forEachPart(F&& fn) const;
   /// Per block: its points' friction (kMaxPoints each), or with patch friction its patch.
@@ -158,27 +203,58 @@ class WideContacts {
   std::vector<Patch> patches_;
 };
 
-/// Halves (see the file comment) from this many contact manifolds: below it, one more
+/// Nested parts (see the file comment) from this many contact manifolds: below it, one more
 /// fork-join per pass costs about what the second core saves.
 constexpr size_t kHalvesMinManifolds = 256;
-constexpr uint8_t kNoHalf = 0xff;
-/// Per solver body: its half (0 or 1), cut at the median of the dynamic bodies' centres of
-/// mass (`com`, per solver body) along the axis whose cut the fewest contacts (`pairs`, solver
-/// bodies a, b) cross; kNoHalf for the world and kinematic bodies.
-void splitHalves(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& com,
-                 const std::vector<std::pair<int32_t, int32_t>>& pairs, std::vector<uint8_t>& half);
-/// The order in which to solve the contacts between the halves: they touch the bodies along
+/// Deeper than halves only while every leaf keeps this many manifolds. A leaf's blocks fill
+/// less than the whole sweep's (its dependency chain is not much shorter) and each level adds
+/// a fork-join per pass: measured on this 2-core VM, pyramid_40 (2,380 manifolds) in four
+/// parts took 12-16 % longer than in halves with two threads, while pyramid_100 (14,950) in
+/// four or eight took about as long (docs/ARCHITECTURE.md, "Nested parts").
+constexpr size_t kMinLeafManifolds = 1024;
+/// The levels of nested parts for a step with `manifolds` touching contacts: 0 below
+/// kHalvesMinManifolds, 1 (halves) from there, 2 from 4,096 and 3 from 8,192 (leaves of at
+/// least kMinLeafManifolds), at most kMaxPartLevels. A function of the world alone, never of
+/// the thread count.
+int partLevels(size_t manifolds);
+/// (setPartLevelsOverride, solver_settings.h, replaces the rule for measurements and tests.)
+constexpr uint8_t kNoPart = 0xff;
+constexpr uint8_t kNoHalf = kNoPart;
+/// Per solver body: its leaf part (0 to 2^levels - 1), the bits of its sides of the cuts from
+/// the first (the highest bit) down; kNoPart for the world and kinematic bodies. Each set of
+/// dynamic bodies is cut at the median of their centres of mass (`com`, per solver body) along
+/// the axis whose cut the fewest of the set's own contacts (`pairs`, solver bodies a, b) cross.
+void splitParts(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& com,
+                const std::vector<std::pair<int32_t, int32_t>>& pairs, int levels,
+                std::vector<uint8_t>& part);
+/// splitParts with one level: the halves 0 and 1.
+inline void splitHalves(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& com,
+                        const std::vector<std::pair<int32_t, int32_t>>& pairs,
+                        std::vector<uint8_t>& half) {
+  splitParts(bodies, com, pairs, 1, half);
+}
+/// The order in which to solve the contacts of a separator: they touch the bodies along
 /// the cut, each after the last in the contacts' order (a row's neighbours, then the row
 /// above), and in that order they form one long chain, a manifold per wide block. By colour
 /// (greedily, the first colour neither dynamic body has yet), in their order within a colour,
 /// they fill blocks. Returns the permutation of `pairs` (solver bodies a, b of each contact).
 std::vector<uint32_t> colorOrder(const std::vector<SolverBody>& bodies,
                                  const std::vector<std::pair<int32_t, int32_t>>& pairs);
-/// A manifold's part: the half of its dynamic bodies, or 2 between the halves.
+/// A manifold's segment (see ContactParts) from its bodies' parts: the leaf of its dynamic
+/// bodies (a contact with the world or a kinematic body belongs to its dynamic body's leaf),
+/// or the separator of the deepest cut that has them both below it and on its two sides.
+inline uint32_t contactSegment(const std::vector<uint8_t>& part, int levels, int32_t a, int32_t b) {
+  const uint32_t pa = part[size_t(a)], pb = part[size_t(b)];
+  if (pa == kNoPart) return pb == kNoPart ? 0 : pb;
+  if (pb == kNoPart || pb == pa) return pa;
+  // The highest differing bit is the cut between them: at depth levels - w, the node whose
+  // leaves share the bits above it.
+  const int w = std::bit_width(pa ^ pb);
+  return uint32_t(phaseBegin(levels, w)) + (pa >> w);
+}
+/// One level: 0 and 1 the halves, 2 between them.
 inline uint8_t manifoldPart(const std::vector<uint8_t>& half, int32_t a, int32_t b) {
-  const uint8_t ha = half[size_t(a)], hb = half[size_t(b)];
-  if (ha == kNoHalf) return hb == kNoHalf ? 0 : hb;
-  return hb == kNoHalf || hb == ha ? ha : 2;
+  return uint8_t(contactSegment(half, 1, a, b));
 }
 
 }  // namespace phys

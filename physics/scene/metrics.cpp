@@ -118,6 +118,9 @@ void MetricsRecorder::afterStep(const World& world) {
   if (st.contactPoints > 0) m.sawContacts = true;
   m.penMax = std::max(m.penMax, st.maxPenetration);
   s.awakeBodiesFinal = st.awake;
+  s.contactsFinal = st.contacts;
+  s.manifoldsFinal = st.vectorizedManifolds;
+  s.contactPartsFinal = st.contactParts;
   if (world.time() > m.scene->metrics.settleTime) {
     m.settledStepMs.push_back(p.total);
     m.settled = true;

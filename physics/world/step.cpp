@@ -160,6 +160,7 @@ void World::stepOnce(int substeps) {
     w.stats.stackDepth = 0;
     w.stats.stackHertz = 0;
     w.stats.contactsBetweenHalves = -1;
+    w.stats.contactParts = 0;
     w.time += dt;
     w.stats.step++;
     // The mirror pass summed it on its way (mirrorScan), as World::energy would.
@@ -481,7 +482,7 @@ void forEachStepScratch(Impl& w, F&& f) {
   f(w.energyTerms);
   f(w.snapshot.jointImpulses);
   f(w.solverCom);
-  f(w.solverHalf);
+  f(w.solverPart);
   f(w.beforeRestitution);
   f(w.equalityRowsAt);
   f(w.stackDepth), f(w.stackHead), f(w.stackNext), f(w.stackQueue), f(w.stackRoot);
@@ -1146,8 +1147,7 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   // Built serially: building them in parallel needs the vector sized first, and
   // value-initializing 28,000 rows of 160 bytes (pyramid_40) cost more than the parallel
   // build saved.
-  uint32_t halfEnd[2] = {};
-  const bool halves = orderContacts(s, halfEnd);
+  const bool split = orderContacts(s, contactParts);
   // Mass-ratio islands' normal rows are solved directly, which needs rows: such a step is
   // the scalar solve (bit-identical to the wide blocks).
   const bool directContactsNeeded = findDirectContactIslands(s);
@@ -1193,7 +1193,7 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   solver.finishRows(0, solver.rows.size());
   solver.wide = &wide;
   if (vectorized)
-    wide.build(solver, manifolds, halves ? halfEnd : nullptr);
+    wide.build(solver, manifolds, split ? &contactParts : nullptr);
   else
     wide.clear();
   directContacts.setup(solver, std::move(directRows));
@@ -1382,10 +1382,11 @@ bool World::Impl::findDirectContactIslands(const SolverSettings& s) {
   return any;
 }
 
-bool World::Impl::orderContacts(const SolverSettings& s, uint32_t halfEnd[2]) {
-  // The Gauss-Seidel order of the touching contacts: with many contacts, the first half's, the
-  // second half's, then those between (solver_wide.h, "Halves"), so that the halves run on two
-  // threads; the same order with any thread count, and in the rows as in the wide blocks.
+bool World::Impl::orderContacts(const SolverSettings& s, ContactParts& parts) {
+  // The Gauss-Seidel order of the touching contacts: with many contacts, in nested parts (the
+  // leaves' contacts, then the separators', the deepest cuts first: solver_wide.h, "Nested
+  // parts"), so that the leaves, then each depth's separators, run on all threads at once; the
+  // same order with any thread count, and in the rows as in the wide blocks.
   contactOrder.clear();
   for (uint32_t ci = 0; ci < contacts.size(); ++ci) {
     Contact& c = contacts[ci];
@@ -1396,35 +1397,54 @@ bool World::Impl::orderContacts(const SolverSettings& s, uint32_t halfEnd[2]) {
          (!bodies.at(c.bodyA.index).asleep() && !bodies.at(c.bodyB.index).asleep())))
       contactOrder.push_back(ci);
   }
-  const bool halves =
-      s.scheme == SolverSettings::Scheme::GaussSeidel && contactOrder.size() >= kHalvesMinManifolds;
+  parts.levels =
+      s.scheme == SolverSettings::Scheme::GaussSeidel ? partLevels(contactOrder.size()) : 0;
+  parts.end.clear();
   stats.contactsBetweenHalves = -1;
-  if (halves) {
-    std::vector<std::pair<int32_t, int32_t>> pairs;  // solver bodies
-    pairs.reserve(contactOrder.size());
-    for (uint32_t ci : contactOrder) {
-      const Contact& c = contacts[ci];
-      pairs.push_back({bodies.get(c.bodyA)->solverIndex, bodies.get(c.bodyB)->solverIndex});
-    }
-    splitHalves(solver.bodies, solverCom, pairs, solverHalf);
-    std::vector<uint32_t> byPart[3];  // indices into contactOrder and pairs
-    for (uint32_t k = 0; k < pairs.size(); ++k)
-      byPart[manifoldPart(solverHalf, pairs[k].first, pairs[k].second)].push_back(k);
-    // Between the halves: by colour (solver_wide.h), so that they fill blocks.
-    std::vector<std::pair<int32_t, int32_t>> betweenPairs;
-    for (uint32_t k : byPart[2]) betweenPairs.push_back(pairs[k]);
-    const std::vector<uint32_t> byColor = colorOrder(solver.bodies, betweenPairs);
-    std::vector<uint32_t> order;
-    order.reserve(contactOrder.size());
-    for (int part = 0; part < 2; ++part)
-      for (uint32_t k : byPart[part]) order.push_back(contactOrder[k]);
-    for (uint32_t i : byColor) order.push_back(contactOrder[byPart[2][i]]);
-    contactOrder.swap(order);
-    halfEnd[0] = uint32_t(byPart[0].size());
-    halfEnd[1] = halfEnd[0] + uint32_t(byPart[1].size());
-    stats.contactsBetweenHalves = int(byPart[2].size());
+  stats.contactParts = 0;
+  if (parts.levels == 0) return false;
+  std::vector<std::pair<int32_t, int32_t>> pairs;  // solver bodies
+  pairs.reserve(contactOrder.size());
+  for (uint32_t ci : contactOrder) {
+    const Contact& c = contacts[ci];
+    pairs.push_back({bodies.get(c.bodyA)->solverIndex, bodies.get(c.bodyB)->solverIndex});
   }
-  return halves;
+  splitParts(solver.bodies, solverCom, pairs, parts.levels, solverPart);
+  // The contacts by segment (a stable counting sort: each leaf keeps the contacts' order),
+  // then each separator's by colour (solver_wide.h), so that they fill blocks.
+  const size_t segments = segmentCount(parts.levels), leaves = size_t(1) << parts.levels;
+  std::vector<uint32_t> segmentOf(pairs.size());
+  std::vector<uint32_t> start(segments + 1, 0);
+  for (uint32_t k = 0; k < pairs.size(); ++k) {
+    segmentOf[k] = contactSegment(solverPart, parts.levels, pairs[k].first, pairs[k].second);
+    ++start[segmentOf[k] + 1];
+  }
+  for (size_t i = 0; i < segments; ++i) start[i + 1] += start[i];
+  std::vector<uint32_t> bySegment(pairs.size());  // indices into contactOrder and pairs
+  {
+    std::vector<uint32_t> at(start.begin(), start.end() - 1);
+    for (uint32_t k = 0; k < pairs.size(); ++k) bySegment[at[segmentOf[k]]++] = k;
+  }
+  std::vector<uint32_t> order;
+  order.reserve(contactOrder.size());
+  std::vector<std::pair<int32_t, int32_t>> separator;
+  for (size_t i = 0; i < segments; ++i) {
+    const auto first = bySegment.begin() + std::ptrdiff_t(start[i]);
+    const auto last = bySegment.begin() + std::ptrdiff_t(start[i + 1]);
+    if (i < leaves) {
+      for (auto it = first; it != last; ++it) order.push_back(contactOrder[*it]);
+    } else {
+      separator.clear();
+      for (auto it = first; it != last; ++it) separator.push_back(pairs[*it]);
+      for (uint32_t j : colorOrder(solver.bodies, separator))
+        order.push_back(contactOrder[first[std::ptrdiff_t(j)]]);
+    }
+    parts.end.push_back(uint32_t(order.size()));
+  }
+  contactOrder.swap(order);
+  stats.contactsBetweenHalves = int(contactOrder.size() - start[leaves]);
+  stats.contactParts = int(leaves);
+  return true;
 }
 
 void World::Impl::refreshJoints(float h) {

@@ -892,6 +892,7 @@ Status World::observe(const std::vector<BodyId>& ids, const std::vector<Observed
   w.stats.iterationsUsed = 0;
   w.stats.guardRetries = 0;
   w.stats.contactsBetweenHalves = -1;
+  w.stats.contactParts = 0;
   w.stats.energyAfter = energy();
   w.profile = StepProfile();
   w.profile.total = stepMs;

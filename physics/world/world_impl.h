@@ -213,11 +213,12 @@ struct World::Impl {
   /// With wide contacts: this step's manifolds (instead of contact rows) and their contacts.
   std::vector<SolverManifold> manifolds;
   std::vector<uint32_t> manifoldContact;
-  /// The Gauss-Seidel order of this step's touching contacts (halves: solver_wide.h), and per
-  /// solver body its centre of mass and half.
+  /// The Gauss-Seidel order of this step's touching contacts and its nested parts
+  /// (solver_wide.h), and per solver body its centre of mass and leaf part.
   std::vector<uint32_t> contactOrder;
+  ContactParts contactParts;
   std::vector<Vec3> solverCom;
-  std::vector<uint8_t> solverHalf;
+  std::vector<uint8_t> solverPart;
   EqualityLdl ldl;  ///< the joints' direct solve (equality = direct_ldl)
   /// The contact normal rows of mass-ratio islands, solved directly (directContactRatio).
   DirectContacts directContacts;
@@ -337,8 +338,8 @@ struct World::Impl {
   /// stackDirectContact for measureStacks: findDirectContactIslands's rule over the bodies'
   /// own indices (it runs before the step's solver bodies exist), for every touching contact.
   void directContactsByBody(const SolverSettings& s);
-  /// Fills contactOrder; with halves (solver_wide.h) returns true and where the halves' end.
-  bool orderContacts(const SolverSettings& s, uint32_t halfEnd[2]);
+  /// Fills contactOrder; with nested parts (solver_wide.h) returns true and fills `parts`.
+  bool orderContacts(const SolverSettings& s, ContactParts& parts);
   /// Finds the islands of contactOrder's contacts in which a dynamic body touches one
   /// directContactRatio times lighter or heavier, small enough for the direct solve, and
   /// fills directIsland. Returns whether there are any.

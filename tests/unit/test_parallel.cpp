@@ -162,6 +162,42 @@ TEST(Determinism, SameStateForAnyThreadCount) {
   EXPECT_NE(runMixed(S::GaussSeidel, 2, 90), runMixed(S::ColoredGaussSeidel, 2, 90));
 }
 
+/// A pyramid large enough for three levels of nested parts (about 9,400 contacts: eight
+/// leaves, solver_wide.h) beside a jointed chain (joints first, on one thread).
+const char* kPartsScene = R"({
+  "name": "parts",
+  "bodies": [{"name": "ground", "type": "static", "shapes": [{"type": "plane"}]}],
+  "generators": [
+    {"type": "pyramid", "name": "pyr", "base": 80, "half_extent": 0.5},
+    {"type": "chain", "name": "chain", "links": 10, "link_length": 0.5, "link_radius": 0.05,
+     "link_mass": 1, "anchor": [0, 8, 8], "direction": [1, 0, 0],
+     "end_ball": {"radius": 0.3, "mass": 20}}
+  ]
+})";
+
+TEST(Determinism, NestedPartsSameStateForAnyThreadCount) {
+  auto run = [](int threads, int* parts) {
+    Scene scene;
+    Status st = parseScene(kPartsScene, "inline", &scene);
+    EXPECT_TRUE(st.ok()) << st.message;
+    scene.world.threads = threads;
+    World world(scene.world);
+    std::vector<BodyId> ids;
+    EXPECT_TRUE(instantiateScene(scene, &world, &ids).ok());
+    for (int i = 0; i < 30; ++i) world.step();
+    *parts = world.stats().contactParts;
+    EXPECT_GE(world.stats().vectorizedManifolds, 8192);
+    return world.stateHash();
+  };
+  int parts = 0;
+  const uint64_t one = run(1, &parts);
+  EXPECT_EQ(parts, 8);  // the order's parts come from the contact count, not the threads
+  for (int threads : {2, 3, 4, 8, 16}) {
+    EXPECT_EQ(run(threads, &parts), one) << threads << " threads";
+    EXPECT_EQ(parts, 8) << threads << " threads";
+  }
+}
+
 /// A base-6 pyramid resting for `steps`; returns the last step's stats.
 StepStats restingPyramid(float tolerance, int steps) {
   Scene scene;

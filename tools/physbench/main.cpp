@@ -120,6 +120,12 @@ int main(int argc, char** argv) {
   app.add_flag("--scalar-contacts", scalarContacts,
                "solve Gauss-Seidel contacts one manifold at a time instead of in SIMD lanes "
                "(bit-identical results; to compare the speeds)");
+  int partLevels = 0;
+  app.add_option("--part-levels", partLevels,
+                 "Gauss-Seidel in nested parts: cut every step with 256 contacts or more this "
+                 "many levels deep (1-4) instead of by its contact count (a different order, "
+                 "so different results; for measurements)")
+      ->check(CLI::Range(0, 4));
 
   // Peer engines (docs/PEERS.md): --peer in single-scene mode, --peers in the suite.
   CLI::Option* peerOpt = app.add_option(
@@ -235,6 +241,7 @@ int main(int argc, char** argv) {
     o->excludes(stressFlag);
   CLI11_PARSE(app, argc, argv);
   if (scalarContacts) phys::setVectorizedContacts(false);
+  if (partLevels > 0) phys::setPartLevelsOverride(partLevels);
   if (reportMode) sweepMode = true;  // the report's first half is the sweep
   // The suite's options serve the sweep too; --presets, --jobs and --csv also the stress mode.
   for (CLI::Option* o : suiteOnly) {

@@ -52,6 +52,9 @@ nlohmann::json toJson(const MetricsSummary& m) {
   j["state_hash"] = hashText(m.stateHash);
   j["ms_per_step_settled_median"] = optional(m.msPerStepSettledMedian);
   j["awake_bodies_final"] = m.awakeBodiesFinal;
+  j["contacts_final"] = m.contactsFinal;
+  j["manifolds_final"] = m.manifoldsFinal;
+  j["contact_parts_final"] = m.contactPartsFinal;
   for (const auto& [k, v] : m.extra) j[k] = std::isfinite(v) ? nlohmann::json(v) : nullptr;
   return j;
 }
@@ -242,6 +245,8 @@ int reportSingle(const SingleOptions& opt, const Scene& scene, const SingleResul
   std::printf("  ms/step median %.3f  p99 %.3f  settled median %s  (awake bodies at the end: %d)\n",
               m.msPerStepMedian, m.msPerStepP99, fmtNumber(m.msPerStepSettledMedian).c_str(),
               m.awakeBodiesFinal);
+  std::printf("  at the end: %d contact pairs, %d manifolds in SIMD lanes, %d parts (0: not cut)\n",
+              m.contactsFinal, m.manifoldsFinal, m.contactPartsFinal);
   for (const std::string& name : metricNames()) {
     if (name.rfind("ms_per_step", 0) == 0) continue;
     std::printf("  %-26s %s\n", name.c_str(), fmtNumber(m.value(name)).c_str());

@@ -122,5 +122,11 @@ struct SolverSettings {
 /// compare the two (tests, `physbench --scalar-contacts`). Process-wide.
 void setVectorizedContacts(bool on);
 bool vectorizedContacts();
+/// Gauss-Seidel in nested parts (physics/dynamics/solver_wide.h): the levels of the cut come
+/// from the contact count alone (partLevels). For measurements and tests only: every step with
+/// enough contacts to be cut (256) gets `levels` levels instead (1 to 4, more than the rule
+/// allows, for measurements; 0 or -1 restores the
+/// rule). Results change with it, as with any other order. Process-wide.
+void setPartLevelsOverride(int levels);
 
 }  // namespace phys

@@ -21,6 +21,10 @@ struct MetricsSummary {
   /// world costs once it has come to rest (sleeping).
   std::optional<double> msPerStepSettledMedian;
   int awakeBodiesFinal = 0;  ///< StepStats::awake after the last step
+  /// After the last step: StepStats::contacts (pairs, touching or not), vectorizedManifolds
+  /// (the touching ones the Gauss-Seidel scheme solved in SIMD lanes) and contactParts (the
+  /// nested parts they were cut into).
+  int contactsFinal = 0, manifoldsFinal = 0, contactPartsFinal = 0;
   std::optional<double> jointErrorMax, jointErrorRms, jointAngleErrorMax;
   std::optional<double> penetrationMax, penetrationSettledMax;
   double energySolveDeltaMax = 0;     ///< J, largest energy increase across one step

@@ -227,12 +227,15 @@ struct StepStats {
   /// last step found them) and sleeping islands.
   int sleepingBodies = 0, awakeIslands = 0, sleepingIslands = 0;
   int vectorizedManifolds = 0;  ///< contact manifolds solved in SIMD lanes (solver_wide.h)
-  /// Gauss-Seidel in halves (solver_wide.h): the contacts between the two halves, which run
-  /// after them on one thread; -1 when the step's contact order was not split (too few
-  /// contacts, another scheme, a step on the GPU backend). The halves run on two threads when
-  /// the contacts are solved in SIMD lanes (vectorizedManifolds > 0); otherwise the rows are
-  /// in the split order and solved serially.
+  /// Gauss-Seidel in nested parts (solver_wide.h): the contacts between the parts (in the
+  /// separators, which run after the leaves); -1 when the step's contact order was not split
+  /// (too few contacts, another scheme, a step on the GPU backend). The parts run on all
+  /// threads when the contacts are solved in SIMD lanes (vectorizedManifolds > 0); otherwise
+  /// the rows are in the split order and solved serially.
   int contactsBetweenHalves = -1;
+  /// The leaf parts of the step's contact order (2, 4 or 8: solver_wide.h's partLevels,
+  /// a function of the contact count alone); 0 when not split.
+  int contactParts = 0;
   double energyBefore = 0;      ///< J, kinetic + potential at step start
   double energyAfter = 0;       ///< J, at step end
   /// Norm of J v + bias over active rows after the solve; after a step whose bodies the guard
