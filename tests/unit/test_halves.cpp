@@ -33,6 +33,25 @@ std::vector<SolverBody> dynamicBodies(int n) {
   return bodies;
 }
 
+/// Each dynamic body meets its manifolds in their order, as in the serial sweep, through the
+/// schedule's blocks from the first segment on.
+void expectEachBodyMeetsItsManifoldsInOrder(const WideContacts& w,
+                                            const std::vector<SolverManifold>& manifolds) {
+  std::map<int32_t, uint32_t> last;
+  for (size_t k = w.segment(0); k < w.schedule.size(); ++k) {
+    for (uint32_t m : w.manifoldsOf(w.schedule[k].index)) {
+      for (int32_t body : {manifolds[m].a, manifolds[m].b}) {
+        if (body == 0) continue;
+        auto it = last.find(body);
+        if (it != last.end()) {
+          EXPECT_LT(it->second, m) << "body " << body;
+        }
+        last[body] = m;
+      }
+    }
+  }
+}
+
 /// Two rows of ten bodies along x, one above the other (z = 0 and z = 1): body 1 + i + 10 row.
 struct TwoRows {
   std::vector<SolverBody> bodies = dynamicBodies(20);
@@ -226,20 +245,7 @@ TEST(Halves, ScheduleRunsTheHalvesApartAfterTheRowGroups) {
   }
   EXPECT_EQ(seen.size(), manifolds.size());
   EXPECT_EQ(std::set<uint32_t>(seen.begin(), seen.end()).size(), manifolds.size());
-  // Each dynamic body still meets its manifolds in their order.
-  std::map<int32_t, uint32_t> last;
-  for (size_t k = w.segment(0); k < w.schedule.size(); ++k) {
-    for (uint32_t m : w.manifoldsOf(w.schedule[k].index)) {
-      for (int32_t body : {manifolds[m].a, manifolds[m].b}) {
-        if (body == 0) continue;
-        auto it = last.find(body);
-        if (it != last.end()) {
-          EXPECT_LT(it->second, m) << "body " << body;
-        }
-        last[body] = m;
-      }
-    }
-  }
+  expectEachBodyMeetsItsManifoldsInOrder(w, manifolds);
   // The contacts across the cut fill blocks: fewer blocks than contacts.
   EXPECT_LT(w.schedule.size() - w.segment(2), parts[2].size());
 }
@@ -415,19 +421,7 @@ TEST(NestedParts, SegmentsOfAPhaseShareNoDynamicBody) {
     for (size_t i = phaseBegin(levels, k); i < phaseBegin(levels, k + 1); ++i)
       for (int32_t b : bodiesOf[i]) EXPECT_TRUE(phase.insert(b).second) << "phase " << k;
   }
-  std::map<int32_t, uint32_t> last;
-  for (size_t k = w.segment(0); k < w.schedule.size(); ++k) {
-    for (uint32_t m : w.manifoldsOf(w.schedule[k].index)) {
-      for (int32_t body : {manifolds[m].a, manifolds[m].b}) {
-        if (body == 0) continue;
-        auto it = last.find(body);
-        if (it != last.end()) {
-          EXPECT_LT(it->second, m) << "body " << body;
-        }
-        last[body] = m;
-      }
-    }
-  }
+  expectEachBodyMeetsItsManifoldsInOrder(w, manifolds);
   // The segments run by forEachSegment: each once, phase by phase.
   std::vector<size_t> ran;
   w.forEachSegment([&](size_t i) { ran.push_back(i); });
