@@ -692,9 +692,7 @@ std::string World::Impl::checkHealth() const {
       const Snapshot::Body& s = snapshot.bodies[k];
       const BodyRec& b = bodies.at(s.index);
       if (quick.clear(b, s) || !bodyFault(b, s)) continue;
-      size_t seen = first.load(std::memory_order_relaxed);
-      while (k < seen && !first.compare_exchange_weak(seen, k, std::memory_order_relaxed)) {
-      }
+      lowerTo(first, k);
       return;  // later bodies of this range come after k
     }
   });
@@ -767,9 +765,7 @@ void World::Impl::keepInsideWorld() {
     for (size_t k = from + begin; k < from + end && k < first.load(std::memory_order_relaxed);
          ++k) {
       if (insideExtent(bodies.at(awakeBodies[k]))) continue;
-      size_t seen = first.load(std::memory_order_relaxed);
-      while (k < seen && !first.compare_exchange_weak(seen, k, std::memory_order_relaxed)) {
-      }
+      lowerTo(first, k);
       return;
     }
   });

@@ -681,11 +681,6 @@ bool World::Impl::stepOnDevice(int substeps) {
   const QuickHealth quick = quickHealth();
   const Vec3 gravity = def.gravity;
   std::atomic<size_t> healthFrom{n}, insideFrom{n};
-  const auto lower = [](std::atomic<size_t>& first, size_t k) {
-    size_t seen = first.load(std::memory_order_relaxed);
-    while (k < seen && !first.compare_exchange_weak(seen, k, std::memory_order_relaxed)) {
-    }
-  };
   forEachRange(n, [&](size_t begin, size_t end) {
     bool healthy = true, inside = true;  // every body of this range so far
     for (size_t k = begin; k < end; ++k) {
@@ -711,11 +706,11 @@ bool World::Impl::stepOnDevice(int substeps) {
       const bool clear = snapshotValid && k < snapshot.bodies.size() &&
                          snapshot.bodies[k].index == slot && quick.clear(b, snapshot.bodies[k]);
       if (healthy && !clear) {
-        lower(healthFrom, k);
+        lowerTo(healthFrom, k);
         healthy = false;
       }
       if (inside && !insideExtent(b)) {
-        lower(insideFrom, k);
+        lowerTo(insideFrom, k);
         inside = false;
       }
     }

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <algorithm>
+#include <atomic>
 #include <exception>
 
 #include <cstdint>
@@ -198,6 +199,13 @@ struct World::Impl {
       pool->parallelFor(n, kBodyGrain, fn);
     else if (n > 0)
       fn(size_t(0), n);
+  }
+  /// Lowers `first` to k if k is below it: a parallel pass's first index found (the lowest,
+  /// whichever thread found it, so the result is one thread's).
+  static void lowerTo(std::atomic<size_t>& first, size_t k) {
+    size_t seen = first.load(std::memory_order_relaxed);
+    while (k < seen && !first.compare_exchange_weak(seen, k, std::memory_order_relaxed)) {
+    }
   }
   /// Per awake body, the terms that a pass sums afterwards in order (forEachRange): the
   /// world's energy (bodyEnergy), and for the guard's copy the kinetic energy and the lift.
