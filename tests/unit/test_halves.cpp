@@ -33,6 +33,21 @@ std::vector<SolverBody> dynamicBodies(int n) {
   return bodies;
 }
 
+/// One equality row between bodies a and b, as a joint ahead of the contacts (the schedule's
+/// scalar groups come first), and the solver's rows finished.
+void addJointRowFirst(Solver& s, int32_t a, int32_t b) {
+  Row joint;
+  joint.kind = RowKind::Equality;
+  joint.a = a;
+  joint.b = b;
+  joint.groupStart = true;
+  joint.linA = {1, 0, 0};
+  joint.linB = {-1, 0, 0};
+  s.rows.push_back(joint);
+  s.indexUnits();
+  s.finishRows(0, s.rows.size());
+}
+
 /// Each dynamic body meets its manifolds in their order, as in the serial sweep, through the
 /// schedule's blocks from the first segment on.
 void expectEachBodyMeetsItsManifoldsInOrder(const WideContacts& w,
@@ -168,16 +183,7 @@ TEST(Halves, ScheduleRunsTheHalvesApartAfterTheRowGroups) {
   Solver s;
   s.bodies = dynamicBodies(n);
   s.scheme = SolverSettings::Scheme::GaussSeidel;
-  Row joint;
-  joint.kind = RowKind::Equality;
-  joint.a = id[2][0];
-  joint.b = id[2][6];
-  joint.groupStart = true;
-  joint.linA = {1, 0, 0};
-  joint.linB = {-1, 0, 0};
-  s.rows.push_back(joint);
-  s.indexUnits();
-  s.finishRows(0, s.rows.size());
+  addJointRowFirst(s, id[2][0], id[2][6]);
   std::vector<uint8_t> half(s.bodies.size(), kNoHalf);
   for (int row = 0; row < base; ++row)
     for (size_t i = 0; i < id[size_t(row)].size(); ++i)
@@ -357,16 +363,7 @@ TEST(NestedParts, SegmentsOfAPhaseShareNoDynamicBody) {
   Solver s;
   s.bodies = g.bodies;
   s.scheme = SolverSettings::Scheme::GaussSeidel;
-  Row joint;
-  joint.kind = RowKind::Equality;
-  joint.a = g.id(0, 0);
-  joint.b = g.id(15, 15);
-  joint.groupStart = true;
-  joint.linA = {1, 0, 0};
-  joint.linB = {-1, 0, 0};
-  s.rows.push_back(joint);
-  s.indexUnits();
-  s.finishRows(0, s.rows.size());
+  addJointRowFirst(s, g.id(0, 0), g.id(15, 15));
   std::vector<Pairs> bySegment(segmentCount(levels));
   for (const auto& p : g.pairs)
     bySegment[contactSegment(part, levels, p.first, p.second)].push_back(p);

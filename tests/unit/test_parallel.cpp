@@ -11,8 +11,10 @@
 #include "base/thread_pool.h"
 #include "phys/scene/scene.h"
 #include "phys/world/world.h"
+#include "test_util.h"
 
 using namespace phys;
+using phys::test::sceneFromJson;
 
 namespace {
 
@@ -130,9 +132,7 @@ const char* kMixedScene = R"({
 })";
 
 uint64_t runMixed(SolverSettings::Scheme scheme, int threads, int steps) {
-  Scene scene;
-  Status st = parseScene(kMixedScene, "inline", &scene);
-  EXPECT_TRUE(st.ok()) << st.message;
+  Scene scene = sceneFromJson(kMixedScene);
   scene.world.solver.scheme = scheme;
   // The default solves joints by LDL, which needs a Gauss-Seidel scheme.
   if (scheme == SolverSettings::Scheme::Jacobi)
@@ -177,9 +177,7 @@ const char* kPartsScene = R"({
 
 TEST(Determinism, NestedPartsSameStateForAnyThreadCount) {
   auto run = [](int threads, int* parts) {
-    Scene scene;
-    Status st = parseScene(kPartsScene, "inline", &scene);
-    EXPECT_TRUE(st.ok()) << st.message;
+    Scene scene = sceneFromJson(kPartsScene);
     scene.world.threads = threads;
     World world(scene.world);
     std::vector<BodyId> ids;

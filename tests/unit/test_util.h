@@ -32,6 +32,15 @@ inline Scene loadScene(const std::string& name) {
   return s;
 }
 
+/// A scene from JSON text (a parse failure is reported as a test failure and leaves the scene
+/// empty).
+inline Scene sceneFromJson(const std::string& json) {
+  Scene s;
+  Status st = parseScene(json, "inline", &s);
+  EXPECT_TRUE(st.ok()) << st.message;
+  return s;
+}
+
 inline BodyState stateOf(const World& w, BodyId id) {
   BodyState s;
   EXPECT_TRUE(w.getBody(id, &s).ok());
