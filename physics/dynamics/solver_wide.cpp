@@ -170,7 +170,29 @@ PHYS_WIDE_INLINE void applyImpulse(vm mask, const V3& mLinA, const V3& mLinB, co
 /// How many levels past its own a manifold looks for a block with a free lane (build()).
 constexpr int32_t kLevelSearch = 4;
 
+PHYS_WIDE_INLINE V3 neg(const V3& a) {
+  return {-a.x, -a.y, -a.z};
+}
+PHYS_WIDE_INLINE V3 scaled(const V3& a, vf s) {
+  return {a.x * s, a.y * s, a.z * s};
+}
+template <class B, class Lin>
+PHYS_WIDE_INLINE void expand(const B& blk, Lin& L) {
+  for (int d = 0; d < 3; ++d) {
+    L.linB[d] = blk.lin[d];
+    L.linA[d] = neg(blk.lin[d]);
+    L.mLinA[d] = scaled(L.linA[d], blk.invMassA);
+    L.mLinB[d] = scaled(L.linB[d], blk.invMassB);
+  }
+}
+
 }  // namespace
+
+/// A block's linear Jacobians and M^-1 J^T for the three directions, formed from what the
+/// block stores (body B's part and the inverse masses) with addLane's operations.
+struct WideContacts::Linear {
+  wide::V3 linA[3], linB[3], mLinA[3], mLinB[3];
+};
 
 void WideContacts::addLane(uint32_t block, const Solver& s, uint32_t index,
                            const SolverManifold& m) {
@@ -192,21 +214,22 @@ void WideContacts::addLane(uint32_t block, const Solver& s, uint32_t index,
   for (int d = 0; d < 3; ++d) {
     const Vec3 linA = -axes[d], linB = axes[d];
     const Vec3 mLinA = linA * A.invMass, mLinB = linB * B.invMass;
-    setLane(blk.linA[d], l, linA);
-    setLane(blk.linB[d], l, linB);
-    setLane(blk.mLinA[d], l, mLinA);
-    setLane(blk.mLinB[d], l, mLinB);
+    setLane(blk.lin[d], l, linB);
     linK[d][0] = dot(linA, mLinA);
     linK[d][1] = dot(linB, mLinB);
   }
   // One row at arms (rA, rB) along axis d (the rows' angular parts are -rA x axis, rB x axis).
   // A row with angular parts (angA, angB); linKA, linKB are its linear parts' share of
   // J M^-1 J^T, summed in finishRows' order.
-  auto fill = [&](Dir& r, Vec3 angA, Vec3 angB, float linKA, float linKB, float lambda) {
+  blk.invMassA[l] = A.invMass;
+  blk.invMassB[l] = B.invMass;
+  auto fill = [&](auto& r, Vec3 angA, Vec3 angB, float linKA, float linKB, float lambda) {
     const Vec3 mAngA = A.invI * angA, mAngB = B.invI * angB;
     const float kk = linKA + dot(angA, mAngA) + linKB + dot(angB, mAngB);
-    setLane(r.angA, l, angA);
-    setLane(r.angB, l, angB);
+    if constexpr (std::is_same_v<std::decay_t<decltype(r)>, Dir>) {
+      setLane(r.angA, l, angA);
+      setLane(r.angB, l, angB);
+    }
     setLane(r.mAngA, l, mAngA);
     setLane(r.mAngB, l, mAngB);
     r.effMass[l] = kk > 1e-12f ? 1 / kk : 0;
@@ -565,7 +588,7 @@ double WideContacts::residual(const std::vector<SolverBody>& bodies, float h, do
       for (int l = 0; l < blk.lanes; ++l) {
         const SolverBody& A = bodies[size_t(blk.a[l])];
         const SolverBody& B = bodies[size_t(blk.b[l])];
-        const Vec3 linA = lane(blk.linA[0], l), linB = lane(blk.linB[0], l);
+        const Vec3 linB = lane(blk.lin[0], l), linA = -linB;
         double* terms = &residualTerms_[size_t(blk.manifold[l]) * kPoints];
         for (int k = 0; k < kPoints; ++k) {
           terms[k] = 0;
@@ -586,10 +609,10 @@ double WideContacts::residual(const std::vector<SolverBody>& bodies, float h, do
   return sum;
 }
 
-PHYS_WIDE_INLINE void WideContacts::frictionPair(const Block& blk, Dir& r1, Dir& r2, vf bound,
+PHYS_WIDE_INLINE void WideContacts::frictionPair(const Linear& L, Dir& r1, Dir& r2, vf bound,
                                                  bool measure, vf& change, Lanes& s) {
-  vf l1 = r1.lambda - r1.effMass * rowVelocity(blk.linA[1], blk.linB[1], r1.angA, r1.angB, s);
-  vf l2 = r2.lambda - r2.effMass * rowVelocity(blk.linA[2], blk.linB[2], r2.angA, r2.angB, s);
+  vf l1 = r1.lambda - r1.effMass * rowVelocity(L.linA[1], L.linB[1], r1.angA, r1.angB, s);
+  vf l2 = r2.lambda - r2.effMass * rowVelocity(L.linA[2], L.linB[2], r2.angA, r2.angB, s);
   const vf len2 = l1 * l1 + l2 * l2;
   const vm outside = len2 > bound * bound;
   const vf scale = select(len2 > 0, bound / vsqrt(len2), splat(0));
@@ -598,8 +621,8 @@ PHYS_WIDE_INLINE void WideContacts::frictionPair(const Block& blk, Dir& r1, Dir&
   const vf d1 = l1 - r1.lambda, d2 = l2 - r2.lambda;
   r1.lambda = l1;
   r2.lambda = l2;
-  applyImpulse(d1 != 0, blk.mLinA[1], blk.mLinB[1], r1.mAngA, r1.mAngB, d1, s);
-  applyImpulse(d2 != 0, blk.mLinA[2], blk.mLinB[2], r2.mAngA, r2.mAngB, d2, s);
+  applyImpulse(d1 != 0, L.mLinA[1], L.mLinB[1], r1.mAngA, r1.mAngB, d1, s);
+  applyImpulse(d2 != 0, L.mLinA[2], L.mLinB[2], r2.mAngA, r2.mAngB, d2, s);
   if (measure) {
     vf c = select(r1.effMass > 0, vabs(d1) / r1.effMass, splat(0));
     c = select(r2.effMass > 0, vmax(c, vabs(d2) / r2.effMass), c);
@@ -609,6 +632,8 @@ PHYS_WIDE_INLINE void WideContacts::frictionPair(const Block& blk, Dir& r1, Dir&
 
 PHYS_WIDE_CLONES void WideContacts::warmStart(uint32_t block, std::vector<SolverBody>& bodies) {
   Block& blk = blocks_[block];
+  Linear L;
+  expand(blk, L);
   Lanes s;
   gatherVelocities(bodies, blk.a, blk.b, s);
   V3 dpA, dtA, dpB, dtB;
@@ -619,15 +644,15 @@ PHYS_WIDE_CLONES void WideContacts::warmStart(uint32_t block, std::vector<Solver
     Point& p = blk.pt[k];
     Dir& r = p.n;
     const vf C =
-        p.C0 + dot(blk.linA[0], dpA) + dot(r.angA, dtA) + dot(blk.linB[0], dpB) + dot(r.angB, dtB);
+        p.C0 + dot(L.linA[0], dpA) + dot(r.angA, dtA) + dot(L.linB[0], dpB) + dot(r.angB, dtB);
     p.C = C;
-    applyImpulse(r.lambda != 0, blk.mLinA[0], blk.mLinB[0], r.mAngA, r.mAngB, r.lambda, s);
+    applyImpulse(r.lambda != 0, L.mLinA[0], L.mLinB[0], r.mAngA, r.mAngB, r.lambda, s);
   }
   if (patch_) {
     Patch& pa = patches_[block];
-    applyImpulse(pa.t1.lambda != 0, blk.mLinA[1], blk.mLinB[1], pa.t1.mAngA, pa.t1.mAngB,
+    applyImpulse(pa.t1.lambda != 0, L.mLinA[1], L.mLinB[1], pa.t1.mAngA, pa.t1.mAngB,
                  pa.t1.lambda, s);
-    applyImpulse(pa.t2.lambda != 0, blk.mLinA[2], blk.mLinB[2], pa.t2.mAngA, pa.t2.mAngB,
+    applyImpulse(pa.t2.lambda != 0, L.mLinA[2], L.mLinB[2], pa.t2.mAngA, pa.t2.mAngB,
                  pa.t2.lambda, s);
     const V3 zero{};
     applyImpulse(pa.twist.lambda != 0, zero, zero, pa.twist.mAngA, pa.twist.mAngB, pa.twist.lambda,
@@ -637,7 +662,7 @@ PHYS_WIDE_CLONES void WideContacts::warmStart(uint32_t block, std::vector<Solver
     for (int k = 0; k < blk.points; ++k) {
       for (int d = 1; d < 3; ++d) {
         Dir& r = d == 1 ? fr[k].t1 : fr[k].t2;
-        applyImpulse(r.lambda != 0, blk.mLinA[d], blk.mLinB[d], r.mAngA, r.mAngB, r.lambda, s);
+        applyImpulse(r.lambda != 0, L.mLinA[d], L.mLinB[d], r.mAngA, r.mAngB, r.lambda, s);
       }
     }
   }
@@ -647,6 +672,8 @@ PHYS_WIDE_CLONES void WideContacts::warmStart(uint32_t block, std::vector<Solver
 PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBody>& bodies,
                                            const WideParams& prm) {
   Block& blk = blocks_[block];
+  Linear L;
+  expand(blk, L);
   Lanes s;
   gatherVelocities(bodies, blk.a, blk.b, s);
   // The position errors: as the warm start left them while the bodies have not moved since
@@ -660,8 +687,8 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
   for (int k = 0; k < blk.points; ++k) {
     Point& p = blk.pt[k];
     Dir& r = p.n;
-    const vf vn = rowVelocity(blk.linA[0], blk.linB[0], r.angA, r.angB, s);
-    const vf C = fresh ? p.C0 + dot(blk.linA[0], dpA) + dot(r.angA, dtA) + dot(blk.linB[0], dpB) +
+    const vf vn = rowVelocity(L.linA[0], L.linB[0], r.angA, r.angB, s);
+    const vf C = fresh ? p.C0 + dot(L.linA[0], dpA) + dot(r.angA, dtA) + dot(L.linB[0], dpB) +
                              dot(r.angB, dtB)
                        : p.C;
     const vm speculative = C > 0;
@@ -681,7 +708,7 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
     impulse = next - r.lambda;
     r.lambda = next;
     const vm moved = impulse != 0;
-    applyImpulse(moved, blk.mLinA[0], blk.mLinB[0], r.mAngA, r.mAngB, impulse, s);
+    applyImpulse(moved, L.mLinA[0], L.mLinB[0], r.mAngA, r.mAngB, impulse, s);
     if (prm.measure)
       change = select(moved & (r.effMass > 0), vmax(change, vabs(impulse) / r.effMass), change);
   }
@@ -691,11 +718,11 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
     Patch& pa = patches_[block];
     vf load = splat(0);
     for (int k = 0; k < blk.points; ++k) load = load + blk.pt[k].n.lambda;
-    frictionPair(blk, pa.t1, pa.t2, pa.mu * load, prm.measure, change, s);
+    frictionPair(L, pa.t1, pa.t2, pa.mu * load, prm.measure, change, s);
     // Solver::solveGroup's Twist case.
-    Dir& r = pa.twist;
+    Twist& r = pa.twist;
     const V3 zero{};
-    const vf vn = rowVelocity(zero, zero, r.angA, r.angB, s);
+    const vf vn = rowVelocity(zero, zero, L.linA[0], L.linB[0], s);  // twist: (-n, n)
     const vf bound = pa.twistMu * load;
     vf impulse = -r.effMass * vn;
     const vf sum = r.lambda + impulse;
@@ -709,7 +736,7 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
   } else {
     PointFriction* fr = frictionOf(block);
     for (int k = 0; k < blk.points; ++k)
-      frictionPair(blk, fr[k].t1, fr[k].t2, fr[k].mu * blk.pt[k].n.lambda, prm.measure, change, s);
+      frictionPair(L, fr[k].t1, fr[k].t2, fr[k].mu * blk.pt[k].n.lambda, prm.measure, change, s);
   }
   scatterVelocities(bodies, blk.a, blk.b, blk.writeA, blk.writeB, s);
   if (!prm.measure) return 0;

@@ -163,15 +163,27 @@ class WideContacts {
     Dir t1, t2;
     wide::vf mu;
   };
+  /// The twist row of patch friction: its angular parts are the normal's linear ones (-n, n)
+  /// and it has no linear part, so only M^-1 J^T is stored.
+  struct Twist {
+    wide::V3 mAngA, mAngB;
+    wide::vf effMass, lambda;
+  };
   /// Patch friction (SolverManifold::patch): a tangent pair at the centroid and the twist.
   struct Patch {
-    Dir t1, t2, twist;
+    Dir t1, t2;
+    Twist twist;
     wide::vf mu, twistMu;  ///< friction, and friction times the twist arm
   };
   /// The Jacobian's linear parts are the manifold's normal and tangents, the same at every
-  /// point: stored once per lane for each direction (0 = normal, 1, 2 = tangents).
+  /// point: stored once per lane for each direction (0 = normal, 1, 2 = tangents), as body
+  /// B's part (body A's is its negation) with the two inverse masses; the kernels form
+  /// M^-1 J^T from them (Linear) as addLane formed the rows', so the bits are the same. A
+  /// pass streams the blocks from memory once (many_pyramids' 58,000 manifolds are about 25
+  /// MB of them): every float stored is bandwidth.
   struct Block {
-    wide::V3 linA[3], linB[3], mLinA[3], mLinB[3];
+    wide::V3 lin[3];
+    wide::vf invMassA, invMassB;
     Point pt[Manifold::kMaxPoints];
     int32_t a[wide::kLanes] = {}, b[wide::kLanes] = {};  ///< solver bodies; 0 in empty lanes
     uint32_t manifold[wide::kLanes] = {};
@@ -181,7 +193,8 @@ class WideContacts {
   };
   void addLane(uint32_t block, const Solver& s, uint32_t index, const SolverManifold& m);
   /// Solver::solveFrictionPair on a block's lanes: the pair clamped to the disc of `bound`.
-  static void frictionPair(const Block& blk, Dir& r1, Dir& r2, wide::vf bound, bool measure,
+  struct Linear;  ///< a block's linear parts, formed for a pass (solver_wide.cpp)
+  static void frictionPair(const Linear& L, Dir& r1, Dir& r2, wide::vf bound, bool measure,
                            wide::vf& change, wide::Lanes& s);
   PointFriction* frictionOf(uint32_t block) {
     return &friction_[size_t(block) * Manifold::kMaxPoints];
