@@ -435,7 +435,7 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
 
 void splitParts(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& com,
                 const std::vector<std::pair<int32_t, int32_t>>& pairs, int levels,
-                std::vector<uint8_t>& part) {
+                std::vector<uint8_t>& part, ThreadPool* pool) {
   assert(levels >= 1 && levels <= 7);
   part.assign(bodies.size(), kNoPart);
   // The sets of one depth, left to right: each a range of `dyn` (its bodies) and of `inner`
@@ -454,58 +454,71 @@ void splitParts(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& 
     size_t begin, end, innerBegin, innerEnd;
   };
   std::vector<Set> sets = {{0, dyn.size(), 0, inner.size()}}, next;
-  std::vector<uint8_t> side(bodies.size(), 0);    // per body: its side of the cut being tried
-  std::vector<std::pair<float, uint32_t>> keyed;  // the set's bodies by (coordinate, index)
-  std::vector<uint32_t> keep[2];                  // a set's contacts on either side
+  // Each axis's median cut of each set is a task of its own (the world's threads take them;
+  // the sets of one depth share no body, so an axis's `side` serves all of them): the set's
+  // bodies by (coordinate, index), each body's side, and how many of the set's contacts
+  // cross. The keys are copied out first: nth_element over indices into `com` takes a cache
+  // miss per comparison in a large world.
+  std::vector<uint8_t> side[3];  // per axis, per body: its side of that axis's cut
+  for (auto& v : side) v.assign(bodies.size(), 0);
+  std::vector<std::vector<std::pair<float, uint32_t>>> keyed;  // per task: (coordinate, index)
+  std::vector<size_t> crossing;                                // per task
+  std::vector<uint32_t> keep[2];  // a set's contacts on either side
   for (int depth = 0; depth < levels; ++depth) {
-    next.clear();
-    for (const Set& set : sets) {
-      const auto first = dyn.begin() + std::ptrdiff_t(set.begin);
-      const auto last = dyn.begin() + std::ptrdiff_t(set.end);
-      const auto mid = first + std::ptrdiff_t((set.end - set.begin) / 2);
-      // Each axis's median cut, by (coordinate, index): the same split whatever order the
-      // bodies came in. The cut that the fewest of the set's contacts cross wins (the first
-      // of equals). The keys are copied out first: nth_element over indices into `com`
-      // takes a cache miss per comparison in a large world.
-      auto cut = [&](int axis) {
-        keyed.clear();
-        for (auto it = first; it != last; ++it) {
-          const float c = axis == 0 ? com[*it].x : axis == 1 ? com[*it].y : com[*it].z;
-          // A total order even for a body gone non-finite (the guard rolls such steps back).
-          keyed.push_back({std::isnan(c) ? std::numeric_limits<float>::infinity() : c, *it});
-        }
-        const auto median = keyed.begin() + (mid - first);
-        std::nth_element(keyed.begin(), median, keyed.end());  // (coordinate, index)
-        for (auto it = keyed.begin(); it != keyed.end(); ++it)
-          side[it->second] = it < median ? 0 : 1;
-      };
-      size_t fewest = SIZE_MAX;
-      int best = 0;
-      for (int axis = 0; axis < 3; ++axis) {
-        cut(axis);
-        size_t crossing = 0;
-        for (size_t k = set.innerBegin; k < set.innerEnd; ++k) {
-          const auto [a, b] = pairs[inner[k]];
-          crossing += side[size_t(a)] != side[size_t(b)];
-        }
-        if (crossing < fewest) {
-          fewest = crossing;
-          best = axis;
-        }
+    const size_t tasks = 3 * sets.size();
+    keyed.resize(tasks);
+    crossing.assign(tasks, 0);
+    auto cut = [&](size_t task) {
+      const Set& set = sets[task / 3];
+      const int axis = int(task % 3);
+      auto& keys = keyed[task];
+      keys.clear();
+      for (size_t k = set.begin; k < set.end; ++k) {
+        const uint32_t i = dyn[k];
+        const float c = axis == 0 ? com[i].x : axis == 1 ? com[i].y : com[i].z;
+        // A total order even for a body gone non-finite (the guard rolls such steps back).
+        keys.push_back({std::isnan(c) ? std::numeric_limits<float>::infinity() : c, i});
       }
-      if (best != 2) cut(best);
-      for (size_t k = 0; k < keyed.size(); ++k) first[std::ptrdiff_t(k)] = keyed[k].second;
-      for (auto it = first; it != last; ++it) part[*it] = uint8_t(2 * part[*it] + side[*it]);
+      const auto median = keys.begin() + std::ptrdiff_t((set.end - set.begin) / 2);
+      std::nth_element(keys.begin(), median, keys.end());  // (coordinate, index)
+      std::vector<uint8_t>& sd = side[axis];
+      for (auto it = keys.begin(); it != keys.end(); ++it) sd[it->second] = it < median ? 0 : 1;
+      size_t n = 0;
+      for (size_t k = set.innerBegin; k < set.innerEnd; ++k) {
+        const auto [a, b] = pairs[inner[k]];
+        n += sd[size_t(a)] != sd[size_t(b)];
+      }
+      crossing[task] = n;
+    };
+    if (pool && dyn.size() >= kParallelSplitBodies)
+      pool->parallelFor(tasks, 1, [&](size_t begin, size_t end) {
+        for (size_t t = begin; t < end; ++t) cut(t);
+      });
+    else
+      for (size_t t = 0; t < tasks; ++t) cut(t);
+    next.clear();
+    for (size_t si = 0; si < sets.size(); ++si) {
+      const Set& set = sets[si];
+      // The cut that the fewest of the set's contacts cross wins (the first of equals): the
+      // same split whatever order the bodies came in, and whatever the threads.
+      int best = 0;
+      for (int axis = 1; axis < 3; ++axis)
+        if (crossing[3 * si + size_t(axis)] < crossing[3 * si + size_t(best)]) best = axis;
+      const auto& keys = keyed[3 * si + size_t(best)];
+      const std::vector<uint8_t>& sd = side[best];
+      const auto first = dyn.begin() + std::ptrdiff_t(set.begin);
+      for (size_t k = 0; k < keys.size(); ++k) first[std::ptrdiff_t(k)] = keys[k].second;
+      for (size_t k = set.begin; k < set.end; ++k) part[dyn[k]] = uint8_t(2 * part[dyn[k]] + sd[dyn[k]]);
       // The set's contacts that stay on one side are the halves' own; those that cross go to
       // this cut's separator and out of the recursion.
       keep[0].clear();
       keep[1].clear();
       for (size_t k = set.innerBegin; k < set.innerEnd; ++k) {
         const auto [a, b] = pairs[inner[k]];
-        if (side[size_t(a)] == side[size_t(b)]) keep[side[size_t(a)]].push_back(inner[k]);
+        if (sd[size_t(a)] == sd[size_t(b)]) keep[sd[size_t(a)]].push_back(inner[k]);
       }
       size_t at = set.innerBegin;
-      const size_t midIndex = size_t(mid - dyn.begin());
+      const size_t midIndex = set.begin + (set.end - set.begin) / 2;
       for (int h = 0; h < 2; ++h) {
         std::copy(keep[h].begin(), keep[h].end(), inner.begin() + std::ptrdiff_t(at));
         next.push_back(

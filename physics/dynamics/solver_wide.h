@@ -237,9 +237,12 @@ constexpr uint8_t kNoHalf = kNoPart;
 /// the first (the highest bit) down; kNoPart for the world and kinematic bodies. Each set of
 /// dynamic bodies is cut at the median of their centres of mass (`com`, per solver body) along
 /// the axis whose cut the fewest of the set's own contacts (`pairs`, solver bodies a, b) cross.
+/// The axes' cuts run on `pool`'s threads (in a world of kParallelSplitBodies dynamic bodies or
+/// more); the result is the same with any.
 void splitParts(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& com,
                 const std::vector<std::pair<int32_t, int32_t>>& pairs, int levels,
-                std::vector<uint8_t>& part);
+                std::vector<uint8_t>& part, ThreadPool* pool = nullptr);
+constexpr size_t kParallelSplitBodies = 2048;
 /// splitParts with one level: the halves 0 and 1.
 inline void splitHalves(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& com,
                         const std::vector<std::pair<int32_t, int32_t>>& pairs,

@@ -489,6 +489,8 @@ void forEachStepScratch(Impl& w, F&& f) {
   f(w.stackIndex), f(w.stackDeepest), f(w.stackFirstLevel), f(w.stackSupport), f(w.stackRise);
   f(w.stackLevels), f(w.stackModel), f(w.stackDirectContact), f(w.stackOnDirect);
   f(w.directJointed), f(w.directRows), f(w.directHeavy);
+  // Shape-sized.
+  f(w.boundsTight), f(w.boundsLeft);
 }
 }  // namespace
 
@@ -799,20 +801,31 @@ void World::Impl::applyCommands() {
 
 void World::Impl::updateBounds(float dt) {
   // Tight boxes are swept by this step's motion and padded by half the speculative distance,
-  // so every pair that can touch during the step is found.
-  for (uint32_t slot : awakeBodies) {
-    const BodyRec& b = bodies.at(slot);
-    for (ShapeId sid : b.shapes) {
-      ShapeRec& s = *shapes.get(sid);
-      AABB box = computeAABB(s.def.geom, shapeTransform(b, s));
-      Vec3 sweep = b.v * dt;
-      box.lo += vmin(sweep, {});
-      box.hi += vmax(sweep, {});
-      float pad = 0.5f * def.speculativeDistance + length(b.w) * dt * s.boundRadius;
-      box = inflate(box, pad);
-      broadPhase.moveProxy(s.proxy, box, def.aabbMargin);
+  // so every pair that can touch during the step is found. They are computed on the world's
+  // threads (each body writes its own shapes' slots); the broad phase then takes the ones
+  // that left their fat boxes, in body order, on this thread (most do not: a resting pile
+  // moves none).
+  boundsTight.resize(shapes.capacity());
+  boundsLeft.resize(shapes.capacity());
+  forEachRange(awakeBodies.size(), [&](size_t begin, size_t end) {
+    for (size_t k = begin; k < end; ++k) {
+      const BodyRec& b = bodies.at(awakeBodies[k]);
+      for (ShapeId sid : b.shapes) {
+        const ShapeRec& s = *shapes.get(sid);
+        AABB box = computeAABB(s.def.geom, shapeTransform(b, s));
+        Vec3 sweep = b.v * dt;
+        box.lo += vmin(sweep, {});
+        box.hi += vmax(sweep, {});
+        float pad = 0.5f * def.speculativeDistance + length(b.w) * dt * s.boundRadius;
+        boundsTight[sid.index] = inflate(box, pad);
+        boundsLeft[sid.index] = !contains(broadPhase.fatAABB(s.proxy), boundsTight[sid.index]);
+      }
     }
-  }
+  });
+  for (uint32_t slot : awakeBodies)
+    for (ShapeId sid : bodies.at(slot).shapes)
+      if (boundsLeft[sid.index])
+        broadPhase.moveProxy(shapes.get(sid)->proxy, boundsTight[sid.index], def.aabbMargin);
 }
 
 void World::Impl::broadPhaseStage() {
@@ -1075,47 +1088,50 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   // Prepare: the compact solver bodies (index 0 is the static world), then one row per
   // joint axis and per contact normal and friction direction.
   const float h = def.timeStep / float(s.substeps);
-  solver.bodies.clear();
   solver.rows.clear();
   solver.blockInvK.clear();
   solver.contactK.clear();
   solver.blockContacts = s.blockContacts;
-  solver.bodies.push_back(SolverBody{});
-  solverCom.assign(1, Vec3{});
-  int awake = 0;
-  // The awake bodies (static and sleeping ones are solver body 0, the world).
-  for (uint32_t i : awakeBodies) {
-    BodyRec& b = bodies.at(i);
-    b.solverIndex = int32_t(solver.bodies.size());
-    SolverBody sb;
-    sb.v = b.v;
-    sb.w = b.w;
-    sb.q = b.xf.q;
-    sb.dynamic = b.type == BodyType::Dynamic;
-    if (sb.dynamic) {
-      Mat3 R = toMat3(b.xf.q);
-      sb.invMass = b.invMass;
-      sb.invI = R * b.invInertiaLocal * transpose(R);
-      sb.inertiaLocal = b.inertiaLocal;
-      sb.linearAccel = def.gravity * b.gravityScale + b.force * b.invMass;
-      sb.torque = b.torque;
-      sb.linearDamping = b.linearDamping;
-      sb.angularDamping = b.angularDamping;
-      // Equal principal moments (a cube, a sphere) have no gyroscopic torque (w x I w = 0):
-      // the plain rotation update of non-gyroscopic bodies serves, a quarter of the cost.
-      // It turns by 2 atan(|w| h / 2) instead of |w| h, an O((|w| h)^3) difference.
-      const Vec3 I = b.principalMoments;
-      const float spread = std::max({I.x, I.y, I.z}) - std::min({I.x, I.y, I.z});
-      sb.gyroscopic = b.gyroscopic && spread > 1e-5f * std::max({I.x, I.y, I.z});
-      sb.principal = b.principal;
-      sb.principalMoments = b.principalMoments;
+  // The awake bodies (static and sleeping ones are solver body 0, the world), on the world's
+  // threads: each writes its own slots.
+  const size_t awake = awakeBodies.size();
+  solver.bodies.resize(awake + 1);
+  solver.bodies[0] = SolverBody{};
+  solverCom.resize(awake + 1);
+  solverCom[0] = Vec3{};
+  forEachRange(awake, [&](size_t begin, size_t end) {
+    for (size_t k = begin; k < end; ++k) {
+      BodyRec& b = bodies.at(awakeBodies[k]);
+      b.solverIndex = int32_t(k + 1);
+      SolverBody sb;
+      sb.v = b.v;
+      sb.w = b.w;
+      sb.q = b.xf.q;
+      sb.dynamic = b.type == BodyType::Dynamic;
+      if (sb.dynamic) {
+        Mat3 R = toMat3(b.xf.q);
+        sb.invMass = b.invMass;
+        sb.invI = R * b.invInertiaLocal * transpose(R);
+        sb.inertiaLocal = b.inertiaLocal;
+        sb.linearAccel = def.gravity * b.gravityScale + b.force * b.invMass;
+        sb.torque = b.torque;
+        sb.linearDamping = b.linearDamping;
+        sb.angularDamping = b.angularDamping;
+        // Equal principal moments (a cube, a sphere) have no gyroscopic torque (w x I w = 0):
+        // the plain rotation update of non-gyroscopic bodies serves, a quarter of the cost.
+        // It turns by 2 atan(|w| h / 2) instead of |w| h, an O((|w| h)^3) difference.
+        const Vec3 I = b.principalMoments;
+        const float spread = std::max({I.x, I.y, I.z}) - std::min({I.x, I.y, I.z});
+        sb.gyroscopic = b.gyroscopic && spread > 1e-5f * std::max({I.x, I.y, I.z});
+        sb.principal = b.principal;
+        sb.principalMoments = b.principalMoments;
+      }
+      solver.bodies[k + 1] = sb;
+      solverCom[k + 1] = b.com;
     }
-    solver.bodies.push_back(sb);
-    solverCom.push_back(b.com);
-    ++awake;
-  }
+  });
   stats.bodies = int(bodies.size());
-  stats.awake = awake;
+  stats.awake = int(awake);
   collectStepJoints();
   if (s.geometricStiffness) addGeometricStiffness(h);
 
@@ -1405,7 +1421,7 @@ bool World::Impl::orderContacts(const SolverSettings& s, ContactParts& parts) {
     const Contact& c = contacts[ci];
     pairs.push_back({bodies.get(c.bodyA)->solverIndex, bodies.get(c.bodyB)->solverIndex});
   }
-  splitParts(solver.bodies, solverCom, pairs, parts.levels, solverPart);
+  splitParts(solver.bodies, solverCom, pairs, parts.levels, solverPart, pool.get());
   // The contacts by segment (a stable counting sort: each leaf keeps the contacts' order),
   // then each separator's by colour (solver_wide.h), so that they fill blocks.
   const size_t segments = segmentCount(parts.levels), leaves = size_t(1) << parts.levels;

@@ -185,6 +185,10 @@ struct World::Impl {
   std::vector<ProxyPair> pairs;
   std::vector<Contact> contacts;  ///< sorted by (shapeA, shapeB)
   std::vector<Contact> contactScratch;
+  /// updateBounds' scratch, per shape slot: this step's tight box, and whether it left the
+  /// proxy's fat box.
+  std::vector<AABB> boundsTight;
+  std::vector<uint8_t> boundsLeft;
   std::unordered_set<uint64_t> noCollide;  ///< body index pairs joined without collideConnected
   std::unique_ptr<ThreadPool> pool;        ///< null with one thread
   /// The passes over every awake body that the step's guard and the device step's mirror
