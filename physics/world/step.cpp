@@ -352,6 +352,7 @@ bool World::Impl::jointAsleep(const JointRec& j) const {
 void World::Impl::storeImpulses() {
   // Hand each row's impulse back to its contact point or joint for the next warm start.
   for (Contact& c : contacts) {
+    if (!contactRowsBuilt) break;  // every contact was a manifold (below)
     if (c.firstRow < 0) continue;
     const int n = c.manifold.count;
     for (int i = 0; i < n; ++i) c.normalImpulse[i] = solver.rows[size_t(c.firstRow + i)].lambda;
@@ -365,15 +366,18 @@ void World::Impl::storeImpulses() {
       c.tangentImpulse[i][1] = solver.rows[size_t(c.firstRow + n + 2 * i + 1)].lambda;
     }
   }
-  for (size_t m = 0; m < manifolds.size(); ++m) {  // solved in wide blocks, without rows
-    const SolverManifold& sm = manifolds[m];
-    Contact& c = contacts[manifoldContact[m]];
-    std::memcpy(c.normalImpulse, sm.normalImpulse, sizeof(float) * size_t(sm.count));
-    if (sm.patch)
-      for (int d = 0; d < 3; ++d) c.patchImpulse(d) = sm.patchImpulse[d];
-    else
-      std::memcpy(c.tangentImpulse, sm.tangentImpulse, sizeof(float) * 2 * size_t(sm.count));
-  }
+  // Solved in wide blocks, without rows: one contact each, on the world's threads.
+  forEachRange(manifolds.size(), [&](size_t begin, size_t end) {
+    for (size_t m = begin; m < end; ++m) {
+      const SolverManifold& sm = manifolds[m];
+      Contact& c = contacts[manifoldContact[m]];
+      std::memcpy(c.normalImpulse, sm.normalImpulse, sizeof(float) * size_t(sm.count));
+      if (sm.patch)
+        for (int d = 0; d < 3; ++d) c.patchImpulse(d) = sm.patchImpulse[d];
+      else
+        std::memcpy(c.tangentImpulse, sm.tangentImpulse, sizeof(float) * 2 * size_t(sm.count));
+    }
+  });
   for (uint32_t i : stepJoints) {
     JointRec& j = joints.at(i);
     j.impulseCount = std::min(j.rowCount, int32_t(JointRec::kMaxRows));
@@ -836,9 +840,13 @@ void World::Impl::broadPhaseStage() {
   if (stats.pairsDropped > 0 && def.pairOverflow == WorldDef::PairOverflow::Refuse)
     throw PairLimitReached();
   // Merge the sorted pair list with the sorted contact list: surviving contacts keep their
-  // impulses for warm starting, new pairs start cold, vanished pairs are dropped.
+  // impulses for warm starting, new pairs start cold, vanished pairs are dropped. While the
+  // pairs are the contacts one for one (a resting world: every step), the contacts stay where
+  // they are (`inPlace` of them so far); from the first that is not, they are copied into the
+  // merged list.
   contactScratch.clear();
-  size_t ci = 0;
+  size_t ci = 0, inPlace = 0;
+  bool merging = false;
   for (const ProxyPair& pr : pairs) {
     const ShapeRec& sa = shapes.at(pr.a);
     const ShapeRec& sb = shapes.at(pr.b);
@@ -852,8 +860,20 @@ void World::Impl::broadPhaseStage() {
       ++ci;
     // Same slots, same shapes (generation), so a shape removed and another added in its
     // slot since the last step does not inherit the old one's impulses.
-    if (ci < contacts.size() && contacts[ci].shapeA == pr.a && contacts[ci].shapeB == pr.b &&
-        contacts[ci].idA == shapes.idAt(pr.a) && contacts[ci].idB == shapes.idAt(pr.b)) {
+    const bool survives = ci < contacts.size() && contacts[ci].shapeA == pr.a &&
+                          contacts[ci].shapeB == pr.b && contacts[ci].idA == shapes.idAt(pr.a) &&
+                          contacts[ci].idB == shapes.idAt(pr.b);
+    if (!merging && survives && ci == inPlace) {
+      Contact& c = contacts[inPlace++];
+      c.friction = std::sqrt(sa.def.material.friction * sb.def.material.friction);
+      c.restitution = std::max(sa.def.material.restitution, sb.def.material.restitution);
+      continue;
+    }
+    if (!merging) {
+      merging = true;
+      contactScratch.assign(contacts.begin(), contacts.begin() + std::ptrdiff_t(inPlace));
+    }
+    if (survives) {
       contactScratch.push_back(contacts[ci]);
     } else {
       Contact c;
@@ -869,7 +889,10 @@ void World::Impl::broadPhaseStage() {
     c.friction = std::sqrt(sa.def.material.friction * sb.def.material.friction);
     c.restitution = std::max(sa.def.material.restitution, sb.def.material.restitution);
   }
-  contacts.swap(contactScratch);
+  if (merging)
+    contacts.swap(contactScratch);
+  else
+    contacts.resize(inPlace);  // the pairs that vanished were the last contacts
   stats.pairs = int(pairs.size());
   stats.broadPhaseTestsPerShape = 0;  // the device's figure (world_gpu.cpp)
 }
@@ -1168,6 +1191,7 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
       !s.splitPushout && !directContactsNeeded &&
       (s.positionPass == SolverSettings::PositionPass::None || s.positionIterations == 0);
   manifoldContact.clear();
+  contactRowsBuilt = !vectorized && !contactOrder.empty();
   std::vector<std::vector<uint32_t>> directRows;  // per island, its normal rows
   std::vector<int32_t> islandSlot(directContactsNeeded ? solver.bodies.size() : 0, -1);
   for (size_t k = 0; k < contactOrder.size(); ++k) {

@@ -225,6 +225,8 @@ struct World::Impl {
   /// With wide contacts: this step's manifolds (instead of contact rows) and their contacts.
   std::vector<SolverManifold> manifolds;
   std::vector<uint32_t> manifoldContact;
+  /// This step's contacts went to the solver as rows (Contact::firstRow), not manifolds.
+  bool contactRowsBuilt = false;
   /// The Gauss-Seidel order of this step's touching contacts and its nested parts
   /// (solver_wide.h), and per solver body its centre of mass and leaf part.
   std::vector<uint32_t> contactOrder;
