@@ -186,80 +186,135 @@ PHYS_WIDE_INLINE void expand(const B& blk, Lin& L) {
   }
 }
 
+PHYS_WIDE_INLINE V3 cross(const V3& a, const V3& b) {
+  return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+}
+/// A 3x3 matrix of eight lanes, by columns (math.h's Mat3).
+struct M3 {
+  V3 c0, c1, c2;
+};
+/// math.h's Mat3 * Vec3: c0 x + c1 y + c2 z, component by component in that order.
+PHYS_WIDE_INLINE V3 mul(const M3& m, const V3& v) {
+  return {m.c0.x * v.x + m.c1.x * v.y + m.c2.x * v.z, m.c0.y * v.x + m.c1.y * v.y + m.c2.y * v.z,
+          m.c0.z * v.x + m.c1.z * v.y + m.c2.z * v.z};
+}
+PHYS_WIDE_INLINE V3 masked(vm mask, const V3& v) {
+  return {select(mask, v.x, splat(0)), select(mask, v.y, splat(0)), select(mask, v.z, splat(0))};
+}
+
 }  // namespace
 
 /// A block's linear Jacobians and M^-1 J^T for the three directions, formed from what the
-/// block stores (body B's part and the inverse masses) with addLane's operations.
+/// block stores (body B's part and the inverse masses) with fillBlock's operations.
 struct WideContacts::Linear {
   wide::V3 linA[3], linB[3], mLinA[3], mLinB[3];
 };
 
-void WideContacts::addLane(uint32_t block, const Solver& s, uint32_t index,
-                           const SolverManifold& m) {
-  Block& blk = blocks_[block];
-  const int l = blk.lanes++;
-  blk.manifold[l] = index;
-  blk.a[l] = m.a;
-  blk.b[l] = m.b;
-  blk.count[l] = uint8_t(m.count);
-  blk.points = std::max(blk.points, m.count);
-  const SolverBody& A = s.bodies[size_t(m.a)];
-  const SolverBody& B = s.bodies[size_t(m.b)];
-  blk.writeA[l] = A.dynamic;
-  blk.writeB[l] = B.dynamic;
+PHYS_WIDE_CLONES void WideContacts::fillBlock(uint32_t block, const Solver& s,
+                                              const std::vector<SolverManifold>& manifolds,
+                                              const uint32_t* index, int used) {
   // The rows' values as contactRow and Solver::finishRows make them (Gauss-Seidel: no mass
-  // splitting; x * 1 is exact), operation for operation.
-  const Vec3 axes[3] = {m.normal, m.t1, m.t2};
-  float linK[3][2];  // dot(linA, mLinA), dot(linB, mLinB)
+  // splitting; x * 1 is exact), operation for operation in each lane, so the same bits: the
+  // manifolds' and their bodies' numbers are gathered into lanes, the rows formed in the
+  // lanes. Lanes past `used` and points past a lane's count stay zero.
+  Block& blk = blocks_[block];
+  V3 axes[3] = {}, rA[Manifold::kMaxPoints] = {}, rB[Manifold::kMaxPoints] = {};
+  V3 patchRA = {}, patchRB = {};
+  M3 IA = {}, IB = {};
+  vf invMassA = {}, invMassB = {}, friction = {}, twistArm = {};
+  vf sep[Manifold::kMaxPoints] = {}, normalImpulse[Manifold::kMaxPoints] = {};
+  vf tangentImpulse[Manifold::kMaxPoints][2] = {}, patchImpulse[3] = {};
+  vm lane = {}, point[Manifold::kMaxPoints] = {};
+  bool patch = false;
+  for (int l = 0; l < used; ++l) {
+    const SolverManifold& m = manifolds[index[l]];
+    const SolverBody& A = s.bodies[size_t(m.a)];
+    const SolverBody& B = s.bodies[size_t(m.b)];
+    blk.manifold[l] = index[l];
+    blk.a[l] = m.a;
+    blk.b[l] = m.b;
+    blk.count[l] = uint8_t(m.count);
+    blk.points = std::max(blk.points, m.count);
+    blk.writeA[l] = A.dynamic;
+    blk.writeB[l] = B.dynamic;
+    lane[l] = -1;
+    setLane(axes[0], l, m.normal);
+    setLane(axes[1], l, m.t1);
+    setLane(axes[2], l, m.t2);
+    invMassA[l] = A.invMass;
+    invMassB[l] = B.invMass;
+    setLane(IA.c0, l, A.invI.c0);
+    setLane(IA.c1, l, A.invI.c1);
+    setLane(IA.c2, l, A.invI.c2);
+    setLane(IB.c0, l, B.invI.c0);
+    setLane(IB.c1, l, B.invI.c1);
+    setLane(IB.c2, l, B.invI.c2);
+    friction[l] = m.friction;
+    for (int k = 0; k < m.count; ++k) {
+      point[k][l] = -1;
+      setLane(rA[k], l, m.rA[k]);
+      setLane(rB[k], l, m.rB[k]);
+      sep[k][l] = m.separation[k];
+      normalImpulse[k][l] = m.normalImpulse[k];
+      tangentImpulse[k][0][l] = m.tangentImpulse[k][0];
+      tangentImpulse[k][1][l] = m.tangentImpulse[k][1];
+    }
+    patch = m.patch;  // one setting per step (build)
+    if (m.patch) {
+      setLane(patchRA, l, m.patchRA);
+      setLane(patchRB, l, m.patchRB);
+      twistArm[l] = m.twistArm;
+      for (int d = 0; d < 3; ++d) patchImpulse[d][l] = m.patchImpulse[d];
+    }
+  }
+  blk.lanes = used;
+  blk.invMassA = invMassA;
+  blk.invMassB = invMassB;
+  vf linK[3][2];  // dot(linA, mLinA), dot(linB, mLinB)
   for (int d = 0; d < 3; ++d) {
-    const Vec3 linA = -axes[d], linB = axes[d];
-    const Vec3 mLinA = linA * A.invMass, mLinB = linB * B.invMass;
-    setLane(blk.lin[d], l, linB);
-    linK[d][0] = dot(linA, mLinA);
-    linK[d][1] = dot(linB, mLinB);
+    const V3 linA = neg(axes[d]), linB = axes[d];
+    blk.lin[d] = linB;
+    linK[d][0] = dot(linA, scaled(linA, invMassA));
+    linK[d][1] = dot(linB, scaled(linB, invMassB));
   }
-  // One row at arms (rA, rB) along axis d (the rows' angular parts are -rA x axis, rB x axis).
-  // A row with angular parts (angA, angB); linKA, linKB are its linear parts' share of
-  // J M^-1 J^T, summed in finishRows' order.
-  blk.invMassA[l] = A.invMass;
-  blk.invMassB[l] = B.invMass;
-  auto fill = [&](auto& r, Vec3 angA, Vec3 angB, float linKA, float linKB, float lambda) {
-    const Vec3 mAngA = A.invI * angA, mAngB = B.invI * angB;
-    const float kk = linKA + dot(angA, mAngA) + linKB + dot(angB, mAngB);
+  // (Inlined: a call out of the AVX2 clone would pass the vectors by another ABI.)
+  auto fill = [&](auto& r, vm mask, const V3& angA, const V3& angB, vf linKA, vf linKB,
+                  vf lambda) __attribute__((always_inline)) {
+    const V3 mAngA = mul(IA, angA), mAngB = mul(IB, angB);
+    const vf kk = linKA + dot(angA, mAngA) + linKB + dot(angB, mAngB);
     if constexpr (std::is_same_v<std::decay_t<decltype(r)>, Dir>) {
-      setLane(r.angA, l, angA);
-      setLane(r.angB, l, angB);
+      r.angA = masked(mask, angA);
+      r.angB = masked(mask, angB);
     }
-    setLane(r.mAngA, l, mAngA);
-    setLane(r.mAngB, l, mAngB);
-    r.effMass[l] = kk > 1e-12f ? 1 / kk : 0;
-    r.lambda[l] = lambda;
+    r.mAngA = masked(mask, mAngA);
+    r.mAngB = masked(mask, mAngB);
+    r.effMass = select(mask & (kk > 1e-12f), splat(1) / kk, splat(0));
+    r.lambda = select(mask, lambda, splat(0));
   };
-  // A row along axis d at arms (rA, rB): angular parts -rA x axis and rB x axis.
-  auto row = [&](Dir& r, Vec3 rA, Vec3 rB, int d, float lambda) {
-    fill(r, -cross(rA, axes[d]), cross(rB, axes[d]), linK[d][0], linK[d][1], lambda);
+  auto row = [&](auto& r, vm mask, const V3& ra, const V3& rb, int d, vf lambda)
+                 __attribute__((always_inline)) {
+    fill(r, mask, neg(cross(ra, axes[d])), cross(rb, axes[d]), linK[d][0], linK[d][1], lambda);
   };
-  if (m.patch) {
+  if (patch) {
     Patch& pa = patches_[block];
-    row(pa.t1, m.patchRA, m.patchRB, 1, m.patchImpulse[0]);
-    row(pa.t2, m.patchRA, m.patchRB, 2, m.patchImpulse[1]);
-    // The twist: no linear part (its share, dot(0, 0 * invMass), as finishRows sums it).
-    const Vec3 zero{};
-    fill(pa.twist, -m.normal, m.normal, dot(zero, zero * A.invMass), dot(zero, zero * B.invMass),
-         m.patchImpulse[2]);
-    pa.mu[l] = m.friction;
-    pa.twistMu[l] = m.friction * m.twistArm;
+    row(pa.t1, lane, patchRA, patchRB, 1, patchImpulse[0]);
+    row(pa.t2, lane, patchRA, patchRB, 2, patchImpulse[1]);
+    const V3 zero{};
+    fill(pa.twist, lane, neg(axes[0]), axes[0], dot(zero, scaled(zero, invMassA)),
+         dot(zero, scaled(zero, invMassB)), patchImpulse[2]);
+    pa.mu = select(lane, friction, splat(0));
+    pa.twistMu = select(lane, friction * twistArm, splat(0));
   }
-  for (int k = 0; k < m.count; ++k) {
+  for (int k = 0; k < blk.points; ++k) {
     Point& p = blk.pt[k];
-    if (!m.patch) {
+    if (!patch) {
       PointFriction& f = frictionOf(block)[k];
-      row(f.t1, m.rA[k], m.rB[k], 1, m.tangentImpulse[k][0]);
-      row(f.t2, m.rA[k], m.rB[k], 2, m.tangentImpulse[k][1]);
-      f.mu[l] = m.friction;
+      row(f.t1, point[k], rA[k], rB[k], 1, tangentImpulse[k][0]);
+      row(f.t2, point[k], rA[k], rB[k], 2, tangentImpulse[k][1]);
+      f.mu = select(point[k], friction, splat(0));
     }
-    row(p.n, m.rA[k], m.rB[k], 0, m.normalImpulse[k]);
-    p.C0[l] = m.separation[k];
+    row(p.n, point[k], rA[k], rB[k], 0, normalImpulse[k]);
+    p.C0 = select(point[k], sep[k], splat(0));
   }
 }
 
@@ -421,11 +476,8 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
         std::memset(static_cast<void*>(frictionOf(uint32_t(b))), 0,
                     sizeof(PointFriction) * Manifold::kMaxPoints);
       const uint32_t opened = openedAs[b];
-      for (uint8_t l = 0; l < used[opened]; ++l) {
-        const uint32_t mi = lanes[opened][l];
-        laneOf_[mi] = {uint32_t(b), l};
-        addLane(uint32_t(b), s, mi, manifolds[mi]);
-      }
+      for (uint8_t l = 0; l < used[opened]; ++l) laneOf_[lanes[opened][l]] = {uint32_t(b), l};
+      fillBlock(uint32_t(b), s, manifolds, lanes[opened].data(), used[opened]);
     }
   };
   assert(levels_ == 0 || segmentBlock_[0] == 0);  // the row groups' levels hold no blocks

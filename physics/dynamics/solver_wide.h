@@ -178,7 +178,7 @@ class WideContacts {
   /// The Jacobian's linear parts are the manifold's normal and tangents, the same at every
   /// point: stored once per lane for each direction (0 = normal, 1, 2 = tangents), as body
   /// B's part (body A's is its negation) with the two inverse masses; the kernels form
-  /// M^-1 J^T from them (Linear) as addLane formed the rows', so the bits are the same. A
+  /// M^-1 J^T from them (Linear) as fillBlock formed the rows', so the bits are the same. A
   /// pass streams the blocks from memory once (many_pyramids' 58,000 manifolds are about 25
   /// MB of them): every float stored is bandwidth.
   struct Block {
@@ -191,7 +191,9 @@ class WideContacts {
     bool writeA[wide::kLanes] = {}, writeB[wide::kLanes] = {};  ///< dynamic bodies only
     int lanes = 0, points = 0;
   };
-  void addLane(uint32_t block, const Solver& s, uint32_t index, const SolverManifold& m);
+  /// Fills a zeroed block with `used` manifolds (index: theirs), the rows formed in SIMD lanes.
+  void fillBlock(uint32_t block, const Solver& s, const std::vector<SolverManifold>& manifolds,
+                 const uint32_t* index, int used);
   /// Solver::solveFrictionPair on a block's lanes: the pair clamped to the disc of `bound`.
   struct Linear;  ///< a block's linear parts, formed for a pass (solver_wide.cpp)
   static void frictionPair(const Linear& L, Dir& r1, Dir& r2, wide::vf bound, bool measure,
