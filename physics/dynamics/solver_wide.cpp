@@ -225,7 +225,7 @@ PHYS_WIDE_CLONES void WideContacts::fillBlock(uint32_t block, const Solver& s,
   vf sep[Manifold::kMaxPoints] = {}, normalImpulse[Manifold::kMaxPoints] = {};
   vf tangentImpulse[Manifold::kMaxPoints][2] = {}, patchImpulse[3] = {};
   vm lane = {}, point[Manifold::kMaxPoints] = {};
-  bool patch = false;
+  const bool patch = patch_;  // one setting per step (build)
   for (int l = 0; l < used; ++l) {
     const SolverManifold& m = manifolds[index[l]];
     const SolverBody& A = s.bodies[size_t(m.a)];
@@ -259,8 +259,7 @@ PHYS_WIDE_CLONES void WideContacts::fillBlock(uint32_t block, const Solver& s,
       tangentImpulse[k][0][l] = m.tangentImpulse[k][0];
       tangentImpulse[k][1][l] = m.tangentImpulse[k][1];
     }
-    patch = m.patch;  // one setting per step (build)
-    if (m.patch) {
+    if (patch) {
       setLane(patchRA, l, m.patchRA);
       setLane(patchRB, l, m.patchRB);
       twistArm[l] = m.twistArm;
@@ -560,7 +559,8 @@ void splitParts(const std::vector<SolverBody>& bodies, const std::vector<Vec3>& 
       const std::vector<uint8_t>& sd = side[best];
       const auto first = dyn.begin() + std::ptrdiff_t(set.begin);
       for (size_t k = 0; k < keys.size(); ++k) first[std::ptrdiff_t(k)] = keys[k].second;
-      for (size_t k = set.begin; k < set.end; ++k) part[dyn[k]] = uint8_t(2 * part[dyn[k]] + sd[dyn[k]]);
+      for (size_t k = set.begin; k < set.end; ++k)
+        part[dyn[k]] = uint8_t(2 * part[dyn[k]] + sd[dyn[k]]);
       // The set's contacts that stay on one side are the halves' own; those that cross go to
       // this cut's separator and out of the recursion.
       keep[0].clear();

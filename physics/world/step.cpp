@@ -350,20 +350,22 @@ bool World::Impl::jointAsleep(const JointRec& j) const {
 }
 
 void World::Impl::storeImpulses() {
-  // Hand each row's impulse back to its contact point or joint for the next warm start.
-  for (Contact& c : contacts) {
-    if (!contactRowsBuilt) break;  // every contact was a manifold (below)
-    if (c.firstRow < 0) continue;
-    const int n = c.manifold.count;
-    for (int i = 0; i < n; ++i) c.normalImpulse[i] = solver.rows[size_t(c.firstRow + i)].lambda;
-    if (solver.rows[size_t(c.firstRow + n)].patchPoints > 0) {
-      for (int d = 0; d < 3; ++d)
-        c.patchImpulse(d) = solver.rows[size_t(c.firstRow + n + d)].lambda;
-      continue;
-    }
-    for (int i = 0; i < n; ++i) {
-      c.tangentImpulse[i][0] = solver.rows[size_t(c.firstRow + n + 2 * i)].lambda;
-      c.tangentImpulse[i][1] = solver.rows[size_t(c.firstRow + n + 2 * i + 1)].lambda;
+  // Hand each row's impulse back to its contact point or joint for the next warm start
+  // (contacts as rows: none when every contact was a manifold, below).
+  if (contactRowsBuilt) {
+    for (Contact& c : contacts) {
+      if (c.firstRow < 0) continue;
+      const int n = c.manifold.count;
+      for (int i = 0; i < n; ++i) c.normalImpulse[i] = solver.rows[size_t(c.firstRow + i)].lambda;
+      if (solver.rows[size_t(c.firstRow + n)].patchPoints > 0) {
+        for (int d = 0; d < 3; ++d)
+          c.patchImpulse(d) = solver.rows[size_t(c.firstRow + n + d)].lambda;
+        continue;
+      }
+      for (int i = 0; i < n; ++i) {
+        c.tangentImpulse[i][0] = solver.rows[size_t(c.firstRow + n + 2 * i)].lambda;
+        c.tangentImpulse[i][1] = solver.rows[size_t(c.firstRow + n + 2 * i + 1)].lambda;
+      }
     }
   }
   // Solved in wide blocks, without rows: one contact each, on the world's threads.
