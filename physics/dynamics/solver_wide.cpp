@@ -57,6 +57,7 @@ int partLevels(size_t manifolds) {
 
 using wide::kLanes;
 using wide::Lanes;
+using wide::M3;
 using wide::V3;
 using wide::vf;
 using wide::vm;
@@ -184,15 +185,13 @@ PHYS_WIDE_INLINE void expand(const B& blk, Lin& L) {
     L.mLinA[d] = scaled(L.linA[d], blk.invMassA);
     L.mLinB[d] = scaled(L.linB[d], blk.invMassB);
   }
+  L.invIA = &blk.invIA;
+  L.invIB = &blk.invIB;
 }
 
 PHYS_WIDE_INLINE V3 cross(const V3& a, const V3& b) {
   return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
 }
-/// A 3x3 matrix of eight lanes, by columns (math.h's Mat3).
-struct M3 {
-  V3 c0, c1, c2;
-};
 /// math.h's Mat3 * Vec3: c0 x + c1 y + c2 z, component by component in that order.
 PHYS_WIDE_INLINE V3 mul(const M3& m, const V3& v) {
   return {m.c0.x * v.x + m.c1.x * v.y + m.c2.x * v.z, m.c0.y * v.x + m.c1.y * v.y + m.c2.y * v.z,
@@ -208,6 +207,20 @@ PHYS_WIDE_INLINE V3 masked(vm mask, const V3& v) {
 /// block stores (body B's part and the inverse masses) with fillBlock's operations.
 struct WideContacts::Linear {
   wide::V3 linA[3], linB[3], mLinA[3], mLinB[3];
+  const M3 *invIA, *invIB;  ///< the block's bodies' inverse inertia
+  /// An impulse of a row along direction d (its linear parts; d < 0: none, the twist) with
+  /// angular parts (angA, angB), applied to the lanes' velocities where mask:
+  /// Solver::applyImpulse, M^-1 J^T's angular parts formed as fillBlock formed them.
+  PHYS_WIDE_INLINE void apply(vm mask, int d, const V3& angA, const V3& angB, vf impulse,
+                              Lanes& s) const {
+    const V3 mA = mul(*invIA, angA), mB = mul(*invIB, angB);
+    if (d < 0) {
+      const V3 zero{};
+      applyImpulse(mask, zero, zero, mA, mB, impulse, s);
+    } else {
+      applyImpulse(mask, mLinA[d], mLinB[d], mA, mB, impulse, s);
+    }
+  }
 };
 
 PHYS_WIDE_CLONES void WideContacts::fillBlock(uint32_t block, const Solver& s,
@@ -269,6 +282,8 @@ PHYS_WIDE_CLONES void WideContacts::fillBlock(uint32_t block, const Solver& s,
   blk.lanes = used;
   blk.invMassA = invMassA;
   blk.invMassB = invMassB;
+  blk.invIA = IA;
+  blk.invIB = IB;
   vf linK[3][2];  // dot(linA, mLinA), dot(linB, mLinB)
   for (int d = 0; d < 3; ++d) {
     const V3 linA = neg(axes[d]), linB = axes[d];
@@ -285,8 +300,6 @@ PHYS_WIDE_CLONES void WideContacts::fillBlock(uint32_t block, const Solver& s,
       r.angA = masked(mask, angA);
       r.angB = masked(mask, angB);
     }
-    r.mAngA = masked(mask, mAngA);
-    r.mAngB = masked(mask, mAngB);
     r.effMass = select(mask & (kk > 1e-12f), splat(1) / kk, splat(0));
     r.lambda = select(mask, lambda, splat(0));
   };
@@ -686,8 +699,8 @@ PHYS_WIDE_INLINE void WideContacts::frictionPair(const Linear& L, Dir& r1, Dir& 
   const vf d1 = l1 - r1.lambda, d2 = l2 - r2.lambda;
   r1.lambda = l1;
   r2.lambda = l2;
-  applyImpulse(d1 != 0, L.mLinA[1], L.mLinB[1], r1.mAngA, r1.mAngB, d1, s);
-  applyImpulse(d2 != 0, L.mLinA[2], L.mLinB[2], r2.mAngA, r2.mAngB, d2, s);
+  L.apply(d1 != 0, 1, r1.angA, r1.angB, d1, s);
+  L.apply(d2 != 0, 2, r2.angA, r2.angB, d2, s);
   if (measure) {
     vf c = select(r1.effMass > 0, vabs(d1) / r1.effMass, splat(0));
     c = select(r2.effMass > 0, vmax(c, vabs(d2) / r2.effMass), c);
@@ -711,23 +724,19 @@ PHYS_WIDE_CLONES void WideContacts::warmStart(uint32_t block, std::vector<Solver
     const vf C =
         p.C0 + dot(L.linA[0], dpA) + dot(r.angA, dtA) + dot(L.linB[0], dpB) + dot(r.angB, dtB);
     p.C = C;
-    applyImpulse(r.lambda != 0, L.mLinA[0], L.mLinB[0], r.mAngA, r.mAngB, r.lambda, s);
+    L.apply(r.lambda != 0, 0, r.angA, r.angB, r.lambda, s);
   }
   if (patch_) {
     Patch& pa = patches_[block];
-    applyImpulse(pa.t1.lambda != 0, L.mLinA[1], L.mLinB[1], pa.t1.mAngA, pa.t1.mAngB,
-                 pa.t1.lambda, s);
-    applyImpulse(pa.t2.lambda != 0, L.mLinA[2], L.mLinB[2], pa.t2.mAngA, pa.t2.mAngB,
-                 pa.t2.lambda, s);
-    const V3 zero{};
-    applyImpulse(pa.twist.lambda != 0, zero, zero, pa.twist.mAngA, pa.twist.mAngB, pa.twist.lambda,
-                 s);
+    L.apply(pa.t1.lambda != 0, 1, pa.t1.angA, pa.t1.angB, pa.t1.lambda, s);
+    L.apply(pa.t2.lambda != 0, 2, pa.t2.angA, pa.t2.angB, pa.t2.lambda, s);
+    L.apply(pa.twist.lambda != 0, -1, L.linA[0], L.linB[0], pa.twist.lambda, s);  // (-n, n)
   } else {
     PointFriction* fr = frictionOf(block);
     for (int k = 0; k < blk.points; ++k) {
       for (int d = 1; d < 3; ++d) {
         Dir& r = d == 1 ? fr[k].t1 : fr[k].t2;
-        applyImpulse(r.lambda != 0, L.mLinA[d], L.mLinB[d], r.mAngA, r.mAngB, r.lambda, s);
+        L.apply(r.lambda != 0, d, r.angA, r.angB, r.lambda, s);
       }
     }
   }
@@ -773,7 +782,7 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
     impulse = next - r.lambda;
     r.lambda = next;
     const vm moved = impulse != 0;
-    applyImpulse(moved, L.mLinA[0], L.mLinB[0], r.mAngA, r.mAngB, impulse, s);
+    L.apply(moved, 0, r.angA, r.angB, impulse, s);
     if (prm.measure)
       change = select(moved & (r.effMass > 0), vmax(change, vabs(impulse) / r.effMass), change);
   }
@@ -795,7 +804,7 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
     impulse = next - r.lambda;
     r.lambda = next;
     const vm moved = impulse != 0;
-    applyImpulse(moved, zero, zero, r.mAngA, r.mAngB, impulse, s);
+    L.apply(moved, -1, L.linA[0], L.linB[0], impulse, s);
     if (prm.measure)
       change = select(moved & (r.effMass > 0), vmax(change, vabs(impulse) / r.effMass), change);
   } else {

@@ -49,6 +49,10 @@ typedef int32_t vm __attribute__((vector_size(32), aligned(32)));
 struct V3 {
   vf x, y, z;
 };
+/// A 3x3 matrix of eight lanes, by columns (math.h's Mat3).
+struct M3 {
+  V3 c0, c1, c2;
+};
 /// The velocities of the bodies in a block's lanes.
 struct Lanes {
   V3 vA, wA, vB, wB;
@@ -150,7 +154,7 @@ class WideContacts {
  private:
   /// One row direction (normal, tangent 1, tangent 2, twist) of eight manifolds.
   struct Dir {
-    wide::V3 angA, angB, mAngA, mAngB;
+    wide::V3 angA, angB;
     wide::vf effMass, lambda;
   };
   struct Point {
@@ -164,9 +168,8 @@ class WideContacts {
     wide::vf mu;
   };
   /// The twist row of patch friction: its angular parts are the normal's linear ones (-n, n)
-  /// and it has no linear part, so only M^-1 J^T is stored.
+  /// and it has no linear part.
   struct Twist {
-    wide::V3 mAngA, mAngB;
     wide::vf effMass, lambda;
   };
   /// Patch friction (SolverManifold::patch): a tangent pair at the centroid and the twist.
@@ -177,13 +180,16 @@ class WideContacts {
   };
   /// The Jacobian's linear parts are the manifold's normal and tangents, the same at every
   /// point: stored once per lane for each direction (0 = normal, 1, 2 = tangents), as body
-  /// B's part (body A's is its negation) with the two inverse masses; the kernels form
-  /// M^-1 J^T from them (Linear) as fillBlock formed the rows', so the bits are the same. A
-  /// pass streams the blocks from memory once (many_pyramids' 58,000 manifolds are about 25
-  /// MB of them): every float stored is bandwidth.
+  /// B's part (body A's is its negation) with the two inverse masses and inverse inertias; the
+  /// kernels form -J and M^-1 J^T from them (Linear) as fillBlock formed the rows', so the
+  /// bits are the same. A pass streams the blocks from memory once (many_pyramids' 58,000
+  /// manifolds are about 21 MB of them, 89 floats a lane): every float stored is bandwidth,
+  /// and in a world that large two 3x3 products a row cost less than reading M^-1 J^T's
+  /// angular parts (docs/ARCHITECTURE.md, "What the passes stream").
   struct Block {
     wide::V3 lin[3];
     wide::vf invMassA, invMassB;
+    wide::M3 invIA, invIB;  ///< the bodies' world inverse inertia (M^-1 J^T's angular parts)
     Point pt[Manifold::kMaxPoints];
     int32_t a[wide::kLanes] = {}, b[wide::kLanes] = {};  ///< solver bodies; 0 in empty lanes
     uint32_t manifold[wide::kLanes] = {};
