@@ -119,11 +119,15 @@ class WideContacts {
   /// once, each on the thread that normally runs it (the pool gives a loop's chunk to the same
   /// thread unless that one is late, when another takes it: only speed depends on it). fn must
   /// touch only segment i's bodies and data.
+  static constexpr size_t kInlinePhaseItems = 16;
   template <class F>
   void forEachSegment(F&& fn) const {
     for (int k = 0; k <= levels_; ++k) {
       const size_t first = phaseBegin(levels_, k), count = phaseBegin(levels_, k + 1) - first;
-      if (pool_) {
+      // A phase of a few items (the separators between piles that hardly touch) runs on the
+      // caller: waking the others would cost more than it saves.
+      const bool small = segment_[first + count] - segment_[first] < kInlinePhaseItems;
+      if (pool_ && !small) {
         pool_->parallelFor(count, 1, [&](size_t begin, size_t end) {
           for (size_t i = begin; i < end; ++i) fn(first + i);
         });
