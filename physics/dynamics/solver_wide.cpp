@@ -170,6 +170,8 @@ PHYS_WIDE_INLINE void applyImpulse(vm mask, const V3& mLinA, const V3& mLinB, co
 
 /// How many levels past its own a manifold looks for a block with a free lane (build()).
 constexpr int32_t kLevelSearch = 4;
+/// build() plans the nested parts' segments on the world's threads from this many manifolds.
+constexpr uint32_t kParallelPlanManifolds = 4096;
 
 PHYS_WIDE_INLINE V3 neg(const V3& a) {
   return {-a.x, -a.y, -a.z};
@@ -379,19 +381,17 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
   // (the solver's row groups, the joints, then the manifolds). A manifold may also take a
   // free lane of a block a few levels further on, which fills blocks at the price of
   // pushing its bodies' later constraints back. With parts, each segment (the leaves, then
-  // the separators) starts on a level of its own (`floor`), so the segments follow one
-  // another in the schedule and no block mixes two.
+  // the separators) starts on a level of its own, so the segments follow one another in the
+  // schedule and no block mixes two.
   struct Level {
     std::vector<Item> items;  ///< blocks numbered in the order they were opened
     int32_t open = -1;        ///< a block of this level with a free lane
   };
   std::vector<Level> levels;
   std::vector<int32_t> levelOf(s.bodies.size(), -1);  // last level touching a dynamic body
-  int32_t floor = 0;
   auto place = [&](int32_t a, int32_t b) {
     const bool da = s.bodies[size_t(a)].dynamic, db = s.bodies[size_t(b)].dynamic;
-    return std::max(floor,
-                    1 + std::max(da ? levelOf[size_t(a)] : -1, db ? levelOf[size_t(b)] : -1));
+    return 1 + std::max(da ? levelOf[size_t(a)] : -1, db ? levelOf[size_t(b)] : -1);
   };
   auto touch = [&](int32_t a, int32_t b, int32_t at) {
     if (s.bodies[size_t(a)].dynamic) levelOf[size_t(a)] = at;
@@ -411,36 +411,79 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
   // Without parts: one segment, which may share levels with the row groups.
   const size_t segments = levels_ > 0 ? segmentCount(levels_) : 1;
   assert(levels_ == 0 || parts->end.size() == segments);
-  size_t segmentLevel[kMaxSegments] = {};  // the level each segment begins on
-  uint32_t mi = 0;
-  for (size_t seg = 0; seg < segments; ++seg) {
-    const uint32_t end = levels_ > 0 ? parts->end[seg] : n;
-    assert(mi <= end && end <= n);
-    if (levels_ > 0) floor = int32_t(levels.size());
-    segmentLevel[seg] = levels.size();
-    for (; mi < end; ++mi) {
+  // A segment's blocks, levels counted from the segment's first (`open` is per level; `last`
+  // per body, the last level touching it, read and left as the segment leaves it).
+  struct Plan {
+    std::vector<std::array<uint32_t, kLanes>> lanes;  // per block as opened: its manifolds
+    std::vector<uint8_t> used;
+    std::vector<int32_t> level;  // per block
+    std::vector<int32_t> open;   // per level: a block with a free lane, or -1
+  };
+  auto plan = [&](uint32_t begin, uint32_t end, std::vector<int32_t>& last, Plan& p) {
+    for (uint32_t mi = begin; mi < end; ++mi) {
       const SolverManifold& m = manifolds[mi];
-      int32_t at = place(m.a, m.b);
-      for (int32_t lv = at; lv < at + kLevelSearch && size_t(lv) < levels.size(); ++lv) {
-        if (levels[size_t(lv)].open >= 0) {
+      const bool da = s.bodies[size_t(m.a)].dynamic, db = s.bodies[size_t(m.b)].dynamic;
+      int32_t at = 1 + std::max(da ? last[size_t(m.a)] : -1, db ? last[size_t(m.b)] : -1);
+      for (int32_t lv = at; lv < at + kLevelSearch && size_t(lv) < p.open.size(); ++lv) {
+        if (p.open[size_t(lv)] >= 0) {
           at = lv;
           break;
         }
       }
-      touch(m.a, m.b, at);
-      Level& level = levels[size_t(at)];
-      if (level.open < 0) {
-        level.open = int32_t(lanes.size());
-        level.items.push_back({uint32_t(lanes.size()), true});
-        lanes.emplace_back();
-        used.push_back(0);
+      if (da) last[size_t(m.a)] = at;
+      if (db) last[size_t(m.b)] = at;
+      if (size_t(at) >= p.open.size()) p.open.resize(size_t(at) + 1, -1);
+      int32_t& open = p.open[size_t(at)];
+      if (open < 0) {
+        open = int32_t(p.lanes.size());
+        p.lanes.emplace_back();
+        p.used.push_back(0);
+        p.level.push_back(at);
       }
-      const size_t blk = size_t(level.open);
-      lanes[blk][used[blk]++] = mi;
-      if (used[blk] == kLanes) level.open = -1;
+      const size_t blk = size_t(open);
+      p.lanes[blk][p.used[blk]++] = mi;
+      if (p.used[blk] == kLanes) open = -1;
     }
+  };
+  // The plans laid into the levels: segment by segment from `first`, blocks in the order
+  // they were opened (so the levels' items are too).
+  size_t segmentLevel[kMaxSegments] = {};  // the level each segment begins on
+  auto lay = [&](size_t seg, size_t first, const Plan& p) {
+    segmentLevel[seg] = first;
+    if (first + p.open.size() > levels.size()) levels.resize(first + p.open.size());
+    for (size_t b = 0; b < p.lanes.size(); ++b) {
+      levels[first + size_t(p.level[b])].items.push_back({uint32_t(lanes.size()), true});
+      lanes.push_back(p.lanes[b]);
+      used.push_back(p.used[b]);
+    }
+  };
+  if (levels_ == 0) {
+    // After the row groups, on their levels (`levelOf`, the levels' open blocks: none).
+    Plan p;
+    plan(0, n, levelOf, p);
+    lay(0, 0, p);
+  } else {
+    // Each segment starts on a level of its own, past the last one's, so its blocks depend on
+    // its own manifolds alone: planned on the world's threads, each with its own `last`
+    // (bodies of two segments of different depths may be the same), then laid one after
+    // another: the blocks one serial pass over the segments would make.
+    std::vector<Plan> plans(segments);
+    auto planRange = [&](size_t from, size_t to) {
+      std::vector<int32_t> last(s.bodies.size(), -1);
+      for (size_t seg = from; seg < to; ++seg) {
+        const uint32_t begin = seg > 0 ? parts->end[seg - 1] : 0, end = parts->end[seg];
+        assert(begin <= end && end <= n);
+        plan(begin, end, last, plans[seg]);
+        for (uint32_t mi = begin; mi < end; ++mi)  // leave `last` all -1 for the next
+          last[size_t(manifolds[mi].a)] = last[size_t(manifolds[mi].b)] = -1;
+      }
+    };
+    if (s.pool && n >= kParallelPlanManifolds)
+      s.pool->parallelFor(segments, 1, planRange);
+    else
+      planRange(0, segments);
+    for (size_t seg = 0; seg < segments; ++seg) lay(seg, levels.size(), plans[seg]);
   }
-  assert(mi == n);
   // The schedule, level by level, and the blocks numbered in its order, so that the passes
   // stream through them; then each block is filled in one go, by the thread that solves it
   // (forEachPart). Without parts all on the caller: filling the blocks of one sweep on two
