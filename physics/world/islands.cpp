@@ -296,19 +296,21 @@ void World::Impl::updateSleep(float dt) {
   if (!sleepActive()) return;
   const SleepSettings& z = def.sleep;
 
-  // Rest timers. Kinematic bodies never sleep (they are driven; a resting one holds what
-  // sleeps on it without waking it).
-  for (uint32_t slot : awakeBodies) {
-    BodyRec& b = bodies.at(slot);
-    if (b.type != BodyType::Dynamic) continue;
-    float reach = 0;
-    for (ShapeId sid : b.shapes) reach = std::max(reach, shapes.get(sid)->boundRadius);
-    const float angular =
-        reach > 0 ? std::min(z.angularSpeed, z.linearSpeed / reach) : z.angularSpeed;
-    const bool slow = b.allowSleep && lengthSquared(b.v) <= z.linearSpeed * z.linearSpeed &&
-                      lengthSquared(b.w) <= angular * angular;
-    b.sleepTime = slow ? b.sleepTime + dt : 0;
-  }
+  // Rest timers, each body its own, on the world's threads. Kinematic bodies never sleep
+  // (they are driven; a resting one holds what sleeps on it without waking it).
+  forEachRange(awakeBodies.size(), [&](size_t begin, size_t end) {
+    for (size_t k = begin; k < end; ++k) {
+      BodyRec& b = bodies.at(awakeBodies[k]);
+      if (b.type != BodyType::Dynamic) continue;
+      float reach = 0;
+      for (ShapeId sid : b.shapes) reach = std::max(reach, shapes.get(sid)->boundRadius);
+      const float angular =
+          reach > 0 ? std::min(z.angularSpeed, z.linearSpeed / reach) : z.angularSpeed;
+      const bool slow = b.allowSleep && lengthSquared(b.v) <= z.linearSpeed * z.linearSpeed &&
+                        lengthSquared(b.w) <= angular * angular;
+      b.sleepTime = slow ? b.sleepTime + dt : 0;
+    }
+  });
 
   // Islands: union-find over the awake bodies (by their solver index, 1 + their place in
   // awakeBodies, as this step's buildSolverBodies or stepOnDevice numbered them), joined by

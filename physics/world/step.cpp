@@ -1383,16 +1383,22 @@ bool World::Impl::findDirectContactIslands(const SolverSettings& s) {
     jointed[0] = 0;
   }
   auto excluded = [&](int32_t i) { return !jointsExact && !jointed.empty() && jointed[size_t(i)]; };
+  // The heavy pairs first: most steps have none, and then need no islands (the sets' roots,
+  // the lowest index of each, do not depend on the order of the joins).
   std::vector<std::pair<int32_t, int32_t>> heavyPairs;
   for (uint32_t ci : contactOrder) {
     const Contact& c = contacts[ci];
     const int32_t a = dynamicIndex(c.bodyA), b = dynamicIndex(c.bodyB);
     if (a == 0 || b == 0 || excluded(a) || excluded(b)) continue;
-    sets.join(a, b);
     const float ma = bodies.at(c.bodyA.index).mass, mb = bodies.at(c.bodyB.index).mass;
     if (std::max(ma, mb) >= s.directContactRatio * std::min(ma, mb)) heavyPairs.push_back({a, b});
   }
   if (heavyPairs.empty()) return false;
+  for (uint32_t ci : contactOrder) {
+    const Contact& c = contacts[ci];
+    const int32_t a = dynamicIndex(c.bodyA), b = dynamicIndex(c.bodyB);
+    if (a != 0 && b != 0 && !excluded(a) && !excluded(b)) sets.join(a, b);
+  }
   // Normal rows per island (contacts with static bodies count for their dynamic body's).
   std::vector<int32_t> rowsOf(solver.bodies.size(), -1);  // -1: not a mass-ratio island
   for (const auto& [a, b] : heavyPairs) rowsOf[size_t(find(a))] = 0;
