@@ -1239,7 +1239,7 @@ void World::Impl::buildSolverBodies(const SolverSettings& s) {
   // Restitution's collision phase: the elastic contacts' normal rows, with the bodies' own
   // masses (impacts.h).
   impacts.clear();
-  if (s.restitution) {
+  if (s.restitution && anyContact([](const Contact& c) { return c.restitution > 0; })) {
     for (uint32_t ci : contactOrder) {
       const Contact& c = contacts[ci];
       if (!(c.restitution > 0)) continue;
@@ -1383,8 +1383,16 @@ bool World::Impl::findDirectContactIslands(const SolverSettings& s) {
     jointed[0] = 0;
   }
   auto excluded = [&](int32_t i) { return !jointsExact && !jointed.empty() && jointed[size_t(i)]; };
-  // The heavy pairs first: most steps have none, and then need no islands (the sets' roots,
-  // the lowest index of each, do not depend on the order of the joins).
+  // The heavy pairs first: most steps have none (looked for on the world's threads), and then
+  // need no islands (the sets' roots, the lowest index of each, do not depend on the order of
+  // the joins).
+  auto heavy = [&](const Contact& c) {
+    const int32_t a = dynamicIndex(c.bodyA), b = dynamicIndex(c.bodyB);
+    if (a == 0 || b == 0 || excluded(a) || excluded(b)) return false;
+    const float ma = bodies.at(c.bodyA.index).mass, mb = bodies.at(c.bodyB.index).mass;
+    return std::max(ma, mb) >= s.directContactRatio * std::min(ma, mb);
+  };
+  if (!anyContact(heavy)) return false;
   std::vector<std::pair<int32_t, int32_t>> heavyPairs;
   for (uint32_t ci : contactOrder) {
     const Contact& c = contacts[ci];
@@ -1447,12 +1455,13 @@ bool World::Impl::orderContacts(const SolverSettings& s, ContactParts& parts) {
   stats.contactsBetweenHalves = -1;
   stats.contactParts = 0;
   if (parts.levels == 0) return false;
-  std::vector<std::pair<int32_t, int32_t>> pairs;  // solver bodies
-  pairs.reserve(contactOrder.size());
-  for (uint32_t ci : contactOrder) {
-    const Contact& c = contacts[ci];
-    pairs.push_back({bodies.get(c.bodyA)->solverIndex, bodies.get(c.bodyB)->solverIndex});
-  }
+  std::vector<std::pair<int32_t, int32_t>> pairs(contactOrder.size());  // solver bodies
+  forEachRange(pairs.size(), [&](size_t begin, size_t end) {
+    for (size_t k = begin; k < end; ++k) {
+      const Contact& c = contacts[contactOrder[k]];
+      pairs[k] = {bodies.get(c.bodyA)->solverIndex, bodies.get(c.bodyB)->solverIndex};
+    }
+  });
   splitParts(solver.bodies, solverCom, pairs, parts.levels, solverPart, pool.get());
   // The contacts by segment (a stable counting sort: each leaf keeps the contacts' order),
   // then each separator's by colour (solver_wide.h), so that they fill blocks.

@@ -204,6 +204,17 @@ struct World::Impl {
     else if (n > 0)
       fn(size_t(0), n);
   }
+  /// Whether pred holds for a contact of this step's (contactOrder), looked for on the world's
+  /// threads.
+  template <class P>
+  bool anyContact(P&& pred) const {
+    std::atomic<bool> found{false};
+    forEachRange(contactOrder.size(), [&](size_t begin, size_t end) {
+      for (size_t k = begin; k < end && !found.load(std::memory_order_relaxed); ++k)
+        if (pred(contacts[contactOrder[k]])) found.store(true, std::memory_order_relaxed);
+    });
+    return found.load();
+  }
   /// Lowers `first` to k if k is below it: a parallel pass's first index found (the lowest,
   /// whichever thread found it, so the result is one thread's).
   static void lowerTo(std::atomic<size_t>& first, size_t k) {
