@@ -704,30 +704,40 @@ double WideContacts::residual(const std::vector<SolverBody>& bodies, float h, do
   constexpr int kPoints = Manifold::kMaxPoints;
   residualTerms_.resize(laneOf_.size() * kPoints);
   forEachPart([&](size_t begin, size_t end) {
-    for (size_t b = begin; b < end; ++b) {
-      const Block& blk = blocks_[b];
-      for (int l = 0; l < blk.lanes; ++l) {
-        const SolverBody& A = bodies[size_t(blk.a[l])];
-        const SolverBody& B = bodies[size_t(blk.b[l])];
-        const Vec3 linB = lane(blk.lin[0], l), linA = -linB;
-        double* terms = &residualTerms_[size_t(blk.manifold[l]) * kPoints];
-        for (int k = 0; k < kPoints; ++k) {
-          terms[k] = 0;
-          if (k >= blk.count[l]) continue;
-          const Dir& r = blk.pt[k].n;
-          const Vec3 angA = lane(r.angA, l), angB = lane(r.angB, l);
-          const float vn = dot(linA, A.v) + dot(angA, A.w) + dot(linB, B.v) + dot(angB, B.w);
-          const float C = blk.pt[k].C0[l] + dot(linA, A.dp) + dot(angA, A.dtheta) +
-                          dot(linB, B.dp) + dot(angB, B.dtheta);
-          const float gap = std::max(C, 0.0f) / h;
-          const double e = r.lambda[l] > 0 ? vn : std::min(0.0f, vn + gap);
-          terms[k] = e * e;
-        }
-      }
-    }
+    for (size_t b = begin; b < end; ++b) residualBlock(uint32_t(b), bodies, h);
   });
   for (double t : residualTerms_) sum += t;
   return sum;
+}
+
+PHYS_WIDE_CLONES void WideContacts::residualBlock(uint32_t block,
+                                                  const std::vector<SolverBody>& bodies,
+                                                  float h) const {
+  // The scalar terms' float operations in the lanes (vn, C, the gap, the term before it
+  // is squared in double), so the same bits.
+  constexpr int kPoints = Manifold::kMaxPoints;
+  const Block& blk = blocks_[block];
+  const V3 linB = blk.lin[0], linA = neg(linB);
+  Lanes s;
+  gatherVelocities(bodies, blk.a, blk.b, s);
+  V3 dpA, dtA, dpB, dtB;
+  gatherDeltas(bodies, blk.a, blk.b, dpA, dtA, dpB, dtB);
+  vf e[kPoints];
+  for (int k = 0; k < blk.points; ++k) {
+    const Dir& r = blk.pt[k].n;
+    const vf vn = dot(linA, s.vA) + dot(r.angA, s.wA) + dot(linB, s.vB) + dot(r.angB, s.wB);
+    const vf C =
+        blk.pt[k].C0 + dot(linA, dpA) + dot(r.angA, dtA) + dot(linB, dpB) + dot(r.angB, dtB);
+    const vf gap = vmax(C, splat(0)) / h;
+    e[k] = select(r.lambda > 0, vn, vmin(splat(0), vn + gap));
+  }
+  for (int l = 0; l < blk.lanes; ++l) {
+    double* terms = &residualTerms_[size_t(blk.manifold[l]) * kPoints];
+    for (int k = 0; k < kPoints; ++k) {
+      const double x = k < blk.count[l] ? double(e[k][l]) : 0.0;
+      terms[k] = k < blk.count[l] ? x * x : 0;
+    }
+  }
 }
 
 PHYS_WIDE_INLINE void WideContacts::frictionPair(const Linear& L, Dir& r1, Dir& r2, vf bound,

@@ -146,6 +146,8 @@ class WideContacts {
   size_t capacityBytes() const;  ///< the storage held (blocks, friction, lanes, schedule)
   /// Adds the contacts' part of Solver::velocityResidual to sum, in the rows' order.
   double residual(const std::vector<SolverBody>& bodies, float h, double sum) const;
+  /// residual()'s terms of one block's lanes, formed in SIMD lanes.
+  void residualBlock(uint32_t block, const std::vector<SolverBody>& bodies, float h) const;
 
   void warmStart(uint32_t block, std::vector<SolverBody>& bodies);
   /// One Gauss-Seidel pass over a block; returns the largest velocity change (p.measure).
