@@ -734,8 +734,8 @@ PHYS_WIDE_CLONES void WideContacts::residualBlock(uint32_t block,
   for (int l = 0; l < blk.lanes; ++l) {
     double* terms = &residualTerms_[size_t(blk.manifold[l]) * kPoints];
     for (int k = 0; k < kPoints; ++k) {
-      const double x = k < blk.count[l] ? double(e[k][l]) : 0.0;
-      terms[k] = k < blk.count[l] ? x * x : 0;
+      const double x = k < blk.count[l] ? double(e[k][l]) : 0.0;  // unused points add +0
+      terms[k] = x * x;
     }
   }
 }

@@ -14,6 +14,7 @@
 #include "dynamics/solver_wide.h"
 #include "phys/scene/scene.h"
 #include "phys/world/world.h"
+#include "solver_test_util.h"
 #include "test_util.h"
 
 using namespace phys;
@@ -36,14 +37,7 @@ std::vector<SolverBody> dynamicBodies(int n) {
 /// One equality row between bodies a and b, as a joint ahead of the contacts (the schedule's
 /// scalar groups come first), and the solver's rows finished.
 void addJointRowFirst(Solver& s, int32_t a, int32_t b) {
-  Row joint;
-  joint.kind = RowKind::Equality;
-  joint.a = a;
-  joint.b = b;
-  joint.groupStart = true;
-  joint.linA = {1, 0, 0};
-  joint.linB = {-1, 0, 0};
-  s.rows.push_back(joint);
+  s.rows.push_back(test::jointRow(a, b));
   s.indexUnits();
   s.finishRows(0, s.rows.size());
 }

@@ -15,6 +15,7 @@
 #include "phys/scene/presets.h"
 #include "phys/scene/scene.h"
 #include "phys/world/world.h"
+#include "solver_test_util.h"
 #include "test_util.h"
 
 using namespace phys;
@@ -45,14 +46,7 @@ SolverManifold manifold(int a, int b, int points) {
 }
 
 void addJoint(Solver& s, int a, int b) {
-  Row r;
-  r.kind = RowKind::Equality;
-  r.a = a;
-  r.b = b;
-  r.groupStart = true;
-  r.linA = {1, 0, 0};
-  r.linB = {-1, 0, 0};
-  s.rows.push_back(r);
+  s.rows.push_back(test::jointRow(a, b));
 }
 
 Solver bodiesSolver(int n) {
