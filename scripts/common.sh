@@ -33,10 +33,15 @@ phys_install_deps() {
 }
 
 # phys_build DIR [extra cmake args...]: configure once, then build incrementally.
+# Optimised, with line tables only (-g1: functions, files and lines for backtraces, perf and
+# sanitizer reports; no variables or types): the build from a fresh clone takes a third less
+# compile time than with -g (tests/server/test_core.cpp: 13.2 -> 8.9 s). For a debugger's
+# view of variables, configure a build folder of your own with -DCMAKE_BUILD_TYPE=Debug.
 phys_build() {
   local dir=$1; shift
   if [ ! -f "$dir/build.ninja" ]; then
-    cmake -S . -B "$dir" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo "$@"
+    cmake -S . -B "$dir" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+      "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O2 -g1 -DNDEBUG" "-DCMAKE_C_FLAGS_RELWITHDEBINFO=-O2 -g1 -DNDEBUG" "$@"
   fi
   cmake --build "$dir" --parallel "$(nproc)"
 }

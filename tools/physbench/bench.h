@@ -85,6 +85,8 @@ struct SuiteOptions {
   std::vector<std::string> scenes;   ///< empty: every scene of scenesDir but the scale ones
   double secondsScale = 1;
   double maxSeconds = 0;  ///< simulated seconds per run at most; 0: no limit
+  /// Bodies x steps per run at most (a large scene runs fewer steps); 0: no limit.
+  int64_t maxBodySteps = 0;
   bool quick = false;     ///< at most kQuickSeconds per run
   int jobs = 1;
   int threads = 0;  ///< each world's threads; 0: the machine's divided among the jobs

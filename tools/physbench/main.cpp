@@ -6,7 +6,7 @@
 //     the same on the device and on the CPU backend for the same steps: exit status 1 when a
 //     criterion the CPU run passes fails on the device (or a body ends > M m from its twin).
 //   physbench --suite [--presets a,b] [--scenes x,y] [--seconds-scale F] [--max-seconds S]
-//             [--quick] [--jobs N] [--csv OUT] [--markdown OUT] [--update-doc FILE]
+//             [--max-body-steps N] [--quick] [--jobs N] [--csv OUT] [--markdown OUT] [--update-doc FILE]
 //             [--fail-on-criteria] [--fail-on-nan] [--expect-hashes F] [--write-hashes F]
 //     every preset on every scene (see suite.cpp); exit status 2 when a run could not be
 //     executed, 1 with --fail-on-criteria when a run failed its criteria, else 0.
@@ -160,6 +160,9 @@ int main(int argc, char** argv) {
                      "run each scene for this fraction of its duration")
           ->check(CLI::PositiveNumber),
       app.add_option("--max-seconds", suite.maxSeconds, "simulated seconds per run at most")
+          ->check(CLI::PositiveNumber),
+      app.add_option("--max-body-steps", suite.maxBodySteps,
+                     "bodies x steps per run at most (at least one step)")
           ->check(CLI::PositiveNumber),
       app.add_flag("--quick", suite.quick, "at most 3 simulated seconds per run"),
       app.add_option("--jobs", suite.jobs,

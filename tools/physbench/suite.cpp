@@ -535,6 +535,10 @@ int runSuite(const SuiteOptions& opt) {
         mainMetricFor(s.name).name.find("settled") != std::string::npos)
       seconds = std::max(seconds, std::min(s.scene.duration, s.scene.metrics.settleTime + 2));
     s.steps = std::max(1, int(std::lround(seconds / s.scene.world.timeStep)));
+    if (opt.maxBodySteps > 0) {
+      const int64_t bodies = std::max<int64_t>(1, int64_t(s.scene.bodies.size()));
+      s.steps = int(std::clamp<int64_t>(opt.maxBodySteps / bodies, 1, s.steps));
+    }
     s.seconds = s.steps * double(s.scene.world.timeStep);
     rep.sceneDuration[s.name] = s.scene.duration;
     rep.sceneSettleTime[s.name] = s.scene.metrics.settleTime;

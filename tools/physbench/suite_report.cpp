@@ -190,6 +190,8 @@ std::string markdownReport(const SuiteReport& r, bool table) {
   std::vector<std::string> limits;
   if (o.secondsScale != 1) limits.push_back("--seconds-scale " + fmt3(o.secondsScale));
   if (o.maxSeconds > 0) limits.push_back("--max-seconds " + fmt3(o.maxSeconds));
+  if (o.maxBodySteps > 0)
+    limits.push_back("--max-body-steps " + std::to_string(o.maxBodySteps));
   if (o.quick) limits.push_back("--quick: at most " + fmt3(kQuickSeconds) + " s");
   if (limits.empty()) {
     md << " for the scene's full duration\n";
