@@ -16,6 +16,11 @@ set(_phys_targets physclient phys_protocol phys_core)
 if(TARGET phys_gpu)
   list(APPEND _phys_targets phys_gpu)
 endif()
+# The installed headers are C++20 (std::span, concepts): the exported targets say so, so a
+# project that sets no standard of its own compiles them (CMake adds -std=c++20 or newer).
+foreach(_t ${_phys_targets})
+  target_compile_features(${_t} PUBLIC cxx_std_20)
+endforeach()
 install(TARGETS ${_phys_targets} EXPORT physTargets
         ARCHIVE DESTINATION ${CMAKE_INSTALL_LIBDIR}
         INCLUDES DESTINATION ${CMAKE_INSTALL_INCLUDEDIR})
