@@ -17,6 +17,7 @@
 #include <thread>
 
 #include "../common/bodies.h"
+#include "../common/defs_compare.h"
 #include "../common/sanitizer.h"
 #include "phys/client/client.h"
 #include "phys/server/core.h"
@@ -115,6 +116,37 @@ void expectScenery(const std::vector<BodyInfo>& got, const std::vector<JointInfo
   EXPECT_EQ(joints[0].def.bodyB.packed(), got[2].id);
 }
 
+/// test::everyKindScenery() spawned into a world: the bodies' ids, in the scenery's order.
+std::vector<uint64_t> spawnEveryKind(WorldHandle& w, const test::Scenery& s) {
+  std::vector<uint64_t> ids = w.spawn(s.bodies).get();
+  std::vector<phys::JointDef> joints = s.joints;
+  for (size_t i = 0; i < joints.size(); ++i) {
+    auto [a, b] = s.ends[i];
+    if (a >= 0) joints[i].bodyA = phys::BodyId::fromPacked(ids[size_t(a)]);
+    if (b >= 0) joints[i].bodyB = phys::BodyId::fromPacked(ids[size_t(b)]);
+  }
+  w.addJoints(joints).get();
+  return ids;
+}
+
+/// What a world reports is the scenery, every field of every body, shape and joint (the
+/// bodies in spawn order, each joint between the bodies it was made with).
+void expectEveryKind(WorldHandle& w, const test::Scenery& s, const std::string& when) {
+  SCOPED_TRACE(when);
+  const std::vector<BodyInfo> bodies = w.allBodies().get();
+  ASSERT_EQ(bodies.size(), s.bodies.size());
+  for (size_t i = 0; i < bodies.size(); ++i)
+    test::expectSameDefinition(s.bodies[i], bodies[i].def, s.bodies[i].name);
+  const std::vector<JointInfo> joints = w.allJoints().get();
+  ASSERT_EQ(joints.size(), s.joints.size());
+  for (size_t i = 0; i < joints.size(); ++i) {
+    test::expectSameJoint(s.joints[i], joints[i].def);
+    auto [a, b] = s.ends[i];
+    EXPECT_EQ(joints[i].def.bodyA.packed(), a >= 0 ? bodies[size_t(a)].id : 0u) << s.joints[i].name;
+    EXPECT_EQ(joints[i].def.bodyB.packed(), b >= 0 ? bodies[size_t(b)].id : 0u) << s.joints[i].name;
+  }
+}
+
 TEST(ClientSettings, SettingsAndDefinitionsThroughTheSdk) {
   Daemon d;
   Client c(options("settings"));
@@ -204,7 +236,7 @@ TEST(ClientSettings, AGravityChangeWakesASleepingPile) {
   EXPECT_GT(w.queryState(std::vector<uint64_t>{ids[3]}).get().bodies.at(0).position.x, x0 + 0.2f);
 }
 
-TEST(ClientSettings, EverySettingAndDefinitionSurvivesAKilledDaemon) {
+TEST(ClientSettings, EverySettingAndEveryKindOfDefinitionSurviveAKilledDaemonAndASnapshot) {
   testing::ScratchDir dir("physd-settings");
   const std::string data = (dir.path / "data").string();
   testing::PhysdConfig cfg(dir.path, "physd-settings", 200 + uint32_t(getpid() % 29),
@@ -215,9 +247,12 @@ TEST(ClientSettings, EverySettingAndDefinitionSurvivesAKilledDaemon) {
   ASSERT_GT(pid, 0);
   c.connect();
   WorldHandle w = c.createWorld({"kept", "", std::nullopt, 0}).get();
-  std::vector<uint64_t> ids = w.spawn(scenery()).get();
-  w.addJoints(std::vector<phys::JointDef>{hinge(ids[1], ids[2])}).get();
+  const test::Scenery every = test::everyKindScenery();
+  spawnEveryKind(w, every);
+  expectEveryKind(w, every, "as spawned");
   w.step(5).get();
+  // An engine snapshot, restored after the restart into a world that never had the bodies.
+  const Bytes snap = w.saveSnapshot().get();
   WorldOverrides o;
   o.gravity = phys::Vec3{0.5f, 0, -4};
   o.sleepTime = 2.5f;
@@ -230,7 +265,10 @@ TEST(ClientSettings, EverySettingAndDefinitionSurvivesAKilledDaemon) {
   guard.pid = pid = testing::spawnProcess(PHYSD_BINARY, {"--config", cfg.toml});
   ASSERT_GT(pid, 0);
   ASSERT_TRUE(testing::awaitReconnects(c, 1));
-  expectScenery(w.allBodies().get(), w.allJoints().get(), "after a restart");
+  expectEveryKind(w, every, "after a restart");
+  WorldHandle w2 = c.createWorld({"restored", "", std::nullopt, 0}).get();
+  w2.restoreSnapshot(snap).get();
+  expectEveryKind(w2, every, "restored from a snapshot after a restart");
   WorldSettings s = w.settings().get();
   EXPECT_TRUE(s.def.gravity == *o.gravity);
   EXPECT_EQ(s.def.sleep.time, 2.5f);

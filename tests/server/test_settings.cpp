@@ -10,12 +10,15 @@
 #include <map>
 
 #include "flatbuffers/flatbuffers.h"
+#include "../common/defs_compare.h"
 #include "server_test_util.h"
 
 namespace phys::server::test {
 namespace {
 
 namespace fs = std::filesystem;
+using phys::test::expectSameDefinition;
+using phys::test::expectSameJoint;
 using protocol::CommandBuilder;
 using protocol::WorldOverrides;
 
@@ -87,52 +90,6 @@ std::vector<protocol::JointEntry> allJoints(Client& c, uint32_t world) {
   return out;
 }
 
-/// Every field of two body definitions but pose and velocities (which move).
-void expectSameDefinition(const phys::BodyDef& a, const phys::BodyDef& b, const std::string& what) {
-  SCOPED_TRACE(what);
-  EXPECT_EQ(a.type, b.type);
-  EXPECT_EQ(a.name, b.name);
-  EXPECT_EQ(a.linearDamping, b.linearDamping);
-  EXPECT_EQ(a.angularDamping, b.angularDamping);
-  EXPECT_EQ(a.gravityScale, b.gravityScale);
-  EXPECT_EQ(a.mass, b.mass);
-  EXPECT_TRUE(a.inertia == b.inertia);
-  EXPECT_EQ(a.gyroscopic, b.gyroscopic);
-  EXPECT_EQ(a.allowSleep, b.allowSleep);
-  ASSERT_EQ(a.shapes.size(), b.shapes.size());
-  for (size_t i = 0; i < a.shapes.size(); ++i) {
-    const phys::ShapeDef &x = a.shapes[i], &y = b.shapes[i];
-    EXPECT_EQ(x.geom.type, y.geom.type);
-    EXPECT_EQ(x.geom.radius, y.geom.radius);
-    EXPECT_TRUE(x.geom.halfExtents == y.geom.halfExtents);
-    EXPECT_EQ(x.geom.halfHeight, y.geom.halfHeight);
-    EXPECT_TRUE(x.local.p == y.local.p);
-    EXPECT_EQ(x.material.friction, y.material.friction);
-    EXPECT_EQ(x.material.restitution, y.material.restitution);
-    EXPECT_EQ(x.material.density, y.material.density);
-    EXPECT_EQ(bool(x.geom.hull), bool(y.geom.hull));
-    if (x.geom.hull && y.geom.hull) {
-      EXPECT_EQ(x.geom.hull->vertices.size(), y.geom.hull->vertices.size());
-    }
-  }
-}
-
-void expectSameJoint(const phys::JointDef& a, const phys::JointDef& b) {
-  EXPECT_EQ(a.type, b.type);
-  EXPECT_EQ(a.name, b.name);
-  EXPECT_TRUE(a.anchorA == b.anchorA);
-  EXPECT_TRUE(a.anchorB == b.anchorB);
-  EXPECT_TRUE(a.axisA == b.axisA);
-  EXPECT_EQ(a.enableLimit, b.enableLimit);
-  EXPECT_EQ(a.lower, b.lower);
-  EXPECT_EQ(a.upper, b.upper);
-  EXPECT_EQ(a.enableMotor, b.enableMotor);
-  EXPECT_EQ(a.motorSpeed, b.motorSpeed);
-  EXPECT_EQ(a.maxMotorForce, b.maxMotorForce);
-  EXPECT_EQ(a.springHertz, b.springHertz);
-  EXPECT_EQ(a.collideConnected, b.collideConnected);
-}
-
 /// Settings other than the defaults in every field SetWorld takes.
 WorldOverrides someSettings() {
   WorldOverrides o;
@@ -169,69 +126,8 @@ void expectSettings(const phys::WorldDef& d, const WorldOverrides& o) {
 }
 
 /// Bodies with something other than the default in every definition field, and two joints.
-struct Scenery {
-  std::vector<phys::BodyDef> bodies;
-  std::vector<phys::JointDef> joints;
-  std::vector<std::pair<int, int>> ends;  ///< each joint's bodies: indices into bodies (-1: world)
-};
-Scenery scenery() {
-  Scenery s;
-  s.bodies.push_back(groundBody(0.8f, 0.1f));
-  s.bodies.back().name = "ground";
-  phys::BodyDef a = boxBody({0, 0, 2}, {0.5f, 0.25f, 0.4f});
-  a.name = "crate";
-  a.linearDamping = 0.3f;
-  a.angularDamping = 0.6f;
-  a.gravityScale = 0.5f;
-  a.mass = 7;
-  a.inertia = {1, 2, 3};
-  a.gyroscopic = false;
-  a.allowSleep = false;
-  a.shapes[0].material = {0.2f, 0.4f, 700};
-  phys::ShapeDef cap;
-  cap.geom = phys::ShapeGeom::capsule(0.1f, 0.3f);
-  cap.local.p = {0, 0, 0.6f};
-  a.shapes.push_back(cap);
-  s.bodies.push_back(a);
-  phys::BodyDef b = phys::test::sphereBody({2, 0, 2}, 0.3f, 1500);
-  b.name = "ball";
-  b.gravityScale = -0.25f;
-  s.bodies.push_back(b);
-  phys::BodyDef h;
-  h.position = {-2, 0, 2};
-  h.name = "hull";
-  phys::ShapeDef hs;
-  auto hull = phys::buildConvexHull(
-      {{-0.3f, -0.3f, -0.3f}, {0.3f, -0.3f, -0.3f}, {0, 0.3f, -0.3f}, {0, 0, 0.4f}, {0.1f, 0.1f, 0}}, nullptr);
-  hs.geom = phys::ShapeGeom::convexHull(hull);
-  h.shapes.push_back(hs);
-  s.bodies.push_back(h);
-  phys::JointDef hinge;
-  hinge.type = phys::JointType::Hinge;
-  hinge.anchorA = {1, 0, 0};
-  hinge.anchorB = {-1, 0, 0};
-  hinge.axisA = hinge.axisB = {0, 1, 0};
-  hinge.enableLimit = true;
-  hinge.lower = -0.5f;
-  hinge.upper = 0.7f;
-  hinge.enableMotor = true;
-  hinge.motorSpeed = 0.5f;
-  hinge.maxMotorForce = 20;
-  hinge.name = "hinge";
-  s.joints.push_back(hinge);
-  s.ends.push_back({1, 2});
-  phys::JointDef rope;
-  rope.type = phys::JointType::Distance;
-  rope.anchorA = {-2, 0, 4};
-  rope.length = 2;
-  rope.springHertz = 3;
-  rope.springDampingRatio = 0.5f;
-  rope.collideConnected = true;
-  rope.name = "rope";
-  s.joints.push_back(rope);
-  s.ends.push_back({-1, 3});
-  return s;
-}
+using phys::test::Scenery;
+Scenery scenery() { return phys::test::everyKindScenery(); }
 
 /// Spawns the scenery; returns the bodies' ids and the joints'.
 std::pair<std::vector<uint64_t>, std::vector<uint64_t>> spawnScenery(Client& c, uint32_t world,
@@ -258,13 +154,13 @@ void expectScenery(Client& c, uint32_t world, const Scenery& s, const std::strin
   std::vector<protocol::BodyInfo> got = allBodies(c, world);
   ASSERT_EQ(got.size(), s.bodies.size());
   for (size_t i = 0; i < got.size(); ++i)
-    expectSameDefinition(got[i].def, s.bodies[i], "body " + std::to_string(i));
+    expectSameDefinition(s.bodies[i], got[i].def, "body " + std::to_string(i));
   EXPECT_EQ(got[1].mass.mass, 7);
   EXPECT_NEAR(got[2].mass.mass, 1500 * 4.0f / 3 * phys::kPi * 0.027f, 0.01f);
   std::vector<protocol::JointEntry> joints = allJoints(c, world);
   ASSERT_EQ(joints.size(), s.joints.size());
   for (size_t i = 0; i < joints.size(); ++i) {
-    expectSameJoint(joints[i].def, s.joints[i]);
+    expectSameJoint(s.joints[i], joints[i].def);
     EXPECT_EQ(joints[i].def.bodyB.packed(), got.at(size_t(s.ends[i].second)).id);
     EXPECT_EQ(joints[i].def.bodyA.packed(),
               s.ends[i].first < 0 ? 0 : got.at(size_t(s.ends[i].first)).id);

@@ -43,9 +43,9 @@ DT = 1.0 / 60
 class Daemon:
     """physd with a config of its own, stopped with SIGTERM."""
 
-    def __init__(self, name):
+    def __init__(self, name, domain=None):
         self.dir = tempfile.mkdtemp(prefix="physclient_py_")
-        self.domain = 150 + os.getpid() % 80
+        self.domain = domain if domain is not None else 150 + os.getpid() % 80
         with open(os.path.join(SOURCE_DIR, "configs", "cyclonedds", "loopback.xml")) as f:
             xml = f.read()
         if "<Discovery>" not in xml:
@@ -73,7 +73,15 @@ class Daemon:
                 """))
         if not os.access(PHYSD, os.X_OK):
             raise RuntimeError(f"no physd binary at {PHYSD} (set PHYSD_BINARY)")
+        self.start()
+
+    def start(self):
         self.proc = subprocess.Popen([PHYSD, "--config", self.toml])
+
+    def kill(self):
+        """SIGKILL: no chance to save anything; what survives is what the journal holds."""
+        self.proc.kill()
+        self.proc.wait()
 
     def client(self, **kw):
         kw.setdefault("connect_timeout", 30.0)
@@ -934,6 +942,138 @@ class Bindings(unittest.TestCase):
             self._destroy(self.client.world_named(f"exiting-{os.getpid()}"))
         except pc.NotFound:
             pass
+
+
+def every_kind():
+    """Bodies of every kind and shapes of every type, a value other than the default in every
+    field, and one joint of every type: (bodies, joints as (def, index a, index b); -1: world)."""
+    g = ground()
+    g.name = "ground"
+    g.shapes[0].material = pc.Material(friction=0.8, restitution=0.1)
+    crate = pc.BodyDef(position=(0, 0, 2), name="crate", linear_damping=0.3, angular_damping=0.6,
+                       gravity_scale=0.5, mass=7.0, inertia=(1.0, 2.0, 3.0), gyroscopic=False,
+                       allow_sleep=False,
+                       shapes=[pc.ShapeDef(pc.ShapeGeom.box((0.5, 0.25, 0.4)),
+                                           material=pc.Material(friction=0.2, restitution=0.4,
+                                                                density=700)),
+                               pc.ShapeDef(pc.ShapeGeom.capsule(0.1, 0.3),
+                                           local_position=(0, 0, 0.6))])
+    ball = pc.BodyDef(position=(2, 0, 2), name="ball", gravity_scale=-0.25,
+                      shapes=[pc.ShapeDef(pc.ShapeGeom.sphere(0.3),
+                                          material=pc.Material(density=1500))])
+    hull = pc.BodyDef(position=(-2, 0, 2), name="hull",
+                      shapes=[pc.ShapeDef(pc.ShapeGeom.hull(
+                          [(-0.3, -0.3, -0.3), (0.3, -0.3, -0.3), (0, 0.3, -0.3), (0, 0, 0.4)]))])
+    platform = pc.BodyDef(type=pc.BodyType.Kinematic, position=(0, 3, 1), name="platform",
+                          linear_velocity=(0.5, 0, 0), angular_velocity=(0, 0, 0.25),
+                          shapes=[pc.ShapeDef(pc.ShapeGeom.capsule(0.2, 0.5),
+                                              local_position=(0.1, 0, 0),
+                                              local_rotation=(0, 0.70710677, 0, 0.70710677),
+                                              material=pc.Material(friction=0.9, restitution=0.2,
+                                                                   density=300))])
+    slide = pc.BodyDef(position=(3, -2, 0.5), name="slide", mass=2.0,
+                       shapes=[pc.ShapeDef(pc.ShapeGeom.box((0.2, 0.2, 0.2)))])
+    J = pc.JointType
+    joints = [
+        (pc.JointDef(type=J.Hinge, anchor_a=(1, 0, 0), anchor_b=(-1, 0, 0), axis_a=(0, 1, 0),
+                     axis_b=(0, 1, 0), enable_limit=True, lower=-0.5, upper=0.7,
+                     enable_motor=True, motor_speed=0.5, max_motor_force=20.0, name="hinge"),
+         1, 2),
+        (pc.JointDef(type=J.Distance, anchor_a=(-2, 0, 4), length=2.0, spring_hertz=3.0,
+                     spring_damping_ratio=0.5, collide_connected=True, name="rope"), -1, 3),
+        (pc.JointDef(type=J.Ball, anchor_a=(0, 0.5, 0), anchor_b=(0, -0.5, 0.1),
+                     name="ball joint"), 2, 3),
+        (pc.JointDef(type=J.Fixed, anchor_a=(0.2, 0, 0), anchor_b=(-0.2, 0, 0),
+                     collide_connected=True, name="weld"), 4, 1),
+        (pc.JointDef(type=J.Prismatic, anchor_a=(3, -2, 0.5), axis_a=(1, 0, 0), axis_b=(1, 0, 0),
+                     enable_limit=True, lower=-0.25, upper=0.75, enable_motor=True,
+                     motor_speed=-0.1, max_motor_force=40.0, name="slider"), -1, 5),
+    ]
+    return [g, crate, ball, hull, platform, slide], joints
+
+
+def as_f32(v):
+    """Every float in a nested value as the float32 the engine holds."""
+    if isinstance(v, float):
+        return f32(v)
+    if isinstance(v, (tuple, list)):
+        return type(v)(as_f32(x) for x in v)
+    if isinstance(v, dict):
+        return {k: as_f32(x) for k, x in v.items()}
+    return v
+
+
+def body_fields(d):
+    """Every field of a body definition but pose and velocities (state, which moves)."""
+    return as_f32({
+        "type": d.type, "name": d.name, "linear_damping": d.linear_damping,
+        "angular_damping": d.angular_damping, "gravity_scale": d.gravity_scale, "mass": d.mass,
+        "inertia": d.inertia, "gyroscopic": d.gyroscopic, "allow_sleep": d.allow_sleep,
+        "shapes": [{"type": s.geom.type, "radius": s.geom.radius,
+                    "half_extents": s.geom.half_extents, "half_height": s.geom.half_height,
+                    "normal": s.geom.normal, "offset": s.geom.offset,
+                    "hull_vertices": list(s.geom.hull_vertices),
+                    "local_position": s.local_position, "local_rotation": s.local_rotation,
+                    "material": (s.material.friction, s.material.restitution,
+                                 s.material.density)} for s in d.shapes]})
+
+
+def joint_fields(j):
+    """Every field of a joint definition but its bodies."""
+    return as_f32({k: getattr(j, k) for k in (
+        "type", "name", "anchor_a", "anchor_b", "axis_a", "axis_b", "enable_limit", "lower",
+        "upper", "enable_motor", "motor_speed", "max_motor_force", "length", "spring_hertz",
+        "spring_damping_ratio", "collide_connected")})
+
+
+class DurableDefinitions(unittest.TestCase):
+    """What a world reports after its daemon was killed (SIGKILL) and restarted on its data
+    folder, and after a snapshot of it was restored: every field of every body, shape and
+    joint as it was given (a daemon of its own, on another domain)."""
+
+    def test_every_kind_of_definition_survives_a_killed_daemon_and_a_snapshot(self):
+        d = Daemon("physd-python-durable", domain=150 + (os.getpid() + 40) % 80)
+        c = None
+        try:
+            c = d.client(name="physclient-python-durable")
+            c.connect()
+            w = c.create_world("kept")
+            bodies, joints = every_kind()
+            ids = w.spawn(bodies)
+            for j, a, b in joints:
+                j.body_a = ids[a] if a >= 0 else 0
+                j.body_b = ids[b] if b >= 0 else 0
+            w.add_joints([j for j, _, _ in joints])
+            want_bodies = [body_fields(b) for b in bodies]
+            want_joints = [(joint_fields(j), j.body_a, j.body_b) for j, _, _ in joints]
+
+            def check(world, when):
+                got = world.all_bodies()
+                if world is w:
+                    self.assertEqual([b.id for b in got], ids, when)
+                self.assertEqual([body_fields(b.definition) for b in got], want_bodies, when)
+                got_joints = world.all_joints()
+                by_old = dict(zip(ids, [b.id for b in got]))
+                by_old[0] = 0
+                self.assertEqual([(joint_fields(j.definition), j.definition.body_a,
+                                   j.definition.body_b) for j in got_joints],
+                                 [(f, by_old[a], by_old[b]) for f, a, b in want_joints], when)
+
+            check(w, "as spawned")
+            w.step(5)
+            snap = w.save_snapshot()
+            d.kill()
+            d.start()
+            self.assertTrue(wait_until(lambda: c.reconnects >= 1, timeout=30),
+                            "the client did not reconnect to the restarted daemon")
+            check(w, "after a restart")
+            w2 = c.create_world("restored")
+            w2.restore_snapshot(snap)
+            check(w2, "restored from a snapshot after a restart")
+        finally:
+            if c is not None:
+                c.close()
+            d.stop()
 
 
 class ExampleScript(unittest.TestCase):
