@@ -1,21 +1,19 @@
 // Joint rows and joint error measurement.
 #pragma once
 
+#include "dynamics/records.h"
 #include "dynamics/solver.h"
-#include "world/world_impl.h"
 
 namespace phys {
 
 /// What a joint needs of a body's pose: its orientation, centre of mass, and the centre of
-/// mass in the body frame (anchors are given relative to the body origin).
+/// mass in the body frame (anchors are given relative to the body origin). The world makes
+/// one from its body record (poseOf, world_impl.h).
 struct BodyPose {
   Quat q;
   Vec3 com;
   Vec3 localCenter;
 };
-inline BodyPose poseOf(const BodyRec& b) {
-  return {b.xf.q, b.com, b.localCenter};
-}
 
 /// World-space geometry of a joint at the bodies' current poses. A null body A is the world.
 struct JointFrame {

@@ -3,8 +3,6 @@
 #include <algorithm>
 #include <cmath>
 
-#include "world/world_impl.h"
-
 namespace phys {
 
 bool stackStands(std::span<const StackLevel> levels, double g, double omega) {
@@ -41,26 +39,13 @@ double stackCriticalOmega(std::span<const StackLevel> levels, double g, double o
 }
 
 // ---------------------------------------------------------------------------------------------
-// The world's side: its stacks, measured from this step's contacts.
+// The world's stacks, measured from this step's contacts.
 
-void World::Impl::stiffenForStacks(float dt, SolverSettings* s) {
-  if (!s->stackStiffening) return forgetStacks();
-  // Stacks change slowly next to their buckling (seconds): measured every
-  // kStackInterval-th step, the frequency is kept in between (in StepStats, so a restored
-  // snapshot continues the same way).
-  if (stats.step % SolverSettings::kStackInterval == 0) measureStacks(dt, *s);
-  const float effective = std::min(s->contactHertz, 0.25f * float(s->substeps) / dt);
-  if (!(stats.stackHertz > effective)) return;
-  s->contactHertz = std::max(s->contactHertz, stats.stackHertz);
-  const double needed = std::ceil(4.0 * double(stats.stackHertz) * double(dt));
-  s->substeps = std::max(s->substeps, int(std::min(needed, 64.0)));
-}
-
-void World::Impl::measureStacks(float dt, const SolverSettings& s) {
-  forgetStacks();
-  const float g = length(def.gravity);
-  if (!(g > 0)) return;
-  const Vec3 down = def.gravity / g;
+StackMeasure StackScratch::measureStacks(const StackInput& in, float dt, const SolverSettings& s) {
+  StackMeasure out;
+  const float g = length(in.gravity);
+  if (!(g > 0)) return out;
+  const Vec3 down = in.gravity / g;
   // Horizontal axes, for the spread of the points each level stands on.
   const Vec3 e1 =
       normalize(std::abs(down.x) < 0.9f ? cross(down, Vec3{1, 0, 0}) : cross(down, Vec3{0, 1, 0}));
@@ -68,7 +53,8 @@ void World::Impl::measureStacks(float dt, const SolverSettings& s) {
 
   // Support contacts: touching, with a normal within 45 degrees of gravity; linked per body
   // (stackHead / stackNext over 2 * contact + end). Static and kinematic bodies are depth 0.
-  const size_t nb = bodies.capacity();
+  const std::span<const Contact> contacts = in.contacts;
+  const size_t nb = in.bodies.size();
   stackDepth.assign(nb, -1);
   stackHead.assign(nb, -1);
   stackNext.assign(2 * contacts.size(), -1);
@@ -81,13 +67,13 @@ void World::Impl::measureStacks(float dt, const SolverSettings& s) {
     if (m.count == 0 || std::abs(dot(m.normal, down)) < 0.7071f) continue;
     float sep = m.points[0].separation;
     for (int k = 1; k < m.count; ++k) sep = std::min(sep, m.points[k].separation);
-    if (sep > 0.5f * def.speculativeDistance) continue;
+    if (sep > 0.5f * in.speculativeDistance) continue;
     stackSupport[ci] = 1;
     const uint32_t ends[2] = {c.bodyA.index, c.bodyB.index};
     for (int e = 0; e < 2; ++e) {
       stackNext[2 * ci + size_t(e)] = stackHead[ends[e]];
       stackHead[ends[e]] = int32_t(2 * ci + size_t(e));
-      if (bodies.at(ends[e]).type != BodyType::Dynamic && stackDepth[ends[e]] < 0) {
+      if (!in.bodies[ends[e]].dynamic && stackDepth[ends[e]] < 0) {
         stackDepth[ends[e]] = 0;
         stackQueue.push_back(int32_t(ends[e]));
       }
@@ -105,16 +91,16 @@ void World::Impl::measureStacks(float dt, const SolverSettings& s) {
   };
   for (size_t q = 0; q < stackQueue.size(); ++q) {
     const uint32_t i = uint32_t(stackQueue[q]);
-    const BodyRec& bi = bodies.at(i);
+    const StackBody& bi = in.bodies[i];
     for (int32_t e = stackHead[i]; e >= 0; e = stackNext[size_t(e)]) {
       const Contact& c = contacts[size_t(e) / 2];
       const uint32_t j = (e & 1) ? c.bodyA.index : c.bodyB.index;
-      const BodyRec& bj = bodies.at(j);
-      if (bj.type != BodyType::Dynamic) continue;
+      const StackBody& bj = in.bodies[j];
+      if (!bj.dynamic) continue;
       if (stackDepth[j] < 0) {
         Vec3 below = bi.com;
         float scale = 1;
-        if (bi.type != BodyType::Dynamic) {
+        if (!bi.dynamic) {
           below = {};
           for (int k = 0; k < c.manifold.count; ++k) below += c.manifold.points[k].point;
           below = below / float(c.manifold.count);
@@ -145,7 +131,7 @@ void World::Impl::measureStacks(float dt, const SolverSettings& s) {
     if (stackDepth[i] > 0) {
       int32_t& d = stackDeepest[size_t(stackIndex[size_t(root(int32_t(i)))])];
       d = std::max(d, stackDepth[i]);
-      stats.stackDepth = std::max(stats.stackDepth, stackDepth[i]);
+      out.depth = std::max(out.depth, stackDepth[i]);
     }
   int32_t total = 0;
   for (size_t k = 0; k < stackFirstLevel.size(); ++k) {
@@ -161,7 +147,7 @@ void World::Impl::measureStacks(float dt, const SolverSettings& s) {
   for (uint32_t i = 0; i < nb; ++i)
     if (stackDepth[i] > 0) {
       LevelSums& l = level(i);
-      l.mass += bodies.at(i).mass;
+      l.mass += in.bodies[i].mass;
       l.rise += stackRise[i];
       l.bodies += 1;
     }
@@ -175,7 +161,7 @@ void World::Impl::measureStacks(float dt, const SolverSettings& s) {
     if (stackDepth[a] < 0 || stackDepth[b] < 0 || std::abs(stackDepth[a] - stackDepth[b]) != 1)
       continue;
     const uint32_t upper = stackDepth[a] > stackDepth[b] ? a : b;
-    const float invMass = bodies.at(a).invMass + bodies.at(b).invMass;
+    const float invMass = in.bodies[a].invMass + in.bodies[b].invMass;
     if (!(invMass > 0)) continue;
     const double w = 0.25 / invMass;
     LevelSums& l = level(upper);
@@ -196,7 +182,7 @@ void World::Impl::measureStacks(float dt, const SolverSettings& s) {
   // docs/ARCHITECTURE.md, "Direct contacts on jointed bodies").
   stackOnDirect.assign(stackFirstLevel.size(), 0);
   if (s.directContactRatio > 0) {
-    directContactsByBody(s);
+    directContactsByBody(in, s);
     for (size_t ci = 0; ci < contacts.size(); ++ci) {
       if (!stackSupport[ci] || !stackDirectContact[ci]) continue;
       const Contact& c = contacts[ci];
@@ -239,21 +225,23 @@ void World::Impl::measureStacks(float dt, const SolverSettings& s) {
     const double omega = stackCriticalOmega(stackModel, g, omega0 / margin, omegaMax);
     if (omega <= omegaMax) need = std::max(need, omega);  // else no stiffness holds it
   }
-  if (need > 0) stats.stackHertz = float(margin * need / (2 * kPi));
+  if (need > 0) out.hertz = float(margin * need / (2 * kPi));
+  return out;
 }
 
-void World::Impl::directContactsByBody(const SolverSettings& s) {
+void StackScratch::directContactsByBody(const StackInput& in, const SolverSettings& s) {
   // World::Impl::findDirectContactIslands's rule (step.cpp), over body indices: islands of
   // touching dynamic bodies (joined by joints too where the LDL hybrid solves them, else
   // without the jointed bodies) that hold a touching pair directContactRatio apart and at
   // most kDirectContactMaxRows touching points. (The direct solve also leaves out, step by
   // step, islands with an impact; a stack on one is stiffened again next time if it stays.)
+  const std::span<const Contact> contacts = in.contacts;
   stackDirectContact.assign(contacts.size(), 0);
   if (!(s.directContactRatio > 0) || s.scheme == SolverSettings::Scheme::Jacobi) return;
-  const size_t nb = bodies.capacity();
+  const size_t nb = in.bodies.size();
   auto dynamic = [&](uint32_t i) {
-    const BodyRec& b = bodies.at(i);
-    return b.type == BodyType::Dynamic && !b.asleep();
+    const StackBody& b = in.bodies[i];
+    return b.dynamic && !b.asleep;
   };
   const bool jointsExact = s.equalitySolve == SolverSettings::EqualitySolve::DirectLdl;
   DisjointSets& sets = directSets;
@@ -262,9 +250,9 @@ void World::Impl::directContactsByBody(const SolverSettings& s) {
   auto join = [&](int32_t a, int32_t b) { sets.join(a, b); };
   std::vector<uint8_t>& jointed = directJointed;
   jointed.assign(nb, 0);
-  for (uint32_t i = 0; i < joints.capacity(); ++i) {
-    if (!joints.alive(i)) continue;
-    const JointDef& d = joints.at(i).def;
+  for (uint32_t i = 0; i < in.joints.capacity(); ++i) {
+    if (!in.joints.alive(i)) continue;
+    const JointDef& d = in.joints.at(i).def;
     const bool a = !d.bodyA.isNull() && dynamic(d.bodyA.index), b = dynamic(d.bodyB.index);
     if (a) jointed[d.bodyA.index] = 1;
     if (b) jointed[d.bodyB.index] = 1;
@@ -280,7 +268,7 @@ void World::Impl::directContactsByBody(const SolverSettings& s) {
     const uint32_t a = c.bodyA.index, b = c.bodyB.index;
     if (!dynamic(a) || !dynamic(b) || excluded(a) || excluded(b)) continue;
     join(int32_t(a), int32_t(b));
-    const float ma = bodies.at(a).mass, mb = bodies.at(b).mass;
+    const float ma = in.bodies[a].mass, mb = in.bodies[b].mass;
     if (std::max(ma, mb) >= s.directContactRatio * std::min(ma, mb)) heavy.push_back(int32_t(a));
   }
   for (int32_t a : heavy) rows[size_t(root(a))] = 0;

@@ -491,10 +491,12 @@ void forEachStepScratch(Impl& w, F&& f) {
   f(w.solverPart);
   f(w.beforeRestitution);
   f(w.equalityRowsAt);
-  f(w.stackDepth), f(w.stackHead), f(w.stackNext), f(w.stackQueue), f(w.stackRoot);
-  f(w.stackIndex), f(w.stackDeepest), f(w.stackFirstLevel), f(w.stackSupport), f(w.stackRise);
-  f(w.stackLevels), f(w.stackModel), f(w.stackDirectContact), f(w.stackOnDirect);
-  f(w.directJointed), f(w.directRows), f(w.directHeavy);
+  f(w.stackBodies);
+  auto& t = w.stacks;
+  f(t.stackDepth), f(t.stackHead), f(t.stackNext), f(t.stackQueue), f(t.stackRoot);
+  f(t.stackIndex), f(t.stackDeepest), f(t.stackFirstLevel), f(t.stackSupport), f(t.stackRise);
+  f(t.stackLevels), f(t.stackModel), f(t.stackDirectContact), f(t.stackOnDirect);
+  f(t.directJointed), f(t.directRows), f(t.directHeavy);
   // Shape-sized.
   f(w.boundsTight), f(w.boundsLeft);
 }
@@ -506,7 +508,7 @@ void World::Impl::releaseStepBuffers() noexcept {
   impacts.release();
   broadPhase.releaseScratch();
   islandSets.release();
-  directSets.release();
+  stacks.directSets.release();
   directContacts.release();
   wide.release();
 }
@@ -516,7 +518,7 @@ size_t World::stepBufferBytes() const {
   size_t bytes = w.contacts.capacity() * sizeof(Contact) + w.wide.capacityBytes() +
                  w.solver.capacityBytes() + w.impacts.capacityBytes() +
                  w.broadPhase.scratchBytes() + w.islandSets.capacityBytes() +
-                 w.directSets.capacityBytes() + w.directContacts.capacityBytes();
+                 w.stacks.directSets.capacityBytes() + w.directContacts.capacityBytes();
   forEachStepScratch(w, [&](const auto& v) { bytes += v.capacity() * sizeof(v[0]); });
   return bytes;
 }
@@ -973,6 +975,32 @@ void World::Impl::narrowPhase(float dt) {
   stats.contactPoints = points.load();
   stats.maxPenetration = double(deepest.load());
   stats.contacts = int(contacts.size());
+}
+
+void World::Impl::stiffenForStacks(float dt, SolverSettings* s) {
+  if (!s->stackStiffening) return forgetStacks();
+  // Stacks change slowly next to their buckling (seconds): measured every
+  // kStackInterval-th step, the frequency is kept in between (in StepStats, so a restored
+  // snapshot continues the same way).
+  if (stats.step % SolverSettings::kStackInterval == 0) measureStacks(dt, *s);
+  const float effective = std::min(s->contactHertz, 0.25f * float(s->substeps) / dt);
+  if (!(stats.stackHertz > effective)) return;
+  s->contactHertz = std::max(s->contactHertz, stats.stackHertz);
+  const double needed = std::ceil(4.0 * double(stats.stackHertz) * double(dt));
+  s->substeps = std::max(s->substeps, int(std::min(needed, 64.0)));
+}
+
+void World::Impl::measureStacks(float dt, const SolverSettings& s) {
+  // Every slot, dead ones too (their default records): no contact or joint names those.
+  stackBodies.resize(bodies.capacity());
+  for (uint32_t i = 0; i < bodies.capacity(); ++i) {
+    const BodyRec& b = bodies.at(i);
+    stackBodies[i] = {b.com, b.mass, b.invMass, b.type == BodyType::Dynamic, b.asleep()};
+  }
+  const StackMeasure m = stacks.measureStacks(
+      {stackBodies, joints, contacts, def.gravity, def.speculativeDistance}, dt, s);
+  stats.stackDepth = m.depth;
+  stats.stackHertz = m.hertz;
 }
 
 SolverManifold World::Impl::solverManifold(const Contact& c, const SolverSettings& s) const {

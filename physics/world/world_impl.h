@@ -1,6 +1,6 @@
 // Private state of a World, shared by world.cpp (the API), step.cpp (the step and its
-// stages), snapshot.cpp, world_gpu.cpp (the device's side) and, from physics/dynamics/,
-// joints.cpp (joint rows from the body records) and stacks.cpp (stack stiffening).
+// stages), snapshot.cpp and world_gpu.cpp (the device's side). The joint and contact records
+// are the dynamics' (physics/dynamics/records.h).
 #pragma once
 
 #include <algorithm>
@@ -14,6 +14,8 @@
 #include "phys/collision/broadphase.h"
 #include "phys/world/world.h"
 #include "dynamics/impacts.h"
+#include "dynamics/joints.h"
+#include "dynamics/records.h"
 #include "dynamics/solver.h"
 #include "dynamics/solver_contact_direct.h"
 #include "dynamics/solver_ldl.h"
@@ -70,36 +72,10 @@ struct BodyRec {
   bool awake() const { return type != BodyType::Static && island < 0; }
 };
 
-struct JointRec {
-  JointDef def;
-  Quat relRot0;      ///< fixed/prismatic: conj(qA) * qB at creation
-  Vec3 refA, refB;   ///< hinge: local reference vectors perpendicular to the axis
-  float length = 0;  ///< distance: rest length
-  JointState state;
-  int32_t firstRow = 0, rowCount = 0;  ///< this step's rows
-  static constexpr int kMaxRows = 8;  ///< a hinge's or slider's 5 + 2 limit rows + motor
-  /// m, the shortest rest length of a distance joint that pulls along its anchors' line
-  static constexpr float kMinDistanceLength = 1e-3f;
-  float impulses[kMaxRows] = {};  ///< last step's row impulses, for warm starting
-  int32_t impulseCount = 0;
-};
-
-/// Persistent contact between two shapes (keyed by their shape indices, a < b).
-struct Contact {
-  uint32_t shapeA = 0, shapeB = 0;  ///< shape slots (broad-phase user values)
-  ShapeId idA, idB;                 ///< the shapes themselves, generation included
-  BodyId bodyA, bodyB;
-  Manifold manifold;
-  float normalImpulse[Manifold::kMaxPoints] = {};
-  /// Per point: the friction pair's impulses. With patch friction the manifold's three
-  /// (tangent 1, tangent 2, twist) in the first three slots instead: patchImpulse(d).
-  float tangentImpulse[Manifold::kMaxPoints][2] = {};
-  float friction = 0, restitution = 0;
-  int32_t firstRow = -1;  ///< this step's first normal row
-
-  float& patchImpulse(int d) { return tangentImpulse[d / 2][d % 2]; }
-  float patchImpulse(int d) const { return tangentImpulse[d / 2][d % 2]; }
-};
+/// What the joints' rows read of a body (joints.h).
+inline BodyPose poseOf(const BodyRec& b) {
+  return {b.xf.q, b.com, b.localCenter};
+}
 
 /// Warm-start impulses are per substep: the factor that takes impulses solved with substeps of
 /// `before` s to substeps of `after` s, keeping the forces they stand for; 1 when there is
@@ -323,13 +299,14 @@ struct World::Impl {
   }
   void rebuildNoCollide();
 
-  // Step stages (in step.cpp; the stacks' in physics/dynamics/stacks.cpp), in order.
+  // Step stages (in step.cpp), in order.
   void applyCommands();
   void updateBounds(float h);
   void broadPhaseStage();
   void narrowPhase(float h);
   /// Stack stiffening (SolverSettings::stackStiffening): the contact frequency and substeps
-  /// this step's stacks need, into `s`; measureStacks finds the frequency (StepStats).
+  /// this step's stacks need, into `s`; measureStacks finds the frequency (StepStats) with
+  /// `stacks` (physics/dynamics/stacks.h).
   void stiffenForStacks(float dt, SolverSettings* s);
   void measureStacks(float dt, const SolverSettings& s);
   /// The measured stacks are for other settings (gravity, time step, contact frequency,
@@ -340,29 +317,9 @@ struct World::Impl {
   }
   /// Scales the stored warm-start impulses (per substep) to substeps of length h.
   void rescaleWarmStarts(float h);
-  /// Its scratch: per body (index) its support depth, adjacency head, union-find parent and
-  /// (for a root) its stack's index; per contact whether it supports and its adjacency
-  /// links; per stack its deepest level and its first level in stackLevels.
-  std::vector<int32_t> stackDepth, stackHead, stackNext, stackQueue, stackRoot, stackIndex,
-      stackDeepest, stackFirstLevel;
-  std::vector<uint8_t> stackSupport;
-  std::vector<float> stackRise;
-  struct LevelSums {
-    double mass = 0, rise = 0, w = 0, wx = 0, wy = 0, wxx = 0, wxy = 0, wyy = 0;
-    int bodies = 0;
-  };
-  std::vector<LevelSums> stackLevels;
-  std::vector<StackLevel> stackModel;
-  /// Per contact, whether the direct solve would take it (directContactsByBody); per stack,
-  /// whether one of its support contacts is such (the stack is then not stiffened).
-  std::vector<uint8_t> stackDirectContact, stackOnDirect;
-  // directContactsByBody's scratch (per body).
-  DisjointSets directSets;
-  std::vector<uint8_t> directJointed;
-  std::vector<int32_t> directRows, directHeavy;
-  /// stackDirectContact for measureStacks: findDirectContactIslands's rule over the bodies'
-  /// own indices (it runs before the step's solver bodies exist), for every touching contact.
-  void directContactsByBody(const SolverSettings& s);
+  /// measureStacks' scratch, and what it passes of each body slot.
+  StackScratch stacks;
+  std::vector<StackBody> stackBodies;
   /// Fills contactOrder; with nested parts (solver_wide.h) returns true and fills `parts`.
   bool orderContacts(const SolverSettings& s, ContactParts& parts);
   /// Finds the islands of contactOrder's contacts in which a dynamic body touches one

@@ -3,6 +3,7 @@
 // reused) is stale and is rejected, never dereferenced. The all-zero handle is null.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <utility>
 #include <vector>

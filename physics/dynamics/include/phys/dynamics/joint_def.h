@@ -1,5 +1,6 @@
-// What a joint is: its type, the two bodies, their local frames, limits, motor and spring.
-// The joint rows built from it are private (physics/dynamics/joints.h).
+// What a joint is: its type, the two bodies, their local frames, limits, motor and spring;
+// and its state after a step. The joint rows built from it are private
+// (physics/dynamics/joints.h).
 #pragma once
 
 #include <cstdint>
@@ -34,6 +35,19 @@ struct JointDef {
   float springDampingRatio = 0;
   bool collideConnected = false;  ///< let the two bodies' shapes collide
   std::string name;
+};
+
+/// A joint's state after the last step.
+struct JointState {
+  JointId id;
+  Vec3 reactionForce;  ///< N, applied to body B (world frame), last step
+  /// N m, applied to body B (world frame) by the joint's angular constraints (locks, hinge
+  /// axes, angular limits and motors), last step; the moment of reactionForce about B's
+  /// centre is not included (as Box2D's constraint torque).
+  Vec3 reactionTorque;
+  float positionError =
+      0;  ///< m, distance between the two world anchors (length error for distance joints)
+  float angleError = 0;  ///< rad, hinge axis misalignment or fixed-frame relative angle
 };
 
 }  // namespace phys

@@ -298,19 +298,6 @@ struct BodyMass {
   Quat inertiaRotation;  ///< the principal axes' frame in the body frame
 };
 
-/// A joint's state after the last step.
-struct JointState {
-  JointId id;
-  Vec3 reactionForce;  ///< N, applied to body B (world frame), last step
-  /// N m, applied to body B (world frame) by the joint's angular constraints (locks, hinge
-  /// axes, angular limits and motors), last step; the moment of reactionForce about B's
-  /// centre is not included (as Box2D's constraint torque).
-  Vec3 reactionTorque;
-  float positionError =
-      0;  ///< m, distance between the two world anchors (length error for distance joints)
-  float angleError = 0;  ///< rad, hinge axis misalignment or fixed-frame relative angle
-};
-
 /// A body's state computed elsewhere (a peer engine's step), for World::observe. Conventions
 /// as BodyState: body frame origin and rotation; centre-of-mass and angular velocity, world.
 struct ObservedBody {
