@@ -49,42 +49,6 @@ std::string hexId(uint64_t v) {
   return buf;
 }
 
-
-constexpr std::array<const char*, 32> kRequestNames = {"none",
-                                                       "hello",
-                                                       "create_world",
-                                                       "destroy_world",
-                                                       "reset_world",
-                                                       "list_worlds",
-                                                       "load_scene",
-                                                       "spawn_bodies",
-                                                       "remove_bodies",
-                                                       "add_joints",
-                                                       "remove_joints",
-                                                       "set_body_pose",
-                                                       "set_body_velocity",
-                                                       "apply_force",
-                                                       "apply_impulse",
-                                                       "apply_torque",
-                                                       "set_material",
-                                                       "set_solver",
-                                                       "step",
-                                                       "run",
-                                                       "pause",
-                                                       "query_state",
-                                                       "save_snapshot",
-                                                       "restore_snapshot",
-                                                       "batch",
-                                                       "subscribe",
-                                                       "unsubscribe",
-                                                       "set_access",
-                                                       "set_world",
-                                                       "get_world",
-                                                       "get_bodies",
-                                                       "get_joints"};
-static_assert(kRequestNames.size() == size_t(wire::Request::MAX) + 1,
-              "a request kind without a name");
-
 // ---------------------------------------------------------------------------------------------
 // The checker: a path of field names for messages and one check per kind of value. Every
 // check returns false after recording the first failure, so callers write `if (!x) return
@@ -287,6 +251,37 @@ class Checker : public ValueRules<Checker> {
   bool command(const wire::Command& c);
   bool request(wire::Request type, const void* table);
   bool snapshot(const wire::Snapshot& s);
+
+  // One check per request (kChecks), given the request's table; request() has pushed the
+  // request's name onto the path.
+  bool nothing(const void*) { return true; }
+  bool hello(const void* t);
+  bool createWorld(const void* t);
+  bool loadScene(const void* t);
+  bool spawnBodies(const void* t);
+  bool removeBodies(const void* t);
+  bool addJoints(const void* t);
+  bool removeJoints(const void* t);
+  bool setBodyPose(const void* t);
+  bool setBodyVelocity(const void* t);
+  bool applyForce(const void* t);
+  bool applyImpulse(const void* t);
+  bool forces(const Vector<const wire::BodyForce*>* v, wire::PointFrame frame);
+  bool applyTorque(const void* t);
+  bool setMaterial(const void* t);
+  bool setSolver(const void* t);
+  bool step(const void* t);
+  bool run(const void* t);
+  bool queryState(const void* t);
+  bool saveSnapshot(const void* t);
+  bool restoreSnapshot(const void* t);
+  bool batch(const void* t);
+  bool subscribe(const void* t);
+  bool unsubscribe(const void* t);
+  bool setAccess(const void* t);
+  bool setWorld(const void* t);
+  bool getBodies(const void* t);
+  bool getJoints(const void* t);
 
  private:
   struct Segment {
@@ -595,253 +590,320 @@ bool Checker::command(const wire::Command& c) {
   return request(type, c.request());
 }
 
+/// The check of each request kind, indexed by wire::Request (NONE: none, refused).
+struct RequestCheck {
+  wire::Request type;
+  bool (Checker::*check)(const void* table);
+};
+constexpr std::array<RequestCheck, size_t(wire::Request::MAX) + 1> kChecks = {{
+    {wire::Request::NONE, nullptr},
+    {wire::Request::Hello, &Checker::hello},
+    {wire::Request::CreateWorld, &Checker::createWorld},
+    {wire::Request::DestroyWorld, &Checker::nothing},
+    {wire::Request::ResetWorld, &Checker::nothing},
+    {wire::Request::ListWorlds, &Checker::nothing},
+    {wire::Request::LoadScene, &Checker::loadScene},
+    {wire::Request::SpawnBodies, &Checker::spawnBodies},
+    {wire::Request::RemoveBodies, &Checker::removeBodies},
+    {wire::Request::AddJoints, &Checker::addJoints},
+    {wire::Request::RemoveJoints, &Checker::removeJoints},
+    {wire::Request::SetBodyPose, &Checker::setBodyPose},
+    {wire::Request::SetBodyVelocity, &Checker::setBodyVelocity},
+    {wire::Request::ApplyForce, &Checker::applyForce},
+    {wire::Request::ApplyImpulse, &Checker::applyImpulse},
+    {wire::Request::ApplyTorque, &Checker::applyTorque},
+    {wire::Request::SetMaterial, &Checker::setMaterial},
+    {wire::Request::SetSolver, &Checker::setSolver},
+    {wire::Request::Step, &Checker::step},
+    {wire::Request::Run, &Checker::run},
+    {wire::Request::Pause, &Checker::nothing},
+    {wire::Request::QueryState, &Checker::queryState},
+    {wire::Request::SaveSnapshot, &Checker::saveSnapshot},
+    {wire::Request::RestoreSnapshot, &Checker::restoreSnapshot},
+    {wire::Request::Batch, &Checker::batch},
+    {wire::Request::Subscribe, &Checker::subscribe},
+    {wire::Request::Unsubscribe, &Checker::unsubscribe},
+    {wire::Request::SetAccess, &Checker::setAccess},
+    {wire::Request::SetWorld, &Checker::setWorld},
+    {wire::Request::GetWorld, &Checker::nothing},
+    {wire::Request::GetBodies, &Checker::getBodies},
+    {wire::Request::GetJoints, &Checker::getJoints},
+}};
+constexpr bool inOrder() {
+  for (size_t i = 0; i < kChecks.size(); ++i)
+    if (size_t(kChecks[i].type) != i || (i > 0 && !kChecks[i].check)) return false;
+  return true;
+}
+static_assert(inOrder(), "one check per wire::Request, in the union's order");
+
 bool Checker::request(wire::Request type, const void* table) {
   Scope sc(*this, requestName(type));
-  switch (type) {
-    case wire::Request::Hello: {
-      auto* r = static_cast<const wire::Hello*>(table);
-      if (r->protocol_version() == 0) return invalid("protocol_version", "must be >= 1, got 0");
-      if (!text(r->client_name(), lim.maxNameBytes, "client_name", false)) return false;
-      // A binding proof (client_key.h): a whole key and a whole signature, or neither.
-      const size_t key = r->public_key() ? r->public_key()->size() : 0;
-      const size_t proof = r->proof() ? r->proof()->size() : 0;
-      if ((key || proof) && (key != kClientPublicKeyBytes || proof != kClientProofBytes))
-        return fail(Code::Malformed, "public_key",
-                    "a binding proof is a " + std::to_string(kClientPublicKeyBytes) +
-                        "-byte public key and a " + std::to_string(kClientProofBytes) +
-                        "-byte proof, got " + std::to_string(key) + " and " +
-                        std::to_string(proof));
-      return true;
-    }
-    case wire::Request::CreateWorld: {
-      auto* r = static_cast<const wire::CreateWorld*>(table);
-      if (!text(r->name(), lim.maxNameBytes, "name", true) ||
-          !fileName(r->preset(), "preset", false) || !vec(r->gravity(), lim.maxGravity, "gravity"))
-        return false;
-      if (r->time_step() != 0 && !timeStep(r->time_step(), "time_step"))
-        return false;
-      if (!editorList(r->editors(), "editors")) return false;
-      return backend(r->backend(), "backend");
-    }
-    case wire::Request::SetAccess:
-      return editorList(static_cast<const wire::SetAccess*>(table)->editors(), "editors");
-    case wire::Request::DestroyWorld:
-    case wire::Request::ResetWorld:
-    case wire::Request::ListWorlds:
-    case wire::Request::Pause:
-      return true;
-    case wire::Request::Subscribe: {
-      auto* r = static_cast<const wire::Subscribe*>(table);
-      const bool region = r->region_min() || r->region_max();
-      if (region && (!r->region_min() || !r->region_max()))
-        return invalid("region_min", "and region_max go together");
-      if (region == (r->bodies() != nullptr))
-        return invalid("bodies", "or a region (region_min, region_max): give exactly one");
-      if (r->bodies()) return idList(r->bodies(), "bodies", true, true);
-      if (!vec(r->region_min(), lim.maxCoordinate, "region_min") ||
-          !vec(r->region_max(), lim.maxCoordinate, "region_max"))
-        return false;
-      const wire::Vec3 &a = *r->region_min(), &b = *r->region_max();
-      if (!(a.x() <= b.x() && a.y() <= b.y() && a.z() <= b.z()))
-        return invalid("region_max", "must be >= region_min on every axis");
-      return true;
-    }
-    case wire::Request::Unsubscribe:
-      if (static_cast<const wire::Unsubscribe*>(table)->interest() == 0)
-        return invalid("interest", "must be non-zero (an id Subscribe returned)");
-      return true;
-    case wire::Request::LoadScene: {
-      auto* r = static_cast<const wire::LoadScene*>(table);
-      if (r->json() && r->scene_name())
-        return invalid("json", "and scene_name are both given; give one");
-      if (!r->json() && !r->scene_name()) return invalid("json", "or scene_name must be given");
-      if (r->json()) return text(r->json(), lim.maxSceneJsonBytes, "json", true, true);
-      return fileName(r->scene_name(), "scene_name", true);
-    }
-    case wire::Request::SpawnBodies: {
-      auto* v = static_cast<const wire::SpawnBodies*>(table)->bodies();
-      if (!nonEmpty(v, "bodies") ||
-          !budget(&bodies, v->size(), lim.maxBodiesPerCommand, "bodies", "max_bodies_per_command"))
-        return false;
-      for (uint32_t i = 0; i < v->size(); ++i) {
-        Scope s(*this, "bodies", i);
-        if (!body(*v->Get(i))) return false;
-      }
-      return true;
-    }
-    case wire::Request::RemoveBodies:
-      return idList(static_cast<const wire::RemoveBodies*>(table)->bodies(), "bodies", true, true);
-    case wire::Request::AddJoints: {
-      auto* v = static_cast<const wire::AddJoints*>(table)->joints();
-      if (!nonEmpty(v, "joints") ||
-          !budget(&joints, v->size(), lim.maxJointsPerCommand, "joints", "max_joints_per_command"))
-        return false;
-      for (uint32_t i = 0; i < v->size(); ++i) {
-        Scope s(*this, "joints", i);
-        if (!joint(*v->Get(i))) return false;
-      }
-      return true;
-    }
-    case wire::Request::RemoveJoints:
-      return idList(static_cast<const wire::RemoveJoints*>(table)->joints(), "joints", true, true);
-    case wire::Request::SetBodyPose: {
-      auto* v = static_cast<const wire::SetBodyPose*>(table)->items();
-      if (!nonEmpty(v, "items") || !aligned8(v, "items") ||
-          !budget(&items, v->size(), lim.maxItemsPerCommand, "items", "max_items_per_command"))
-        return false;
-      for (uint32_t i = 0; i < v->size(); ++i) {
-        Scope s(*this, "items", i);
-        const wire::BodyPose* p = v->Get(i);
-        if (!id(p->id(), "id") || !pose(&p->pose(), "pose")) return false;
-      }
-      return true;
-    }
-    case wire::Request::SetBodyVelocity: {
-      auto* v = static_cast<const wire::SetBodyVelocity*>(table)->items();
-      if (!nonEmpty(v, "items") || !aligned8(v, "items") ||
-          !budget(&items, v->size(), lim.maxItemsPerCommand, "items", "max_items_per_command"))
-        return false;
-      for (uint32_t i = 0; i < v->size(); ++i) {
-        Scope s(*this, "items", i);
-        const wire::BodyVelocity* p = v->Get(i);
-        if (!id(p->id(), "id") || !vec(p->linear(), lim.maxLinearSpeed, "linear") ||
-            !vec(p->angular(), lim.maxAngularSpeed, "angular"))
-          return false;
-      }
-      return true;
-    }
-    case wire::Request::ApplyForce:
-    case wire::Request::ApplyImpulse: {
-      const Vector<const wire::BodyForce*>* v;
-      wire::PointFrame frame;
-      if (type == wire::Request::ApplyForce) {
-        auto* r = static_cast<const wire::ApplyForce*>(table);
-        v = r->items();
-        frame = r->point_frame();
-      } else {
-        auto* r = static_cast<const wire::ApplyImpulse*>(table);
-        v = r->items();
-        frame = r->point_frame();
-      }
-      if (!known(frame, wire::PointFrame::MAX, "point_frame", "PointFrame") ||
-          !nonEmpty(v, "items") || !aligned8(v, "items") ||
-          !budget(&items, v->size(), lim.maxItemsPerCommand, "items", "max_items_per_command"))
-        return false;
-      for (uint32_t i = 0; i < v->size(); ++i) {
-        Scope s(*this, "items", i);
-        const wire::BodyForce* p = v->Get(i);
-        if (!id(p->id(), "id") || !vec(p->vector(), lim.maxForce, "vector") ||
-            !vec(p->point(), lim.maxCoordinate, "point"))
-          return false;
-      }
-      return true;
-    }
-    case wire::Request::ApplyTorque: {
-      auto* v = static_cast<const wire::ApplyTorque*>(table)->items();
-      if (!nonEmpty(v, "items") || !aligned8(v, "items") ||
-          !budget(&items, v->size(), lim.maxItemsPerCommand, "items", "max_items_per_command"))
-        return false;
-      for (uint32_t i = 0; i < v->size(); ++i) {
-        Scope s(*this, "items", i);
-        const wire::BodyTorque* p = v->Get(i);
-        if (!id(p->id(), "id") || !vec(p->torque(), lim.maxForce, "torque")) return false;
-      }
-      return true;
-    }
-    case wire::Request::SetMaterial: {
-      auto* r = static_cast<const wire::SetMaterial*>(table);
-      if (!idList(r->bodies(), "bodies", true, false)) return false;
-      if (!r->material()) return invalid("material", "must be given");
-      return material(r->material(), "material");
-    }
-    case wire::Request::SetSolver: {
-      auto* r = static_cast<const wire::SetSolver*>(table);
-      if (!fileName(r->preset(), "preset", false)) return false;
-      int set = 0;
-      if (r->settings()) {
-        Scope s(*this, "settings");
-        if (!solver(*r->settings(), &set)) return false;
-      }
-      if (!r->preset() && set == 0) return invalid("", "needs a preset or at least one setting");
-      return true;
-    }
-    case wire::Request::SetWorld: {
-      auto* r = static_cast<const wire::SetWorld*>(table);
-      int set = 0;
-      if (r->settings()) {
-        Scope s(*this, "settings");
-        if (!worldSettings(*r->settings(), &set)) return false;
-      }
-      if (set == 0) return invalid("settings", "must set at least one field");
-      return true;
-    }
-    case wire::Request::GetWorld:
-      return true;
-    case wire::Request::GetBodies:
-      return idList(static_cast<const wire::GetBodies*>(table)->bodies(), "bodies", false, false);
-    case wire::Request::GetJoints:
-      return idList(static_cast<const wire::GetJoints*>(table)->joints(), "joints", false, false);
-    case wire::Request::Step: {
-      uint32_t n = static_cast<const wire::Step*>(table)->count();
-      if (n == 0) return invalid("count", "must be >= 1, got 0");
-      if (n > lim.maxStepsPerCommand)
-        return fail(Code::ResourceExhausted, "count",
-                    "is " + std::to_string(n) + ", the limit is " +
-                        std::to_string(lim.maxStepsPerCommand) + " (max_steps_per_command)");
-      return true;
-    }
-    case wire::Request::Run:
-      return nonNegative(static_cast<const wire::Run*>(table)->rate_hz(), lim.maxRateHz, "rate_hz");
-    case wire::Request::QueryState:
-      return idList(static_cast<const wire::QueryState*>(table)->bodies(), "bodies", false, false);
-    case wire::Request::SaveSnapshot: {
-      auto* r = static_cast<const wire::SaveSnapshot*>(table);
-      if (!fileName(r->file(), "file", false)) return false;
-      if (!r->return_bytes() && !r->file())
-        return invalid("return_bytes", "is false and no file is given: nothing to do");
-      return true;
-    }
-    case wire::Request::RestoreSnapshot: {
-      auto* r = static_cast<const wire::RestoreSnapshot*>(table);
-      if (r->snapshot() && r->file())
-        return invalid("snapshot", "and file are both given; give one");
-      if (!r->snapshot() && !r->file()) return invalid("snapshot", "or file must be given");
-      if (r->file()) return fileName(r->file(), "file", true);
-      if (!nonEmpty(r->snapshot(), "snapshot")) return false;
-      Decoded<wire::Snapshot> s = decodeSnapshot(
-          std::span<const uint8_t>(r->snapshot()->data(), r->snapshot()->size()), lim);
-      if (!s.ok()) {
-        status = Status::Error(s.status.code, path("snapshot") + ": " + s.status.message);
-        return false;
-      }
-      return true;
-    }
-    case wire::Request::Batch: {
-      auto* v = static_cast<const wire::Batch*>(table)->commands();
-      if (!nonEmpty(v, "commands")) return false;
-      if (v->size() > lim.maxBatchCommands)
-        return fail(Code::ResourceExhausted, "commands",
-                    "has " + std::to_string(v->size()) + " entries, the limit is " +
-                        std::to_string(lim.maxBatchCommands) + " (max_batch_commands)");
-      for (uint32_t i = 0; i < v->size(); ++i) {
-        Scope s(*this, "commands", i);
-        const wire::CommandItem* item = v->Get(i);
-        wire::Request t = item->request_type();
-        if (t == wire::Request::NONE) return fail(Code::Malformed, "request", "is missing");
-        if (t > wire::Request::MAX)
-          return fail(Code::Unsupported, "request",
-                      "has unknown kind " + std::to_string(unsigned(t)));
-        if (!isBatchable(t))
-          return invalid("request", std::string("is ") + requestName(t) +
-                                        ", which cannot be batched (only world edits can)");
-        if (!item->request()) return fail(Code::Malformed, "request", "is missing its table");
-        if (!request(t, item->request())) return false;
-      }
-      return true;
-    }
-    default:
-      return fail(Code::Unsupported, "", "is not supported");
+  const auto check = size_t(type) < kChecks.size() ? kChecks[size_t(type)].check : nullptr;
+  if (!check) return fail(Code::Unsupported, "", "is not supported");
+  return (this->*check)(table);
+}
+
+bool Checker::hello(const void* t) {
+  auto* r = static_cast<const wire::Hello*>(t);
+  if (r->protocol_version() == 0) return invalid("protocol_version", "must be >= 1, got 0");
+  if (!text(r->client_name(), lim.maxNameBytes, "client_name", false)) return false;
+  // A binding proof (client_key.h): a whole key and a whole signature, or neither.
+  const size_t key = r->public_key() ? r->public_key()->size() : 0;
+  const size_t proof = r->proof() ? r->proof()->size() : 0;
+  if ((key || proof) && (key != kClientPublicKeyBytes || proof != kClientProofBytes))
+    return fail(Code::Malformed, "public_key",
+                "a binding proof is a " + std::to_string(kClientPublicKeyBytes) +
+                    "-byte public key and a " + std::to_string(kClientProofBytes) +
+                    "-byte proof, got " + std::to_string(key) + " and " + std::to_string(proof));
+  return true;
+}
+
+bool Checker::createWorld(const void* t) {
+  auto* r = static_cast<const wire::CreateWorld*>(t);
+  if (!text(r->name(), lim.maxNameBytes, "name", true) ||
+      !fileName(r->preset(), "preset", false) || !vec(r->gravity(), lim.maxGravity, "gravity"))
+    return false;
+  if (r->time_step() != 0 && !timeStep(r->time_step(), "time_step")) return false;
+  if (!editorList(r->editors(), "editors")) return false;
+  return backend(r->backend(), "backend");
+}
+
+bool Checker::setAccess(const void* t) {
+  return editorList(static_cast<const wire::SetAccess*>(t)->editors(), "editors");
+}
+
+bool Checker::subscribe(const void* t) {
+  auto* r = static_cast<const wire::Subscribe*>(t);
+  const bool region = r->region_min() || r->region_max();
+  if (region && (!r->region_min() || !r->region_max()))
+    return invalid("region_min", "and region_max go together");
+  if (region == (r->bodies() != nullptr))
+    return invalid("bodies", "or a region (region_min, region_max): give exactly one");
+  if (r->bodies()) return idList(r->bodies(), "bodies", true, true);
+  if (!vec(r->region_min(), lim.maxCoordinate, "region_min") ||
+      !vec(r->region_max(), lim.maxCoordinate, "region_max"))
+    return false;
+  const wire::Vec3 &a = *r->region_min(), &b = *r->region_max();
+  if (!(a.x() <= b.x() && a.y() <= b.y() && a.z() <= b.z()))
+    return invalid("region_max", "must be >= region_min on every axis");
+  return true;
+}
+
+bool Checker::unsubscribe(const void* t) {
+  if (static_cast<const wire::Unsubscribe*>(t)->interest() == 0)
+    return invalid("interest", "must be non-zero (an id Subscribe returned)");
+  return true;
+}
+
+bool Checker::loadScene(const void* t) {
+  auto* r = static_cast<const wire::LoadScene*>(t);
+  if (r->json() && r->scene_name())
+    return invalid("json", "and scene_name are both given; give one");
+  if (!r->json() && !r->scene_name()) return invalid("json", "or scene_name must be given");
+  if (r->json()) return text(r->json(), lim.maxSceneJsonBytes, "json", true, true);
+  return fileName(r->scene_name(), "scene_name", true);
+}
+
+bool Checker::spawnBodies(const void* t) {
+  auto* v = static_cast<const wire::SpawnBodies*>(t)->bodies();
+  if (!nonEmpty(v, "bodies") ||
+      !budget(&bodies, v->size(), lim.maxBodiesPerCommand, "bodies", "max_bodies_per_command"))
+    return false;
+  for (uint32_t i = 0; i < v->size(); ++i) {
+    Scope s(*this, "bodies", i);
+    if (!body(*v->Get(i))) return false;
   }
+  return true;
+}
+
+bool Checker::removeBodies(const void* t) {
+  return idList(static_cast<const wire::RemoveBodies*>(t)->bodies(), "bodies", true, true);
+}
+
+bool Checker::addJoints(const void* t) {
+  auto* v = static_cast<const wire::AddJoints*>(t)->joints();
+  if (!nonEmpty(v, "joints") ||
+      !budget(&joints, v->size(), lim.maxJointsPerCommand, "joints", "max_joints_per_command"))
+    return false;
+  for (uint32_t i = 0; i < v->size(); ++i) {
+    Scope s(*this, "joints", i);
+    if (!joint(*v->Get(i))) return false;
+  }
+  return true;
+}
+
+bool Checker::removeJoints(const void* t) {
+  return idList(static_cast<const wire::RemoveJoints*>(t)->joints(), "joints", true, true);
+}
+
+bool Checker::setBodyPose(const void* t) {
+  auto* v = static_cast<const wire::SetBodyPose*>(t)->items();
+  if (!nonEmpty(v, "items") || !aligned8(v, "items") ||
+      !budget(&items, v->size(), lim.maxItemsPerCommand, "items", "max_items_per_command"))
+    return false;
+  for (uint32_t i = 0; i < v->size(); ++i) {
+    Scope s(*this, "items", i);
+    const wire::BodyPose* p = v->Get(i);
+    if (!id(p->id(), "id") || !pose(&p->pose(), "pose")) return false;
+  }
+  return true;
+}
+
+bool Checker::setBodyVelocity(const void* t) {
+  auto* v = static_cast<const wire::SetBodyVelocity*>(t)->items();
+  if (!nonEmpty(v, "items") || !aligned8(v, "items") ||
+      !budget(&items, v->size(), lim.maxItemsPerCommand, "items", "max_items_per_command"))
+    return false;
+  for (uint32_t i = 0; i < v->size(); ++i) {
+    Scope s(*this, "items", i);
+    const wire::BodyVelocity* p = v->Get(i);
+    if (!id(p->id(), "id") || !vec(p->linear(), lim.maxLinearSpeed, "linear") ||
+        !vec(p->angular(), lim.maxAngularSpeed, "angular"))
+      return false;
+  }
+  return true;
+}
+
+bool Checker::applyForce(const void* t) {
+  auto* r = static_cast<const wire::ApplyForce*>(t);
+  return forces(r->items(), r->point_frame());
+}
+
+bool Checker::applyImpulse(const void* t) {
+  auto* r = static_cast<const wire::ApplyImpulse*>(t);
+  return forces(r->items(), r->point_frame());
+}
+
+/// ApplyForce's and ApplyImpulse's items (the same record).
+bool Checker::forces(const Vector<const wire::BodyForce*>* v, wire::PointFrame frame) {
+  if (!known(frame, wire::PointFrame::MAX, "point_frame", "PointFrame") ||
+      !nonEmpty(v, "items") || !aligned8(v, "items") ||
+      !budget(&items, v->size(), lim.maxItemsPerCommand, "items", "max_items_per_command"))
+    return false;
+  for (uint32_t i = 0; i < v->size(); ++i) {
+    Scope s(*this, "items", i);
+    const wire::BodyForce* p = v->Get(i);
+    if (!id(p->id(), "id") || !vec(p->vector(), lim.maxForce, "vector") ||
+        !vec(p->point(), lim.maxCoordinate, "point"))
+      return false;
+  }
+  return true;
+}
+
+bool Checker::applyTorque(const void* t) {
+  auto* v = static_cast<const wire::ApplyTorque*>(t)->items();
+  if (!nonEmpty(v, "items") || !aligned8(v, "items") ||
+      !budget(&items, v->size(), lim.maxItemsPerCommand, "items", "max_items_per_command"))
+    return false;
+  for (uint32_t i = 0; i < v->size(); ++i) {
+    Scope s(*this, "items", i);
+    const wire::BodyTorque* p = v->Get(i);
+    if (!id(p->id(), "id") || !vec(p->torque(), lim.maxForce, "torque")) return false;
+  }
+  return true;
+}
+
+bool Checker::setMaterial(const void* t) {
+  auto* r = static_cast<const wire::SetMaterial*>(t);
+  if (!idList(r->bodies(), "bodies", true, false)) return false;
+  if (!r->material()) return invalid("material", "must be given");
+  return material(r->material(), "material");
+}
+
+bool Checker::setSolver(const void* t) {
+  auto* r = static_cast<const wire::SetSolver*>(t);
+  if (!fileName(r->preset(), "preset", false)) return false;
+  int set = 0;
+  if (r->settings()) {
+    Scope s(*this, "settings");
+    if (!solver(*r->settings(), &set)) return false;
+  }
+  if (!r->preset() && set == 0) return invalid("", "needs a preset or at least one setting");
+  return true;
+}
+
+bool Checker::setWorld(const void* t) {
+  auto* r = static_cast<const wire::SetWorld*>(t);
+  int set = 0;
+  if (r->settings()) {
+    Scope s(*this, "settings");
+    if (!worldSettings(*r->settings(), &set)) return false;
+  }
+  if (set == 0) return invalid("settings", "must set at least one field");
+  return true;
+}
+
+bool Checker::getBodies(const void* t) {
+  return idList(static_cast<const wire::GetBodies*>(t)->bodies(), "bodies", false, false);
+}
+
+bool Checker::getJoints(const void* t) {
+  return idList(static_cast<const wire::GetJoints*>(t)->joints(), "joints", false, false);
+}
+
+bool Checker::step(const void* t) {
+  uint32_t n = static_cast<const wire::Step*>(t)->count();
+  if (n == 0) return invalid("count", "must be >= 1, got 0");
+  if (n > lim.maxStepsPerCommand)
+    return fail(Code::ResourceExhausted, "count",
+                "is " + std::to_string(n) + ", the limit is " +
+                    std::to_string(lim.maxStepsPerCommand) + " (max_steps_per_command)");
+  return true;
+}
+
+bool Checker::run(const void* t) {
+  return nonNegative(static_cast<const wire::Run*>(t)->rate_hz(), lim.maxRateHz, "rate_hz");
+}
+
+bool Checker::queryState(const void* t) {
+  return idList(static_cast<const wire::QueryState*>(t)->bodies(), "bodies", false, false);
+}
+
+bool Checker::saveSnapshot(const void* t) {
+  auto* r = static_cast<const wire::SaveSnapshot*>(t);
+  if (!fileName(r->file(), "file", false)) return false;
+  if (!r->return_bytes() && !r->file())
+    return invalid("return_bytes", "is false and no file is given: nothing to do");
+  return true;
+}
+
+bool Checker::restoreSnapshot(const void* t) {
+  auto* r = static_cast<const wire::RestoreSnapshot*>(t);
+  if (r->snapshot() && r->file()) return invalid("snapshot", "and file are both given; give one");
+  if (!r->snapshot() && !r->file()) return invalid("snapshot", "or file must be given");
+  if (r->file()) return fileName(r->file(), "file", true);
+  if (!nonEmpty(r->snapshot(), "snapshot")) return false;
+  Decoded<wire::Snapshot> s = decodeSnapshot(
+      std::span<const uint8_t>(r->snapshot()->data(), r->snapshot()->size()), lim);
+  if (!s.ok()) {
+    status = Status::Error(s.status.code, path("snapshot") + ": " + s.status.message);
+    return false;
+  }
+  return true;
+}
+
+bool Checker::batch(const void* t) {
+  auto* v = static_cast<const wire::Batch*>(t)->commands();
+  if (!nonEmpty(v, "commands")) return false;
+  if (v->size() > lim.maxBatchCommands)
+    return fail(Code::ResourceExhausted, "commands",
+                "has " + std::to_string(v->size()) + " entries, the limit is " +
+                    std::to_string(lim.maxBatchCommands) + " (max_batch_commands)");
+  for (uint32_t i = 0; i < v->size(); ++i) {
+    Scope s(*this, "commands", i);
+    const wire::CommandItem* item = v->Get(i);
+    wire::Request type = item->request_type();
+    if (type == wire::Request::NONE) return fail(Code::Malformed, "request", "is missing");
+    if (type > wire::Request::MAX)
+      return fail(Code::Unsupported, "request",
+                  "has unknown kind " + std::to_string(unsigned(type)));
+    if (!isBatchable(type))
+      return invalid("request", std::string("is ") + requestName(type) +
+                                    ", which cannot be batched (only world edits can)");
+    if (!item->request()) return fail(Code::Malformed, "request", "is missing its table");
+    if (!request(type, item->request())) return false;
+  }
+  return true;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1029,36 +1091,6 @@ Decoded<T> keep(std::vector<uint8_t>&& bytes,
 }
 
 }  // namespace
-
-const char* requestName(wire::Request r) {
-  return unsigned(r) < kRequestNames.size() && r != wire::Request::NONE ? kRequestNames[unsigned(r)]
-                                                                        : "unknown";
-}
-
-bool needsWorld(wire::Request r) {
-  return r != wire::Request::Hello && r != wire::Request::CreateWorld &&
-         r != wire::Request::ListWorlds && r != wire::Request::NONE;
-}
-
-bool isBatchable(wire::Request r) {
-  switch (r) {
-    case wire::Request::SpawnBodies:
-    case wire::Request::RemoveBodies:
-    case wire::Request::AddJoints:
-    case wire::Request::RemoveJoints:
-    case wire::Request::SetBodyPose:
-    case wire::Request::SetBodyVelocity:
-    case wire::Request::ApplyForce:
-    case wire::Request::ApplyImpulse:
-    case wire::Request::ApplyTorque:
-    case wire::Request::SetMaterial:
-    case wire::Request::SetSolver:
-    case wire::Request::SetWorld:
-      return true;
-    default:
-      return false;
-  }
-}
 
 Decoded<wire::Command> decodeCommand(std::span<const uint8_t> bytes, const Limits& limits) {
   return decodeRoot<wire::Command>(bytes, limits, wire::kCommandId, "command",

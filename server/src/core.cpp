@@ -10,6 +10,7 @@
 #include <string>
 
 #include "phys/protocol/convert.h"
+#include "phys/protocol/requests.h"
 #include "phys/scene/scene.h"
 #include "internal.h"
 
@@ -478,16 +479,13 @@ uint32_t targetWorld(const Incoming& in) {
 }
 /// Requests that end a world's running Step job instead of waiting for it.
 bool endsJob(const Incoming& in) {
-  if (!in.command.ok()) return false;
-  const wire::Request t = in.command->request_type();
-  return t == wire::Request::Pause || t == wire::Request::ResetWorld ||
-         t == wire::Request::DestroyWorld;
+  return in.command.ok() &&
+         protocol::requestInfo(in.command->request_type()).has(protocol::kEndsJob);
 }
 /// Requests that become a job of their world when applied from the queue.
 bool startsJob(const Incoming& in) {
-  if (!in.command.ok()) return false;
-  const wire::Request t = in.command->request_type();
-  return t == wire::Request::Step || t == wire::Request::LoadScene;
+  return in.command.ok() &&
+         protocol::requestInfo(in.command->request_type()).has(protocol::kStartsJob);
 }
 }  // namespace
 

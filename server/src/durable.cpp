@@ -34,6 +34,7 @@
 #include "internal.h"
 #include "phys/protocol/convert.h"
 #include "phys/protocol/decoder.h"
+#include "phys/protocol/requests.h"
 
 namespace phys::server {
 
@@ -43,10 +44,7 @@ namespace {
 
 /// Requests whose effect a journal record keeps (others change nothing, replace the world
 /// and checkpoint, or are steps).
-bool journaled(wire::Request t) {
-  return protocol::isBatchable(t) || t == wire::Request::Batch || t == wire::Request::Run ||
-         t == wire::Request::Pause || t == wire::Request::SetAccess;
-}
+bool journaled(wire::Request t) { return protocol::requestInfo(t).has(protocol::kJournaled); }
 
 std::vector<uint8_t> leasePayload(uint64_t until) {
   std::vector<uint8_t> p(8);
