@@ -24,34 +24,16 @@
 #include "phys/server/core.h"
 #include "phys/server/endpoint.h"
 
-int main(int argc, char** argv) {
-  using namespace phys::server;
-  CLI::App app{"physd: rigid-body physics server over Cyclone DDS"};
-  std::string configPath = "configs/physd.toml";
-  int64_t domain = -1;
-  app.add_option("--config", configPath, "physd.toml")->check(CLI::ExistingFile);
-  app.add_option("--domain", domain, "DDS domain id (overrides dds.domain)")
-      ->check(CLI::Range(0, 232));
-  std::vector<std::string> acceptLoss;
-  app.add_option("--accept-loss", acceptLoss,
-                 "restore these worlds (ids, or 'all') although their journal is missing or "
-                 "damaged: what is good is restored, the files are kept under <data>/damaged/")
-      ->take_all();
-  std::string verify;
-  app.add_option("--verify", verify,
-                 "check every world's files under this data directory (read only) and exit: "
-                 "0 when none has lost acknowledged data, else 1");
-  app.set_version_flag("--version", PHYSD_VERSION);
-  CLI11_PARSE(app, argc, argv);
+using namespace phys::server;
 
-  if (!verify.empty()) {  // no config, no DDS: the files only
-    std::string text;
-    const bool ok = verifyDataDir(verify, &text);
-    std::fputs(text.c_str(), stdout);
-    return ok ? 0 : 1;
-  }
+namespace {
 
-  DaemonConfig cfg;
+/// The configuration file with the command line's overrides, and the Cyclone XML (with
+/// [security] added): 0, or the exit status after saying why not.
+int configure(const std::string& configPath, int64_t domain,
+              const std::vector<std::string>& acceptLoss, DaemonConfig* cfgOut,
+              std::string* cycloneXmlOut) {
+  DaemonConfig& cfg = *cfgOut;
   Status s = loadDaemonConfig(configPath, &cfg);
   if (!s.ok()) {
     spdlog::critical("{}", s.message);
@@ -76,7 +58,7 @@ int main(int argc, char** argv) {
     return 2;
   }
 
-  std::string cycloneXml;
+  std::string& cycloneXml = *cycloneXmlOut;
   if (!cfg.cycloneConfig.empty()) {
     std::ifstream f(cfg.cycloneConfig);
     if (!f) {
@@ -97,10 +79,14 @@ int main(int argc, char** argv) {
   // With DDS Security (from [security] or a Cyclone configuration that has it, such as
   // configs/cyclonedds/secure.xml), world owners and editors are identities
   // (docs/SECURITY.md "Who owns a world").
-  const bool identities = cycloneXml.find("<Security") != std::string::npos;
-  cfg.core.identities = identities;
-  if (identities) spdlog::info("dds: security on; commands are attributed to identities");
+  cfg.core.identities = cycloneXml.find("<Security") != std::string::npos;
+  if (cfg.core.identities)
+    spdlog::info("dds: security on; commands are attributed to identities");
+  return 0;
+}
 
+/// The scheduler and the allocator, set before any thread starts.
+void tuneProcess(const DaemonConfig& cfg) {
   // Real-time scheduling, set before any thread starts so that every thread inherits it.
   if (cfg.realtimePriority > 0) {
     sched_param sp{};
@@ -121,27 +107,12 @@ int main(int argc, char** argv) {
   // below (the hour soak: RSS +6.2 % from minute 10 against heap in use +2.6 %, the rest
   // kept after one peak; docs/BENCHMARKS.md "Soak"). Setting it fixes it at 128 KiB.
   mallopt(M_MMAP_THRESHOLD, 128 * 1024);
+}
 
-  // SIGINT and SIGTERM are taken by sigwait below; every thread started after this inherits
-  // the blocked mask, so none of them is interrupted.
-  sigset_t signals;
-  sigemptyset(&signals);
-  sigaddset(&signals, SIGINT);
-  sigaddset(&signals, SIGTERM);
-  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
-
-  ServerCore core(cfg.core);
-  s = core.init();
-  if (!s.ok()) {
-    spdlog::critical("presets: {}", s.message);
-    return 2;
-  }
-  core.setLog([](bool error, const std::string& line) {
-    if (error)
-      spdlog::error("{}", line);
-    else
-      spdlog::info("{}", line);
-  });
+/// The kept worlds restored, then the configuration's start-up worlds made: 0, or the exit
+/// status after saying why not.
+int startWorlds(ServerCore& core, const DaemonConfig& cfg) {
+  Status s = Status::Ok();
   // Durable worlds first (docs/SERVER.md "Durable worlds"): a start-up world that was kept
   // is restored as it was, not created again.
   if (!cfg.core.dataDir.empty()) {
@@ -190,7 +161,83 @@ int main(int argc, char** argv) {
     if (!b.note.empty()) spdlog::warn("world {} '{}': {}", id, w.name, b.note);
   }
 
-  DdsEndpoint endpoint(&core, {cfg.domain, cycloneXml, identities});
+  return 0;
+}
+
+/// Waits for SIGINT or SIGTERM (blocked in every thread), meanwhile giving the allocator's
+/// free pages back every trim period; returns the signal.
+int waitForSignal(const sigset_t& signals, const DaemonConfig& cfg) {
+  // The daemon's threads allocate and free a world's contacts, rows and frames at every
+  // tick, and glibc keeps what was freed, so the resident set creeps up to every arena's
+  // high-water mark (the hour soak: 156 MB at minute 10, 247 MB at 60, with the heap in use
+  // flat; docs/BENCHMARKS.md "Soak"). malloc_trim(0) returns free pages from the middle of
+  // the heaps too.
+  int sig = 0;
+  if (cfg.trimPeriodS > 0) {
+    const timespec period{cfg.trimPeriodS, 0};
+    while ((sig = sigtimedwait(&signals, nullptr, &period)) <= 0) malloc_trim(0);
+  } else {
+    sigwait(&signals, &sig);
+  }
+  return sig;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"physd: rigid-body physics server over Cyclone DDS"};
+  std::string configPath = "configs/physd.toml";
+  int64_t domain = -1;
+  app.add_option("--config", configPath, "physd.toml")->check(CLI::ExistingFile);
+  app.add_option("--domain", domain, "DDS domain id (overrides dds.domain)")
+      ->check(CLI::Range(0, 232));
+  std::vector<std::string> acceptLoss;
+  app.add_option("--accept-loss", acceptLoss,
+                 "restore these worlds (ids, or 'all') although their journal is missing or "
+                 "damaged: what is good is restored, the files are kept under <data>/damaged/")
+      ->take_all();
+  std::string verify;
+  app.add_option("--verify", verify,
+                 "check every world's files under this data directory (read only) and exit: "
+                 "0 when none has lost acknowledged data, else 1");
+  app.set_version_flag("--version", PHYSD_VERSION);
+  CLI11_PARSE(app, argc, argv);
+
+  if (!verify.empty()) {  // no config, no DDS: the files only
+    std::string text;
+    const bool ok = verifyDataDir(verify, &text);
+    std::fputs(text.c_str(), stdout);
+    return ok ? 0 : 1;
+  }
+
+  DaemonConfig cfg;
+  std::string cycloneXml;
+  if (int rc = configure(configPath, domain, acceptLoss, &cfg, &cycloneXml)) return rc;
+  tuneProcess(cfg);
+
+  // SIGINT and SIGTERM are taken by sigwait below; every thread started after this inherits
+  // the blocked mask, so none of them is interrupted.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+
+  ServerCore core(cfg.core);
+  Status s = core.init();
+  if (!s.ok()) {
+    spdlog::critical("presets: {}", s.message);
+    return 2;
+  }
+  core.setLog([](bool error, const std::string& line) {
+    if (error)
+      spdlog::error("{}", line);
+    else
+      spdlog::info("{}", line);
+  });
+  if (int rc = startWorlds(core, cfg)) return rc;
+
+  DdsEndpoint endpoint(&core, {cfg.domain, cycloneXml, cfg.core.identities});
   s = endpoint.start();
   if (!s.ok()) {
     spdlog::critical("dds: {}", s.message);
@@ -201,19 +248,8 @@ int main(int argc, char** argv) {
   spdlog::info("physd {} '{}' on domain {}{}", PHYSD_VERSION, cfg.core.serverName, cfg.domain,
                core.readOnly().empty() ? "" : " (read-only: " + core.readOnly() + ")");
 
-  // The main thread waits for a signal, and meanwhile gives the allocator's free pages back
-  // to the system every trim period: the daemon's threads allocate and free a world's
-  // contacts, rows and frames at every tick, and glibc keeps what was freed, so the resident
-  // set creeps up to every arena's high-water mark (the hour soak: 156 MB at minute 10,
-  // 247 MB at 60, with the heap in use flat; docs/BENCHMARKS.md "Soak"). malloc_trim(0)
-  // returns free pages from the middle of the heaps too.
-  int sig = 0;
-  if (cfg.trimPeriodS > 0) {
-    const timespec period{cfg.trimPeriodS, 0};
-    while ((sig = sigtimedwait(&signals, nullptr, &period)) <= 0) malloc_trim(0);
-  } else {
-    sigwait(&signals, &sig);
-  }
+  // The main thread waits for a signal, and meanwhile trims the allocator's heaps.
+  const int sig = waitForSignal(signals, cfg);
   spdlog::info("signal {}: shutting down", sig);
   // Shutdown finishes within a second whatever the tick thread is in (one engine step can be
   // long): past the deadline the process exits 0 without waiting for it.
