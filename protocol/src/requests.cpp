@@ -5,10 +5,16 @@
 
 namespace phys::protocol {
 
-const char* requestName(wire::Request r) { return requestInfo(r).name; }
+const char* requestName(wire::Request r) {
+  return requestInfo(r).name;
+}
 
-bool needsWorld(wire::Request r) { return requestInfo(r).has(kNeedsWorld); }
+bool needsWorld(wire::Request r) {
+  return requestInfo(r).has(kNeedsWorld);
+}
 
-bool isBatchable(wire::Request r) { return requestInfo(r).has(kBatchable); }
+bool isBatchable(wire::Request r) {
+  return requestInfo(r).has(kBatchable);
+}
 
 }  // namespace phys::protocol

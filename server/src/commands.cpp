@@ -1105,6 +1105,9 @@ constexpr Ctx::Handler listEdit(Ctx::Edit edit, bool motion = false) {
 }
 constexpr bool kMotion = true;
 
+/// Each request's handler, indexed by wire::Request. A world edit's row also holds its edit
+/// and what editAll asks of it (listEdit when its items are one list; written out for
+/// SetMaterial, which needs a material too, and SetSolver and SetWorld, one engine call each).
 constexpr std::array<Ctx::Handler, size_t(wire::Request::MAX) + 1> kHandlers = {{
     handle(wire::Request::NONE, &Ctx::unsupported),
     handle(wire::Request::Hello, &Ctx::hello),

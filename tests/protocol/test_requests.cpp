@@ -55,9 +55,9 @@ TEST(RequestTable, Properties) {
   for (unsigned i = 1; i <= unsigned(R::MAX); ++i)
     if (!needsWorld(R(i))) noWorld.insert(R(i));
   EXPECT_EQ(noWorld, (std::set<R>{R::Hello, R::CreateWorld, R::ListWorlds}));
-  const std::set<R> edits = {R::SpawnBodies,  R::RemoveBodies, R::AddJoints,    R::RemoveJoints,
-                             R::SetBodyPose,  R::SetBodyVelocity, R::ApplyForce, R::ApplyImpulse,
-                             R::ApplyTorque,  R::SetMaterial,  R::SetSolver,    R::SetWorld};
+  const std::set<R> edits = {R::SpawnBodies, R::RemoveBodies,    R::AddJoints,  R::RemoveJoints,
+                             R::SetBodyPose, R::SetBodyVelocity, R::ApplyForce, R::ApplyImpulse,
+                             R::ApplyTorque, R::SetMaterial,     R::SetSolver,  R::SetWorld};
   EXPECT_EQ(withFlag(kBatchable), edits);
   std::set<R> journaled = edits;
   journaled.insert({R::Batch, R::Run, R::Pause, R::SetAccess});
@@ -76,8 +76,8 @@ TEST(RequestTable, Properties) {
     if (requestInfo(R(i)).access == Access::Read) read.insert(R(i));
     if (requestInfo(R(i)).access == Access::Own) own.insert(R(i));
   }
-  EXPECT_EQ(read, (std::set<R>{R::QueryState, R::GetWorld, R::GetBodies, R::GetJoints,
-                               R::Subscribe, R::Unsubscribe, R::SaveSnapshot}));
+  EXPECT_EQ(read, (std::set<R>{R::QueryState, R::GetWorld, R::GetBodies, R::GetJoints, R::Subscribe,
+                               R::Unsubscribe, R::SaveSnapshot}));
   EXPECT_EQ(own, (std::set<R>{R::DestroyWorld, R::SetAccess}));
 }
 
