@@ -6,6 +6,7 @@
 #include <fstream>
 #include <limits>
 #include <sstream>
+#include <type_traits>
 
 #include "settings_json.h"
 
@@ -32,46 +33,33 @@ Status readNumber(const nlohmann::json& v, const std::string& path, T* out) {
   return Status::Ok();
 }
 
-/// The JSON names of an enum's values: one table serves parsing and writing.
+/// An enum setting by its JSON name (phys/dynamics/solver_settings.h's tables).
 template <class E>
-struct EnumName {
-  E value;
-  const char* name;
-};
-using S = SolverSettings;
-constexpr EnumName<S::Scheme> kSchemes[] = {
-    {S::Scheme::GaussSeidel, "gauss_seidel"},
-    {S::Scheme::Jacobi, "jacobi"},
-    {S::Scheme::ColoredGaussSeidel, "colored_gauss_seidel"}};
-constexpr EnumName<S::PositionPass> kPositionPasses[] = {
-    {S::PositionPass::None, "none"},
-    {S::PositionPass::NonlinearGaussSeidel, "nonlinear_gauss_seidel"},
-    {S::PositionPass::NonlinearJacobi, "nonlinear_jacobi"}};
-constexpr EnumName<S::EqualitySolve> kEqualitySolves[] = {
-    {S::EqualitySolve::Iterative, "iterative"}, {S::EqualitySolve::DirectLdl, "direct_ldl"}};
-constexpr EnumName<S::Stabilization> kStabilizations[] = {
-    {S::Stabilization::Soft, "soft"}, {S::Stabilization::Baumgarte, "baumgarte"}};
-
-template <class E, size_t N>
-Status readEnum(const nlohmann::json& v, const std::string& path, const EnumName<E> (&names)[N],
-                E* out) {
+Status readEnum(const nlohmann::json& v, const std::string& path, E* out) {
   std::string name = v.is_string() ? v.get<std::string>() : "";
   std::string known;
-  for (const EnumName<E>& n : names) {
-    if (name == n.name) {
+  for (const SettingName<E>& n : settingNames(E{})) {
+    if (name == n.json) {
       *out = n.value;
       return Status::Ok();
     }
-    known += std::string(known.empty() ? "" : ", ") + "\"" + n.name + "\"";
+    known += std::string(known.empty() ? "" : ", ") + "\"" + n.json + "\"";
   }
   return bad(path + ": must be one of " + known);
 }
 
-template <class E, size_t N>
-const char* enumName(const EnumName<E> (&names)[N], E value) {
-  for (const EnumName<E>& n : names)
-    if (n.value == value) return n.name;
-  return "?";
+/// A setting of any kind from JSON.
+template <class T>
+Status readSetting(const nlohmann::json& v, const std::string& path, T* out) {
+  if constexpr (std::is_enum_v<T>) {
+    return readEnum(v, path, out);
+  } else if constexpr (std::is_same_v<T, bool>) {
+    if (!v.is_boolean()) return bad(path + ": must be true or false");
+    *out = v.get<bool>();
+    return Status::Ok();
+  } else {
+    return readNumber(v, path, out);
+  }
 }
 
 }  // namespace
@@ -85,59 +73,13 @@ Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path, 
     const nlohmann::json& v = it.value();
     const std::string p = path + "." + k;
     Status st;
-    if (k == "substeps")
-      st = readNumber(v, p, &s.substeps);
-    else if (k == "iterations")
-      st = readNumber(v, p, &s.iterations);
-    else if (k == "relax_iterations")
-      st = readNumber(v, p, &s.relaxIterations);
-    else if (k == "baumgarte")
-      st = readNumber(v, p, &s.baumgarte);
-    else if (k == "contact_hertz")
-      st = readNumber(v, p, &s.contactHertz);
-    else if (k == "contact_damping_ratio")
-      st = readNumber(v, p, &s.contactDampingRatio);
-    else if (k == "joint_hertz")
-      st = readNumber(v, p, &s.jointHertz);
-    else if (k == "joint_damping_ratio")
-      st = readNumber(v, p, &s.jointDampingRatio);
-    else if (k == "max_pushout")
-      st = readNumber(v, p, &s.maxPushout);
-    else if (k == "linear_slop")
-      st = readNumber(v, p, &s.linearSlop);
-    else if (k == "restitution_threshold")
-      st = readNumber(v, p, &s.restitutionThreshold);
-    else if (k == "tolerance")
-      st = readNumber(v, p, &s.tolerance);
-    else if (k == "direct_contact_ratio")
-      st = readNumber(v, p, &s.directContactRatio);
-    else if (k == "warm_start" || k == "restitution" || k == "block_contacts" ||
-             k == "geometric_stiffness" || k == "split_pushout" || k == "patch_friction" ||
-             k == "stack_stiffening") {
-      if (!v.is_boolean()) return bad(p + ": must be true or false");
-      bool* field = k == "warm_start"       ? &s.warmStart
-                    : k == "restitution"    ? &s.restitution
-                    : k == "block_contacts" ? &s.blockContacts
-                    : k == "split_pushout"  ? &s.splitPushout
-                    : k == "patch_friction" ? &s.patchFriction
-                    : k == "stack_stiffening" ? &s.stackStiffening
-                                            : &s.geometricStiffness;
-      *field = v.get<bool>();
-    } else if (k == "position_iterations") {
-      st = readNumber(v, p, &s.positionIterations);
-    } else if (k == "position_baumgarte") {
-      st = readNumber(v, p, &s.positionBaumgarte);
-    } else if (k == "max_position_correction") {
-      st = readNumber(v, p, &s.maxPositionCorrection);
-    } else if (k == "scheme") {
-      st = readEnum(v, p, kSchemes, &s.scheme);
-    } else if (k == "position_pass") {
-      st = readEnum(v, p, kPositionPasses, &s.positionPass);
-    } else if (k == "equality") {
-      st = readEnum(v, p, kEqualitySolves, &s.equalitySolve);
-    } else if (k == "stabilization") {
-      st = readEnum(v, p, kStabilizations, &s.stabilization);
-    } else {
+    // The keys are the list's JSON names (PHYS_SOLVER_FIELDS).
+#define PHYS_FROM_JSON(type, member, name, json, ...) \
+  if (k == #json)                                     \
+    st = readSetting(v, p, &s.member);                \
+  else
+    PHYS_SOLVER_FIELDS(PHYS_FROM_JSON) {
+#undef PHYS_FROM_JSON
       bool skip = false;
       for (const char* ig : ignore) skip |= k == ig;
       if (!skip) return bad(p + ": unknown field");
@@ -151,33 +93,18 @@ Status solverSettingsFromJson(const nlohmann::json& j, const std::string& path, 
 }
 
 nlohmann::json solverSettingsToJson(const SolverSettings& s) {
-  return {{"substeps", s.substeps},
-          {"iterations", s.iterations},
-          {"tolerance", s.tolerance},
-          {"relax_iterations", s.relaxIterations},
-          {"stabilization", enumName(kStabilizations, s.stabilization)},
-          {"baumgarte", s.baumgarte},
-          {"contact_hertz", s.contactHertz},
-          {"contact_damping_ratio", s.contactDampingRatio},
-          {"joint_hertz", s.jointHertz},
-          {"joint_damping_ratio", s.jointDampingRatio},
-          {"max_pushout", s.maxPushout},
-          {"linear_slop", s.linearSlop},
-          {"warm_start", s.warmStart},
-          {"restitution", s.restitution},
-          {"block_contacts", s.blockContacts},
-          {"split_pushout", s.splitPushout},
-          {"patch_friction", s.patchFriction},
-          {"stack_stiffening", s.stackStiffening},
-          {"direct_contact_ratio", s.directContactRatio},
-          {"geometric_stiffness", s.geometricStiffness},
-          {"restitution_threshold", s.restitutionThreshold},
-          {"equality", enumName(kEqualitySolves, s.equalitySolve)},
-          {"scheme", enumName(kSchemes, s.scheme)},
-          {"position_pass", enumName(kPositionPasses, s.positionPass)},
-          {"position_iterations", s.positionIterations},
-          {"position_baumgarte", s.positionBaumgarte},
-          {"max_position_correction", s.maxPositionCorrection}};
+  nlohmann::json j;
+  // An enum by its JSON name.
+  auto value = [](auto v) -> nlohmann::json {
+    if constexpr (std::is_enum_v<decltype(v)>)
+      return settingName(v) ? settingName(v)->json : "?";
+    else
+      return v;
+  };
+#define PHYS_TO_JSON(type, member, name, json, ...) j[#json] = value(s.member);
+  PHYS_SOLVER_FIELDS(PHYS_TO_JSON)
+#undef PHYS_TO_JSON
+  return j;
 }
 
 Status parsePresets(const std::string& text, const std::string& source,

@@ -155,35 +155,28 @@ Offset<wire::JointDef> writeJointDef(Fbb& fbb, const phys::JointDef& def) {
   return b.Finish();
 }
 
+/// A value as the wire setter takes it: a phys enum as the wire's (the same values), any other
+/// as it is.
+template <class T>
+struct AsWire {
+  T v;
+  template <class W>
+  operator W() const {
+    return W(v);
+  }
+};
+template <class T>
+AsWire<T> asWire(T v) {
+  return {v};
+}
+
 Offset<wire::SolverSettings> writeSolver(Fbb& fbb, const SolverOverrides& s) {
   wire::SolverSettingsBuilder b(fbb);
-  if (s.scheme) b.add_scheme(wire::Scheme(*s.scheme));
-  if (s.positionPass) b.add_position_pass(wire::PositionPass(*s.positionPass));
-  if (s.positionIterations) b.add_position_iterations(*s.positionIterations);
-  if (s.positionBaumgarte) b.add_position_baumgarte(*s.positionBaumgarte);
-  if (s.maxPositionCorrection) b.add_max_position_correction(*s.maxPositionCorrection);
-  if (s.substeps) b.add_substeps(*s.substeps);
-  if (s.iterations) b.add_iterations(*s.iterations);
-  if (s.tolerance) b.add_tolerance(*s.tolerance);
-  if (s.relaxIterations) b.add_relax_iterations(*s.relaxIterations);
-  if (s.stabilization) b.add_stabilization(wire::Stabilization(*s.stabilization));
-  if (s.baumgarte) b.add_baumgarte(*s.baumgarte);
-  if (s.contactHertz) b.add_contact_hertz(*s.contactHertz);
-  if (s.contactDampingRatio) b.add_contact_damping_ratio(*s.contactDampingRatio);
-  if (s.jointHertz) b.add_joint_hertz(*s.jointHertz);
-  if (s.jointDampingRatio) b.add_joint_damping_ratio(*s.jointDampingRatio);
-  if (s.maxPushout) b.add_max_pushout(*s.maxPushout);
-  if (s.linearSlop) b.add_linear_slop(*s.linearSlop);
-  if (s.warmStart) b.add_warm_start(*s.warmStart);
-  if (s.restitution) b.add_restitution(*s.restitution);
-  if (s.restitutionThreshold) b.add_restitution_threshold(*s.restitutionThreshold);
-  if (s.equalitySolve) b.add_equality_solve(wire::EqualitySolve(*s.equalitySolve));
-  if (s.blockContacts) b.add_block_contacts(*s.blockContacts);
-  if (s.geometricStiffness) b.add_geometric_stiffness(*s.geometricStiffness);
-  if (s.splitPushout) b.add_split_pushout(*s.splitPushout);
-  if (s.patchFriction) b.add_patch_friction(*s.patchFriction);
-  if (s.stackStiffening) b.add_stack_stiffening(*s.stackStiffening);
-  if (s.directContactRatio) b.add_direct_contact_ratio(*s.directContactRatio);
+  // In the list's order, the schema's: the order of the adds is the order of the bytes.
+#define PHYS_WRITE_SOLVER(type, member, name, ...) \
+  if (s.member) b.add_##name(asWire(*s.member));
+  PHYS_SOLVER_FIELDS(PHYS_WRITE_SOLVER)
+#undef PHYS_WRITE_SOLVER
   return b.Finish();
 }
 
@@ -234,52 +227,24 @@ Offset<wire::LimitsInfo> writeLimits(Fbb& fbb, const Limits& l) {
 // ---------------------------------------------------------------------------------------------
 // SolverOverrides
 
-// A tripwire: phys::SolverSettings gained or lost a field. Mirror it in physics.fbs
-// (SolverSettings, appended at the end), SolverOverrides and its from()/empty(),
-// detail::writeSolver, convert.cpp (toOverrides, applyOverrides), the decoder's range check
-// and docs/PROTOCOL.md; then update the size here.
+// A tripwire: phys::SolverSettings gained or lost a field. Its row in PHYS_SOLVER_FIELDS
+// reaches SolverOverrides, writeSolver, convert.cpp and the decoder; physics.fbs
+// (SolverSettings, appended at the end) and docs/PROTOCOL.md are by hand. Then update the size.
 static_assert(sizeof(phys::SolverSettings) == 88,
               "phys::SolverSettings changed: mirror the change in the protocol (see comment)");
 
 SolverOverrides SolverOverrides::from(const phys::SolverSettings& s) {
   SolverOverrides o;
-  o.scheme = s.scheme;
-  o.positionPass = s.positionPass;
-  o.positionIterations = s.positionIterations;
-  o.positionBaumgarte = s.positionBaumgarte;
-  o.maxPositionCorrection = s.maxPositionCorrection;
-  o.substeps = s.substeps;
-  o.iterations = s.iterations;
-  o.tolerance = s.tolerance;
-  o.relaxIterations = s.relaxIterations;
-  o.stabilization = s.stabilization;
-  o.baumgarte = s.baumgarte;
-  o.contactHertz = s.contactHertz;
-  o.contactDampingRatio = s.contactDampingRatio;
-  o.jointHertz = s.jointHertz;
-  o.jointDampingRatio = s.jointDampingRatio;
-  o.maxPushout = s.maxPushout;
-  o.linearSlop = s.linearSlop;
-  o.warmStart = s.warmStart;
-  o.restitution = s.restitution;
-  o.restitutionThreshold = s.restitutionThreshold;
-  o.equalitySolve = s.equalitySolve;
-  o.blockContacts = s.blockContacts;
-  o.geometricStiffness = s.geometricStiffness;
-  o.splitPushout = s.splitPushout;
-  o.patchFriction = s.patchFriction;
-  o.stackStiffening = s.stackStiffening;
-  o.directContactRatio = s.directContactRatio;
+#define PHYS_FROM_SETTINGS(type, member, ...) o.member = s.member;
+  PHYS_SOLVER_FIELDS(PHYS_FROM_SETTINGS)
+#undef PHYS_FROM_SETTINGS
   return o;
 }
 
 bool SolverOverrides::empty() const {
-  return !scheme && !positionPass && !positionIterations && !positionBaumgarte &&
-         !maxPositionCorrection && !substeps && !iterations && !tolerance && !relaxIterations &&
-         !stabilization && !baumgarte && !contactHertz && !contactDampingRatio && !jointHertz &&
-         !jointDampingRatio && !maxPushout && !linearSlop && !warmStart && !restitution &&
-         !restitutionThreshold && !equalitySolve && !blockContacts && !geometricStiffness &&
-         !splitPushout && !patchFriction && !stackStiffening && !directContactRatio;
+#define PHYS_UNSET(type, member, ...) && !member
+  return true PHYS_SOLVER_FIELDS(PHYS_UNSET);
+#undef PHYS_UNSET
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -126,66 +126,20 @@ phys::JointDef toJointDef(const wire::JointDef& in) {
 }
 
 SolverOverrides toOverrides(const wire::SolverSettings& in) {
-  using S = phys::SolverSettings;
   SolverOverrides o;
-  if (auto v = in.scheme()) o.scheme = S::Scheme(*v);
-  if (auto v = in.position_pass()) o.positionPass = S::PositionPass(*v);
-  if (auto v = in.position_iterations()) o.positionIterations = *v;
-  if (auto v = in.position_baumgarte()) o.positionBaumgarte = *v;
-  if (auto v = in.max_position_correction()) o.maxPositionCorrection = *v;
-  if (auto v = in.substeps()) o.substeps = *v;
-  if (auto v = in.iterations()) o.iterations = *v;
-  if (auto v = in.tolerance()) o.tolerance = *v;
-  if (auto v = in.relax_iterations()) o.relaxIterations = *v;
-  if (auto v = in.stabilization()) o.stabilization = S::Stabilization(*v);
-  if (auto v = in.baumgarte()) o.baumgarte = *v;
-  if (auto v = in.contact_hertz()) o.contactHertz = *v;
-  if (auto v = in.contact_damping_ratio()) o.contactDampingRatio = *v;
-  if (auto v = in.joint_hertz()) o.jointHertz = *v;
-  if (auto v = in.joint_damping_ratio()) o.jointDampingRatio = *v;
-  if (auto v = in.max_pushout()) o.maxPushout = *v;
-  if (auto v = in.linear_slop()) o.linearSlop = *v;
-  if (auto v = in.warm_start()) o.warmStart = *v;
-  if (auto v = in.restitution()) o.restitution = *v;
-  if (auto v = in.restitution_threshold()) o.restitutionThreshold = *v;
-  if (auto v = in.equality_solve()) o.equalitySolve = S::EqualitySolve(*v);
-  if (auto v = in.block_contacts()) o.blockContacts = *v;
-  if (auto v = in.geometric_stiffness()) o.geometricStiffness = *v;
-  if (auto v = in.split_pushout()) o.splitPushout = *v;
-  if (auto v = in.patch_friction()) o.patchFriction = *v;
-  if (auto v = in.stack_stiffening()) o.stackStiffening = *v;
-  if (auto v = in.direct_contact_ratio()) o.directContactRatio = *v;
+  // A wire enum as the phys one of the same values, any other value as it is.
+#define PHYS_FROM_WIRE(type, member, name, ...) \
+  if (auto v = in.name()) o.member = decltype(o.member)::value_type(*v);
+  PHYS_SOLVER_FIELDS(PHYS_FROM_WIRE)
+#undef PHYS_FROM_WIRE
   return o;
 }
 
 void applyOverrides(const SolverOverrides& o, phys::SolverSettings* s) {
-  if (o.scheme) s->scheme = *o.scheme;
-  if (o.positionPass) s->positionPass = *o.positionPass;
-  if (o.positionIterations) s->positionIterations = *o.positionIterations;
-  if (o.positionBaumgarte) s->positionBaumgarte = *o.positionBaumgarte;
-  if (o.maxPositionCorrection) s->maxPositionCorrection = *o.maxPositionCorrection;
-  if (o.substeps) s->substeps = *o.substeps;
-  if (o.iterations) s->iterations = *o.iterations;
-  if (o.tolerance) s->tolerance = *o.tolerance;
-  if (o.relaxIterations) s->relaxIterations = *o.relaxIterations;
-  if (o.stabilization) s->stabilization = *o.stabilization;
-  if (o.baumgarte) s->baumgarte = *o.baumgarte;
-  if (o.contactHertz) s->contactHertz = *o.contactHertz;
-  if (o.contactDampingRatio) s->contactDampingRatio = *o.contactDampingRatio;
-  if (o.jointHertz) s->jointHertz = *o.jointHertz;
-  if (o.jointDampingRatio) s->jointDampingRatio = *o.jointDampingRatio;
-  if (o.maxPushout) s->maxPushout = *o.maxPushout;
-  if (o.linearSlop) s->linearSlop = *o.linearSlop;
-  if (o.warmStart) s->warmStart = *o.warmStart;
-  if (o.restitution) s->restitution = *o.restitution;
-  if (o.restitutionThreshold) s->restitutionThreshold = *o.restitutionThreshold;
-  if (o.equalitySolve) s->equalitySolve = *o.equalitySolve;
-  if (o.blockContacts) s->blockContacts = *o.blockContacts;
-  if (o.geometricStiffness) s->geometricStiffness = *o.geometricStiffness;
-  if (o.splitPushout) s->splitPushout = *o.splitPushout;
-  if (o.patchFriction) s->patchFriction = *o.patchFriction;
-  if (o.stackStiffening) s->stackStiffening = *o.stackStiffening;
-  if (o.directContactRatio) s->directContactRatio = *o.directContactRatio;
+#define PHYS_APPLY(type, member, ...) \
+  if (o.member) s->member = *o.member;
+  PHYS_SOLVER_FIELDS(PHYS_APPLY)
+#undef PHYS_APPLY
 }
 
 void applySolverSettings(const wire::SolverSettings& in, phys::SolverSettings* out) {

@@ -13,6 +13,7 @@
 #include <limits>
 #include <string>
 #include <string_view>
+#include <type_traits>
 #include <unordered_set>
 #include <utility>
 #include <vector>
@@ -463,56 +464,36 @@ bool Checker::joint(const wire::JointDef& j) {
 
 bool Checker::solver(const wire::SolverSettings& s, int* fieldsSet) {
   int n = 0;
-  // Each optional field: counted when present, then range-checked.
-  auto i32 = [&](flatbuffers::Optional<int32_t> v, int64_t lo, int64_t hi, const char* f) {
-    if (!v) return true;
-    ++n;
-    return range(int64_t(*v), lo, hi, f);
+  // Each optional field: counted when present, then checked as its row in PHYS_SOLVER_FIELDS
+  // says, in the list's order (the first failing field is the one named). The rows' bounds
+  // are this file's constants and these Limits.
+  const float maxSize = lim.maxSize, maxLinearSpeed = lim.maxLinearSpeed;
+  auto present = [&](const auto& v) {
+    n += v.has_value();
+    return v.has_value();
   };
-  auto f32 = [&](flatbuffers::Optional<float> v, float lo, float hi, const char* f) {
-    if (!v) return true;
-    ++n;
-    return range(*v, lo, hi, f);
+  auto inRange = [&](auto v, auto lo, auto hi, const char* f) {
+    if (!present(v)) return true;
+    if constexpr (std::is_integral_v<typename decltype(v)::value_type>)
+      return range(int64_t(*v), int64_t(lo), int64_t(hi), f);
+    else
+      return range(*v, float(lo), float(hi), f);
   };
-  auto pos = [&](flatbuffers::Optional<float> v, float hi, const char* f) {
-    if (!v) return true;
-    ++n;
-    return positive(*v, hi, f);
-  };
-  auto flag = [&](flatbuffers::Optional<bool> v) { n += v.has_value(); };
-  auto en = [&](auto v, auto max, const char* f, const char* type) {
-    if (!v) return true;
-    ++n;
-    return known(*v, max, f, type);
-  };
-  bool ok = en(s.scheme(), wire::Scheme::MAX, "scheme", "Scheme") &&
-            en(s.position_pass(), wire::PositionPass::MAX, "position_pass", "PositionPass") &&
-            i32(s.position_iterations(), 0, kMaxSolverIterations, "position_iterations") &&
-            f32(s.position_baumgarte(), 0, 1, "position_baumgarte") &&
-            pos(s.max_position_correction(), lim.maxSize, "max_position_correction") &&
-            i32(s.substeps(), 1, kMaxSubsteps, "substeps") &&
-            i32(s.iterations(), 1, kMaxSolverIterations, "iterations") &&
-            f32(s.tolerance(), 0, lim.maxLinearSpeed, "tolerance") &&
-            i32(s.relax_iterations(), 0, kMaxSolverIterations, "relax_iterations") &&
-            en(s.stabilization(), wire::Stabilization::MAX, "stabilization", "Stabilization") &&
-            f32(s.baumgarte(), 0, 1, "baumgarte") &&
-            pos(s.contact_hertz(), kMaxHertz, "contact_hertz") &&
-            f32(s.contact_damping_ratio(), 0, kMaxDampingRatio, "contact_damping_ratio") &&
-            pos(s.joint_hertz(), kMaxHertz, "joint_hertz") &&
-            f32(s.joint_damping_ratio(), 0, kMaxDampingRatio, "joint_damping_ratio") &&
-            pos(s.max_pushout(), lim.maxLinearSpeed, "max_pushout") &&
-            f32(s.linear_slop(), 0, lim.maxSize, "linear_slop") &&
-            f32(s.restitution_threshold(), 0, lim.maxLinearSpeed, "restitution_threshold") &&
-            en(s.equality_solve(), wire::EqualitySolve::MAX, "equality_solve", "EqualitySolve") &&
-            f32(s.direct_contact_ratio(), 0, kMaxDirectContactRatio, "direct_contact_ratio");
+#define PHYS_CHECK_Flag(type, name, lo, hi) (present(s.name()), true)
+#define PHYS_CHECK_Known(type, name, lo, hi) \
+  (!present(s.name()) || known(*s.name(), wire::type::MAX, #name, #type))
+#define PHYS_CHECK_Range(type, name, lo, hi) inRange(s.name(), lo, hi, #name)
+#define PHYS_CHECK_Positive(type, name, lo, hi) \
+  (!present(s.name()) || positive(*s.name(), hi, #name))
+#define PHYS_CHECK(type, member, name, json, check, lo, hi, ...) \
+  && PHYS_CHECK_##check(type, name, lo, hi)
+  bool ok = true PHYS_SOLVER_FIELDS(PHYS_CHECK);
+#undef PHYS_CHECK
+#undef PHYS_CHECK_Positive
+#undef PHYS_CHECK_Range
+#undef PHYS_CHECK_Known
+#undef PHYS_CHECK_Flag
   if (!ok) return false;
-  flag(s.warm_start());
-  flag(s.restitution());
-  flag(s.block_contacts());
-  flag(s.geometric_stiffness());
-  flag(s.split_pushout());
-  flag(s.patch_friction());
-  flag(s.stack_stiffening());
   if (fieldsSet) *fieldsSet = n;
   return true;
 }

@@ -1,11 +1,13 @@
 // Solver presets file and criterion evaluation.
 #include <gtest/gtest.h>
 
+#include "../common/solver_fields.h"
 #include "phys/scene/metrics.h"
 #include "phys/scene/presets.h"
 #include "phys/scene/scene.h"
 
 using namespace phys;
+using phys::test::expectSameSettings;
 
 TEST(Presets, ShippedFileLoadsAndItsDefaultExists) {
   std::map<std::string, Preset> presets;
@@ -16,26 +18,7 @@ TEST(Presets, ShippedFileLoadsAndItsDefaultExists) {
   ASSERT_TRUE(presets.count(def));
   // The default preset is the engine's default solver, so scenes without a solver block and
   // physbench --preset default run the same thing.
-  const SolverSettings& s = presets[def].settings;
-  SolverSettings d;
-  EXPECT_EQ(s.substeps, d.substeps);
-  EXPECT_EQ(s.iterations, d.iterations);
-  EXPECT_EQ(s.relaxIterations, d.relaxIterations);
-  EXPECT_EQ(s.contactHertz, d.contactHertz);
-  EXPECT_EQ(s.contactDampingRatio, d.contactDampingRatio);
-  EXPECT_EQ(s.stabilization, d.stabilization);
-  EXPECT_EQ(s.scheme, d.scheme);
-  EXPECT_EQ(s.maxPushout, d.maxPushout);
-  EXPECT_EQ(s.splitPushout, d.splitPushout);
-  EXPECT_EQ(s.stackStiffening, d.stackStiffening);
-  EXPECT_EQ(s.directContactRatio, d.directContactRatio);
-  EXPECT_EQ(s.equalitySolve, d.equalitySolve);
-  EXPECT_EQ(s.patchFriction, d.patchFriction);
-  EXPECT_EQ(s.geometricStiffness, d.geometricStiffness);
-  EXPECT_EQ(s.warmStart, d.warmStart);
-  EXPECT_EQ(s.restitution, d.restitution);
-  EXPECT_EQ(s.blockContacts, d.blockContacts);
-  EXPECT_EQ(s.positionPass, d.positionPass);
+  expectSameSettings(presets[def].settings, SolverSettings(), "the default preset");
 }
 
 TEST(Presets, BadFieldsAreRejectedWithTheirPath) {

@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "../common/solver_fields.h"
 #include "phys/scene/metrics.h"
 #include "phys/scene/scene.h"
 #include "phys/world/world.h"
@@ -105,21 +106,7 @@ void expectSameScene(const Scene& a, const Scene& b) {
   EXPECT_EQ(wa.maxAngularSpeed, wb.maxAngularSpeed);
   EXPECT_EQ(wa.speculativeDistance, wb.speculativeDistance);
   EXPECT_EQ(wa.aabbMargin, wb.aabbMargin);
-  const SolverSettings &sa = wa.solver, &sb = wb.solver;
-  EXPECT_EQ(sa.substeps, sb.substeps);
-  EXPECT_EQ(sa.iterations, sb.iterations);
-  EXPECT_EQ(sa.relaxIterations, sb.relaxIterations);
-  EXPECT_EQ(sa.stabilization, sb.stabilization);
-  EXPECT_EQ(sa.baumgarte, sb.baumgarte);
-  EXPECT_EQ(sa.contactHertz, sb.contactHertz);
-  EXPECT_EQ(sa.contactDampingRatio, sb.contactDampingRatio);
-  EXPECT_EQ(sa.jointHertz, sb.jointHertz);
-  EXPECT_EQ(sa.jointDampingRatio, sb.jointDampingRatio);
-  EXPECT_EQ(sa.maxPushout, sb.maxPushout);
-  EXPECT_EQ(sa.linearSlop, sb.linearSlop);
-  EXPECT_EQ(sa.warmStart, sb.warmStart);
-  EXPECT_EQ(sa.restitution, sb.restitution);
-  EXPECT_EQ(sa.restitutionThreshold, sb.restitutionThreshold);
+  phys::test::expectSameSettings(wa.solver, wb.solver, "solver");
 
   ASSERT_EQ(a.bodies.size(), b.bodies.size());
   for (size_t i = 0; i < a.bodies.size(); ++i) {

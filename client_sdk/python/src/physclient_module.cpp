@@ -43,6 +43,7 @@
 #include <string>
 #include <system_error>
 #include <thread>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -510,15 +511,25 @@ struct BodyArray {
 // ---------------------------------------------------------------------------------------------
 // Solver overrides from keyword arguments.
 
+/// An enum setting by its C++ enumerator's name (phys/dynamics/solver_settings.h's tables).
 template <class E>
-E enumByName(const py::handle& v, std::initializer_list<std::pair<const char*, E>> names,
-             const char* what) {
+E enumByName(const py::handle& v, const char* what) {
   const std::string s = py::str(v);
-  for (const auto& [n, e] : names)
-    if (s == n) return e;
+  for (const phys::SettingName<E>& n : phys::settingNames(E{}))
+    if (s == n.name) return n.value;
   std::string all;
-  for (const auto& [n, e] : names) all += std::string(all.empty() ? "" : ", ") + n;
+  for (const phys::SettingName<E>& n : phys::settingNames(E{}))
+    all += std::string(all.empty() ? "" : ", ") + n.name;
   throw py::value_error(std::string("physclient: ") + what + " is one of " + all);
+}
+
+/// A keyword's value as solver setting T.
+template <class T>
+T settingValue(const py::handle& v, const char* what) {
+  if constexpr (std::is_enum_v<T>)
+    return enumByName<T>(v, what);
+  else
+    return v.cast<T>();
 }
 
 /// A keyword of set_world (for set_solver's error: "set_solver(gravity=...)").
@@ -532,69 +543,22 @@ bool isWorldSetting(const std::string& k) {
 }
 
 pc::SolverOverrides solverOverrides(const py::kwargs& kw) {
-  using S = phys::SolverSettings;
   pc::SolverOverrides o;
   for (auto item : kw) {
     const std::string k = py::str(item.first);
     const py::handle v = item.second;
-#define PHYS_OVERRIDE(name, field, type) \
-  if (k == name) {                       \
-    o.field = v.cast<type>();            \
-    continue;                            \
+    // The keywords are the wire's names (PHYS_SOLVER_FIELDS).
+#define PHYS_OVERRIDE(type, member, name, ...)                         \
+  if (k == #name) {                                                    \
+    o.member = settingValue<decltype(o.member)::value_type>(v, #name); \
+    continue;                                                          \
   }
-    PHYS_OVERRIDE("position_iterations", positionIterations, int)
-    PHYS_OVERRIDE("position_baumgarte", positionBaumgarte, float)
-    PHYS_OVERRIDE("max_position_correction", maxPositionCorrection, float)
-    PHYS_OVERRIDE("substeps", substeps, int)
-    PHYS_OVERRIDE("iterations", iterations, int)
-    PHYS_OVERRIDE("tolerance", tolerance, float)
-    PHYS_OVERRIDE("relax_iterations", relaxIterations, int)
-    PHYS_OVERRIDE("baumgarte", baumgarte, float)
-    PHYS_OVERRIDE("contact_hertz", contactHertz, float)
-    PHYS_OVERRIDE("contact_damping_ratio", contactDampingRatio, float)
-    PHYS_OVERRIDE("joint_hertz", jointHertz, float)
-    PHYS_OVERRIDE("joint_damping_ratio", jointDampingRatio, float)
-    PHYS_OVERRIDE("max_pushout", maxPushout, float)
-    PHYS_OVERRIDE("linear_slop", linearSlop, float)
-    PHYS_OVERRIDE("warm_start", warmStart, bool)
-    PHYS_OVERRIDE("restitution", restitution, bool)
-    PHYS_OVERRIDE("restitution_threshold", restitutionThreshold, float)
-    PHYS_OVERRIDE("block_contacts", blockContacts, bool)
-    PHYS_OVERRIDE("geometric_stiffness", geometricStiffness, bool)
-    PHYS_OVERRIDE("split_pushout", splitPushout, bool)
-    PHYS_OVERRIDE("patch_friction", patchFriction, bool)
-    PHYS_OVERRIDE("stack_stiffening", stackStiffening, bool)
-    PHYS_OVERRIDE("direct_contact_ratio", directContactRatio, float)
+    PHYS_SOLVER_FIELDS(PHYS_OVERRIDE)
 #undef PHYS_OVERRIDE
-    if (k == "scheme") {
-      o.scheme = enumByName<S::Scheme>(v,
-                                       {{"GaussSeidel", S::Scheme::GaussSeidel},
-                                        {"Jacobi", S::Scheme::Jacobi},
-                                        {"ColoredGaussSeidel", S::Scheme::ColoredGaussSeidel}},
-                                       "scheme");
-    } else if (k == "position_pass") {
-      o.positionPass = enumByName<S::PositionPass>(
-          v,
-          {{"None", S::PositionPass::None},
-           {"NonlinearGaussSeidel", S::PositionPass::NonlinearGaussSeidel},
-           {"NonlinearJacobi", S::PositionPass::NonlinearJacobi}},
-          "position_pass");
-    } else if (k == "stabilization") {
-      o.stabilization = enumByName<S::Stabilization>(
-          v, {{"Baumgarte", S::Stabilization::Baumgarte}, {"Soft", S::Stabilization::Soft}},
-          "stabilization");
-    } else if (k == "equality_solve") {
-      o.equalitySolve = enumByName<S::EqualitySolve>(
-          v,
-          {{"Iterative", S::EqualitySolve::Iterative},
-           {"DirectLdl", S::EqualitySolve::DirectLdl}},
-          "equality_solve");
-    } else if (isWorldSetting(k)) {
+    if (isWorldSetting(k))
       throw py::type_error("set_solver() got an unexpected keyword argument '" + k + "': " + k +
                            " is a world setting, set with set_world(" + k + "=...)");
-    } else {
-      throw py::type_error("set_solver() got an unexpected keyword argument '" + k + "'");
-    }
+    throw py::type_error("set_solver() got an unexpected keyword argument '" + k + "'");
   }
   return o;
 }
@@ -635,39 +599,19 @@ pc::WorldOverrides worldOverrides(const py::kwargs& kw) {
 
 /// The solver's settings as set_solver's keywords: w.set_solver(**other.settings().solver).
 py::dict solverDict(const phys::SolverSettings& s) {
-  using S = phys::SolverSettings;
   py::dict d;
-  d["scheme"] = s.scheme == S::Scheme::GaussSeidel ? "GaussSeidel"
-                : s.scheme == S::Scheme::Jacobi    ? "Jacobi"
-                                                   : "ColoredGaussSeidel";
-  d["position_pass"] = s.positionPass == S::PositionPass::None                   ? "None"
-                       : s.positionPass == S::PositionPass::NonlinearGaussSeidel ? "NonlinearGaussSeidel"
-                                                                                  : "NonlinearJacobi";
-  d["position_iterations"] = s.positionIterations;
-  d["position_baumgarte"] = s.positionBaumgarte;
-  d["max_position_correction"] = s.maxPositionCorrection;
-  d["substeps"] = s.substeps;
-  d["iterations"] = s.iterations;
-  d["tolerance"] = s.tolerance;
-  d["relax_iterations"] = s.relaxIterations;
-  d["stabilization"] = s.stabilization == S::Stabilization::Soft ? "Soft" : "Baumgarte";
-  d["baumgarte"] = s.baumgarte;
-  d["contact_hertz"] = s.contactHertz;
-  d["contact_damping_ratio"] = s.contactDampingRatio;
-  d["joint_hertz"] = s.jointHertz;
-  d["joint_damping_ratio"] = s.jointDampingRatio;
-  d["max_pushout"] = s.maxPushout;
-  d["linear_slop"] = s.linearSlop;
-  d["warm_start"] = s.warmStart;
-  d["restitution"] = s.restitution;
-  d["restitution_threshold"] = s.restitutionThreshold;
-  d["equality_solve"] = s.equalitySolve == S::EqualitySolve::DirectLdl ? "DirectLdl" : "Iterative";
-  d["block_contacts"] = s.blockContacts;
-  d["geometric_stiffness"] = s.geometricStiffness;
-  d["split_pushout"] = s.splitPushout;
-  d["patch_friction"] = s.patchFriction;
-  d["stack_stiffening"] = s.stackStiffening;
-  d["direct_contact_ratio"] = s.directContactRatio;
+  // An enum by its C++ enumerator's name, as set_solver takes it.
+  auto value = [](auto v) {
+    if constexpr (std::is_enum_v<decltype(v)>) {
+      const auto* n = phys::settingName(v);
+      return py::str(n ? n->name : "?");
+    } else {
+      return v;
+    }
+  };
+#define PHYS_SETTING_ITEM(type, member, name, ...) d[#name] = value(s.member);
+  PHYS_SOLVER_FIELDS(PHYS_SETTING_ITEM)
+#undef PHYS_SETTING_ITEM
   return d;
 }
 

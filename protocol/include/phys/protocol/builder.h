@@ -53,35 +53,13 @@ struct CreateWorldArgs {
   bool shared = false;
 };
 
-/// Solver settings to change; unset fields keep the world's current value.
+/// Solver settings to change; unset fields keep the world's current value. One member per
+/// row of PHYS_SOLVER_FIELDS (phys/dynamics/solver_settings.h), named as SolverSettings'.
 struct SolverOverrides {
-  std::optional<phys::SolverSettings::Scheme> scheme;
-  std::optional<phys::SolverSettings::PositionPass> positionPass;
-  std::optional<int> positionIterations;
-  std::optional<float> positionBaumgarte;
-  std::optional<float> maxPositionCorrection;
-  std::optional<int> substeps;
-  std::optional<int> iterations;
-  std::optional<float> tolerance;
-  std::optional<int> relaxIterations;
-  std::optional<phys::SolverSettings::Stabilization> stabilization;
-  std::optional<float> baumgarte;
-  std::optional<float> contactHertz;
-  std::optional<float> contactDampingRatio;
-  std::optional<float> jointHertz;
-  std::optional<float> jointDampingRatio;
-  std::optional<float> maxPushout;
-  std::optional<float> linearSlop;
-  std::optional<bool> warmStart;
-  std::optional<bool> restitution;
-  std::optional<float> restitutionThreshold;
-  std::optional<phys::SolverSettings::EqualitySolve> equalitySolve;
-  std::optional<bool> blockContacts;
-  std::optional<bool> geometricStiffness;
-  std::optional<bool> splitPushout;
-  std::optional<bool> patchFriction;
-  std::optional<bool> stackStiffening;
-  std::optional<float> directContactRatio;
+#define PHYS_SOLVER_OVERRIDE(type, member, ...) \
+  std::optional<decltype(phys::SolverSettings::member)> member;
+  PHYS_SOLVER_FIELDS(PHYS_SOLVER_OVERRIDE)
+#undef PHYS_SOLVER_OVERRIDE
 
   /// Every field set from s.
   static SolverOverrides from(const phys::SolverSettings& s);

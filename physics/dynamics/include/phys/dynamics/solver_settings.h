@@ -4,6 +4,8 @@
 #pragma once
 
 #include <cstdint>
+#include <span>
+#include <type_traits>
 
 namespace phys {
 
@@ -115,6 +117,153 @@ struct SolverSettings {
   bool patchFriction = true;
   static constexpr float kPointPatchDepth = 0.005f;  ///< m
 };
+
+/// Every field of SolverSettings, one row each, in the wire order (physics.fbs's SolverSettings
+/// table): the presets' JSON, the protocol's SolverOverrides, builder, converter and range
+/// checks and the Python client are generated from it (docs/ARCHITECTURE.md, "Adding a solver
+/// setting"). The struct above keeps the defaults and what each setting does; the snapshot
+/// (snapshot.cpp, ioSolver) and physics.fbs are pinned formats written by hand, and the unit
+/// and protocol tests walk this list through both.
+///
+///   X(type, member, name, json, check, lo, hi, meaning)
+///
+/// name: the wire field (its FlatBuffers accessor and add_ setter) and Python's keyword; json:
+/// the presets file's key. check is what the protocol's decoder requires of a value: Flag
+/// (none), Known (a value of the enum), Range (lo <= v <= hi) or Positive (0 < v <= hi). lo and
+/// hi are read only for Range and Positive; the bounds are the decoder's names: kMaxSubsteps
+/// (64), kMaxSolverIterations (1000), kMaxHertz, kMaxDampingRatio, kMaxDirectContactRatio
+/// (1e6), and its Limits' maxSize and maxLinearSpeed.
+#define PHYS_SOLVER_FIELDS(X)                                                                    \
+  X(Scheme, scheme, scheme, scheme, Known, 0, 0, "how the rows are swept")                       \
+  X(PositionPass, positionPass, position_pass, position_pass, Known, 0, 0,                       \
+    "post-stabilization after the velocity solve")                                               \
+  X(int, positionIterations, position_iterations, position_iterations, Range, 0,                 \
+    kMaxSolverIterations, "position pass iterations")                                            \
+  X(float, positionBaumgarte, position_baumgarte, position_baumgarte, Range, 0, 1,               \
+    "fraction of the position error a position pass removes")                                    \
+  X(float, maxPositionCorrection, max_position_correction, max_position_correction, Positive, 0, \
+    maxSize, "m (rad) a position pass moves a row at most")                                      \
+  X(int, substeps, substeps, substeps, Range, 1, kMaxSubsteps, "substeps per step")              \
+  X(int, iterations, iterations, iterations, Range, 1, kMaxSolverIterations,                     \
+    "velocity iterations per substep")                                                           \
+  X(float, tolerance, tolerance, tolerance, Range, 0, maxLinearSpeed,                            \
+    "m/s: a substep's iterations stop once no row changes more; 0: all run")                     \
+  X(int, relaxIterations, relax_iterations, relax_iterations, Range, 0, kMaxSolverIterations,    \
+    "iterations without position bias after each substep")                                       \
+  X(Stabilization, stabilization, stabilization, stabilization, Known, 0, 0,                     \
+    "Baumgarte or soft constraints")                                                             \
+  X(float, baumgarte, baumgarte, baumgarte, Range, 0, 1, "Baumgarte beta")                       \
+  X(float, contactHertz, contact_hertz, contact_hertz, Positive, 0, kMaxHertz,                   \
+    "soft contact stiffness, Hz")                                                                \
+  X(float, contactDampingRatio, contact_damping_ratio, contact_damping_ratio, Range, 0,          \
+    kMaxDampingRatio, "soft contact damping ratio")                                              \
+  X(float, jointHertz, joint_hertz, joint_hertz, Positive, 0, kMaxHertz,                         \
+    "soft joint stiffness, Hz")                                                                  \
+  X(float, jointDampingRatio, joint_damping_ratio, joint_damping_ratio, Range, 0,                \
+    kMaxDampingRatio, "soft joint damping ratio")                                                \
+  X(float, maxPushout, max_pushout, max_pushout, Positive, 0, maxLinearSpeed,                    \
+    "m/s, the fastest speed penetration recovery may add")                                       \
+  X(float, linearSlop, linear_slop, linear_slop, Range, 0, maxSize,                              \
+    "m of penetration left uncorrected (Baumgarte)")                                             \
+  X(bool, warmStart, warm_start, warm_start, Flag, 0, 0, "start from the last step's impulses")  \
+  X(bool, restitution, restitution, restitution, Flag, 0, 0, "bounces")                          \
+  X(float, restitutionThreshold, restitution_threshold, restitution_threshold, Range, 0,         \
+    maxLinearSpeed, "m/s, the approach speed below which nothing bounces")                       \
+  X(EqualitySolve, equalitySolve, equality_solve, equality, Known, 0, 0,                         \
+    "joints' equality rows iterated or solved by LDL^T")                                         \
+  X(bool, blockContacts, block_contacts, block_contacts, Flag, 0, 0,                             \
+    "a manifold's normal rows solved as one LCP")                                                \
+  X(bool, geometricStiffness, geometric_stiffness, geometric_stiffness, Flag, 0, 0,              \
+    "joints' geometric stiffness")                                                               \
+  X(bool, splitPushout, split_pushout, split_pushout, Flag, 0, 0,                                \
+    "deep penetration resolved by split impulses")                                               \
+  X(bool, patchFriction, patch_friction, patch_friction, Flag, 0, 0,                             \
+    "a manifold's friction at its centroid")                                                     \
+  X(bool, stackStiffening, stack_stiffening, stack_stiffening, Flag, 0, 0,                       \
+    "tall stacks' contacts stiffened")                                                           \
+  X(float, directContactRatio, direct_contact_ratio, direct_contact_ratio, Range, 0,             \
+    kMaxDirectContactRatio, "mass ratio from which contacts are solved directly; 0: never")
+
+namespace solver_fields {
+
+#define PHYS_SOLVER_FIELD_COUNT(...) +1
+inline constexpr int kCount = 0 PHYS_SOLVER_FIELDS(PHYS_SOLVER_FIELD_COUNT);
+#undef PHYS_SOLVER_FIELD_COUNT
+
+// The rows' types are SolverSettings' own.
+using Scheme = SolverSettings::Scheme;
+using PositionPass = SolverSettings::PositionPass;
+using Stabilization = SolverSettings::Stabilization;
+using EqualitySolve = SolverSettings::EqualitySolve;
+#define PHYS_SOLVER_FIELD_TYPE(type, member, ...)                       \
+  static_assert(std::is_same_v<decltype(SolverSettings::member), type>, \
+                "the row of " #member " names another type");
+PHYS_SOLVER_FIELDS(PHYS_SOLVER_FIELD_TYPE)
+#undef PHYS_SOLVER_FIELD_TYPE
+
+// A member without a row fails here, on every compiler (the sizeof tripwires of snapshot.cpp
+// and builder.cpp only where they were measured): an aggregate takes as many initializers as
+// it has members.
+struct AnyValue {
+  template <class T>
+  operator T() const;
+};
+template <class T, class... A>
+constexpr int memberCount() {
+  if constexpr (requires { T{A{}..., AnyValue{}}; })
+    return memberCount<T, A..., AnyValue>();
+  else
+    return sizeof...(A);
+}
+static_assert(memberCount<SolverSettings>() == kCount,
+              "SolverSettings' members and PHYS_SOLVER_FIELDS' rows differ");
+
+}  // namespace solver_fields
+
+/// An enum setting's value and its names: the C++ enumerator's (Python's) and the presets
+/// file's.
+template <class E>
+struct SettingName {
+  E value;
+  const char* name;
+  const char* json;
+};
+/// Each enum's names, in the order of its values (error messages list them so).
+inline constexpr SettingName<SolverSettings::Scheme> kSchemeNames[] = {
+    {SolverSettings::Scheme::GaussSeidel, "GaussSeidel", "gauss_seidel"},
+    {SolverSettings::Scheme::Jacobi, "Jacobi", "jacobi"},
+    {SolverSettings::Scheme::ColoredGaussSeidel, "ColoredGaussSeidel", "colored_gauss_seidel"}};
+inline constexpr SettingName<SolverSettings::PositionPass> kPositionPassNames[] = {
+    {SolverSettings::PositionPass::None, "None", "none"},
+    {SolverSettings::PositionPass::NonlinearGaussSeidel, "NonlinearGaussSeidel",
+     "nonlinear_gauss_seidel"},
+    {SolverSettings::PositionPass::NonlinearJacobi, "NonlinearJacobi", "nonlinear_jacobi"}};
+inline constexpr SettingName<SolverSettings::Stabilization> kStabilizationNames[] = {
+    {SolverSettings::Stabilization::Baumgarte, "Baumgarte", "baumgarte"},
+    {SolverSettings::Stabilization::Soft, "Soft", "soft"}};
+inline constexpr SettingName<SolverSettings::EqualitySolve> kEqualitySolveNames[] = {
+    {SolverSettings::EqualitySolve::Iterative, "Iterative", "iterative"},
+    {SolverSettings::EqualitySolve::DirectLdl, "DirectLdl", "direct_ldl"}};
+/// An enum's table by its type: settingNames(E{}).
+template <class E>
+constexpr std::span<const SettingName<E>> settingNames(E) {
+  using S = SolverSettings;
+  if constexpr (std::is_same_v<E, S::Scheme>)
+    return kSchemeNames;
+  else if constexpr (std::is_same_v<E, S::PositionPass>)
+    return kPositionPassNames;
+  else if constexpr (std::is_same_v<E, S::Stabilization>)
+    return kStabilizationNames;
+  else
+    return kEqualitySolveNames;
+}
+/// The names of value v (nullptr for a value outside the enum).
+template <class E>
+constexpr const SettingName<E>* settingName(E v) {
+  for (const SettingName<E>& n : settingNames(v))
+    if (n.value == v) return &n;
+  return nullptr;
+}
 
 /// The Gauss-Seidel scheme solves contact manifolds eight at a time in SIMD lanes, in an
 /// order that keeps every body's sequence of constraints, so the result is bit-identical to
