@@ -17,7 +17,7 @@ import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DEFAULT = ["protocol/src", "protocol/include", "server/src", "server/include", "server/main.cpp",
-           "client_sdk/src", "client_sdk/include"]
+           "client_sdk/src", "client_sdk/include", "client_sdk/python/src"]
 CONTROL = re.compile(r"^(if|for|while|switch|catch|do|else|return)\b")
 
 

@@ -22,6 +22,7 @@
 #include "phys/world/world.h"
 #include "phys/protocol/validate.h"
 #include "value_rules.h"
+#include "write.h"
 
 namespace phys::protocol {
 
@@ -65,6 +66,11 @@ class Checker : public ValueRules<Checker> {
   // points count every use of a shared table.
   uint64_t bodies = 0, joints = 0, ids = 0, items = 0, shapeUses = 0, hullPointUses = 0;
   bool inSnapshot = false;  ///< shapes and hull points against the snapshot budgets
+  /// false: one definition checked on its own (checkBodyDef), not a message's part of the
+  /// per-message budgets.
+  bool budgets = true;
+  /// Prefix of every path (checkBodyDef's caller's words, e.g. "scene 'x': bodies[3]").
+  std::string base;
 
   void push(const char* name, int64_t index) {
     if (depth_ < path_.size()) path_[depth_] = {name, index};
@@ -73,7 +79,7 @@ class Checker : public ValueRules<Checker> {
   void pop() { --depth_; }
 
   std::string path(std::string_view field) const {
-    std::string s;
+    std::string s = base;
     for (size_t i = 0; i < std::min(depth_, path_.size()); ++i) {
       if (!s.empty()) s += '.';
       s += path_[i].name;
@@ -179,6 +185,7 @@ class Checker : public ValueRules<Checker> {
   }
   /// Adds n to a message-wide total and checks it against its limit.
   bool budget(uint64_t* total, size_t n, uint32_t max, std::string_view f, const char* limit) {
+    if (!budgets) return true;
     *total += n;
     if (*total <= max) return true;
     std::string what = "has " + std::to_string(n) + " entries";
@@ -244,6 +251,8 @@ class Checker : public ValueRules<Checker> {
   bool shape(const wire::ShapeDef& s, wire::MotionType motion);
   bool body(const wire::BodyDef& b);
   bool joint(const wire::JointDef& j);
+  /// A joint's values: every field but its type and body ids (checkJointDef's too).
+  bool jointValues(const wire::JointDef& j);
   bool solver(const wire::SolverSettings& s, int* fieldsSet);
   bool worldSettings(const wire::WorldSettings& s, int* fieldsSet);
   /// A definition read back (BodiesResult): the body's definition and its mass properties.
@@ -436,6 +445,11 @@ bool Checker::joint(const wire::JointDef& j) {
   if (!known(type, wire::JointType::MAX, "type", "JointType")) return false;
   if (!id(j.body_b(), "body_b")) return false;
   if (j.body_a() == j.body_b()) return invalid("body_a", "must differ from body_b");
+  return jointValues(j);
+}
+
+bool Checker::jointValues(const wire::JointDef& j) {
+  const wire::JointType type = j.type();
   if (!vec(j.anchor_a(), lim.maxCoordinate, "anchor_a") ||
       !vec(j.anchor_b(), lim.maxCoordinate, "anchor_b"))
     return false;
@@ -1298,6 +1312,48 @@ Decoded<wire::Event> decodeEvent(std::vector<uint8_t>&& bytes, const Limits& lim
 }
 Decoded<wire::Snapshot> decodeSnapshot(std::vector<uint8_t>&& bytes, const Limits& limits) {
   return keep<wire::Snapshot>(std::move(bytes), &decodeSnapshot, limits);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Definitions that did not arrive as protocol tables (validate.h): each is written as the
+// table it would arrive as and checked by the checks above, so the rules exist once. Alone,
+// not as part of a message: no per-message budgets.
+
+namespace {
+
+/// A builder per thread, kept for its buffer (a scene checks thousands of bodies).
+flatbuffers::FlatBufferBuilder& scratchBuilder() {
+  thread_local flatbuffers::FlatBufferBuilder fbb(1024);
+  fbb.Clear();
+  return fbb;
+}
+
+Checker alone(const Limits& limits, std::string_view path) {
+  Checker c(limits);
+  c.budgets = false;
+  c.base = std::string(path);
+  c.status = Status::Ok();
+  return c;
+}
+
+}  // namespace
+
+Status checkBodyDef(const phys::BodyDef& def, const Limits& limits, std::string_view path) {
+  flatbuffers::FlatBufferBuilder& fbb = scratchBuilder();
+  fbb.Finish(detail::writeBodyDef(fbb, def));
+  Checker c = alone(limits, path);
+  c.body(*flatbuffers::GetRoot<wire::BodyDef>(fbb.GetBufferPointer()));
+  return c.status;
+}
+
+Status checkJointDef(const phys::JointDef& def, const Limits& limits, std::string_view path) {
+  flatbuffers::FlatBufferBuilder& fbb = scratchBuilder();
+  fbb.Finish(detail::writeJointDef(fbb, def));
+  Checker c = alone(limits, path);
+  const wire::JointDef& j = *flatbuffers::GetRoot<wire::JointDef>(fbb.GetBufferPointer());
+  // Its body ids are the world's to check (a scene's joints name bodies by index).
+  if (c.known(j.type(), wire::JointType::MAX, "type", "JointType")) c.jointValues(j);
+  return c.status;
 }
 
 }  // namespace phys::protocol

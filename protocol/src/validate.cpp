@@ -10,10 +10,8 @@ namespace phys::protocol {
 
 namespace {
 
-using detail::kMaxDampingRatio;
 using detail::kMaxGuardEnergyJump;
 using detail::kMaxGuardRetries;
-using detail::kMaxHertz;
 using detail::kMaxMargin;
 using detail::kMaxSleepTime;
 using detail::num;
@@ -40,69 +38,6 @@ struct V : ValueRules<V> {
     return fail(Code::InvalidArgument, f, what);
   }
   bool vec(Vec3 v, float maxAbs, std::string_view f) { return vec3(v.x, v.y, v.z, maxAbs, f); }
-  bool direction(Vec3 v, std::string_view f) { return direction3(v.x, v.y, v.z, f); }
-  bool quat(Quat q, std::string_view f) { return quat4(q.x, q.y, q.z, q.w, f); }
-  bool pose(Vec3 p, Quat q, std::string_view f) {
-    return vec(p, lim.maxCoordinate, std::string(f) + ".position") &&
-           quat(q, std::string(f) + ".rotation");
-  }
-  bool name(std::string_view s, std::string_view f) {
-    status = checkName(s, lim.maxNameBytes, path(f));
-    return status.ok();
-  }
-  bool material(const Material& m, std::string_view f) {
-    std::string p(f);
-    return nonNegative(m.friction, lim.maxFriction, p + ".friction") &&
-           range(m.restitution, 0.0f, 1.0f, p + ".restitution") &&
-           positive(m.density, lim.maxDensity, p + ".density");
-  }
-  bool shape(const ShapeDef& s, BodyType type, const std::string& f) {
-    const ShapeGeom& g = s.geom;
-    switch (g.type) {
-      case ShapeType::Sphere:
-        if (!size(g.radius, f + ".sphere.radius")) return false;
-        break;
-      case ShapeType::Box:
-        if (!size(g.halfExtents.x, f + ".box.half_extents.x") ||
-            !size(g.halfExtents.y, f + ".box.half_extents.y") ||
-            !size(g.halfExtents.z, f + ".box.half_extents.z"))
-          return false;
-        break;
-      case ShapeType::Capsule:
-        if (!size(g.radius, f + ".capsule.radius") ||
-            !nonNegative(g.halfHeight, lim.maxSize, f + ".capsule.half_height"))
-          return false;
-        break;
-      case ShapeType::Plane:
-        if (type != BodyType::Static) return invalid(f + ".plane", "is only allowed on a static body");
-        if (!direction(g.normal, f + ".plane.normal") ||
-            !range(g.offset, -lim.maxCoordinate, lim.maxCoordinate, f + ".plane.offset"))
-          return false;
-        break;
-      case ShapeType::Hull: {
-        if (!g.hull) return invalid(f + ".convex_hull", "has no hull");
-        const size_t n = g.hull->vertices.size();
-        if (n < 4) return invalid(f + ".convex_hull.points", "needs at least 4 points, got " + std::to_string(n));
-        if (n > lim.maxHullPoints)
-          return fail(Code::ResourceExhausted, f + ".convex_hull.points",
-                      "has " + std::to_string(n) + " points, the limit is " +
-                          std::to_string(lim.maxHullPoints) + " (max_hull_points)");
-        for (size_t i = 0; i < n; ++i) {
-          const Vec3 p = g.hull->vertices[i];
-          // The common case without building a path per vertex (a NaN fails the test).
-          if (std::fabs(p.x) <= lim.maxSize && std::fabs(p.y) <= lim.maxSize &&
-              std::fabs(p.z) <= lim.maxSize)
-            continue;
-          if (!vec(p, lim.maxSize, f + ".convex_hull.points[" + std::to_string(i) + "]"))
-            return false;
-        }
-        break;
-      }
-      default:
-        return invalid(f + ".geom", "is not a known shape");
-    }
-    return pose(s.local.p, s.local.q, f + ".local") && material(s.material, f + ".material");
-  }
 };
 
 }  // namespace
@@ -166,86 +101,8 @@ Status checkName(std::string_view name, uint32_t maxBytes, std::string_view path
   return Status::Ok();
 }
 
-Status checkBodyDef(const phys::BodyDef& b, const Limits& lim, std::string_view path) {
-  V v{lim, std::string(path)};
-  auto run = [&]() -> bool {
-    if (unsigned(b.type) > unsigned(BodyType::Dynamic))
-      return v.invalid("motion", "is " + std::to_string(unsigned(b.type)) + ", not a known MotionType");
-    if (!v.pose(b.position, b.rotation, "pose")) return false;
-    if (!v.vec(b.linearVelocity, lim.maxLinearSpeed, "linear_velocity") ||
-        !v.vec(b.angularVelocity, lim.maxAngularSpeed, "angular_velocity"))
-      return false;
-    if (!v.nonNegative(b.linearDamping, lim.maxDamping, "linear_damping") ||
-        !v.nonNegative(b.angularDamping, lim.maxDamping, "angular_damping") ||
-        !v.range(b.gravityScale, -lim.maxGravityScale, lim.maxGravityScale, "gravity_scale"))
-      return false;
-    if (!v.nonNegative(b.mass, lim.maxMass, "mass")) return false;
-    const bool dynamic = b.type == BodyType::Dynamic;
-    const char* kind = b.type == BodyType::Static ? "a static" : "a kinematic";
-    if (!dynamic && b.mass != 0)
-      return v.invalid("mass", std::string("must be 0 for ") + kind + " body, got " + num(b.mass));
-    if (!v.nonNegative(b.inertia.x, lim.maxInertia, "inertia.x") ||
-        !v.nonNegative(b.inertia.y, lim.maxInertia, "inertia.y") ||
-        !v.nonNegative(b.inertia.z, lim.maxInertia, "inertia.z"))
-      return false;
-    const int positives = (b.inertia.x > 0) + (b.inertia.y > 0) + (b.inertia.z > 0);
-    if (positives != 0 && positives != 3)
-      return v.invalid("inertia", "must be all 0 (automatic) or all > 0, got (" +
-                                      num(b.inertia.x) + ", " + num(b.inertia.y) + ", " +
-                                      num(b.inertia.z) + ")");
-    if (!dynamic && positives != 0)
-      return v.invalid("inertia", std::string("must be 0 for ") + kind + " body");
-    if (!v.name(b.name, "name")) return false;
-    if (b.shapes.size() > lim.maxShapesPerBody)
-      return v.fail(Code::ResourceExhausted, "shapes",
-                    "has " + std::to_string(b.shapes.size()) + " shapes, the limit is " +
-                        std::to_string(lim.maxShapesPerBody) + " (max_shapes_per_body)");
-    bool volume = false;
-    for (size_t i = 0; i < b.shapes.size(); ++i) {
-      if (!v.shape(b.shapes[i], b.type, "shapes[" + std::to_string(i) + "]")) return false;
-      volume |= b.shapes[i].geom.type != ShapeType::Plane;
-    }
-    if (dynamic && b.mass == 0 && !volume)
-      return v.invalid("shapes",
-                       "must hold a shape with volume when a dynamic body's mass is 0 "
-                       "(automatic)");
-    return true;
-  };
-  run();
-  return v.status;
-}
-
-Status checkJointDef(const phys::JointDef& j, const Limits& lim, std::string_view path) {
-  V v{lim, std::string(path)};
-  auto run = [&]() -> bool {
-    if (unsigned(j.type) > unsigned(JointType::Prismatic))
-      return v.invalid("type", "is " + std::to_string(unsigned(j.type)) + ", not a known JointType");
-    if (!v.vec(j.anchorA, lim.maxCoordinate, "anchor_a") ||
-        !v.vec(j.anchorB, lim.maxCoordinate, "anchor_b") || !v.direction(j.axisA, "axis_a") ||
-        !v.direction(j.axisB, "axis_b"))
-      return false;
-    if (!v.range(j.lower, -lim.maxCoordinate, lim.maxCoordinate, "lower") ||
-        !v.range(j.upper, -lim.maxCoordinate, lim.maxCoordinate, "upper"))
-      return false;
-    if (j.enableLimit) {
-      if (j.lower > j.upper)
-        return v.invalid("lower", "must be <= upper, got " + num(j.lower) + " > " + num(j.upper));
-      if (j.type == JointType::Hinge && (j.lower < -phys::kPi || j.upper > phys::kPi))
-        return v.invalid("lower", "and upper must lie in [-pi, pi] for a hinge");
-      if (j.type == JointType::Distance && j.lower < 0)
-        return v.invalid("lower", "must be >= 0 for a distance joint, got " + num(j.lower));
-    }
-    const float maxSpeed = std::max(lim.maxLinearSpeed, lim.maxAngularSpeed);
-    return v.range(j.motorSpeed, -maxSpeed, maxSpeed, "motor_speed") &&
-           v.nonNegative(j.maxMotorForce, lim.maxForce, "max_motor_force") &&
-           v.range(j.length, -lim.maxCoordinate, lim.maxCoordinate, "length") &&
-           v.nonNegative(j.springHertz, kMaxHertz, "spring_hertz") &&
-           v.nonNegative(j.springDampingRatio, kMaxDampingRatio, "spring_damping_ratio") &&
-           v.name(j.name, "name");
-  };
-  run();
-  return v.status;
-}
+// checkBodyDef and checkJointDef: decoder.cpp, the decoder's own checks on the definition
+// written as its wire table (one set of rules).
 
 Status checkWorldParams(phys::Vec3 gravity, float timeStep, const Limits& lim,
                         std::string_view path) {

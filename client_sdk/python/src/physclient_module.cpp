@@ -1397,7 +1397,17 @@ void defineAsync(py::module_& m) {
               return h.setMaterial(std::span<const uint64_t>(v), mt, o);
             });
           },
-          py::arg("bodies"), py::arg("material"), py::kw_only(), T)
+          py::arg("bodies"), py::arg("material"), py::kw_only(), T);
+}
+
+/// defineAsync's second half: the rest of World's *_async methods.
+void defineWorldAsyncMore(py::module_& m) {
+  using OptS = std::optional<double>;
+  const auto T = py::arg("timeout") = py::none();
+  using H = pc::WorldHandle;
+  using O = pc::CallOptions;
+  auto world = py::reinterpret_borrow<py::class_<PyWorld>>(m.attr("World"));
+  world
       .def(
           "set_solver_async",
           [](PyWorld& w, const std::string& preset, OptS t, const py::kwargs& kw) {
@@ -1524,6 +1534,12 @@ void defineAsync(py::module_& m) {
           },
           py::arg("file"), py::kw_only(), T);
 
+}
+
+/// Client's and Subscription's asyncio methods (issue 40).
+void defineClientAsync(py::module_& m) {
+  using OptS = std::optional<double>;
+  const auto T = py::arg("timeout") = py::none();
   auto client = py::reinterpret_borrow<py::class_<PyClient>>(m.attr("Client"));
   client
       .def(
@@ -1681,18 +1697,8 @@ void defineWorldContext(py::module_& m) {
           "Destroys the world without blocking if this World created it (see created).");
 }
 
-}  // namespace
-
-// ---------------------------------------------------------------------------------------------
-
-PYBIND11_MODULE(physclient, m) {
-  m.doc() =
-      "physclient: the physd client SDK for Python (docs/PYTHON.md).\n\n"
-      "Vectors are tuples (x, y, z); rotations are unit quaternions (x, y, z, w); body and\n"
-      "joint ids are ints. Failed requests raise physclient.Error (a subclass per code).";
-  m.attr("__version__") = PHYSCLIENT_VERSION;
-
-  // Enums.
+/// The enums.
+void defineEnums(py::module_& m) {
   py::enum_<pc::ErrorCode>(m, "ErrorCode", "The server's status codes (< 100) and the SDK's.")
       .value("Ok", pc::ErrorCode::Ok)
       .value("Malformed", pc::ErrorCode::Malformed)
@@ -1732,8 +1738,10 @@ PYBIND11_MODULE(physclient, m) {
       .value("Info", pc::Event::Severity::Info)
       .value("Warning", pc::Event::Severity::Warning)
       .value("Error", pc::Event::Severity::Error);
+}
 
-  // Exceptions.
+/// physclient.Error and a subclass per ErrorCode.
+void defineErrors(py::module_& m) {
   gError = PyErr_NewExceptionWithDoc(
       "physclient.Error",
       "A failed request: code (ErrorCode), message (the server's or the SDK's, without the "
@@ -1772,8 +1780,10 @@ PYBIND11_MODULE(physclient, m) {
       raiseError(e);
     }
   });
+}
 
-  // Definitions.
+/// Material, ShapeGeom, ShapeDef, BodyDef, JointDef.
+void defineDefinitions(py::module_& m) {
   py::class_<phys::Material>(m, "Material",
                              "Surface material: friction (>= 0), restitution (0..1), density "
                              "(kg/m^3, for masses computed from shapes).")
@@ -1903,8 +1913,10 @@ PYBIND11_MODULE(physclient, m) {
                std::to_string(j.bodyA.packed()) + ", body_b=" + std::to_string(j.bodyB.packed()) +
                ")";
       });
+}
 
-  // Results.
+/// What requests return: ServerInfo, Ack, Ids, BodyState, BodyArray, StateFrame.
+void defineResults(py::module_& m) {
   py::class_<pc::ServerInfo>(m, "ServerInfo", "What the server said in HelloResult.")
       .def_readonly("protocol_version", &pc::ServerInfo::protocolVersion)
       .def_readonly("name", &pc::ServerInfo::name)
@@ -1997,7 +2009,10 @@ PYBIND11_MODULE(physclient, m) {
         return "StateFrame(world=" + std::to_string(f.world) + ", tick=" + std::to_string(f.tick) +
                ", bodies=" + std::to_string(f.bodies.size()) + ")";
       });
+}
 
+/// What a world reports: WorldSummary, WorldSettings, BodyInfo, JointInfo, their pages, ServerStatus, Event.
+void defineWorldResults(py::module_& m) {
   py::class_<pc::WorldSummary>(m, "WorldSummary", "A world as list_worlds() reports it.")
       .def_readonly("world", &pc::WorldSummary::world)
       .def_readonly("name", &pc::WorldSummary::name)
@@ -2133,8 +2148,10 @@ PYBIND11_MODULE(physclient, m) {
         return "Event(world=" + std::to_string(e.world) + ", tick=" + std::to_string(e.tick) +
                ", code='" + e.code + "')";
       });
+}
 
-  // Subscriptions.
+/// Subscription.
+void defineSubscription(py::module_& m) {
   py::class_<PySubscription>(
       m, "Subscription",
       "A live subscription to a world's state frames; close() (or the end of a with block, or\n"
@@ -2154,8 +2171,10 @@ PYBIND11_MODULE(physclient, m) {
       .def("close", &PySubscription::close)
       .def("__enter__", [](py::object self) { return self; })
       .def("__exit__", [](PySubscription& s, py::args) { s.close(); });
+}
 
-  // Worlds.
+/// World: its blocking requests (defineWorldMore has the rest).
+void defineWorld(py::module_& m) {
   using OptS = std::optional<double>;
   const auto T = py::arg("timeout") = py::none();
   py::class_<PyWorld>(m, "World",
@@ -2299,7 +2318,15 @@ PYBIND11_MODULE(physclient, m) {
           },
           py::arg("preset") = "", py::kw_only(), T,
           "A solver preset (\"\": keep the world's) and overrides as keywords: iterations=,\n"
-          "substeps=, scheme='GaussSeidel'|'Jacobi'|'ColoredGaussSeidel', warm_start=, ...")
+          "substeps=, scheme='GaussSeidel'|'Jacobi'|'ColoredGaussSeidel', warm_start=, ...");
+}
+
+/// World's blocking requests after set_solver, and its comparisons.
+void defineWorldMore(py::module_& m) {
+  using OptS = std::optional<double>;
+  const auto T = py::arg("timeout") = py::none();
+  auto world = py::reinterpret_borrow<py::class_<PyWorld>>(m.attr("World"));
+  world
       .def(
           "set_world",
           [](PyWorld& w, OptS t, const py::kwargs& kw) {
@@ -2448,8 +2475,12 @@ PYBIND11_MODULE(physclient, m) {
            [](const PyWorld& a, const PyWorld& b) { return a.box() == b.box() && a.id() == b.id(); })
       .def("__hash__", [](const PyWorld& w) { return py::hash(py::int_(w.id())); })
       .def("__repr__", [](const PyWorld& w) { return "World(" + std::to_string(w.id()) + ")"; });
+}
 
-  // Clients.
+/// Client.
+void defineClient(py::module_& m) {
+  using OptS = std::optional<double>;
+  const auto T = py::arg("timeout") = py::none();
   py::class_<PyClient>(
       m, "Client",
       "A connection to physd: DDS entities and the SDK's thread, made at once; connect()\n"
@@ -2570,10 +2601,34 @@ PYBIND11_MODULE(physclient, m) {
           py::return_value_policy::take_ownership, "World(world).subscribe(callback).")
       .def("__enter__", [](py::object self) { return self; })
       .def("__exit__", [](PyClient& c, py::args) { c.close(); });
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+
+PYBIND11_MODULE(physclient, m) {
+  m.doc() =
+      "physclient: the physd client SDK for Python (docs/PYTHON.md).\n\n"
+      "Vectors are tuples (x, y, z); rotations are unit quaternions (x, y, z, w); body and\n"
+      "joint ids are ints. Failed requests raise physclient.Error (a subclass per code).";
+  m.attr("__version__") = PHYSCLIENT_VERSION;
+
+  defineEnums(m);
+  defineErrors(m);
+  defineDefinitions(m);
+  defineResults(m);
+  defineWorldResults(m);
+  defineSubscription(m);
+  defineWorld(m);
+  defineWorldMore(m);
+  defineClient(m);
 
   // StateFrame as a sequence, asyncio, World as a context manager (issue 40).
   defineFrameSequence(m);
   defineAsync(m);
+  defineWorldAsyncMore(m);
+  defineClientAsync(m);
   defineWorldContext(m);
 
   // Clients still open at exit are closed before Python finalizes (their threads joined, so no

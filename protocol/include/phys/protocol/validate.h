@@ -4,9 +4,9 @@
 // world that its own protocol could not describe to a client: every value here is one that
 // decodeWorldInfo accepts.
 //
-// The rules are those of decoder.h's checks of BodyDef, ShapeDef, Material and JointDef, on
-// the phys types (quaternions already normalized, hulls already built). tests/protocol's
-// validate test keeps the two in agreement.
+// The rules are decoder.h's own checks of BodyDef, ShapeDef, Material and JointDef: a
+// definition is written as the table it would arrive as and checked by the same code
+// (decoder.cpp), alone (no per-message budgets), so there is one set of rules, not two.
 #pragma once
 
 #include <string>
