@@ -49,24 +49,10 @@ ErrorCode codeOf(F&& f) {
 
 /// Bodies with something other than the default in each definition field, and a joint.
 std::vector<phys::BodyDef> scenery() {
-  std::vector<phys::BodyDef> v{phys::test::groundBody(0.8f, 0.1f)};
-  v[0].name = "ground";
-  phys::BodyDef a = phys::test::boxBody({0, 0, 3}, {0.5f, 0.25f, 0.4f});
-  a.name = "crate";
-  a.linearDamping = 0.3f;
-  a.angularDamping = 0.6f;
-  a.gravityScale = 0.5f;
-  a.mass = 7;
-  a.inertia = {1, 2, 3};
-  a.gyroscopic = false;
-  a.allowSleep = false;
-  a.shapes[0].material = {0.2f, 0.4f, 700};
-  v.push_back(a);
-  phys::BodyDef b = phys::test::sphereBody({2, 0, 3}, 0.3f, 1500);
-  b.name = "ball";
-  b.gravityScale = -0.25f;
-  v.push_back(b);
-  return v;
+  // The ground, the crate (every body setting given; a capsule beside its box) and the ball of
+  // test::everyKindScenery().
+  const std::vector<phys::BodyDef> all = test::everyKindScenery().bodies;
+  return {all[0], all[1], all[2]};
 }
 
 phys::JointDef hinge(uint64_t a, uint64_t b) {
