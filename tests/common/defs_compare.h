@@ -131,7 +131,8 @@ inline Scenery everyKindScenery() {
   h.name = "hull";
   ShapeDef hs;
   auto hull = buildConvexHull(
-      {{-0.3f, -0.3f, -0.3f}, {0.3f, -0.3f, -0.3f}, {0, 0.3f, -0.3f}, {0, 0, 0.4f}, {0.1f, 0.1f, 0}},
+      {{-0.3f, -0.3f, -0.3f}, {0.3f, -0.3f, -0.3f}, {0, 0.3f, -0.3f}, {0, 0, 0.4f},
+       {0.1f, 0.1f, 0}},
       nullptr);
   hs.geom = ShapeGeom::convexHull(hull);
   h.shapes.push_back(hs);
