@@ -75,23 +75,8 @@ void expectScenery(const std::vector<BodyInfo>& got, const std::vector<JointInfo
   SCOPED_TRACE(when);
   const std::vector<phys::BodyDef> want = scenery();
   ASSERT_EQ(got.size(), want.size());
-  for (size_t i = 0; i < want.size(); ++i) {
-    const phys::BodyDef &g = got[i].def, &w = want[i];
-    EXPECT_EQ(g.name, w.name);
-    EXPECT_EQ(g.type, w.type);
-    EXPECT_EQ(g.linearDamping, w.linearDamping);
-    EXPECT_EQ(g.angularDamping, w.angularDamping);
-    EXPECT_EQ(g.gravityScale, w.gravityScale);
-    EXPECT_EQ(g.mass, w.mass);
-    EXPECT_TRUE(g.inertia == w.inertia);
-    EXPECT_EQ(g.gyroscopic, w.gyroscopic);
-    EXPECT_EQ(g.allowSleep, w.allowSleep);
-    ASSERT_EQ(g.shapes.size(), w.shapes.size());
-    EXPECT_EQ(g.shapes[0].geom.type, w.shapes[0].geom.type);
-    EXPECT_EQ(g.shapes[0].material.friction, w.shapes[0].material.friction);
-    EXPECT_EQ(g.shapes[0].material.restitution, w.shapes[0].material.restitution);
-    EXPECT_EQ(g.shapes[0].material.density, w.shapes[0].material.density);
-  }
+  for (size_t i = 0; i < want.size(); ++i)
+    test::expectSameDefinition(want[i], got[i].def, want[i].name);
   EXPECT_EQ(got[1].mass.mass, 7);
   EXPECT_NEAR(got[2].mass.mass, 1500 * 4.0f / 3 * phys::kPi * 0.027f, 0.01f);
   ASSERT_EQ(joints.size(), 1u);
