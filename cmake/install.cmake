@@ -1,33 +1,44 @@
 # `cmake --install build [--prefix P]`: the client SDK as a package (docs/CLIENT.md "Linking
 # the SDK from another project").
 #
-#   lib/libphysclient.a, libphys_protocol.a, libphys_core.a (+ libphys_gpu.a when built)
-#   include/phys/...                 the SDK's, the protocol's and the engine's public headers
-#   lib/cmake/phys/physConfig.cmake  find_package(phys CONFIG): phys::client, phys::core
+#   lib/libphysclient.a, libphys_protocol.a          the SDK (phys::client, on phys::defs)
+#   lib/libphys_core.a (+ libphys_gpu.a when built)  the engine (phys::core), a component
+#   include/phys/...                 the definitions', the SDK's, the protocol's and the
+#                                    engine's public headers
+#   lib/cmake/phys/physConfig.cmake  find_package(phys CONFIG): phys::client;
+#                                    find_package(phys CONFIG COMPONENTS core): phys::core too
 #   lib/pkgconfig/phys-client.pc     pkg-config --cflags --libs phys-client
 #
 # Static libraries, as in the tree: a program that links phys::client carries the SDK and
-# needs at run time only the system's shared libraries (Cyclone DDS, OpenSSL, Vulkan).
-# phys::core alone is the engine, for programs that step worlds in process.
+# needs at run time only the system's shared libraries of Cyclone DDS and OpenSSL; nothing of
+# the engine (no Eigen, qhull or Vulkan: phys::defs is headers of plain data). phys::core is
+# the engine, for programs that step worlds in process; only it asks for qhull and Vulkan.
 include(GNUInstallDirs)
 include(CMakePackageConfigHelpers)
 
-set(_phys_targets physclient phys_protocol phys_core)
+# Two export sets: the client's (physTargets.cmake) and the engine's (physCoreTargets.cmake),
+# so that importing the client never names a target of the engine's dependencies.
+set(_phys_client_targets phys_defs phys_protocol physclient)
+set(_phys_core_targets phys_core)
 if(TARGET phys_gpu)
-  list(APPEND _phys_targets phys_gpu)
+  list(APPEND _phys_core_targets phys_gpu)
 endif()
 # The installed headers are C++20 (std::span, concepts): the exported targets say so, so a
 # project that sets no standard of its own compiles them (CMake adds -std=c++20 or newer).
-foreach(_t ${_phys_targets})
+# phys_defs says it itself (physics/CMakeLists.txt).
+foreach(_t phys_protocol physclient ${_phys_core_targets})
   target_compile_features(${_t} PUBLIC cxx_std_20)
 endforeach()
-install(TARGETS ${_phys_targets} EXPORT physTargets
+install(TARGETS ${_phys_client_targets} EXPORT physTargets
+        ARCHIVE DESTINATION ${CMAKE_INSTALL_LIBDIR}
+        INCLUDES DESTINATION ${CMAKE_INSTALL_INCLUDEDIR})
+install(TARGETS ${_phys_core_targets} EXPORT physCoreTargets
         ARCHIVE DESTINATION ${CMAKE_INSTALL_LIBDIR}
         INCLUDES DESTINATION ${CMAKE_INSTALL_INCLUDEDIR})
 
 # Headers: every room's include/ tree merges into include/phys/.
-foreach(_dir client_sdk/include protocol/include physics/base/include physics/collision/include
-             physics/dynamics/include physics/world/include)
+foreach(_dir client_sdk/include protocol/include physics/defs/include physics/collision/include
+             physics/world/include)
   install(DIRECTORY ${PROJECT_SOURCE_DIR}/${_dir}/ DESTINATION ${CMAKE_INSTALL_INCLUDEDIR})
 endforeach()
 if(TARGET phys_gpu)
@@ -40,6 +51,7 @@ install(FILES ${PROJECT_BINARY_DIR}/protocol/envelope.h DESTINATION ${CMAKE_INST
 
 set(_phys_cmake_dir ${CMAKE_INSTALL_LIBDIR}/cmake/phys)
 install(EXPORT physTargets NAMESPACE phys:: DESTINATION ${_phys_cmake_dir})
+install(EXPORT physCoreTargets NAMESPACE phys:: DESTINATION ${_phys_cmake_dir})
 if(TARGET phys_gpu)
   set(PHYS_PACKAGE_WITH_GPU ON)
 else()
@@ -53,12 +65,8 @@ write_basic_package_version_file(${PROJECT_BINARY_DIR}/physConfigVersion.cmake
 install(FILES ${PROJECT_BINARY_DIR}/physConfig.cmake ${PROJECT_BINARY_DIR}/physConfigVersion.cmake
         DESTINATION ${_phys_cmake_dir})
 
-# pkg-config: static libraries, so every library the SDK needs is in Libs.
-set(PHYS_PC_LIBS "-lphysclient -lphys_protocol -lphys_core")
-if(TARGET phys_gpu)
-  string(APPEND PHYS_PC_LIBS " -lphys_gpu -lvulkan")
-endif()
-string(APPEND PHYS_PC_LIBS " -lddsc -lflatbuffers -lcrypto -lqhull_r -lpthread")
+# pkg-config: static libraries, so every library the SDK needs is in Libs (none of the engine).
+set(PHYS_PC_LIBS "-lphysclient -lphys_protocol -lddsc -lflatbuffers -lcrypto -lpthread")
 # Relocatable: the .pc finds the prefix from its own folder, so --prefix at install time works.
 file(RELATIVE_PATH PHYS_PC_TO_PREFIX /p/${CMAKE_INSTALL_LIBDIR}/pkgconfig /p)
 configure_file(${PROJECT_SOURCE_DIR}/cmake/phys-client.pc.in ${PROJECT_BINARY_DIR}/phys-client.pc

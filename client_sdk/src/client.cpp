@@ -103,6 +103,11 @@ struct Subscription::State {
   dds::Topic topic;
   dds::Reader reader;
   std::function<void(const StateFrame&)> fn;
+  /// Held while the callback runs; reset() takes it to stop the callbacks, so that none runs
+  /// once the Subscription is gone (what it touches may go with it). Recursive: a callback
+  /// may reset its own subscription.
+  std::recursive_mutex fnMutex;
+  bool fnStopped = false;  ///< under fnMutex
 
   mutable std::mutex m;
   std::condition_variable cv;
@@ -282,7 +287,10 @@ struct Subscription::State {
       view.bodies = std::move(full);
       deliveredBodies = &view.bodies;
     }
-    fn(view);
+    {
+      std::lock_guard<std::recursive_mutex> calling(fnMutex);
+      if (!fnStopped) fn(view);
+    }
     std::lock_guard<std::mutex> lk(m);
     full = std::move(view.bodies);
     deliveredBodies = &full;
@@ -1057,6 +1065,12 @@ void Subscription::reset() {
     std::lock_guard<std::mutex> lk(state_->ownerMutex);
     if (state_->owner) state_->owner->unsubscribe(state_);
     state_->owner = nullptr;
+  }
+  {
+    // The SDK thread may be inside the callback with a copy of the list of subscriptions:
+    // wait for it, and stop the next (from inside the callback itself: no wait).
+    std::lock_guard<std::recursive_mutex> calling(state_->fnMutex);
+    state_->fnStopped = true;
   }
   state_.reset();
 }

@@ -1,5 +1,5 @@
 // GLSL helpers shared by the step's kernels: the quaternion and matrix math of
-// physics/base/include/phys/base/math.h, formula for formula, so the two backends round alike.
+// physics/defs/include/phys/defs/math.h, formula for formula, so the two backends round alike.
 #ifndef PHYS_GPU_COMMON_GLSL
 #define PHYS_GPU_COMMON_GLSL
 

@@ -255,7 +255,7 @@ struct GpuSolveConstants {
 #define PHYS_GPU_ROW_SPRING 5u
 
 // A joint as the device needs it, uploaded with the world's structure (world_gpu.cpp fills
-// it from JointRec, phys/dynamics/joint_def.h's JointDef).
+// it from JointRec, phys/defs/joint_def.h's JointDef).
 struct GpuJoint {
     int bodyA;      // GpuWorld body index; -1: the world or a static body (then anchorA is the
                   // world anchor and qA its orientation)

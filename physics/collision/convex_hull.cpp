@@ -206,4 +206,16 @@ std::shared_ptr<const ConvexHull> buildConvexHull(const std::vector<Vec3>& point
   return hull;
 }
 
+std::shared_ptr<const ConvexHull> buildHull(const std::shared_ptr<const ConvexHull>& hull,
+                                            std::string* error, HullBuildCache* cache) {
+  if (!hull || hull->built()) return hull;
+  if (cache) {
+    auto it = cache->find(hull.get());
+    if (it != cache->end()) return it->second;
+  }
+  auto built = buildConvexHull(hull->vertices, error);
+  if (built && cache) (*cache)[hull.get()] = built;
+  return built;
+}
+
 }  // namespace phys

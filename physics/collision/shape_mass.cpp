@@ -1,25 +1,9 @@
-// Shape names, mass properties and bounds.
+// Shapes' mass properties and bounds.
 #include <cmath>
 
 #include "phys/collision/shapes.h"
 
 namespace phys {
-
-const char* toString(ShapeType t) {
-  switch (t) {
-    case ShapeType::Sphere:
-      return "sphere";
-    case ShapeType::Box:
-      return "box";
-    case ShapeType::Capsule:
-      return "capsule";
-    case ShapeType::Plane:
-      return "plane";
-    case ShapeType::Hull:
-      return "hull";
-  }
-  return "unknown";
-}
 
 namespace {
 

@@ -6,10 +6,10 @@
 
 #include <cstdint>
 
-#include "phys/base/ids.h"
-#include "phys/base/math.h"
+#include "phys/defs/ids.h"
+#include "phys/defs/math.h"
 #include "phys/collision/shapes.h"
-#include "phys/dynamics/joint_def.h"
+#include "phys/defs/joint_def.h"
 
 namespace phys {
 

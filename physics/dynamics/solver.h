@@ -16,8 +16,8 @@
 #include <span>
 #include <vector>
 
-#include "phys/base/math.h"
-#include "phys/dynamics/solver_settings.h"
+#include "phys/defs/math.h"
+#include "phys/defs/solver_settings.h"
 
 namespace phys {
 

@@ -18,9 +18,9 @@
 #include <span>
 #include <vector>
 
-#include "phys/base/ids.h"
-#include "phys/base/math.h"
-#include "phys/dynamics/solver_settings.h"
+#include "phys/defs/ids.h"
+#include "phys/defs/math.h"
+#include "phys/defs/solver_settings.h"
 #include "base/disjoint_sets.h"
 #include "dynamics/records.h"
 

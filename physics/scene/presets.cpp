@@ -33,7 +33,7 @@ Status readNumber(const nlohmann::json& v, const std::string& path, T* out) {
   return Status::Ok();
 }
 
-/// An enum setting by its JSON name (phys/dynamics/solver_settings.h's tables).
+/// An enum setting by its JSON name (phys/defs/solver_settings.h's tables).
 template <class E>
 Status readEnum(const nlohmann::json& v, const std::string& path, E* out) {
   std::string name = v.is_string() ? v.get<std::string>() : "";

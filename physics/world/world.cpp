@@ -84,6 +84,12 @@ Status checkShape(ShapeDef* s, BodyType bodyType, const std::string& what) {
       if (!g.hull || g.hull->vertices.size() < 4) return invalid(what + ": hull is empty");
       for (Vec3 v : g.hull->vertices)
         if (!isFinite(v)) return invalid(what + ": hull vertex is not finite");
+      if (!g.hull->built()) {  // given by its points (ShapeGeom::hullOf, the protocol's hulls)
+        std::string error;
+        auto built = buildHull(g.hull, &error);
+        if (!built) return invalid(what + ": hull points make no hull: " + error);
+        s->geom.hull = std::move(built);
+      }
       for (const ConvexHull::Face& f : g.hull->faces) {
         if (f.indices.size() < 3) return invalid(what + ": hull face has fewer than 3 vertices");
         for (uint32_t i : f.indices)

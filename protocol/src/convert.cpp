@@ -46,18 +46,15 @@ Status toShapeDef(const wire::ShapeDef& in, phys::ShapeDef* out, const std::stri
           break;
         }
       }
+      // Points only: the world that receives the body builds the hull (and refuses points
+      // that span no volume), so neither the protocol nor a client needs a hull builder.
       std::vector<phys::Vec3> points;
       if (auto* pts = in.geom_as_ConvexHull()->points()) {
         points.reserve(pts->size());
         for (const wire::Vec3* v : *pts) points.push_back(toPhys(*v));
       }
-      std::string error;
-      auto hull = phys::buildConvexHull(points, &error);
-      if (!hull)
-        return Status::Error(Code::InvalidArgument,
-                             path + ".convex_hull.points do not make a hull: " + error);
-      if (cache) (*cache)[key] = hull;
-      s.geom = phys::ShapeGeom::convexHull(std::move(hull));
+      s.geom = phys::ShapeGeom::hullOf(std::move(points));
+      if (cache) (*cache)[key] = s.geom.hull;
       break;
     }
     default:

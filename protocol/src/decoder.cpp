@@ -19,7 +19,7 @@
 #include <vector>
 
 #include "flatbuffers/flatbuffers.h"
-#include "phys/world/world.h"
+#include "phys/defs/world_def.h"
 #include "phys/protocol/validate.h"
 #include "value_rules.h"
 #include "write.h"

@@ -106,6 +106,24 @@ struct ServerCore::Context {
   /// pass.
   protocol::HullCache hulls;
   std::map<const void*, std::vector<phys::BodyDef>> converted;
+  /// The hulls of this message built from their points, by points object (the protocol
+  /// carries points; a world would build each shape's own).
+  phys::HullBuildCache builtHulls;
+
+  /// A body definition's hulls built for its world (shapes of one hull table share one).
+  Status buildHulls(phys::BodyDef* d, const std::string& path) {
+    for (size_t i = 0; i < d->shapes.size(); ++i) {
+      phys::ShapeGeom& g = d->shapes[i].geom;
+      if (g.type != phys::ShapeType::Hull) continue;
+      std::string error;
+      auto built = phys::buildHull(g.hull, &error, &builtHulls);
+      if (!built)
+        return err(Code::InvalidArgument, path + ".shapes[" + std::to_string(i) +
+                                              "].convex_hull.points do not make a hull: " + error);
+      g.hull = std::move(built);
+    }
+    return Status::Ok();
+  }
 
   Status checkBodies(const phys::World& w, const flatbuffers::Vector<uint64_t>* v,
                      const std::string& path) {
@@ -762,7 +780,7 @@ struct ServerCore::Context {
   /// RestoreSnapshot's portable form: a fresh world from the definitions, saved ids mapped to
   /// new ones (the reply lists them), with the snapshot's settings (those it lacks: this
   /// world's).
-  Answer restorePortable(const protocol::SnapshotData& data) {
+  Answer restorePortable(protocol::SnapshotData& data) {
     Status& st = header.status;
     phys::WorldDef def = sw->world->def();
     def.gravity = data.gravity;
@@ -770,10 +788,11 @@ struct ServerCore::Context {
     def.solver = data.solver;
     protocol::applyOverrides(data.settings, &def);
     st = protocol::checkWorldSettings(def, core.config_.limits, "restore_snapshot.snapshot");
-    for (size_t i = 0; st.ok() && i < data.bodies.size(); ++i)
-      st = protocol::checkBodyDef(data.bodies[i].def, core.config_.limits,
-                                  "restore_snapshot.snapshot.bodies[" + std::to_string(i) +
-                                      "].def");
+    for (size_t i = 0; st.ok() && i < data.bodies.size(); ++i) {
+      const std::string bp = "restore_snapshot.snapshot.bodies[" + std::to_string(i) + "].def";
+      st = protocol::checkBodyDef(data.bodies[i].def, core.config_.limits, bp);
+      if (st.ok()) st = buildHulls(&data.bodies[i].def, bp);
+    }
     for (size_t i = 0; st.ok() && i < data.joints.size(); ++i)
       st = protocol::checkJointDef(data.joints[i].def, core.config_.limits,
                                    "restore_snapshot.snapshot.joints[" + std::to_string(i) +
@@ -864,6 +883,7 @@ struct ServerCore::Context {
         const std::string bp = p + ".bodies[" + std::to_string(i) + "]";
         Status s = protocol::toBodyDef(*v->Get(i), &defs[i], bp, &hulls);
         if (s.ok()) s = protocol::checkBodyDef(defs[i], core.config_.limits, bp);
+        if (s.ok()) s = buildHulls(&defs[i], bp);
         if (!s.ok()) return s;
       }
       converted[table] = std::move(defs);

@@ -653,6 +653,33 @@ TEST(ClientSdk, RestoreAndResetStartANewEpochThatSubscribersFollowAtOnce) {
   EXPECT_EQ(sub.framesSkipped(), 0u);
 }
 
+// A callback may touch what its owner destroys right after the Subscription (a log, a
+// window): once reset() or the destructor returns, no callback runs, a running one finished.
+TEST(ClientSdk, NoCallbackRunsOnceItsSubscriptionIsGone) {
+  Env env;
+  Client& c = env.client;
+  c.connect();
+  WorldHandle w = c.createWorld({"gone", "", std::nullopt, 0}).get();
+  w.spawn(grid(4)).get();
+  std::atomic<bool> inside{false}, gone{false};
+  std::atomic<int> calls{0}, callsAfter{0};
+  Subscription sub = w.subscribe([&](const StateFrame&) {
+    if (gone) ++callsAfter;
+    inside = true;
+    ++calls;
+    std::this_thread::sleep_for(50ms);  // a slow callback: the reset meets it running
+    inside = false;
+  });
+  w.run(60).get();
+  ASSERT_TRUE(waitFor([&] { return calls >= 2 && inside; }));
+  sub.reset();
+  gone = true;
+  EXPECT_FALSE(inside) << "reset() returned while the callback ran";
+  std::this_thread::sleep_for(300ms);  // ticks go on at 60 Hz
+  EXPECT_EQ(callsAfter, 0);
+  w.pause().get();
+}
+
 // SERVER.md "Time control": a paused world's subscribers see spawns and pose edits. They did
 // not until the world stepped (issue 40); now each edit comes at once as a frame of the same
 // tick (its edit number 1, 2, ...), and the next step's frame follows it.

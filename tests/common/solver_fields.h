@@ -8,7 +8,7 @@
 #include <string>
 #include <type_traits>
 
-#include "phys/dynamics/solver_settings.h"
+#include "phys/defs/solver_settings.h"
 
 namespace phys::test {
 

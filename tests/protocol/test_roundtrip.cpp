@@ -52,9 +52,12 @@ void expectBodyEq(const phys::BodyDef& a, const phys::BodyDef& b) {
         EXPECT_EQ(x.geom.offset, y.geom.offset);
         break;
       case phys::ShapeType::Hull:
+        // A hull travels as its points: the built hull's vertices, unbuilt on arrival.
         ASSERT_TRUE(y.geom.hull);
-        EXPECT_EQ(x.geom.hull->vertices.size(), y.geom.hull->vertices.size());
-        EXPECT_EQ(x.geom.hull->faces.size(), y.geom.hull->faces.size());
+        EXPECT_FALSE(y.geom.hull->built());
+        ASSERT_EQ(x.geom.hull->vertices.size(), y.geom.hull->vertices.size());
+        for (size_t v = 0; v < x.geom.hull->vertices.size(); ++v)
+          expectVec(x.geom.hull->vertices[v], y.geom.hull->vertices[v]);
         break;
     }
     expectVec(x.local.p, y.local.p);
@@ -666,8 +669,9 @@ TEST(ProtocolConvert, CodesAndStates) {
   EXPECT_LT(w.linear_velocity().z(), 0.0f);
 }
 
-TEST(ProtocolConvert, DegenerateHullFailsInConversion) {
-  // Four coplanar points pass the codec (counts and ranges) but make no hull.
+TEST(ProtocolConvert, HullsArriveAsPointsAndTheWorldBuildsOrRefusesThem) {
+  // Four coplanar points pass the codec (counts and ranges) and convert, as points: the
+  // protocol builds no hull. The world that receives them refuses them and creates nothing.
   flatbuffers::FlatBufferBuilder fbb;
   std::vector<wire::Vec3> pts = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {1, 1, 0}};
   auto hull = wire::CreateConvexHull(fbb, fbb.CreateVectorOfStructs(pts));
@@ -677,12 +681,38 @@ TEST(ProtocolConvert, DegenerateHullFailsInConversion) {
                                   1, 0, nullptr, true, 0, fbb.CreateVector(shapes));
   fbb.Finish(body);
   const auto* def = flatbuffers::GetRoot<wire::BodyDef>(fbb.GetBufferPointer());
-  phys::BodyDef out;
-  Status st = toBodyDef(*def, &out, "spawn_bodies.bodies[0]");
-  EXPECT_EQ(st.code, Code::InvalidArgument);
-  EXPECT_NE(st.message.find("spawn_bodies.bodies[0].shapes[0].convex_hull.points"),
-            std::string::npos)
-      << st.message;
+  phys::BodyDef flat;
+  ASSERT_TRUE(toBodyDef(*def, &flat, "spawn_bodies.bodies[0]").ok());
+  ASSERT_TRUE(flat.shapes[0].geom.hull);
+  EXPECT_FALSE(flat.shapes[0].geom.hull->built());
+  EXPECT_EQ(flat.shapes[0].geom.hull->vertices.size(), 4u);
+  phys::World world;
+  phys::BodyId id;
+  phys::Status ps = world.createBody(flat, &id);
+  EXPECT_EQ(ps.code, phys::StatusCode::InvalidArgument);
+  EXPECT_NE(ps.message.find("body.shapes[0]: hull points make no hull"), std::string::npos)
+      << ps.message;
+  EXPECT_EQ(world.bodyCount(), 0);
+
+  // The cube's corners and its centre: built by the world into the cube (8 vertices, 6 faces)
+  // with the mass of a unit cube of the body's density.
+  phys::BodyDef cube;
+  std::vector<phys::Vec3> points;
+  for (float x : {0.f, 1.f})
+    for (float y : {0.f, 1.f})
+      for (float z : {0.f, 1.f}) points.push_back({x, y, z});
+  points.push_back({0.5f, 0.5f, 0.5f});
+  cube.shapes.push_back({phys::ShapeGeom::hullOf(points), {}, {}});
+  ASSERT_TRUE(world.createBody(cube, &id).ok());
+  phys::BodyDef back;
+  ASSERT_TRUE(world.getBodyDef(id, &back).ok());
+  ASSERT_TRUE(back.shapes[0].geom.hull && back.shapes[0].geom.hull->built());
+  EXPECT_EQ(back.shapes[0].geom.hull->vertices.size(), 8u);
+  EXPECT_EQ(back.shapes[0].geom.hull->faces.size(), 6u);
+  phys::BodyState st;
+  ASSERT_TRUE(world.getBody(id, &st).ok());
+  EXPECT_NEAR(st.mass, 1000.0f, 1e-2f);
+  EXPECT_NEAR(st.centerOfMass.z, 0.5f, 1e-5f);
 }
 
 }  // namespace

@@ -142,6 +142,18 @@ TEST_F(BudgetTest, SharedHullIsBuiltOnce) {
     }
 }
 
+TEST_F(BudgetTest, HullPointsThatMakeNoHullRefuseTheSpawnByPath) {
+  // The protocol carries hull points; the server builds them at its boundary (once per hull
+  // table). Flat points in the second body refuse the whole spawn, naming the shape, and the
+  // first body is not created either.
+  phys::BodyDef flat = boxBody({3, 0, 1});
+  flat.shapes[0].geom = phys::ShapeGeom::hullOf({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {1, 1, 0}});
+  std::vector<phys::BodyDef> defs = {boxBody({0, 0, 1}), flat};
+  expectRefused(CommandBuilder().spawnBodies(defs).finish({kClient, ++seq, world}),
+                Code::InvalidArgument,
+                "spawn_bodies.bodies[1].shapes[0].convex_hull.points do not make a hull");
+}
+
 TEST_F(BudgetTest, StepCostIsBoundedByBodySteps) {
   CoreConfig c = testConfig();
   c.limits.maxBodyStepsPerCommand = 1000;

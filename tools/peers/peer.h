@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "phys/base/math.h"
+#include "phys/defs/math.h"
 #include "phys/scene/scene.h"
 #include "phys/world/world.h"
 

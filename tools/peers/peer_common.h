@@ -30,7 +30,7 @@
 #include <vector>
 
 #include "peers/peer.h"
-#include "phys/base/math.h"
+#include "phys/defs/math.h"
 #include "phys/scene/scene.h"
 #include "phys/world/world.h"
 

@@ -145,11 +145,22 @@ bool describeWorld(phys::client::WorldHandle world, std::chrono::milliseconds ti
     return false;
   }
   out->reserve(data.bodies.size());
+  phys::HullBuildCache hulls;  // the wire carries a hull's points: built here to be drawn
   for (const phys::protocol::BodyEntry& e : data.bodies) {
     BodyDesc d;
     d.id = e.id;
     d.type = e.def.type;
-    for (const phys::ShapeDef& s : e.def.shapes) d.shapes.push_back(describeShape(s));
+    for (phys::ShapeDef s : e.def.shapes) {
+      if (s.geom.type == phys::ShapeType::Hull) {
+        std::string why;
+        s.geom.hull = phys::buildHull(s.geom.hull, &why, &hulls);
+        if (!s.geom.hull) {
+          *error = "a hull of body " + std::to_string(e.id) + " does not build: " + why;
+          return false;
+        }
+      }
+      d.shapes.push_back(describeShape(s));
+    }
     out->push_back(std::move(d));
   }
   return true;

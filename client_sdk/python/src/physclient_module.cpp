@@ -511,7 +511,7 @@ struct BodyArray {
 // ---------------------------------------------------------------------------------------------
 // Solver overrides from keyword arguments.
 
-/// An enum setting by its C++ enumerator's name (phys/dynamics/solver_settings.h's tables).
+/// An enum setting by its C++ enumerator's name (phys/defs/solver_settings.h's tables).
 template <class E>
 E enumByName(const py::handle& v, const char* what) {
   const std::string s = py::str(v);
@@ -1810,13 +1810,20 @@ void defineDefinitions(py::module_& m) {
                   "The plane dot(normal, x) = offset (static bodies only).")
       .def_static(
           "hull",
-          [](const std::vector<phys::Vec3>& points) {
-            std::string err;
-            auto h = phys::buildConvexHull(points, &err);
-            if (!h) throw py::value_error("physclient: no convex hull: " + err);
-            return phys::ShapeGeom::convexHull(std::move(h));
+          [](std::vector<phys::Vec3> points) {
+            // What needs no hull builder is checked here; whether the points span a volume,
+            // the daemon that builds the hull says (the spawn fails with InvalidArgument).
+            if (points.size() < 4)
+              throw py::value_error("physclient: a convex hull needs at least 4 points, got " +
+                                    std::to_string(points.size()));
+            for (const phys::Vec3& p : points)
+              if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z))
+                throw py::value_error("physclient: a convex hull's points must be finite");
+            return phys::ShapeGeom::hullOf(std::move(points));
           },
-          py::arg("points"), "The convex hull of these points (m, local).")
+          py::arg("points"),
+          "The convex hull of these points (m, local), at least 4, finite; the daemon builds it "
+          "and refuses points that span no volume.")
       .def_readonly("type", &phys::ShapeGeom::type)
       .def_readwrite("radius", &phys::ShapeGeom::radius)
       .def_readwrite("half_extents", &phys::ShapeGeom::halfExtents)

@@ -654,7 +654,9 @@ class Bindings(unittest.TestCase):
         with self.assertRaises(TypeError):
             pc.BodyDef(position=(1, 2))
         with self.assertRaises(ValueError):
-            pc.ShapeGeom.hull([(0, 0, 0), (1, 0, 0), (0, 1, 0)])  # flat
+            pc.ShapeGeom.hull([(0, 0, 0), (1, 0, 0), (0, 1, 0)])  # three points
+        with self.assertRaises(ValueError):
+            pc.ShapeGeom.hull([(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, math.nan)])
         with self.assertRaises(TypeError):
             w.set_solver(no_such_setting=1)
         with self.assertRaises(TypeError):
@@ -713,9 +715,11 @@ class Bindings(unittest.TestCase):
         self.assertEqual(s.geom.radius, 0.25)
         self.assertEqual(s.local_position, (0.0, 0.0, 1.0))
         self.assertAlmostEqual(s.material.friction, 0.1, places=6)
-        hull = pc.ShapeGeom.hull([(x, y, z) for x in (0, 1) for y in (0, 1) for z in (0, 1)])
+        # A hull is its points until a world builds it: the cube's corners and its centre.
+        corners = [(x, y, z) for x in (0, 1) for y in (0, 1) for z in (0, 1)]
+        hull = pc.ShapeGeom.hull(corners + [(0.5, 0.5, 0.5)])
         self.assertEqual(hull.type, pc.ShapeType.Hull)
-        self.assertEqual(len(hull.hull_vertices), 8)
+        self.assertEqual(len(hull.hull_vertices), 9)
         capsule = pc.ShapeGeom.capsule(0.2, 0.5)
         self.assertEqual((capsule.type, capsule.half_height), (pc.ShapeType.Capsule, 0.5))
         j = pc.JointDef(type=pc.JointType.Hinge, body_a=(7 << 32) | 3, enable_motor=True)
@@ -727,6 +731,15 @@ class Bindings(unittest.TestCase):
         w.step(10)
         for body in w.query_state(ids).bodies:
             self.assertLess(body.position[2], 5.0 - 0.1)
+        # The daemon built the hull: the centre is inside, so the world's hull has the corners.
+        built = w.get_bodies([ids[0]]).bodies[0].definition.shapes[0].geom.hull_vertices
+        self.assertEqual(sorted(built), sorted(tuple(map(float, c)) for c in corners))
+        # Points that span no volume: the daemon refuses the spawn and names the shape.
+        flat = pc.ShapeGeom.hull([(0, 0, 0), (1, 0, 0), (0, 1, 0), (1, 1, 0)])
+        with self.assertRaises(pc.InvalidArgument) as cm:
+            w.spawn(pc.BodyDef(shapes=[pc.ShapeDef(flat)]))
+        self.assertIn("shapes[0].convex_hull.points do not make a hull", cm.exception.message)
+        self.assertEqual(len(w.all_bodies()), 2)
 
     def test_requests_from_threads(self):
         # Requests release the GIL while they wait. Another thread keeps running while a long

@@ -27,7 +27,9 @@
 #include "phys/client/error.h"
 #include "phys/protocol/builder.h"
 #include "phys/protocol/security.h"
-#include "phys/world/world.h"
+#include "phys/defs/body_def.h"
+#include "phys/defs/joint_def.h"
+#include "phys/defs/world_def.h"
 
 namespace phys::client {
 
@@ -206,7 +208,10 @@ struct CallOptions {
 
 class Client;
 
-/// A live subscription to one world's state frames; unsubscribes when destroyed.
+/// A live subscription to one world's state frames; unsubscribes when destroyed. Once the
+/// destructor or reset() returns, its callback does not run again: they wait for a callback
+/// that is running on the SDK thread (so what the callback touches may be destroyed next),
+/// except from inside the callback itself, which may reset its own subscription.
 class Subscription {
  public:
   Subscription() = default;

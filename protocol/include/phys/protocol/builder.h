@@ -18,7 +18,9 @@
 #include "phys/protocol/limits.h"
 #include "phys/protocol/status.h"
 #include "phys/protocol/wire.h"
-#include "phys/world/world.h"
+#include "phys/defs/body_def.h"
+#include "phys/defs/joint_def.h"
+#include "phys/defs/world_def.h"
 
 namespace phys::protocol {
 
@@ -54,7 +56,7 @@ struct CreateWorldArgs {
 };
 
 /// Solver settings to change; unset fields keep the world's current value. One member per
-/// row of PHYS_SOLVER_FIELDS (phys/dynamics/solver_settings.h), named as SolverSettings'.
+/// row of PHYS_SOLVER_FIELDS (phys/defs/solver_settings.h), named as SolverSettings'.
 struct SolverOverrides {
 #define PHYS_SOLVER_OVERRIDE(type, member, ...) \
   std::optional<decltype(phys::SolverSettings::member)> member;

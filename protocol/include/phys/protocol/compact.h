@@ -17,7 +17,7 @@
 #include <cstdint>
 #include <span>
 
-#include "phys/base/math.h"
+#include "phys/defs/math.h"
 #include "phys/protocol/wire.h"
 
 namespace phys::protocol {

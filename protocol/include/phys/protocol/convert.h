@@ -1,16 +1,20 @@
 // Conversions between wire tables and phys types. The *to phys* direction expects input that
-// passed the decoders (decoder.h); it normalizes quaternions and plane normals and rebuilds
-// convex hulls, which is the one check the decoders leave to it.
+// passed the decoders (decoder.h); it normalizes quaternions and plane normals. Convex hulls
+// travel as their points and stay points here (phys/defs/shape_def.h's ConvexHull): the
+// world that receives a body builds its hulls (World::createBody), the one check the decoders
+// leave to the engine.
 #pragma once
 
 #include <memory>
 #include <unordered_map>
 
-#include "phys/base/math.h"
+#include "phys/defs/body_def.h"
+#include "phys/defs/joint_def.h"
+#include "phys/defs/math.h"
+#include "phys/defs/world_def.h"
 #include "phys/protocol/builder.h"
 #include "phys/protocol/status.h"
 #include "phys/protocol/wire.h"
-#include "phys/world/world.h"
 
 namespace phys::protocol {
 
@@ -43,13 +47,14 @@ inline phys::Material toPhys(const wire::Material& m) {
 /// A published state record of a body.
 wire::BodyState toWire(const phys::BodyState& s);
 
-/// Hulls built from wire tables, by table address: a message whose shapes share one hull
-/// table (FlatBuffers allows it) builds that hull once. Valid for one message's buffer.
+/// Hulls read from wire tables (points only), by table address: the shapes of a message that
+/// share one hull table (FlatBuffers allows it) share one hull, which their world then builds
+/// once (the server's spawn and restore). Valid for one message's buffer.
 using HullCache = std::unordered_map<const void*, std::shared_ptr<const phys::ConvexHull>>;
 
-/// A body definition for World::createBody. Fails (InvalidArgument, message prefixed with
-/// `path`) only when hull points span no volume. With a cache, hulls of tables already built
-/// are shared.
+/// A body definition for World::createBody, its hulls as points (unbuilt). Fails
+/// (InvalidArgument, message prefixed with `path`) only for a shape of no known kind. With a
+/// cache, shapes of one hull table share one hull.
 Status toBodyDef(const wire::BodyDef& in, phys::BodyDef* out, std::string_view path = "body",
                  HullCache* cache = nullptr);
 /// A joint definition for World::createJoint (ids unpacked; absent axes are (0, 0, 1)).
@@ -65,14 +70,14 @@ WorldOverrides toOverrides(const wire::WorldSettings& in);
 /// Applies the world settings that are set (gravity, time step, sleeping, clamps, margins,
 /// guard).
 void applyOverrides(const WorldOverrides& in, phys::WorldDef* out);
-/// A body of a BodiesResult as plain data (hulls rebuilt; fails like toBodyDef).
+/// A body of a BodiesResult as plain data (hulls as points; fails like toBodyDef).
 Status toBodyInfo(const wire::BodyInfo& in, BodyInfo* out, std::string_view path = "body",
                   HullCache* cache = nullptr);
 
 /// A world's summary (WorldList, ServerStatus) as plain data; absent strings are empty.
 WorldSummary toWorldSummary(const wire::WorldSummary& in);
 
-/// A decoded snapshot as plain data (hulls rebuilt; fails like toBodyDef).
+/// A decoded snapshot as plain data (hulls as points; fails like toBodyDef).
 Status toSnapshotData(const wire::Snapshot& in, SnapshotData* out);
 
 }  // namespace phys::protocol

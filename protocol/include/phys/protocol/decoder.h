@@ -11,8 +11,8 @@
 // a Batch holds only batchable commands.
 //
 // What it cannot check, left to the server: that world, body and joint ids are live, that a
-// preset, scene or snapshot file exists, that hull points span a volume (convert.h's
-// toBodyDef reports it), cross-field solver rules that depend on the current settings
+// preset, scene or snapshot file exists, that hull points span a volume (the world
+// that builds the hull reports it), cross-field solver rules that depend on the current settings
 // (phys::World::validate), and the protocol version the client speaks.
 //
 // Quaternions are accepted when | |q| - 1 | < quatTolerance but left as sent (the buffer is

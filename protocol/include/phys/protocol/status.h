@@ -7,7 +7,7 @@
 #include <string>
 
 #include "phys/protocol/wire.h"
-#include "phys/world/world.h"
+#include "phys/defs/status.h"
 
 namespace phys::protocol {
 

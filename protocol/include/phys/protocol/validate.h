@@ -14,7 +14,9 @@
 
 #include "phys/protocol/limits.h"
 #include "phys/protocol/status.h"
-#include "phys/world/world.h"
+#include "phys/defs/body_def.h"
+#include "phys/defs/joint_def.h"
+#include "phys/defs/world_def.h"
 
 namespace phys::protocol {
 

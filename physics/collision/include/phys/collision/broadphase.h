@@ -10,7 +10,7 @@
 #include <type_traits>
 #include <vector>
 
-#include "phys/base/math.h"
+#include "phys/defs/math.h"
 
 namespace phys {
 

@@ -1,85 +1,31 @@
-// Collision shapes, their mass properties, and the narrow phase (contact manifolds).
-// Conventions: z is up; a capsule's segment runs along its local z axis; a plane is
-// {x : dot(normal, x) = offset} in the owning body's frame and is only allowed on static bodies.
+// What the engine computes of shapes (phys/defs/shape_def.h says what they are): convex
+// hulls from points, mass properties, bounds, and the narrow phase (contact manifolds).
 #pragma once
 
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
-#include "phys/base/math.h"
+#include "phys/defs/math.h"
+#include "phys/defs/shape_def.h"
 
 namespace phys {
-
-enum class ShapeType : uint8_t { Sphere = 0, Box = 1, Capsule = 2, Plane = 3, Hull = 4 };
-constexpr int kShapeTypeCount = 5;
-const char* toString(ShapeType t);
-
-/// A convex polyhedron with its faces and edges, built once and shared by every shape using it.
-struct ConvexHull {
-  struct Face {
-    Vec3 normal;                    ///< outward unit normal
-    float offset = 0;               ///< dot(normal, x) = offset on the face
-    std::vector<uint32_t> indices;  ///< vertex indices, counter-clockwise seen from outside
-  };
-  std::vector<Vec3> vertices;  ///< m, relative to the shape's local origin
-  std::vector<Face> faces;
-  std::vector<std::pair<uint32_t, uint32_t>> edges;  ///< unique undirected edges
-  Vec3 centroid;                                     ///< volume centroid, m
-  /// The two faces sharing each edge, parallel to `edges`; filled by buildConvexHull. The
-  /// narrow phase derives it on the fly (slower) when a hull built by hand leaves it empty.
-  std::vector<std::pair<uint32_t, uint32_t>> edgeFaces;
-};
 
 /// Builds the convex hull of a point cloud (coplanar facets merged into polygons).
 /// Returns nullptr and fills *error when the points span no volume or are not finite.
 std::shared_ptr<const ConvexHull> buildConvexHull(const std::vector<Vec3>& points,
                                                   std::string* error);
 
-/// Geometry of one shape in its local frame.
-struct ShapeGeom {
-  ShapeType type = ShapeType::Sphere;
-  float radius = 0.5f;                     ///< sphere, capsule: m
-  Vec3 halfExtents{0.5f, 0.5f, 0.5f};      ///< box: m
-  float halfHeight = 0.5f;                 ///< capsule: half the segment length along local z, m
-  Vec3 normal{0, 0, 1};                    ///< plane: unit normal
-  float offset = 0;                        ///< plane: dot(normal, x) = offset
-  std::shared_ptr<const ConvexHull> hull;  ///< hull only
-
-  static ShapeGeom sphere(float r) {
-    ShapeGeom g;
-    g.type = ShapeType::Sphere;
-    g.radius = r;
-    return g;
-  }
-  static ShapeGeom box(Vec3 he) {
-    ShapeGeom g;
-    g.type = ShapeType::Box;
-    g.halfExtents = he;
-    return g;
-  }
-  static ShapeGeom capsule(float r, float halfHeight) {
-    ShapeGeom g;
-    g.type = ShapeType::Capsule;
-    g.radius = r;
-    g.halfHeight = halfHeight;
-    return g;
-  }
-  static ShapeGeom plane(Vec3 n, float d) {
-    ShapeGeom g;
-    g.type = ShapeType::Plane;
-    g.normal = normalize(n);
-    g.offset = d;
-    return g;
-  }
-  static ShapeGeom convexHull(std::shared_ptr<const ConvexHull> h) {
-    ShapeGeom g;
-    g.type = ShapeType::Hull;
-    g.hull = std::move(h);
-    return g;
-  }
-};
+/// Hulls built from points objects, by the points object's address (see buildHull).
+using HullBuildCache = std::unordered_map<const ConvexHull*, std::shared_ptr<const ConvexHull>>;
+/// A shape's hull ready for a world: a hull given by its points only (ConvexHull::built()
+/// false: ShapeGeom::hullOf, what the protocol carries) built from them, a built one as it is.
+/// With a cache, shapes holding one points object share one build (the cache must not
+/// outlive those objects). Returns nullptr and fills *error like buildConvexHull.
+std::shared_ptr<const ConvexHull> buildHull(const std::shared_ptr<const ConvexHull>& hull,
+                                            std::string* error, HullBuildCache* cache = nullptr);
 
 /// Mass properties of a shape of uniform density, in the shape's local frame.
 struct MassProperties {

@@ -1,4 +1,5 @@
-// The world: bodies, shapes, joints, and the step. In-process API; no I/O.
+// The world: bodies, shapes, joints, and the step. In-process API; no I/O. What bodies,
+// joints and worlds are defined with is plain data of phys/defs/ (the client SDK shares it).
 // Units are SI (m, kg, s, rad). z is up; the default gravity is (0, 0, -9.81).
 // Every create/edit call validates its input and returns a Status; a rejected call changes
 // nothing. Ids are generational handles: a stale id is reported as NotFound.
@@ -10,67 +11,17 @@
 #include <string>
 #include <vector>
 
-#include "phys/base/ids.h"
-#include "phys/base/math.h"
-#include "phys/base/status.h"
 #include "phys/collision/shapes.h"
-#include "phys/dynamics/joint_def.h"
-#include "phys/dynamics/solver_settings.h"
+#include "phys/defs/body_def.h"
+#include "phys/defs/ids.h"
+#include "phys/defs/joint_def.h"
+#include "phys/defs/math.h"
+#include "phys/defs/shape_def.h"
+#include "phys/defs/solver_settings.h"
+#include "phys/defs/status.h"
+#include "phys/defs/world_def.h"
 
 namespace phys {
-
-/// Surface material. Mixing for a contact: friction = sqrt(fa * fb) (geometric mean, so a
-/// frictionless surface makes any contact frictionless), restitution = max(ea, eb) (so a
-/// bouncy ball bounces on any floor).
-struct Material {
-  float friction = 0.6f;     ///< Coulomb coefficient (static = dynamic), >= 0
-  float restitution = 0.0f;  ///< 0 (plastic) .. 1 (elastic)
-  float density = 1000.0f;   ///< kg/m^3, used when a body's mass comes from its shapes
-};
-
-enum class BodyType : uint8_t { Static = 0, Kinematic = 1, Dynamic = 2 };
-const char* toString(BodyType t);
-
-/// One shape on a body.
-struct ShapeDef {
-  ShapeGeom geom;
-  Transform local;  ///< shape frame relative to the body frame
-  Material material;
-};
-
-/// Everything needed to create a body. Defaults: a dynamic body at the origin, at rest.
-struct BodyDef {
-  BodyType type = BodyType::Dynamic;
-  Vec3 position;             ///< m, body frame origin in the world
-  Quat rotation;             ///< unit quaternion
-  Vec3 linearVelocity;       ///< m/s, of the centre of mass
-  Vec3 angularVelocity;      ///< rad/s, world frame
-  float linearDamping = 0;   ///< 1/s: v *= 1 / (1 + h * damping)
-  float angularDamping = 0;  ///< 1/s
-  float gravityScale = 1;
-  /// kg. 0 means: compute mass, centre of mass and inertia from the shapes' densities.
-  /// > 0 means: this mass; inertia scaled from the shapes' unless `inertia` is given.
-  float mass = 0;
-  Vec3 inertia;  ///< kg m^2, principal moments about the centre of mass in body axes; 0 = auto
-  bool gyroscopic = true;  ///< integrate the gyroscopic torque (implicitly)
-  /// May sleep when the world sleeps (WorldDef::sleep): false keeps this body, and every body
-  /// in an island with it, awake (a body a client watches closely, a sensor).
-  bool allowSleep = true;
-  std::string name;        ///< optional, for scenes and logs
-  std::vector<ShapeDef> shapes;
-};
-
-/// Where a world's step runs. `Auto`: the faster backend for the world's size, by a
-/// calibration of the device against the CPU taken once per process when the device opens
-/// (docs/ARCHITECTURE.md "backend = auto"), chosen at the first step and again when the
-/// world's body count has doubled or halved since. `Gpu` and `Auto` open a Vulkan device (gpu_solver/): a
-/// discrete GPU first, then an integrated one; a CPU implementation (lavapipe) only with
-/// WorldDef::gpuAllowCpuDevice or PHYS_GPU_ALLOW_CPU=1. With no usable device both run on
-/// the CPU and World::backendState() says why. The GPU backend does not cover every stage
-/// yet: a step it cannot take is taken by the CPU backend (counted, with the reason).
-enum class Backend : uint8_t { Cpu = 0, Gpu = 1, Auto = 2 };
-const char* toString(Backend b);
-bool parseBackend(const std::string& text, Backend* out);  ///< "cpu", "gpu", "auto"
 
 /// Which backend a world runs on and how its steps were taken.
 struct BackendState {
@@ -116,77 +67,6 @@ struct BackendState {
 /// including those raised while a device was destroyed (what a world's teardown left behind).
 /// 0 without validation (PHYS_GPU_VALIDATION=1) or without the GPU backend.
 int gpuValidationErrorsInProcess();
-
-/// Sleeping (islands): bodies that have rested long enough stop costing anything. Islands
-/// are the dynamic bodies joined by touching contacts and joints (static and kinematic
-/// bodies do not join them). A body is ready to sleep once, for `time` seconds in a row,
-/// |v| <= linearSpeed and |w| <= min(angularSpeed, linearSpeed / r), r its shapes' largest
-/// reach from its centre of mass (so a large body must turn more slowly); an island sleeps
-/// when every body in it is ready and allows it. A sleeping body is not integrated, solved or
-/// collided with static or other sleeping bodies, and its broad-phase proxies stop moving;
-/// its velocities are zero. It wakes, with its whole island, when an awake body (or a moving
-/// kinematic body) touches it, and on every edit of it or of what holds it (World's edits
-/// wake what they touch: see docs/ARCHITECTURE.md "Islands and sleeping").
-struct SleepSettings {
-  bool enabled = false;       ///< off by default in code; scenes and physd turn it on
-  float time = 0.5f;          ///< s, at rest this long before sleeping
-  float linearSpeed = 0.05f;  ///< m/s
-  float angularSpeed = 0.5f;  ///< rad/s, the cap for small bodies
-};
-
-struct WorldDef {
-  Vec3 gravity{0, 0, -9.81f};   ///< m/s^2
-  float timeStep = 1.0f / 60;   ///< s, the fixed step used by step()
-  /// m: bodies are kept within |x|, |y|, |z| <= this (the origin of each): one that leaves
-  /// stops at the face it crossed (World::step's last stage; counted in
-  /// StepStats::guardQuarantined). The protocol's coordinate range (protocol::Limits::
-  /// maxCoordinate) is the same, so every state physd sends can be decoded.
-  static constexpr float kWorldExtent = 1e6f;
-  float maxLinearSpeed = 1000;  ///< m/s, clamp
-  float maxAngularSpeed = 500;  ///< rad/s, clamp
-  /// m: every contact closer than this is solved (speculatively when apart); the margin also
-  /// grows with the bodies' speeds so fast bodies do not tunnel.
-  float speculativeDistance = 0.02f;
-  float aabbMargin = 0.05f;  ///< m, broad-phase fattening
-  /// Bound on the broad phase's candidate pairs per step, and so on what a step builds from
-  /// them (contacts, manifolds, solver rows: its memory and time). 0: automatic,
-  /// max(kMinAutoContactPairs, kAutoContactPairsPerShape x shapes). Past the bound the step
-  /// keeps the first pairs in shape order (deterministic: they depend only on the bodies'
-  /// bounds), leaves the others out, so those bodies may interpenetrate this step, still
-  /// completes, and says so in StepStats (pairsDropped, pairLimitSteps). Scenes stay well
-  /// below the automatic bound: a lattice of touching boxes has 13 pairs per box, the pile
-  /// scenes at most 12.2 per shape; what reaches it is something like thousands of bodies
-  /// spawned into one place (20,000 coincident boxes make 200 million pairs).
-  uint32_t maxContactPairs = 0;
-  static constexpr uint32_t kMinAutoContactPairs = 65536;
-  static constexpr uint32_t kAutoContactPairsPerShape = 32;
-  /// What a step does when the broad phase finds more pairs than maxContactPairs. Drop: the
-  /// pairs past the bound are left out and the step goes on (as above). Refuse: the step is
-  /// not taken; the world stays exactly as it was (StepStats::stepsRefused), having cost only
-  /// the broad phase, until something moves or removes the crowded bodies. physd uses Refuse,
-  /// so that one crowded world costs neither seconds nor gigabytes per tick.
-  enum class PairOverflow : uint8_t { Drop, Refuse };
-  PairOverflow pairOverflow = PairOverflow::Drop;
-  SolverSettings solver;
-  /// Threads for the step's parallel loops, the caller included; 0: the machine's hardware
-  /// threads (at most 8). Results do not depend on it.
-  int threads = 0;
-  /// Guard rails: after every step, check for non-finite state, speeds at the clamp, a
-  /// dynamic body's centre of mass moving more than 2 x (maxLinearSpeed + solver.maxPushout)
-  /// x timeStep, and energy jumps; on a violation roll the step back and redo it with twice
-  /// the substeps (up to guardRetries times), then stop the bodies still at fault (and zero
-  /// the non-finite joint impulses). Costs a copy of the bodies' state and the contacts per
-  /// step. (Bodies leaving kWorldExtent are stopped at its edge with or without the guard.)
-  bool guard = true;
-  /// An energy gain in one step above guardEnergyJump * kinetic energy + the energy of
-  /// lifting every dynamic body by 0.1 m counts as an explosion.
-  float guardEnergyJump = 0.5f;
-  int guardRetries = 2;
-  Backend backend = Backend::Cpu;
-  bool gpuAllowCpuDevice = false;  ///< let the GPU backend run on a CPU Vulkan device (tests)
-  /// Islands and sleeping, on either backend (the same decisions; docs/ARCHITECTURE.md).
-  SleepSettings sleep;
-};
 
 /// Wall time of each step stage in milliseconds. Stage names are used everywhere.
 /// On the GPU backend the stages are the device's timestamps, plus the uploads of edited
@@ -273,29 +153,6 @@ struct StepStats {
   /// WorldDef::PairOverflow::Refuse (the world is as before each; pairsDropped says by how
   /// many at least, lastGuardEvent says so in words).
   uint64_t stepsRefused = 0;
-};
-
-/// Read-only view of a body.
-struct BodyState {
-  BodyId id;
-  BodyType type = BodyType::Dynamic;
-  Vec3 position;  ///< body frame origin
-  Quat rotation;
-  Vec3 linearVelocity, angularVelocity;  ///< of the centre of mass; rad/s world frame
-  Vec3 centerOfMass;                     ///< world
-  float mass = 0;                        ///< kg (0 for static and kinematic bodies)
-  Mat3 inertia = Mat3::zero();           ///< kg m^2, world frame, about the centre of mass
-  bool sleeping = false;                 ///< asleep (SleepSettings): at rest, not stepped
-  bool allowSleep = true;
-};
-
-/// The mass properties a world derived for a body (World::getBodyDef): what it simulates,
-/// whether its definition gave them (BodyDef::mass, inertia) or its shapes' densities did.
-struct BodyMass {
-  float mass = 0;        ///< kg (0 for static and kinematic bodies)
-  Vec3 localCenter;      ///< m, the centre of mass in the body frame
-  Vec3 inertia;          ///< kg m^2, principal moments about the centre of mass (0: not dynamic)
-  Quat inertiaRotation;  ///< the principal axes' frame in the body frame
 };
 
 /// A body's state computed elsewhere (a peer engine's step), for World::observe. Conventions

@@ -22,6 +22,20 @@ struct Status {
   static Status Ok() { return {}; }
   static Status Error(StatusCode c, std::string m) { return {c, std::move(m)}; }
 };
-const char* toString(StatusCode c);
+inline const char* toString(StatusCode c) {
+  switch (c) {
+    case StatusCode::Ok:
+      return "OK";
+    case StatusCode::InvalidArgument:
+      return "INVALID_ARGUMENT";
+    case StatusCode::NotFound:
+      return "NOT_FOUND";
+    case StatusCode::IncorrectState:
+      return "INCORRECT_STATE";
+    case StatusCode::ResourceExhausted:
+      return "RESOURCE_EXHAUSTED";
+  }
+  return "?";
+}
 
 }  // namespace phys

@@ -6,13 +6,27 @@
 #include <cstdint>
 #include <string>
 
-#include "phys/base/ids.h"
-#include "phys/base/math.h"
+#include "phys/defs/ids.h"
+#include "phys/defs/math.h"
 
 namespace phys {
 
 enum class JointType : uint8_t { Ball = 0, Hinge = 1, Fixed = 2, Distance = 3, Prismatic = 4 };
-const char* toString(JointType t);
+inline const char* toString(JointType t) {
+  switch (t) {
+    case JointType::Ball:
+      return "ball";
+    case JointType::Hinge:
+      return "hinge";
+    case JointType::Fixed:
+      return "fixed";
+    case JointType::Distance:
+      return "distance";
+    case JointType::Prismatic:
+      return "prismatic";
+  }
+  return "?";
+}
 
 /// A joint between bodies a and b. Frames are given in each body's local frame (body origin,
 /// not centre of mass). Hinge: rotation about `axis`. Prismatic: translation along `axis`.
