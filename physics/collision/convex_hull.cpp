@@ -211,10 +211,10 @@ std::shared_ptr<const ConvexHull> buildHull(const std::shared_ptr<const ConvexHu
   if (!hull || hull->built()) return hull;
   if (cache) {
     auto it = cache->find(hull.get());
-    if (it != cache->end()) return it->second;
+    if (it != cache->end()) return it->second.second;
   }
   auto built = buildConvexHull(hull->vertices, error);
-  if (built && cache) (*cache)[hull.get()] = built;
+  if (built && cache) (*cache)[hull.get()] = {hull, built};
   return built;
 }
 

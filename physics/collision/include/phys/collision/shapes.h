@@ -18,12 +18,15 @@ namespace phys {
 std::shared_ptr<const ConvexHull> buildConvexHull(const std::vector<Vec3>& points,
                                                   std::string* error);
 
-/// Hulls built from points objects, by the points object's address (see buildHull).
-using HullBuildCache = std::unordered_map<const ConvexHull*, std::shared_ptr<const ConvexHull>>;
+/// Hulls built from points objects, by the points object's address: the points object (held,
+/// so that no other object takes its address while the cache lives) and its built hull.
+using HullBuildCache =
+    std::unordered_map<const ConvexHull*, std::pair<std::shared_ptr<const ConvexHull>,
+                                                    std::shared_ptr<const ConvexHull>>>;
 /// A shape's hull ready for a world: a hull given by its points only (ConvexHull::built()
 /// false: ShapeGeom::hullOf, what the protocol carries) built from them, a built one as it is.
-/// With a cache, shapes holding one points object share one build (the cache must not
-/// outlive those objects). Returns nullptr and fills *error like buildConvexHull.
+/// With a cache, shapes holding one points object share one build. Returns nullptr and fills
+/// *error like buildConvexHull.
 std::shared_ptr<const ConvexHull> buildHull(const std::shared_ptr<const ConvexHull>& hull,
                                             std::string* error, HullBuildCache* cache = nullptr);
 
