@@ -48,7 +48,6 @@ struct BodyDef {
   std::vector<ShapeDef> shapes;
 };
 
-
 /// Read-only view of a body.
 struct BodyState {
   BodyId id;
@@ -63,7 +62,6 @@ struct BodyState {
   bool allowSleep = true;
 };
 
-
 /// The mass properties a world derived for a body (World::getBodyDef): what it simulates,
 /// whether its definition gave them (BodyDef::mass, inertia) or its shapes' densities did.
 struct BodyMass {
@@ -72,6 +70,5 @@ struct BodyMass {
   Vec3 inertia;          ///< kg m^2, principal moments about the centre of mass (0: not dynamic)
   Quat inertiaRotation;  ///< the principal axes' frame in the body frame
 };
-
 
 }  // namespace phys

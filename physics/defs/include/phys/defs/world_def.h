@@ -61,7 +61,6 @@ struct SleepSettings {
   float angularSpeed = 0.5f;  ///< rad/s, the cap for small bodies
 };
 
-
 struct WorldDef {
   Vec3 gravity{0, 0, -9.81f};   ///< m/s^2
   float timeStep = 1.0f / 60;   ///< s, the fixed step used by step()
@@ -115,6 +114,5 @@ struct WorldDef {
   /// Islands and sleeping, on either backend (the same decisions; docs/ARCHITECTURE.md).
   SleepSettings sleep;
 };
-
 
 }  // namespace phys
