@@ -17,8 +17,9 @@
 // callbacks would wait for a reply that the same thread has to take: it raises RuntimeError
 // instead of deadlocking. The SDK holds callbacks weakly; the Python objects that hold them
 // (a Subscription, a Client's connection for on_event) let go of them with the GIL held: once
-// close() or on_event() has returned, the callback is not called again (a call already running
-// may still be finishing: close() does not wait). A Client is destroyed (its thread joined)
+// close() or on_event() has returned, the callback is not called again (Subscription.close()
+// also waits for a call already running, as the C++ Subscription does; after on_event() one
+// may still be finishing). A Client is destroyed (its thread joined)
 // with the GIL released, so that a callback waiting for the GIL can finish. Clients still open
 // when the interpreter exits are closed by an atexit hook, before Python finalizes.
 //
@@ -331,7 +332,7 @@ struct PyCallback {
 /// Calls cb(arg) on the SDK's thread with the GIL; an exception of the callback is reported as
 /// unraisable (sys.unraisablehook), never thrown into the SDK. The weak reference is taken
 /// under the GIL, as its owner drops it: once close() / on_event() has returned, no call
-/// starts any more (one already running may still be finishing).
+/// starts any more (after on_event(), one already running may still be finishing).
 template <class T>
 void invokeCallback(const std::weak_ptr<PyCallback>& weak, const ClientBox* box, const T& arg,
                     const char* what) {
@@ -645,8 +646,9 @@ class PySubscription {
       sub.swap(sub_);
     }
     // The callback's only strong reference, dropped with the GIL held: no call of it starts
-    // after this (invokeCallback takes its reference under the GIL); one already running may
-    // still be finishing on the SDK's thread (docs/PYTHON.md).
+    // after this (invokeCallback takes its reference under the GIL). One already running is
+    // waited for by the SDK's reset below, with the GIL released so that it can finish
+    // (unless another thread holds a copy of sub_: docs/PYTHON.md).
     cb_.reset();
     if (!sub) return;
     withoutGil([&sub] { sub.reset(); });

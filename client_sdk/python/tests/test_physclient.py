@@ -795,6 +795,34 @@ class Bindings(unittest.TestCase):
 
     # -- lifetime ----------------------------------------------------------------------------
 
+    def test_close_waits_for_a_running_callback(self):
+        # A slow callback (it lets go of the GIL) is running when close() is called on this
+        # thread: close() returns only once it has finished, and none starts after.
+        w = self.new_world("close-waits", sleep=False)
+        w.spawn(box(10.0))
+        inside, done, calls_after = threading.Event(), threading.Event(), []
+        closed = [False]
+
+        def on_frame(f):
+            if closed[0]:
+                calls_after.append(f.tick)
+            done.clear()
+            inside.set()
+            time.sleep(0.05)
+            done.set()
+
+        sub = w.subscribe(on_frame)
+        w.run(60)
+        self.assertTrue(inside.wait(10))
+        inside.clear()
+        self.assertTrue(inside.wait(10))  # the next call, under way
+        sub.close()
+        closed[0] = True
+        self.assertTrue(done.is_set(), "close() returned while the callback ran")
+        time.sleep(0.3)
+        self.assertEqual(calls_after, [])
+        w.pause()
+
     def test_close_from_a_callback(self):
         # A client closed by its own callback (on the SDK's thread, which closing joins).
         c = DAEMON.client(name="self-closer")
