@@ -180,22 +180,25 @@ Offset<wire::SolverSettings> writeSolver(Fbb& fbb, const SolverOverrides& s) {
   return b.Finish();
 }
 
+// A world setting's wire value: the value itself, or a Vec3 struct kept in `slot` (the
+// builder copies it at once).
+template <class T>
+T worldWire(T v, wire::Vec3*) {
+  return v;
+}
+const wire::Vec3* worldWire(phys::Vec3 v, wire::Vec3* slot) {
+  *slot = toWire(v);
+  return slot;
+}
+
 Offset<wire::WorldSettings> writeWorldSettings(Fbb& fbb, const WorldOverrides& s) {
-  wire::Vec3 g = toWire(s.gravity.value_or(phys::Vec3{}));
   wire::WorldSettingsBuilder b(fbb);
-  if (s.gravity) b.add_gravity(&g);
-  if (s.timeStep) b.add_time_step(*s.timeStep);
-  if (s.sleep) b.add_sleep(*s.sleep);
-  if (s.sleepTime) b.add_sleep_time(*s.sleepTime);
-  if (s.sleepLinearSpeed) b.add_sleep_linear_speed(*s.sleepLinearSpeed);
-  if (s.sleepAngularSpeed) b.add_sleep_angular_speed(*s.sleepAngularSpeed);
-  if (s.maxLinearSpeed) b.add_max_linear_speed(*s.maxLinearSpeed);
-  if (s.maxAngularSpeed) b.add_max_angular_speed(*s.maxAngularSpeed);
-  if (s.speculativeDistance) b.add_speculative_distance(*s.speculativeDistance);
-  if (s.aabbMargin) b.add_aabb_margin(*s.aabbMargin);
-  if (s.guard) b.add_guard(*s.guard);
-  if (s.guardEnergyJump) b.add_guard_energy_jump(*s.guardEnergyJump);
-  if (s.guardRetries) b.add_guard_retries(*s.guardRetries);
+  wire::Vec3 slot;
+  // In the list's order, the schema's: the order of the adds is the order of the bytes.
+#define PHYS_WRITE_WORLD(type, member, path, name) \
+  if (s.member) b.add_##name(worldWire(*s.member, &slot));
+  PHYS_WORLD_FIELDS(PHYS_WRITE_WORLD)
+#undef PHYS_WRITE_WORLD
   return b.Finish();
 }
 
@@ -251,9 +254,10 @@ bool SolverOverrides::empty() const {
 // WorldOverrides
 
 // A tripwire like SolverSettings': WorldDef gained or lost a field. A field a living world may
-// change goes into physics.fbs (WorldSettings, at the end), WorldOverrides and its
-// from()/empty(), detail::writeWorldSettings, convert.cpp, the decoder's and validate.cpp's
-// checks and docs/PROTOCOL.md "World settings"; then update the size here.
+// change gets a row in PHYS_WORLD_FIELDS (which reaches WorldOverrides, its from()/empty(),
+// detail::writeWorldSettings, convert.cpp and Python), a field in physics.fbs (WorldSettings,
+// at the end), its value rule (the decoder's and World::validate) and its line in
+// docs/PROTOCOL.md "World settings"; then update the size here.
 #if defined(__GLIBCXX__) && UINTPTR_MAX == UINT64_MAX
 static_assert(sizeof(phys::WorldDef) == 164,
               "phys::WorldDef changed: mirror a settable field in the protocol (see comment)");
@@ -261,26 +265,16 @@ static_assert(sizeof(phys::WorldDef) == 164,
 
 WorldOverrides WorldOverrides::from(const phys::WorldDef& d) {
   WorldOverrides o;
-  o.gravity = d.gravity;
-  o.timeStep = d.timeStep;
-  o.sleep = d.sleep.enabled;
-  o.sleepTime = d.sleep.time;
-  o.sleepLinearSpeed = d.sleep.linearSpeed;
-  o.sleepAngularSpeed = d.sleep.angularSpeed;
-  o.maxLinearSpeed = d.maxLinearSpeed;
-  o.maxAngularSpeed = d.maxAngularSpeed;
-  o.speculativeDistance = d.speculativeDistance;
-  o.aabbMargin = d.aabbMargin;
-  o.guard = d.guard;
-  o.guardEnergyJump = d.guardEnergyJump;
-  o.guardRetries = d.guardRetries;
+#define PHYS_FROM_WORLD(type, member, path, name) o.member = d.path;
+  PHYS_WORLD_FIELDS(PHYS_FROM_WORLD)
+#undef PHYS_FROM_WORLD
   return o;
 }
 
 bool WorldOverrides::empty() const {
-  return !gravity && !timeStep && !sleep && !sleepTime && !sleepLinearSpeed &&
-         !sleepAngularSpeed && !maxLinearSpeed && !maxAngularSpeed && !speculativeDistance &&
-         !aabbMargin && !guard && !guardEnergyJump && !guardRetries;
+#define PHYS_WORLD_UNSET(type, member, ...) && !member
+  return true PHYS_WORLD_FIELDS(PHYS_WORLD_UNSET);
+#undef PHYS_WORLD_UNSET
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -143,38 +143,30 @@ void applySolverSettings(const wire::SolverSettings& in, phys::SolverSettings* o
   applyOverrides(toOverrides(in), out);
 }
 
+namespace {
+// A world setting read from the wire: present or not.
+template <class T>
+std::optional<T> worldSetting(flatbuffers::Optional<T> v) {
+  return v ? std::optional<T>(*v) : std::nullopt;
+}
+std::optional<phys::Vec3> worldSetting(const wire::Vec3* v) {
+  return v ? std::optional<phys::Vec3>(toPhys(*v)) : std::nullopt;
+}
+}  // namespace
+
 WorldOverrides toOverrides(const wire::WorldSettings& in) {
   WorldOverrides o;
-  if (in.gravity()) o.gravity = toPhys(*in.gravity());
-  if (auto v = in.time_step()) o.timeStep = *v;
-  if (auto v = in.sleep()) o.sleep = *v;
-  if (auto v = in.sleep_time()) o.sleepTime = *v;
-  if (auto v = in.sleep_linear_speed()) o.sleepLinearSpeed = *v;
-  if (auto v = in.sleep_angular_speed()) o.sleepAngularSpeed = *v;
-  if (auto v = in.max_linear_speed()) o.maxLinearSpeed = *v;
-  if (auto v = in.max_angular_speed()) o.maxAngularSpeed = *v;
-  if (auto v = in.speculative_distance()) o.speculativeDistance = *v;
-  if (auto v = in.aabb_margin()) o.aabbMargin = *v;
-  if (auto v = in.guard()) o.guard = *v;
-  if (auto v = in.guard_energy_jump()) o.guardEnergyJump = *v;
-  if (auto v = in.guard_retries()) o.guardRetries = *v;
+#define PHYS_WORLD_FROM_WIRE(type, member, path, name) o.member = worldSetting(in.name());
+  PHYS_WORLD_FIELDS(PHYS_WORLD_FROM_WIRE)
+#undef PHYS_WORLD_FROM_WIRE
   return o;
 }
 
 void applyOverrides(const WorldOverrides& o, phys::WorldDef* d) {
-  if (o.gravity) d->gravity = *o.gravity;
-  if (o.timeStep) d->timeStep = *o.timeStep;
-  if (o.sleep) d->sleep.enabled = *o.sleep;
-  if (o.sleepTime) d->sleep.time = *o.sleepTime;
-  if (o.sleepLinearSpeed) d->sleep.linearSpeed = *o.sleepLinearSpeed;
-  if (o.sleepAngularSpeed) d->sleep.angularSpeed = *o.sleepAngularSpeed;
-  if (o.maxLinearSpeed) d->maxLinearSpeed = *o.maxLinearSpeed;
-  if (o.maxAngularSpeed) d->maxAngularSpeed = *o.maxAngularSpeed;
-  if (o.speculativeDistance) d->speculativeDistance = *o.speculativeDistance;
-  if (o.aabbMargin) d->aabbMargin = *o.aabbMargin;
-  if (o.guard) d->guard = *o.guard;
-  if (o.guardEnergyJump) d->guardEnergyJump = *o.guardEnergyJump;
-  if (o.guardRetries) d->guardRetries = *o.guardRetries;
+#define PHYS_WORLD_APPLY(type, member, path, name) \
+  if (o.member) d->path = *o.member;
+  PHYS_WORLD_FIELDS(PHYS_WORLD_APPLY)
+#undef PHYS_WORLD_APPLY
 }
 
 Status toBodyInfo(const wire::BodyInfo& in, BodyInfo* out, std::string_view path,

@@ -535,11 +535,10 @@ T settingValue(const py::handle& v, const char* what) {
 
 /// A keyword of set_world (for set_solver's error: "set_solver(gravity=...)").
 bool isWorldSetting(const std::string& k) {
-  for (const char* n : {"gravity", "time_step", "sleep", "sleep_time", "sleep_linear_speed",
-                        "sleep_angular_speed", "max_linear_speed", "max_angular_speed",
-                        "speculative_distance", "aabb_margin", "guard", "guard_energy_jump",
-                        "guard_retries"})
+#define PHYS_WORLD_NAME(type, member, path, name) #name,
+  for (const char* n : {PHYS_WORLD_FIELDS(PHYS_WORLD_NAME)})
     if (k == n) return true;
+#undef PHYS_WORLD_NAME
   return false;
 }
 
@@ -573,24 +572,13 @@ pc::WorldOverrides worldOverrides(const py::kwargs& kw) {
     const std::string k = py::str(item.first);
     const py::handle v = item.second;
     if (v.is_none()) continue;  // as if not given: the world keeps its value
-#define PHYS_SETTING(name, field, type) \
-  if (k == name) {                      \
-    o.field = v.cast<type>();           \
-    continue;                           \
+    // The keywords are the wire's names (PHYS_WORLD_FIELDS).
+#define PHYS_SETTING(type, member, path, name) \
+  if (k == #name) {                            \
+    o.member = v.cast<type>();                 \
+    continue;                                  \
   }
-    PHYS_SETTING("gravity", gravity, phys::Vec3)
-    PHYS_SETTING("time_step", timeStep, float)
-    PHYS_SETTING("sleep", sleep, bool)
-    PHYS_SETTING("sleep_time", sleepTime, float)
-    PHYS_SETTING("sleep_linear_speed", sleepLinearSpeed, float)
-    PHYS_SETTING("sleep_angular_speed", sleepAngularSpeed, float)
-    PHYS_SETTING("max_linear_speed", maxLinearSpeed, float)
-    PHYS_SETTING("max_angular_speed", maxAngularSpeed, float)
-    PHYS_SETTING("speculative_distance", speculativeDistance, float)
-    PHYS_SETTING("aabb_margin", aabbMargin, float)
-    PHYS_SETTING("guard", guard, bool)
-    PHYS_SETTING("guard_energy_jump", guardEnergyJump, float)
-    PHYS_SETTING("guard_retries", guardRetries, int)
+    PHYS_WORLD_FIELDS(PHYS_SETTING)
 #undef PHYS_SETTING
     throw py::type_error("set_world() got an unexpected keyword argument '" + k +
                          "' (solver settings: set_solver)");
@@ -2058,30 +2046,11 @@ void defineWorldResults(py::module_& m) {
       m, "WorldSettings",
       "A world's settings (World.settings()): every keyword set_world takes, the solver's\n"
       "settings as set_solver's keywords (a dict), the preset last applied, and the tick.")
-      .def_property_readonly("gravity", [](const pc::WorldSettings& s) { return s.def.gravity; })
-      .def_property_readonly("time_step",
-                             [](const pc::WorldSettings& s) { return s.def.timeStep; })
-      .def_property_readonly("sleep",
-                             [](const pc::WorldSettings& s) { return s.def.sleep.enabled; })
-      .def_property_readonly("sleep_time",
-                             [](const pc::WorldSettings& s) { return s.def.sleep.time; })
-      .def_property_readonly("sleep_linear_speed",
-                             [](const pc::WorldSettings& s) { return s.def.sleep.linearSpeed; })
-      .def_property_readonly("sleep_angular_speed",
-                             [](const pc::WorldSettings& s) { return s.def.sleep.angularSpeed; })
-      .def_property_readonly("max_linear_speed",
-                             [](const pc::WorldSettings& s) { return s.def.maxLinearSpeed; })
-      .def_property_readonly("max_angular_speed",
-                             [](const pc::WorldSettings& s) { return s.def.maxAngularSpeed; })
-      .def_property_readonly("speculative_distance",
-                             [](const pc::WorldSettings& s) { return s.def.speculativeDistance; })
-      .def_property_readonly("aabb_margin",
-                             [](const pc::WorldSettings& s) { return s.def.aabbMargin; })
-      .def_property_readonly("guard", [](const pc::WorldSettings& s) { return s.def.guard; })
-      .def_property_readonly("guard_energy_jump",
-                             [](const pc::WorldSettings& s) { return s.def.guardEnergyJump; })
-      .def_property_readonly("guard_retries",
-                             [](const pc::WorldSettings& s) { return s.def.guardRetries; })
+      // One property per world setting (PHYS_WORLD_FIELDS), named as set_world's keyword.
+#define PHYS_WORLD_PROPERTY(type, member, path, name) \
+  .def_property_readonly(#name, [](const pc::WorldSettings& s) { return s.def.path; })
+      PHYS_WORLD_FIELDS(PHYS_WORLD_PROPERTY)
+#undef PHYS_WORLD_PROPERTY
       .def_property_readonly("solver",
                              [](const pc::WorldSettings& s) { return solverDict(s.def.solver); })
       .def_readonly("preset", &pc::WorldSettings::preset)

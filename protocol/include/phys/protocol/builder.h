@@ -72,15 +72,11 @@ struct SolverOverrides {
 /// World settings to change (SetWorld; WorldSettings in physics.fbs), named as
 /// phys::WorldDef's; unset fields keep the world's current value.
 struct WorldOverrides {
-  std::optional<phys::Vec3> gravity;
-  std::optional<float> timeStep;
-  std::optional<bool> sleep;  ///< SleepSettings::enabled
-  std::optional<float> sleepTime, sleepLinearSpeed, sleepAngularSpeed;
-  std::optional<float> maxLinearSpeed, maxAngularSpeed;
-  std::optional<float> speculativeDistance, aabbMargin;
-  std::optional<bool> guard;
-  std::optional<float> guardEnergyJump;
-  std::optional<int> guardRetries;
+  // One optional per row of PHYS_WORLD_FIELDS (phys/defs/world_def.h), named as its member:
+  // gravity, timeStep, sleep (SleepSettings::enabled), sleepTime, sleepLinearSpeed, ...
+#define PHYS_WORLD_OVERRIDE(type, member, ...) std::optional<type> member;
+  PHYS_WORLD_FIELDS(PHYS_WORLD_OVERRIDE)
+#undef PHYS_WORLD_OVERRIDE
 
   /// Every field set from d.
   static WorldOverrides from(const phys::WorldDef& d);

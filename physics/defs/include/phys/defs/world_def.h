@@ -115,4 +115,30 @@ struct WorldDef {
   SleepSettings sleep;
 };
 
+/// The world settings a living world may change (World::setDef; the protocol's SetWorld,
+/// WorldSettings and snapshots), one row each, in the wire order (physics.fbs's WorldSettings
+/// table): the protocol's WorldOverrides, its from() and empty(), its writer and converter and
+/// the Python client's set_world keywords and WorldSettings properties are generated from it
+/// (docs/ARCHITECTURE.md, "Adding a world setting"). WorldDef above keeps the defaults and
+/// what each does; the value rules (decoder.cpp, World::validate) and physics.fbs are by hand.
+///
+///   X(type, member, path, name)
+///
+/// member: WorldOverrides' field; path: the WorldDef field it sets (def.path); name: the wire
+/// field (its FlatBuffers accessor and add_ setter) and Python's keyword.
+#define PHYS_WORLD_FIELDS(X)                                                   \
+  X(phys::Vec3, gravity, gravity, gravity)                                     \
+  X(float, timeStep, timeStep, time_step)                                      \
+  X(bool, sleep, sleep.enabled, sleep)                                         \
+  X(float, sleepTime, sleep.time, sleep_time)                                  \
+  X(float, sleepLinearSpeed, sleep.linearSpeed, sleep_linear_speed)            \
+  X(float, sleepAngularSpeed, sleep.angularSpeed, sleep_angular_speed)         \
+  X(float, maxLinearSpeed, maxLinearSpeed, max_linear_speed)                   \
+  X(float, maxAngularSpeed, maxAngularSpeed, max_angular_speed)                \
+  X(float, speculativeDistance, speculativeDistance, speculative_distance)     \
+  X(float, aabbMargin, aabbMargin, aabb_margin)                                \
+  X(bool, guard, guard, guard)                                                 \
+  X(float, guardEnergyJump, guardEnergyJump, guard_energy_jump)                \
+  X(int, guardRetries, guardRetries, guard_retries)
+
 }  // namespace phys
