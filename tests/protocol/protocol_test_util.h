@@ -3,7 +3,10 @@
 
 #include <gtest/gtest.h>
 
+#include <cstdint>
+#include <fstream>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "../common/bodies.h"
@@ -19,6 +22,33 @@ inline constexpr uint32_t kWorld = 7;
 
 inline CommandHeader header(uint64_t seq = 1, uint32_t world = kWorld) {
   return {kClient, seq, world};
+}
+
+/// FNV-1a of bytes: pins of a format (a message's bytes, a list of answers) in one number.
+inline uint64_t fnv1a(std::string_view s) {
+  uint64_t h = 1469598103934665603ull;
+  for (unsigned char c : s) h = (h ^ c) * 1099511628211ull;
+  return h;
+}
+inline uint64_t fnv1a(const Bytes& b) {
+  return fnv1a(std::string_view(reinterpret_cast<const char*>(b.data()), b.size()));
+}
+
+/// The field names of a table of physics.fbs (`table NAME {` to `}`), in order.
+inline std::vector<std::string> schemaFields(const std::string& table) {
+  std::ifstream f(std::string(PHYS_SOURCE_DIR) + "/protocol/physics.fbs");
+  std::vector<std::string> names;
+  std::string line;
+  bool in = false;
+  while (std::getline(f, line)) {
+    if (line.starts_with("table " + table + " {"))
+      in = true;
+    else if (in && line.starts_with("}"))
+      break;
+    else if (in && line.find(':') != std::string::npos && !line.starts_with("  //"))
+      names.push_back(line.substr(2, line.find(':') - 2));
+  }
+  return names;
 }
 
 using phys::test::boxBody;
