@@ -50,9 +50,11 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 
@@ -448,20 +450,67 @@ std::string vec3(phys::Vec3 v) {
   return b;
 }
 
-/// Every setting GetWorld reports, one "name value" line each (WorldSettings' names).
+/// A world setting's value as `physctl settings` prints it and `physctl set` takes it.
+std::string settingText(phys::Vec3 v) {
+  return vec3(v);
+}
+std::string settingText(bool b) {
+  return b ? "on" : "off";
+}
+std::string settingText(float f) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", double(f));
+  return buf;
+}
+std::string settingText(int i) {
+  return std::to_string(i);
+}
+
+/// Every setting GetWorld reports, one "name value" line each (WorldSettings' names, in
+/// PHYS_WORLD_FIELDS' order), then the preset and the solver's substeps and iterations.
 void printSettings(const pc::WorldSettings& s) {
   const phys::WorldDef& d = s.def;
-  auto onOff = [](bool b) { return b ? "on" : "off"; };
-  std::printf("gravity %s\ntime_step %g\nsleep %s\nsleep_time %g\nsleep_linear_speed %g\n"
-              "sleep_angular_speed %g\nmax_linear_speed %g\nmax_angular_speed %g\n"
-              "speculative_distance %g\naabb_margin %g\nguard %s\nguard_energy_jump %g\n"
-              "guard_retries %d\npreset %s\nsubsteps %d\niterations %d\n",
-              vec3(d.gravity).c_str(), double(d.timeStep), onOff(d.sleep.enabled),
-              double(d.sleep.time), double(d.sleep.linearSpeed), double(d.sleep.angularSpeed),
-              double(d.maxLinearSpeed), double(d.maxAngularSpeed), double(d.speculativeDistance),
-              double(d.aabbMargin), onOff(d.guard), double(d.guardEnergyJump), d.guardRetries,
-              s.preset.c_str(), d.solver.substeps, d.solver.iterations);
+#define PHYS_PRINT_SETTING(type, member, path, name) \
+  std::printf("%s %s\n", #name, settingText(d.path).c_str());
+  PHYS_WORLD_FIELDS(PHYS_PRINT_SETTING)
+#undef PHYS_PRINT_SETTING
+  std::printf("preset %s\nsubsteps %d\niterations %d\n", s.preset.c_str(), d.solver.substeps,
+              d.solver.iterations);
 }
+
+/// physctl set's options: one per world setting (PHYS_WORLD_FIELDS), its wire name with
+/// dashes (--time-step, --sleep-linear-speed, ...), read into the texts below.
+struct SetOptions {
+  std::map<std::string, std::vector<float>> vectors;
+  std::map<std::string, float> numbers;
+  std::map<std::string, std::string> flags;
+  std::map<std::string, int> counts;
+
+  static std::string option(const char* name) {
+    std::string s = std::string("--") + name;
+    std::replace(s.begin(), s.end(), '_', '-');
+    return s;
+  }
+  void add(CLI::App* cmd, const char* name, phys::Vec3*) {
+    cmd->add_option(option(name), vectors[name], "x,y,z")->delimiter(',')->expected(3);
+  }
+  void add(CLI::App* cmd, const char* name, float*) {
+    cmd->add_option(option(name), numbers[name], "")->check(CLI::Number);
+  }
+  void add(CLI::App* cmd, const char* name, bool*) {
+    cmd->add_option(option(name), flags[name], "on or off")->check(CLI::IsMember({"on", "off"}));
+  }
+  void add(CLI::App* cmd, const char* name, int*) {
+    cmd->add_option(option(name), counts[name], "")->check(CLI::NonNegativeNumber);
+  }
+  void read(const char* name, std::optional<phys::Vec3>* out) {
+    const std::vector<float>& v = vectors[name];
+    *out = phys::Vec3{v[0], v[1], v[2]};
+  }
+  void read(const char* name, std::optional<float>* out) { *out = numbers[name]; }
+  void read(const char* name, std::optional<bool>* out) { *out = flags[name] == "on"; }
+  void read(const char* name, std::optional<int>* out) { *out = counts[name]; }
+};
 
 /// A body's definition: a line of its own fields, a line per shape.
 void printBody(const pc::BodyInfo& b) {
@@ -625,19 +674,11 @@ int main(int argc, char** argv) {
   auto* setCmd = app.add_subcommand(
       "set", "change a world's settings (each option given; docs/PROTOCOL.md \"World settings\")");
   setCmd->add_option("WORLD", world, "world id or name")->required();
-  std::vector<float> setGravity;
-  std::map<std::string, float> setNumbers;
-  std::map<std::string, std::string> setFlags;
-  int setRetries = -1;
-  setCmd->add_option("--gravity", setGravity, "m/s^2, x,y,z")->delimiter(',')->expected(3);
-  for (const char* n : {"time-step", "sleep-time", "sleep-linear-speed", "sleep-angular-speed",
-                        "max-linear-speed", "max-angular-speed", "speculative-distance",
-                        "aabb-margin", "guard-energy-jump"})
-    setCmd->add_option(std::string("--") + n, setNumbers[n], "")->check(CLI::Number);
-  for (const char* n : {"sleep", "guard"})
-    setCmd->add_option(std::string("--") + n, setFlags[n], "on or off")
-        ->check(CLI::IsMember({"on", "off"}));
-  setCmd->add_option("--guard-retries", setRetries, "0..4")->check(CLI::NonNegativeNumber);
+  SetOptions setOptions;
+#define PHYS_SET_OPTION(type, member, path, name) \
+  setOptions.add(setCmd, #name, static_cast<type*>(nullptr));
+  PHYS_WORLD_FIELDS(PHYS_SET_OPTION)
+#undef PHYS_SET_OPTION
   std::vector<std::string> defIds;
   auto* bodiesCmd = app.add_subcommand(
       "bodies", "print bodies' definitions as the world simulates them (all, or the ids given)");
@@ -813,22 +854,10 @@ int main(int argc, char** argv) {
       printSettings(resolve(client, world).settings().get());
     } else if (*setCmd) {
       pc::WorldOverrides o;
-      if (!setGravity.empty()) o.gravity = phys::Vec3{setGravity[0], setGravity[1], setGravity[2]};
-      auto number = [&](const char* n, std::optional<float>* field) {
-        if (setCmd->count(std::string("--") + n) > 0) *field = setNumbers[n];
-      };
-      number("time-step", &o.timeStep);
-      number("sleep-time", &o.sleepTime);
-      number("sleep-linear-speed", &o.sleepLinearSpeed);
-      number("sleep-angular-speed", &o.sleepAngularSpeed);
-      number("max-linear-speed", &o.maxLinearSpeed);
-      number("max-angular-speed", &o.maxAngularSpeed);
-      number("speculative-distance", &o.speculativeDistance);
-      number("aabb-margin", &o.aabbMargin);
-      number("guard-energy-jump", &o.guardEnergyJump);
-      if (setCmd->count("--sleep") > 0) o.sleep = setFlags["sleep"] == "on";
-      if (setCmd->count("--guard") > 0) o.guard = setFlags["guard"] == "on";
-      if (setRetries >= 0) o.guardRetries = setRetries;
+#define PHYS_SET_READ(type, member, path, name) \
+  if (setCmd->count(SetOptions::option(#name)) > 0) setOptions.read(#name, &o.member);
+      PHYS_WORLD_FIELDS(PHYS_SET_READ)
+#undef PHYS_SET_READ
       if (o.empty()) {
         std::fprintf(stderr, "physctl: set: give at least one setting (physctl set --help)\n");
         return 2;
