@@ -3,7 +3,6 @@
 // through the builder, the decoder and the converter on its own, and the bytes and the
 // decoder's answers as they were before the list drove them.
 #include <cmath>
-#include <fstream>
 #include <optional>
 #include <string>
 #include <vector>
