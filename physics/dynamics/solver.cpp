@@ -47,6 +47,8 @@ constexpr size_t kBodyGrain = 4096;
 /// Colors of the colored Gauss-Seidel scheme (bits of a mask per body).
 constexpr int kMaxColors = 64;
 
+std::atomic<bool> gBodyWarmStart{true};
+
 /// max over threads. max is exact and order-free: the same result for any thread count.
 void atomicMax(std::atomic<float>& m, float v) {
   float cur = m.load(std::memory_order_relaxed);
@@ -54,6 +56,13 @@ void atomicMax(std::atomic<float>& m, float v) {
   }
 }
 }  // namespace
+
+void setBodyWarmStart(bool on) {
+  gBodyWarmStart = on;
+}
+bool bodyWarmStart() {
+  return gBodyWarmStart;
+}
 
 /// One iteration's constants.
 struct Solver::IterationParams {
@@ -125,9 +134,9 @@ void Solver::finishRows(size_t first, size_t last) {
     const float sa = jacobi() ? split[size_t(r.a)] : 1;
     const float sb = jacobi() ? split[size_t(r.b)] : 1;
     r.mLinA = r.linA * (A.invMass * sa);
-    r.mAngA = A.invI * r.angA * sa;
+    r.mAngA = (A.isotropic ? r.angA * A.invI.c0.x : A.invI * r.angA) * sa;
     r.mLinB = r.linB * (B.invMass * sb);
-    r.mAngB = B.invI * r.angB * sb;
+    r.mAngB = (B.isotropic ? r.angB * B.invI.c0.x : B.invI * r.angB) * sb;
     float k =
         dot(r.linA, r.mLinA) + dot(r.angA, r.mAngA) + dot(r.linB, r.mLinB) + dot(r.angB, r.mAngB);
     r.effMass = k > 1e-12f ? 1 / k : 0;
@@ -218,10 +227,30 @@ void integrateVelocity(SolverBody& b, float h, float maxLinearSpeed, float maxAn
 }
 }  // namespace
 
-void Solver::integrateVelocities(float h, float maxLinearSpeed, float maxAngularSpeed) {
+void Solver::integrateVelocities(float h, float maxLinearSpeed, float maxAngularSpeed,
+                                 BodyWarmStart warm) {
+  warmTracked_ = warm != BodyWarmStart::Off;
+  if (warmTracked_) {
+    warmBase_.resize(bodies.size());
+    warmSum_.resize(bodies.size());
+  }
   parallel(bodies.size(), kBodyGrain, [&](size_t begin, size_t end) {
-    for (size_t i = std::max<size_t>(begin, 1); i < end; ++i)
-      integrateVelocity(bodies[i], h, maxLinearSpeed, maxAngularSpeed);
+    for (size_t i = std::max<size_t>(begin, 1); i < end; ++i) {
+      SolverBody& b = bodies[i];
+      if (warm == BodyWarmStart::Apply && b.dynamic) {
+        // The last substep's impulses: what they changed before integratePositions (in
+        // warmSum_ already) and after it.
+        warmSum_[i].v += b.v - warmBase_[i].v;
+        warmSum_[i].w += b.w - warmBase_[i].w;
+      }
+      integrateVelocity(b, h, maxLinearSpeed, maxAngularSpeed);
+      if (!warmTracked_) continue;
+      warmBase_[i] = b;
+      if (warm == BodyWarmStart::Apply && b.dynamic) {
+        b.v += warmSum_[i].v;
+        b.w += warmSum_[i].w;
+      }
+    }
   });
 }
 
@@ -397,9 +426,11 @@ float Solver::solveIteration(const SolverSettings& s, float h, bool useBias, boo
   wp.soft = p.soft;
   wp.useBias = p.useBias;
   wp.measure = p.measure;
-  return forEachScheduled(
+  const float change = forEachScheduled(
       [&](const Group& g, Velocity& A, Velocity& B) { return solveGroup(g, A, B, p); },
       [&](uint32_t block) { return wide->solve(block, bodies, wp); });
+  if (wide && wide->active) wide->errorsCurrent = true;  // the pass kept them
+  return change;
 }
 
 float Solver::solveGroup(const Group& g, Velocity& A, Velocity& B, const IterationParams& p) {
@@ -806,6 +837,19 @@ void rotateFree(SolverBody& b, float h) {
 
 }  // namespace
 
+Vec3 integratedTurn(Vec3 w, float h) {
+  // q becomes (1 + (h/2) w) q normalized. Formed from the two quaternions' product instead,
+  // it cost a product, a square root and an atan2 a body and substep, and the product's
+  // rounding was some 1e-7 rad of a turn of 1e-4.
+  const float k = 0.5f * h;
+  const float u = k * k * lengthSquared(w);  // x^2, x = tan of half the turn
+  // 2 atan(x) / x = 2 (1 - x^2/3 + x^4/5 - x^6/7 + ...): below x = 0.1 the next term,
+  // x^8/9 < 1.2e-9, is under float rounding.
+  if (u < 0.01f) return w * (2 * k * (1 - u * (1.0f / 3 - u * (1.0f / 5 - u * (1.0f / 7)))));
+  const float x = std::sqrt(u);
+  return w * (2 * k * std::atan(x) / x);
+}
+
 void Solver::markTrackedRotations(std::span<const SolverManifold> manifolds) {
   // dtheta is read by the rows' position error (C0 + J . deltas), the joints' rows rebuilt
   // each substep, the manifolds' wide blocks, the collision phase (its contacts are rows or
@@ -822,21 +866,27 @@ void Solver::integratePositions(float h) {
   parallel(bodies.size(), kBodyGrain, [&](size_t begin, size_t end) {
     for (size_t i = std::max<size_t>(begin, 1); i < end; ++i) {
       SolverBody& b = bodies[i];
-      Quat q0 = b.q;
+      // Warm starting by bodies: the impulses' change so far; a gyroscopic turn of w below
+      // is not an impulse, so the base moves with it.
+      if (warmTracked_) warmSum_[i] = {b.v - warmBase_[i].v, b.w - warmBase_[i].w};
       if (pushActive && (push[i].v != Vec3{} || push[i].w != Vec3{})) {
         // Pushed out this substep: the pseudo velocity moves the body, the velocity stays
         // (plain rotation here: a buried body's gyroscopic term is not what matters).
         b.dp += (b.v + push[i].v) * h;
-        b.q = integrateRotation(b.q, b.w + push[i].w, h);
+        const Vec3 w = b.w + push[i].w;
+        b.q = integrateRotation(b.q, w, h);
+        if (b.tracksRotation) b.dtheta += integratedTurn(w, h);
+      } else if (b.dynamic && b.gyroscopic) {
+        b.dp += b.v * h;
+        const Quat q0 = b.q;
+        rotateFree(b, h);
+        if (b.tracksRotation) b.dtheta += rotationVector(b.q * conjugate(q0));
       } else {
         b.dp += b.v * h;
-        if (b.dynamic && b.gyroscopic) {
-          rotateFree(b, h);
-        } else {
-          b.q = integrateRotation(b.q, b.w, h);
-        }
+        b.q = integrateRotation(b.q, b.w, h);
+        if (b.tracksRotation) b.dtheta += integratedTurn(b.w, h);
       }
-      if (b.tracksRotation) b.dtheta += rotationVector(b.q * conjugate(q0));
+      if (warmTracked_) warmBase_[i] = b;
     }
   });
   pushActive = false;

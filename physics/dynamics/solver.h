@@ -48,6 +48,10 @@ struct SolverBody : Velocity {
   Vec3 principalMoments{1, 1, 1};  ///< kg m^2
   float linearDamping = 0, angularDamping = 0;
   bool dynamic = false, gyroscopic = false;
+  /// Its inverse inertia is invI.c0.x times the identity in every frame (a cube, a sphere; the
+  /// world and kinematic bodies, zero): M^-1 J^T's angular parts are one product a component,
+  /// in the rows (finishRows) and in the wide blocks, which then store no matrix.
+  bool isotropic = false;
   /// Its accumulated rotation (dtheta) is read this step: it is in a constraint row or a
   /// manifold, or has a torque (the forces' work). A free body's is not kept: the rotation
   /// vector costs an atan2 per body and substep (markTrackedRotations).
@@ -142,6 +146,15 @@ struct ContactRule {
   ContactTerms terms(const Row& r, float C) const;
 };
 
+/// Warm starting by bodies (Solver::BodyWarmStart) where it applies: on by default; turned off
+/// only to compare it with the pass over the contacts (tests). Process-wide.
+void setBodyWarmStart(bool on);
+bool bodyWarmStart();
+
+/// The rotation vector of integrateRotation(q, w, h)'s turn (q to the result), formed from
+/// w alone: a turn by 2 atan(|w| h / 2) about w.
+Vec3 integratedTurn(Vec3 w, float h);
+
 class Solver {
  public:
   std::vector<SolverBody> bodies;  ///< [0] is the world
@@ -198,8 +211,23 @@ class Solver {
   /// bodies' masses. A block keeps its blockInvK slot if it has one.
   void finishRows(size_t first, size_t last);
 
+  /// Warm starting by bodies. Contact rows keep their Jacobians and M^-1 J^T for the whole
+  /// step, so after any substep a body's velocity is the one it had after integrating
+  /// velocities plus M^-1 J^T lambda summed over its constraints: exactly what the next
+  /// substep's warm start adds again. When every row of the step is such a row (no joints,
+  /// which are rebuilt per substep; no collision phase, direct solve or push-out, which change
+  /// velocities outside the rows; not Jacobi, whose mass splitting averages), the substeps
+  /// after the first take that sum per body (the velocity a substep ended with less the one
+  /// it started from; a gyroscopic body's turn of w in integratePositions left out) instead
+  /// of a pass over every contact: the same impulses, rounded differently.
+  enum class BodyWarmStart : uint8_t {
+    Off,    ///< the substep's warmStart() applies the rows' impulses
+    Track,  ///< the first substep: its warmStart() does; the sums are recorded from here
+    Apply,  ///< integrateVelocities adds the last substep's sum (no warmStart())
+  };
   /// One substep's stages. h is the substep length.
-  void integrateVelocities(float h, float maxLinearSpeed, float maxAngularSpeed);
+  void integrateVelocities(float h, float maxLinearSpeed, float maxAngularSpeed,
+                           BodyWarmStart warm = BodyWarmStart::Off);
   /// Applies last impulses again.
   void warmStart();
   /// One iteration over every solve unit. useBias=false is the relax pass. skipEquality
@@ -286,12 +314,17 @@ class Solver {
   template <class F>
   void parallel(size_t count, size_t grain, F&& fn);
   std::vector<Vec3> dv_, dw_;  ///< position pass (Jacobi) scratch
+  /// Warm starting by bodies (BodyWarmStart): per body its velocity after the substep's
+  /// integration (or after integratePositions turned it), and the impulses' velocity
+  /// change summed so far in the substep.
+  std::vector<Velocity> warmBase_, warmSum_;
+  bool warmTracked_ = false;  ///< this substep records warmBase_/warmSum_
   /// f(v) on each of the arrays: release() and capacityBytes() share the one list.
   template <class Self, class F>
   static void forEachArray(Self& s, F&& f) {
     f(s.bodies), f(s.push), f(s.rows), f(s.units), f(s.groups), f(s.split), f(s.blockInvK);
     f(s.contactK), f(s.serialGroups), f(s.colorGroups), f(s.colorStart), f(s.groupDelta);
-    f(s.bodyRefStart), f(s.bodyRefs), f(s.dv_), f(s.dw_);
+    f(s.bodyRefStart), f(s.bodyRefs), f(s.dv_), f(s.dw_), f(s.warmBase_), f(s.warmSum_);
   }
 };
 

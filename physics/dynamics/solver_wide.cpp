@@ -179,16 +179,17 @@ PHYS_WIDE_INLINE V3 neg(const V3& a) {
 PHYS_WIDE_INLINE V3 scaled(const V3& a, vf s) {
   return {a.x * s, a.y * s, a.z * s};
 }
-template <class B, class Lin>
-PHYS_WIDE_INLINE void expand(const B& blk, Lin& L) {
+template <class B, class I, class Lin>
+PHYS_WIDE_INLINE void expand(const B& blk, const I& inertia, Lin& L) {
   for (int d = 0; d < 3; ++d) {
     L.linB[d] = blk.lin[d];
     L.linA[d] = neg(blk.lin[d]);
     L.mLinA[d] = scaled(L.linA[d], blk.invMassA);
     L.mLinB[d] = scaled(L.linB[d], blk.invMassB);
   }
-  L.invIA = &blk.invIA;
-  L.invIB = &blk.invIB;
+  L.inertia = blk.iso ? nullptr : &inertia;
+  L.invIsoA = blk.invIsoA;
+  L.invIsoB = blk.invIsoB;
 }
 
 PHYS_WIDE_INLINE V3 cross(const V3& a, const V3& b) {
@@ -209,13 +210,31 @@ PHYS_WIDE_INLINE V3 masked(vm mask, const V3& v) {
 /// block stores (body B's part and the inverse masses) with fillBlock's operations.
 struct WideContacts::Linear {
   wide::V3 linA[3], linB[3], mLinA[3], mLinB[3];
-  const M3 *invIA, *invIB;  ///< the block's bodies' inverse inertia
+  const Inertia* inertia;  ///< the block's matrices; null for an iso block
+  vf invIsoA, invIsoB;     ///< an iso block's inverse inertias
+  /// M^-1 J^T's angular parts of a row with angular Jacobians (angA, angB), formed as
+  /// Solver::finishRows forms them (an isotropic body's by its one number).
+  PHYS_WIDE_INLINE void angular(const V3& angA, const V3& angB, V3& mA, V3& mB) const {
+    if (!inertia) {
+      mA = scaled(angA, invIsoA);
+      mB = scaled(angB, invIsoB);
+      return;
+    }
+    mA = isoProduct(inertia->isoA, inertia->invIA, angA);
+    mB = isoProduct(inertia->isoB, inertia->invIB, angB);
+  }
+  /// Per lane: c0.x * v where iso (the matrix is that times the identity), else m * v.
+  static PHYS_WIDE_INLINE V3 isoProduct(vm iso, const M3& m, const V3& v) {
+    const V3 full = mul(m, v), one = scaled(v, m.c0.x);
+    return {select(iso, one.x, full.x), select(iso, one.y, full.y), select(iso, one.z, full.z)};
+  }
   /// An impulse of a row along direction d (its linear parts; d < 0: none, the twist) with
   /// angular parts (angA, angB), applied to the lanes' velocities where mask:
   /// Solver::applyImpulse, M^-1 J^T's angular parts formed as fillBlock formed them.
   PHYS_WIDE_INLINE void apply(vm mask, int d, const V3& angA, const V3& angB, vf impulse,
                               Lanes& s) const {
-    const V3 mA = mul(*invIA, angA), mB = mul(*invIB, angB);
+    V3 mA, mB;
+    angular(angA, angB, mA, mB);
     if (d < 0) {
       const V3 zero{};
       applyImpulse(mask, zero, zero, mA, mB, impulse, s);
@@ -239,7 +258,8 @@ PHYS_WIDE_CLONES void WideContacts::fillBlock(uint32_t block, const Solver& s,
   vf invMassA = {}, invMassB = {}, friction = {}, twistArm = {};
   vf sep[Manifold::kMaxPoints] = {}, normalImpulse[Manifold::kMaxPoints] = {};
   vf tangentImpulse[Manifold::kMaxPoints][2] = {}, patchImpulse[3] = {};
-  vm lane = {}, point[Manifold::kMaxPoints] = {};
+  vm lane = {}, point[Manifold::kMaxPoints] = {}, isoA = {}, isoB = {};
+  bool iso = true;
   const bool patch = patch_;  // one setting per step (build)
   for (int l = 0; l < used; ++l) {
     const SolverManifold& m = manifolds[index[l]];
@@ -264,6 +284,9 @@ PHYS_WIDE_CLONES void WideContacts::fillBlock(uint32_t block, const Solver& s,
     setLane(IB.c0, l, B.invI.c0);
     setLane(IB.c1, l, B.invI.c1);
     setLane(IB.c2, l, B.invI.c2);
+    isoA[l] = A.isotropic ? -1 : 0;
+    isoB[l] = B.isotropic ? -1 : 0;
+    iso = iso && A.isotropic && B.isotropic;
     friction[l] = m.friction;
     for (int k = 0; k < m.count; ++k) {
       point[k][l] = -1;
@@ -284,8 +307,18 @@ PHYS_WIDE_CLONES void WideContacts::fillBlock(uint32_t block, const Solver& s,
   blk.lanes = used;
   blk.invMassA = invMassA;
   blk.invMassB = invMassB;
-  blk.invIA = IA;
-  blk.invIB = IB;
+  blk.iso = iso;
+  Inertia inertia{IA, IB, isoA, isoB};
+  if (iso) {
+    blk.invIsoA = IA.c0.x;  // lanes past `used`: zero, as their matrices
+    blk.invIsoB = IB.c0.x;
+  } else {
+    inertia_[block] = inertia;
+  }
+  Linear L;
+  L.inertia = iso ? nullptr : &inertia;
+  L.invIsoA = blk.invIsoA;
+  L.invIsoB = blk.invIsoB;
   vf linK[3][2];  // dot(linA, mLinA), dot(linB, mLinB)
   for (int d = 0; d < 3; ++d) {
     const V3 linA = neg(axes[d]), linB = axes[d];
@@ -296,7 +329,8 @@ PHYS_WIDE_CLONES void WideContacts::fillBlock(uint32_t block, const Solver& s,
   // (Inlined: a call out of the AVX2 clone would pass the vectors by another ABI.)
   auto fill = [&](auto& r, vm mask, const V3& angA, const V3& angB, vf linKA, vf linKB,
                   vf lambda) __attribute__((always_inline)) {
-    const V3 mAngA = mul(IA, angA), mAngB = mul(IB, angB);
+    V3 mAngA, mAngB;
+    L.angular(angA, angB, mAngA, mAngB);
     const vf kk = linKA + dot(angA, mAngA) + linKB + dot(angB, mAngB);
     if constexpr (std::is_same_v<std::decay_t<decltype(r)>, Dir>) {
       r.angA = masked(mask, angA);
@@ -345,6 +379,7 @@ void WideContacts::release() noexcept {
   clear();
   std::vector<Item>().swap(schedule);
   std::vector<Block>().swap(blocks_);
+  std::vector<Inertia>().swap(inertia_);
   std::vector<std::pair<uint32_t, uint32_t>>().swap(laneOf_);
   std::vector<double>().swap(residualTerms_);
   std::vector<PointFriction>().swap(friction_);
@@ -353,6 +388,7 @@ void WideContacts::release() noexcept {
 
 size_t WideContacts::capacityBytes() const {
   return schedule.capacity() * sizeof(Item) + blocks_.capacity() * sizeof(Block) +
+         inertia_.capacity() * sizeof(Inertia) +
          laneOf_.capacity() * sizeof(laneOf_[0]) + residualTerms_.capacity() * sizeof(double) +
          friction_.capacity() * sizeof(PointFriction) + patches_.capacity() * sizeof(Patch);
 }
@@ -515,10 +551,12 @@ void WideContacts::build(const Solver& s, const std::vector<SolverManifold>& man
   // The storage only grows; each block is zeroed just before it is filled (empty lanes and
   // points must read as zeros), while its cache lines are about to be written anyway.
   // Zeroing all of it up front (vector::resize after clear) cost 0.1 ms on pyramid_40.
-  static_assert(std::is_trivially_copyable_v<Block> && std::is_trivially_copyable_v<Patch> &&
+  static_assert(std::is_trivially_copyable_v<Block> && std::is_trivially_copyable_v<Inertia> &&
+                std::is_trivially_copyable_v<Patch> &&
                 std::is_trivially_copyable_v<PointFriction>);
   blockCount_ = lanes.size();
   if (blocks_.size() < blockCount_) blocks_.resize(blockCount_);
+  if (inertia_.size() < blockCount_) inertia_.resize(blockCount_);
   if (patch_ && patches_.size() < blockCount_) patches_.resize(blockCount_);
   if (!patch_ && friction_.size() < blockCount_ * Manifold::kMaxPoints)
     friction_.resize(blockCount_ * Manifold::kMaxPoints);
@@ -764,7 +802,7 @@ PHYS_WIDE_INLINE void WideContacts::frictionPair(const Linear& L, Dir& r1, Dir& 
 PHYS_WIDE_CLONES void WideContacts::warmStart(uint32_t block, std::vector<SolverBody>& bodies) {
   Block& blk = blocks_[block];
   Linear L;
-  expand(blk, L);
+  expand(blk, inertia_[block], L);
   Lanes s;
   gatherVelocities(bodies, blk.a, blk.b, s);
   V3 dpA, dtA, dpB, dtB;
@@ -800,11 +838,12 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
                                            const WideParams& prm) {
   Block& blk = blocks_[block];
   Linear L;
-  expand(blk, L);
+  expand(blk, inertia_[block], L);
   Lanes s;
   gatherVelocities(bodies, blk.a, blk.b, s);
-  // The position errors: as the warm start left them while the bodies have not moved since
-  // (the iterations), else from the bodies' deltas (the relax pass after the positions).
+  // The position errors: as the warm start or the last pass left them while the bodies have
+  // not moved since, else from the bodies' deltas (the relax pass after the positions, and
+  // the first iteration of a substep warm-started by bodies), kept for the passes after.
   V3 dpA, dtA, dpB, dtB;
   const bool fresh = !errorsCurrent;
   if (fresh) gatherDeltas(bodies, blk.a, blk.b, dpA, dtA, dpB, dtB);
@@ -815,9 +854,11 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
     Point& p = blk.pt[k];
     Dir& r = p.n;
     const vf vn = rowVelocity(L.linA[0], L.linB[0], r.angA, r.angB, s);
-    const vf C = fresh ? p.C0 + dot(L.linA[0], dpA) + dot(r.angA, dtA) + dot(L.linB[0], dpB) +
-                             dot(r.angB, dtB)
-                       : p.C;
+    vf C = p.C;
+    if (fresh) {
+      C = p.C0 + dot(L.linA[0], dpA) + dot(r.angA, dtA) + dot(L.linB[0], dpB) + dot(r.angB, dtB);
+      p.C = C;  // for the passes until the bodies move (errorsCurrent)
+    }
     const vm speculative = C > 0;
     vf bias = C * prm.invH;  // close exactly the gap this substep, no more
     vf massScale = splat(1), impulseScale = splat(0);

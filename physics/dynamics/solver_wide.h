@@ -101,8 +101,9 @@ class WideContacts {
   };
   std::vector<Item> schedule;
   bool active = false;
-  /// The points' C hold the position errors at the bodies' current deltas: warmStart sets
-  /// it, Solver::integratePositions clears it (the bodies moved).
+  /// The points' C hold the position errors at the bodies' current deltas: warmStart and
+  /// every pass of Solver::solveIteration set it, Solver::integratePositions clears it (the
+  /// bodies moved).
   bool errorsCurrent = false;
 
   /// Packs the manifolds into blocks and orders them after the solver's row groups (the
@@ -193,16 +194,29 @@ class WideContacts {
   /// manifolds are about 21 MB of them, 89 floats a lane): every float stored is bandwidth,
   /// and in a world that large two 3x3 products a row cost less than reading M^-1 J^T's
   /// angular parts (docs/ARCHITECTURE.md, "What the passes stream").
+  ///
+  /// Isotropic bodies (SolverBody::isotropic: cubes, spheres, the world) need no matrix: a
+  /// block whose bodies all are stores their inverse inertias as one number a lane (invIsoA,
+  /// invIsoB, 73 floats a lane), and only the other blocks have their matrices, in inertia_.
   struct Block {
     wide::V3 lin[3];
     wide::vf invMassA, invMassB;
-    wide::M3 invIA, invIB;  ///< the bodies' world inverse inertia (M^-1 J^T's angular parts)
+    /// With `iso`: the bodies' inverse inertia (times the identity), else unused (zero).
+    wide::vf invIsoA, invIsoB;
     Point pt[Manifold::kMaxPoints];
     int32_t a[wide::kLanes] = {}, b[wide::kLanes] = {};  ///< solver bodies; 0 in empty lanes
     uint32_t manifold[wide::kLanes] = {};
     uint8_t count[wide::kLanes] = {};                           ///< points of each lane's manifold
     bool writeA[wide::kLanes] = {}, writeB[wide::kLanes] = {};  ///< dynamic bodies only
     int lanes = 0, points = 0;
+    bool iso = false;  ///< every body of the block is isotropic (no inertia_ entry)
+  };
+  /// The inverse inertias of a block that is not `iso`: the bodies' world matrices (M^-1
+  /// J^T's angular parts), and which lanes' bodies are isotropic (their products are formed
+  /// as the rows' are, by the one number).
+  struct Inertia {
+    wide::M3 invIA, invIB;
+    wide::vm isoA, isoB;
   };
   /// Fills a zeroed block with `used` manifolds (index: theirs), the rows formed in SIMD lanes.
   void fillBlock(uint32_t block, const Solver& s, const std::vector<SolverManifold>& manifolds,
@@ -215,6 +229,7 @@ class WideContacts {
     return &friction_[size_t(block) * Manifold::kMaxPoints];
   }
   std::vector<Block> blocks_;  ///< the first blockCount_ are this step's
+  std::vector<Inertia> inertia_;  ///< per block; read for the blocks that are not iso
   size_t blockCount_ = 0;
   std::vector<std::pair<uint32_t, uint32_t>> laneOf_;  ///< per manifold: block, lane
   bool patch_ = false;  ///< every manifold has patch friction (else every one per point)
