@@ -243,8 +243,10 @@ void World::stepOnce(int substeps) {
   // Warm starting by bodies (Solver::BodyWarmStart) where every row keeps its Jacobian
   // through the step and only the rows change velocities: the substeps after the first add
   // each body's impulses of the last substep, a pass over the bodies instead of the contacts.
-  const bool warmByBodies = bodyWarmStart() && w.stepJoints.empty() && !solver.jacobi() &&
-                            !s.splitPushout && !direct && !directContacts && w.impacts.empty();
+  // (Without contacts there is nothing to warm-start: no sums to keep.)
+  const bool warmByBodies = bodyWarmStart() && !w.contactOrder.empty() && w.stepJoints.empty() &&
+                            !solver.jacobi() && !s.splitPushout && !direct && !directContacts &&
+                            w.impacts.empty();
   int iterationsUsed = 0;
   for (int sub = 0; sub < s.substeps; ++sub) {
     using Warm = Solver::BodyWarmStart;
@@ -1519,11 +1521,12 @@ bool World::Impl::orderContacts(const SolverSettings& s, ContactParts& parts) {
   // then each separator's by colour (solver_wide.h), so that they fill blocks.
   const size_t segments = segmentCount(parts.levels), leaves = size_t(1) << parts.levels;
   std::vector<uint32_t> segmentOf(pairs.size());
+  forEachRange(pairs.size(), [&](size_t begin, size_t end) {
+    for (size_t k = begin; k < end; ++k)
+      segmentOf[k] = contactSegment(solverPart, parts.levels, pairs[k].first, pairs[k].second);
+  });
   std::vector<uint32_t> start(segments + 1, 0);
-  for (uint32_t k = 0; k < pairs.size(); ++k) {
-    segmentOf[k] = contactSegment(solverPart, parts.levels, pairs[k].first, pairs[k].second);
-    ++start[segmentOf[k] + 1];
-  }
+  for (uint32_t seg : segmentOf) ++start[seg + 1];
   for (size_t i = 0; i < segments; ++i) start[i + 1] += start[i];
   std::vector<uint32_t> bySegment(pairs.size());  // indices into contactOrder and pairs
   {
@@ -1569,16 +1572,18 @@ void World::Impl::refreshJoints(float h) {
 }
 
 void World::Impl::finalize(float hSub) {
-  for (uint32_t i : awakeBodies) {
-    BodyRec& b = bodies.at(i);
-    b.force = b.torque = {};
-    const SolverBody& sb = solver.bodies[size_t(b.solverIndex)];
-    b.v = sb.v;
-    b.w = sb.w;
-    b.com += sb.dp;
-    b.xf.q = sb.q;
-    b.xf.p = b.com - rotate(b.xf.q, b.localCenter);
-  }
+  forEachRange(awakeBodies.size(), [&](size_t begin, size_t end) {
+    for (size_t k = begin; k < end; ++k) {
+      BodyRec& b = bodies.at(awakeBodies[k]);
+      b.force = b.torque = {};
+      const SolverBody& sb = solver.bodies[size_t(b.solverIndex)];
+      b.v = sb.v;
+      b.w = sb.w;
+      b.com += sb.dp;
+      b.xf.q = sb.q;
+      b.xf.p = b.com - rotate(b.xf.q, b.localCenter);
+    }
+  });
   // Joint reactions (the rows' impulses per substep as forces on B) and errors at the new poses.
   for (uint32_t i : stepJoints) {
     JointRec& j = joints.at(i);
