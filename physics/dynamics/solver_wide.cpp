@@ -758,14 +758,18 @@ PHYS_WIDE_CLONES void WideContacts::residualBlock(uint32_t block,
   const V3 linB = blk.lin[0], linA = neg(linB);
   Lanes s;
   gatherVelocities(bodies, blk.a, blk.b, s);
+  // The position errors as the last pass kept them (the relax pass after the last
+  // positions), else from the bodies' deltas: the same bits either way.
   V3 dpA, dtA, dpB, dtB;
-  gatherDeltas(bodies, blk.a, blk.b, dpA, dtA, dpB, dtB);
+  const bool fresh = !errorsCurrent;
+  if (fresh) gatherDeltas(bodies, blk.a, blk.b, dpA, dtA, dpB, dtB);
   vf e[kPoints];
   for (int k = 0; k < blk.points; ++k) {
     const Dir& r = blk.pt[k].n;
     const vf vn = dot(linA, s.vA) + dot(r.angA, s.wA) + dot(linB, s.vB) + dot(r.angB, s.wB);
-    const vf C =
-        blk.pt[k].C0 + dot(linA, dpA) + dot(r.angA, dtA) + dot(linB, dpB) + dot(r.angB, dtB);
+    const vf C = fresh ? blk.pt[k].C0 + dot(linA, dpA) + dot(r.angA, dtA) + dot(linB, dpB) +
+                             dot(r.angB, dtB)
+                       : blk.pt[k].C;
     const vf gap = vmax(C, splat(0)) / h;
     e[k] = select(r.lambda > 0, vn, vmin(splat(0), vn + gap));
   }

@@ -12,7 +12,8 @@
 //
 // The World hands the manifolds over instead of making contact rows; a block holds their
 // rows in a compact structure-of-arrays form (356 bytes a four-point manifold with patch
-// friction, instead of seven rows of 164 bytes) and owns the contact impulses between
+// friction, 292 between isotropic bodies, instead of seven rows of 164 bytes) and owns the
+// contact impulses between
 // build() and store().
 //
 // Nested parts: in a world with many contacts, the World cuts the dynamic bodies in two
@@ -191,9 +192,9 @@ class WideContacts {
   /// B's part (body A's is its negation) with the two inverse masses and inverse inertias; the
   /// kernels form -J and M^-1 J^T from them (Linear) as fillBlock formed the rows', so the
   /// bits are the same. A pass streams the blocks from memory once (many_pyramids' 58,000
-  /// manifolds are about 21 MB of them, 89 floats a lane): every float stored is bandwidth,
-  /// and in a world that large two 3x3 products a row cost less than reading M^-1 J^T's
-  /// angular parts (docs/ARCHITECTURE.md, "What the passes stream").
+  /// manifolds of cubes are about 17 MB of them, 73 floats a lane; 89 with matrices): every
+  /// float stored is bandwidth, and in a world that large two 3x3 products a row cost less
+  /// than reading M^-1 J^T's angular parts (docs/ARCHITECTURE.md, "What the passes stream").
   ///
   /// Isotropic bodies (SolverBody::isotropic: cubes, spheres, the world) need no matrix: a
   /// block whose bodies all are stores their inverse inertias as one number a lane (invIsoA,
