@@ -302,7 +302,7 @@ void World::stepOnce(int substeps) {
   }
   if (w.wide.active) {
     StageTimer t(&p.storeImpulses);
-    w.wide.store(w.manifolds);  // the step's contact impulses, for storeImpulses
+    w.wide.store(w.contacts, w.manifoldContact);  // for the next step's warm start
   }
   if (s.positionPass != SolverSettings::PositionPass::None && s.positionIterations > 0) {
     StageTimer t(&p.positionPass);
@@ -377,18 +377,7 @@ void World::Impl::storeImpulses() {
       }
     }
   }
-  // Solved in wide blocks, without rows: one contact each, on the world's threads.
-  forEachRange(manifolds.size(), [&](size_t begin, size_t end) {
-    for (size_t m = begin; m < end; ++m) {
-      const SolverManifold& sm = manifolds[m];
-      Contact& c = contacts[manifoldContact[m]];
-      std::memcpy(c.normalImpulse, sm.normalImpulse, sizeof(float) * size_t(sm.count));
-      if (sm.patch)
-        for (int d = 0; d < 3; ++d) c.patchImpulse(d) = sm.patchImpulse[d];
-      else
-        std::memcpy(c.tangentImpulse, sm.tangentImpulse, sizeof(float) * 2 * size_t(sm.count));
-    }
-  });
+  // (Contacts solved in wide blocks got theirs from WideContacts::store, in stepOnce.)
   for (uint32_t i : stepJoints) {
     JointRec& j = joints.at(i);
     j.impulseCount = std::min(j.rowCount, int32_t(JointRec::kMaxRows));
