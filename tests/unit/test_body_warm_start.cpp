@@ -1,8 +1,9 @@
-// Three exact shortcuts of the substep (physics/dynamics/solver.h): warm starting by bodies
-// (the substeps after the first add each body's impulses of the last substep instead of a
-// pass over the contacts), the isotropic bodies' inverse inertia as one number, and a body's
-// turn in integratePositions formed from its angular velocity. Each must give what the long
-// way gives, up to float rounding.
+// Two of the exact shortcuts of the substep (physics/dynamics/solver.h): warm starting by
+// bodies (the substeps after the first add each body's impulses of the last substep instead of
+// a pass over the contacts) and a body's turn in integratePositions formed from its angular
+// velocity. Each must give what the long way gives, up to float rounding. (The third, the
+// isotropic bodies' inverse inertia as one number, must keep the wide blocks' bits equal to
+// the rows': WideContacts.BitIdenticalToTheScalarPassOnEveryGaussSeidelPreset.)
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -11,7 +12,6 @@
 #include <vector>
 
 #include "dynamics/solver.h"
-#include "phys/scene/presets.h"
 #include "phys/scene/scene.h"
 #include "phys/world/world.h"
 #include "test_util.h"
