@@ -13,8 +13,7 @@
 // The World hands the manifolds over instead of making contact rows; a block holds their
 // rows in a compact structure-of-arrays form (356 bytes a four-point manifold with patch
 // friction, 292 between isotropic bodies, instead of seven rows of 164 bytes) and owns the
-// contact impulses between
-// build() and store().
+// contact impulses between build() and store().
 //
 // Nested parts: in a world with many contacts, the World cuts the dynamic bodies in two
 // (at the median, on the axis whose cut the fewest contacts cross), and each half again by the
