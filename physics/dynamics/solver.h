@@ -112,7 +112,7 @@ struct SolverManifold {
   float friction = 0, restitution = 0;
   Vec3 rA[4], rB[4];               ///< contact points relative to the bodies' centres of mass
   float separation[4] = {};        ///< C0 of the normal rows (m, negative when overlapping)
-  /// In: the warm start (zero without). Out (WideContacts::store): the step's impulses.
+  /// The warm start (zero without); the step's impulses go to the contacts, not back here.
   float normalImpulse[4] = {}, tangentImpulse[4][2] = {};
   /// Patch friction (SolverSettings::patchFriction): the tangent rows act at the points'
   /// centroid (patchRA, patchRB), the twist row about the normal with arm twistArm (the

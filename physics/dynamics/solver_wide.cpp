@@ -168,15 +168,6 @@ PHYS_WIDE_INLINE void applyImpulse(vm mask, const V3& mLinA, const V3& mLinB, co
   addScaled(mask, s.wB, mAngB, impulse);
 }
 
-/// A manifold's or a contact's patch friction impulse d (SolverManifold::patchImpulse,
-/// Contact::patchImpulse).
-inline float& patchImpulseOf(SolverManifold& m, int d) {
-  return m.patchImpulse[d];
-}
-inline float& patchImpulseOf(Contact& c, int d) {
-  return c.patchImpulse(d);
-}
-
 /// How many levels past its own a manifold looks for a block with a free lane (build()).
 constexpr int32_t kLevelSearch = 4;
 /// build() plans the nested parts' segments on the world's threads from this many manifolds.
@@ -720,38 +711,29 @@ std::vector<uint32_t> WideContacts::manifoldsOf(uint32_t block) const {
   return std::vector<uint32_t>(b.manifold, b.manifold + b.lanes);
 }
 
-template <class Out>
-void WideContacts::storeInto(Out&& out) {
+void WideContacts::store(std::vector<Contact>& contacts, const std::vector<uint32_t>& contactOf) {
   forEachPart([&](size_t begin, size_t end) {
     for (size_t b = begin; b < end; ++b) {
       const Block& blk = blocks_[b];
       for (int l = 0; l < blk.lanes; ++l) {
-        auto& m = out(blk.manifold[l]);
+        Contact& c = contacts[contactOf[blk.manifold[l]]];
         for (int k = 0; k < blk.count[l]; ++k) {
-          m.normalImpulse[k] = blk.pt[k].n.lambda[l];
+          c.normalImpulse[k] = blk.pt[k].n.lambda[l];
           if (patch_) continue;
           const PointFriction& f = frictionOf(uint32_t(b))[k];
-          m.tangentImpulse[k][0] = f.t1.lambda[l];
-          m.tangentImpulse[k][1] = f.t2.lambda[l];
+          c.tangentImpulse[k][0] = f.t1.lambda[l];
+          c.tangentImpulse[k][1] = f.t2.lambda[l];
         }
         if (patch_) {
           const Patch& pa = patches_[b];
-          patchImpulseOf(m, 0) = pa.t1.lambda[l];
-          patchImpulseOf(m, 1) = pa.t2.lambda[l];
-          patchImpulseOf(m, 2) = pa.twist.lambda[l];
+          c.patchImpulse(0) = pa.t1.lambda[l];
+          c.patchImpulse(1) = pa.t2.lambda[l];
+          c.patchImpulse(2) = pa.twist.lambda[l];
         }
       }
     }
   });
   active = false;
-}
-
-void WideContacts::store(std::vector<SolverManifold>& manifolds) {
-  storeInto([&](uint32_t i) -> SolverManifold& { return manifolds[i]; });
-}
-
-void WideContacts::store(std::vector<Contact>& contacts, const std::vector<uint32_t>& contactOf) {
-  storeInto([&](uint32_t i) -> Contact& { return contacts[contactOf[i]]; });
 }
 
 double WideContacts::residual(const std::vector<SolverBody>& bodies, float h, double sum) const {

@@ -139,12 +139,9 @@ class WideContacts {
       }
     }
   }
-  /// Writes the contact impulses into the manifolds and deactivates: the solver passes run
-  /// over the rows alone again. The blocks stay for residual().
-  void store(std::vector<SolverManifold>& manifolds);
-  /// store(), straight into the contacts the manifolds were made from (manifold i's is
-  /// contacts[contactOf[i]]): the impulses of their next warm start without the manifolds
-  /// in between (World::Impl's step).
+  /// Writes the contact impulses into the contacts the manifolds were made from (manifold
+  /// i's is contacts[contactOf[i]]), for their next warm start, and deactivates: the solver
+  /// passes run over the rows alone again. The blocks stay for residual().
   void store(std::vector<Contact>& contacts, const std::vector<uint32_t>& contactOf);
   void clear();
   /// clear(), and the blocks' storage back to the allocator (World::Impl::releaseStepBuffers).
@@ -246,10 +243,6 @@ class WideContacts {
   /// fn(firstBlock, endBlock) over the blocks: with parts each segment's, by forEachSegment.
   template <class F>
   void forEachPart(F&& fn) const;
-  /// Both store()s: out(manifold index) is where a lane's impulses go (a SolverManifold or a
-  /// Contact: normalImpulse, tangentImpulse, patchImpulse(d)); deactivates.
-  template <class Out>
-  void storeInto(Out&& out);
   /// Per block: its points' friction (kMaxPoints each), or with patch friction its patch.
   std::vector<PointFriction> friction_;
   std::vector<Patch> patches_;

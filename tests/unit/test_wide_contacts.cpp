@@ -156,7 +156,7 @@ TEST(WideContacts, ScheduleKeepsEveryBodysOrderAndPacksDisjointLanes) {
       << w.laneCount() << " lanes in " << w.blockCount() << " blocks; chain " << depth;
 }
 
-TEST(WideContacts, StoreHandsTheImpulsesBackToTheManifolds) {
+TEST(WideContacts, StoreHandsTheImpulsesBackToTheContacts) {
   Solver s = bodiesSolver(2);
   std::vector<SolverManifold> manifolds = {manifold(0, 1, 3), manifold(1, 2, 4)};
   float x = 0;
@@ -174,13 +174,17 @@ TEST(WideContacts, StoreHandsTheImpulsesBackToTheManifolds) {
   for (SolverManifold& m : manifolds) {  // the blocks own the impulses now
     for (int k = 0; k < m.count; ++k) m.normalImpulse[k] = m.tangentImpulse[k][0] = -1;
   }
-  w.store(manifolds);
+  // Each manifold's contact, in another order than the manifolds' (contactOf).
+  std::vector<Contact> contacts(manifolds.size());
+  const std::vector<uint32_t> contactOf = {1, 0};
+  w.store(contacts, contactOf);
   EXPECT_FALSE(w.active);
   for (size_t i = 0; i < manifolds.size(); ++i) {
+    const Contact& c = contacts[contactOf[i]];
     for (int k = 0; k < manifolds[i].count; ++k) {
-      EXPECT_EQ(manifolds[i].normalImpulse[k], before[i].normalImpulse[k]) << i << " " << k;
-      EXPECT_EQ(manifolds[i].tangentImpulse[k][0], before[i].tangentImpulse[k][0]);
-      EXPECT_EQ(manifolds[i].tangentImpulse[k][1], before[i].tangentImpulse[k][1]);
+      EXPECT_EQ(c.normalImpulse[k], before[i].normalImpulse[k]) << i << " " << k;
+      EXPECT_EQ(c.tangentImpulse[k][0], before[i].tangentImpulse[k][0]);
+      EXPECT_EQ(c.tangentImpulse[k][1], before[i].tangentImpulse[k][1]);
     }
   }
 }
