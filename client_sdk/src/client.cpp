@@ -5,6 +5,7 @@
 #include "phys/client/client.h"
 
 #include "phys/protocol/client_key.h"
+#include "phys/protocol/cluster.h"
 #include "phys/protocol/compact.h"
 
 #include <algorithm>
@@ -16,6 +17,8 @@
 #include <random>
 #include <set>
 #include <thread>
+#include <tuple>
+#include <unordered_set>
 
 #include "dds.h"
 #include "phys/protocol/convert.h"
@@ -492,6 +495,19 @@ struct Client::Impl {
   mutable std::mutex infoMutex;
   ServerInfo server;
   std::optional<ServerStatus> status;
+  /// Every daemon's last status (under infoMutex), by server.id, and the worlds this client
+  /// created on it since (placement counts them until the next sample does).
+  struct DaemonView {
+    ServerStatus status;
+    Clock::time_point seen;
+    uint32_t placed = 0;
+  };
+  std::map<uint64_t, DaemonView> daemonViews;
+  /// Seqs answered lately (under pendMutex), to count a second answer (duplicateReplies).
+  std::deque<uint64_t> answeredOrder;
+  std::unordered_set<uint64_t> answered;
+  static constexpr size_t kAnsweredKept = 4096;
+  std::atomic<uint64_t> duplicates{0};
   std::function<void(const Event&)> eventFn;  // under infoMutex
   std::deque<Event> events;                   // under infoMutex, the last kKeptEvents
   static constexpr size_t kKeptEvents = 64;
@@ -578,11 +594,21 @@ struct Client::Impl {
   }
 
   /// Sends a command; done runs once, on the SDK thread (or here on a write failure).
+  /// daemon: Command.daemon (0: the world's owner; see CallOptions::daemon).
   void send(CommandBuilder& b, uint32_t world, std::chrono::milliseconds timeout,
-            std::function<void(const wire::Reply*, const Error*)> done) {
+            std::function<void(const wire::Reply*, const Error*)> done, uint64_t daemon = 0) {
     const bool hello = b.requestCount() == 1 && b.requestType(0) == wire::Request::Hello;
+    if (world != 0 && daemon == 0) {
+      if (std::optional<std::string> why = unreachable(world)) {
+        // In a domain of daemons nobody would answer: said now, not after the timeout.
+        Error e(ErrorCode::NotFound, *why);
+        done(nullptr, &e);
+        return;
+      }
+    }
     const uint64_t s = ++seq;
-    auto bytes = std::make_shared<const protocol::Bytes>(b.finish({clientId, s, world}));
+    auto bytes =
+        std::make_shared<const protocol::Bytes>(b.finish({clientId, s, world, daemon}));
     bool later = false;
     {
       std::lock_guard<std::mutex> lk(pendMutex);
@@ -627,17 +653,83 @@ struct Client::Impl {
                          std::function<T(const wire::Reply&)> parse) {
     auto prom = std::make_shared<std::promise<T>>();
     std::future<T> fut = prom->get_future();
-    send(b, world, timeoutOf(o), [prom, parse](const wire::Reply* r, const Error* e) {
-      try {
-        if (e) throw *e;
-        if (r->status() != wire::StatusCode::Ok)
-          throw Error(ErrorCode(uint8_t(r->status())), str(r->message()), r->retry_after_ms());
-        prom->set_value(parse(*r));
-      } catch (...) {
-        prom->set_exception(std::current_exception());
-      }
-    });
+    send(
+        b, world, timeoutOf(o),
+        [prom, parse](const wire::Reply* r, const Error* e) {
+          try {
+            if (e) throw *e;
+            if (r->status() != wire::StatusCode::Ok)
+              throw Error(ErrorCode(uint8_t(r->status())), str(r->message()),
+                          r->retry_after_ms());
+            prom->set_value(parse(*r));
+          } catch (...) {
+            prom->set_exception(std::current_exception());
+          }
+        },
+        o.daemon);
     return fut;
+  }
+
+  /// The daemons whose last status is fresh: within 3 of their periods, at least 2 s.
+  /// infoMutex held.
+  std::vector<std::pair<uint64_t, const DaemonView*>> liveDaemons() const {
+    std::vector<std::pair<uint64_t, const DaemonView*>> out;
+    const auto now = Clock::now();
+    for (const auto& [id, v] : daemonViews) {
+      const double period = v.status.statusPeriodS > 0 ? v.status.statusPeriodS : 1.0;
+      if (now - v.seen <= std::chrono::duration<double>(std::max(3 * period, 2.0)))
+        out.emplace_back(id, &v);
+    }
+    return out;
+  }
+
+  /// Where createWorld goes without CallOptions::daemon: in a domain of daemons, the live one
+  /// with the fewest awake bodies, then the fewest worlds (counting those this client made
+  /// since its last sample), then the lowest id; 0 (whoever takes it) with a lone daemon.
+  uint64_t placeWorld() const {
+    std::lock_guard<std::mutex> lk(infoMutex);
+    uint64_t best = 0;
+    std::tuple<uint64_t, uint64_t, uint64_t> bestKey{};
+    for (const auto& [id, v] : liveDaemons()) {
+      if (!v->status.cluster) continue;
+      uint64_t awake = 0;
+      for (const WorldSummary& w : v->status.worlds) awake += w.awakeBodies;
+      const std::tuple<uint64_t, uint64_t, uint64_t> key{awake,
+                                                         v->status.worlds.size() + v->placed, id};
+      if (best == 0 || key < bestKey) {
+        best = id;
+        bestKey = key;
+      }
+    }
+    return best;
+  }
+
+  /// Why no daemon would take a command for `world`, in a domain of daemons: the daemon of its
+  /// id's range is not live and no live daemon lists it. nullopt: someone answers (also with
+  /// a lone daemon, which answers every world).
+  std::optional<std::string> unreachable(uint32_t world) const {
+    std::lock_guard<std::mutex> lk(infoMutex);
+    const auto live = liveDaemons();
+    if (std::none_of(live.begin(), live.end(), [](auto& d) { return d.second->status.cluster; }))
+      return std::nullopt;
+    const uint64_t range = protocol::daemonOfWorld(world);
+    for (const auto& [id, v] : live) {
+      if (id == range) return std::nullopt;
+      for (const WorldSummary& w : v->status.worlds)
+        if (w.world == world) return std::nullopt;
+    }
+    return "command.world " + std::to_string(world) +
+           " does not exist: no daemon of the domain holds it (its id is of daemon " +
+           std::to_string(range) + "'s range, which is not running)";
+  }
+
+  /// The live daemons of a domain (none with a lone daemon: one request reaches it).
+  std::vector<uint64_t> clusterDaemons() const {
+    std::lock_guard<std::mutex> lk(infoMutex);
+    std::vector<uint64_t> out;
+    for (const auto& [id, v] : liveDaemons())
+      if (v->status.cluster) out.push_back(id);
+    return out;
   }
 
   std::future<Ack> ackRequest(CommandBuilder& b, uint32_t world, const CallOptions& o) {
@@ -727,6 +819,9 @@ struct Client::Impl {
       {
         std::lock_guard<std::mutex> lk(pendMutex);
         auto it = pending.find(r.ok() ? r->seq() : env.seq);
+        if (it == pending.end() && r.ok() && answered.count(r->seq()) &&
+            !r->result_as_HelloResult())
+          ++duplicates;  // a second daemon took the command
         if (it == pending.end() || it->second.held) return;  // not this send's answer
         if (it->first == backlogSeq) backlogSeq = 0;  // the next of the backlog may go
         if (r.ok() && it->second.bytes && r->status() == wire::StatusCode::ResourceExhausted &&
@@ -745,6 +840,7 @@ struct Client::Impl {
         }
         p = std::move(it->second);
         pending.erase(it);
+        remember(r.ok() ? r->seq() : env.seq);
       }
       if (r.ok()) {
         p.done(r.root, nullptr);
@@ -753,6 +849,16 @@ struct Client::Impl {
         p.done(nullptr, &e);
       }
     });
+  }
+
+  /// A request answered (pendMutex held): kept a while, to recognize a second answer.
+  void remember(uint64_t s) {
+    if (!answered.insert(s).second) return;
+    answeredOrder.push_back(s);
+    if (answeredOrder.size() > kAnsweredKept) {
+      answered.erase(answeredOrder.front());
+      answeredOrder.pop_front();
+    }
   }
 
   void takeStatus() {
@@ -769,9 +875,13 @@ struct Client::Impl {
       st.framesDropped = s->frames_dropped();
       st.heapBytes = s->heap_bytes();
       st.readOnly = str(s->read_only());
+      st.daemon = s->daemon() ? s->daemon() : env.key;
+      st.cluster = s->cluster();
+      st.statusPeriodS = s->status_period_s();
       if (s->worlds())
         for (auto* w : *s->worlds()) st.worlds.push_back(toSummary(*w));
       std::lock_guard<std::mutex> lk(infoMutex);
+      daemonViews[st.daemon] = DaemonView{st, Clock::now(), 0};
       status = std::move(st);
     });
   }
@@ -1138,6 +1248,20 @@ ServerInfo Client::connect() {
       try {
         ServerInfo i = f.get();
         impl_->everConnected = true;
+        // The daemons' status (transient-local: it comes as the status reader matches), so
+        // that createWorld can place a world in a domain of daemons from the start: one
+        // daemon's (for up to 2 s), and every matched daemon's for up to half a second more (a
+        // reader of phys/cmd that is not a daemon publishes none).
+        auto sampled = [&](size_t n) {
+          std::lock_guard<std::mutex> lk(impl_->infoMutex);
+          return impl_->daemonViews.size() >= n;
+        };
+        const auto one = std::min(end, Clock::now() + std::chrono::seconds(2));
+        while (Clock::now() < one && !sampled(1))
+          std::this_thread::sleep_for(std::chrono::milliseconds(5));
+        const auto all = std::min(end, Clock::now() + std::chrono::milliseconds(500));
+        while (Clock::now() < all && !sampled(impl_->serversMatched.load()))
+          std::this_thread::sleep_for(std::chrono::milliseconds(5));
         return i;
       } catch (const Error& e) {
         if (e.code() != ErrorCode::Timeout && e.code() != ErrorCode::Disconnected) throw;
@@ -1175,21 +1299,78 @@ std::future<ServerInfo> Client::hello(CallOptions o) {
 std::future<WorldHandle> Client::createWorld(const CreateWorldArgs& args, CallOptions o) {
   CommandBuilder b;
   b.createWorld(args);
-  return impl_->request<WorldHandle>(
-      b, 0, o, [this](const wire::Reply& r) { return WorldHandle(this, r.world()); });
+  if (!o.daemon) o.daemon = impl_->placeWorld();
+  const uint64_t daemon = o.daemon;
+  return impl_->request<WorldHandle>(b, 0, o, [this, daemon](const wire::Reply& r) {
+    if (daemon) {
+      std::lock_guard<std::mutex> lk(impl_->infoMutex);
+      auto it = impl_->daemonViews.find(daemon);
+      if (it != impl_->daemonViews.end()) ++it->second.placed;
+    }
+    return WorldHandle(this, r.world());
+  });
 }
 
+namespace {
+std::vector<WorldSummary> worldList(const wire::Reply& r) {
+  std::vector<WorldSummary> v;
+  auto* l = r.result_as_WorldList();
+  if (!l) throw Error(ErrorCode::BadReply, "list_worlds reply without WorldList");
+  if (l->worlds())
+    for (auto* w : *l->worlds()) v.push_back(toSummary(*w));
+  return v;
+}
+}  // namespace
+
 std::future<std::vector<WorldSummary>> Client::listWorlds(CallOptions o) {
-  CommandBuilder b;
-  b.listWorlds();
-  return impl_->request<std::vector<WorldSummary>>(b, 0, o, [](const wire::Reply& r) {
-    std::vector<WorldSummary> v;
-    auto* l = r.result_as_WorldList();
-    if (!l) throw Error(ErrorCode::BadReply, "list_worlds reply without WorldList");
-    if (l->worlds())
-      for (auto* w : *l->worlds()) v.push_back(toSummary(*w));
-    return v;
-  });
+  const std::vector<uint64_t> daemons =
+      o.daemon ? std::vector<uint64_t>{o.daemon} : impl_->clusterDaemons();
+  if (daemons.size() <= 1) {
+    if (!daemons.empty()) o.daemon = daemons[0];
+    CommandBuilder b;
+    b.listWorlds();
+    return impl_->request<std::vector<WorldSummary>>(b, 0, o, worldList);
+  }
+  // A domain of daemons: each lists its own; the answer is all of them, by world id, or the
+  // first error.
+  struct Gather {
+    std::mutex m;
+    std::promise<std::vector<WorldSummary>> promise;
+    std::vector<WorldSummary> worlds;
+    size_t left = 0;
+    bool done = false;
+  };
+  auto g = std::make_shared<Gather>();
+  g->left = daemons.size();
+  auto fut = g->promise.get_future();
+  for (uint64_t d : daemons) {
+    CommandBuilder b;
+    b.listWorlds();
+    impl_->send(
+        b, 0, impl_->timeoutOf(o),
+        [g](const wire::Reply* r, const Error* e) {
+          std::lock_guard<std::mutex> lk(g->m);
+          if (g->done) return;
+          try {
+            if (e) throw *e;
+            if (r->status() != wire::StatusCode::Ok)
+              throw Error(ErrorCode(uint8_t(r->status())), str(r->message()),
+                          r->retry_after_ms());
+            std::vector<WorldSummary> v = worldList(*r);
+            g->worlds.insert(g->worlds.end(), v.begin(), v.end());
+            if (--g->left > 0) return;
+            std::sort(g->worlds.begin(), g->worlds.end(),
+                      [](const WorldSummary& a, const WorldSummary& b) { return a.world < b.world; });
+            g->done = true;
+            g->promise.set_value(std::move(g->worlds));
+          } catch (...) {
+            g->done = true;
+            g->promise.set_exception(std::current_exception());
+          }
+        },
+        d);
+  }
+  return fut;
 }
 
 WorldHandle Client::worldNamed(const std::string& name, CallOptions o) {
@@ -1201,6 +1382,27 @@ WorldHandle Client::worldNamed(const std::string& name, CallOptions o) {
 std::optional<ServerStatus> Client::latestStatus() const {
   std::lock_guard<std::mutex> lk(impl_->infoMutex);
   return impl_->status;
+}
+
+std::vector<DaemonInfo> Client::daemons() const {
+  std::lock_guard<std::mutex> lk(impl_->infoMutex);
+  std::vector<DaemonInfo> out;
+  const auto now = Clock::now();
+  for (const auto& [id, v] : impl_->liveDaemons()) {
+    DaemonInfo d;
+    d.id = id;
+    d.name = v->status.serverName;
+    d.cluster = v->status.cluster;
+    d.worlds = uint32_t(v->status.worlds.size() + v->placed);
+    for (const WorldSummary& w : v->status.worlds) d.awakeBodies += w.awakeBodies;
+    d.sinceSampleS = std::chrono::duration<double>(now - v->seen).count();
+    out.push_back(std::move(d));
+  }
+  return out;
+}
+
+uint64_t Client::duplicateReplies() const {
+  return impl_->duplicates.load();
 }
 
 Subscription Client::subscribe(uint32_t world, std::function<void(const StateFrame&)> fn) {

@@ -213,7 +213,7 @@ Offset<wire::WorldSummary> writeWorldSummary(Fbb& fbb, const WorldSummary& w) {
                                   w.running, w.rateHz, w.tickMs, w.tickMsMax, w.overruns,
                                   w.subscribers, w.frames, backend, device, note, w.gpuSteps,
                                   w.cpuSteps, w.awakeBodies, w.sleepingBodies, w.frameBytes,
-                                  w.contacts, w.stepBufferBytes, damage);
+                                  w.contacts, w.stepBufferBytes, damage, w.daemon);
 }
 
 Offset<wire::LimitsInfo> writeLimits(Fbb& fbb, const Limits& l) {
@@ -526,7 +526,8 @@ Bytes CommandBuilder::finish(const CommandHeader& header) {
     request = wire::CreateBatch(fbb_, v).Union();
   }
   items_.clear();
-  auto root = wire::CreateCommand(fbb_, header.clientId, header.seq, header.world, type, request);
+  auto root = wire::CreateCommand(fbb_, header.clientId, header.seq, header.world, type, request,
+                                  header.daemon);
   return finishBytes(fbb_, root, wire::kCommandId);
 }
 
@@ -756,7 +757,8 @@ std::vector<Bytes> encodeWorldInfo(const WorldInfoHeader& header, std::span<cons
     auto name = optString(fbb, header.name);
     auto root =
         wire::CreateWorldInfo(fbb, header.world, name, header.revision, header.tick, &gravity,
-                              header.timeStep, uint32_t(c), uint32_t(ranges.size()), bv, jv);
+                              header.timeStep, uint32_t(c), uint32_t(ranges.size()), bv, jv,
+                              header.daemon);
     out.push_back(finishBytes(fbb, root, wire::kWorldInfoId));
   }
   return out;
@@ -773,7 +775,8 @@ Bytes encodeServerStatus(const ServerStatusInfo& status) {
   auto readOnly = optString(fbb, status.readOnly);
   auto root = wire::CreateServerStatus(fbb, name, version, status.uptimeS, status.commands,
                                        status.errors, worlds, status.framesDropped,
-                                       status.heapBytes, readOnly);
+                                       status.heapBytes, readOnly, status.daemon,
+                                       status.cluster, status.statusPeriodS);
   return finishBytes(fbb, root, wire::kServerStatusId);
 }
 

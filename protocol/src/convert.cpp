@@ -213,6 +213,7 @@ WorldSummary toWorldSummary(const wire::WorldSummary& in) {
   s.contacts = in.contacts();
   s.stepBufferBytes = in.step_buffer_bytes();
   s.damage = str(in.damage());
+  s.daemon = in.daemon();
   return s;
 }
 

@@ -320,6 +320,13 @@ struct ServerCore::Context {
     if (r->gravity()) def.gravity = protocol::toPhys(*r->gravity());
     if (r->time_step() > 0) def.timeStep = r->time_step();
     def.sleep.enabled = r->sleep();
+    if (core.config_.cluster &&
+        core.nextWorldId_ >= protocol::worldIdsEndOf(core.config_.serverId)) {
+      st = err(Code::ResourceExhausted,
+               "create_world: this daemon has used every world id of its range (server.id " +
+                   std::to_string(core.config_.serverId) + ")");
+      return Answer::Now;
+    }
     auto w = core.makeWorld(name, preset, def);
     w->id = core.nextWorldId_++;
     w->ephemeral = r->ephemeral();
@@ -331,12 +338,14 @@ struct ServerCore::Context {
     header.world = w->id;
     ServerWorld& made = *w;
     core.worlds_[w->id] = std::move(w);
+    core.worldIdsChanged();
     if (core.durable() && !made.ephemeral && !core.replaying_) {
       // Its directory and first checkpoint before the reply names it.
       st = core.createStore(made);
       if (!st.ok()) {
         st.message = "create_world: " + st.message;
         core.worlds_.erase(made.id);
+        core.worldIdsChanged();
         header.world = 0;
       }
     }
@@ -354,6 +363,7 @@ struct ServerCore::Context {
       if (!st.ok()) return Answer::Now;
     }
     core.worlds_.erase(sw->id);
+    core.worldIdsChanged();
     sw = nullptr;
     core.out_.pushReliable(std::move(m));
     return Answer::Now;

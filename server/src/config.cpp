@@ -8,6 +8,8 @@
 #include <set>
 #include <sstream>
 
+#include "phys/protocol/cluster.h"
+
 namespace phys::server {
 
 namespace {
@@ -121,7 +123,8 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     return Status::Error(Code::InvalidArgument, os.str());
   }
   DaemonConfig c;
-  Status s = checkKeys(root, {"server", "dds", "security", "paths", "limits", "worlds"}, "physd config");
+  Status s = checkKeys(root, {"server", "dds", "cluster", "security", "paths", "limits", "worlds"},
+                 "physd config");
   if (!s.ok()) return s;
   if (auto* t = root["server"].as_table()) {
     s = checkKeys(*t,
@@ -218,6 +221,11 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     if (c.core.maxConcurrentLoads == 0)
       return Status::Error(Code::InvalidArgument, "server.max_concurrent_loads must be >= 1");
   }
+  if (auto* t = root["cluster"].as_table()) {
+    s = checkKeys(*t, {"enabled"}, "cluster");
+    if (!s.ok()) return s;
+    PHYS_GET(*t, "enabled", "cluster", &c.core.cluster);
+  }
   if (auto* t = root["dds"].as_table()) {
     s = checkKeys(*t, {"domain", "config"}, "dds");
     if (!s.ok()) return s;
@@ -292,8 +300,14 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
   }
   if (c.core.serverId == 0)
     return Status::Error(Code::InvalidArgument, "server.id must be non-zero");
+  if (c.core.cluster && c.core.serverId > protocol::kMaxClusterDaemonId)
+    return Status::Error(Code::InvalidArgument,
+                         "server.id must be 1.." + std::to_string(protocol::kMaxClusterDaemonId) +
+                             " with [cluster] enabled (world ids carry it), got " +
+                             std::to_string(c.core.serverId));
   if (c.statusPeriodS <= 0)
     return Status::Error(Code::InvalidArgument, "server.status_period_s must be > 0");
+  c.core.statusPeriodS = c.statusPeriodS;
   if (c.trimPeriodS < 0 || c.trimPeriodS > 86400)
     return Status::Error(Code::InvalidArgument,
                          "server.trim_period_s must be 0 (never) or 1..86400 s");

@@ -21,7 +21,31 @@ using protocol::ReplyHeader;
 ServerCore::ServerCore(CoreConfig config)
     : config_(std::move(config)),
       started_(std::chrono::steady_clock::now()),
-      out_(config_.frameRingCapacity) {}
+      out_(config_.frameRingCapacity) {
+  if (config_.cluster) nextWorldId_ = protocol::firstWorldIdOf(config_.serverId);
+}
+
+bool ServerCore::takes(const protocol::CommandAddress& a) const {
+  if (a.daemon != 0) return a.daemon == config_.serverId;
+  if (!config_.cluster) return true;
+  if (a.world == 0) return a.hello;
+  if (protocol::daemonOfWorld(a.world) == config_.serverId) return true;
+  std::lock_guard<std::mutex> lk(worldIdsMutex_);
+  return worldIdsHeld_.count(a.world) > 0;
+}
+
+void ServerCore::reserveWorldId(uint32_t id) {
+  if (config_.cluster && protocol::daemonOfWorld(id) != config_.serverId) return;
+  nextWorldId_ = std::max(nextWorldId_, id + 1);
+}
+
+void ServerCore::worldIdsChanged() {
+  std::set<uint32_t> now;
+  for (const auto& [id, w] : worlds_) now.insert(id);
+  for (const auto& [id, d] : damaged_) now.insert(id);
+  std::lock_guard<std::mutex> lk(worldIdsMutex_);
+  worldIdsHeld_.swap(now);
+}
 
 ServerCore::~ServerCore() {
   if (dataLock_ >= 0) ::close(dataLock_);
@@ -148,6 +172,7 @@ Status ServerCore::createWorld(const std::string& name, const std::string& prese
     if (!s.ok()) {
       if (worlds_.at(wid)->store) worlds_.at(wid)->store->remove();
       worlds_.erase(wid);
+      worldIdsChanged();
       counters_.commands = saved.commands;
       counters_.errors = saved.errors;
       return s;
@@ -1094,6 +1119,7 @@ void ServerCore::publishWorldInfo() {
     h.tick = w.tick;
     h.gravity = w.world->def().gravity;
     h.timeStep = w.world->def().timeStep;
+    h.daemon = config_.serverId;
     ReliableMessage m;
     m.type = ReliableMessage::Type::WorldInfo;
     m.world = w.id;
@@ -1134,6 +1160,7 @@ std::vector<protocol::WorldSummary> ServerCore::summaries() const {
     s.stepBufferBytes = w->world->stepBufferBytes();
     auto it = subscribers_.find(streamKey(id, 0));
     s.subscribers = it == subscribers_.end() ? 0 : it->second.now;
+    s.daemon = config_.serverId;
     out.push_back(std::move(s));
   }
   // Worlds kept on disk but not restored: listed so that clients see why (not only absent).
@@ -1142,6 +1169,7 @@ std::vector<protocol::WorldSummary> ServerCore::summaries() const {
     s.world = id;
     s.name = d.name;
     s.damage = d.damage;
+    s.daemon = config_.serverId;
     out.push_back(std::move(s));
   }
   std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.world < b.world; });
@@ -1162,6 +1190,9 @@ protocol::ServerStatusInfo ServerCore::status() const {
   const struct mallinfo2 mi = mallinfo2();
   s.heapBytes = mi.uordblks + mi.hblkhd;
   s.readOnly = readOnly_;
+  s.daemon = config_.serverId;
+  s.cluster = config_.cluster;
+  s.statusPeriodS = float(config_.statusPeriodS);
   return s;
 }
 

@@ -478,7 +478,8 @@ void ServerCore::retryWritable() {
 
 void ServerCore::addDamaged(uint32_t id, const std::string& name, const std::string& damage) {
   damaged_[id] = DamagedWorld{id, name, damage};
-  nextWorldId_ = std::max(nextWorldId_, id + 1);
+  reserveWorldId(id);
+  worldIdsChanged();
   queueEvent(id, 0, wire::Severity::Error, "world_damaged",
              "world " + std::to_string(id) + (name.empty() ? "" : " '" + name + "'") +
                  " is not restored: " + damage +
@@ -506,7 +507,7 @@ Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
   {
     std::ifstream f(config_.dataDir + "/next_world_id");
     uint32_t next = 0;
-    if (f >> next && next > nextWorldId_) nextWorldId_ = next;
+    if (f >> next && next > 0) reserveWorldId(next - 1);
   }
   {
     // Interests are not kept across a restart, and their ids name topics
@@ -580,13 +581,14 @@ Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
     const auto t0 = std::chrono::steady_clock::now();
     if (s.ok()) {
       worlds_[id] = std::move(w);
-      nextWorldId_ = std::max(nextWorldId_, id + 1);
+      reserveWorldId(id);
       s = restoreInto(*sw, c, records, notes);
       if (!s.ok()) {
         s.message = dir + "/checkpoint: " + s.message;
         sw->store.reset();
         worlds_.erase(id);
       }
+      worldIdsChanged();
     }
     if (!s.ok()) {
       // Its checkpoint cannot be used (none, unreadable, another world's): nothing to
@@ -602,7 +604,7 @@ Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
       if (accept && moved.ok()) {
         notes->push_back("world " + std::to_string(id) + " dropped: " + s.message +
                          "; the loss is accepted: its files are kept in " + where);
-        nextWorldId_ = std::max(nextWorldId_, id + 1);
+        reserveWorldId(id);
         continue;
       }
       notes->push_back("world " + std::to_string(id) + " not restored: " + s.message +

@@ -9,6 +9,7 @@
 
 #include "phys/protocol/dds_envelope.h"
 #include "phys/protocol/client_key.h"
+#include "phys/protocol/cluster.h"
 #include "phys/protocol/decoder.h"
 #include "phys/protocol/security.h"
 
@@ -108,6 +109,12 @@ void DdsEndpoint::readLoop() {
       counters_.commandsTaken.fetch_add(1);
       const auto now = ClientKeys::Clock::now();
       if ((++taken & 1023) == 0) sweepIfDue(now);  // a take that does not end sweeps too
+      // Another daemon's command (a domain of daemons): its owner answers it. Read in O(1);
+      // one whose address does not even verify is answered here (refused by the codec).
+      if (auto a = protocol::peekAddress(protocol::envelopeBytes(env)); a && !core_->takes(*a)) {
+        counters_.forOthers.fetch_add(1);
+        return;
+      }
       // A Hello may carry a proof of its key, which decides who holds the key: read before
       // the claim (a Hello is small; larger payloads are not looked at here).
       std::optional<protocol::Decoded<wire::Command>> early;

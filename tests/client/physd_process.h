@@ -78,14 +78,14 @@ inline bool awaitReconnects(const Client& c, uint64_t n,
   return c.reconnects() >= n;
 }
 
-/// A physd configuration in `dir`: physd.toml (server name, domain, start-up worlds as TOML
-/// text) and cyclone.xml.
+/// A physd configuration in `dir`: physd.toml (server name, domain, more [server] keys and
+/// text after [paths], e.g. start-up worlds, as TOML) and cyclone.xml.
 struct PhysdConfig {
   std::string toml, xml;
   uint32_t domain = 0;
 
   PhysdConfig(const std::filesystem::path& dir, const std::string& name, uint32_t domainId,
-              const std::string& worldsToml) {
+              const std::string& worldsToml, const std::string& serverToml = "") {
     const std::string src = PHYS_SOURCE_DIR;
     domain = domainId;
     xml = (dir / "cyclone.xml").string();
@@ -96,7 +96,7 @@ struct PhysdConfig {
     toml = (dir / "physd.toml").string();
     std::ofstream f(toml);
     f << "[server]\nname = \"" << name << "\"\nlog_level = \"warn\"\nstatus_period_s = 0.2\n"
-      << "[dds]\ndomain = " << domain << "\nconfig = \"" << xml << "\"\n[paths]\npresets = \""
+      << serverToml << "[dds]\ndomain = " << domain << "\nconfig = \"" << xml << "\"\n[paths]\npresets = \""
       << src << "/configs/presets.json\"\nscenes = \"" << src << "/configs/scenes\"\n"
       << worldsToml;
   }

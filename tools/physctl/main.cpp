@@ -163,6 +163,7 @@ const char* stateOf(const pc::WorldSummary& w) {
 Json worldJson(const pc::WorldSummary& w) {
   Json j;
   j["id"] = w.world;
+  j["daemon"] = w.daemon;
   j["name"] = w.name;
   j["preset"] = w.preset;
   j["state"] = stateOf(w);
@@ -204,20 +205,29 @@ void printJson(const Json& j) {
 
 /// The worlds, one a line; a world's backend (and device) after its numbers, and below it
 /// why the CPU runs a world that asked for the GPU.
-void printWorlds(const std::vector<pc::WorldSummary>& worlds) {
-  std::printf("%6s  %-20s %-12s %8s %8s %7s %8s %7s %10s %10s %8s %6s %8s %10s  %s\n", "id",
-              "name", "preset", "awake", "bodies", "joints", "contacts", "buf MB", "tick", "time s",
-              "state", "rate", "overruns", "frames", "backend");
+/// cluster: the worlds of a domain of daemons, with a daemon column (and room for their ids);
+/// a lone daemon's table is as it always was (scripts read it).
+void printWorlds(const std::vector<pc::WorldSummary>& worlds, bool cluster) {
+  const int idWidth = cluster ? 10 : 6;
+  if (cluster) std::printf("%6s ", "daemon");
+  std::printf("%*s  %-20s %-12s %8s %8s %7s %8s %7s %10s %10s %8s %6s %8s %10s  %s\n", idWidth,
+              "id", "name", "preset", "awake", "bodies", "joints", "contacts", "buf MB", "tick",
+              "time s", "state", "rate", "overruns", "frames", "backend");
+  const int noteIndent = idWidth + (cluster ? 7 : 0);
   for (const auto& w : worlds) {
     std::string backend = w.backend.empty() ? "cpu" : w.backend;  // servers before backends
     if (!w.device.empty()) backend += " (" + w.device + ")";
-    std::printf("%6u  %-20s %-12s %8u %8u %7u %8u %7.1f %10llu %10.2f %8s %6.0f %8llu %10llu  %s\n",
-                w.world, w.name.c_str(), w.preset.c_str(), w.awakeBodies, w.bodies, w.joints,
+    if (cluster) std::printf("%6llu ", (unsigned long long)w.daemon);
+    std::printf("%*u  %-20s %-12s %8u %8u %7u %8u %7.1f %10llu %10.2f %8s %6.0f %8llu %10llu  %s\n",
+                idWidth, w.world, w.name.c_str(), w.preset.c_str(), w.awakeBodies, w.bodies,
+                w.joints,
                 w.contacts, double(w.stepBufferBytes) / 1e6, (unsigned long long)w.tick,
                 w.time, stateOf(w), double(w.rateHz),
                 (unsigned long long)w.overruns, (unsigned long long)w.frames, backend.c_str());
-    if (!w.backendNote.empty()) std::printf("%6s  note: %s\n", "", w.backendNote.c_str());
-    if (!w.damage.empty()) std::printf("%6s  not restored: %s\n", "", w.damage.c_str());
+    if (!w.backendNote.empty())
+      std::printf("%*s  note: %s\n", noteIndent, "", w.backendNote.c_str());
+    if (!w.damage.empty())
+      std::printf("%*s  not restored: %s\n", noteIndent, "", w.damage.c_str());
   }
 }
 
@@ -596,8 +606,13 @@ int main(int argc, char** argv) {
   uint32_t steps = 1;
   float rate = 60;
 
-  auto* list = app.add_subcommand("list", "list the worlds");
+  uint64_t daemon = 0;
+  auto* list = app.add_subcommand("list", "list the worlds (of every daemon of the domain)");
   list->add_flag("--json", json, "a JSON array of the worlds (every field, for scripts)");
+  list->add_option("--daemon", daemon, "only this daemon's worlds (its server.id)");
+  auto* daemonsCmd = app.add_subcommand(
+      "daemons", "list the daemons of the domain (their phys/status): id, name, worlds, load");
+  daemonsCmd->add_flag("--json", json, "a JSON array of the daemons");
   auto* whoami = app.add_subcommand(
       "whoami", "print this physctl's client id (its key file's): what --editors names");
   whoami->add_flag("--json", json, "the id and the key file as a JSON object");
@@ -606,6 +621,9 @@ int main(int argc, char** argv) {
   auto* create = app.add_subcommand("create", "create a world (paused), owned by this physctl");
   create->add_option("NAME", name, "world name")->required();
   create->add_option("--preset", preset, "solver preset");
+  create->add_option("--daemon", daemon,
+                     "the daemon (server.id) to create it on; default: in a domain of daemons "
+                     "the one with the fewest awake bodies");
   create->add_option("--backend", backend, "cpu, gpu or auto (default: the server's)")
       ->check(CLI::IsMember({"cpu", "gpu", "auto"}));
   auto* createShared =
@@ -778,10 +796,33 @@ int main(int argc, char** argv) {
       return subscribe(client, world, subWarmup, subSeconds, latencyLog, interest, json);
     }
     if (*list) {
-      if (json)
-        printJson(worldsJson(client.listWorlds().get()));
-      else
-        printWorlds(client.listWorlds().get());
+      pc::CallOptions lo;
+      lo.daemon = daemon;
+      if (json) {
+        printJson(worldsJson(client.listWorlds(lo).get()));
+      } else {
+        const std::vector<pc::DaemonInfo> ds = client.daemons();
+        printWorlds(client.listWorlds(lo).get(),
+                    std::any_of(ds.begin(), ds.end(),
+                                [](const pc::DaemonInfo& d) { return d.cluster; }));
+      }
+    } else if (*daemonsCmd) {
+      const std::vector<pc::DaemonInfo> ds = client.daemons();
+      if (json) {
+        Json a = Json::array();
+        for (const pc::DaemonInfo& d : ds)
+          a.push_back({{"id", d.id}, {"name", d.name}, {"cluster", d.cluster},
+                       {"worlds", d.worlds}, {"awake_bodies", d.awakeBodies},
+                       {"since_sample_s", d.sinceSampleS}});
+        printJson(a);
+      } else {
+        std::printf("%6s  %-20s %-8s %7s %12s %10s\n", "id", "name", "cluster", "worlds",
+                    "awake bodies", "sample s");
+        for (const pc::DaemonInfo& d : ds)
+          std::printf("%6llu  %-20s %-8s %7u %12llu %10.1f\n", (unsigned long long)d.id,
+                      d.name.c_str(), d.cluster ? "yes" : "no", d.worlds,
+                      (unsigned long long)d.awakeBodies, d.sinceSampleS);
+      }
     } else if (*ping) {
       // A benchmark, not a check: wall time from sending a request to its reply, through the
       // SDK, the envelope, DDS and the server's tick boundary (ListWorlds changes nothing).
@@ -812,7 +853,9 @@ int main(int argc, char** argv) {
       pc::CreateWorldArgs args{name, preset, std::nullopt, 0, backend};
       args.editors = editorIds;
       args.shared = shared;
-      pc::WorldHandle w = client.createWorld(args).get();
+      pc::CallOptions co;
+      co.daemon = daemon;
+      pc::WorldHandle w = client.createWorld(args, co).get();
       std::string who = options.security.enabled() ? "identity " + identity
                                                    : "client " + hexId(client.clientId());
       if (shared)

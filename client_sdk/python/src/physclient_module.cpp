@@ -1574,7 +1574,8 @@ void defineClientAsync(py::module_& m) {
           "create_world_async",
           [](PyClient& c, const std::string& name, const std::string& preset,
              std::optional<phys::Vec3> gravity, float timeStep, const std::string& backend,
-             bool sleep, bool ephemeral, const py::object& editors, bool shared, OptS t) {
+             bool sleep, bool ephemeral, const py::object& editors, bool shared, uint64_t daemon,
+             OptS t) {
             pc::CreateWorldArgs a;
             a.name = name;
             a.preset = preset;
@@ -1585,7 +1586,8 @@ void defineClientAsync(py::module_& m) {
             a.ephemeral = ephemeral;
             a.editors = idList(editors);
             a.shared = shared;
-            const pc::CallOptions o = callOptions(t);
+            pc::CallOptions o = callOptions(t);
+            o.daemon = daemon;
             BoxPtr box = c.box();
             return submitAsync(
                 box, [&](pc::Client& cl) { return cl.createWorld(a, o); },
@@ -1596,14 +1598,16 @@ void defineClientAsync(py::module_& m) {
           py::arg("name"), py::arg("preset") = "", py::kw_only(), py::arg("gravity") = py::none(),
           py::arg("time_step") = 0.0f, py::arg("backend") = "", py::arg("sleep") = true,
           py::arg("ephemeral") = false, py::arg("editors") = py::list(), py::arg("shared") = false,
-          T, "create_world() without blocking: an asyncio.Future of the World.")
+          py::arg("daemon") = 0, T,
+          "create_world() without blocking: an asyncio.Future of the World.")
       .def(
           "list_worlds_async",
-          [](PyClient& c, OptS t) {
-            const pc::CallOptions o = callOptions(t);
+          [](PyClient& c, uint64_t daemon, OptS t) {
+            pc::CallOptions o = callOptions(t);
+            o.daemon = daemon;
             return submitAsync(c.box(), [&](pc::Client& cl) { return cl.listWorlds(o); });
           },
-          py::kw_only(), T)
+          py::kw_only(), py::arg("daemon") = 0, T)
       .def(
           "world_named_async",
           [](PyClient& c, const std::string& name, OptS t) {
@@ -2012,6 +2016,7 @@ void defineResults(py::module_& m) {
 void defineWorldResults(py::module_& m) {
   py::class_<pc::WorldSummary>(m, "WorldSummary", "A world as list_worlds() reports it.")
       .def_readonly("world", &pc::WorldSummary::world)
+      .def_readonly("daemon", &pc::WorldSummary::daemon)
       .def_readonly("name", &pc::WorldSummary::name)
       .def_readonly("preset", &pc::WorldSummary::preset)
       .def_readonly("bodies", &pc::WorldSummary::bodies)
@@ -2114,7 +2119,22 @@ void defineWorldResults(py::module_& m) {
       .def_readonly("worlds", &pc::ServerStatus::worlds)
       .def_readonly("frames_dropped", &pc::ServerStatus::framesDropped)
       .def_readonly("heap_bytes", &pc::ServerStatus::heapBytes)
-      .def_readonly("read_only", &pc::ServerStatus::readOnly);
+      .def_readonly("read_only", &pc::ServerStatus::readOnly)
+      .def_readonly("daemon", &pc::ServerStatus::daemon)
+      .def_readonly("cluster", &pc::ServerStatus::cluster)
+      .def_readonly("status_period_s", &pc::ServerStatus::statusPeriodS);
+
+  py::class_<pc::DaemonInfo>(m, "DaemonInfo", "A daemon of the domain (Client.daemons()).")
+      .def_readonly("id", &pc::DaemonInfo::id)
+      .def_readonly("name", &pc::DaemonInfo::name)
+      .def_readonly("cluster", &pc::DaemonInfo::cluster)
+      .def_readonly("worlds", &pc::DaemonInfo::worlds)
+      .def_readonly("awake_bodies", &pc::DaemonInfo::awakeBodies)
+      .def_readonly("since_sample_s", &pc::DaemonInfo::sinceSampleS)
+      .def("__repr__", [](const pc::DaemonInfo& d) {
+        return "DaemonInfo(id=" + std::to_string(d.id) + ", name='" + d.name +
+               "', worlds=" + std::to_string(d.worlds) + ")";
+      });
 
   py::class_<pc::Event>(m, "Event", "A notice from the daemon (phys/events).")
       .def_readonly("world", &pc::Event::world)
@@ -2518,7 +2538,8 @@ void defineClient(py::module_& m) {
           "create_world",
           [](PyClient& c, const std::string& name, const std::string& preset,
              std::optional<phys::Vec3> gravity, float timeStep, const std::string& backend,
-             bool sleep, bool ephemeral, const py::object& editors, bool shared, OptS t) {
+             bool sleep, bool ephemeral, const py::object& editors, bool shared, uint64_t daemon,
+             OptS t) {
             pc::CreateWorldArgs a;
             a.name = name;
             a.preset = preset;
@@ -2529,22 +2550,39 @@ void defineClient(py::module_& m) {
             a.ephemeral = ephemeral;
             a.editors = idList(editors);
             a.shared = shared;
-            pc::WorldHandle h = request(
-                c.box(), [&](pc::Client& cl) { return cl.createWorld(a, callOptions(t)); });
+            pc::CallOptions o = callOptions(t);
+            o.daemon = daemon;
+            pc::WorldHandle h =
+                request(c.box(), [&](pc::Client& cl) { return cl.createWorld(a, o); });
             return PyWorld(c.box(), h.id()).markCreated();
           },
           py::arg("name"), py::arg("preset") = "", py::kw_only(), py::arg("gravity") = py::none(),
           py::arg("time_step") = 0.0f, py::arg("backend") = "", py::arg("sleep") = true,
           py::arg("ephemeral") = false, py::arg("editors") = py::list(), py::arg("shared") = false,
-          T,
+          py::arg("daemon") = 0, T,
           "A new world -> World. gravity None: (0, 0, -9.81); time_step 0: 1/60 s; backend\n"
-          "'cpu', 'gpu', 'auto' or '' (the server's default).")
+          "'cpu', 'gpu', 'auto' or '' (the server's default); daemon: the daemon (server.id)\n"
+          "to make it on, 0: in a domain of daemons the one with the fewest awake bodies.")
       .def(
           "list_worlds",
-          [](PyClient& c, OptS t) {
-            return request(c.box(), [&](pc::Client& cl) { return cl.listWorlds(callOptions(t)); });
+          [](PyClient& c, uint64_t daemon, OptS t) {
+            pc::CallOptions o = callOptions(t);
+            o.daemon = daemon;
+            return request(c.box(), [&](pc::Client& cl) { return cl.listWorlds(o); });
           },
-          py::kw_only(), T, "Every world of the server -> list of WorldSummary.")
+          py::kw_only(), py::arg("daemon") = 0, T,
+          "Every world of the domain's daemons (daemon: only that one's) -> list of "
+          "WorldSummary.")
+      .def(
+          "daemons",
+          [](PyClient& c) { return quick(c.box(), [](pc::Client& cl) { return cl.daemons(); }); },
+          "The daemons of the domain whose status is fresh -> list of DaemonInfo.")
+      .def(
+          "duplicate_replies",
+          [](PyClient& c) {
+            return quick(c.box(), [](pc::Client& cl) { return cl.duplicateReplies(); });
+          },
+          "Replies to requests already answered (a command two daemons took; 0 expected).")
       .def(
           "world", [](PyClient& c, uint32_t id) { return PyWorld(c.box(), id); }, py::arg("id"),
           "A World for an existing world's id (no request).")

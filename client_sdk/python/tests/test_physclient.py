@@ -10,6 +10,8 @@ and must exit cleanly.
     Bindings       the API end to end: physics (free fall, a resting box, forces, joints),
                    run / pause, subscriptions, snapshots, typed errors
     ExampleScript  examples/drop_boxes.py against the same kind of daemon
+    Cluster        three daemons of a domain ([cluster]): worlds placed, reached, listed,
+                   each command answered once
 
 Environment (ctest sets it: client_sdk/python/CMakeLists.txt): PYTHONPATH with the built
 module, PHYSD_BINARY, PHYS_SOURCE_DIR.
@@ -43,7 +45,7 @@ DT = 1.0 / 60
 class Daemon:
     """physd with a config of its own, stopped with SIGTERM."""
 
-    def __init__(self, name, domain=None):
+    def __init__(self, name, domain=None, server_toml="", extra_toml=""):
         self.dir = tempfile.mkdtemp(prefix="physclient_py_")
         self.domain = domain if domain is not None else 150 + os.getpid() % 80
         with open(os.path.join(SOURCE_DIR, "configs", "cyclonedds", "loopback.xml")) as f:
@@ -62,6 +64,7 @@ class Daemon:
                 name = "{name}"
                 log_level = "warn"
                 status_period_s = 0.2
+                {server_toml}
                 [dds]
                 domain = {self.domain}
                 config = "{self.xml}"
@@ -70,6 +73,7 @@ class Daemon:
                 scenes = "{SOURCE_DIR}/configs/scenes"
                 snapshots = "{self.dir}/snapshots"
                 data = "{self.dir}/data"
+                {extra_toml}
                 """))
         if not os.access(PHYSD, os.X_OK):
             raise RuntimeError(f"no physd binary at {PHYSD} (set PHYSD_BINARY)")
@@ -1115,6 +1119,50 @@ class DurableDefinitions(unittest.TestCase):
             if c is not None:
                 c.close()
             d.stop()
+
+
+class Cluster(unittest.TestCase):
+    """Three daemons of one domain (docs/SERVER.md "Several daemons"), one Python client."""
+
+    @classmethod
+    def setUpClass(cls):
+        domain = 140 + (os.getpid() + 5) % 10
+        cls.daemons = [Daemon(f"physd-cluster-{i}", domain=domain, server_toml=f"id = {i}",
+                              extra_toml="[cluster]\nenabled = true")
+                       for i in (1, 2, 3)]
+        cls.client = cls.daemons[0].client(name="physclient-python-cluster")
+        cls.client.connect()
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.client.close()
+        for d in cls.daemons:
+            if d.stop() != 0:
+                raise AssertionError("a cluster daemon did not exit cleanly on SIGTERM")
+
+    def test_worlds_are_placed_reached_and_answered_once(self):
+        c = self.client
+        self.assertTrue(wait_until(lambda: len(c.daemons()) == 3, timeout=20))
+        self.assertTrue(all(d.cluster for d in c.daemons()))
+        worlds = [c.create_world(f"py{i}") for i in range(30)]
+        owners = [w.id >> 20 for w in worlds]
+        self.assertEqual(sorted(owners.count(d) for d in (1, 2, 3)), [10, 10, 10])
+        for w in worlds:
+            (body,) = w.spawn([box(5.0)])
+            self.assertEqual(w.step(30).tick, 30)
+            self.assertLess(w.query_state([body]).bodies[0].position[2], 4.0)
+        listed = c.list_worlds()
+        self.assertEqual(len(listed), 30)
+        for s in listed:
+            self.assertEqual(s.daemon, s.world >> 20)
+            self.assertEqual(s.bodies, 1)
+        self.assertEqual(len(c.list_worlds(daemon=3)), 10)
+        named = c.create_world("on-two", daemon=2)
+        self.assertEqual(named.id >> 20, 2)
+        with self.assertRaises(pc.NotFound):
+            c.world((9 << 20) | 1).step(1)
+        time.sleep(0.3)
+        self.assertEqual(c.duplicate_replies(), 0)
 
 
 class ExampleScript(unittest.TestCase):

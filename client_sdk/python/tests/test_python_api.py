@@ -419,7 +419,7 @@ class Asyncio(WithClient):
         no_twin = {"World": {"id", "subscribe", "created"},
                    "Client": {"close", "closed", "connected", "reconnects", "client_id", "domain",
                               "server", "world", "latest_status", "recent_events", "on_event",
-                              "subscribe"}}
+                              "subscribe", "daemons", "duplicate_replies"}}
         for cls in (pc.World, pc.Client):
             for name in dir(cls):
                 if name.startswith("_") or name.endswith("_async") or name in no_twin[

@@ -12,6 +12,10 @@
 // server's code and message, or Timeout / Disconnected. Every DDS call stays inside the SDK.
 // When the daemon restarts, pending requests fail with Disconnected and the client says
 // Hello again by itself (worlds of the old daemon are gone: their ids may be reused).
+//
+// Several daemons on one domain (docs/CLIENT.md "Several daemons"): a world's commands reach
+// its owner whichever daemon that is; createWorld picks a daemon (CallOptions::daemon, or the
+// one with the fewest awake bodies) and listWorlds gathers every daemon's worlds.
 #pragma once
 
 #include <chrono>
@@ -189,6 +193,19 @@ struct ServerStatus {
   /// Why the daemon refuses commands that change kept worlds (its data disk is full); empty
   /// when it does not.
   std::string readOnly;
+  uint64_t daemon = 0;     ///< the daemon's server.id
+  bool cluster = false;    ///< it is in a domain of daemons (docs/SERVER.md "Several daemons")
+  float statusPeriodS = 0; ///< s between its samples (0: an older daemon that did not say)
+};
+
+/// A daemon of the domain as this client sees it (its phys/status samples).
+struct DaemonInfo {
+  uint64_t id = 0;  ///< server.id
+  std::string name;
+  bool cluster = false;
+  uint32_t worlds = 0;        ///< worlds it holds (its last sample, and those made since)
+  uint64_t awakeBodies = 0;   ///< over its worlds, in its last sample
+  double sinceSampleS = 0;    ///< s since its last sample arrived
 };
 
 /// A notice from the daemon (phys/events), e.g. the engine's guard rails redoing a step.
@@ -204,6 +221,9 @@ struct Event {
 /// Per-request options.
 struct CallOptions {
   std::chrono::milliseconds timeout{0};  ///< 0: ClientOptions::requestTimeout
+  /// The daemon (server.id) to send it to (Command.daemon); 0: the SDK's choice: a world's
+  /// owner, for createWorld the daemon with the fewest awake bodies, for listWorlds every one.
+  uint64_t daemon = 0;
 };
 
 class Client;
@@ -368,6 +388,12 @@ class Client {
 
   /// The newest phys/status sample, if one arrived.
   std::optional<ServerStatus> latestStatus() const;
+  /// The daemons whose status arrived within the last 3 of their periods (at least 2 s),
+  /// by id.
+  std::vector<DaemonInfo> daemons() const;
+  /// Replies that answered a request already answered (a command taken by two daemons: none
+  /// should be; Hello, which every daemon answers, is not counted).
+  uint64_t duplicateReplies() const;
   /// fn runs on the SDK's thread for every event from now on (replaces an earlier fn; empty
   /// to stop). Events are volatile: those published before the client matched are not seen.
   void onEvent(std::function<void(const Event&)> fn);

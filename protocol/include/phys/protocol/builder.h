@@ -34,6 +34,8 @@ struct CommandHeader {
   uint64_t clientId = 0;  ///< non-zero, unique per client process
   uint64_t seq = 0;       ///< increasing per client; echoed in the reply
   uint32_t world = 0;     ///< target world; 0 for hello, createWorld, listWorlds
+  /// The daemon (server.id) to take it; 0: the world's owner (Command.daemon).
+  uint64_t daemon = 0;
 };
 
 struct CreateWorldArgs {
@@ -223,6 +225,7 @@ struct WorldSummary {
   /// A world kept on disk but not restored (its files damaged): why; empty for a world
   /// that runs.
   std::string damage;
+  uint64_t daemon = 0;  ///< the daemon (server.id) that owns the world
 };
 
 /// A reply without a result (errors; Pause, DestroyWorld, ...).
@@ -297,6 +300,7 @@ struct WorldInfoHeader {
   uint64_t tick = 0;
   phys::Vec3 gravity{0, 0, -9.81f};
   float timeStep = 1.0f / 60;
+  uint64_t daemon = 0;  ///< the owner (server.id)
 };
 /// The world split into chunks of at most limits.maxBodiesPerCommand bodies and about half of
 /// limits.maxMessageBytes each (bodies first, then joints); at least one chunk.
@@ -313,6 +317,9 @@ struct ServerStatusInfo {
   uint64_t framesDropped = 0;  ///< state frames dropped by the publisher's ring
   uint64_t heapBytes = 0;      ///< bytes in use in the daemon's heap (glibc mallinfo2)
   std::string readOnly;        ///< why edits of kept worlds are refused; empty: they are not
+  uint64_t daemon = 0;         ///< server.id
+  bool cluster = false;        ///< in a domain of daemons (ServerStatus.cluster)
+  float statusPeriodS = 0;     ///< s between samples
 };
 Bytes encodeServerStatus(const ServerStatusInfo& status);
 

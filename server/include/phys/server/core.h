@@ -18,6 +18,7 @@
 #include <unordered_map>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <optional>
 #include <span>
 #include <string>
@@ -27,6 +28,7 @@
 #include "phys/scene/presets.h"
 #include "phys/scene/scene.h"
 #include "phys/protocol/builder.h"
+#include "phys/protocol/cluster.h"
 #include "phys/protocol/decoder.h"
 #include "phys/protocol/limits.h"
 #include "phys/protocol/status.h"
@@ -42,7 +44,12 @@ using protocol::ReplyHeader;
 
 struct CoreConfig {
   std::string serverName = "physd";
-  uint64_t serverId = 1;    ///< phys/status key
+  uint64_t serverId = 1;    ///< phys/status key; Command.daemon addresses it
+  /// A domain of daemons (docs/SERVER.md "Several daemons"): world ids are
+  /// protocol::firstWorldIdOf(serverId) on, and the daemon takes only the commands addressed to
+  /// it or to a world it owns or whose id is of its range (takes()). serverId <= 4095.
+  bool cluster = false;
+  double statusPeriodS = 1.0;  ///< phys/status period (ServerStatus.status_period_s)
   std::string presetsFile;  ///< empty: phys::defaultPresetsPath()
   std::string scenesDir;    ///< LoadScene by name: <scenesDir>/<name>.json
   std::string snapshotDir;  ///< SaveSnapshot / RestoreSnapshot files; empty: refused
@@ -350,6 +357,12 @@ class ServerCore {
   Status init();
 
   const CoreConfig& config() const { return config_; }
+  /// Whether this daemon is the one to take a command with this address (any thread; docs/
+  /// SERVER.md "Several daemons"): one addressed to it (Command.daemon); an unaddressed one
+  /// for a world it holds or whose id is of its range (it answers "no such world" for the
+  /// others of its range); an unaddressed one without a world when it is not in a cluster,
+  /// and an unaddressed Hello always. The others are dropped unanswered: one daemon answers.
+  bool takes(const protocol::CommandAddress& a) const;
   PublishQueue& out() { return out_; }
 
   // --- Start-up (tick thread or before it runs) ---
@@ -615,6 +628,13 @@ class ServerCore {
   std::string defaultPreset_;
   std::map<uint32_t, std::unique_ptr<ServerWorld>> worlds_;
   uint32_t nextWorldId_ = 1;
+  /// The next world id is past `id` (of this daemon's range, in a cluster).
+  void reserveWorldId(uint32_t id);
+  /// The ids of worlds_ and damaged_ for takes() on other threads, refreshed
+  /// (worldIdsChanged()) whenever either changes.
+  mutable std::mutex worldIdsMutex_;
+  std::set<uint32_t> worldIdsHeld_;
+  void worldIdsChanged();
   CoreCounters counters_;
   std::chrono::steady_clock::time_point started_;
   PublishQueue out_;

@@ -34,6 +34,9 @@ struct EndpointConfig {
 
 struct EndpointCounters {
   std::atomic<uint64_t> commandsTaken{0};
+  /// Commands for another daemon of the domain (ServerCore::takes): dropped unanswered, before
+  /// any budget counts them.
+  std::atomic<uint64_t> forOthers{0};
   std::atomic<uint64_t> undecodable{0};  ///< envelopes or payloads that failed the codec
   std::atomic<uint64_t> repliesWritten{0};
   std::atomic<uint64_t> framesWritten{0};  ///< state chunks

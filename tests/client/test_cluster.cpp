@@ -1,0 +1,153 @@
+// A domain of daemons (docs/SERVER.md "Several daemons"): three physd processes with
+// [cluster] enabled on one DDS domain and one SDK client. Worlds created without naming a
+// daemon are spread by the SDK's placement, every world's commands reach its owner and are
+// answered once, and a world nobody holds is an error, not a silence.
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <map>
+#include <memory>
+#include <thread>
+
+#include <nlohmann/json.hpp>
+
+#include "../common/bodies.h"
+#include "phys/protocol/cluster.h"
+#include "physd_process.h"
+
+namespace phys::client {
+namespace {
+
+using namespace std::chrono_literals;
+
+struct Cluster {
+  static constexpr int kDaemons = 3;
+  testing::ScratchDir dir{"physd_cluster"};
+  uint32_t domain = 140 + uint32_t(getpid() % 10);
+  std::vector<std::unique_ptr<testing::PhysdConfig>> configs;
+  std::vector<pid_t> pids;
+
+  Cluster() {
+    for (int i = 1; i <= kDaemons; ++i) {
+      const auto d = dir.path / ("d" + std::to_string(i));
+      std::filesystem::create_directories(d);
+      configs.push_back(std::make_unique<testing::PhysdConfig>(
+          d, "cluster-" + std::to_string(i), domain, "[cluster]\nenabled = true\n",
+          "id = " + std::to_string(i) + "\n"));
+      pids.push_back(testing::spawnProcess(PHYSD_BINARY, {"--config", configs.back()->toml}));
+    }
+  }
+  ~Cluster() {
+    for (pid_t& p : pids)
+      if (p > 0) testing::stopProcess(p, SIGKILL);
+  }
+};
+
+/// Waits until the client sees n daemons (their status).
+bool awaitDaemons(const Client& c, size_t n) {
+  const auto end = std::chrono::steady_clock::now() + 20s * int64_t(phys::test::kTimeFactor);
+  while (c.daemons().size() < n && std::chrono::steady_clock::now() < end)
+    std::this_thread::sleep_for(20ms);
+  return c.daemons().size() >= n;
+}
+
+TEST(Cluster, WorldsAreSpreadReachedByTheirOwnerAndAnsweredOnce) {
+  Cluster cl;
+  for (pid_t p : cl.pids) ASSERT_GT(p, 0);
+  Client c(cl.configs[0]->clientOptions(20s));
+  c.connect();
+  ASSERT_TRUE(awaitDaemons(c, Cluster::kDaemons));
+  for (const DaemonInfo& d : c.daemons()) EXPECT_TRUE(d.cluster) << d.name;
+
+  // 30 worlds, no daemon named: the fewest awake bodies (all 0 here), then the fewest worlds.
+  std::vector<WorldHandle> worlds;
+  std::map<uint64_t, int> perDaemon;
+  for (int i = 0; i < 30; ++i) {
+    worlds.push_back(c.createWorld({"w" + std::to_string(i), "", std::nullopt, 0}).get());
+    const uint64_t owner = protocol::daemonOfWorld(worlds.back().id());
+    EXPECT_TRUE(owner >= 1 && owner <= 3) << worlds.back().id();
+    ++perDaemon[owner];
+  }
+  for (uint64_t d = 1; d <= 3; ++d) EXPECT_EQ(perDaemon[d], 10) << "daemon " << d;
+
+  // Each world reached through the SDK: a ball dropped in it falls.
+  const phys::BodyDef ball = phys::test::sphereBody({0, 0, 5}, 0.5f);
+  for (WorldHandle& w : worlds) {
+    const uint64_t id = w.spawn(ball).get().at(0);
+    EXPECT_EQ(w.step(30).get().tick, 30u);
+    const StateFrame s = w.queryState(std::span<const uint64_t>(&id, 1)).get();
+    ASSERT_EQ(s.bodies.size(), 1u);
+    EXPECT_LT(s.bodies[0].position.z, 4.0f) << "world " << w.id();
+  }
+
+  // ListWorlds gathers every daemon's worlds, each named with its owner.
+  const std::vector<WorldSummary> listed = c.listWorlds().get();
+  ASSERT_EQ(listed.size(), 30u);
+  for (const WorldSummary& s : listed) {
+    EXPECT_EQ(s.daemon, protocol::daemonOfWorld(s.world)) << s.name;
+    EXPECT_EQ(s.bodies, 1u) << s.name;
+  }
+  CallOptions only2;
+  only2.daemon = 2;
+  EXPECT_EQ(c.listWorlds(only2).get().size(), 10u);
+
+  // A world of a live daemon's range that does not exist: that daemon says so, once.
+  try {
+    c.world(protocol::firstWorldIdOf(2) + 500).step(1).get();
+    ADD_FAILURE() << "stepped a world that does not exist";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.code(), ErrorCode::NotFound) << e.what();
+  }
+  // A world of a range no daemon has: the SDK says so at once (nobody would answer).
+  try {
+    c.world(protocol::firstWorldIdOf(9)).step(1, {300ms}).get();
+    ADD_FAILURE() << "stepped a world of daemon 9's range";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.code(), ErrorCode::NotFound) << e.what();
+  }
+  // A world created on a named daemon.
+  CallOptions on3;
+  on3.daemon = 3;
+  EXPECT_EQ(protocol::daemonOfWorld(c.createWorld({"named", "", std::nullopt, 0}, on3).get().id()),
+            3u);
+
+  // Every request was taken by one daemon: no second answer arrived (Hello, which every
+  // daemon answers, aside). Replies come within a round trip; give a late one time to come.
+  std::this_thread::sleep_for(300ms);
+  EXPECT_EQ(c.duplicateReplies(), 0u);
+
+#ifdef PHYSCTL_BINARY
+  // physctl: the daemons, a world made on a named daemon, every world with its daemon.
+  const std::string physctl = "cd " + testing::shq(cl.dir.path.string()) + " && PHYSCTL_KEY=" +
+                              testing::shq((cl.dir.path / "physctl.key").string()) + " " +
+                              testing::shq(PHYSCTL_BINARY) + " --domain " +
+                              std::to_string(cl.domain) + " --config " +
+                              testing::shq(cl.configs[0]->xml) + " ";
+  testing::Shell daemons = testing::shell(physctl + "daemons --json");
+  ASSERT_EQ(daemons.code, 0) << daemons.output;
+  const nlohmann::json dj = nlohmann::json::parse(daemons.output);
+  ASSERT_EQ(dj.size(), 3u) << daemons.output;
+  EXPECT_EQ(dj[1]["id"], 2);
+  EXPECT_EQ(dj[1]["name"], "cluster-2");
+  testing::Shell made = testing::shell(physctl + "create cli --daemon 2");
+  ASSERT_EQ(made.code, 0) << made.output;
+  EXPECT_NE(made.output.find("created world " + std::to_string(protocol::firstWorldIdOf(2) + 10)),
+            std::string::npos)
+      << made.output;
+  testing::Shell listed2 = testing::shell(physctl + "list --json");
+  ASSERT_EQ(listed2.code, 0) << listed2.output;
+  const nlohmann::json lj = nlohmann::json::parse(listed2.output);
+  EXPECT_EQ(lj.size(), 32u);  // 30, "named" and "cli"
+  for (const auto& w : lj)
+    EXPECT_EQ(w["daemon"].get<uint64_t>(), protocol::daemonOfWorld(w["id"].get<uint32_t>()));
+#endif
+
+  for (pid_t& p : cl.pids) {
+    const int st = testing::stopProcess(p, SIGTERM);
+    p = 0;
+    EXPECT_TRUE(WIFEXITED(st) && WEXITSTATUS(st) == 0);
+  }
+}
+
+}  // namespace
+}  // namespace phys::client
