@@ -111,6 +111,29 @@ Status getEither(const toml::table& t, const char* key, const std::string& where
     if (!s_.ok()) return s_;                \
   } while (0)
 
+/// The checks across keys, once every key is read; fills what follows from them.
+Status checkDaemonConfig(DaemonConfig* config) {
+  DaemonConfig& c = *config;
+  if (c.core.serverId == 0)
+    return Status::Error(Code::InvalidArgument, "server.id must be non-zero");
+  if (c.core.cluster && c.core.serverId > protocol::kMaxClusterDaemonId)
+    return Status::Error(Code::InvalidArgument,
+                         "server.id must be 1.." + std::to_string(protocol::kMaxClusterDaemonId) +
+                             " with [cluster] enabled (world ids carry it), got " +
+                             std::to_string(c.core.serverId));
+  if (c.statusPeriodS <= 0)
+    return Status::Error(Code::InvalidArgument, "server.status_period_s must be > 0");
+  c.core.statusPeriodS = c.statusPeriodS;
+  if (c.trimPeriodS < 0 || c.trimPeriodS > 86400)
+    return Status::Error(Code::InvalidArgument,
+                         "server.trim_period_s must be 0 (never) or 1..86400 s");
+  if (c.realtimePriority < 0 || c.realtimePriority > 99)
+    return Status::Error(Code::InvalidArgument,
+                         "server.realtime_priority must be 0 (off) or 1..99, got " +
+                             std::to_string(c.realtimePriority));
+  return Status::Ok();
+}
+
 }  // namespace
 
 Status parseDaemonConfig(const std::string& text, const std::string& baseDir, DaemonConfig* out) {
@@ -298,23 +321,8 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
       c.worlds.push_back(std::move(w));
     }
   }
-  if (c.core.serverId == 0)
-    return Status::Error(Code::InvalidArgument, "server.id must be non-zero");
-  if (c.core.cluster && c.core.serverId > protocol::kMaxClusterDaemonId)
-    return Status::Error(Code::InvalidArgument,
-                         "server.id must be 1.." + std::to_string(protocol::kMaxClusterDaemonId) +
-                             " with [cluster] enabled (world ids carry it), got " +
-                             std::to_string(c.core.serverId));
-  if (c.statusPeriodS <= 0)
-    return Status::Error(Code::InvalidArgument, "server.status_period_s must be > 0");
-  c.core.statusPeriodS = c.statusPeriodS;
-  if (c.trimPeriodS < 0 || c.trimPeriodS > 86400)
-    return Status::Error(Code::InvalidArgument,
-                         "server.trim_period_s must be 0 (never) or 1..86400 s");
-  if (c.realtimePriority < 0 || c.realtimePriority > 99)
-    return Status::Error(Code::InvalidArgument,
-                         "server.realtime_priority must be 0 (off) or 1..99, got " +
-                             std::to_string(c.realtimePriority));
+  s = checkDaemonConfig(&c);
+  if (!s.ok()) return s;
   *out = std::move(c);
   return Status::Ok();
 }
