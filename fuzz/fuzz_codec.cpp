@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "phys/protocol/builder.h"
+#include "phys/protocol/cluster.h"
 #include "phys/protocol/compact.h"
 #include "phys/protocol/convert.h"
 #include "phys/protocol/dds_envelope.h"
@@ -280,6 +281,12 @@ void request(wire::Request type, const void* table, int depth) {
     case wire::Request::SaveSnapshot:
       sink(static_cast<const wire::SaveSnapshot*>(table)->file());
       break;
+    case wire::Request::MoveWorld: {
+      const uint64_t d = static_cast<const wire::MoveWorld*>(table)->daemon();
+      if (d == 0 || d > kMaxClusterDaemonId) die("a move_world to no daemon was accepted");
+      sink(double(d));
+      break;
+    }
     case wire::Request::RestoreSnapshot: {
       auto* r = static_cast<const wire::RestoreSnapshot*>(table);
       sink(r->file());

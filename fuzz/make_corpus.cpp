@@ -8,7 +8,7 @@
 //           RemoveBodies, AddJoints with every joint kind, RemoveJoints, SetBodyPose,
 //           SetBodyVelocity, ApplyForce / ApplyImpulse (every point frame) / ApplyTorque,
 //           SetMaterial, SetSolver, Step, Run, Pause, Subscribe (bodies, region), Unsubscribe,
-//           SetAccess (editors, shared),
+//           SetAccess (editors, shared), MoveWorld,
 //           QueryState, SaveSnapshot (bytes, file), RestoreSnapshot (engine state, portable,
 //           file), LoadScene (inline JSON, by name), Batch;
 //   codec/  the same commands and every published kind: Reply with each result, StateFrame
@@ -307,6 +307,7 @@ int main(int argc, char** argv) {
     const uint64_t editors[] = {fuzz::kClient + 1, 0xE0D170Bull};
     writeBoth("set_access", CommandBuilder().setAccess(editors, false).finish(hdr()));
     writeBoth("set_access_shared", CommandBuilder().setAccess({}, true).finish(hdr()));
+    writeBoth("move_world", CommandBuilder().moveWorld(2).finish(hdr()));
   }
   writeBoth("query_state", CommandBuilder().queryState().finish(hdr()));
   {

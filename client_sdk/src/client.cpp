@@ -50,6 +50,8 @@ const char* toString(ErrorCode c) {
       return "Internal";
     case ErrorCode::PermissionDenied:
       return "PermissionDenied";
+    case ErrorCode::Moved:
+      return "Moved";
     case ErrorCode::Timeout:
       return "Timeout";
     case ErrorCode::Disconnected:
@@ -165,6 +167,10 @@ struct Subscription::State {
   uint64_t epoch = 0;  ///< of the frames reassembled (0: none yet, or an older server)
   Key lastComplete;
   bool any = false;
+  /// The last frame handed out (epoch, tick, edit): a keyframe of it again (one sent for a new
+  /// subscriber, or by a world's new daemon after a move) is applied, not handed out twice.
+  Key deliveredKey;
+  uint64_t deliveredEpoch = 0;
   /// The full state as of the last frame applied, sorted by body index then generation (the
   /// world's order): a sorted vector, so that applying a delta is a binary search per
   /// carried body and handing the frame out one copy.
@@ -196,6 +202,7 @@ struct Subscription::State {
   void restart() {
     startOver();
     epoch = 0;
+    deliveredEpoch = 0;  // a new daemon's frames all count (under the SDK thread, as onChunk)
   }
   /// Nothing reassembled holds any more (a new daemon, or a new epoch of the world).
   void startOver() {
@@ -273,10 +280,14 @@ struct Subscription::State {
     {
       // The full state changes under the lock: latest() may be copying it.
       std::lock_guard<std::mutex> lk(m);
+      const bool again = deliveredEpoch == epoch && epoch != 0 && deliveredKey == k;
       if (!apply(done)) {
         ++skipped;
         return;
       }
+      if (again) return;  // applied (the deltas after it build on it); seen already
+      deliveredKey = k;
+      deliveredEpoch = epoch;
       delivered = header;
       deliveredBodies = &full;
       ++frames;
@@ -471,9 +482,12 @@ struct Client::Impl {
     Clock::time_point deadline;
     bool sentWithServer = false;
     std::function<void(const wire::Reply*, const Error*)> done;
-    /// The command as sent, kept to send it again after a refusal at the door (retryBusy).
+    /// The command as sent, kept to send it again after a refusal at the door (retryBusy) or
+    /// to a world's new owner (Moved).
     std::shared_ptr<const protocol::Bytes> bytes;
-    uint32_t retries = 0;  ///< times refused at the door so far
+    uint32_t world = 0;
+    uint32_t retries = 0;    ///< times refused at the door so far
+    uint32_t redirects = 0;  ///< times sent on to a world's new owner (Moved)
     /// In the backlog (see `held`): not (or no longer) at the daemon, sent by the SDK thread
     /// at `sendAt` at the earliest.
     bool held = false;
@@ -503,6 +517,11 @@ struct Client::Impl {
     uint32_t placed = 0;
   };
   std::map<uint64_t, DaemonView> daemonViews;
+  /// Worlds held by another daemon than their id's range's, and by which (under infoMutex).
+  std::unordered_map<uint32_t, uint64_t> owners;
+  /// A daemon of a cluster has been seen: commands look up their world's owner (a lone
+  /// daemon's clients pay nothing for it).
+  std::atomic<bool> clusterSeen{false};
   /// Seqs answered lately (under pendMutex), to count a second answer (duplicateReplies).
   std::deque<uint64_t> answeredOrder;
   std::unordered_set<uint64_t> answered;
@@ -598,7 +617,10 @@ struct Client::Impl {
   void send(CommandBuilder& b, uint32_t world, std::chrono::milliseconds timeout,
             std::function<void(const wire::Reply*, const Error*)> done, uint64_t daemon = 0) {
     const bool hello = b.requestCount() == 1 && b.requestType(0) == wire::Request::Hello;
-    if (world != 0 && daemon == 0) {
+    if (world != 0 && daemon == 0 && clusterSeen.load()) {
+      daemon = ownerOf(world);  // held by another daemon than its range's
+    }
+    if (world != 0 && daemon == 0 && clusterSeen.load()) {
       if (std::optional<std::string> why = unreachable(world)) {
         // In a domain of daemons nobody would answer: said now, not after the timeout.
         Error e(ErrorCode::NotFound, *why);
@@ -608,7 +630,7 @@ struct Client::Impl {
     }
     const uint64_t s = ++seq;
     auto bytes =
-        std::make_shared<const protocol::Bytes>(b.finish({clientId, s, world, daemon}));
+        std::make_shared<const protocol::Bytes>(b.finish({clientId, s, world, daemon, true}));
     bool later = false;
     {
       std::lock_guard<std::mutex> lk(pendMutex);
@@ -616,7 +638,8 @@ struct Client::Impl {
       p.deadline = Clock::now() + timeout;
       p.sentWithServer = serversMatched.load() > 0;
       p.done = done;
-      if (options.retryBusy) p.bytes = bytes;
+      p.bytes = bytes;
+      p.world = world;
       if (options.retryBusy && backlogged()) {
         // Behind the requests the daemon refused: the SDK thread sends it in its turn.
         p.held = later = true;
@@ -713,6 +736,7 @@ struct Client::Impl {
     if (std::none_of(live.begin(), live.end(), [](auto& d) { return d.second->status.cluster; }))
       return std::nullopt;
     const uint64_t range = protocol::daemonOfWorld(world);
+    if (owners.count(world)) return std::nullopt;
     for (const auto& [id, v] : live) {
       if (id == range) return std::nullopt;
       for (const WorldSummary& w : v->status.worlds)
@@ -809,7 +833,17 @@ struct Client::Impl {
     for (auto& p : failed) p.done(nullptr, &e);
   }
 
+  /// Times one request is sent on to a world's new owner before its Moved is the answer.
+  static constexpr uint32_t kMaxRedirects = 3;
+
   void takeReplies() {
+    struct Resend {  // Moved: the command again, to the world's new owner
+      uint64_t seq = 0;
+      std::shared_ptr<const protocol::Bytes> bytes;
+      uint32_t world = 0;
+      uint64_t owner = 0;
+    };
+    std::vector<Resend> resend;
     replyReader.take([&](const phys_wire_Envelope& env) {
       if (env.key != clientId) return;
       if (!protocol::checkEnvelope(env, protocol::PayloadKind::Reply).ok()) return;
@@ -824,8 +858,20 @@ struct Client::Impl {
           ++duplicates;  // a second daemon took the command
         if (it == pending.end() || it->second.held) return;  // not this send's answer
         if (it->first == backlogSeq) backlogSeq = 0;  // the next of the backlog may go
-        if (r.ok() && it->second.bytes && r->status() == wire::StatusCode::ResourceExhausted &&
-            r->retry_after_ms() > 0) {
+        if (r.ok() && r->status() == wire::StatusCode::Moved && r->owner() != 0 &&
+            it->second.redirects < kMaxRedirects) {
+          // The world moved, nothing was done: the same command (same seq) to its new owner.
+          Pending& q = it->second;
+          ++q.redirects;
+          auto patched = std::make_shared<protocol::Bytes>(*q.bytes);
+          if (protocol::setCommandDaemon(*patched, r->owner())) {
+            q.bytes = patched;
+            resend.push_back({it->first, patched, q.world, r->owner()});  // after the take
+            return;
+          }
+        }
+        if (r.ok() && options.retryBusy &&
+            r->status() == wire::StatusCode::ResourceExhausted && r->retry_after_ms() > 0) {
           // Refused at the door, nothing done: into the backlog, to go again after the wait
           // the daemon names and a backoff, if that is before the request's deadline.
           Pending& q = it->second;
@@ -849,6 +895,27 @@ struct Client::Impl {
         p.done(nullptr, &e);
       }
     });
+    for (const Resend& r : resend) {
+      learnOwner(r.world, r.owner);
+      std::lock_guard<std::mutex> lk(writeMutex);
+      proveToNewDaemons(false);
+      cmdWriter.write(clientId, *r.bytes, r.seq);
+    }
+  }
+
+  /// The daemon to address a command for `world` to: the one that holds it when that is not
+  /// its range's daemon (from the daemons' status, and Moved replies); 0: unaddressed.
+  uint64_t ownerOf(uint32_t world) const {
+    std::lock_guard<std::mutex> lk(infoMutex);
+    auto it = owners.find(world);
+    return it == owners.end() ? 0 : it->second;
+  }
+  void learnOwner(uint32_t world, uint64_t daemon) {
+    std::lock_guard<std::mutex> lk(infoMutex);
+    if (protocol::daemonOfWorld(world) == daemon)
+      owners.erase(world);
+    else
+      owners[world] = daemon;
   }
 
   /// A request answered (pendMutex held): kept a while, to recognize a second answer.
@@ -881,6 +948,14 @@ struct Client::Impl {
       if (s->worlds())
         for (auto* w : *s->worlds()) st.worlds.push_back(toSummary(*w));
       std::lock_guard<std::mutex> lk(infoMutex);
+      if (st.cluster) clusterSeen = true;
+      if (st.cluster)
+        for (const WorldSummary& w : st.worlds) {
+          if (protocol::daemonOfWorld(w.world) == st.daemon)
+            owners.erase(w.world);
+          else
+            owners[w.world] = st.daemon;
+        }
       daemonViews[st.daemon] = DaemonView{st, Clock::now(), 0};
       status = std::move(st);
     });
@@ -1506,6 +1581,9 @@ std::future<Ack> WorldHandle::step(uint32_t n, CallOptions o) {
 }
 std::future<Ack> WorldHandle::run(float rateHz, CallOptions o) {
   PHYS_WORLD_ACK(run(rateHz));
+}
+std::future<Ack> WorldHandle::move(uint64_t daemon, CallOptions o) {
+  PHYS_WORLD_ACK(moveWorld(daemon));
 }
 std::future<Ack> WorldHandle::pause(CallOptions o) {
   PHYS_WORLD_ACK(pause());

@@ -443,6 +443,10 @@ CommandBuilder& CommandBuilder::run(float rateHz) {
   return add(wire::Request::Run, wire::CreateRun(fbb_, rateHz).Union());
 }
 
+CommandBuilder& CommandBuilder::moveWorld(uint64_t daemon) {
+  return add(wire::Request::MoveWorld, wire::CreateMoveWorld(fbb_, daemon).Union());
+}
+
 CommandBuilder& CommandBuilder::pause() {
   return add(wire::Request::Pause, wire::CreatePause(fbb_).Union());
 }
@@ -526,8 +530,19 @@ Bytes CommandBuilder::finish(const CommandHeader& header) {
     request = wire::CreateBatch(fbb_, v).Union();
   }
   items_.clear();
-  auto root = wire::CreateCommand(fbb_, header.clientId, header.seq, header.world, type, request,
-                                  header.daemon);
+  // CreateCommand's order; Command.daemon written even when 0 for an addressable command, so
+  // that it can be set in place later (setCommandDaemon: the SDK sends a command on to a
+  // world's new owner).
+  wire::CommandBuilder cb(fbb_);
+  fbb_.ForceDefaults(header.addressable);
+  cb.add_daemon(header.daemon);
+  fbb_.ForceDefaults(false);
+  cb.add_seq(header.seq);
+  cb.add_client_id(header.clientId);
+  cb.add_request(request);
+  cb.add_world(header.world);
+  cb.add_request_type(type);
+  auto root = cb.Finish();
   return finishBytes(fbb_, root, wire::kCommandId);
 }
 
@@ -548,7 +563,7 @@ namespace {
 Bytes finishReply(Fbb& fbb, const ReplyHeader& h, wire::Result type, Offset<void> result) {
   auto message = optString(fbb, h.status.message);
   auto root = wire::CreateReply(fbb, h.clientId, h.seq, h.status.code, message, h.world, h.tick,
-                                type, result, h.retryAfterMs);
+                                type, result, h.retryAfterMs, h.owner);
   return finishBytes(fbb, root, wire::kReplyId);
 }
 
@@ -778,6 +793,17 @@ Bytes encodeServerStatus(const ServerStatusInfo& status) {
                                        status.heapBytes, readOnly, status.daemon,
                                        status.cluster, status.statusPeriodS);
   return finishBytes(fbb, root, wire::kServerStatusId);
+}
+
+Bytes encodeHandoff(const HandoffInfo& h, std::span<const uint8_t> bytes) {
+  Fbb fbb(256 + bytes.size());
+  auto b = bytes.empty() ? Offset<flatbuffers::Vector<uint8_t>>()
+                         : fbb.CreateVector(bytes.data(), bytes.size());
+  auto message = optString(fbb, h.status.message);
+  auto root = wire::CreateHandoff(fbb, h.kind, h.world, h.from, h.to, h.move, h.epoch,
+                                  h.subscribers, h.chunkIndex, h.chunkCount, b, h.status.code,
+                                  message, h.ephemeral);
+  return finishBytes(fbb, root, wire::kHandoffId);
 }
 
 Bytes encodeEvent(uint32_t world, uint64_t tick, wire::Severity severity, std::string_view code,

@@ -19,4 +19,10 @@ std::optional<CommandAddress> peekAddress(std::span<const uint8_t> bytes) {
   return CommandAddress{c->world(), c->daemon(), c->request_type() == wire::Request::Hello};
 }
 
+bool setCommandDaemon(std::span<uint8_t> bytes, uint64_t daemon) {
+  if (!peekAddress(bytes)) return false;
+  auto* t = reinterpret_cast<flatbuffers::Table*>(flatbuffers::GetMutableRoot<wire::Command>(bytes.data()));
+  return t->SetField<uint64_t>(wire::Command::VT_DAEMON, daemon, 0);
+}
+
 }  // namespace phys::protocol

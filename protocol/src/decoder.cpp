@@ -3,6 +3,7 @@
 #include "phys/protocol/decoder.h"
 
 #include "phys/protocol/client_key.h"
+#include "phys/protocol/cluster.h"
 
 #include <algorithm>
 #include <array>
@@ -292,6 +293,7 @@ class Checker : public ValueRules<Checker> {
   bool setWorld(const void* t);
   bool getBodies(const void* t);
   bool getJoints(const void* t);
+  bool moveWorld(const void* t);
 
  private:
   struct Segment {
@@ -623,6 +625,7 @@ constexpr std::array<RequestCheck, size_t(wire::Request::MAX) + 1> kChecks = {{
     {wire::Request::GetWorld, &Checker::nothing},
     {wire::Request::GetBodies, &Checker::getBodies},
     {wire::Request::GetJoints, &Checker::getJoints},
+    {wire::Request::MoveWorld, &Checker::moveWorld},
 }};
 constexpr bool inOrder() {
   for (size_t i = 0; i < kChecks.size(); ++i)
@@ -834,6 +837,15 @@ bool Checker::getBodies(const void* t) {
 
 bool Checker::getJoints(const void* t) {
   return idList(static_cast<const wire::GetJoints*>(t)->joints(), "joints", false, false);
+}
+
+bool Checker::moveWorld(const void* t) {
+  const uint64_t d = static_cast<const wire::MoveWorld*>(t)->daemon();
+  if (d == 0 || d > kMaxClusterDaemonId)
+    return invalid("daemon", "must be a daemon's server.id, 1.." +
+                                 std::to_string(kMaxClusterDaemonId) + ", got " +
+                                 std::to_string(d));
+  return true;
 }
 
 bool Checker::step(const void* t) {
@@ -1278,6 +1290,18 @@ Decoded<wire::ServerStatus> decodeServerStatus(std::span<const uint8_t> bytes,
       });
 }
 
+Decoded<wire::Handoff> decodeHandoff(std::span<const uint8_t> bytes, const Limits& limits) {
+  return decodeRoot<wire::Handoff>(
+      bytes, limits, wire::kHandoffId, "handoff", [](Checker& c, const wire::Handoff& h) {
+        Scope sc(c, "handoff");
+        if (h.kind() == wire::HandoffKind::Chunk && h.chunk_index() >= h.chunk_count())
+          return c.invalid("chunk_index", "must be below chunk_count");
+        return c.known(h.kind(), wire::HandoffKind::MAX, "kind", "HandoffKind") &&
+               c.known(h.status(), wire::StatusCode::MAX, "status", "StatusCode") &&
+               c.text(h.message(), kMaxEventMessageBytes, "message", false, true);
+      });
+}
+
 Decoded<wire::Event> decodeEvent(std::span<const uint8_t> bytes, const Limits& limits) {
   return decodeRoot<wire::Event>(
       bytes, limits, wire::kEventId, "event", [](Checker& c, const wire::Event& e) {
@@ -1309,6 +1333,9 @@ Decoded<wire::ServerStatus> decodeServerStatus(std::vector<uint8_t>&& bytes, con
 }
 Decoded<wire::Event> decodeEvent(std::vector<uint8_t>&& bytes, const Limits& limits) {
   return keep<wire::Event>(std::move(bytes), &decodeEvent, limits);
+}
+Decoded<wire::Handoff> decodeHandoff(std::vector<uint8_t>&& bytes, const Limits& limits) {
+  return keep<wire::Handoff>(std::move(bytes), &decodeHandoff, limits);
 }
 Decoded<wire::Snapshot> decodeSnapshot(std::vector<uint8_t>&& bytes, const Limits& limits) {
   return keep<wire::Snapshot>(std::move(bytes), &decodeSnapshot, limits);

@@ -52,6 +52,8 @@ const char* toString(PayloadKind k) {
       return "ServerStatus";
     case PayloadKind::Event:
       return "Event";
+    case PayloadKind::Handoff:
+      return "Handoff";
   }
   return "Unknown";
 }

@@ -338,14 +338,12 @@ struct ServerCore::Context {
     header.world = w->id;
     ServerWorld& made = *w;
     core.worlds_[w->id] = std::move(w);
-    core.worldIdsChanged();
     if (core.durable() && !made.ephemeral && !core.replaying_) {
       // Its directory and first checkpoint before the reply names it.
       st = core.createStore(made);
       if (!st.ok()) {
         st.message = "create_world: " + st.message;
         core.worlds_.erase(made.id);
-        core.worldIdsChanged();
         header.world = 0;
       }
     }
@@ -363,7 +361,6 @@ struct ServerCore::Context {
       if (!st.ok()) return Answer::Now;
     }
     core.worlds_.erase(sw->id);
-    core.worldIdsChanged();
     sw = nullptr;
     core.out_.pushReliable(std::move(m));
     return Answer::Now;
@@ -463,6 +460,24 @@ struct ServerCore::Context {
     job.charge = core.queueCharge(*core.current_);
     sw->job = job;
     core.deferred_ = true;  // advance() runs its slices, the first one right after this command
+    return Answer::Later;
+  }
+
+  Answer moveWorld(const wire::Command& c) {
+    Status& st = header.status;
+    const uint64_t to = c.request_as_MoveWorld()->daemon();
+    if (!core.config_.cluster)
+      st = err(Code::Unsupported, "move_world: this daemon is not in a cluster ([cluster] "
+                                  "enabled, docs/SERVER.md \"Several daemons\")");
+    else if (to == core.config_.serverId)
+      st = err(Code::InvalidArgument, "move_world.daemon " + std::to_string(to) +
+                                          " is the daemon that holds the world");
+    else if (!core.current_)
+      st = err(Code::IncorrectState, "move_world: only from the command queue");
+    if (!st.ok()) return Answer::Now;
+    st = core.startMove(*sw, to, header);
+    if (!st.ok()) return Answer::Now;
+    core.deferred_ = true;  // answered when the target is ready (or the move fails)
     return Answer::Later;
   }
 
@@ -1177,6 +1192,7 @@ constexpr std::array<Ctx::Handler, size_t(wire::Request::MAX) + 1> kHandlers = {
     handle(wire::Request::GetWorld, &Ctx::getWorld),
     handle(wire::Request::GetBodies, &Ctx::getDefinitions),
     handle(wire::Request::GetJoints, &Ctx::getDefinitions),
+    handle(wire::Request::MoveWorld, &Ctx::moveWorld),
 }};
 
 constexpr bool inOrder() {
@@ -1330,6 +1346,13 @@ Bytes ServerCore::applyChecked(const wire::Command& c, uint64_t envelopeKey, uin
                    " is not restored: its files are damaged (" + d.damage +
                    "); the operator restores what is good with physd --accept-loss " +
                    std::to_string(d.id));
+      return ctx.finish(type);
+    }
+    if (!ctx.sw && movedOut_.count(c.world())) {
+      // Moved to another daemon: nothing done; the SDK sends the command there.
+      ctx.header.owner = movedOut_.at(c.world());
+      st = err(Code::Moved, "command.world " + std::to_string(c.world()) +
+                                " moved to daemon " + std::to_string(ctx.header.owner));
       return ctx.finish(type);
     }
     if (!ctx.sw) {

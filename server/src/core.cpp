@@ -29,22 +29,12 @@ bool ServerCore::takes(const protocol::CommandAddress& a) const {
   if (a.daemon != 0) return a.daemon == config_.serverId;
   if (!config_.cluster) return true;
   if (a.world == 0) return a.hello;
-  if (protocol::daemonOfWorld(a.world) == config_.serverId) return true;
-  std::lock_guard<std::mutex> lk(worldIdsMutex_);
-  return worldIdsHeld_.count(a.world) > 0;
+  return protocol::daemonOfWorld(a.world) == config_.serverId;
 }
 
 void ServerCore::reserveWorldId(uint32_t id) {
   if (config_.cluster && protocol::daemonOfWorld(id) != config_.serverId) return;
   nextWorldId_ = std::max(nextWorldId_, id + 1);
-}
-
-void ServerCore::worldIdsChanged() {
-  std::set<uint32_t> now;
-  for (const auto& [id, w] : worlds_) now.insert(id);
-  for (const auto& [id, d] : damaged_) now.insert(id);
-  std::lock_guard<std::mutex> lk(worldIdsMutex_);
-  worldIdsHeld_.swap(now);
 }
 
 ServerCore::~ServerCore() {
@@ -172,7 +162,6 @@ Status ServerCore::createWorld(const std::string& name, const std::string& prese
     if (!s.ok()) {
       if (worlds_.at(wid)->store) worlds_.at(wid)->store->remove();
       worlds_.erase(wid);
-      worldIdsChanged();
       counters_.commands = saved.commands;
       counters_.errors = saved.errors;
       return s;
@@ -475,18 +464,24 @@ void ServerCore::pushReplyNow(uint64_t key, uint64_t seq, Bytes reply) {
 void ServerCore::waitForCommands(std::chrono::microseconds timeout) {
   std::unique_lock<std::mutex> lock(inboxMutex_);
   inboxCv_.wait_for(lock, timeout, [&] {
-    return !inbox_.empty() || !left_.empty() || anySubscribersChanged_.load();
+    return !inbox_.empty() || !left_.empty() || !handoffs_.empty() ||
+           anySubscribersChanged_.load();
   });
 }
 
 size_t ServerCore::processPending() {
   std::deque<Incoming> batch;
   std::vector<Left> left;
+  std::deque<HandoffIn> handoffs;
   {
     std::lock_guard<std::mutex> lock(inboxMutex_);
     batch.swap(inbox_);
     left.swap(left_);
+    handoffs.swap(handoffs_);
   }
+  // Moves between daemons first: a world that left answers its waiting commands Moved.
+  for (HandoffIn& h : handoffs) applyHandoff(std::move(h));
+  expireMoves();
   // Commands that waited for a Step job which has ended go first, in their order.
   for (uint32_t id : worldIds()) drainWaiting(id);
   for (Incoming& in : batch) dispatch(std::move(in));
@@ -517,7 +512,7 @@ bool startsJob(const Incoming& in) {
 void ServerCore::dispatch(Incoming in) {
   ServerWorld* w = world(targetWorld(in));
   if (w && (w->busy() || !w->waiting.empty())) {
-    if (!endsJob(in)) {  // after the job and what waits for it, in order
+    if (!endsJob(in) || w->moving) {  // after the job (or move) and what waits, in order
       w->waiting.push_back(std::move(in));
       return;
     }
@@ -843,6 +838,10 @@ uint64_t ServerCore::advance(double wallSeconds) {
     if (w.load) {
       finishLoad(w);  // when the loader is done; the world's time waits for it
       if (w.frameDirty && !w.busy()) queueFrame(w);
+      continue;
+    }
+    if (w.moving || heldForSubscribers(w)) {
+      w.accumulator = 0;  // a moving world's time stops; one moved here starts from now
       continue;
     }
     if (w.busy()) {

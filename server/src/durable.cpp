@@ -100,6 +100,18 @@ Status ServerCore::checkpointWorld(ServerWorld& w) {
   w.checkpointAt = std::chrono::steady_clock::now();
   w.checkpointFailed = true;
   Checkpoint c;
+  Status s = checkpointOf(w, &c);
+  if (!s.ok()) return s;
+  s = w.store->writeCheckpoint(std::move(c));
+  if (!s.ok()) return s;
+  w.checkpointFailed = false;
+  // The new journal holds no lease: the next step needs one.
+  w.checkpointTick = w.leaseUntil = w.reachedTick = w.tick;
+  return Status::Ok();
+}
+
+Status ServerCore::checkpointOf(const ServerWorld& w, Checkpoint* out) const {
+  Checkpoint& c = *out;
   c.meta.worldId = w.id;
   c.meta.name = w.name;
   c.meta.preset = w.preset;
@@ -118,11 +130,6 @@ Status ServerCore::checkpointWorld(ServerWorld& w) {
                                              ps.message);
   // c.defs stays empty: the engine's state carries every definition (names, damping, masses
   // as given) and every setting, the one source a restore reads them from.
-  Status s = w.store->writeCheckpoint(std::move(c));
-  if (!s.ok()) return s;
-  w.checkpointFailed = false;
-  // The new journal holds no lease: the next step needs one.
-  w.checkpointTick = w.leaseUntil = w.reachedTick = w.tick;
   return Status::Ok();
 }
 
@@ -479,7 +486,6 @@ void ServerCore::retryWritable() {
 void ServerCore::addDamaged(uint32_t id, const std::string& name, const std::string& damage) {
   damaged_[id] = DamagedWorld{id, name, damage};
   reserveWorldId(id);
-  worldIdsChanged();
   queueEvent(id, 0, wire::Severity::Error, "world_damaged",
              "world " + std::to_string(id) + (name.empty() ? "" : " '" + name + "'") +
                  " is not restored: " + damage +
@@ -588,7 +594,6 @@ Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
         sw->store.reset();
         worlds_.erase(id);
       }
-      worldIdsChanged();
     }
     if (!s.ok()) {
       // Its checkpoint cannot be used (none, unreadable, another world's): nothing to

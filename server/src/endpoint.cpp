@@ -75,6 +75,14 @@ Status DdsEndpoint::start() {
                             &err))
     return fail();
   if (!waitset_.create(participant_, &err) || !waitset_.attach(cmdReader_, &err)) return fail();
+  // A daemon of a cluster talks to the others on phys/peer (moving worlds).
+  if (core_->config().cluster &&
+      (!peerTopic_.create(participant_, std::string(protocol::kPeerTopic), &err) ||
+       !peerReader_.create(participant_, peerTopic_, protocol::kPeerQos, &err) ||
+       !peerWriter_.create(participant_, peerTopic_, protocol::kPeerQos, PayloadKind::Handoff,
+                           &err) ||
+       !waitset_.attach(peerReader_, &err)))
+    return fail();
   stop_ = false;
   reader_ = std::thread([this] { readLoop(); });
   publisher_ = std::thread([this] { publishLoop(); });
@@ -211,7 +219,66 @@ void DdsEndpoint::readLoop() {
       core_->submit(std::move(in));
     });
     sweepIfDue(ClientKeys::Clock::now());
+    if (core_->config().cluster) takeHandoffs();
   }
+}
+
+void DdsEndpoint::takeHandoffs() {
+  const protocol::Limits& limits = core_->config().limits;
+  const uint64_t me = core_->config().serverId;
+  const auto now = std::chrono::steady_clock::now();
+  std::erase_if(assemblies_, [&](const auto& a) {
+    return now - a.second.started > ServerCore::kMoveTimeout;
+  });
+  peerReader_.take([&](const phys_wire_Envelope& env) {
+    if (env.key != me) return;  // another daemon's
+    counters_.handoffsTaken.fetch_add(1);
+    auto drop = [&] { counters_.handoffsDropped.fetch_add(1); };
+    if (!protocol::checkEnvelope(env, PayloadKind::Handoff, limits).ok()) return drop();
+    auto h = protocol::decodeHandoff(protocol::envelopeBytes(env), limits);
+    if (!h.ok() || h->to() != me) return drop();
+    ServerCore::HandoffIn in;
+    in.kind = h->kind();
+    in.world = h->world();
+    in.from = h->from();
+    in.move = h->move();
+    in.epoch = h->epoch();
+    in.subscribers = h->subscribers();
+    in.ephemeral = h->ephemeral();
+    in.status = Status{h->status(), h->message() ? h->message()->str() : std::string()};
+    if (in.kind != wire::HandoffKind::Chunk) return core_->submitHandoff(std::move(in));
+    const uint32_t count = h->chunk_count();
+    const size_t size = h->bytes() ? h->bytes()->size() : 0;
+    if (count > ServerCore::kMaxHandoffChunks || size > ServerCore::kHandoffChunkBytes)
+      return drop();
+    const auto key = std::make_pair(in.from, in.move);
+    auto it = assemblies_.find(key);
+    if (it == assemblies_.end()) {
+      if (assemblies_.size() >= kMaxAssemblies) {
+        auto oldest = std::min_element(assemblies_.begin(), assemblies_.end(),
+                                       [](const auto& a, const auto& b) {
+                                         return a.second.started < b.second.started;
+                                       });
+        assemblies_.erase(oldest);
+      }
+      Assembly a;
+      a.head = std::move(in);
+      a.parts.resize(count);
+      a.started = now;
+      it = assemblies_.emplace(key, std::move(a)).first;
+    }
+    Assembly& a = it->second;
+    std::vector<uint8_t>& part = a.parts.at(h->chunk_index());
+    if (a.parts.size() != count || a.head.world != h->world() || !part.empty() || size == 0)
+      return drop();
+    part.assign(h->bytes()->begin(), h->bytes()->end());
+    if (++a.got < count) return;
+    ServerCore::HandoffIn whole = std::move(a.head);
+    for (const std::vector<uint8_t>& p : a.parts)
+      whole.checkpoint.insert(whole.checkpoint.end(), p.begin(), p.end());
+    assemblies_.erase(it);
+    core_->submitHandoff(std::move(whole));
+  });
 }
 
 ClientKeys::Result DdsEndpoint::vouch(uint64_t key, dds_instance_handle_t writer,
@@ -332,6 +399,12 @@ void DdsEndpoint::publish(ReliableMessage& m) {
       break;
     case ReliableMessage::Type::InterestRemoved:
       state_.erase(streamKey(m.world, uint32_t(m.key)));
+      break;
+    case ReliableMessage::Type::Handoff:
+      rc = peerWriter_.write(m.key, m.chunks.at(0));
+      break;
+    case ReliableMessage::Type::WorldAdded:
+      removed_.erase(m.world);  // moved here (perhaps back): its info and frames go out
       break;
     case ReliableMessage::Type::WorldRemoved: {
       auto it = infoChunks_.find(m.world);

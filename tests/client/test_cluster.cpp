@@ -5,7 +5,9 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <cstring>
 #include <map>
+#include <mutex>
 #include <memory>
 #include <thread>
 
@@ -140,6 +142,16 @@ TEST(Cluster, WorldsAreSpreadReachedByTheirOwnerAndAnsweredOnce) {
   EXPECT_EQ(lj.size(), 32u);  // 30, "named" and "cli"
   for (const auto& w : lj)
     EXPECT_EQ(w["daemon"].get<uint64_t>(), protocol::daemonOfWorld(w["id"].get<uint32_t>()));
+  // physctl moves what it created (the owner), and the list says where it went.
+  testing::Shell moved = testing::shell(physctl + "move cli 3");
+  ASSERT_EQ(moved.code, 0) << moved.output;
+  EXPECT_NE(moved.output.find("moved to daemon 3"), std::string::npos) << moved.output;
+  testing::Shell listed3 = testing::shell(physctl + "list --json --daemon 3");
+  ASSERT_EQ(listed3.code, 0) << listed3.output;
+  bool cliOn3 = false;
+  for (const auto& w : nlohmann::json::parse(listed3.output))
+    cliOn3 = cliOn3 || (w["name"] == "cli" && w["daemon"] == 3);
+  EXPECT_TRUE(cliOn3) << listed3.output;
 #endif
 
   for (pid_t& p : cl.pids) {
@@ -147,6 +159,109 @@ TEST(Cluster, WorldsAreSpreadReachedByTheirOwnerAndAnsweredOnce) {
     p = 0;
     EXPECT_TRUE(WIFEXITED(st) && WEXITSTATUS(st) == 0);
   }
+}
+
+/// A few boxes falling onto the ground, the same in every world it is spawned in.
+std::vector<phys::BodyDef> pile() {
+  std::vector<phys::BodyDef> bodies{phys::test::groundBody()};
+  for (int i = 0; i < 6; ++i)
+    bodies.push_back(phys::test::boxBody({0.3f * float(i % 2), 0.1f * float(i), 1.0f + 1.1f * float(i)}));
+  return bodies;
+}
+
+TEST(Cluster, AMovedWorldGoesOnWithItsTicksHandleAndState) {
+  Cluster cl;
+  for (pid_t p : cl.pids) ASSERT_GT(p, 0);
+  Client c(cl.configs[0]->clientOptions(20s));
+  c.connect();
+  ASSERT_TRUE(awaitDaemons(c, Cluster::kDaemons));
+  CallOptions on1, on2;
+  on1.daemon = 1;
+  on2.daemon = 2;
+  // The world that moves, and one that does not, stepped alike.
+  WorldHandle moving = c.createWorld({"moving", "", std::nullopt, 0}, on1).get();
+  WorldHandle still = c.createWorld({"still", "", std::nullopt, 0}, on2).get();
+  const std::vector<phys::BodyDef> bodies = pile();
+  const std::vector<uint64_t> ids = moving.spawn(bodies).get();
+  ASSERT_EQ(still.spawn(bodies).get(), ids);
+
+  std::mutex m;
+  std::vector<uint64_t> ticks;
+  Subscription sub = moving.subscribe([&](const StateFrame& f) {
+    std::lock_guard<std::mutex> lk(m);
+    ticks.push_back(f.tick);
+  });
+  ASSERT_TRUE(sub.waitForFrame(0, 10s));  // subscribed: the world's frame at tick 0
+  for (int i = 0; i < 15; ++i) {
+    EXPECT_EQ(moving.step(1).get().tick, uint64_t(i + 1));
+    still.step(1).get();
+  }
+  // Moved to daemon 3 at tick 15; the same handle goes on (the SDK follows the world).
+  const Ack moved = moving.move(3).get();
+  EXPECT_EQ(moved.tick, 15u);
+  for (int i = 15; i < 30; ++i) {
+    EXPECT_EQ(moving.step(1).get().tick, uint64_t(i + 1));
+    still.step(1).get();
+  }
+  ASSERT_TRUE(sub.waitForFrame(29, 10s));
+
+  // Its state is the unmoved world's, bit for bit.
+  const StateFrame a = moving.queryState().get(), b = still.queryState().get();
+  ASSERT_EQ(a.bodies.size(), b.bodies.size());
+  EXPECT_EQ(a.tick, 30u);
+  for (size_t i = 0; i < a.bodies.size(); ++i) {
+    EXPECT_EQ(std::memcmp(&a.bodies[i].position, &b.bodies[i].position, sizeof(phys::Vec3)), 0) << i;
+    EXPECT_EQ(std::memcmp(&a.bodies[i].rotation, &b.bodies[i].rotation, sizeof(phys::Quat)), 0) << i;
+    EXPECT_EQ(std::memcmp(&a.bodies[i].linearVelocity, &b.bodies[i].linearVelocity,
+                          sizeof(phys::Vec3)), 0) << i;
+  }
+  // Its subscriber saw every tick once, in order, across the move.
+  {
+    std::lock_guard<std::mutex> lk(m);
+    std::vector<uint64_t> expected;
+    for (uint64_t t = ticks.empty() ? 1 : ticks.front(); t <= 30; ++t) expected.push_back(t);
+    EXPECT_EQ(ticks, expected);
+  }
+  // Listed on daemon 3; daemon 1 lists it no more.
+  bool found = false;
+  for (const WorldSummary& s : c.listWorlds().get())
+    if (s.world == moving.id()) {
+      found = true;
+      EXPECT_EQ(s.daemon, 3u);
+    }
+  EXPECT_TRUE(found);
+  EXPECT_EQ(c.listWorlds(on1).get().size(), 0u);
+  // A client that never heard of the move reaches it through daemon 1's answer (Moved).
+  Client other(cl.configs[1]->clientOptions(20s));
+  other.connect();
+  EXPECT_EQ(other.world(moving.id()).queryState().get().tick, 30u);
+  // Moved back while it runs in real time: its subscriber still sees every tick once.
+  moving.run(60).get();
+  std::this_thread::sleep_for(400ms);
+  const Ack back = moving.move(1).get();
+  std::this_thread::sleep_for(400ms);
+  const Ack paused = moving.pause().get();
+  EXPECT_GT(back.tick, 31u);
+  EXPECT_GT(paused.tick, back.tick);
+  ASSERT_TRUE(sub.waitForFrame(paused.tick - 1, 10s));
+  {
+    std::lock_guard<std::mutex> lk(m);
+    ASSERT_FALSE(ticks.empty());
+    for (size_t i = 1; i < ticks.size(); ++i)
+      ASSERT_EQ(ticks[i], ticks[i - 1] + 1) << "frame " << i << " of " << ticks.size();
+    EXPECT_EQ(ticks.back(), paused.tick);
+  }
+  EXPECT_EQ(c.listWorlds(on1).get().size(), 1u);
+  // Moving to where it is, or without a cluster's daemon: refused, nothing moves.
+  try {
+    moving.move(1).get();
+    ADD_FAILURE() << "moved onto its own daemon";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.code(), ErrorCode::InvalidArgument) << e.what();
+  }
+  std::this_thread::sleep_for(300ms);
+  EXPECT_EQ(c.duplicateReplies(), 0u);
+  EXPECT_EQ(other.duplicateReplies(), 0u);
 }
 
 }  // namespace

@@ -48,6 +48,29 @@ TEST(ClusterIds, PeekAddressReadsWorldDaemonAndHello) {
   EXPECT_EQ(d->daemon(), 3u);
 }
 
+TEST(ClusterIds, AnAddressableCommandIsSentOnByItsDaemonAlone) {
+  CommandBuilder b;
+  CommandHeader h{0xC1, 9, firstWorldIdOf(1) + 2, 0};
+  h.addressable = true;
+  Bytes step = b.step(3).finish(h);
+  Bytes plain = b.step(3).finish({0xC1, 9, firstWorldIdOf(1) + 2, 0});
+  EXPECT_EQ(step.size(), plain.size() + 8);  // the daemon field, written as 0
+  ASSERT_TRUE(setCommandDaemon(step, 3));
+  auto a = peekAddress(step);
+  ASSERT_TRUE(a);
+  EXPECT_EQ(a->daemon, 3u);
+  auto d = decodeCommand(step);
+  ASSERT_TRUE(d.ok()) << d.status.message;
+  EXPECT_EQ(d->daemon(), 3u);
+  EXPECT_EQ(d->world(), firstWorldIdOf(1) + 2);
+  ASSERT_TRUE(d->request_as_Step());
+  EXPECT_EQ(d->request_as_Step()->count(), 3u);
+  // Without the field there is nothing to set in place.
+  EXPECT_FALSE(setCommandDaemon(plain, 3));
+  EXPECT_TRUE(setCommandDaemon(plain, 0));  // (0 is what it says already)
+  EXPECT_EQ(peekAddress(plain)->daemon, 0u);
+}
+
 TEST(ClusterIds, PeekAddressRefusesWhatDoesNotVerify) {
   EXPECT_FALSE(peekAddress({}));
   const std::vector<uint8_t> junk(64, 0xFF);

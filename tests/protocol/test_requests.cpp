@@ -63,7 +63,7 @@ TEST(RequestTable, Properties) {
   journaled.insert({R::Batch, R::Run, R::Pause, R::SetAccess});
   EXPECT_EQ(withFlag(kJournaled), journaled);
   std::set<R> stored = journaled;
-  stored.insert({R::Step, R::LoadScene, R::ResetWorld, R::RestoreSnapshot});
+  stored.insert({R::Step, R::LoadScene, R::ResetWorld, R::RestoreSnapshot, R::MoveWorld});
   EXPECT_EQ(withFlag(kStored), stored);
   EXPECT_EQ(withFlag(kStartsJob), (std::set<R>{R::Step, R::LoadScene}));
   EXPECT_EQ(withFlag(kEndsJob), (std::set<R>{R::Pause, R::ResetWorld, R::DestroyWorld}));
@@ -78,7 +78,7 @@ TEST(RequestTable, Properties) {
   }
   EXPECT_EQ(read, (std::set<R>{R::QueryState, R::GetWorld, R::GetBodies, R::GetJoints, R::Subscribe,
                                R::Unsubscribe, R::SaveSnapshot}));
-  EXPECT_EQ(own, (std::set<R>{R::DestroyWorld, R::SetAccess}));
+  EXPECT_EQ(own, (std::set<R>{R::DestroyWorld, R::SetAccess, R::MoveWorld}));
 }
 
 }  // namespace

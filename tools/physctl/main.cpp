@@ -657,6 +657,12 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.0f, 10000.0f));
   auto* pause = app.add_subcommand("pause", "pause a world");
   pause->add_option("WORLD", world, "world id or name")->required();
+  uint64_t toDaemon = 0;
+  auto* moveCmd = app.add_subcommand(
+      "move", "move a world to another daemon of the domain (its owner only; docs/SERVER.md "
+              "\"Moving a world\")");
+  moveCmd->add_option("WORLD", world, "world id or name")->required();
+  moveCmd->add_option("DAEMON", toDaemon, "the daemon's server.id (physctl daemons)")->required();
   auto* watchCmd = app.add_subcommand("watch", "live table of the worlds (Ctrl-C exits)");
   watchCmd->add_option("WORLD", world, "only this world (id or name)");
   watchCmd->add_flag("--json", json, "one JSON object a line instead of the table");
@@ -745,7 +751,7 @@ int main(int argc, char** argv) {
   // The commands that change worlds (and whoami) act as this physctl's kept key; the others
   // only read and use a fresh one (no lock, any number at once).
   const bool keyed = *whoami || *create || *load || *step || *run || *pause || *restore ||
-                     *access;
+                     *access || *moveCmd;
   int keyLock = -1;
   if (keyed) {
     options.keyFile = keyPath(keyFlag);
@@ -893,6 +899,14 @@ int main(int argc, char** argv) {
       pc::WorldHandle w = resolve(client, world);
       pc::Ack a = w.pause().get();
       std::printf("world %u: paused at tick %llu\n", w.id(), (unsigned long long)a.tick);
+    } else if (*moveCmd) {
+      pc::WorldHandle w = resolve(client, world);
+      const auto t0 = std::chrono::steady_clock::now();
+      pc::Ack a = w.move(toDaemon).get();
+      const double ms = std::chrono::duration<double, std::milli>(
+                            std::chrono::steady_clock::now() - t0).count();
+      std::printf("world %u: moved to daemon %llu after tick %llu (%.1f ms)\n", w.id(),
+                  (unsigned long long)toDaemon, (unsigned long long)a.tick, ms);
     } else if (*settingsCmd) {
       printSettings(resolve(client, world).settings().get());
     } else if (*setCmd) {

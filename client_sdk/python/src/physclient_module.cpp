@@ -1474,6 +1474,12 @@ void defineWorldAsyncMore(py::module_& m) {
           [](PyWorld& w, OptS t) { return worldAsync(w, t, [](H h, O o) { return h.pause(o); }); },
           py::kw_only(), T)
       .def(
+          "move_async",
+          [](PyWorld& w, uint64_t daemon, OptS t) {
+            return worldAsync(w, t, [&](H h, O o) { return h.move(daemon, o); });
+          },
+          py::arg("daemon"), py::kw_only(), T)
+      .def(
           "set_access_async",
           [](PyWorld& w, const py::object& editors, bool shared, OptS t) {
             auto v = idList(editors);
@@ -1703,6 +1709,7 @@ void defineEnums(py::module_& m) {
       .value("ResourceExhausted", pc::ErrorCode::ResourceExhausted)
       .value("Internal", pc::ErrorCode::Internal)
       .value("PermissionDenied", pc::ErrorCode::PermissionDenied)
+      .value("Moved", pc::ErrorCode::Moved)
       .value("Timeout", pc::ErrorCode::Timeout)
       .value("Disconnected", pc::ErrorCode::Disconnected)
       .value("Transport", pc::ErrorCode::Transport)
@@ -1754,6 +1761,7 @@ void defineErrors(py::module_& m) {
              {pc::ErrorCode::ResourceExhausted, "ResourceExhausted", nullptr},
              {pc::ErrorCode::Internal, "Internal", nullptr},
              {pc::ErrorCode::PermissionDenied, "PermissionDenied", nullptr},
+             {pc::ErrorCode::Moved, "Moved", nullptr},
              {pc::ErrorCode::Timeout, "Timeout", PyExc_TimeoutError},
              {pc::ErrorCode::Disconnected, "Disconnected", PyExc_ConnectionError},
              {pc::ErrorCode::Transport, "Transport", nullptr},
@@ -2408,6 +2416,14 @@ void defineWorldMore(py::module_& m) {
             return w.req(t, [](pc::WorldHandle h, pc::CallOptions o) { return h.pause(o); });
           },
           py::kw_only(), T)
+      .def(
+          "move",
+          [](PyWorld& w, uint64_t daemon, OptS t) {
+            return w.req(t, [&](pc::WorldHandle h, pc::CallOptions o) { return h.move(daemon, o); });
+          },
+          py::arg("daemon"), py::kw_only(), T,
+          "To that daemon (server.id) of the domain, at a tick boundary -> Ack (the last tick\n"
+          "taken where it was); the World goes on working (docs/CLIENT.md \"Several daemons\").")
       .def(
           "set_access",
           [](PyWorld& w, const py::object& editors, bool shared, OptS t) {

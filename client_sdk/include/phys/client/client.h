@@ -329,6 +329,11 @@ class WorldHandle {
   /// Real time at rateHz (0: as fast as possible).
   std::future<Ack> run(float rateHz = 60, CallOptions o = {});
   std::future<Ack> pause(CallOptions o = {});
+  /// In a domain of daemons (docs/CLIENT.md "Several daemons"): the world to that daemon
+  /// (server.id) at a tick boundary, with its id, state, access and run mode; Ack.tick is the
+  /// last tick taken where it was. Handles and subscriptions keep working; the world's owner
+  /// only.
+  std::future<Ack> move(uint64_t daemon, CallOptions o = {});
   /// The world's owner only: who else may change it (docs/SERVER.md "Access"). editors:
   /// client ids (Client::clientId()); shared: every client. Others get PermissionDenied.
   std::future<Ack> setAccess(std::span<const uint64_t> editors, bool shared = false,

@@ -8,7 +8,7 @@
 
 namespace phys::client {
 
-/// 0..7 are the server's wire codes (docs/PROTOCOL.md, Status codes); >= 100 are the SDK's.
+/// 0..9 are the server's wire codes (docs/PROTOCOL.md, Status codes); >= 100 are the SDK's.
 enum class ErrorCode : uint8_t {
   Ok = 0,
   Malformed = 1,
@@ -19,6 +19,9 @@ enum class ErrorCode : uint8_t {
   ResourceExhausted = 6,
   Internal = 7,
   PermissionDenied = 8,  ///< this client may not change that world (docs/SERVER.md "Access")
+  /// The world moved to another daemon: the SDK sends the command there itself; this comes
+  /// back only when the new owner cannot be reached either.
+  Moved = 9,
   Timeout = 100,       ///< no reply before the request's deadline
   Disconnected = 101,  ///< the server went away (or restarted) with the request pending
   Transport = 102,     ///< a DDS call failed

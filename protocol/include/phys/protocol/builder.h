@@ -36,6 +36,9 @@ struct CommandHeader {
   uint32_t world = 0;     ///< target world; 0 for hello, createWorld, listWorlds
   /// The daemon (server.id) to take it; 0: the world's owner (Command.daemon).
   uint64_t daemon = 0;
+  /// Command.daemon is written even when 0, so that setCommandDaemon can set it in place
+  /// (8 bytes more).
+  bool addressable = false;
 };
 
 struct CreateWorldArgs {
@@ -140,6 +143,8 @@ class CommandBuilder {
   CommandBuilder& subscribeBodies(std::span<const uint64_t> ids);
   CommandBuilder& subscribeRegion(phys::Vec3 lo, phys::Vec3 hi);
   CommandBuilder& unsubscribe(uint32_t interest);
+  /// The world to that daemon (server.id): docs/SERVER.md "Moving a world".
+  CommandBuilder& moveWorld(uint64_t daemon);
   /// The world's owner only: who else may change it.
   CommandBuilder& setAccess(std::span<const uint64_t> editors, bool shared);
   CommandBuilder& queryState(std::span<const uint64_t> ids = {}, uint32_t first = 0,
@@ -185,6 +190,7 @@ struct ReplyHeader {
   /// A refusal of the daemon's rate and queue budgets: the command may be sent again as it is
   /// after this many ms (Reply.retry_after_ms); 0: not such a refusal.
   uint32_t retryAfterMs = 0;
+  uint64_t owner = 0;  ///< Moved: the daemon that holds the world now (Reply.owner)
 };
 /// Header echoing a command's correlation and world, with the given status.
 ReplyHeader replyTo(const wire::Command& command, Status status = {});
@@ -322,6 +328,19 @@ struct ServerStatusInfo {
   float statusPeriodS = 0;     ///< s between samples
 };
 Bytes encodeServerStatus(const ServerStatusInfo& status);
+
+/// A Handoff between daemons (phys/peer): a chunk of a moving world (with its bytes), or a
+/// step of the move (Ready with its status, Commit, Abort).
+struct HandoffInfo {
+  wire::HandoffKind kind = wire::HandoffKind::Chunk;
+  uint32_t world = 0;
+  uint64_t from = 0, to = 0, move = 0, epoch = 0;
+  uint32_t subscribers = 0;
+  uint32_t chunkIndex = 0, chunkCount = 0;
+  Status status;
+  bool ephemeral = false;
+};
+Bytes encodeHandoff(const HandoffInfo& info, std::span<const uint8_t> bytes = {});
 
 Bytes encodeEvent(uint32_t world, uint64_t tick, wire::Severity severity, std::string_view code,
                   std::string_view message);

@@ -34,4 +34,9 @@ struct CommandAddress {
 /// verification comes after the daemon's budgets). nullopt when even that does not verify.
 std::optional<CommandAddress> peekAddress(std::span<const uint8_t> bytes);
 
+/// Sets Command.daemon in a command's bytes (a CommandBuilder's, which always writes the
+/// field); false when the field is not in the buffer or the buffer does not verify as
+/// peekAddress reads it.
+bool setCommandDaemon(std::span<uint8_t> bytes, uint64_t daemon);
+
 }  // namespace phys::protocol

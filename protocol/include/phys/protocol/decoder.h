@@ -50,6 +50,8 @@ Decoded<wire::ServerStatus> decodeServerStatus(std::span<const uint8_t> bytes,
                                                const Limits& limits = {});
 
 Decoded<wire::Event> decodeEvent(std::span<const uint8_t> bytes, const Limits& limits = {});
+/// A handoff between daemons (phys/peer).
+Decoded<wire::Handoff> decodeHandoff(std::span<const uint8_t> bytes, const Limits& limits = {});
 
 /// A snapshot (RestoreSnapshot.snapshot, SnapshotResult.snapshot): verified and fully
 /// validated (format version, settings, bodies, joints, unique ids, joints refer to bodies
@@ -66,6 +68,7 @@ Decoded<wire::WorldInfo> decodeWorldInfo(std::vector<uint8_t>&& bytes, const Lim
 Decoded<wire::ServerStatus> decodeServerStatus(std::vector<uint8_t>&& bytes,
                                                const Limits& limits = {});
 Decoded<wire::Event> decodeEvent(std::vector<uint8_t>&& bytes, const Limits& limits = {});
+Decoded<wire::Handoff> decodeHandoff(std::vector<uint8_t>&& bytes, const Limits& limits = {});
 Decoded<wire::Snapshot> decodeSnapshot(std::vector<uint8_t>&& bytes, const Limits& limits = {});
 
 /// snake_case name of a request kind as used in messages ("spawn_bodies"); "unknown" if none.

@@ -89,6 +89,8 @@ inline constexpr std::array<RequestInfo, size_t(R::MAX) + 1> kRequests = {{
     {R::GetWorld, "get_world", Access::Read, W},
     {R::GetBodies, "get_bodies", Access::Read, W},
     {R::GetJoints, "get_joints", Access::Read, W},
+    // Not journaled: the world leaves; the target keeps it (and its checkpoint) from then on.
+    {R::MoveWorld, "move_world", Access::Own, W | kStored},
 }};
 
 inline constexpr RequestInfo kUnknown = {R::NONE, "unknown", Access::Edit, W};

@@ -14,6 +14,8 @@ inline constexpr std::string_view kStateTopicPrefix = "phys/state/";    ///< + w
 inline constexpr std::string_view kWorldInfoTopic = "phys/world_info";  ///< late joiners
 inline constexpr std::string_view kStatusTopic = "phys/status";         ///< daemon health
 inline constexpr std::string_view kEventsTopic = "phys/events";         ///< optional notices
+/// Between the daemons of a domain (Handoff): key = the daemon a message is for.
+inline constexpr std::string_view kPeerTopic = "phys/peer";
 
 /// "phys/state/<world>" (decimal world id).
 std::string stateTopic(uint32_t world);
@@ -28,6 +30,7 @@ enum class PayloadKind : uint16_t {
   WorldInfo = 4,
   ServerStatus = 5,
   Event = 6,
+  Handoff = 7,  ///< between daemons, on phys/peer
 };
 const char* toString(PayloadKind k);
 
@@ -74,6 +77,9 @@ inline constexpr QosPreset kStatusQos{Reliability::Reliable, Durability::Transie
                                       History::KeepLast, 1, 100};
 inline constexpr QosPreset kEventsQos{Reliability::Reliable, Durability::Volatile,
                                       History::KeepLast, 64, 100};
+/// Handoffs: every chunk delivered, in order (a move's chunks are one instance's samples).
+inline constexpr QosPreset kPeerQos{Reliability::Reliable, Durability::Volatile,
+                                    History::KeepAll, 1, 2000};
 
 /// A topic's name (state: the prefix), payload kind and QoS in one record.
 struct TopicSpec {

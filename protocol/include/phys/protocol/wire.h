@@ -15,6 +15,7 @@ inline constexpr const char* kWorldInfoId = "PHWI";
 inline constexpr const char* kServerStatusId = "PHST";
 inline constexpr const char* kEventId = "PHEV";
 inline constexpr const char* kSnapshotId = "PHSN";
+inline constexpr const char* kHandoffId = "PHHO";
 
 static_assert(sizeof(BodyState) == 64, "BodyState is 64 bytes on the wire");
 static_assert(sizeof(Pose) == 28 && sizeof(BodyPose) == 40 && sizeof(BodyForce) == 32);

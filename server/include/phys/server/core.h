@@ -335,7 +335,21 @@ struct ServerWorld {
   /// Commands for this world that arrived during its StepJob or LoadJob, applied in order
   /// after it.
   std::deque<Incoming> waiting;
-  bool busy() const { return job.has_value() || load.has_value(); }
+  /// A MoveWorld under way (docs/SERVER.md "Moving a world"): the world is not stepped and
+  /// its commands wait (busy()) until the target is Ready (the world leaves; they are
+  /// answered Moved) or the move fails (they apply here).
+  struct MoveJob {
+    uint64_t target = 0, move = 0;
+    protocol::ReplyHeader header;  ///< the MoveWorld's reply header
+    uint64_t envelopeKey = 0, envelopeSeq = 0, sender = 0, charge = 0;
+    std::chrono::steady_clock::time_point deadline;
+  };
+  std::optional<MoveJob> moving;
+  /// A world moved here is not stepped until as many readers as its stream had at the source
+  /// have matched this daemon's writer (so that they see every tick), or holdUntil passes.
+  uint32_t awaitSubscribers = 0;
+  std::chrono::steady_clock::time_point holdUntil{};
+  bool busy() const { return job.has_value() || load.has_value() || moving.has_value(); }
 };
 
 
@@ -359,9 +373,11 @@ class ServerCore {
   const CoreConfig& config() const { return config_; }
   /// Whether this daemon is the one to take a command with this address (any thread; docs/
   /// SERVER.md "Several daemons"): one addressed to it (Command.daemon); an unaddressed one
-  /// for a world it holds or whose id is of its range (it answers "no such world" for the
-  /// others of its range); an unaddressed one without a world when it is not in a cluster,
-  /// and an unaddressed Hello always. The others are dropped unanswered: one daemon answers.
+  /// for a world whose id is of its range (it answers "no such world" for the ids of its
+  /// range it does not hold); any unaddressed one when it is not in a cluster, and an
+  /// unaddressed Hello always. The others are dropped unanswered: one daemon answers each,
+  /// decided by the command alone. (A world held by another daemon than its range's is
+  /// reached by commands addressed to its holder: the SDK addresses them.)
   bool takes(const protocol::CommandAddress& a) const;
   PublishQueue& out() { return out_; }
 
@@ -413,6 +429,23 @@ class ServerCore {
   /// maxQueuedPerClient commands waiting, or a queue holding maxQueuedBytes, gets a
   /// ResourceExhausted reply at once instead.
   void submit(Incoming in);
+  /// A Handoff from another daemon (docs/SERVER.md "Moving a world"), from the endpoint's
+  /// reader thread with a Chunk's pieces put together; applied by the tick thread.
+  struct HandoffIn {
+    wire::HandoffKind kind = wire::HandoffKind::Chunk;
+    uint32_t world = 0;
+    uint64_t from = 0, move = 0, epoch = 0;
+    uint32_t subscribers = 0;
+    bool ephemeral = false;
+    Status status;                    ///< Ready
+    std::vector<uint8_t> checkpoint;  ///< Chunk: the whole world (encodeCheckpoint)
+  };
+  void submitHandoff(HandoffIn h);
+  /// Handoff pieces at most, and bytes of one move at most, that the endpoint puts together.
+  static constexpr uint32_t kHandoffChunkBytes = 1u << 20;
+  static constexpr uint32_t kMaxHandoffChunks = 2048;
+  /// How long a source waits for Ready, and a target for Commit.
+  static constexpr std::chrono::seconds kMoveTimeout{10};
   /// Thread-safe: clients are gone (the DDS endpoint: their participant's liveliness was
   /// lost). sender: its number (Incoming::sender; 0: none, then `keys` say whose); keys: the
   /// client ids it held. At the next tick boundary, after the commands queued before, the
@@ -560,6 +593,37 @@ class ServerCore {
   Status createStore(ServerWorld& w);
   /// The world's whole state to its store (a new checkpoint; the journal starts empty).
   Status checkpointWorld(ServerWorld& w);
+  /// The world as a checkpoint (its engine state and the server's view of it).
+  Status checkpointOf(const ServerWorld& w, Checkpoint* out) const;
+
+  // Moving worlds between daemons (docs/SERVER.md "Moving a world"; server/src/moves.cpp).
+  /// MoveWorld: the world's checkpoint in Chunks to `to`; the world waits (MoveJob).
+  Status startMove(ServerWorld& w, uint64_t to, const ReplyHeader& header);
+  /// A Handoff (tick thread): a Chunk builds the world here and answers Ready; Ready ends
+  /// the source's move; Commit runs the world here; Abort drops it.
+  void applyHandoff(HandoffIn h);
+  void adoptWorld(HandoffIn& h);
+  /// The source's end of a move: Ok lets the world go (Commit, the waiting commands answered
+  /// Moved), otherwise it stays and steps on here.
+  void finishMove(ServerWorld& w, Status status);
+  /// Moves whose answer did not come in time fail; worlds built here and not committed in
+  /// time are dropped.
+  void expireMoves();
+  void pushHandoff(uint64_t to, const protocol::HandoffInfo& info,
+                   std::span<const uint8_t> bytes = {});
+  /// A world moved here that still waits for its subscribers (ServerWorld::awaitSubscribers).
+  bool heldForSubscribers(ServerWorld& w);
+  /// Worlds that moved from here, and where to (commands for them are answered Moved).
+  std::map<uint32_t, uint64_t> movedOut_;
+  uint64_t nextMove_ = 1;
+  /// Worlds built from a Handoff, held until the source commits.
+  struct Prepared {
+    std::unique_ptr<ServerWorld> world;
+    uint64_t from = 0, move = 0;
+    std::chrono::steady_clock::time_point deadline;
+  };
+  std::vector<Prepared> prepared_;
+
   /// After a command replaced a world's state (LoadScene, ResetWorld, RestoreSnapshot): a
   /// checkpoint, or, when it cannot be written, the world as its files hold it and an error.
   Status durableReplaced(ServerWorld& w, const std::string& what);
@@ -630,11 +694,6 @@ class ServerCore {
   uint32_t nextWorldId_ = 1;
   /// The next world id is past `id` (of this daemon's range, in a cluster).
   void reserveWorldId(uint32_t id);
-  /// The ids of worlds_ and damaged_ for takes() on other threads, refreshed
-  /// (worldIdsChanged()) whenever either changes.
-  mutable std::mutex worldIdsMutex_;
-  std::set<uint32_t> worldIdsHeld_;
-  void worldIdsChanged();
   CoreCounters counters_;
   std::chrono::steady_clock::time_point started_;
   PublishQueue out_;
@@ -642,6 +701,7 @@ class ServerCore {
   std::mutex inboxMutex_;
   std::condition_variable inboxCv_;
   std::deque<Incoming> inbox_;
+  std::deque<HandoffIn> handoffs_;  ///< under inboxMutex_
   // Commands submitted and not yet answered (queued, waiting for a world, or a Step job),
   // per client and in bytes; guarded by inboxMutex_.
   struct Pending {

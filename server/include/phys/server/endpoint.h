@@ -37,6 +37,10 @@ struct EndpointCounters {
   /// Commands for another daemon of the domain (ServerCore::takes): dropped unanswered, before
   /// any budget counts them.
   std::atomic<uint64_t> forOthers{0};
+  /// Handoffs (phys/peer) taken for this daemon, and those dropped (undecodable, past the
+  /// bounds on what a move may hold).
+  std::atomic<uint64_t> handoffsTaken{0};
+  std::atomic<uint64_t> handoffsDropped{0};
   std::atomic<uint64_t> undecodable{0};  ///< envelopes or payloads that failed the codec
   std::atomic<uint64_t> repliesWritten{0};
   std::atomic<uint64_t> framesWritten{0};  ///< state chunks
@@ -93,6 +97,18 @@ class DdsEndpoint {
   static bool admitSample(const dds_sample_info_t* info, void* gate);
   ClientKeys::Clock::time_point sweptAt_{};
   std::vector<dds_instance_handle_t> live_;  ///< sweep's scratch
+  /// phys/peer (a daemon of a cluster): Handoffs for this daemon, a Chunk's pieces put
+  /// together before the core sees them. Reader thread only.
+  void takeHandoffs();
+  struct Assembly {
+    ServerCore::HandoffIn head;
+    std::vector<std::vector<uint8_t>> parts;
+    uint32_t got = 0;
+    std::chrono::steady_clock::time_point started;
+  };
+  std::map<std::pair<uint64_t, uint64_t>, Assembly> assemblies_;  ///< by (from, move)
+  /// Moves put together at once; the oldest beyond are dropped (their source times out).
+  static constexpr size_t kMaxAssemblies = 4;
   void publishLoop();
   void publish(ReliableMessage& m);
   void publish(StateFrameSet& f);
@@ -100,9 +116,9 @@ class DdsEndpoint {
   ServerCore* core_;
   EndpointConfig config_;
   dds::Participant participant_;
-  dds::Topic cmdTopic_, replyTopic_, infoTopic_, statusTopic_, eventsTopic_;
-  dds::Reader cmdReader_;
-  dds::Writer replyWriter_, infoWriter_, statusWriter_, eventsWriter_;
+  dds::Topic cmdTopic_, replyTopic_, infoTopic_, statusTopic_, eventsTopic_, peerTopic_;
+  dds::Reader cmdReader_, peerReader_;
+  dds::Writer replyWriter_, infoWriter_, statusWriter_, eventsWriter_, peerWriter_;
   dds::WaitSet waitset_;
   struct StateTopic {
     dds::Topic topic;

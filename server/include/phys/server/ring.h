@@ -75,6 +75,8 @@ struct ReliableMessage {
     Event,         ///< phys/events, key = world id
     InterestAdded,    ///< make phys/state/<world>/<key>'s writer (its readers are counted)
     InterestRemoved,  ///< drop it
+    Handoff,          ///< phys/peer, key = the daemon it is for, one payload (chunks)
+    WorldAdded,       ///< a world moved here: its info and frames go out again
   };
   Type type = Type::Reply;
   uint64_t key = 0;  ///< Reply: client id; Status: server id; Event: world id
