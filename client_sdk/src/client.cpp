@@ -1434,8 +1434,18 @@ std::future<std::vector<WorldSummary>> Client::listWorlds(CallOptions o) {
             std::vector<WorldSummary> v = worldList(*r);
             g->worlds.insert(g->worlds.end(), v.begin(), v.end());
             if (--g->left > 0) return;
+            // By id; a world listed twice (a move ending: its old daemon says where it is
+            // going, the new one holds it) once, as its new daemon lists it.
             std::sort(g->worlds.begin(), g->worlds.end(),
-                      [](const WorldSummary& a, const WorldSummary& b) { return a.world < b.world; });
+                      [](const WorldSummary& a, const WorldSummary& b) {
+                        return a.world != b.world ? a.world < b.world
+                                                  : (a.movingTo == 0) > (b.movingTo == 0);
+                      });
+            g->worlds.erase(std::unique(g->worlds.begin(), g->worlds.end(),
+                                        [](const WorldSummary& a, const WorldSummary& b) {
+                                          return a.world == b.world;
+                                        }),
+                            g->worlds.end());
             g->done = true;
             g->promise.set_value(std::move(g->worlds));
           } catch (...) {

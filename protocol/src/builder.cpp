@@ -213,7 +213,7 @@ Offset<wire::WorldSummary> writeWorldSummary(Fbb& fbb, const WorldSummary& w) {
                                   w.running, w.rateHz, w.tickMs, w.tickMsMax, w.overruns,
                                   w.subscribers, w.frames, backend, device, note, w.gpuSteps,
                                   w.cpuSteps, w.awakeBodies, w.sleepingBodies, w.frameBytes,
-                                  w.contacts, w.stepBufferBytes, damage, w.daemon);
+                                  w.contacts, w.stepBufferBytes, damage, w.daemon, w.movingTo);
 }
 
 Offset<wire::LimitsInfo> writeLimits(Fbb& fbb, const Limits& l) {

@@ -214,6 +214,7 @@ WorldSummary toWorldSummary(const wire::WorldSummary& in) {
   s.stepBufferBytes = in.step_buffer_bytes();
   s.damage = str(in.damage());
   s.daemon = in.daemon();
+  s.movingTo = in.moving_to();
   return s;
 }
 

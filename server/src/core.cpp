@@ -487,7 +487,8 @@ size_t ServerCore::processPending() {
   for (Incoming& in : batch) dispatch(std::move(in));
   for (const Left& l : left) applyLeft(l);  // after what they sent before they left
   commitDurable();  // the journals synced, then the replies go out
-  if (!batch.empty()) publishWorldInfo();
+  // (A world moved here publishes its info at once: its state writer comes with it.)
+  if (!batch.empty() || !handoffs.empty()) publishWorldInfo();
   return batch.size();
 }
 
@@ -1160,6 +1161,7 @@ std::vector<protocol::WorldSummary> ServerCore::summaries() const {
     auto it = subscribers_.find(streamKey(id, 0));
     s.subscribers = it == subscribers_.end() ? 0 : it->second.now;
     s.daemon = config_.serverId;
+    if (w->moving) s.movingTo = w->moving->target;
     out.push_back(std::move(s));
   }
   // Worlds kept on disk but not restored: listed so that clients see why (not only absent).

@@ -1,12 +1,14 @@
 // Moving a world between the daemons of a domain (MoveWorld; docs/SERVER.md "Moving a
 // world", docs/ARCHITECTURE.md "Moving a world"). The source holds the world at a tick
 // boundary and sends its checkpoint to the target in Handoff chunks on phys/peer; the target
-// builds it, holds it unstepped and answers Ready; the source lets go (its waiting commands are
-// answered Moved, the SDK sends them on) and sends Commit; the target runs the world from the
-// same tick, with the same id, epoch, access and run mode. Without Ready in time the source
-// keeps the world and sends Abort; without Commit in time the target drops what it built. No
-// step of this makes the world run on two daemons; a daemon that dies between Ready and Commit
-// can lose the world (the coordinator of a later part closes that window).
+// builds it, holds it unstepped and answers Ready; the source sends Commit (the world is the
+// target's from then on; its commands still wait at the source); the target runs the world
+// from the same tick, with the same id, epoch, access and run mode, and answers Done; the
+// source then drops it and answers the MoveWorld and the commands that waited (Moved: the SDK
+// sends them on, and the target holds the world by the time they reach it). Without Ready in
+// time the source keeps the world and sends Abort; without Commit in time the target drops
+// what it built. No step of this makes the world run on two daemons; a daemon that dies
+// between Ready and Done can lose the world (the coordinator of a later part closes that).
 #include <algorithm>
 
 #include "phys/protocol/builder.h"
@@ -40,8 +42,7 @@ void ServerCore::submitHandoff(HandoffIn h) {
   inboxCv_.notify_one();
 }
 
-void ServerCore::pushHandoff(uint64_t to, const HandoffInfo& info,
-                             std::span<const uint8_t> bytes) {
+void ServerCore::pushHandoff(uint64_t to, const HandoffInfo& info, std::span<const uint8_t> bytes) {
   ReliableMessage m;
   m.type = ReliableMessage::Type::Handoff;
   m.key = to;
@@ -55,8 +56,8 @@ Status ServerCore::startMove(ServerWorld& w, uint64_t to, const ReplyHeader& hea
   Status s = checkpointOf(w, &c);
   if (!s.ok()) return s;
   const std::vector<uint8_t> bytes = encodeCheckpoint(c);
-  const size_t count = std::max<size_t>(1, (bytes.size() + kHandoffChunkBytes - 1) /
-                                               kHandoffChunkBytes);
+  const size_t count =
+      std::max<size_t>(1, (bytes.size() + kHandoffChunkBytes - 1) / kHandoffChunkBytes);
   if (count > kMaxHandoffChunks)
     return Status::Error(Code::ResourceExhausted,
                          "move_world: the world's checkpoint is " + std::to_string(bytes.size()) +
@@ -104,12 +105,28 @@ void ServerCore::applyHandoff(HandoffIn h) {
     case wire::HandoffKind::Chunk:
       adoptWorld(h);
       return;
-    case wire::HandoffKind::Ready: {
+    case wire::HandoffKind::Ready:
+    case wire::HandoffKind::Done: {
       ServerWorld* w = world(h.world);
-      if (w && w->moving && w->moving->move == h.move && w->moving->target == h.from)
-        finishMove(*w, h.status);
-      else if (h.status.ok())  // a move this daemon gave up on: the target drops it
-        pushHandoff(h.from, control(wire::HandoffKind::Abort, h.world, config_.serverId, h.from, h.move));
+      const bool ours = w && w->moving && w->moving->move == h.move && w->moving->target == h.from;
+      if (h.kind == wire::HandoffKind::Done) {
+        if (ours && w->moving->committed) finishMove(*w, Status::Ok());
+        return;
+      }
+      if (!ours || w->moving->committed) {
+        // A move this daemon gave up on: the target drops what it built.
+        if (h.status.ok() && !ours)
+          pushHandoff(h.from,
+                      control(wire::HandoffKind::Abort, h.world, config_.serverId, h.from, h.move));
+        return;
+      }
+      if (!h.status.ok()) return finishMove(*w, h.status);
+      // The world is the target's from here; what comes for it waits until the target says
+      // it holds it (Done), then goes there.
+      w->moving->committed = true;
+      w->moving->deadline = Clock::now() + kMoveTimeout;
+      pushHandoff(h.from,
+                  control(wire::HandoffKind::Commit, h.world, config_.serverId, h.from, h.move));
       return;
     }
     case wire::HandoffKind::Commit:
@@ -133,11 +150,12 @@ void ServerCore::applyHandoff(HandoffIn h) {
       if (durable() && !sw.ephemeral) {
         Status s = createStore(sw);
         if (!s.ok())
-          log(true, "world " + std::to_string(id) + " moved here is not kept on disk: " +
-                        s.message);
+          log(true,
+              "world " + std::to_string(id) + " moved here is not kept on disk: " + s.message);
       }
       log(false, "world " + std::to_string(id) + " '" + sw.name + "': moved here from daemon " +
                      std::to_string(h.from) + " at tick " + std::to_string(sw.tick));
+      pushHandoff(h.from, control(wire::HandoffKind::Done, id, config_.serverId, h.from, h.move));
       return;
     }
   }
@@ -154,16 +172,15 @@ void ServerCore::adoptWorld(HandoffIn& h) {
   Status s = decodeCheckpoint(h.checkpoint, &c);
   if (!s.ok()) return refuse(Code::Malformed, "the world's checkpoint: " + s.message);
   if (c.meta.worldId != h.world)
-    return refuse(Code::Malformed, "the checkpoint is of world " +
-                                       std::to_string(c.meta.worldId) + ", not " +
-                                       std::to_string(h.world));
+    return refuse(Code::Malformed, "the checkpoint is of world " + std::to_string(c.meta.worldId) +
+                                       ", not " + std::to_string(h.world));
   if (world(h.world) || damaged_.count(h.world))
     return refuse(Code::IncorrectState, "it holds a world " + std::to_string(h.world) + " already");
   if (findWorld(c.meta.name))
     return refuse(Code::InvalidArgument, "it holds a world named '" + c.meta.name + "'");
   if (worlds_.size() + prepared_.size() >= config_.maxWorlds)
-    return refuse(Code::ResourceExhausted, "it holds " + std::to_string(worlds_.size()) +
-                                               " worlds, its max_worlds");
+    return refuse(Code::ResourceExhausted,
+                  "it holds " + std::to_string(worlds_.size()) + " worlds, its max_worlds");
   auto w = std::make_unique<ServerWorld>();
   w->id = h.world;
   std::vector<std::string> notes;
@@ -193,17 +210,16 @@ void ServerCore::finishMove(ServerWorld& w, Status status) {
     // It stays: stepped on here, and what waited for the move is applied here (drainWaiting).
     ++counters_.errors;
     h.status = Status::Error(status.code, "move_world: " + status.message);
-    pushHandoff(job.target, control(wire::HandoffKind::Abort, w.id, config_.serverId, job.target,
-                             job.move));
+    pushHandoff(job.target,
+                control(wire::HandoffKind::Abort, w.id, config_.serverId, job.target, job.move));
     pushReply(job.envelopeKey, job.envelopeSeq, protocol::encodeReply(h));
     return;
   }
-  // It goes: nothing of it is published or kept here any more; the target runs it once it
-  // reads Commit. Commands that waited for the move are answered Moved (the SDK sends them
-  // to the new owner).
+  // It went: the target holds it (Done). Nothing of it is published or kept here any more;
+  // commands that waited for the move are answered Moved (the SDK sends them to the new
+  // owner, which holds the world by the time they reach it).
   const uint32_t id = w.id;
   std::deque<Incoming> waiting = std::move(w.waiting);
-  pushHandoff(job.target, control(wire::HandoffKind::Commit, id, config_.serverId, job.target, job.move));
   if (w.store) {
     Status s = w.store->remove();
     if (!s.ok()) log(true, "world " + std::to_string(id) + " moved away; its files: " + s.message);
@@ -224,12 +240,21 @@ void ServerCore::expireMoves() {
   const auto now = Clock::now();
   for (uint32_t id : worldIds()) {
     ServerWorld* w = world(id);
-    if (w && w->moving && now >= w->moving->deadline)
-      finishMove(*w, Status::Error(Code::IncorrectState,
-                                   "daemon " + std::to_string(w->moving->target) +
-                                       " did not take the world within " +
-                                       std::to_string(kMoveTimeout.count()) +
-                                       " s (is it running, with [cluster] enabled?)"));
+    if (!w || !w->moving || now < w->moving->deadline) continue;
+    if (w->moving->committed) {
+      // Committed and no Done: the world is the target's (it never runs here again); if the
+      // target died meanwhile, it is lost (docs/SERVER.md "Moving a world").
+      log(true, "world " + std::to_string(id) + ": daemon " + std::to_string(w->moving->target) +
+                    " did not confirm the move within " + std::to_string(kMoveTimeout.count()) +
+                    " s; it is that daemon's");
+      finishMove(*w, Status::Ok());
+      continue;
+    }
+    finishMove(
+        *w, Status::Error(Code::IncorrectState, "daemon " + std::to_string(w->moving->target) +
+                                                    " did not take the world within " +
+                                                    std::to_string(kMoveTimeout.count()) +
+                                                    " s (is it running, with [cluster] enabled?)"));
   }
   std::erase_if(prepared_, [&](const Prepared& p) { return now >= p.deadline; });
 }

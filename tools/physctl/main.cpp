@@ -164,6 +164,7 @@ Json worldJson(const pc::WorldSummary& w) {
   Json j;
   j["id"] = w.world;
   j["daemon"] = w.daemon;
+  if (w.movingTo) j["moving_to"] = w.movingTo;
   j["name"] = w.name;
   j["preset"] = w.preset;
   j["state"] = stateOf(w);

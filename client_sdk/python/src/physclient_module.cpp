@@ -2025,6 +2025,7 @@ void defineWorldResults(py::module_& m) {
   py::class_<pc::WorldSummary>(m, "WorldSummary", "A world as list_worlds() reports it.")
       .def_readonly("world", &pc::WorldSummary::world)
       .def_readonly("daemon", &pc::WorldSummary::daemon)
+      .def_readonly("moving_to", &pc::WorldSummary::movingTo)
       .def_readonly("name", &pc::WorldSummary::name)
       .def_readonly("preset", &pc::WorldSummary::preset)
       .def_readonly("bodies", &pc::WorldSummary::bodies)

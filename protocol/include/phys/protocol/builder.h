@@ -232,6 +232,7 @@ struct WorldSummary {
   /// that runs.
   std::string damage;
   uint64_t daemon = 0;  ///< the daemon (server.id) that owns the world
+  uint64_t movingTo = 0;  ///< a MoveWorld under way: the daemon it goes to (0: none)
 };
 
 /// A reply without a result (errors; Pause, DestroyWorld, ...).

@@ -343,6 +343,7 @@ struct ServerWorld {
     protocol::ReplyHeader header;  ///< the MoveWorld's reply header
     uint64_t envelopeKey = 0, envelopeSeq = 0, sender = 0, charge = 0;
     std::chrono::steady_clock::time_point deadline;
+    bool committed = false;  ///< Commit sent: the world is the target's, Done awaited
   };
   std::optional<MoveJob> moving;
   /// A world moved here is not stepped until as many readers as its stream had at the source
