@@ -511,6 +511,13 @@ Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
   if (!s.ok() && !diskFull(s)) return s;
   if (!s.ok()) goReadOnly("the data disk is full: " + s.message);
   {
+    // Worlds that moved to other daemons (moves.cpp): still answered Moved after a restart.
+    std::ifstream f(config_.dataDir + "/moved_out");
+    uint32_t world = 0;
+    uint64_t daemon = 0;
+    while (f >> world >> daemon) movedOut_[world] = daemon;
+  }
+  {
     std::ifstream f(config_.dataDir + "/next_world_id");
     uint32_t next = 0;
     if (f >> next && next > 0) reserveWorldId(next - 1);

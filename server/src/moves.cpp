@@ -141,7 +141,7 @@ void ServerCore::applyHandoff(HandoffIn h) {
       const uint32_t id = w->id;
       ServerWorld& sw = *w;
       worlds_[id] = std::move(w);
-      movedOut_.erase(id);
+      if (movedOut_.erase(id)) keepMovedOut();
       ReliableMessage added;
       added.type = ReliableMessage::Type::WorldAdded;
       added.world = id;
@@ -232,6 +232,7 @@ void ServerCore::finishMove(ServerWorld& w, Status status) {
                  std::to_string(job.target) + " at tick " + std::to_string(w.tick));
   worlds_.erase(id);
   movedOut_[id] = job.target;
+  keepMovedOut();
   pushReply(job.envelopeKey, job.envelopeSeq, protocol::encodeReply(h));
   for (Incoming& in : waiting) applyNow(in);
 }
@@ -257,6 +258,17 @@ void ServerCore::expireMoves() {
                                                     " s (is it running, with [cluster] enabled?)"));
   }
   std::erase_if(prepared_, [&](const Prepared& p) { return now >= p.deadline; });
+}
+
+void ServerCore::keepMovedOut() {
+  if (!durable()) return;
+  std::string text;
+  for (const auto& [world, daemon] : movedOut_)
+    text += std::to_string(world) + " " + std::to_string(daemon) + "\n";
+  Status s = writeFileAtomically(
+      config_.dataDir + "/moved_out",
+      std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(text.data()), text.size()));
+  if (!s.ok()) log(true, "the worlds moved away are not kept on disk: " + s.message);
 }
 
 bool ServerCore::heldForSubscribers(ServerWorld& w) {

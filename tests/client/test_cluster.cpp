@@ -6,6 +6,8 @@
 
 #include <chrono>
 #include <cstring>
+#include <fstream>
+#include <optional>
 #include <map>
 #include <mutex>
 #include <memory>
@@ -29,15 +31,27 @@ struct Cluster {
   std::vector<std::unique_ptr<testing::PhysdConfig>> configs;
   std::vector<pid_t> pids;
 
-  Cluster() {
+  /// durable: each daemon keeps its worlds in <dir>/d<i>/data.
+  explicit Cluster(bool durable = false) {
     for (int i = 1; i <= kDaemons; ++i) {
       const auto d = dir.path / ("d" + std::to_string(i));
       std::filesystem::create_directories(d);
+      const std::string data = durable ? "data = \"" + (d / "data").string() + "\"\n" : "";
       configs.push_back(std::make_unique<testing::PhysdConfig>(
-          d, "cluster-" + std::to_string(i), domain, "[cluster]\nenabled = true\n",
+          d, "cluster-" + std::to_string(i), domain, data + "[cluster]\nenabled = true\n",
           "id = " + std::to_string(i) + "\n"));
-      pids.push_back(testing::spawnProcess(PHYSD_BINARY, {"--config", configs.back()->toml}));
+      start(i);
     }
+  }
+  void start(int i) {
+    if (int(pids.size()) < i) pids.resize(size_t(i), 0);
+    pids[size_t(i - 1)] = testing::spawnProcess(PHYSD_BINARY, {"--config", configs[size_t(i - 1)]->toml});
+  }
+  /// SIGTERM; true when it exited cleanly.
+  bool stop(int i) {
+    const int st = testing::stopProcess(pids[size_t(i - 1)], SIGTERM);
+    pids[size_t(i - 1)] = 0;
+    return WIFEXITED(st) && WEXITSTATUS(st) == 0;
   }
   ~Cluster() {
     for (pid_t& p : pids)
@@ -262,6 +276,59 @@ TEST(Cluster, AMovedWorldGoesOnWithItsTicksHandleAndState) {
   std::this_thread::sleep_for(300ms);
   EXPECT_EQ(c.duplicateReplies(), 0u);
   EXPECT_EQ(other.duplicateReplies(), 0u);
+}
+
+TEST(Cluster, AMovedWorldIsKeptByItsNewDaemonAcrossRestarts) {
+  Cluster cl(/*durable=*/true);
+  for (pid_t p : cl.pids) ASSERT_GT(p, 0);
+  Client c(cl.configs[0]->clientOptions(20s));
+  c.connect();
+  ASSERT_TRUE(awaitDaemons(c, Cluster::kDaemons));
+  CallOptions on1;
+  on1.daemon = 1;
+  WorldHandle w = c.createWorld({"kept", "", std::nullopt, 0}, on1).get();
+  const std::vector<uint64_t> ids = w.spawn(pile()).get();
+  EXPECT_EQ(w.step(10).get().tick, 10u);
+  EXPECT_EQ(w.move(2).get().tick, 10u);
+  EXPECT_EQ(w.step(5).get().tick, 15u);
+  const StateFrame before = w.queryState().get();
+  // The new daemon restarted: the world is restored from its own data directory.
+  ASSERT_TRUE(cl.stop(2));
+  EXPECT_FALSE(std::filesystem::exists(cl.dir.path / "d1" / "data" / "worlds" /
+                                       std::to_string(w.id())));  // gone from the old one
+  cl.start(2);
+  ASSERT_GT(cl.pids[1], 0);
+  const auto end = std::chrono::steady_clock::now() + 20s * int64_t(phys::test::kTimeFactor);
+  std::optional<StateFrame> after;
+  while (!after && std::chrono::steady_clock::now() < end) {
+    try {
+      after = w.queryState({}, 0, 0, {1000ms}).get();
+    } catch (const Error&) {
+      std::this_thread::sleep_for(100ms);
+    }
+  }
+  ASSERT_TRUE(after);
+  EXPECT_EQ(after->tick, 15u);
+  ASSERT_EQ(after->bodies.size(), before.bodies.size());
+  for (size_t i = 0; i < before.bodies.size(); ++i)
+    EXPECT_EQ(std::memcmp(&after->bodies[i].position, &before.bodies[i].position,
+                          sizeof(phys::Vec3)), 0) << i;
+  // The old daemon restarted: it remembers where the world went (its moved_out file), and
+  // lists it no more.
+  ASSERT_TRUE(cl.stop(1));
+  cl.start(1);
+  ASSERT_GT(cl.pids[0], 0);
+  std::ifstream movedOut(cl.dir.path / "d1" / "data" / "moved_out");
+  uint32_t world = 0;
+  uint64_t daemon = 0;
+  ASSERT_TRUE(movedOut >> world >> daemon);
+  EXPECT_EQ(world, w.id());
+  EXPECT_EQ(daemon, 2u);
+  ASSERT_TRUE(awaitDaemons(c, Cluster::kDaemons));
+  std::this_thread::sleep_for(500ms);  // the restarted daemon greeted
+  EXPECT_EQ(c.listWorlds(on1).get().size(), 0u);
+  EXPECT_EQ(w.step(1).get().tick, 16u);
+  for (int i = 1; i <= Cluster::kDaemons; ++i) EXPECT_TRUE(cl.stop(i)) << "daemon " << i;
 }
 
 }  // namespace

@@ -1,5 +1,8 @@
 // A daemon of a domain of daemons ([cluster], docs/SERVER.md "Several daemons"): its world
 // ids and which commands it takes (ServerCore::takes), without DDS.
+#include <filesystem>
+#include <fstream>
+
 #include "phys/protocol/cluster.h"
 #include "phys/server/config.h"
 #include "server_test_util.h"
@@ -67,6 +70,42 @@ TEST(ClusterCore, ALoneDaemonTakesEveryUnaddressedCommand) {
   EXPECT_TRUE(core.takes(CommandAddress{protocol::firstWorldIdOf(3), 0, false}));
   EXPECT_TRUE(core.takes(CommandAddress{a, 1, false}));   // server.id 1
   EXPECT_FALSE(core.takes(CommandAddress{a, 2, false}));  // addressed to another daemon
+}
+
+TEST(ClusterCore, AWorldThatMovedAwayIsAnsweredMovedAlsoAfterARestart) {
+  // What moves.cpp writes when a world leaves a durable daemon: its id and where it went.
+  const auto data = std::filesystem::temp_directory_path() /
+                    ("physd_moved_out_" + std::to_string(getpid()));
+  std::filesystem::create_directories(data);
+  const uint32_t gone = protocol::firstWorldIdOf(1) + 4;
+  {
+    std::ofstream f(data / "moved_out");
+    f << gone << " 3\n";
+  }
+  CoreConfig cfg = testConfig();
+  cfg.cluster = true;
+  cfg.serverId = 1;
+  cfg.dataDir = data.string();
+  {
+    ServerCore core(cfg);
+    ASSERT_TRUE(core.init().ok());
+    std::vector<std::string> notes;
+    ASSERT_TRUE(core.restoreWorlds(&notes).ok());
+    protocol::CommandBuilder b;
+    Reply r = decode(core.applyBytes(b.step(1).finish({kClient, 1, gone}), kClient, 1));
+    EXPECT_EQ(r->status(), wire::StatusCode::Moved) << message(r);
+    EXPECT_EQ(r->owner(), 3u);
+    // Another id of its range: never held here.
+    r = decode(core.applyBytes(b.step(1).finish({kClient, 2, gone + 1}), kClient, 2));
+    EXPECT_EQ(r->status(), wire::StatusCode::NotFound) << message(r);
+    EXPECT_EQ(r->owner(), 0u);
+    // A move to a daemon outside a cluster, or to itself: refused before anything moves.
+    uint32_t id = 0;
+    ASSERT_TRUE(core.createWorld("here", "", "", &id).ok());
+    r = decode(core.applyBytes(b.moveWorld(1).finish({kClient, 3, id}), kClient, 3));
+    EXPECT_EQ(r->status(), wire::StatusCode::InvalidArgument) << message(r);
+  }
+  std::filesystem::remove_all(data);
 }
 
 }  // namespace

@@ -614,8 +614,10 @@ class ServerCore {
                    std::span<const uint8_t> bytes = {});
   /// A world moved here that still waits for its subscribers (ServerWorld::awaitSubscribers).
   bool heldForSubscribers(ServerWorld& w);
-  /// Worlds that moved from here, and where to (commands for them are answered Moved).
+  /// Worlds that moved from here, and where to (commands for them are answered Moved); a
+  /// durable daemon keeps them in <dataDir>/moved_out (keepMovedOut), read at start.
   std::map<uint32_t, uint64_t> movedOut_;
+  void keepMovedOut();
   uint64_t nextMove_ = 1;
   /// Worlds built from a Handoff, held until the source commits.
   struct Prepared {
