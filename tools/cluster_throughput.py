@@ -1,0 +1,76 @@
+#!/usr/bin/env python3
+"""Worlds ticked per second by 1, 2, 3 ... daemons of a cluster on this machine
+(docs/BENCHMARKS.md "Several daemons").
+
+For each daemon count: starts that many physd of one cluster (memory only, loopback), creates
+--worlds worlds without naming a daemon (the SDK's placement spreads them), loads --scene in
+each, runs them all as fast as possible for --seconds, and reads their ticks: ticks per
+second in all, per world, and the placement.
+
+    tools/cluster_throughput.py [--daemons 1,2,3] [--worlds 6] [--scene box_stack] [--seconds 10]
+"""
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from move_bench import ROOT, pc, start_daemons  # noqa: E402
+
+
+def run(n, args, domain):
+    run_dir = tempfile.mkdtemp(prefix="cluster_throughput_")
+    procs = start_daemons(n, domain, run_dir)
+    try:
+        with open(os.path.join(ROOT, "configs", "cyclonedds", "loopback.xml")) as f:
+            xml = f.read()
+        c = pc.Client(domain=domain, cyclone_xml=xml, connect_timeout=30.0, request_timeout=60.0)
+        c.connect()
+        end = time.monotonic() + 20
+        while len(c.daemons()) < n and time.monotonic() < end:
+            time.sleep(0.05)
+        worlds = [c.create_world(f"w{i}") for i in range(args.worlds)]
+        for w in worlds:
+            w.load_scene(args.scene)
+        start = {s.world: s.tick for s in c.list_worlds()}
+        t0 = time.monotonic()
+        for w in worlds:
+            w.run(0)
+        time.sleep(args.seconds)
+        for w in worlds:
+            w.pause()
+        elapsed = time.monotonic() - t0
+        listed = c.list_worlds()
+        ticks = sum(s.tick - start[s.world] for s in listed)
+        per = {}
+        for s in listed:
+            per.setdefault(s.daemon, []).append(s.tick - start[s.world])
+        placement = ", ".join(f"daemon {d}: {len(v)} worlds {sum(v) / elapsed:.0f} ticks/s"
+                              for d, v in sorted(per.items()))
+        print(f"{n} daemon(s), {args.worlds} x {args.scene}: {ticks / elapsed:.0f} world ticks/s "
+              f"({ticks / elapsed / args.worlds:.1f} per world); {placement}")
+        c.close()
+    finally:
+        for p in procs:
+            p.terminate()
+        for p in procs:
+            p.wait()
+        shutil.rmtree(run_dir, ignore_errors=True)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--daemons", default="1,2,3")
+    ap.add_argument("--worlds", type=int, default=6)
+    ap.add_argument("--scene", default="box_stack")
+    ap.add_argument("--seconds", type=float, default=10)
+    ap.add_argument("--domain", type=int, default=93)
+    args = ap.parse_args()
+    for n in [int(x) for x in args.daemons.split(",")]:
+        run(n, args, args.domain)
+
+
+if __name__ == "__main__":
+    main()
