@@ -510,12 +510,16 @@ struct Client::Impl {
   ServerInfo server;
   std::optional<ServerStatus> status;
   /// Every daemon's last status (under infoMutex), by server.id, and the worlds this client
-  /// created on it since (placement counts them until the next sample does).
+  /// created on it that no sample has listed yet (placement counts them until one does: a
+  /// sample read out before a CreateWorld may arrive after its reply), each for at most
+  /// kPlacedKept.
   struct DaemonView {
     ServerStatus status;
     Clock::time_point seen;
-    uint32_t placed = 0;
+    std::map<uint32_t, Clock::time_point> placed;
+    uint32_t worlds() const { return uint32_t(status.worlds.size() + placed.size()); }
   };
+  static constexpr std::chrono::seconds kPlacedKept{10};
   std::map<uint64_t, DaemonView> daemonViews;
   /// Worlds held by another daemon than their id's range's, and by which (under infoMutex).
   std::unordered_map<uint32_t, uint64_t> owners;
@@ -718,7 +722,7 @@ struct Client::Impl {
       uint64_t awake = 0;
       for (const WorldSummary& w : v->status.worlds) awake += w.awakeBodies;
       const std::tuple<uint64_t, uint64_t, uint64_t> key{awake,
-                                                         v->status.worlds.size() + v->placed, id};
+                                                         v->worlds(), id};
       if (best == 0 || key < bestKey) {
         best = id;
         bestKey = key;
@@ -956,7 +960,12 @@ struct Client::Impl {
           else
             owners[w.world] = st.daemon;
         }
-      daemonViews[st.daemon] = DaemonView{st, Clock::now(), 0};
+      DaemonView& view = daemonViews[st.daemon];
+      const auto now = Clock::now();
+      for (const WorldSummary& w : st.worlds) view.placed.erase(w.world);  // counted now
+      std::erase_if(view.placed, [&](const auto& p) { return now - p.second > kPlacedKept; });
+      view.status = st;
+      view.seen = now;
       status = std::move(st);
     });
   }
@@ -1380,7 +1389,7 @@ std::future<WorldHandle> Client::createWorld(const CreateWorldArgs& args, CallOp
     if (daemon) {
       std::lock_guard<std::mutex> lk(impl_->infoMutex);
       auto it = impl_->daemonViews.find(daemon);
-      if (it != impl_->daemonViews.end()) ++it->second.placed;
+      if (it != impl_->daemonViews.end()) it->second.placed[r.world()] = Clock::now();
     }
     return WorldHandle(this, r.world());
   });
@@ -1478,7 +1487,7 @@ std::vector<DaemonInfo> Client::daemons() const {
     d.id = id;
     d.name = v->status.serverName;
     d.cluster = v->status.cluster;
-    d.worlds = uint32_t(v->status.worlds.size() + v->placed);
+    d.worlds = v->worlds();
     for (const WorldSummary& w : v->status.worlds) d.awakeBodies += w.awakeBodies;
     d.sinceSampleS = std::chrono::duration<double>(now - v->seen).count();
     out.push_back(std::move(d));
