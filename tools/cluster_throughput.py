@@ -11,26 +11,15 @@ second in all, per world, and the placement.
 """
 import argparse
 import os
-import shutil
 import sys
-import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from move_bench import ROOT, pc, start_daemons  # noqa: E402
+from move_bench import cluster  # noqa: E402
 
 
 def run(n, args, domain):
-    run_dir = tempfile.mkdtemp(prefix="cluster_throughput_")
-    procs = start_daemons(n, domain, run_dir)
-    try:
-        with open(os.path.join(ROOT, "configs", "cyclonedds", "loopback.xml")) as f:
-            xml = f.read()
-        c = pc.Client(domain=domain, cyclone_xml=xml, connect_timeout=30.0, request_timeout=60.0)
-        c.connect()
-        end = time.monotonic() + 20
-        while len(c.daemons()) < n and time.monotonic() < end:
-            time.sleep(0.05)
+    with cluster(n, domain) as c:
         worlds = [c.create_world(f"w{i}") for i in range(args.worlds)]
         for w in worlds:
             w.load_scene(args.scene)
@@ -51,13 +40,6 @@ def run(n, args, domain):
                               for d, v in sorted(per.items()))
         print(f"{n} daemon(s), {args.worlds} x {args.scene}: {ticks / elapsed:.0f} world ticks/s "
               f"({ticks / elapsed / args.worlds:.1f} per world); {placement}")
-        c.close()
-    finally:
-        for p in procs:
-            p.terminate()
-        for p in procs:
-            p.wait()
-        shutil.rmtree(run_dir, ignore_errors=True)
 
 
 def main():

@@ -12,7 +12,9 @@ owner's first frame); and whether the subscriber saw every tick once across the 
 Needs build/ (physd and the Python module).
 """
 import argparse
+import contextlib
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -53,6 +55,32 @@ data = ""
     return procs
 
 
+@contextlib.contextmanager
+def cluster(n, domain):
+    """n daemons of a cluster (start_daemons) and a connected client that sees them all;
+    everything stopped and removed at the end."""
+    run_dir = tempfile.mkdtemp(prefix="physd_bench_")
+    print(f"daemons' logs: {run_dir}/d<i>/physd.log")
+    procs = start_daemons(n, domain, run_dir)
+    try:
+        with open(os.path.join(ROOT, "configs", "cyclonedds", "loopback.xml")) as f:
+            xml = f.read()
+        c = pc.Client(domain=domain, cyclone_xml=xml, connect_timeout=30.0,
+                      request_timeout=60.0)
+        c.connect()
+        end = time.monotonic() + 20
+        while len(c.daemons()) < n and time.monotonic() < end:
+            time.sleep(0.05)
+        yield c
+        c.close()
+    finally:
+        for p in procs:
+            p.terminate()
+        for p in procs:
+            p.wait()
+        shutil.rmtree(run_dir, ignore_errors=True)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="pile_10k")
@@ -60,18 +88,7 @@ def main():
     ap.add_argument("--daemons", type=int, default=2)
     ap.add_argument("--domain", type=int, default=91)
     args = ap.parse_args()
-    run_dir = tempfile.mkdtemp(prefix="move_bench_")
-    print(f"daemons' logs: {run_dir}/d<i>/physd.log")
-    procs = start_daemons(args.daemons, args.domain, run_dir)
-    try:
-        with open(os.path.join(ROOT, "configs", "cyclonedds", "loopback.xml")) as f:
-            xml = f.read()
-        c = pc.Client(domain=args.domain, cyclone_xml=xml, connect_timeout=30.0,
-                      request_timeout=60.0)
-        c.connect()
-        end = time.monotonic() + 20
-        while len(c.daemons()) < args.daemons and time.monotonic() < end:
-            time.sleep(0.05)
+    with cluster(args.daemons, args.domain) as c:
         w = c.create_world("moving", daemon=1)
         ids = w.load_scene(args.scene)
         print(f"{args.scene}: {len(ids.bodies)} bodies, {args.daemons} daemons")
@@ -119,12 +136,6 @@ def main():
         print(f"frames: {len(seen)}, ticks {seen[0]}..{seen[-1]}; repeated {repeats}, "
               f"skipped {gaps}, backwards {backwards}; duplicate replies {c.duplicate_replies()}")
         sub.close()
-        c.close()
-    finally:
-        for p in procs:
-            p.terminate()
-        for p in procs:
-            p.wait()
 
 
 if __name__ == "__main__":

@@ -47,6 +47,21 @@ struct Cluster {
     if (int(pids.size()) < i) pids.resize(size_t(i), 0);
     pids[size_t(i - 1)] = testing::spawnProcess(PHYSD_BINARY, {"--config", configs[size_t(i - 1)]->toml});
   }
+  /// A client that sees every daemon (their status); null when a daemon did not start or
+  /// the client does not see them all within 20 s.
+  std::unique_ptr<Client> connected() const {
+    for (pid_t p : pids)
+      if (p <= 0) return nullptr;
+    auto c = std::make_unique<Client>(configs[0]->clientOptions(20s));
+    c->connect();
+    return awaitDaemons(*c) ? std::move(c) : nullptr;
+  }
+  static bool awaitDaemons(const Client& c, size_t n = kDaemons) {
+    const auto end = std::chrono::steady_clock::now() + 20s * int64_t(phys::test::kTimeFactor);
+    while (c.daemons().size() < n && std::chrono::steady_clock::now() < end)
+      std::this_thread::sleep_for(20ms);
+    return c.daemons().size() >= n;
+  }
   /// SIGTERM; true when it exited cleanly.
   bool stop(int i) {
     const int st = testing::stopProcess(pids[size_t(i - 1)], SIGTERM);
@@ -59,20 +74,12 @@ struct Cluster {
   }
 };
 
-/// Waits until the client sees n daemons (their status).
-bool awaitDaemons(const Client& c, size_t n) {
-  const auto end = std::chrono::steady_clock::now() + 20s * int64_t(phys::test::kTimeFactor);
-  while (c.daemons().size() < n && std::chrono::steady_clock::now() < end)
-    std::this_thread::sleep_for(20ms);
-  return c.daemons().size() >= n;
-}
 
 TEST(Cluster, WorldsAreSpreadReachedByTheirOwnerAndAnsweredOnce) {
   Cluster cl;
-  for (pid_t p : cl.pids) ASSERT_GT(p, 0);
-  Client c(cl.configs[0]->clientOptions(20s));
-  c.connect();
-  ASSERT_TRUE(awaitDaemons(c, Cluster::kDaemons));
+  const std::unique_ptr<Client> connected = cl.connected();
+  ASSERT_TRUE(connected);
+  Client& c = *connected;
   for (const DaemonInfo& d : c.daemons()) EXPECT_TRUE(d.cluster) << d.name;
 
   // 30 worlds, no daemon named: the fewest awake bodies (all 0 here), then the fewest worlds.
@@ -185,10 +192,9 @@ std::vector<phys::BodyDef> pile() {
 
 TEST(Cluster, AMovedWorldGoesOnWithItsTicksHandleAndState) {
   Cluster cl;
-  for (pid_t p : cl.pids) ASSERT_GT(p, 0);
-  Client c(cl.configs[0]->clientOptions(20s));
-  c.connect();
-  ASSERT_TRUE(awaitDaemons(c, Cluster::kDaemons));
+  const std::unique_ptr<Client> connected = cl.connected();
+  ASSERT_TRUE(connected);
+  Client& c = *connected;
   CallOptions on1, on2;
   on1.daemon = 1;
   on2.daemon = 2;
@@ -280,10 +286,9 @@ TEST(Cluster, AMovedWorldGoesOnWithItsTicksHandleAndState) {
 
 TEST(Cluster, AMovedWorldIsKeptByItsNewDaemonAcrossRestarts) {
   Cluster cl(/*durable=*/true);
-  for (pid_t p : cl.pids) ASSERT_GT(p, 0);
-  Client c(cl.configs[0]->clientOptions(20s));
-  c.connect();
-  ASSERT_TRUE(awaitDaemons(c, Cluster::kDaemons));
+  const std::unique_ptr<Client> connected = cl.connected();
+  ASSERT_TRUE(connected);
+  Client& c = *connected;
   CallOptions on1;
   on1.daemon = 1;
   WorldHandle w = c.createWorld({"kept", "", std::nullopt, 0}, on1).get();
@@ -324,7 +329,7 @@ TEST(Cluster, AMovedWorldIsKeptByItsNewDaemonAcrossRestarts) {
   ASSERT_TRUE(movedOut >> world >> daemon);
   EXPECT_EQ(world, w.id());
   EXPECT_EQ(daemon, 2u);
-  ASSERT_TRUE(awaitDaemons(c, Cluster::kDaemons));
+  ASSERT_TRUE(Cluster::awaitDaemons(c));
   std::this_thread::sleep_for(500ms);  // the restarted daemon greeted
   EXPECT_EQ(c.listWorlds(on1).get().size(), 0u);
   EXPECT_EQ(w.step(1).get().tick, 16u);
