@@ -23,6 +23,9 @@ ServerCore::ServerCore(CoreConfig config)
       started_(std::chrono::steady_clock::now()),
       out_(config_.frameRingCapacity) {
   if (config_.cluster) nextWorldId_ = protocol::firstWorldIdOf(config_.serverId);
+  // Moves are told apart by (daemon, number): numbered from the clock, a restarted daemon's
+  // never meet an earlier start's at a target.
+  nextMove_ = uint64_t(std::chrono::system_clock::now().time_since_epoch().count());
 }
 
 bool ServerCore::takes(const protocol::CommandAddress& a) const {
