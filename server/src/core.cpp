@@ -490,6 +490,13 @@ size_t ServerCore::processPending() {
   for (Incoming& in : batch) dispatch(std::move(in));
   for (const Left& l : left) applyLeft(l);  // after what they sent before they left
   commitDurable();  // the journals synced, then the replies go out
+  for (uint32_t id : movedAway_) {
+    ReliableMessage removed;
+    removed.type = ReliableMessage::Type::WorldRemoved;
+    removed.world = id;
+    out_.pushReliable(std::move(removed));
+  }
+  movedAway_.clear();
   // (A world moved here publishes its info at once: its state writer comes with it.)
   if (!batch.empty() || !handoffs.empty()) publishWorldInfo();
   return batch.size();

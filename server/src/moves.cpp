@@ -224,10 +224,7 @@ void ServerCore::finishMove(ServerWorld& w, Status status) {
     Status s = w.store->remove();
     if (!s.ok()) log(true, "world " + std::to_string(id) + " moved away; its files: " + s.message);
   }
-  ReliableMessage removed;
-  removed.type = ReliableMessage::Type::WorldRemoved;
-  removed.world = id;
-  out_.pushReliable(std::move(removed));
+  movedAway_.push_back(id);  // its writers go after the replies (processPending)
   log(false, "world " + std::to_string(id) + " '" + w.name + "': moved to daemon " +
                  std::to_string(job.target) + " at tick " + std::to_string(w.tick));
   worlds_.erase(id);
