@@ -130,6 +130,8 @@ class DdsEndpoint {
   StateTopic* stateTopic(uint32_t world, uint32_t interest = 0);
   std::map<uint32_t, uint32_t> infoChunks_;                ///< world -> chunks last written
   std::set<uint32_t> removed_;  ///< destroyed worlds (ids are never reused): late frames dropped
+  /// Until then a world moved here waits for its subscribers (publisher thread).
+  std::chrono::steady_clock::time_point movedInUntil_{};
   std::atomic<bool> stop_{false};
   std::thread reader_, publisher_;
   EndpointCounters counters_;
