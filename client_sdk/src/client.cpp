@@ -1334,8 +1334,10 @@ ServerInfo Client::connect() {
         impl_->everConnected = true;
         // The daemons' status (transient-local: it comes as the status reader matches), so
         // that createWorld can place a world in a domain of daemons from the start: one
-        // daemon's (for up to 2 s), and every matched daemon's for up to half a second more (a
-        // reader of phys/cmd that is not a daemon publishes none).
+        // daemon's (for up to 2 s), and every matched daemon's for up to 2 s more (a reader of
+        // phys/cmd that is not a daemon publishes none, nor does a daemon killed moments ago
+        // whose reader is still matched; under a sanitizer a status comes 0.5-1 s after its
+        // daemon's reader matched).
         auto sampled = [&](size_t n) {
           std::lock_guard<std::mutex> lk(impl_->infoMutex);
           return impl_->daemonViews.size() >= n;
@@ -1343,7 +1345,7 @@ ServerInfo Client::connect() {
         const auto one = std::min(end, Clock::now() + std::chrono::seconds(2));
         while (Clock::now() < one && !sampled(1))
           std::this_thread::sleep_for(std::chrono::milliseconds(5));
-        const auto all = std::min(end, Clock::now() + std::chrono::milliseconds(500));
+        const auto all = std::min(end, Clock::now() + std::chrono::seconds(2));
         while (Clock::now() < all && !sampled(impl_->serversMatched.load()))
           std::this_thread::sleep_for(std::chrono::milliseconds(5));
         return i;
