@@ -127,16 +127,27 @@ PHYS_WIDE_INLINE void gatherVelocities(const std::vector<SolverBody>& bodies, co
     setLane(s.wB, l, B.w);
   }
 }
+/// The lanes' bodies' position and rotation changes since the substep's start.
+struct Deltas {
+  V3 pA, tA, pB, tB;
+};
 PHYS_WIDE_INLINE void gatherDeltas(const std::vector<SolverBody>& bodies, const int32_t* a,
-                                   const int32_t* b, V3& dpA, V3& dtA, V3& dpB, V3& dtB) {
+                                   const int32_t* b, Deltas& d) {
   for (int l = 0; l < kLanes; ++l) {
     const SolverBody& A = bodies[size_t(a[l])];
     const SolverBody& B = bodies[size_t(b[l])];
-    setLane(dpA, l, A.dp);
-    setLane(dtA, l, A.dtheta);
-    setLane(dpB, l, B.dp);
-    setLane(dtB, l, B.dtheta);
+    setLane(d.pA, l, A.dp);
+    setLane(d.tA, l, A.dtheta);
+    setLane(d.pB, l, B.dp);
+    setLane(d.tB, l, B.dtheta);
   }
+}
+/// A normal row's position error at the bodies' deltas, C0 + J (dp, dtheta): one expression
+/// (one order of additions) for the warm start, the passes and the residual, so their bits
+/// agree.
+PHYS_WIDE_INLINE vf errorAt(const vf& C0, const V3& linA, const V3& angA, const V3& linB,
+                            const V3& angB, const Deltas& d) {
+  return C0 + dot(linA, d.pA) + dot(angA, d.tA) + dot(linB, d.pB) + dot(angB, d.tB);
 }
 PHYS_WIDE_INLINE void scatterVelocities(std::vector<SolverBody>& bodies, const int32_t* a,
                                         const int32_t* b, const bool* writeA, const bool* writeB,
@@ -760,16 +771,14 @@ PHYS_WIDE_CLONES void WideContacts::residualBlock(uint32_t block,
   gatherVelocities(bodies, blk.a, blk.b, s);
   // The position errors as the last pass kept them (the relax pass after the last
   // positions), else from the bodies' deltas: the same bits either way.
-  V3 dpA, dtA, dpB, dtB;
+  Deltas d;
   const bool fresh = !errorsCurrent;
-  if (fresh) gatherDeltas(bodies, blk.a, blk.b, dpA, dtA, dpB, dtB);
+  if (fresh) gatherDeltas(bodies, blk.a, blk.b, d);
   vf e[kPoints];
   for (int k = 0; k < blk.points; ++k) {
     const Dir& r = blk.pt[k].n;
     const vf vn = dot(linA, s.vA) + dot(r.angA, s.wA) + dot(linB, s.vB) + dot(r.angB, s.wB);
-    const vf C = fresh ? blk.pt[k].C0 + dot(linA, dpA) + dot(r.angA, dtA) + dot(linB, dpB) +
-                             dot(r.angB, dtB)
-                       : blk.pt[k].C;
+    const vf C = fresh ? errorAt(blk.pt[k].C0, linA, r.angA, linB, r.angB, d) : blk.pt[k].C;
     const vf gap = vmax(C, splat(0)) / h;
     e[k] = select(r.lambda > 0, vn, vmin(splat(0), vn + gap));
   }
@@ -809,15 +818,14 @@ PHYS_WIDE_CLONES void WideContacts::warmStart(uint32_t block, std::vector<Solver
   expand(blk, inertia_[block], L);
   Lanes s;
   gatherVelocities(bodies, blk.a, blk.b, s);
-  V3 dpA, dtA, dpB, dtB;
-  gatherDeltas(bodies, blk.a, blk.b, dpA, dtA, dpB, dtB);
+  Deltas d;
+  gatherDeltas(bodies, blk.a, blk.b, d);
   // Solver::warmStartGroup: normal rows (their position errors at this substep's deltas,
   // for the iterations), then friction pairs.
   for (int k = 0; k < blk.points; ++k) {
     Point& p = blk.pt[k];
     Dir& r = p.n;
-    const vf C =
-        p.C0 + dot(L.linA[0], dpA) + dot(r.angA, dtA) + dot(L.linB[0], dpB) + dot(r.angB, dtB);
+    const vf C = errorAt(p.C0, L.linA[0], r.angA, L.linB[0], r.angB, d);
     p.C = C;
     L.apply(r.lambda != 0, 0, r.angA, r.angB, r.lambda, s);
   }
@@ -848,9 +856,9 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
   // The position errors: as the warm start or the last pass left them while the bodies have
   // not moved since, else from the bodies' deltas (the relax pass after the positions, and
   // the first iteration of a substep warm-started by bodies), kept for the passes after.
-  V3 dpA, dtA, dpB, dtB;
+  Deltas d;
   const bool fresh = !errorsCurrent;
-  if (fresh) gatherDeltas(bodies, blk.a, blk.b, dpA, dtA, dpB, dtB);
+  if (fresh) gatherDeltas(bodies, blk.a, blk.b, d);
   vf change = splat(0);
   // Solver::solveGroup's ContactNormal case, row by row.
   const float slop = !prm.soft ? prm.linearSlop : 0;
@@ -860,7 +868,7 @@ PHYS_WIDE_CLONES float WideContacts::solve(uint32_t block, std::vector<SolverBod
     const vf vn = rowVelocity(L.linA[0], L.linB[0], r.angA, r.angB, s);
     vf C = p.C;
     if (fresh) {
-      C = p.C0 + dot(L.linA[0], dpA) + dot(r.angA, dtA) + dot(L.linB[0], dpB) + dot(r.angB, dtB);
+      C = errorAt(p.C0, L.linA[0], r.angA, L.linB[0], r.angB, d);
       p.C = C;  // for the passes until the bodies move (errorsCurrent)
     }
     const vm speculative = C > 0;
