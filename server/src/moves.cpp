@@ -235,10 +235,14 @@ void ServerCore::finishMove(ServerWorld& w, Status status) {
 }
 
 void ServerCore::expireMoves() {
+  // Every tick: nothing allocated unless a move is due (finishMove erases from worlds_, so the
+  // due ones are listed first).
   const auto now = Clock::now();
-  for (uint32_t id : worldIds()) {
+  std::vector<uint32_t> due;
+  for (const auto& [id, w] : worlds_)
+    if (w->moving && now >= w->moving->deadline) due.push_back(id);
+  for (uint32_t id : due) {
     ServerWorld* w = world(id);
-    if (!w || !w->moving || now < w->moving->deadline) continue;
     if (w->moving->committed) {
       // Committed and no Done: the world is the target's (it never runs here again); if the
       // target died meanwhile, it is lost (docs/SERVER.md "Moving a world").
