@@ -949,6 +949,7 @@ struct Client::Impl {
       st.daemon = s->daemon() ? s->daemon() : env.key;
       st.cluster = s->cluster();
       st.statusPeriodS = s->status_period_s();
+      if (s->peers()) st.peers.assign(s->peers()->begin(), s->peers()->end());
       if (s->worlds())
         for (auto* w : *s->worlds()) st.worlds.push_back(toSummary(*w));
       std::lock_guard<std::mutex> lk(infoMutex);
@@ -1333,20 +1334,28 @@ ServerInfo Client::connect() {
         ServerInfo i = f.get();
         impl_->everConnected = true;
         // The daemons' status (transient-local: it comes as the status reader matches), so
-        // that createWorld can place a world in a domain of daemons from the start: one
-        // daemon's (for up to 2 s), and every matched daemon's for up to 2 s more (a reader of
-        // phys/cmd that is not a daemon publishes none, nor does a daemon killed moments ago
-        // whose reader is still matched; under a sanitizer a status comes 0.5-1 s after its
-        // daemon's reader matched).
-        auto sampled = [&](size_t n) {
+        // that createWorld can place a world and listWorlds reach every daemon from the
+        // start: one daemon's (for up to 2 s), then for up to 2 s more every daemon's that
+        // is matched or that a sampled daemon names as its peer. Discovery is incremental:
+        // Hello may be answered while a third daemon's reader has not matched yet, and its
+        // peers say it exists. (A reader of phys/cmd that is not a daemon publishes no
+        // status, nor does a daemon killed moments ago whose reader is still matched; under a
+        // sanitizer a status comes 0.5-1 s after its daemon's reader matched.)
+        auto sampled = [&](bool all) {
           std::lock_guard<std::mutex> lk(impl_->infoMutex);
-          return impl_->daemonViews.size() >= n;
+          const auto& views = impl_->daemonViews;
+          if (!all) return !views.empty();
+          if (views.size() < impl_->serversMatched.load()) return false;
+          for (const auto& [id, v] : impl_->liveDaemons())
+            for (uint64_t p : v->status.peers)
+              if (!views.count(p)) return false;
+          return true;
         };
         const auto one = std::min(end, Clock::now() + std::chrono::seconds(2));
-        while (Clock::now() < one && !sampled(1))
+        while (Clock::now() < one && !sampled(false))
           std::this_thread::sleep_for(std::chrono::milliseconds(5));
         const auto all = std::min(end, Clock::now() + std::chrono::seconds(2));
-        while (Clock::now() < all && !sampled(impl_->serversMatched.load()))
+        while (Clock::now() < all && !sampled(true))
           std::this_thread::sleep_for(std::chrono::milliseconds(5));
         return i;
       } catch (const Error& e) {
@@ -1492,6 +1501,7 @@ std::vector<DaemonInfo> Client::daemons() const {
     d.worlds = v->worlds();
     for (const WorldSummary& w : v->status.worlds) d.awakeBodies += w.awakeBodies;
     d.sinceSampleS = std::chrono::duration<double>(now - v->seen).count();
+    d.peers = v->status.peers;
     out.push_back(std::move(d));
   }
   return out;

@@ -788,10 +788,12 @@ Bytes encodeServerStatus(const ServerStatusInfo& status) {
   for (const WorldSummary& w : status.worlds) v.push_back(detail::writeWorldSummary(fbb, w));
   auto worlds = fbb.CreateVector(v);
   auto readOnly = optString(fbb, status.readOnly);
+  auto peers = status.peers.empty() ? Offset<flatbuffers::Vector<uint64_t>>()
+                                    : fbb.CreateVector(status.peers);
   auto root = wire::CreateServerStatus(fbb, name, version, status.uptimeS, status.commands,
                                        status.errors, worlds, status.framesDropped,
                                        status.heapBytes, readOnly, status.daemon,
-                                       status.cluster, status.statusPeriodS);
+                                       status.cluster, status.statusPeriodS, peers);
   return finishBytes(fbb, root, wire::kServerStatusId);
 }
 

@@ -1286,6 +1286,12 @@ Decoded<wire::ServerStatus> decodeServerStatus(std::span<const uint8_t> bytes,
           return c.fail(Code::ResourceExhausted, "worlds",
                         "has " + std::to_string(n) + " entries, the limit is " +
                             std::to_string(c.lim.maxWorlds) + " (max_worlds)");
+        // Daemon ids are 1..4095 (server.id), so a status names at most 4095 others.
+        if (s.peers() && s.peers()->size() > kMaxClusterDaemonId)
+          return c.fail(Code::ResourceExhausted, "peers",
+                        "has " + std::to_string(s.peers()->size()) +
+                            " entries, more than there are daemon ids (" +
+                            std::to_string(kMaxClusterDaemonId) + ")");
         return true;
       });
 }

@@ -1204,7 +1204,23 @@ protocol::ServerStatusInfo ServerCore::status() const {
   s.daemon = config_.serverId;
   s.cluster = config_.cluster;
   s.statusPeriodS = float(config_.statusPeriodS);
+  if (config_.cluster) s.peers = livePeers();
   return s;
+}
+
+void ServerCore::notePeerStatus(uint64_t daemon, double periodS) {
+  if (daemon == 0 || daemon == config_.serverId) return;
+  std::lock_guard<std::mutex> lk(peersMutex_);
+  peersSeen_[daemon] = {std::chrono::steady_clock::now(), std::max(3 * periodS, 2.0)};
+}
+
+std::vector<uint64_t> ServerCore::livePeers() const {
+  const auto now = std::chrono::steady_clock::now();
+  std::vector<uint64_t> out;
+  std::lock_guard<std::mutex> lk(peersMutex_);
+  for (const auto& [id, seen] : peersSeen_)
+    if (now - seen.first <= std::chrono::duration<double>(seen.second)) out.push_back(id);
+  return out;
 }
 
 void ServerCore::publishStatus() {

@@ -2,6 +2,7 @@
 #include "phys/server/endpoint.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <optional>
 
@@ -81,6 +82,7 @@ Status DdsEndpoint::start() {
        !peerReader_.create(participant_, peerTopic_, protocol::kPeerQos, &err) ||
        !peerWriter_.create(participant_, peerTopic_, protocol::kPeerQos, PayloadKind::Handoff,
                            &err) ||
+       !statusReader_.create(participant_, statusTopic_, protocol::kStatusQos, &err) ||
        !waitset_.attach(peerReader_, &err)))
     return fail();
   stop_ = false;
@@ -219,8 +221,24 @@ void DdsEndpoint::readLoop() {
       core_->submit(std::move(in));
     });
     sweepIfDue(ClientKeys::Clock::now());
-    if (core_->config().cluster) takeHandoffs();
+    if (core_->config().cluster) {
+      takeHandoffs();
+      takePeerStatuses();
+    }
   }
+}
+
+void DdsEndpoint::takePeerStatuses() {
+  const protocol::Limits& limits = core_->config().limits;
+  statusReader_.take([&](const phys_wire_Envelope& env) {
+    if (env.key == core_->config().serverId) return;  // its own
+    if (!protocol::checkEnvelope(env, PayloadKind::ServerStatus, limits).ok()) return;
+    auto st = protocol::decodeServerStatus(protocol::envelopeBytes(env), limits);
+    if (!st.ok() || !st->cluster()) return;
+    const float period = st->status_period_s();
+    core_->notePeerStatus(st->daemon() ? st->daemon() : env.key,
+                          std::isfinite(period) && period > 0 ? double(period) : 1.0);
+  });
 }
 
 void DdsEndpoint::takeHandoffs() {

@@ -152,6 +152,8 @@ TEST(Cluster, WorldsAreSpreadReachedByTheirOwnerAndAnsweredOnce) {
   ASSERT_EQ(dj.size(), 3u) << daemons.output;
   EXPECT_EQ(dj[1]["id"], 2);
   EXPECT_EQ(dj[1]["name"], "cluster-2");
+  // Each daemon names the other two: what lets a client that sampled one wait for the rest.
+  EXPECT_EQ(dj[1]["peers"], nlohmann::json::array({1, 3})) << daemons.output;
   testing::Shell made = testing::shell(physctl + "create cli --daemon 2");
   ASSERT_EQ(made.code, 0) << made.output;
   EXPECT_NE(made.output.find("created world " + std::to_string(protocol::firstWorldIdOf(2) + 10)),

@@ -820,7 +820,7 @@ int main(int argc, char** argv) {
         for (const pc::DaemonInfo& d : ds)
           a.push_back({{"id", d.id}, {"name", d.name}, {"cluster", d.cluster},
                        {"worlds", d.worlds}, {"awake_bodies", d.awakeBodies},
-                       {"since_sample_s", d.sinceSampleS}});
+                       {"since_sample_s", d.sinceSampleS}, {"peers", d.peers}});
         printJson(a);
       } else {
         std::printf("%6s  %-20s %-8s %7s %12s %10s\n", "id", "name", "cluster", "worlds",

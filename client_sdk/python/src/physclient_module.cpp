@@ -2131,7 +2131,8 @@ void defineWorldResults(py::module_& m) {
       .def_readonly("read_only", &pc::ServerStatus::readOnly)
       .def_readonly("daemon", &pc::ServerStatus::daemon)
       .def_readonly("cluster", &pc::ServerStatus::cluster)
-      .def_readonly("status_period_s", &pc::ServerStatus::statusPeriodS);
+      .def_readonly("status_period_s", &pc::ServerStatus::statusPeriodS)
+      .def_readonly("peers", &pc::ServerStatus::peers);
 
   py::class_<pc::DaemonInfo>(m, "DaemonInfo", "A daemon of the domain (Client.daemons()).")
       .def_readonly("id", &pc::DaemonInfo::id)
@@ -2140,6 +2141,7 @@ void defineWorldResults(py::module_& m) {
       .def_readonly("worlds", &pc::DaemonInfo::worlds)
       .def_readonly("awake_bodies", &pc::DaemonInfo::awakeBodies)
       .def_readonly("since_sample_s", &pc::DaemonInfo::sinceSampleS)
+      .def_readonly("peers", &pc::DaemonInfo::peers)
       .def("__repr__", [](const pc::DaemonInfo& d) {
         return "DaemonInfo(id=" + std::to_string(d.id) + ", name='" + d.name +
                "', worlds=" + std::to_string(d.worlds) + ")";

@@ -196,6 +196,8 @@ struct ServerStatus {
   uint64_t daemon = 0;     ///< the daemon's server.id
   bool cluster = false;    ///< it is in a domain of daemons (docs/SERVER.md "Several daemons")
   float statusPeriodS = 0; ///< s between its samples (0: an older daemon that did not say)
+  /// In a domain of daemons: the other daemons whose status it has seen lately, by id.
+  std::vector<uint64_t> peers;
 };
 
 /// A daemon of the domain as this client sees it (its phys/status samples).
@@ -206,6 +208,7 @@ struct DaemonInfo {
   uint32_t worlds = 0;        ///< worlds it holds (its last sample, and those made since)
   uint64_t awakeBodies = 0;   ///< over its worlds, in its last sample
   double sinceSampleS = 0;    ///< s since its last sample arrived
+  std::vector<uint64_t> peers;  ///< the other daemons it has seen lately (its last sample)
 };
 
 /// A notice from the daemon (phys/events), e.g. the engine's guard rails redoing a step.

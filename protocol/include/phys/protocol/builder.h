@@ -327,6 +327,7 @@ struct ServerStatusInfo {
   uint64_t daemon = 0;         ///< server.id
   bool cluster = false;        ///< in a domain of daemons (ServerStatus.cluster)
   float statusPeriodS = 0;     ///< s between samples
+  std::vector<uint64_t> peers; ///< the other live daemons of the domain it has seen, by id
 };
 Bytes encodeServerStatus(const ServerStatusInfo& status);
 

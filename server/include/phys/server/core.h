@@ -475,6 +475,11 @@ class ServerCore {
   void publishWorldInfo();
   /// Pushes a ServerStatus sample (and resets tick_ms_max).
   void publishStatus();
+  /// Another daemon's status sample arrived (any thread): it is live for 3 of its periods
+  /// (at least 2 s), and named in this daemon's status as a peer meanwhile.
+  void notePeerStatus(uint64_t daemon, double periodS);
+  /// The other daemons seen live, by id.
+  std::vector<uint64_t> livePeers() const;
 
   // --- Numbers and inspection ---
   protocol::ServerStatusInfo status() const;
@@ -704,6 +709,10 @@ class ServerCore {
   CoreCounters counters_;
   std::chrono::steady_clock::time_point started_;
   PublishQueue out_;
+
+  mutable std::mutex peersMutex_;
+  /// Other daemons' last status: when it came and how long it counts (3 periods, >= 2 s).
+  std::map<uint64_t, std::pair<std::chrono::steady_clock::time_point, double>> peersSeen_;
 
   std::mutex inboxMutex_;
   std::condition_variable inboxCv_;

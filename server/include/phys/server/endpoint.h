@@ -100,6 +100,8 @@ class DdsEndpoint {
   /// phys/peer (a daemon of a cluster): Handoffs for this daemon, a Chunk's pieces put
   /// together before the core sees them. Reader thread only.
   void takeHandoffs();
+  /// Other daemons' status samples: ServerCore::notePeerStatus.
+  void takePeerStatuses();
   struct Assembly {
     ServerCore::HandoffIn head;
     std::vector<std::vector<uint8_t>> parts;
@@ -118,6 +120,8 @@ class DdsEndpoint {
   dds::Participant participant_;
   dds::Topic cmdTopic_, replyTopic_, infoTopic_, statusTopic_, eventsTopic_, peerTopic_;
   dds::Reader cmdReader_, peerReader_;
+  /// In a cluster: the other daemons' phys/status, so this daemon's status names its peers.
+  dds::Reader statusReader_;
   dds::Writer replyWriter_, infoWriter_, statusWriter_, eventsWriter_, peerWriter_;
   dds::WaitSet waitset_;
   struct StateTopic {
