@@ -23,6 +23,7 @@
 #include "phys/server/config.h"
 #include "phys/server/core.h"
 #include "phys/server/endpoint.h"
+#include "phys/server/ownership.h"
 
 using namespace phys::server;
 
@@ -245,6 +246,13 @@ int main(int argc, char** argv) {
   }
   TickThread tick(&core, std::chrono::milliseconds(int64_t(cfg.statusPeriodS * 1000)));
   tick.start();
+  // Standby and takeover: the hold in etcd, registrations, takeovers.
+  Ownership ownership(&core);
+  if (core.coordinated()) {
+    ownership.start();
+    spdlog::info("coordinator {} (keys under '{}'), standby {}", cfg.core.coordinator,
+                 cfg.core.coordinatorPrefix, cfg.core.standby);
+  }
   spdlog::info("physd {} '{}' on domain {}{}", PHYSD_VERSION, cfg.core.serverName, cfg.domain,
                core.readOnly().empty() ? "" : " (read-only: " + core.readOnly() + ")");
 
@@ -261,6 +269,7 @@ int main(int argc, char** argv) {
     }
     std::_Exit(0);
   }).detach();
+  ownership.stop();
   tick.stop();
   endpoint.stop();
   const auto& c = core.counters();

@@ -123,6 +123,34 @@ Status checkDaemonConfig(DaemonConfig* config) {
                              std::to_string(c.core.serverId));
   if (c.statusPeriodS <= 0)
     return Status::Error(Code::InvalidArgument, "server.status_period_s must be > 0");
+  if (!c.core.coordinator.empty()) {
+    // Standby and takeover (docs/SERVER.md "Standby and takeover").
+    if (!c.core.cluster)
+      return Status::Error(Code::InvalidArgument, "cluster.coordinator needs [cluster] enabled");
+    if (c.core.dataDir.empty())
+      return Status::Error(Code::InvalidArgument,
+                           "cluster.coordinator needs [paths] data (a standby takes worlds over "
+                           "from their owner's files)");
+    if (!c.core.coordinator.starts_with("http://") && !c.core.coordinator.starts_with("https://"))
+      return Status::Error(Code::InvalidArgument,
+                           "cluster.coordinator must be etcd's client URL (http://host:port), got '" +
+                               c.core.coordinator + "'");
+    if (c.core.coordinatorPrefix.empty())
+      return Status::Error(Code::InvalidArgument, "cluster.coordinator_prefix must not be empty");
+    if (!(c.core.renewPeriodS > 0 && c.core.renewPeriodS < c.core.fenceAfterS &&
+          c.core.fenceAfterS < c.core.takeoverAfterS && c.core.takeoverAfterS <= 60))
+      return Status::Error(Code::InvalidArgument,
+                           "cluster: 0 < renew_period_s < fence_after_s < takeover_after_s <= 60 "
+                           "must hold (a standby must not take a world its owner still serves)");
+  } else if (c.core.standby != 0) {
+    return Status::Error(Code::InvalidArgument,
+                         "cluster.standby needs cluster.coordinator (etcd's client URL)");
+  }
+  if (c.core.standby != 0 &&
+      (c.core.standby == c.core.serverId || c.core.standby > protocol::kMaxClusterDaemonId))
+    return Status::Error(Code::InvalidArgument,
+                         "cluster.standby must be another daemon's server.id (1.." +
+                             std::to_string(protocol::kMaxClusterDaemonId) + ")");
   c.core.statusPeriodS = c.statusPeriodS;
   if (c.trimPeriodS < 0 || c.trimPeriodS > 86400)
     return Status::Error(Code::InvalidArgument,
@@ -245,9 +273,18 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
       return Status::Error(Code::InvalidArgument, "server.max_concurrent_loads must be >= 1");
   }
   if (auto* t = root["cluster"].as_table()) {
-    s = checkKeys(*t, {"enabled"}, "cluster");
+    s = checkKeys(*t,
+                  {"enabled", "coordinator", "coordinator_prefix", "standby", "renew_period_s",
+                   "fence_after_s", "takeover_after_s"},
+                  "cluster");
     if (!s.ok()) return s;
     PHYS_GET(*t, "enabled", "cluster", &c.core.cluster);
+    PHYS_GET(*t, "coordinator", "cluster", &c.core.coordinator);
+    PHYS_GET(*t, "coordinator_prefix", "cluster", &c.core.coordinatorPrefix);
+    PHYS_GET(*t, "standby", "cluster", &c.core.standby);
+    PHYS_GET(*t, "renew_period_s", "cluster", &c.core.renewPeriodS);
+    PHYS_GET(*t, "fence_after_s", "cluster", &c.core.fenceAfterS);
+    PHYS_GET(*t, "takeover_after_s", "cluster", &c.core.takeoverAfterS);
   }
   if (auto* t = root["dds"].as_table()) {
     s = checkKeys(*t, {"domain", "config"}, "dds");

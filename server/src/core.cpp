@@ -476,15 +476,23 @@ size_t ServerCore::processPending() {
   std::deque<Incoming> batch;
   std::vector<Left> left;
   std::deque<HandoffIn> handoffs;
+  std::deque<OwnershipNote> notes;
   {
     std::lock_guard<std::mutex> lock(inboxMutex_);
     batch.swap(inbox_);
     left.swap(left_);
     handoffs.swap(handoffs_);
+    notes.swap(ownershipNotes_);
   }
   // Moves between daemons first: a world that left answers its waiting commands Moved.
   for (HandoffIn& h : handoffs) applyHandoff(std::move(h));
   expireMoves();
+  // Then what the coordinator found (registrations, worlds taken from or by this daemon),
+  // and which worlds this daemon may serve now (docs/SERVER.md "Standby and takeover").
+  if (coordinated()) {
+    for (OwnershipNote& n : notes) applyOwnership(n);
+    updateFences();
+  }
   // Commands that waited for a Step job which has ended go first, in their order.
   for (uint32_t id : worldIds()) drainWaiting(id);
   for (Incoming& in : batch) dispatch(std::move(in));
@@ -498,7 +506,8 @@ size_t ServerCore::processPending() {
   }
   movedAway_.clear();
   // (A world moved here publishes its info at once: its state writer comes with it.)
-  if (!batch.empty() || !handoffs.empty()) publishWorldInfo();
+  if (!batch.empty() || !handoffs.empty() || !notes.empty()) publishWorldInfo();
+  if (coordinated()) refreshOwned();
   return batch.size();
 }
 
@@ -851,8 +860,9 @@ uint64_t ServerCore::advance(double wallSeconds) {
       if (w.frameDirty && !w.busy()) queueFrame(w);
       continue;
     }
-    if (w.moving || heldForSubscribers(w)) {
-      w.accumulator = 0;  // a moving world's time stops; one moved here starts from now
+    if (w.moving || w.fenced || heldForSubscribers(w)) {
+      // A moving world's time stops, and a fenced one's; one moved here starts from now.
+      w.accumulator = 0;
       continue;
     }
     if (w.busy()) {
@@ -1267,7 +1277,7 @@ void TickThread::run() {
       last = now;
       core_->advance(dt);
       core_->publishWorldInfo();
-      if (now - lastStatus >= statusPeriod_) {
+      if (now - lastStatus >= statusPeriod_ || core_->takeStatusWanted()) {
         core_->publishStatus();
         lastStatus = now;
       }

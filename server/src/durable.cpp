@@ -277,6 +277,9 @@ void ServerCore::commitDurable() {
       endJob(*w, Status::Error(st.code, "step: not stored: " + st.message));
   // The replies, now that what they acknowledge is on disk; those of a world whose journal
   // failed to sync become errors (the world goes back to what its files hold).
+  // With a coordinator, a registered world's acknowledgements go out only while this
+  // daemon's hold is renewed, checked after the sync (docs/SERVER.md "Standby and takeover").
+  const bool held = !coordinated() || holding();
   for (HeldReply& r : held_) {
     const Status* f = r.durableWorld && r.hasFailed ? failure(r.durableWorld) : nullptr;
     if (f) {
@@ -285,6 +288,11 @@ void ServerCore::commitDurable() {
       ++counters_.errors;
       r.reply = protocol::encodeReply(r.failed);
     }
+    if (!held && r.durableWorld)
+      if (const ServerWorld* w = world(r.durableWorld); w && w->ownership != 0) {
+        parked_.push_back(std::move(r));
+        continue;
+      }
     pushReplyNow(r.key, r.seq, std::move(r.reply));
   }
   held_.clear();
@@ -592,6 +600,8 @@ Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
       s = Status::Error(Code::InvalidArgument, "name '" + c.meta.name + "' is taken");
     ServerWorld* sw = w.get();
     const auto t0 = std::chrono::steady_clock::now();
+    // With a coordinator, not served until it confirms the world is still this daemon's.
+    sw->unconfirmed = sw->fenced = coordinated();
     if (s.ok()) {
       worlds_[id] = std::move(w);
       reserveWorldId(id);

@@ -49,6 +49,19 @@ struct CoreConfig {
   /// protocol::firstWorldIdOf(serverId) on, and the daemon takes only the commands addressed to
   /// it or to a world it owns or whose id is of its range (takes()). serverId <= 4095.
   bool cluster = false;
+  /// Hot standby (docs/SERVER.md "Standby and takeover"): etcd's client URL (e.g.
+  /// "http://127.0.0.1:2379"); empty: no coordinator, no standby, no takeover. Needs cluster
+  /// and dataDir.
+  std::string coordinator;
+  std::string coordinatorPrefix = "phys/";  ///< every key this domain keeps in etcd
+  /// The daemon that stands by for this daemon's kept worlds (0: none): it takes them over
+  /// from their files (storage both can read) when this daemon stops renewing its hold.
+  uint64_t standby = 0;
+  /// The hold: renewed every renewPeriodS; this daemon serves its registered worlds only
+  /// within fenceAfterS of sending its last renewal that succeeded; a standby takes over once
+  /// it has read the same renewal for takeoverAfterS (> fenceAfterS: the deposed owner has
+  /// stopped by then, whatever the clocks between them).
+  double renewPeriodS = 0.1, fenceAfterS = 0.3, takeoverAfterS = 0.5;
   double statusPeriodS = 1.0;  ///< phys/status period (ServerStatus.status_period_s)
   std::string presetsFile;  ///< empty: phys::defaultPresetsPath()
   std::string scenesDir;    ///< LoadScene by name: <scenesDir>/<name>.json
@@ -350,7 +363,19 @@ struct ServerWorld {
   /// have matched this daemon's writer (so that they see every tick), or holdUntil passes.
   uint32_t awaitSubscribers = 0;
   std::chrono::steady_clock::time_point holdUntil{};
-  bool busy() const { return job.has_value() || load.has_value() || moving.has_value(); }
+  /// With a coordinator (docs/SERVER.md "Standby and takeover"): the mod revision of the
+  /// world's key in etcd that names this daemon its owner (the ownership epoch; 0: not
+  /// registered yet, so no standby can take it).
+  uint64_t ownership = 0;
+  /// Restored from disk with a coordinator: not served until the coordinator confirms that
+  /// the world is still this daemon's (its standby may have taken it meanwhile).
+  bool unconfirmed = false;
+  /// Not served now: unconfirmed, or registered while this daemon's hold has lapsed. Not
+  /// stepped, no frames, its commands wait (busy()).
+  bool fenced = false;
+  bool busy() const {
+    return job.has_value() || load.has_value() || moving.has_value() || fenced;
+  }
 };
 
 
@@ -409,6 +434,8 @@ class ServerCore {
   /// Where the core reports what it does not answer to a client (a journal that cannot be
   /// synced, a failed checkpoint): physd logs it; the default prints to stderr.
   void setLog(std::function<void(bool error, const std::string& line)> log) { log_ = std::move(log); }
+  /// A line to the daemon's log (any thread: the log function is spdlog's, thread-safe).
+  void note(bool error, const std::string& line) const { log(error, line); }
   /// Makes every world's journal durable and takes the checkpoints that are due (also done
   /// after each processPending and advance); for tests and shutdown.
   void commitDurable();
@@ -442,6 +469,33 @@ class ServerCore {
     std::vector<uint8_t> checkpoint;  ///< Chunk: the whole world (encodeCheckpoint)
   };
   void submitHandoff(HandoffIn h);
+  /// What the coordinator thread (Ownership, server/src/ownership.cpp) found in etcd, for the
+  /// tick thread: a world registered (its ownership epoch), one another daemon took
+  /// (StandDown), one this daemon takes over from its files (TakeOver).
+  struct OwnershipNote {
+    enum class Kind : uint8_t { Registered, StandDown, TakeOver };
+    Kind kind = Kind::Registered;
+    uint32_t world = 0;
+    uint64_t revision = 0;  ///< Registered, TakeOver: the key's new mod revision
+    uint64_t daemon = 0;    ///< StandDown: who holds it now; TakeOver: who held it
+    std::string dir;        ///< TakeOver: the world's directory in its owner's data
+  };
+  void submitOwnership(OwnershipNote n);
+  /// The coordinator thread's latest renewal that succeeded allows serving until `until`.
+  void holdUntil(std::chrono::steady_clock::time_point until);
+  /// A kept world as the coordinator thread needs it (ownedWorlds).
+  struct OwnedWorld {
+    uint32_t id = 0;
+    std::string dir;         ///< absolute
+    uint64_t ownership = 0;  ///< ServerWorld::ownership
+    bool unconfirmed = false;
+  };
+  /// Thread-safe: this daemon's kept worlds as of the last tick boundary; `fresh` false until
+  /// the tick thread has written it once.
+  std::vector<OwnedWorld> ownedWorlds(bool* fresh = nullptr) const;
+  /// Thread-safe: a status sample is wanted before the period ends (a world taken over).
+  bool takeStatusWanted() { return statusWanted_.exchange(false); }
+  bool coordinated() const { return !config_.coordinator.empty(); }
   /// Handoff pieces at most, and bytes of one move at most, that the endpoint puts together.
   static constexpr uint32_t kHandoffChunkBytes = 1u << 20;
   static constexpr uint32_t kMaxHandoffChunks = 2048;
@@ -713,6 +767,25 @@ class ServerCore {
   mutable std::mutex peersMutex_;
   /// Other daemons' last status: when it came and how long it counts (3 periods, >= 2 s).
   std::map<uint64_t, std::pair<std::chrono::steady_clock::time_point, double>> peersSeen_;
+
+  // Standby and takeover (server/src/takeover.cpp).
+  std::deque<OwnershipNote> ownershipNotes_;  ///< under inboxMutex_
+  std::atomic<int64_t> holdUntilNs_{0};       ///< steady clock; 0: never renewed
+  bool holding() const;
+  void applyOwnership(OwnershipNote& n);
+  void takeOver(OwnershipNote& n);
+  void standDown(uint32_t id, uint64_t daemon);
+  /// Sets each world's fenced flag from its registration and the hold.
+  void updateFences();
+  void refreshOwned();
+  mutable std::mutex ownedMutex_;
+  std::vector<OwnedWorld> owned_;  ///< under ownedMutex_
+  bool ownedFresh_ = false;        ///< under ownedMutex_
+  std::atomic<bool> statusWanted_{false};
+  /// Replies of registered worlds that were ready while the hold had lapsed: sent once it is
+  /// renewed, dropped if the world was taken (what they acknowledge is in its journal, which
+  /// the new owner replays; an acknowledgement from a daemon that may be deposed is not sent).
+  std::vector<HeldReply> parked_;
 
   std::mutex inboxMutex_;
   std::condition_variable inboxCv_;

@@ -1,0 +1,69 @@
+// The coordinator thread of a daemon with `[cluster] coordinator` (docs/SERVER.md "Standby
+// and takeover"): keeps this daemon's hold in etcd, registers its kept worlds, tells the tick
+// thread (ServerCore::submitOwnership) what changed, and takes over the worlds it stands by
+// for when their owner stops renewing.
+//
+// Keys, under CoreConfig::coordinatorPrefix:
+//   daemons/<id>  {"id":..,"data":..}: rewritten every renewPeriodS by compare-and-swap on its
+//                 own mod revision (the heartbeat; its revision changing is the owner alive)
+//   worlds/<id>   {"owner":..,"standby":..,"dir":..}: the world's owner, its standby and its
+//                 directory; its mod revision is the ownership epoch
+//
+// The owner serves a registered world only within fenceAfterS of *sending* its last renewal
+// that succeeded; a standby takes the world (a transaction that holds only if neither the
+// owner's heartbeat nor the world's key changed) after it has read the same heartbeat revision
+// for takeoverAfterS of successful reads. The renewal was committed after it was sent and read
+// after it was committed, so the owner has stopped serving before the standby starts, whatever
+// the delays between them (only the clocks' rates are assumed alike).
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <map>
+#include <set>
+#include <string>
+#include <thread>
+
+#include "phys/server/core.h"
+#include "phys/server/etcd.h"
+
+namespace phys::server {
+
+class Ownership {
+ public:
+  explicit Ownership(ServerCore* core);
+  ~Ownership();
+  void start();
+  void stop();
+
+  /// One round (the thread calls it every renewPeriodS; tests may call it directly).
+  void round();
+
+ private:
+  using Clock = std::chrono::steady_clock;
+  void renew();
+  void look();
+  std::string key(const char* kind, uint64_t id) const;
+
+  ServerCore* core_;
+  const CoreConfig& config_;
+  Etcd etcd_;
+  std::thread thread_;
+  std::atomic<bool> stop_{true};
+
+  int64_t heartbeat_ = -1;  ///< our heartbeat key's mod revision (-1: not read yet)
+  bool heartbeatClash_ = false;
+  /// Another daemon's heartbeat as this one has read it: its mod revision, and since when
+  /// (this daemon's clock) it has read that same revision in unbroken successful reads.
+  struct Seen {
+    int64_t revision = 0;
+    Clock::time_point since;
+  };
+  std::map<uint64_t, Seen> heartbeats_;
+  /// Worlds being taken over (submitted, not yet in ownedWorlds()); their keys are ours.
+  std::set<uint32_t> takingOver_;
+  /// Worlds whose StandDown or Registered note is on its way: not sent twice.
+  std::map<uint32_t, int64_t> noted_;
+};
+
+}  // namespace phys::server

@@ -1,0 +1,210 @@
+// The coordinator thread (phys/server/ownership.h).
+#include "phys/server/ownership.h"
+
+#include <nlohmann/json.hpp>
+
+namespace phys::server {
+
+namespace {
+std::chrono::milliseconds ms(double s) {
+  return std::chrono::milliseconds(int64_t(s * 1000));
+}
+}  // namespace
+
+Ownership::Ownership(ServerCore* core)
+    : core_(core),
+      config_(core->config()),
+      // A request slower than the fence window is as good as lost.
+      etcd_(core->config().coordinator, std::max(ms(core->config().fenceAfterS),
+                                                 std::chrono::milliseconds(100))) {}
+
+Ownership::~Ownership() {
+  stop();
+}
+
+void Ownership::start() {
+  stop_ = false;
+  thread_ = std::thread([this] {
+    while (!stop_) {
+      const auto t = Clock::now();
+      round();
+      const auto next = t + ms(config_.renewPeriodS);
+      while (!stop_ && Clock::now() < next)
+        std::this_thread::sleep_for(std::min<Clock::duration>(next - Clock::now(),
+                                                              std::chrono::milliseconds(20)));
+    }
+  });
+}
+
+void Ownership::stop() {
+  stop_ = true;
+  if (thread_.joinable()) thread_.join();
+}
+
+std::string Ownership::key(const char* kind, uint64_t id) const {
+  return config_.coordinatorPrefix + kind + "/" + std::to_string(id);
+}
+
+void Ownership::round() {
+  renew();
+  look();
+}
+
+void Ownership::renew() {
+  const std::string k = key("daemons", config_.serverId);
+  if (heartbeat_ < 0) {
+    std::vector<Etcd::Kv> kvs;
+    if (!etcd_.range(k, false, &kvs).ok()) return;
+    heartbeat_ = kvs.empty() ? 0 : kvs[0].modRevision;
+  }
+  const auto sent = Clock::now();
+  const std::string value =
+      nlohmann::json{{"id", config_.serverId}, {"data", config_.dataDir}}.dump();
+  bool ok = false;
+  int64_t revision = 0;
+  Status s = etcd_.txn({{k, heartbeat_}}, {{k, value}}, {}, &ok, &revision);
+  if (!s.ok()) return;  // the hold lapses by itself
+  if (!ok) {
+    // Someone else rewrote this daemon's heartbeat: another physd with the same server.id.
+    if (!heartbeatClash_)
+      core_->note(true, "coordinator: another daemon renews server.id " +
+                            std::to_string(config_.serverId) +
+                            "'s hold in etcd; give each daemon its own server.id");
+    heartbeatClash_ = true;
+    heartbeat_ = -1;
+    return;
+  }
+  heartbeatClash_ = false;
+  heartbeat_ = revision;
+  core_->holdUntil(sent + ms(config_.fenceAfterS));
+}
+
+void Ownership::look() {
+  const std::string& prefix = config_.coordinatorPrefix;
+  std::vector<Etcd::Kv> kvs;
+  if (!etcd_.range(prefix, true, &kvs).ok()) {
+    heartbeats_.clear();  // a standby counts only unbroken successful reads
+    return;
+  }
+  const auto now = Clock::now();
+  const uint64_t me = config_.serverId;
+  struct WorldKey {
+    uint64_t owner = 0, standby = 0;
+    std::string dir;
+    int64_t revision = 0;
+  };
+  std::map<uint64_t, int64_t> beats;  // daemon -> its heartbeat's mod revision
+  std::map<uint32_t, WorldKey> keys;
+  for (const Etcd::Kv& kv : kvs) {
+    auto idAfter = [&](const std::string& kind, uint64_t* id) {
+      const std::string p = prefix + kind + "/";
+      if (!kv.key.starts_with(p)) return false;
+      try {
+        *id = std::stoull(kv.key.substr(p.size()));
+      } catch (...) {
+        return false;
+      }
+      return true;
+    };
+    uint64_t id = 0;
+    if (idAfter("daemons", &id)) {
+      beats[id] = kv.modRevision;
+    } else if (idAfter("worlds", &id) && id > 0 && id <= UINT32_MAX) {
+      try {
+        const nlohmann::json j = nlohmann::json::parse(kv.value);
+        keys[uint32_t(id)] = {j.value("owner", uint64_t(0)), j.value("standby", uint64_t(0)),
+                              j.value("dir", std::string()), kv.modRevision};
+      } catch (...) {
+        core_->note(true, "coordinator: " + kv.key + " is not a world's record; left alone");
+      }
+    }
+  }
+  // Every owner's heartbeat as read now (0: it has none), and since when it is the same.
+  for (const auto& [id, k] : keys) beats.try_emplace(k.owner, 0);
+  for (const auto& [d, revision] : beats) {
+    auto [it, added] = heartbeats_.try_emplace(d, Seen{revision, now});
+    if (!added && it->second.revision != revision) it->second = {revision, now};
+  }
+
+  bool fresh = false;
+  const std::vector<ServerCore::OwnedWorld> owned = core_->ownedWorlds(&fresh);
+  if (!fresh) return;  // the tick thread has not listed its worlds yet
+  auto value = [&](const std::string& dir) {
+    return nlohmann::json{{"owner", me}, {"standby", config_.standby}, {"dir", dir}}.dump();
+  };
+  auto submit = [&](ServerCore::OwnershipNote::Kind kind, uint32_t world, int64_t revision,
+                    uint64_t daemon, std::string dir = {}) {
+    ServerCore::OwnershipNote n;
+    n.kind = kind;
+    n.world = world;
+    n.revision = uint64_t(revision);
+    n.daemon = daemon;
+    n.dir = std::move(dir);
+    core_->submitOwnership(std::move(n));
+  };
+  std::set<uint32_t> mine;
+  for (const ServerCore::OwnedWorld& o : owned) {
+    mine.insert(o.id);
+    takingOver_.erase(o.id);
+    auto it = keys.find(o.id);
+    const bool ours = it != keys.end() && it->second.owner == me;
+    if (it != keys.end() && !ours) {
+      // Another daemon holds it now: this one stands down (once).
+      if (noted_.count(o.id) && noted_[o.id] == it->second.revision) continue;
+      noted_[o.id] = it->second.revision;
+      submit(ServerCore::OwnershipNote::Kind::StandDown, o.id, it->second.revision,
+             it->second.owner);
+      continue;
+    }
+    if (o.ownership != 0 && !o.unconfirmed && ours) continue;  // registered, still ours
+    if (noted_.count(o.id) && ours && noted_[o.id] == it->second.revision) continue;
+    // Not registered (new), restored and not yet confirmed, or a key gone: (re)registered.
+    // A new revision, so its epoch is above any this world had before.
+    const int64_t expected = it == keys.end() ? 0 : it->second.revision;
+    bool ok = false;
+    int64_t revision = 0;
+    const std::string k = key("worlds", o.id);
+    if (!etcd_.txn({{k, expected}}, {{k, value(o.dir)}}, {}, &ok, &revision).ok() || !ok)
+      continue;  // looked at again next round
+    noted_[o.id] = revision;
+    submit(ServerCore::OwnershipNote::Kind::Registered, o.id, revision, me);
+  }
+  std::erase_if(noted_, [&](const auto& n) { return !mine.count(n.first); });
+
+  for (const auto& [id, k] : keys) {
+    if (k.owner == me) {
+      // Ours and no world here (destroyed, moved to a daemon that registers it itself):
+      // the key goes, so no standby takes over a world that does not exist.
+      if (!mine.count(id) && !takingOver_.count(id)) {
+        bool ok = false;
+        etcd_.txn({{key("worlds", id), k.revision}}, {}, {key("worlds", id)}, &ok, nullptr);
+      }
+      continue;
+    }
+    // A world this daemon stands by for, whose owner has not renewed for takeoverAfterS.
+    if (k.standby != me || mine.count(id) || takingOver_.count(id)) continue;
+    const Seen& seen = heartbeats_[k.owner];
+    if (now - seen.since < ms(config_.takeoverAfterS)) continue;
+    const std::string wk = key("worlds", id);
+    const std::string dir = config_.dataDir + "/worlds/" + std::to_string(id);
+    bool ok = false;
+    int64_t revision = 0;
+    // Only if neither the owner renewed nor the world's key changed since they were read.
+    if (!etcd_.txn({{key("daemons", k.owner), seen.revision}, {wk, k.revision}},
+                   {{wk, nlohmann::json{{"owner", me},
+                                        {"standby", config_.standby},
+                                        {"dir", dir}}.dump()}},
+                   {}, &ok, &revision)
+             .ok() ||
+        !ok)
+      continue;
+    core_->note(false, "coordinator: daemon " + std::to_string(k.owner) + " has not renewed its "
+                       "hold for " + std::to_string(int((now - seen.since) / std::chrono::milliseconds(1))) +
+                       " ms: taking over world " + std::to_string(id) + " (ownership " +
+                       std::to_string(revision) + ")");
+    takingOver_.insert(id);
+    submit(ServerCore::OwnershipNote::Kind::TakeOver, id, revision, k.owner, k.dir);
+  }
+}
+
+}  // namespace phys::server
