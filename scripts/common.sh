@@ -8,7 +8,8 @@ PHYS_PACKAGES=(cmake ninja-build g++ pkg-config libeigen3-dev nlohmann-json3-dev
   libvulkan-dev glslc mesa-vulkan-drivers vulkan-validationlayers vulkan-tools
   libbullet-dev libode-dev libmujoco-dev gnuplot-nox
   python3-dev pybind11-dev
-  libcivetweb-dev nodejs chromium)
+  libcivetweb-dev nodejs chromium
+  libcurl4-openssl-dev etcd-server)
 
 phys_install_deps() {
   local missing=()
