@@ -138,10 +138,12 @@ Status checkDaemonConfig(DaemonConfig* config) {
     if (c.core.coordinatorPrefix.empty())
       return Status::Error(Code::InvalidArgument, "cluster.coordinator_prefix must not be empty");
     if (!(c.core.renewPeriodS > 0 && c.core.renewPeriodS < c.core.fenceAfterS &&
-          c.core.fenceAfterS < c.core.takeoverAfterS && c.core.takeoverAfterS <= 60))
+          c.core.fenceAfterS < c.core.takeoverAfterS && c.core.takeoverAfterS <= 60 &&
+          c.core.standbyLeasePeriodS >= 0 && c.core.standbyLeasePeriodS <= 60))
       return Status::Error(Code::InvalidArgument,
                            "cluster: 0 < renew_period_s < fence_after_s < takeover_after_s <= 60 "
-                           "must hold (a standby must not take a world its owner still serves)");
+                           "must hold (a standby must not take a world its owner still serves), "
+                           "and 0 <= lease_period_s <= 60");
   } else if (c.core.standby != 0) {
     return Status::Error(Code::InvalidArgument,
                          "cluster.standby needs cluster.coordinator (etcd's client URL)");
@@ -275,7 +277,7 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
   if (auto* t = root["cluster"].as_table()) {
     s = checkKeys(*t,
                   {"enabled", "coordinator", "coordinator_prefix", "standby", "renew_period_s",
-                   "fence_after_s", "takeover_after_s"},
+                   "fence_after_s", "takeover_after_s", "lease_period_s"},
                   "cluster");
     if (!s.ok()) return s;
     PHYS_GET(*t, "enabled", "cluster", &c.core.cluster);
@@ -285,6 +287,7 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     PHYS_GET(*t, "renew_period_s", "cluster", &c.core.renewPeriodS);
     PHYS_GET(*t, "fence_after_s", "cluster", &c.core.fenceAfterS);
     PHYS_GET(*t, "takeover_after_s", "cluster", &c.core.takeoverAfterS);
+    PHYS_GET(*t, "lease_period_s", "cluster", &c.core.standbyLeasePeriodS);
   }
   if (auto* t = root["dds"].as_table()) {
     s = checkKeys(*t, {"domain", "config"}, "dds");

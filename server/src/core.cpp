@@ -492,6 +492,7 @@ size_t ServerCore::processPending() {
   if (coordinated()) {
     for (OwnershipNote& n : notes) applyOwnership(n);
     updateFences();
+    followOwners();  // the worlds this daemon stands by for, replayed as their journals grow
   }
   // Commands that waited for a Step job which has ended go first, in their order.
   for (uint32_t id : worldIds()) drainWaiting(id);

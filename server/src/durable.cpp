@@ -185,12 +185,18 @@ uint64_t ServerCore::leaseForRun(ServerWorld& w, uint64_t n) {
   // About leasePeriodS of the world's steps at once: at its rate, or (as fast as possible) at
   // the pace of its last tick; at least this tick's.
   uint64_t ahead = n;
-  if (config_.leasePeriodS > 0) {
+  // A world with a standby promises less at once: its standby replays the records as they
+  // come, and a takeover steps the rest of the last lease (docs/SERVER.md "Standby and
+  // takeover").
+  const double period = w.ownership != 0 && config_.standby != 0
+                            ? std::min(config_.leasePeriodS, config_.standbyLeasePeriodS)
+                            : config_.leasePeriodS;
+  if (period > 0) {
     const double perS = w.mode == RunMode::RealTime ? w.rateHz
                         : w.tickMs > 0              ? 1000.0 / double(w.tickMs)
                                                     : 1000.0;
     ahead = std::max<uint64_t>(
-        ahead, uint64_t(std::min(std::ceil(perS * config_.leasePeriodS), double(1 << 20))));
+        ahead, uint64_t(std::min(std::ceil(perS * period), double(1 << 20))));
   }
   Status s = leaseTo(w, w.tick + ahead, /*syncNow=*/true);
   if (s.ok()) {
@@ -323,6 +329,15 @@ void ServerCore::commitDurable() {
 Status ServerCore::restoreInto(ServerWorld& w, const Checkpoint& c,
                                const std::vector<JournalRecord>& records,
                                std::vector<std::string>* notes, uint64_t stopAt) {
+  Status s = beginReplay(w, c);
+  if (!s.ok()) return s;
+  Replay replay;
+  replayRecords(w, records, &replay, notes);
+  endReplay(w, replay, notes, stopAt);
+  return Status::Ok();
+}
+
+Status ServerCore::beginReplay(ServerWorld& w, const Checkpoint& c) {
   phys::WorldDef def;
   if (!phys::parseBackend(c.meta.backend, &def.backend)) def.backend = config_.backend;
   auto fresh = makeWorld(c.meta.name, c.meta.preset, def);
@@ -345,13 +360,15 @@ Status ServerCore::restoreInto(ServerWorld& w, const Checkpoint& c,
   w.accumulator = 0;
   // (A checkpoint written before issue 40 also holds the definitions as a portable snapshot:
   // a copy of what its engine state holds, not read.)
-  // Replay: steps up to each record's tick, then the record; then the steps of a lease that
-  // is still open (the world may have taken them, and subscribers seen them).
+  return Status::Ok();
+}
+
+void ServerCore::replayRecords(ServerWorld& w, const std::vector<JournalRecord>& records,
+                               Replay* replay, std::vector<std::string>* notes) {
+  // Steps up to each record's tick, then the record.
   replaying_ = true;
-  size_t applied = 0;
-  uint64_t lease = 0;
-  bool leaseOpen = false, stopped = false;
-  for (const JournalRecord& r : records) {
+  for (; replay->applied < records.size() && !replay->stopped; ++replay->applied) {
+    const JournalRecord& r = records[replay->applied];
     while (w.tick < r.tick) {
       stepTimed(w, 1);
       if (!stepProblem_.ok()) break;
@@ -359,61 +376,69 @@ Status ServerCore::restoreInto(ServerWorld& w, const Checkpoint& c,
     if (w.tick != r.tick) {
       notes->push_back("world " + std::to_string(w.id) + ": replay stopped at tick " +
                        std::to_string(w.tick) + " (a step was not taken: " +
-                       stepProblem_.message + "); " + std::to_string(records.size() - applied) +
+                       stepProblem_.message + "); " +
+                       std::to_string(records.size() - replay->applied) +
                        " journal records not replayed");
-      stopped = true;
+      replay->stopped = true;
       break;
     }
     if (r.kind == JournalRecord::Kind::Mark && r.payload.size() == 9) {
       w.mode = RunMode(r.payload[0]);
       std::memcpy(&w.rateHz, r.payload.data() + 1, 8);
-      leaseOpen = false;  // the world stopped stepping here
+      replay->leaseOpen = false;  // the world stopped stepping here
     } else if (r.kind == JournalRecord::Kind::Lease && r.payload.size() == 8) {
-      std::memcpy(&lease, r.payload.data(), 8);
-      leaseOpen = true;
+      std::memcpy(&replay->lease, r.payload.data(), 8);
+      replay->leaseOpen = true;
     } else if (r.kind == JournalRecord::Kind::Command) {
       auto cmd = protocol::decodeCommand(r.payload, config_.limits);
       if (!cmd.ok()) {
         notes->push_back("world " + std::to_string(w.id) + ": journal record " +
-                         std::to_string(applied) + " is not a command (" + cmd.status.message +
-                         "); replay stopped");
-        stopped = true;
+                         std::to_string(replay->applied) + " is not a command (" +
+                         cmd.status.message + "); replay stopped");
+        replay->stopped = true;
         break;
       }
       // Access was checked when it was first applied; nothing it does depends on who sent it.
       applyChecked(*cmd, cmd->client_id(), cmd->client_id(), /*proven=*/false);
       if (!lastStatus_.ok())
         notes->push_back("world " + std::to_string(w.id) + ": journal record " +
-                         std::to_string(applied) + " (" +
+                         std::to_string(replay->applied) + " (" +
                          protocol::requestName(cmd->request_type()) +
                          ") was refused on replay: " + lastStatus_.message);
-      if (cmd->request_type() == wire::Request::Pause) leaseOpen = false;
+      if (cmd->request_type() == wire::Request::Pause) replay->leaseOpen = false;
     }
-    ++applied;
   }
-  if (leaseOpen && !stopped) {
-    const uint64_t end = std::min(lease, stopAt);
+  replaying_ = false;
+}
+
+void ServerCore::endReplay(ServerWorld& w, Replay& replay, std::vector<std::string>* notes,
+                           uint64_t stopAt) {
+  // The steps of a lease that is still open (the world may have taken them, and subscribers
+  // seen them).
+  replaying_ = true;
+  if (replay.leaseOpen && !replay.stopped) {
+    const uint64_t end = std::min(replay.lease, stopAt);
     while (w.tick < end) {
       stepTimed(w, 1);
       if (!stepProblem_.ok()) {
         notes->push_back("world " + std::to_string(w.id) + ": replay stopped at tick " +
-                         std::to_string(w.tick) + " of its lease to " + std::to_string(lease) +
-                         " (a step was not taken: " + stepProblem_.message + ")");
-        leaseOpen = false;
+                         std::to_string(w.tick) + " of its lease to " +
+                         std::to_string(replay.lease) + " (a step was not taken: " +
+                         stepProblem_.message + ")");
+        replay.leaseOpen = false;
         break;
       }
     }
   }
   replaying_ = false;
   ++w.revision;  // never behind what subscribers last saw (replay bumps it at least as often)
-  w.leaseUntil = leaseOpen ? std::max(lease, w.tick) : w.tick;
+  w.leaseUntil = replay.leaseOpen ? std::max(replay.lease, w.tick) : w.tick;
   w.reachedTick = w.tick;
   w.held = false;
   w.infoDirty = w.frameDirty = true;
   w.epoch = std::max(w.epoch, epochBase_);  // this start's range (a reload: the world's own)
   w.framesReplaced();                       // a new epoch
   w.checkpointAt = std::chrono::steady_clock::now();
-  return Status::Ok();
 }
 
 Status ServerCore::reloadWorld(ServerWorld& w, std::vector<std::string>* notes) {

@@ -2,6 +2,7 @@
 #include "phys/server/ownership.h"
 
 #include <nlohmann/json.hpp>
+#include <random>
 
 namespace phys::server {
 
@@ -14,9 +15,12 @@ std::chrono::milliseconds ms(double s) {
 Ownership::Ownership(ServerCore* core)
     : core_(core),
       config_(core->config()),
-      // A request slower than the fence window is as good as lost.
-      etcd_(core->config().coordinator, std::max(ms(core->config().fenceAfterS),
-                                                 std::chrono::milliseconds(100))) {}
+      // A renewal that comes back late still counts from when it was sent (and is useless
+      // past the fence window); reads are safe however late. A loaded etcd (its WAL fsync)
+      // can take a while: no shorter than a second.
+      etcd_(core->config().coordinator,
+            std::max(ms(2 * core->config().takeoverAfterS), std::chrono::milliseconds(1000))),
+      incarnation_(std::random_device{}() | uint64_t(std::random_device{}()) << 32) {}
 
 Ownership::~Ownership() {
   stop();
@@ -58,14 +62,31 @@ void Ownership::renew() {
     heartbeat_ = kvs.empty() ? 0 : kvs[0].modRevision;
   }
   const auto sent = Clock::now();
-  const std::string value =
-      nlohmann::json{{"id", config_.serverId}, {"data", config_.dataDir}}.dump();
+  const std::string value = nlohmann::json{{"id", config_.serverId},
+                                           {"data", config_.dataDir},
+                                           {"incarnation", incarnation_}}
+                                .dump();
   bool ok = false;
   int64_t revision = 0;
   Status s = etcd_.txn({{k, heartbeat_}}, {{k, value}}, {}, &ok, &revision);
-  if (!s.ok()) return;  // the hold lapses by itself
+  if (!s.ok()) {
+    heartbeat_ = -1;  // it may have landed after all: read again (the hold lapses meanwhile)
+    return;
+  }
   if (!ok) {
-    // Someone else rewrote this daemon's heartbeat: another physd with the same server.id.
+    // The key changed: a renewal of ours whose answer was lost (the same incarnation), or
+    // another physd with the same server.id.
+    std::vector<Etcd::Kv> kvs;
+    if (etcd_.range(k, false, &kvs).ok() && !kvs.empty()) {
+      try {
+        if (nlohmann::json::parse(kvs[0].value).value("incarnation", uint64_t(0)) ==
+            incarnation_) {
+          heartbeat_ = kvs[0].modRevision;
+          return;
+        }
+      } catch (...) {
+      }
+    }
     if (!heartbeatClash_)
       core_->note(true, "coordinator: another daemon renews server.id " +
                             std::to_string(config_.serverId) +
@@ -125,6 +146,12 @@ void Ownership::look() {
     auto [it, added] = heartbeats_.try_emplace(d, Seen{revision, now});
     if (!added && it->second.revision != revision) it->second = {revision, now};
   }
+
+  // The worlds this daemon stands by for: the tick thread replays their owners' files.
+  std::map<uint32_t, ServerCore::Followed> followed;
+  for (const auto& [id, k] : keys)
+    if (k.standby == me && k.owner != me && !k.dir.empty()) followed[id] = {k.dir, k.owner};
+  core_->standBy(std::move(followed));
 
   bool fresh = false;
   const std::vector<ServerCore::OwnedWorld> owned = core_->ownedWorlds(&fresh);

@@ -717,4 +717,14 @@ bool verifyDataDir(const std::string& data, std::string* text) {
   return ok;
 }
 
+Status readCheckpoint(const std::string& worldDir, Checkpoint* checkpoint, uint32_t* crc) {
+  std::vector<uint8_t> bytes;
+  if (!readFile(worldDir + "/checkpoint", &bytes))
+    return Status::Error(Code::NotFound, worldDir + " has no checkpoint");
+  Status s = decodeCheckpoint(bytes, checkpoint);
+  if (!s.ok()) return Status::Error(s.code, worldDir + "/checkpoint: " + s.message);
+  *crc = storedCrc(bytes);
+  return Status::Ok();
+}
+
 }  // namespace phys::server

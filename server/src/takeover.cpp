@@ -7,6 +7,10 @@
 // is what the owner's would have been. A registered world is served only while this daemon's
 // hold is renewed (fenced otherwise: not stepped, no frames, commands wait, acknowledgements
 // parked).
+#include <sys/stat.h>
+
+#include <cerrno>
+#include <cstring>
 #include <filesystem>
 
 #include "phys/server/core.h"
@@ -120,6 +124,79 @@ void ServerCore::standDown(uint32_t id, uint64_t daemon) {
   for (Incoming& in : waiting) applyNow(in);  // answered Moved
 }
 
+void ServerCore::standBy(std::map<uint32_t, Followed> worlds) {
+  std::lock_guard<std::mutex> lock(ownedMutex_);
+  standbyFor_ = std::move(worlds);
+}
+
+void ServerCore::followOwners() {
+  const auto now = Clock::now();
+  if (now - followedAt_ < std::chrono::duration<double>(config_.renewPeriodS)) return;
+  followedAt_ = now;
+  std::map<uint32_t, Followed> want;
+  {
+    std::lock_guard<std::mutex> lock(ownedMutex_);
+    want = standbyFor_;
+  }
+  std::erase_if(shadows_, [&](const auto& s) { return !want.count(s.first); });
+  for (const auto& [id, f] : want) {
+    if (world(id)) continue;  // this daemon's already
+    Shadow& sh = shadows_[id];
+    if (sh.dir != f.dir) sh = Shadow{};
+    sh.dir = f.dir;
+    sh.owner = f.owner;
+    std::vector<std::string> notes;
+    Status s = follow(id, sh, &notes);
+    for (const std::string& note : notes) log(true, "standby: " + note);
+    (void)s;  // read again next time (a checkpoint being replaced, files not there yet)
+  }
+}
+
+Status ServerCore::follow(uint32_t id, Shadow& sh, std::vector<std::string>* notes) {
+  struct stat st {};
+  const std::string checkpoint = sh.dir + "/checkpoint";
+  if (::stat(checkpoint.c_str(), &st) != 0)
+    return Status::Error(Code::NotFound, checkpoint + ": " + std::strerror(errno));
+  const int64_t mtime = int64_t(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec;
+  if (!sh.world || uint64_t(st.st_ino) != sh.inode || mtime != sh.mtimeNs) {
+    // Built from the owner's checkpoint: the first time, and after each new one.
+    Checkpoint c;
+    uint32_t crc = 0;
+    Status s = readCheckpoint(sh.dir, &c, &crc);
+    if (!s.ok()) return s;
+    if (c.meta.worldId != id)
+      return Status::Error(Code::Malformed, checkpoint + " is of world " +
+                                                std::to_string(c.meta.worldId));
+    auto w = std::make_unique<ServerWorld>();
+    w->id = id;
+    s = beginReplay(*w, c);
+    if (!s.ok()) return s;
+    sh.world = std::move(w);
+    sh.meta = c.meta;
+    sh.crc = crc;
+    sh.inode = uint64_t(st.st_ino);
+    sh.mtimeNs = mtime;
+    sh.replay = Replay{};
+    sh.journalBytes = 0;
+  }
+  const std::string journal = sh.dir + "/journal-" + std::to_string(sh.meta.generation);
+  struct stat js {};
+  if (::stat(journal.c_str(), &js) != 0)
+    return Status::Error(Code::NotFound, journal + ": " + std::strerror(errno));
+  if (uint64_t(js.st_size) == sh.journalBytes) return Status::Ok();  // nothing new
+  JournalScan scan = scanJournal(journal, sh.meta, sh.crc);
+  if (scan.lossy()) return Status::Error(Code::IncorrectState, scan.detail);
+  sh.journalBytes = scan.fileBytes;
+  if (scan.records.size() <= sh.replay.applied || sh.replay.stopped) return Status::Ok();
+  if (world(id)) return Status::Error(Code::IncorrectState, "a world " + std::to_string(id) + " is here");
+  // Replayed in place (commands find their world in worlds_), then set aside again.
+  worlds_[id] = std::move(sh.world);
+  replayRecords(*worlds_[id], scan.records, &sh.replay, notes);
+  sh.world = std::move(worlds_[id]);
+  worlds_.erase(id);
+  return Status::Ok();
+}
+
 void ServerCore::takeOver(OwnershipNote& n) {
   const uint32_t id = n.world;
   auto fail = [&](const std::string& why) {
@@ -129,46 +206,37 @@ void ServerCore::takeOver(OwnershipNote& n) {
   if (world(id)) return fail("this daemon holds a world " + std::to_string(id) + " already");
   if (!durable()) return fail("this daemon keeps no worlds ([paths] data)");
   const auto t0 = Clock::now();
-  // The owner's files, copied into this daemon's data: its checkpoint and journals, as they
-  // are now (a torn last record, never acknowledged, is cut from the copy by load()).
-  const fs::path src(n.dir), dst = fs::path(config_.dataDir) / "worlds" / std::to_string(id);
-  std::error_code ec;
-  fs::remove_all(dst, ec);
-  fs::create_directories(dst, ec);
-  if (ec) return fail("cannot create " + dst.string() + ": " + ec.message());
-  for (const auto& e : fs::directory_iterator(src, ec)) {
-    const std::string name = e.path().filename().string();
-    if (name != "checkpoint" && !name.starts_with("journal-")) continue;
-    fs::copy_file(e.path(), dst / name, fs::copy_options::overwrite_existing, ec);
-    if (ec) return fail("cannot copy " + e.path().string() + ": " + ec.message());
-  }
-  if (ec) return fail("cannot read " + src.string() + ": " + ec.message());
-  auto w = std::make_unique<ServerWorld>();
-  w->id = id;
-  w->store = std::make_unique<WorldStore>(dst.string());
-  Checkpoint c;
-  std::vector<JournalRecord> records;
+  // The copy kept up to date (a hot standby), brought to the end of the owner's journal now;
+  // or, without one, built from the owner's files now (a cold standby).
+  Shadow& sh = shadows_[id];
+  if (sh.dir != n.dir) sh = Shadow{};
+  sh.dir = n.dir;
+  sh.owner = n.daemon;
+  const size_t before = sh.world ? sh.replay.applied : 0;
   std::vector<std::string> notes;
-  LoadReport report;
-  Status s = w->store->load(&c, &records, &notes, &report);
-  if (s.ok() && c.meta.worldId != id)
-    s = Status::Error(Code::Malformed, "its checkpoint is of world " + std::to_string(c.meta.worldId));
-  if (s.ok() && findWorld(c.meta.name))
-    s = Status::Error(Code::InvalidArgument, "this daemon holds a world named '" + c.meta.name + "'");
+  Status s = follow(id, sh, &notes);
+  if (s.ok() && !sh.world) s = Status::Error(Code::NotFound, n.dir + ": nothing to take over");
+  if (s.ok() && findWorld(sh.world->name))
+    s = Status::Error(Code::InvalidArgument,
+                      "this daemon holds a world named '" + sh.world->name + "'");
+  for (const std::string& note : notes) log(true, note);
   if (!s.ok()) {
-    fs::remove_all(dst, ec);
+    shadows_.erase(id);
     return fail(s.message);
   }
+  std::unique_ptr<ServerWorld> w = std::move(sh.world);
+  Replay replay = sh.replay;
+  shadows_.erase(id);
   ServerWorld* sw = w.get();
   worlds_[id] = std::move(w);
-  s = restoreInto(*sw, c, records, &notes);
-  if (s.ok()) s = checkpointWorld(*sw);  // its own files from now on
-  for (const std::string& note : notes) log(false, note);
-  if (!s.ok()) {
-    worlds_.erase(id);
-    fs::remove_all(dst, ec);
-    return fail(s.message);
-  }
+  notes.clear();
+  endReplay(*sw, replay, &notes);  // the steps of the owner's last lease
+  for (const std::string& note : notes) log(true, note);
+  // Its own files from now on: a checkpoint of the state reached (fresh directory).
+  std::error_code ec;
+  fs::remove_all(fs::path(config_.dataDir) / "worlds" / std::to_string(id), ec);
+  s = createStore(*sw);
+  if (!s.ok()) log(true, "world " + std::to_string(id) + " taken over is not kept on disk: " + s.message);
   movedOut_.erase(id);
   keepMovedOut();
   sw->ownership = n.revision;
@@ -178,9 +246,9 @@ void ServerCore::takeOver(OwnershipNote& n) {
   statusWanted_ = true;
   const double ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
   log(false, "world " + std::to_string(id) + " '" + sw->name + "': taken over from daemon " +
-                std::to_string(n.daemon) + " at tick " + std::to_string(sw->tick) + " (" +
-                std::to_string(records.size()) + " journal records replayed, " +
-                std::to_string(int(ms)) + " ms)");
+                 std::to_string(n.daemon) + " at tick " + std::to_string(sw->tick) + " (" +
+                 std::to_string(replay.applied - before) + " journal records replayed now, " +
+                 std::to_string(before) + " before; " + std::to_string(int(ms)) + " ms)");
   queueEvent(*sw, wire::Severity::Warning, "taken_over",
              "daemon " + std::to_string(n.daemon) + " stopped renewing its hold; daemon " +
                  std::to_string(config_.serverId) + " took the world over from its files at tick " +

@@ -2,7 +2,10 @@
 // [cluster] enabled on one DDS domain and one SDK client. Worlds created without naming a
 // daemon are spread by the SDK's placement, every world's commands reach its owner and are
 // answered once, and a world nobody holds is an error, not a silence.
+#include <arpa/inet.h>
 #include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
 
 #include <chrono>
 #include <cstring>
@@ -24,6 +27,42 @@ namespace {
 
 using namespace std::chrono_literals;
 
+/// The coordinator: etcd (Debian's etcd-server) on loopback ports of this test process, its
+/// data in a scratch directory, its output in a log there.
+struct Coordinator {
+  testing::ScratchDir dir{"physd_etcd"};
+  int port = 30000 + 2 * int(getpid() % 2000);
+  pid_t pid = 0;
+  std::string url() const { return "http://127.0.0.1:" + std::to_string(port); }
+  /// True once it accepts connections (within 10 s).
+  bool start() {
+    const std::string peer = "http://127.0.0.1:" + std::to_string(port + 1);
+    const std::string cmd =
+        "exec etcd --name t --data-dir " + testing::shq((dir.path / "data").string()) +
+        " --listen-client-urls " + url() + " --advertise-client-urls " + url() +
+        " --listen-peer-urls " + peer + " --initial-advertise-peer-urls " + peer +
+        " --initial-cluster t=" + peer + " >" + testing::shq((dir.path / "etcd.log").string()) +
+        " 2>&1";
+    pid = testing::spawnProcess("/bin/sh", {"-c", cmd});
+    const auto end = std::chrono::steady_clock::now() + 10s * int64_t(phys::test::kTimeFactor);
+    while (pid > 0 && std::chrono::steady_clock::now() < end) {
+      const int fd = socket(AF_INET, SOCK_STREAM, 0);
+      sockaddr_in a{};
+      a.sin_family = AF_INET;
+      a.sin_port = htons(uint16_t(port));
+      a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+      const bool up = connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0;
+      close(fd);
+      if (up) return true;
+      std::this_thread::sleep_for(50ms);
+    }
+    return false;
+  }
+  ~Coordinator() {
+    if (pid > 0) testing::stopProcess(pid, SIGKILL);
+  }
+};
+
 struct Cluster {
   static constexpr int kDaemons = 3;
   testing::ScratchDir dir{"physd_cluster"};
@@ -31,15 +70,23 @@ struct Cluster {
   std::vector<std::unique_ptr<testing::PhysdConfig>> configs;
   std::vector<pid_t> pids;
 
-  /// durable: each daemon keeps its worlds in <dir>/d<i>/data.
-  explicit Cluster(bool durable = false) {
+  /// durable: each daemon keeps its worlds in <dir>/d<i>/data. coordinator: etcd's URL, and
+  /// daemon i stands by for daemon i-1's worlds (1 for 3's).
+  explicit Cluster(bool durable = false, const std::string& coordinator = "") {
     for (int i = 1; i <= kDaemons; ++i) {
       const auto d = dir.path / ("d" + std::to_string(i));
       std::filesystem::create_directories(d);
       const std::string data = durable ? "data = \"" + (d / "data").string() + "\"\n" : "";
+      const std::string standby =
+          coordinator.empty() ? ""
+                              : "coordinator = \"" + coordinator + "\"\nstandby = " +
+                                    std::to_string(i % kDaemons + 1) +
+                                    // Looser than the defaults (0.3 and 0.5 s): ctest runs
+                                    // beside other tests, and etcd's fsyncs wait for the disk.
+                                    "\nfence_after_s = 0.6\ntakeover_after_s = 1.0\n";
       configs.push_back(std::make_unique<testing::PhysdConfig>(
-          d, "cluster-" + std::to_string(i), domain, data + "[cluster]\nenabled = true\n",
-          "id = " + std::to_string(i) + "\n"));
+          d, "cluster-" + std::to_string(i), domain,
+          data + "[cluster]\nenabled = true\n" + standby, "id = " + std::to_string(i) + "\n"));
       start(i);
     }
   }
@@ -335,6 +382,114 @@ TEST(Cluster, AMovedWorldIsKeptByItsNewDaemonAcrossRestarts) {
   std::this_thread::sleep_for(500ms);  // the restarted daemon greeted
   EXPECT_EQ(c.listWorlds(on1).get().size(), 0u);
   EXPECT_EQ(w.step(1).get().tick, 16u);
+  for (int i = 1; i <= Cluster::kDaemons; ++i) EXPECT_TRUE(cl.stop(i)) << "daemon " << i;
+}
+
+/// The daemon whose list has `world` (0: none lists it, or the lists could not be had).
+uint64_t holderOf(Client& c, uint32_t world) {
+  try {
+    for (const WorldSummary& s : c.listWorlds({1000ms}).get())
+      if (s.world == world && s.movingTo == 0) return s.daemon;
+  } catch (const Error&) {
+  }
+  return 0;
+}
+
+/// Both worlds' bodies are the same, bit for bit.
+void expectSameState(const StateFrame& a, const StateFrame& b) {
+  EXPECT_EQ(a.tick, b.tick);
+  ASSERT_EQ(a.bodies.size(), b.bodies.size());
+  for (size_t i = 0; i < a.bodies.size(); ++i) {
+    EXPECT_EQ(std::memcmp(&a.bodies[i].position, &b.bodies[i].position, sizeof(phys::Vec3)), 0) << i;
+    EXPECT_EQ(std::memcmp(&a.bodies[i].rotation, &b.bodies[i].rotation, sizeof(phys::Quat)), 0) << i;
+    EXPECT_EQ(std::memcmp(&a.bodies[i].linearVelocity, &b.bodies[i].linearVelocity,
+                          sizeof(phys::Vec3)), 0) << i;
+  }
+}
+
+// docs/SERVER.md "Standby and takeover": daemon 1's worlds have daemon 2 as their standby.
+// Daemon 1 is killed (SIGKILL) after a client's edits were acknowledged; daemon 2 takes the
+// world over from daemon 1's files, with every acknowledged edit, at the tick daemon 1 had
+// reached, with the state of a twin world that was never interrupted, bit for bit; the same
+// handle and subscription go on. Daemon 1, restarted, stands down.
+TEST(Cluster, AKilledOwnersWorldIsTakenOverByItsStandbyWithEveryAcknowledgedEdit) {
+  Coordinator etcd;
+  ASSERT_TRUE(etcd.start()) << "etcd did not start (Debian's etcd-server); log in " << etcd.dir.path;
+  Cluster cl(/*durable=*/true, etcd.url());
+  const std::unique_ptr<Client> connected = cl.connected();
+  ASSERT_TRUE(connected);
+  Client& c = *connected;
+  CallOptions on1, on3;
+  on1.daemon = 1;
+  on3.daemon = 3;
+  WorldHandle taken = c.createWorld({"taken", "", std::nullopt, 0}, on1).get();
+  WorldHandle twin = c.createWorld({"twin", "", std::nullopt, 0}, on3).get();
+  const std::vector<uint64_t> ids = taken.spawn(pile()).get();
+  ASSERT_EQ(twin.spawn(pile()).get(), ids);
+  // Registered with the coordinator within a round of its creation (0.1 s): a world that is
+  // not registered yet has no standby.
+  std::this_thread::sleep_for(1s);
+
+  std::mutex m;
+  std::vector<uint64_t> ticks;
+  Subscription sub = taken.subscribe([&](const StateFrame& f) {
+    std::lock_guard<std::mutex> lk(m);
+    ticks.push_back(f.tick);
+  });
+  ASSERT_TRUE(sub.waitForFrame(0, 10s));
+  for (int i = 0; i < 20; ++i) {
+    taken.step(1).get();
+    twin.step(1).get();
+  }
+  // Edits acknowledged just before the kill.
+  taken.setVelocity(ids[3], {1.5f, 0, 0}).get();
+  twin.setVelocity(ids[3], {1.5f, 0, 0}).get();
+  taken.applyImpulse(ids[5], {0, 0.7f, 0}).get();
+  twin.applyImpulse(ids[5], {0, 0.7f, 0}).get();
+  for (int i = 0; i < 10; ++i) {
+    taken.step(1).get();
+    twin.step(1).get();
+  }
+  ASSERT_TRUE(sub.waitForFrame(29, 10s));
+
+  testing::stopProcess(cl.pids[0], SIGKILL);
+  cl.pids[0] = 0;
+  const auto killed = std::chrono::steady_clock::now();
+  const auto end = killed + 20s * int64_t(phys::test::kTimeFactor);
+  uint64_t holder = 0;
+  while ((holder = holderOf(c, taken.id())) != 2 && std::chrono::steady_clock::now() < end)
+    std::this_thread::sleep_for(20ms);
+  ASSERT_EQ(holder, 2u) << "daemon 2 did not take the world over";
+  std::printf("taken over and listed %.0f ms after the kill\n",
+              std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - killed)
+                  .count());
+
+  // At tick 30, with both edits: the twin's state, bit for bit; and alike 10 steps on.
+  expectSameState(taken.queryState().get(), twin.queryState().get());
+  for (int i = 0; i < 10; ++i) {
+    EXPECT_EQ(taken.step(1).get().tick, uint64_t(31 + i));
+    twin.step(1).get();
+  }
+  expectSameState(taken.queryState().get(), twin.queryState().get());
+  // The subscription goes on with the new owner's frames.
+  EXPECT_TRUE(sub.waitForFrame(39, 10s));
+  {
+    std::lock_guard<std::mutex> lk(m);
+    ASSERT_FALSE(ticks.empty());
+    EXPECT_EQ(ticks.back(), 40u);
+  }
+
+  // Daemon 1 restarted: it finds the world taken (the coordinator says so) and stands down;
+  // the world is listed once, by daemon 2, and goes on there.
+  cl.start(1);
+  ASSERT_GT(cl.pids[0], 0);
+  ASSERT_TRUE(Cluster::awaitDaemons(c));
+  std::this_thread::sleep_for(1s);
+  EXPECT_EQ(c.listWorlds(on1).get().size(), 0u);
+  EXPECT_EQ(holderOf(c, taken.id()), 2u);
+  EXPECT_EQ(taken.step(1).get().tick, 41u);
+  std::this_thread::sleep_for(300ms);
+  EXPECT_EQ(c.duplicateReplies(), 0u);
   for (int i = 1; i <= Cluster::kDaemons; ++i) EXPECT_TRUE(cl.stop(i)) << "daemon " << i;
 }
 

@@ -62,6 +62,9 @@ struct CoreConfig {
   /// it has read the same renewal for takeoverAfterS (> fenceAfterS: the deposed owner has
   /// stopped by then, whatever the clocks between them).
   double renewPeriodS = 0.1, fenceAfterS = 0.3, takeoverAfterS = 0.5;
+  /// leasePeriodS for a registered world with a standby: a takeover steps at most this much
+  /// simulated time beyond the journal's records (one journal sync per lease).
+  double standbyLeasePeriodS = 0.1;
   double statusPeriodS = 1.0;  ///< phys/status period (ServerStatus.status_period_s)
   std::string presetsFile;  ///< empty: phys::defaultPresetsPath()
   std::string scenesDir;    ///< LoadScene by name: <scenesDir>/<name>.json
@@ -493,6 +496,13 @@ class ServerCore {
   /// Thread-safe: this daemon's kept worlds as of the last tick boundary; `fresh` false until
   /// the tick thread has written it once.
   std::vector<OwnedWorld> ownedWorlds(bool* fresh = nullptr) const;
+  /// The worlds this daemon stands by for (coordinator thread, every round): their owner and
+  /// directory. The tick thread keeps a replayed copy of each (a hot standby).
+  struct Followed {
+    std::string dir;
+    uint64_t owner = 0;
+  };
+  void standBy(std::map<uint32_t, Followed> worlds);
   /// Thread-safe: a status sample is wanted before the period ends (a world taken over).
   bool takeStatusWanted() { return statusWanted_.exchange(false); }
   bool coordinated() const { return !config_.coordinator.empty(); }
@@ -721,6 +731,39 @@ class ServerCore {
   /// open at the end, up to stopAt.
   Status restoreInto(ServerWorld& w, const Checkpoint& c, const std::vector<JournalRecord>& records,
                      std::vector<std::string>* notes, uint64_t stopAt = UINT64_MAX);
+  /// restoreInto in three parts, for a standby that replays a journal as it grows: the
+  /// checkpoint; the records from replay->applied on (each at its tick; the world in worlds_
+  /// meanwhile, as commands find their world there); the steps of a lease still open, up
+  /// to stopAt, and the bookkeeping of a world that is served again.
+  struct Replay {
+    size_t applied = 0;  ///< records replayed
+    uint64_t lease = 0;
+    bool leaseOpen = false;
+    bool stopped = false;  ///< a step or a record failed: nothing more is replayed
+  };
+  Status beginReplay(ServerWorld& w, const Checkpoint& c);
+  void replayRecords(ServerWorld& w, const std::vector<JournalRecord>& records, Replay* replay,
+                     std::vector<std::string>* notes);
+  void endReplay(ServerWorld& w, Replay& replay, std::vector<std::string>* notes,
+                 uint64_t stopAt = UINT64_MAX);
+  /// A world this daemon stands by for, replayed from its owner's files as they grow
+  /// (followOwners, takeover.cpp): what a takeover starts from.
+  struct Shadow {
+    std::unique_ptr<ServerWorld> world;
+    std::string dir;
+    uint64_t owner = 0;
+    uint64_t inode = 0;  ///< the checkpoint file replayed from (another one: rebuilt)
+    int64_t mtimeNs = 0;
+    CheckpointMeta meta;
+    uint32_t crc = 0;     ///< the checkpoint's, as its journal's header names it
+    Replay replay;
+    uint64_t journalBytes = 0;  ///< the journal's size when last read
+  };
+  std::map<uint32_t, Shadow> shadows_;
+  std::chrono::steady_clock::time_point followedAt_{};
+  /// Every renewPeriodS: each shadow brought up to its owner's files.
+  void followOwners();
+  Status follow(uint32_t id, Shadow& sh, std::vector<std::string>* notes);
   void log(bool error, const std::string& line) const;
   /// Replies held until the journals are synced (pushReply).
   struct HeldReply {
@@ -780,6 +823,7 @@ class ServerCore {
   void refreshOwned();
   mutable std::mutex ownedMutex_;
   std::vector<OwnedWorld> owned_;  ///< under ownedMutex_
+  std::map<uint32_t, Followed> standbyFor_;  ///< under ownedMutex_
   bool ownedFresh_ = false;        ///< under ownedMutex_
   std::atomic<bool> statusWanted_{false};
   /// Replies of registered worlds that were ready while the hold had lapsed: sent once it is

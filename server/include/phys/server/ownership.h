@@ -51,6 +51,9 @@ class Ownership {
   std::thread thread_;
   std::atomic<bool> stop_{true};
 
+  /// This process's mark in its heartbeat: a renewal whose answer was lost is told apart
+  /// from another daemon with the same server.id.
+  uint64_t incarnation_ = 0;
   int64_t heartbeat_ = -1;  ///< our heartbeat key's mod revision (-1: not read yet)
   bool heartbeatClash_ = false;
   /// Another daemon's heartbeat as this one has read it: its mod revision, and since when

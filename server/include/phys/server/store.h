@@ -156,6 +156,9 @@ class WorldStore {
   bool dirty_ = false;
 };
 
+/// Reads a world's checkpoint file (read only), and the CRC-32 its journal's header names.
+Status readCheckpoint(const std::string& worldDir, Checkpoint* checkpoint, uint32_t* crc);
+
 /// Reads a journal file (read only) as load() would, against the checkpoint it follows.
 JournalScan scanJournal(const std::string& path, const CheckpointMeta& meta,
                         uint32_t checkpointCrc);
