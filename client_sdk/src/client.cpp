@@ -150,6 +150,7 @@ struct Subscription::State {
   Client::Impl* owner = nullptr;
 
   uint64_t skipped = 0;
+  uint64_t stale = 0;  ///< chunks of an older epoch, dropped
 
   // Reassembly (SDK thread only): the chunks of a frame, then the frame applied to the full
   // state (a keyframe replaces it, a delta on the frame it holds changes it). Within an epoch
@@ -219,7 +220,11 @@ struct Subscription::State {
     // tick: the old epoch's reassembly and state are dropped, and its first frame (a
     // keyframe, or deltas repaired by their refreshes) starts the state again. An older
     // epoch's frames are late.
-    if (f.epoch() < epoch) return;
+    if (f.epoch() < epoch) {
+      std::lock_guard<std::mutex> lk(m);
+      ++stale;
+      return;
+    }
     if (f.epoch() > epoch) {
       startOver();
       epoch = f.epoch();
@@ -1307,6 +1312,12 @@ uint64_t Subscription::framesSkipped() const {
   if (!state_) return 0;
   std::lock_guard<std::mutex> lk(state_->m);
   return state_->skipped;
+}
+
+uint64_t Subscription::staleChunks() const {
+  if (!state_) return 0;
+  std::lock_guard<std::mutex> lk(state_->m);
+  return state_->stale;
 }
 
 uint64_t Subscription::framesReceived() const {

@@ -66,18 +66,27 @@ void Ownership::renew() {
                                            {"data", config_.dataDir},
                                            {"incarnation", incarnation_}}
                                 .dump();
+  // The renewal holds only if every world this daemon serves is still its own (its key's
+  // revision is the one it registered): a daemon that was paused past its hold renews nothing
+  // until it has let go of what its standby took (look()).
+  std::vector<Etcd::Compare> compares{{k, heartbeat_}};
+  for (const ServerCore::OwnedWorld& o : core_->ownedWorlds())
+    if (o.ownership != 0 && !o.unconfirmed)
+      compares.push_back({key("worlds", o.id), int64_t(o.ownership)});
   bool ok = false;
   int64_t revision = 0;
-  Status s = etcd_.txn({{k, heartbeat_}}, {{k, value}}, {}, &ok, &revision);
+  Status s = etcd_.txn(compares, {{k, value}}, {}, &ok, &revision);
   if (!s.ok()) {
     heartbeat_ = -1;  // it may have landed after all: read again (the hold lapses meanwhile)
     return;
   }
   if (!ok) {
-    // The key changed: a renewal of ours whose answer was lost (the same incarnation), or
-    // another physd with the same server.id.
+    // A world's key changed (look() finds which), or the heartbeat did: a renewal of ours
+    // whose answer was lost (the same incarnation), or another physd with the same server.id.
     std::vector<Etcd::Kv> kvs;
-    if (etcd_.range(k, false, &kvs).ok() && !kvs.empty()) {
+    if (!etcd_.range(k, false, &kvs).ok()) return;
+    if (!kvs.empty() && kvs[0].modRevision == heartbeat_) return;  // a world's key
+    if (!kvs.empty()) {
       try {
         if (nlohmann::json::parse(kvs[0].value).value("incarnation", uint64_t(0)) ==
             incarnation_) {
@@ -175,7 +184,10 @@ void Ownership::look() {
     takingOver_.erase(o.id);
     auto it = keys.find(o.id);
     const bool ours = it != keys.end() && it->second.owner == me;
-    if (it != keys.end() && !ours) {
+    // A world that came here by MoveWorld (never registered here, not restored): its key
+    // may still name the daemon it left, which drops it soon; it is this daemon's now.
+    const bool movedIn = o.ownership == 0 && !o.unconfirmed;
+    if (it != keys.end() && !ours && !movedIn) {
       // Another daemon holds it now: this one stands down (once).
       if (noted_.count(o.id) && noted_[o.id] == it->second.revision) continue;
       noted_[o.id] = it->second.revision;
@@ -184,7 +196,7 @@ void Ownership::look() {
       continue;
     }
     if (o.ownership != 0 && !o.unconfirmed && ours) continue;  // registered, still ours
-    if (noted_.count(o.id) && ours && noted_[o.id] == it->second.revision) continue;
+    if (noted_.count(o.id) && it != keys.end() && noted_[o.id] == it->second.revision) continue;
     // Not registered (new), restored and not yet confirmed, or a key gone: (re)registered.
     // A new revision, so its epoch is above any this world had before.
     const int64_t expected = it == keys.end() ? 0 : it->second.revision;

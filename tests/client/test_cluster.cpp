@@ -10,6 +10,7 @@
 #include <chrono>
 #include <cstring>
 #include <fstream>
+#include <future>
 #include <optional>
 #include <map>
 #include <mutex>
@@ -489,6 +490,97 @@ TEST(Cluster, AKilledOwnersWorldIsTakenOverByItsStandbyWithEveryAcknowledgedEdit
   EXPECT_EQ(holderOf(c, taken.id()), 2u);
   EXPECT_EQ(taken.step(1).get().tick, 41u);
   std::this_thread::sleep_for(300ms);
+  EXPECT_EQ(c.duplicateReplies(), 0u);
+  for (int i = 1; i <= Cluster::kDaemons; ++i) EXPECT_TRUE(cl.stop(i)) << "daemon " << i;
+}
+
+// Fencing: daemon 1 is stopped (SIGSTOP) past its hold with an edit on its way to it; daemon
+// 2 takes the world over. Woken (SIGCONT), daemon 1 finds its hold lapsed: it applies and
+// acknowledges nothing for the world and publishes no frame of it, stands down, and answers
+// the edit Moved, so the edit is applied once, by daemon 2 (the state of a twin world that
+// got it once, bit for bit). The subscriber never received a frame of the old owner's after
+// the new owner's.
+TEST(Cluster, AStoppedOwnerAcknowledgesAndPublishesNothingForTheWorldItLost) {
+  Coordinator etcd;
+  ASSERT_TRUE(etcd.start()) << "etcd did not start (Debian's etcd-server); log in " << etcd.dir.path;
+  Cluster cl(/*durable=*/true, etcd.url());
+  const std::unique_ptr<Client> connected = cl.connected();
+  ASSERT_TRUE(connected);
+  Client& c = *connected;
+  CallOptions on1, on3;
+  on1.daemon = 1;
+  on3.daemon = 3;
+  WorldHandle lost = c.createWorld({"lost", "", std::nullopt, 0}, on1).get();
+  WorldHandle twin = c.createWorld({"twin", "", std::nullopt, 0}, on3).get();
+  const std::vector<uint64_t> ids = lost.spawn(pile()).get();
+  ASSERT_EQ(twin.spawn(pile()).get(), ids);
+  std::this_thread::sleep_for(1s);  // registered (within a round of 0.1 s)
+  Subscription sub = lost.subscribe();
+  ASSERT_TRUE(sub.waitForFrame(0, 10s));
+  for (int i = 0; i < 20; ++i) {
+    lost.step(1).get();
+    twin.step(1).get();
+  }
+  ASSERT_TRUE(sub.waitForFrame(19, 10s));
+
+  ASSERT_EQ(kill(cl.pids[0], SIGSTOP), 0);
+  std::future<Ack> edit = lost.applyImpulse(ids[5], {0, 0.7f, 0});  // to daemon 1, stopped
+  const auto end = std::chrono::steady_clock::now() + 20s * int64_t(phys::test::kTimeFactor);
+  uint64_t holder = 0;
+  while ((holder = holderOf(c, lost.id())) != 2 && std::chrono::steady_clock::now() < end)
+    std::this_thread::sleep_for(20ms);
+  EXPECT_EQ(holder, 2u) << "daemon 2 did not take the world over";
+  const uint64_t staleBefore = sub.staleChunks();
+  ASSERT_EQ(kill(cl.pids[0], SIGCONT), 0);
+
+  // The edit: answered (Moved by daemon 1, then applied by daemon 2), once.
+  EXPECT_EQ(edit.get().tick, 20u);
+  twin.applyImpulse(ids[5], {0, 0.7f, 0}).get();
+  for (int i = 0; i < 5; ++i) {
+    EXPECT_EQ(lost.step(1).get().tick, uint64_t(21 + i));
+    twin.step(1).get();
+  }
+  expectSameState(lost.queryState().get(), twin.queryState().get());
+  ASSERT_TRUE(sub.waitForFrame(24, 10s));
+  std::this_thread::sleep_for(500ms);
+  // Daemon 1 published nothing of the world after it woke (no chunk of an older epoch came
+  // after the new owner's), and lists it no more.
+  EXPECT_EQ(sub.staleChunks(), staleBefore);
+  EXPECT_EQ(c.listWorlds(on1).get().size(), 0u);
+  EXPECT_EQ(c.duplicateReplies(), 0u);
+  for (int i = 1; i <= Cluster::kDaemons; ++i) EXPECT_TRUE(cl.stop(i)) << "daemon " << i;
+}
+
+// The coordinator restarted (SIGKILL, then started on its data again): meanwhile owners
+// cannot renew their hold and hold their registered worlds (a command waits), standbys cannot
+// take anything; once it is back, every world is where it was and the waiting command is
+// answered by its owner.
+TEST(Cluster, ARestartedCoordinatorChangesNoOwner) {
+  Coordinator etcd;
+  ASSERT_TRUE(etcd.start()) << "etcd did not start (Debian's etcd-server); log in " << etcd.dir.path;
+  Cluster cl(/*durable=*/true, etcd.url());
+  const std::unique_ptr<Client> connected = cl.connected();
+  ASSERT_TRUE(connected);
+  Client& c = *connected;
+  std::vector<WorldHandle> worlds;
+  for (int d = 1; d <= Cluster::kDaemons; ++d) {
+    CallOptions on;
+    on.daemon = uint64_t(d);
+    worlds.push_back(c.createWorld({"w" + std::to_string(d), "", std::nullopt, 0}, on).get());
+    worlds.back().spawn(pile()).get();
+  }
+  std::this_thread::sleep_for(1s);  // registered
+  testing::stopProcess(etcd.pid, SIGKILL);
+  etcd.pid = 0;
+  std::this_thread::sleep_for(1500ms);  // past every hold and every takeover time
+  std::future<Ack> waiting = worlds[0].step(3);
+  ASSERT_TRUE(etcd.start());
+  EXPECT_EQ(waiting.get().tick, 3u);
+  std::this_thread::sleep_for(1500ms);
+  for (int d = 1; d <= Cluster::kDaemons; ++d) {
+    EXPECT_EQ(holderOf(c, worlds[size_t(d - 1)].id()), uint64_t(d)) << "world of daemon " << d;
+    EXPECT_EQ(worlds[size_t(d - 1)].step(1).get().tick, d == 1 ? 4u : 1u);
+  }
   EXPECT_EQ(c.duplicateReplies(), 0u);
   for (int i = 1; i <= Cluster::kDaemons; ++i) EXPECT_TRUE(cl.stop(i)) << "daemon " << i;
 }

@@ -261,6 +261,9 @@ class Subscription {
   /// Ticks skipped because a delta arrived without the frame it applies to (a lost chunk, a
   /// subscription started between keyframes): each is repaired by the next keyframe.
   uint64_t framesSkipped() const;
+  /// Frame chunks dropped because their epoch is below the stream's: late frames of a world
+  /// since reset or restored, or a deposed owner's (docs/SERVER.md "Standby and takeover").
+  uint64_t staleChunks() const;
   void reset();                     ///< unsubscribes
 
   struct State;
