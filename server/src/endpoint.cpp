@@ -472,6 +472,13 @@ DdsEndpoint::StateTopic* DdsEndpoint::stateTopic(uint32_t world, uint32_t intere
 void DdsEndpoint::publish(StateFrameSet& f) {
   // An interest's writer is made when it is added; a frame queued after it was removed goes.
   if (f.interest != 0 && !state_.count(streamKey(f.world, f.interest))) return;
+  // A frame that waited in the queue while this daemon's hold lapsed (it was stopped, say)
+  // is not written: its world may be another daemon's now (docs/SERVER.md "Standby and
+  // takeover").
+  if (core_->coordinated() && !core_->serving()) {
+    counters_.framesFenced.fetch_add(1);
+    return;
+  }
   StateTopic* st = stateTopic(f.world, f.interest);
   if (!st) return;
   for (uint32_t i = 0; i < f.chunks.size(); ++i) {

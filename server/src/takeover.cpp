@@ -229,6 +229,12 @@ void ServerCore::takeOver(OwnershipNote& n) {
   shadows_.erase(id);
   ServerWorld* sw = w.get();
   worlds_[id] = std::move(w);
+  // Its info and frames go out from here (the endpoint forgets that this daemon once let the
+  // world go, when it stood down for it or moved it away).
+  ReliableMessage added;
+  added.type = ReliableMessage::Type::WorldAdded;
+  added.world = id;
+  out_.pushReliable(std::move(added));
   notes.clear();
   endReplay(*sw, replay, &notes);  // the steps of the owner's last lease
   for (const std::string& note : notes) log(true, note);

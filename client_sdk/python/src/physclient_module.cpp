@@ -677,6 +677,10 @@ class PySubscription {
     std::lock_guard<std::mutex> lk(m_);
     return sub_ ? sub_->framesSkipped() : closedSkipped_;
   }
+  uint64_t staleChunks() const {
+    std::lock_guard<std::mutex> lk(m_);
+    return sub_ ? sub_->staleChunks() : 0;
+  }
 
   /// `async for frame in subscription` (defineAsync): the tick of the frame it gave last
   /// (GIL held).
@@ -2175,6 +2179,9 @@ void defineSubscription(py::module_& m) {
            "returned any, after_tick 0 takes the first frame, whatever its tick.")
       .def_property_readonly("frames_received", &PySubscription::framesReceived)
       .def_property_readonly("frames_skipped", &PySubscription::framesSkipped)
+      .def_property_readonly("stale_chunks", &PySubscription::staleChunks,
+                             "Frame chunks dropped because their epoch was below the stream's\n"
+                             "(late frames of a reset world, or a deposed owner's).")
       .def_property_readonly("world", &PySubscription::world)
       .def_property_readonly("active", &PySubscription::active, "False once closed.")
       .def("close", &PySubscription::close)

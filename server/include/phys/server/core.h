@@ -506,6 +506,9 @@ class ServerCore {
   /// Thread-safe: a status sample is wanted before the period ends (a world taken over).
   bool takeStatusWanted() { return statusWanted_.exchange(false); }
   bool coordinated() const { return !config_.coordinator.empty(); }
+  /// Thread-safe: with a coordinator, whether this daemon's hold is renewed now (its
+  /// registered worlds may be served).
+  bool serving() const { return holding(); }
   /// Handoff pieces at most, and bytes of one move at most, that the endpoint puts together.
   static constexpr uint32_t kHandoffChunkBytes = 1u << 20;
   static constexpr uint32_t kMaxHandoffChunks = 2048;

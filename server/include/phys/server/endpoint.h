@@ -44,6 +44,8 @@ struct EndpointCounters {
   std::atomic<uint64_t> undecodable{0};  ///< envelopes or payloads that failed the codec
   std::atomic<uint64_t> repliesWritten{0};
   std::atomic<uint64_t> framesWritten{0};  ///< state chunks
+  /// State frames not written because this daemon's hold had lapsed when their turn came.
+  std::atomic<uint64_t> framesFenced{0};
   std::atomic<uint64_t> writeErrors{0};
   /// Commands dropped unanswered because their envelope key belongs to another participant
   /// (a client's key is bound to the participant that first used it, while it is there).
