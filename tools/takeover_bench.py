@@ -110,14 +110,23 @@ def state(w):
             for b in w.query_state().bodies]
 
 
-def holder(c, world):
+def listed_on(c, world, daemon):
+    """Whether `daemon` lists `world` as its own (one request, to it alone)."""
     try:
-        for s in c.list_worlds():
-            if s.world == world and s.moving_to == 0:
-                return s.daemon
+        return any(s.world == world and s.moving_to == 0
+                   for s in c.list_worlds(daemon=daemon, timeout=1.0))
     except pc.Error:
-        pass
-    return 0
+        return False
+
+
+def back(c, daemon, timeout=60.0):
+    """Waits until `daemon` (restarted) sends status samples again."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if any(d.id == daemon and d.since_sample_s < 0.5 for d in c.daemons()):
+            return True
+        time.sleep(0.05)
+    return False
 
 
 def main():
@@ -176,7 +185,7 @@ def main():
             return None
 
         owner = 1
-        kills, stops, mismatches, lost, stale = [], [], 0, 0, 0
+        kills, stops, mismatches, stale, doubles = [], [], 0, 0, 0
         acked = 0
         for k in range(args.kills + args.stops):
             kill = k < args.kills
@@ -209,8 +218,7 @@ def main():
             # The SDK routes a world's commands by the daemons' status: the new owner's (sent
             # at the takeover) may come after its first frame. One round trip to it first.
             end = time.monotonic() + 10
-            while (all(s.world != stepped.id for s in c.list_worlds(daemon=standby))
-                   and time.monotonic() < end):
+            while not listed_on(c, stepped.id, standby) and time.monotonic() < end:
                 time.sleep(0.01)
             if kill:
                 cl.start(owner)
@@ -224,10 +232,17 @@ def main():
                 w.step(3)
             if state(stepped) != state(twin):
                 mismatches += 1
-            # The old owner (restarted or woken) stands down: the world is listed once.
+            # The old owner (restarted, or woken) is back and has stood down: it lists neither
+            # world; it stands by for the new owner's worlds in a later round.
+            if not back(c, owner):
+                print(f"round {k + 1}: daemon {owner} did not come back")
+                break
             end = time.monotonic() + 20
-            while holder(c, running.id) != standby and time.monotonic() < end:
+            while ((listed_on(c, running.id, owner) or listed_on(c, stepped.id, owner))
+                   and time.monotonic() < end):
                 time.sleep(0.05)
+            if listed_on(c, running.id, owner) or listed_on(c, stepped.id, owner):
+                doubles += 1
             time.sleep(0.5)
             stale += sub.stale_chunks - stale_before
             owner = standby
@@ -241,7 +256,8 @@ def main():
         line("SIGSTOP -> the new owner's first frame", stops)
         print(f"acknowledged edits {acked}; state mismatches with the twin {mismatches} "
               f"(an acknowledged edit lost or applied twice shows as one); stale chunks after "
-              f"the new owner's {stale}; duplicate replies {c.duplicate_replies()}")
+              f"the new owner's {stale}; old owners still listing a world {doubles}; duplicate "
+              f"replies {c.duplicate_replies()}")
         sub.close()
         c.close()
     finally:

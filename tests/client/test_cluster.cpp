@@ -408,28 +408,58 @@ void expectSameState(const StateFrame& a, const StateFrame& b) {
   }
 }
 
+/// etcd and a cluster of durable daemons with it as their coordinator (daemon i stands by for
+/// daemon i-1's worlds), and a client that sees them all.
+struct Coordinated {
+  Coordinator etcd;
+  std::unique_ptr<Cluster> cl;
+  std::unique_ptr<Client> client;
+  /// False when etcd or a daemon did not start, or the client does not see them.
+  bool start() {
+    if (!etcd.start()) return false;
+    cl = std::make_unique<Cluster>(/*durable=*/true, etcd.url());
+    client = cl->connected();
+    return client != nullptr;
+  }
+};
+
+/// A world on daemon 1 and its twin on daemon 3 (not daemon 1's standby), a pile spawned in
+/// each, the world registered with the coordinator.
+struct Twins {
+  WorldHandle world, twin;
+  std::vector<uint64_t> ids;
+};
+Twins twins(Client& c, const std::string& name) {
+  CallOptions on1, on3;
+  on1.daemon = 1;
+  on3.daemon = 3;
+  Twins t{c.createWorld({name, "", std::nullopt, 0}, on1).get(),
+          c.createWorld({name + "-twin", "", std::nullopt, 0}, on3).get(),
+          {}};
+  t.ids = t.world.spawn(pile()).get();
+  EXPECT_EQ(t.twin.spawn(pile()).get(), t.ids);
+  // Registered with the coordinator within a round of its creation (0.1 s): a world that is
+  // not registered yet has no standby.
+  std::this_thread::sleep_for(1s);
+  return t;
+}
+
 // docs/SERVER.md "Standby and takeover": daemon 1's worlds have daemon 2 as their standby.
 // Daemon 1 is killed (SIGKILL) after a client's edits were acknowledged; daemon 2 takes the
 // world over from daemon 1's files, with every acknowledged edit, at the tick daemon 1 had
 // reached, with the state of a twin world that was never interrupted, bit for bit; the same
 // handle and subscription go on. Daemon 1, restarted, stands down.
 TEST(Cluster, AKilledOwnersWorldIsTakenOverByItsStandbyWithEveryAcknowledgedEdit) {
-  Coordinator etcd;
-  ASSERT_TRUE(etcd.start()) << "etcd did not start (Debian's etcd-server); log in " << etcd.dir.path;
-  Cluster cl(/*durable=*/true, etcd.url());
-  const std::unique_ptr<Client> connected = cl.connected();
-  ASSERT_TRUE(connected);
-  Client& c = *connected;
-  CallOptions on1, on3;
+  Coordinated co;
+  ASSERT_TRUE(co.start()) << "etcd (Debian's etcd-server) or a daemon did not start; etcd's log "
+                          << "in " << co.etcd.dir.path;
+  Cluster& cl = *co.cl;
+  Client& c = *co.client;
+  CallOptions on1;
   on1.daemon = 1;
-  on3.daemon = 3;
-  WorldHandle taken = c.createWorld({"taken", "", std::nullopt, 0}, on1).get();
-  WorldHandle twin = c.createWorld({"twin", "", std::nullopt, 0}, on3).get();
-  const std::vector<uint64_t> ids = taken.spawn(pile()).get();
-  ASSERT_EQ(twin.spawn(pile()).get(), ids);
-  // Registered with the coordinator within a round of its creation (0.1 s): a world that is
-  // not registered yet has no standby.
-  std::this_thread::sleep_for(1s);
+  const Twins t = twins(c, "taken");
+  WorldHandle taken = t.world, twin = t.twin;
+  const std::vector<uint64_t>& ids = t.ids;
 
   std::mutex m;
   std::vector<uint64_t> ticks;
@@ -501,20 +531,16 @@ TEST(Cluster, AKilledOwnersWorldIsTakenOverByItsStandbyWithEveryAcknowledgedEdit
 // got it once, bit for bit). The subscriber never received a frame of the old owner's after
 // the new owner's.
 TEST(Cluster, AStoppedOwnerAcknowledgesAndPublishesNothingForTheWorldItLost) {
-  Coordinator etcd;
-  ASSERT_TRUE(etcd.start()) << "etcd did not start (Debian's etcd-server); log in " << etcd.dir.path;
-  Cluster cl(/*durable=*/true, etcd.url());
-  const std::unique_ptr<Client> connected = cl.connected();
-  ASSERT_TRUE(connected);
-  Client& c = *connected;
-  CallOptions on1, on3;
+  Coordinated co;
+  ASSERT_TRUE(co.start()) << "etcd (Debian's etcd-server) or a daemon did not start; etcd's log "
+                          << "in " << co.etcd.dir.path;
+  Cluster& cl = *co.cl;
+  Client& c = *co.client;
+  CallOptions on1;
   on1.daemon = 1;
-  on3.daemon = 3;
-  WorldHandle lost = c.createWorld({"lost", "", std::nullopt, 0}, on1).get();
-  WorldHandle twin = c.createWorld({"twin", "", std::nullopt, 0}, on3).get();
-  const std::vector<uint64_t> ids = lost.spawn(pile()).get();
-  ASSERT_EQ(twin.spawn(pile()).get(), ids);
-  std::this_thread::sleep_for(1s);  // registered (within a round of 0.1 s)
+  const Twins t = twins(c, "lost");
+  WorldHandle lost = t.world, twin = t.twin;
+  const std::vector<uint64_t>& ids = t.ids;
   Subscription sub = lost.subscribe();
   ASSERT_TRUE(sub.waitForFrame(0, 10s));
   for (int i = 0; i < 20; ++i) {
@@ -556,12 +582,12 @@ TEST(Cluster, AStoppedOwnerAcknowledgesAndPublishesNothingForTheWorldItLost) {
 // take anything; once it is back, every world is where it was and the waiting command is
 // answered by its owner.
 TEST(Cluster, ARestartedCoordinatorChangesNoOwner) {
-  Coordinator etcd;
-  ASSERT_TRUE(etcd.start()) << "etcd did not start (Debian's etcd-server); log in " << etcd.dir.path;
-  Cluster cl(/*durable=*/true, etcd.url());
-  const std::unique_ptr<Client> connected = cl.connected();
-  ASSERT_TRUE(connected);
-  Client& c = *connected;
+  Coordinated co;
+  ASSERT_TRUE(co.start()) << "etcd (Debian's etcd-server) or a daemon did not start; etcd's log "
+                          << "in " << co.etcd.dir.path;
+  Cluster& cl = *co.cl;
+  Client& c = *co.client;
+  Coordinator& etcd = co.etcd;
   std::vector<WorldHandle> worlds;
   for (int d = 1; d <= Cluster::kDaemons; ++d) {
     CallOptions on;
