@@ -186,6 +186,7 @@ def main():
 
         owner = 1
         kills, stops, mismatches, stale, doubles = [], [], 0, 0, 0
+        unanswered, unanswered_applied = 0, 0
         acked = 0
         for k in range(args.kills + args.stops):
             kill = k < args.kills
@@ -203,10 +204,15 @@ def main():
             else:
                 victim.send_signal(signal.SIGSTOP)
             pending, answer = None, []
+            target = ids[2 + k % 5]
             if not kill:
                 # An edit on its way to the stopped owner (the SDK sends it there).
-                pending = threading.Thread(target=lambda: answer.append(
-                    stepped.set_velocity(ids[2 + k % 5], (0.0, 0.0, 0.3))))
+                def send():
+                    try:
+                        answer.append(stepped.set_velocity(target, (0.0, 0.0, 0.3)))
+                    except pc.Error as e:
+                        answer.append(e)
+                pending = threading.Thread(target=send)
                 pending.start()
             t = first_frame_after(epoch, t0)
             if t is None:
@@ -225,9 +231,21 @@ def main():
             else:
                 victim.send_signal(signal.SIGCONT)
                 pending.join()
-                if answer:
+                if not isinstance(answer[0], pc.Error):
                     acked += 1
-                    twin.set_velocity(ids[2 + k % 5], (0.0, 0.0, 0.3))
+                    twin.set_velocity(target, (0.0, 0.0, 0.3))
+                else:
+                    # No answer: applied or not (the signal lands a moment after kill()
+                    # returns; an edit journaled then, unacknowledged, is in the files the
+                    # standby replays). The paused world says which: its velocity is the edit's.
+                    unanswered += 1
+                    v = next(b.linear_velocity for b in stepped.query_state().bodies
+                             if b.id == target)
+                    if tuple(v) == (0.0, 0.0, 0.3):
+                        unanswered_applied += 1
+                        twin.set_velocity(target, (0.0, 0.0, 0.3))
+                    print(f"round {k + 1}: the edit got {answer[0]!r}; applied: "
+                          f"{tuple(v) == (0.0, 0.0, 0.3)}", flush=True)
             for w in (stepped, twin):
                 w.step(3)
             if state(stepped) != state(twin):
@@ -254,6 +272,8 @@ def main():
                       f"({len(xs)} rounds)")
         line("SIGKILL -> the new owner's first frame", kills)
         line("SIGSTOP -> the new owner's first frame", stops)
+        print(f"edits sent to a stopped owner and not answered (outcome unknown to the client) "
+              f"{unanswered}, of them applied {unanswered_applied}")
         print(f"acknowledged edits {acked}; state mismatches with the twin {mismatches} "
               f"(an acknowledged edit lost or applied twice shows as one); stale chunks after "
               f"the new owner's {stale}; old owners still listing a world {doubles}; duplicate "

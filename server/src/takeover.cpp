@@ -158,7 +158,14 @@ Status ServerCore::follow(uint32_t id, Shadow& sh, std::vector<std::string>* not
   if (::stat(checkpoint.c_str(), &st) != 0)
     return Status::Error(Code::NotFound, checkpoint + ": " + std::strerror(errno));
   const int64_t mtime = int64_t(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec;
-  if (!sh.world || uint64_t(st.st_ino) != sh.inode || mtime != sh.mtimeNs) {
+  // The owner cut its journal back (a sync failed: those records were refused, not
+  // acknowledged): what was replayed from them goes, the copy is built again.
+  struct stat cut {};
+  const bool shrunk =
+      sh.world && ::stat((sh.dir + "/journal-" + std::to_string(sh.meta.generation)).c_str(),
+                         &cut) == 0 &&
+      uint64_t(cut.st_size) < sh.journalBytes;
+  if (!sh.world || uint64_t(st.st_ino) != sh.inode || mtime != sh.mtimeNs || shrunk) {
     // Built from the owner's checkpoint: the first time, and after each new one.
     Checkpoint c;
     uint32_t crc = 0;
