@@ -472,16 +472,17 @@ DdsEndpoint::StateTopic* DdsEndpoint::stateTopic(uint32_t world, uint32_t intere
 void DdsEndpoint::publish(StateFrameSet& f) {
   // An interest's writer is made when it is added; a frame queued after it was removed goes.
   if (f.interest != 0 && !state_.count(streamKey(f.world, f.interest))) return;
-  // A frame that waited in the queue while this daemon's hold lapsed (it was stopped, say)
-  // is not written: its world may be another daemon's now (docs/SERVER.md "Standby and
-  // takeover").
-  if (core_->coordinated() && !core_->serving()) {
-    counters_.framesFenced.fetch_add(1);
-    return;
-  }
   StateTopic* st = stateTopic(f.world, f.interest);
   if (!st) return;
+  const bool fenced = core_->coordinated();
   for (uint32_t i = 0; i < f.chunks.size(); ++i) {
+    // A frame that waited in the queue while this daemon's hold lapsed (it was stopped, say)
+    // is not written, nor the rest of one whose writing the stop interrupted: its world may
+    // be another daemon's now (docs/SERVER.md "Standby and takeover").
+    if (fenced && !core_->serving()) {
+      counters_.framesFenced.fetch_add(1);
+      return;
+    }
     dds_return_t rc = st->writer.write(i, f.chunks[i], f.tick);
     if (rc == DDS_RETCODE_OK) {
       counters_.framesWritten.fetch_add(1);
