@@ -1,6 +1,7 @@
 // The coordinator thread (phys/server/ownership.h).
 #include "phys/server/ownership.h"
 
+#include <filesystem>
 #include <nlohmann/json.hpp>
 #include <random>
 
@@ -225,22 +226,23 @@ void Ownership::look() {
     const Seen& seen = heartbeats_[k.owner];
     if (now - seen.since < ms(config_.takeoverAfterS)) continue;
     const std::string wk = key("worlds", id);
-    const std::string dir = config_.dataDir + "/worlds/" + std::to_string(id);
+    std::error_code ec;
+    const std::filesystem::path dir =
+        std::filesystem::absolute(std::filesystem::path(config_.dataDir) / "worlds" /
+                                      std::to_string(id), ec);
     bool ok = false;
     int64_t revision = 0;
     // Only if neither the owner renewed nor the world's key changed since they were read.
     if (!etcd_.txn({{key("daemons", k.owner), seen.revision}, {wk, k.revision}},
-                   {{wk, nlohmann::json{{"owner", me},
-                                        {"standby", config_.standby},
-                                        {"dir", dir}}.dump()}},
-                   {}, &ok, &revision)
+                   {{wk, value(dir.string())}}, {}, &ok, &revision)
              .ok() ||
         !ok)
       continue;
-    core_->note(false, "coordinator: daemon " + std::to_string(k.owner) + " has not renewed its "
-                       "hold for " + std::to_string(int((now - seen.since) / std::chrono::milliseconds(1))) +
-                       " ms: taking over world " + std::to_string(id) + " (ownership " +
-                       std::to_string(revision) + ")");
+    const auto silent = std::chrono::duration_cast<std::chrono::milliseconds>(now - seen.since);
+    core_->note(false, "coordinator: daemon " + std::to_string(k.owner) +
+                           " has not renewed its hold for " + std::to_string(silent.count()) +
+                           " ms: taking over world " + std::to_string(id) + " (ownership " +
+                           std::to_string(revision) + ")");
     takingOver_.insert(id);
     submit(ServerCore::OwnershipNote::Kind::TakeOver, id, revision, k.owner, k.dir);
   }
