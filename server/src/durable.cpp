@@ -595,6 +595,21 @@ Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
   std::sort(ids.begin(), ids.end());
   for (uint32_t id : ids) {
     const std::string dir = worldDir(config_.dataDir, id);
+    if (auto taken = takenElsewhere_.find(id); taken != takenElsewhere_.end()) {
+      // Its standby took it while this daemon was away (docs/SERVER.md "Standby and
+      // takeover"): its files go aside, its commands are answered Moved.
+      std::string where;
+      const std::string why = "taken over by daemon " + std::to_string(taken->second) +
+                              " while this daemon was down";
+      Status aside = setAside(dir, why, /*moveWhole=*/true, &where);
+      notes->push_back("world " + std::to_string(id) + " left to daemon " +
+                       std::to_string(taken->second) + ": " + why +
+                       (aside.ok() ? "; its files are kept in " + where
+                                   : "; its files could not be set aside: " + aside.message));
+      movedOut_[id] = taken->second;
+      reserveWorldId(id);
+      continue;
+    }
     const bool accept =
         acceptAll ||
         std::find(config_.acceptLoss.begin(), config_.acceptLoss.end(), id) != config_.acceptLoss.end();
@@ -676,6 +691,7 @@ Status ServerCore::restoreWorlds(std::vector<std::string>* notes) {
     s = checkpointWorld(*sw);
     if (!s.ok()) notes->push_back("world " + std::to_string(id) + ": checkpoint: " + s.message);
   }
+  if (!takenElsewhere_.empty()) keepMovedOut();
   return Status::Ok();
 }
 

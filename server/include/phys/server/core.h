@@ -420,6 +420,11 @@ class ServerCore {
   /// checkpoint and journal (docs/SERVER.md "Durable worlds"). `notes` gets a line per world
   /// restored and per thing dropped (a torn journal tail, an unreadable world).
   Status restoreWorlds(std::vector<std::string>* notes);
+  /// Before restoreWorlds, with a coordinator: the kept worlds that other daemons hold now
+  /// (world id -> daemon, read from etcd at start-up). They are not restored (a restart would
+  /// replay them only to let them go): their files are set aside and their commands answered
+  /// Moved. Worlds not named here are restored unconfirmed as before.
+  void takenElsewhere(std::map<uint32_t, uint64_t> worlds) { takenElsewhere_ = std::move(worlds); }
   /// The world of that name, or null.
   ServerWorld* findWorld(const std::string& name);
   /// A world kept under dataDir that was not restored because restoring it would lose
@@ -763,6 +768,7 @@ class ServerCore {
     uint64_t journalBytes = 0;  ///< the journal's size when last read
   };
   std::map<uint32_t, Shadow> shadows_;
+  std::map<uint32_t, uint64_t> takenElsewhere_;  ///< restoreWorlds skips these
   std::chrono::steady_clock::time_point followedAt_{};
   /// Every renewPeriodS: each shadow brought up to its owner's files.
   void followOwners();
