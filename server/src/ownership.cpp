@@ -50,6 +50,18 @@ std::string Ownership::key(const char* kind, uint64_t id) const {
   return config_.coordinatorPrefix + kind + "/" + std::to_string(id);
 }
 
+void Ownership::trouble(const char* what, const Status& s) {
+  // Once a second at most: a coordinator that is away fails every round.
+  const auto now = Clock::now();
+  ++troubles_;
+  if (now - troubleLogged_ < std::chrono::seconds(1)) return;
+  core_->note(true, std::string("coordinator: ") + what + " failed (" +
+                        std::to_string(troubles_) + " requests since the last report): " +
+                        s.message);
+  troubleLogged_ = now;
+  troubles_ = 0;
+}
+
 void Ownership::round() {
   renew();
   look();
@@ -79,6 +91,7 @@ void Ownership::renew() {
   Status s = etcd_.txn(compares, {{k, value}}, {}, &ok, &revision);
   if (!s.ok()) {
     heartbeat_ = -1;  // it may have landed after all: read again (the hold lapses meanwhile)
+    trouble("renewal", s);
     return;
   }
   if (!ok) {
@@ -113,8 +126,9 @@ void Ownership::renew() {
 void Ownership::look() {
   const std::string& prefix = config_.coordinatorPrefix;
   std::vector<Etcd::Kv> kvs;
-  if (!etcd_.range(prefix, true, &kvs).ok()) {
+  if (Status s = etcd_.range(prefix, true, &kvs); !s.ok()) {
     heartbeats_.clear();  // a standby counts only unbroken successful reads
+    trouble("read", s);
     return;
   }
   const auto now = Clock::now();

@@ -44,6 +44,10 @@ class Ownership {
   void renew();
   void look();
   std::string key(const char* kind, uint64_t id) const;
+  /// A request to etcd failed: logged, once a second at most.
+  void trouble(const char* what, const Status& s);
+  Clock::time_point troubleLogged_{};
+  uint64_t troubles_ = 0;
 
   ServerCore* core_;
   const CoreConfig& config_;
