@@ -919,6 +919,13 @@ struct Client::Impl {
     auto it = owners.find(world);
     return it == owners.end() ? 0 : it->second;
   }
+  /// A daemon's own list (ListWorlds): where each of its worlds is, as fresh as its status
+  /// (after a takeover the list may come before the new owner's status sample).
+  void learnOwners(const std::vector<WorldSummary>& listed) {
+    if (!clusterSeen.load()) return;
+    for (const WorldSummary& w : listed)
+      if (w.daemon != 0 && w.movingTo == 0) learnOwner(w.world, w.daemon);
+  }
   void learnOwner(uint32_t world, uint64_t daemon) {
     std::lock_guard<std::mutex> lk(infoMutex);
     if (protocol::daemonOfWorld(world) == daemon)
@@ -1435,7 +1442,12 @@ std::future<std::vector<WorldSummary>> Client::listWorlds(CallOptions o) {
     if (!daemons.empty()) o.daemon = daemons[0];
     CommandBuilder b;
     b.listWorlds();
-    return impl_->request<std::vector<WorldSummary>>(b, 0, o, worldList);
+    Impl* impl = impl_.get();
+    return impl_->request<std::vector<WorldSummary>>(b, 0, o, [impl](const wire::Reply& r) {
+      std::vector<WorldSummary> v = worldList(r);
+      impl->learnOwners(v);
+      return v;
+    });
   }
   // A domain of daemons: each lists its own; the answer is all of them, by world id, or the
   // first error.
@@ -1454,7 +1466,7 @@ std::future<std::vector<WorldSummary>> Client::listWorlds(CallOptions o) {
     b.listWorlds();
     impl_->send(
         b, 0, impl_->timeoutOf(o),
-        [g](const wire::Reply* r, const Error* e) {
+        [g, impl = impl_.get()](const wire::Reply* r, const Error* e) {
           std::lock_guard<std::mutex> lk(g->m);
           if (g->done) return;
           try {
@@ -1463,6 +1475,7 @@ std::future<std::vector<WorldSummary>> Client::listWorlds(CallOptions o) {
               throw Error(ErrorCode(uint8_t(r->status())), str(r->message()),
                           r->retry_after_ms());
             std::vector<WorldSummary> v = worldList(*r);
+            impl->learnOwners(v);
             g->worlds.insert(g->worlds.end(), v.begin(), v.end());
             if (--g->left > 0) return;
             // By id; a world listed twice (a move ending: its old daemon says where it is

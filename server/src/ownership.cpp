@@ -224,6 +224,15 @@ void Ownership::look() {
     submit(ServerCore::OwnershipNote::Kind::Registered, o.id, revision, me);
   }
   std::erase_if(noted_, [&](const auto& n) { return !mine.count(n.first); });
+  // Where the worlds this daemon does not hold are: a world that left it (moved, taken
+  // over) is answered Moved with its owner of now.
+  for (const auto& [id, k] : keys) {
+    if (k.owner == me || k.owner == 0 || mine.count(id)) continue;
+    auto [it, added] = told_.try_emplace(id, k.owner);
+    if (!added && it->second == k.owner) continue;
+    it->second = k.owner;
+    submit(ServerCore::OwnershipNote::Kind::Elsewhere, id, k.revision, k.owner);
+  }
 
   for (const auto& [id, k] : keys) {
     if (k.owner == me) {

@@ -96,6 +96,13 @@ void ServerCore::applyOwnership(OwnershipNote& n) {
       return standDown(n.world, n.daemon);
     case OwnershipNote::Kind::TakeOver:
       return takeOver(n);
+    case OwnershipNote::Kind::Elsewhere: {
+      auto it = movedOut_.find(n.world);
+      if (world(n.world) || it == movedOut_.end() || it->second == n.daemon) return;
+      it->second = n.daemon;  // one hop to the owner for the commands of old clients
+      keepMovedOut();
+      return;
+    }
   }
 }
 

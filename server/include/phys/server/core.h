@@ -479,13 +479,15 @@ class ServerCore {
   void submitHandoff(HandoffIn h);
   /// What the coordinator thread (Ownership, server/src/ownership.cpp) found in etcd, for the
   /// tick thread: a world registered (its ownership epoch), one another daemon took
-  /// (StandDown), one this daemon takes over from its files (TakeOver).
+  /// (StandDown), one this daemon takes over from its files (TakeOver), where a world that
+  /// left this daemon is now (Elsewhere: its Moved answers name the current owner, not the
+  /// first daemon it went to).
   struct OwnershipNote {
-    enum class Kind : uint8_t { Registered, StandDown, TakeOver };
+    enum class Kind : uint8_t { Registered, StandDown, TakeOver, Elsewhere };
     Kind kind = Kind::Registered;
     uint32_t world = 0;
     uint64_t revision = 0;  ///< Registered, TakeOver: the key's new mod revision
-    uint64_t daemon = 0;    ///< StandDown: who holds it now; TakeOver: who held it
+    uint64_t daemon = 0;    ///< StandDown, Elsewhere: who holds it now; TakeOver: who held it
     std::string dir;        ///< TakeOver: the world's directory in its owner's data
   };
   void submitOwnership(OwnershipNote n);

@@ -71,6 +71,8 @@ class Ownership {
   std::set<uint32_t> takingOver_;
   /// Worlds whose StandDown or Registered note is on its way: not sent twice.
   std::map<uint32_t, int64_t> noted_;
+  /// The owner last told to the tick thread of each world held elsewhere (Elsewhere notes).
+  std::map<uint32_t, uint64_t> told_;
 };
 
 }  // namespace phys::server
