@@ -1222,7 +1222,9 @@ protocol::ServerStatusInfo ServerCore::status() const {
 void ServerCore::notePeerStatus(uint64_t daemon, double periodS) {
   if (daemon == 0 || daemon == config_.serverId) return;
   std::lock_guard<std::mutex> lk(peersMutex_);
-  peersSeen_[daemon] = {std::chrono::steady_clock::now(), std::max(3 * periodS, 2.0)};
+  // (A period past a minute is not believed: a peer is named for three minutes at most.)
+  peersSeen_[daemon] = {std::chrono::steady_clock::now(),
+                        std::clamp(3 * periodS, 2.0, 180.0)};
 }
 
 std::vector<uint64_t> ServerCore::livePeers() const {

@@ -474,12 +474,12 @@ void DdsEndpoint::publish(StateFrameSet& f) {
   if (f.interest != 0 && !state_.count(streamKey(f.world, f.interest))) return;
   StateTopic* st = stateTopic(f.world, f.interest);
   if (!st) return;
-  const bool fenced = core_->coordinated();
+  const bool coordinated = core_->coordinated();
   for (uint32_t i = 0; i < f.chunks.size(); ++i) {
     // A frame that waited in the queue while this daemon's hold lapsed (it was stopped, say)
     // is not written, nor the rest of one whose writing the stop interrupted: its world may
     // be another daemon's now (docs/SERVER.md "Standby and takeover").
-    if (fenced && !core_->serving()) {
+    if (coordinated && !core_->serving()) {
       counters_.framesFenced.fetch_add(1);
       return;
     }
