@@ -11,7 +11,6 @@
 
 #include <CLI/CLI.hpp>
 #include <algorithm>
-#include <nlohmann/json.hpp>
 #include <cerrno>
 #include <chrono>
 #include <cstdio>
@@ -24,7 +23,6 @@
 #include "phys/server/config.h"
 #include "phys/server/core.h"
 #include "phys/server/endpoint.h"
-#include "phys/server/etcd.h"
 #include "phys/server/ownership.h"
 
 using namespace phys::server;
@@ -112,31 +110,6 @@ void tuneProcess(const DaemonConfig& cfg) {
   mallopt(M_MMAP_THRESHOLD, 128 * 1024);
 }
 
-/// With a coordinator: the worlds other daemons hold (etcd's world keys naming another owner),
-/// so that a restart does not replay worlds its standby took meanwhile. Empty when etcd cannot
-/// be read (the worlds are then restored unconfirmed, and let go once the coordinator answers).
-std::map<uint32_t, uint64_t> worldsHeldElsewhere(const CoreConfig& c) {
-  std::map<uint32_t, uint64_t> out;
-  Etcd etcd(c.coordinator, std::chrono::milliseconds(2000));
-  std::vector<Etcd::Kv> kvs;
-  const std::string prefix = c.coordinatorPrefix + "worlds/";
-  Status s = etcd.range(prefix, true, &kvs);
-  if (!s.ok()) {
-    spdlog::warn("coordinator: {} (kept worlds restored unconfirmed)", s.message);
-    return out;
-  }
-  for (const Etcd::Kv& kv : kvs) {
-    try {
-      const uint64_t owner = nlohmann::json::parse(kv.value).value("owner", uint64_t(0));
-      const unsigned long long id = std::stoull(kv.key.substr(prefix.size()));
-      if (owner != 0 && owner != c.serverId && id > 0 && id <= UINT32_MAX)
-        out[uint32_t(id)] = owner;
-    } catch (...) {
-    }
-  }
-  return out;
-}
-
 /// The kept worlds restored, then the configuration's start-up worlds made: 0, or the exit
 /// status after saying why not.
 int startWorlds(ServerCore& core, const DaemonConfig& cfg) {
@@ -145,7 +118,13 @@ int startWorlds(ServerCore& core, const DaemonConfig& cfg) {
   // is restored as it was, not created again.
   if (!cfg.core.dataDir.empty()) {
     std::vector<std::string> notes;
-    if (core.coordinated()) core.takenElsewhere(worldsHeldElsewhere(cfg.core));
+    if (core.coordinated()) {
+      // Worlds its standby took while it was away are not replayed only to be let go.
+      Status read;
+      core.takenElsewhere(worldsHeldElsewhere(cfg.core, &read));
+      if (!read.ok())
+        spdlog::warn("coordinator: {} (kept worlds restored unconfirmed)", read.message);
+    }
     s = core.restoreWorlds(&notes);
     for (const std::string& n : notes)
       if (n.find("restored at tick") != std::string::npos)

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <unistd.h>
 #include <string>
 
@@ -23,6 +24,12 @@ ServerCore::ServerCore(CoreConfig config)
       started_(std::chrono::steady_clock::now()),
       out_(config_.frameRingCapacity) {
   if (config_.cluster) nextWorldId_ = protocol::firstWorldIdOf(config_.serverId);
+  // With a coordinator, world directories are named in etcd for a standby to read: absolute.
+  if (!config_.coordinator.empty() && !config_.dataDir.empty()) {
+    std::error_code ec;
+    const std::filesystem::path abs = std::filesystem::absolute(config_.dataDir, ec);
+    if (!ec) config_.dataDir = abs.lexically_normal().string();
+  }
   // Moves are told apart by (daemon, number): numbered from the clock, a restarted daemon's
   // never meet an earlier start's at a target.
   nextMove_ = uint64_t(std::chrono::system_clock::now().time_since_epoch().count());

@@ -479,7 +479,7 @@ void DdsEndpoint::publish(StateFrameSet& f) {
     // A frame that waited in the queue while this daemon's hold lapsed (it was stopped, say)
     // is not written, nor the rest of one whose writing the stop interrupted: its world may
     // be another daemon's now (docs/SERVER.md "Standby and takeover").
-    if (coordinated && !core_->serving()) {
+    if (coordinated && !core_->holding()) {
       counters_.framesFenced.fetch_add(1);
       return;
     }

@@ -142,10 +142,7 @@ void ServerCore::applyHandoff(HandoffIn h) {
       ServerWorld& sw = *w;
       worlds_[id] = std::move(w);
       if (movedOut_.erase(id)) keepMovedOut();
-      ReliableMessage added;
-      added.type = ReliableMessage::Type::WorldAdded;
-      added.world = id;
-      out_.pushReliable(std::move(added));
+      announceHere(id);
       sw.infoDirty = true;  // its world info from here (after WorldAdded)
       if (durable() && !sw.ephemeral) {
         Status s = createStore(sw);
@@ -224,12 +221,9 @@ void ServerCore::finishMove(ServerWorld& w, Status status) {
     Status s = w.store->remove();
     if (!s.ok()) log(true, "world " + std::to_string(id) + " moved away; its files: " + s.message);
   }
-  movedAway_.push_back(id);  // its writers go after the replies (processPending)
   log(false, "world " + std::to_string(id) + " '" + w.name + "': moved to daemon " +
                  std::to_string(job.target) + " at tick " + std::to_string(w.tick));
-  worlds_.erase(id);
-  movedOut_[id] = job.target;
-  keepMovedOut();
+  letGo(id, job.target);
   pushReply(job.envelopeKey, job.envelopeSeq, protocol::encodeReply(h));
   for (Incoming& in : waiting) applyNow(in);
 }
@@ -259,6 +253,20 @@ void ServerCore::expireMoves() {
                                                     " s (is it running, with [cluster] enabled?)"));
   }
   std::erase_if(prepared_, [&](const Prepared& p) { return now >= p.deadline; });
+}
+
+void ServerCore::letGo(uint32_t id, uint64_t to) {
+  movedAway_.push_back(id);  // its writers go after the replies (processPending)
+  worlds_.erase(id);
+  movedOut_[id] = to;
+  keepMovedOut();
+}
+
+void ServerCore::announceHere(uint32_t id) {
+  ReliableMessage added;
+  added.type = ReliableMessage::Type::WorldAdded;
+  added.world = id;
+  out_.pushReliable(std::move(added));
 }
 
 void ServerCore::keepMovedOut() {

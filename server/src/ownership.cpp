@@ -1,7 +1,6 @@
 // The coordinator thread (phys/server/ownership.h).
 #include "phys/server/ownership.h"
 
-#include <filesystem>
 #include <nlohmann/json.hpp>
 #include <random>
 
@@ -50,12 +49,48 @@ std::string Ownership::key(const char* kind, uint64_t id) const {
   return config_.coordinatorPrefix + kind + "/" + std::to_string(id);
 }
 
+std::map<uint32_t, WorldRecord> worldRecords(const std::vector<Etcd::Kv>& kvs,
+                                             const std::string& prefix,
+                                             std::vector<std::string>* bad) {
+  std::map<uint32_t, WorldRecord> out;
+  const std::string worlds = prefix + "worlds/";
+  for (const Etcd::Kv& kv : kvs) {
+    if (!kv.key.starts_with(worlds)) continue;
+    unsigned long long id = 0;
+    try {
+      id = std::stoull(kv.key.substr(worlds.size()));
+    } catch (...) {
+      continue;  // not a world id: not ours to read
+    }
+    if (id == 0 || id > UINT32_MAX) continue;
+    try {
+      const nlohmann::json j = nlohmann::json::parse(kv.value);
+      out[uint32_t(id)] = {j.value("owner", uint64_t(0)), j.value("standby", uint64_t(0)),
+                           j.value("dir", std::string()), kv.modRevision};
+    } catch (...) {
+      if (bad) bad->push_back(kv.key);
+    }
+  }
+  return out;
+}
+
+std::map<uint32_t, uint64_t> worldsHeldElsewhere(const CoreConfig& c, Status* status) {
+  std::map<uint32_t, uint64_t> out;
+  Etcd etcd(c.coordinator, std::chrono::milliseconds(2000));
+  std::vector<Etcd::Kv> kvs;
+  *status = etcd.range(c.coordinatorPrefix + "worlds/", true, &kvs);
+  if (!status->ok()) return out;
+  for (const auto& [id, w] : worldRecords(kvs, c.coordinatorPrefix))
+    if (w.owner != 0 && w.owner != c.serverId) out[id] = w.owner;
+  return out;
+}
+
 void Ownership::trouble(const char* what, const Status& s) {
   // Once a second at most: a coordinator that is away fails every round.
   const auto now = Clock::now();
   ++troubles_;
   if (now - troubleLogged_ < std::chrono::seconds(1)) return;
-  core_->note(true, std::string("coordinator: ") + what + " failed (" +
+  core_->log(true, std::string("coordinator: ") + what + " failed (" +
                         std::to_string(troubles_) + " requests since the last report): " +
                         s.message);
   troubleLogged_ = now;
@@ -111,7 +146,7 @@ void Ownership::renew() {
       }
     }
     if (!heartbeatClash_)
-      core_->note(true, "coordinator: another daemon renews server.id " +
+      core_->log(true, "coordinator: another daemon renews server.id " +
                             std::to_string(config_.serverId) +
                             "'s hold in etcd; give each daemon its own server.id");
     heartbeatClash_ = true;
@@ -133,37 +168,19 @@ void Ownership::look() {
   }
   const auto now = Clock::now();
   const uint64_t me = config_.serverId;
-  struct WorldKey {
-    uint64_t owner = 0, standby = 0;
-    std::string dir;
-    int64_t revision = 0;
-  };
   std::map<uint64_t, int64_t> beats;  // daemon -> its heartbeat's mod revision
-  std::map<uint32_t, WorldKey> keys;
+  const std::string daemons = prefix + "daemons/";
   for (const Etcd::Kv& kv : kvs) {
-    auto idAfter = [&](const std::string& kind, uint64_t* id) {
-      const std::string p = prefix + kind + "/";
-      if (!kv.key.starts_with(p)) return false;
-      try {
-        *id = std::stoull(kv.key.substr(p.size()));
-      } catch (...) {
-        return false;
-      }
-      return true;
-    };
-    uint64_t id = 0;
-    if (idAfter("daemons", &id)) {
-      beats[id] = kv.modRevision;
-    } else if (idAfter("worlds", &id) && id > 0 && id <= UINT32_MAX) {
-      try {
-        const nlohmann::json j = nlohmann::json::parse(kv.value);
-        keys[uint32_t(id)] = {j.value("owner", uint64_t(0)), j.value("standby", uint64_t(0)),
-                              j.value("dir", std::string()), kv.modRevision};
-      } catch (...) {
-        core_->note(true, "coordinator: " + kv.key + " is not a world's record; left alone");
-      }
+    if (!kv.key.starts_with(daemons)) continue;
+    try {
+      beats[std::stoull(kv.key.substr(daemons.size()))] = kv.modRevision;
+    } catch (...) {
     }
   }
+  std::vector<std::string> bad;
+  const std::map<uint32_t, WorldRecord> keys = worldRecords(kvs, prefix, &bad);
+  for (const std::string& k : bad)
+    core_->log(true, "coordinator: " + k + " is not a world's record; left alone");
   // Every owner's heartbeat as read now (0: it has none), and since when it is the same.
   for (const auto& [id, k] : keys) beats.try_emplace(k.owner, 0);
   for (const auto& [d, revision] : beats) {
@@ -249,20 +266,18 @@ void Ownership::look() {
     const Seen& seen = heartbeats_[k.owner];
     if (now - seen.since < ms(config_.takeoverAfterS)) continue;
     const std::string wk = key("worlds", id);
-    std::error_code ec;
-    const std::filesystem::path dir =
-        std::filesystem::absolute(std::filesystem::path(config_.dataDir) / "worlds" /
-                                      std::to_string(id), ec);
+    // (dataDir is absolute with a coordinator: ServerCore's constructor.)
+    const std::string dir = config_.dataDir + "/worlds/" + std::to_string(id);
     bool ok = false;
     int64_t revision = 0;
     // Only if neither the owner renewed nor the world's key changed since they were read.
     if (!etcd_.txn({{key("daemons", k.owner), seen.revision}, {wk, k.revision}},
-                   {{wk, value(dir.string())}}, {}, &ok, &revision)
+                   {{wk, value(dir)}}, {}, &ok, &revision)
              .ok() ||
         !ok)
       continue;
     const auto silent = std::chrono::duration_cast<std::chrono::milliseconds>(now - seen.since);
-    core_->note(false, "coordinator: daemon " + std::to_string(k.owner) +
+    core_->log(false, "coordinator: daemon " + std::to_string(k.owner) +
                            " has not renewed its hold for " + std::to_string(silent.count()) +
                            " ms: taking over world " + std::to_string(id) + " (ownership " +
                            std::to_string(revision) + ")");

@@ -47,9 +47,7 @@ void ServerCore::refreshOwned() {
   std::vector<OwnedWorld> now;
   for (const auto& [id, w] : worlds_) {
     if (!w->store) continue;  // ephemeral or not kept: nothing a standby could read
-    std::error_code ec;
-    const fs::path dir = fs::absolute(w->store->dir(), ec);
-    now.push_back({id, ec ? w->store->dir() : dir.string(), w->ownership, w->unconfirmed});
+    now.push_back({id, w->store->dir(), w->ownership, w->unconfirmed});
   }
   std::lock_guard<std::mutex> lock(ownedMutex_);
   owned_ = std::move(now);
@@ -124,10 +122,7 @@ void ServerCore::standDown(uint32_t id, uint64_t daemon) {
   log(true, "world " + std::to_string(id) + " '" + w->name + "': taken over by daemon " +
                 std::to_string(daemon) + "; this daemon stands down (at tick " +
                 std::to_string(w->tick) + ")");
-  movedAway_.push_back(id);
-  worlds_.erase(id);
-  movedOut_[id] = daemon;
-  keepMovedOut();
+  letGo(id, daemon);
   for (Incoming& in : waiting) applyNow(in);  // answered Moved
 }
 
@@ -165,13 +160,13 @@ Status ServerCore::follow(uint32_t id, Shadow& sh, std::vector<std::string>* not
   if (::stat(checkpoint.c_str(), &st) != 0)
     return Status::Error(Code::NotFound, checkpoint + ": " + std::strerror(errno));
   const int64_t mtime = int64_t(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec;
-  // The owner cut its journal back (a sync failed: those records were refused, not
-  // acknowledged): what was replayed from them goes, the copy is built again.
-  struct stat cut {};
-  const bool shrunk =
-      sh.world && ::stat((sh.dir + "/journal-" + std::to_string(sh.meta.generation)).c_str(),
-                         &cut) == 0 &&
-      uint64_t(cut.st_size) < sh.journalBytes;
+  auto journalPath = [&] { return sh.dir + "/journal-" + std::to_string(sh.meta.generation); };
+  // The journal replayed from, once per look (again only after a rebuild names another).
+  // The owner cut it back (a sync failed: those records were refused, not acknowledged):
+  // what was replayed from them goes, the copy is built again.
+  struct stat js {};
+  bool statted = sh.world && ::stat(journalPath().c_str(), &js) == 0;
+  const bool shrunk = statted && uint64_t(js.st_size) < sh.journalBytes;
   if (!sh.world || uint64_t(st.st_ino) != sh.inode || mtime != sh.mtimeNs || shrunk) {
     // Built from the owner's checkpoint: the first time, and after each new one.
     Checkpoint c;
@@ -192,10 +187,10 @@ Status ServerCore::follow(uint32_t id, Shadow& sh, std::vector<std::string>* not
     sh.mtimeNs = mtime;
     sh.replay = Replay{};
     sh.journalBytes = 0;
+    statted = false;
   }
-  const std::string journal = sh.dir + "/journal-" + std::to_string(sh.meta.generation);
-  struct stat js {};
-  if (::stat(journal.c_str(), &js) != 0)
+  const std::string journal = journalPath();
+  if (!statted && ::stat(journal.c_str(), &js) != 0)
     return Status::Error(Code::NotFound, journal + ": " + std::strerror(errno));
   if (uint64_t(js.st_size) == sh.journalBytes) return Status::Ok();  // nothing new
   JournalScan scan = scanJournal(journal, sh.meta, sh.crc);
@@ -245,10 +240,7 @@ void ServerCore::takeOver(OwnershipNote& n) {
   worlds_[id] = std::move(w);
   // Its info and frames go out from here (the endpoint forgets that this daemon once let the
   // world go, when it stood down for it or moved it away).
-  ReliableMessage added;
-  added.type = ReliableMessage::Type::WorldAdded;
-  added.world = id;
-  out_.pushReliable(std::move(added));
+  announceHere(id);
   notes.clear();
   endReplay(*sw, replay, &notes);  // the steps of the owner's last lease
   for (const std::string& note : notes) log(true, note);

@@ -443,7 +443,7 @@ class ServerCore {
   /// synced, a failed checkpoint): physd logs it; the default prints to stderr.
   void setLog(std::function<void(bool error, const std::string& line)> log) { log_ = std::move(log); }
   /// A line to the daemon's log (any thread: the log function is spdlog's, thread-safe).
-  void note(bool error, const std::string& line) const { log(error, line); }
+  void log(bool error, const std::string& line) const;
   /// Makes every world's journal durable and takes the checkpoints that are due (also done
   /// after each processPending and advance); for tests and shutdown.
   void commitDurable();
@@ -515,7 +515,7 @@ class ServerCore {
   bool coordinated() const { return !config_.coordinator.empty(); }
   /// Thread-safe: with a coordinator, whether this daemon's hold is renewed now (its
   /// registered worlds may be served).
-  bool serving() const { return holding(); }
+  bool holding() const;
   /// Handoff pieces at most, and bytes of one move at most, that the endpoint puts together.
   static constexpr uint32_t kHandoffChunkBytes = 1u << 20;
   static constexpr uint32_t kMaxHandoffChunks = 2048;
@@ -697,6 +697,11 @@ class ServerCore {
   /// durable daemon keeps them in <dataDir>/moved_out (keepMovedOut), read at start.
   std::map<uint32_t, uint64_t> movedOut_;
   void keepMovedOut();
+  /// The world leaves this daemon for daemon `to` (moved, taken over): its writers go after
+  /// the tick's replies, its commands are answered Moved from now on (kept across restarts).
+  void letGo(uint32_t id, uint64_t to);
+  /// A world came to this daemon (moved here, taken over): its info and frames go out again.
+  void announceHere(uint32_t id);
   /// Worlds that left in this batch: their WorldRemoved goes to the publisher after the
   /// batch's replies, since deleting a state writer waits for its readers' acknowledgements
   /// (about 90 ms measured with one subscriber), which held the MoveWorld's reply back.
@@ -775,7 +780,6 @@ class ServerCore {
   /// Every renewPeriodS: each shadow brought up to its owner's files.
   void followOwners();
   Status follow(uint32_t id, Shadow& sh, std::vector<std::string>* notes);
-  void log(bool error, const std::string& line) const;
   /// Replies held until the journals are synced (pushReply).
   struct HeldReply {
     uint64_t key = 0, seq = 0;
@@ -825,7 +829,6 @@ class ServerCore {
   // Standby and takeover (server/src/takeover.cpp).
   std::deque<OwnershipNote> ownershipNotes_;  ///< under inboxMutex_
   std::atomic<int64_t> holdUntilNs_{0};       ///< steady clock; 0: never renewed
-  bool holding() const;
   void applyOwnership(OwnershipNote& n);
   void takeOver(OwnershipNote& n);
   void standDown(uint32_t id, uint64_t daemon);

@@ -29,6 +29,22 @@
 
 namespace phys::server {
 
+/// A world's record in etcd (<prefix>worlds/<id>): its owner, its standby and its directory;
+/// the key's mod revision is the world's ownership epoch.
+struct WorldRecord {
+  uint64_t owner = 0, standby = 0;
+  std::string dir;
+  int64_t revision = 0;
+};
+/// The world records among `kvs` (keys under <prefix>worlds/); keys whose value is not a
+/// record go to *bad.
+std::map<uint32_t, WorldRecord> worldRecords(const std::vector<Etcd::Kv>& kvs,
+                                             const std::string& prefix,
+                                             std::vector<std::string>* bad = nullptr);
+/// Start-up, before restoreWorlds (ServerCore::takenElsewhere): the worlds other daemons
+/// hold, read from etcd once. Empty, with *status saying why, when etcd cannot be read.
+std::map<uint32_t, uint64_t> worldsHeldElsewhere(const CoreConfig& c, Status* status);
+
 class Ownership {
  public:
   explicit Ownership(ServerCore* core);
