@@ -414,12 +414,15 @@ struct Coordinated {
   Coordinator etcd;
   std::unique_ptr<Cluster> cl;
   std::unique_ptr<Client> client;
-  /// False when etcd or a daemon did not start, or the client does not see them.
-  bool start() {
-    if (!etcd.start()) return false;
+  /// Fails when etcd or a daemon did not start, or the client does not see them.
+  ::testing::AssertionResult start() {
+    if (!etcd.start())
+      return ::testing::AssertionFailure()
+             << "etcd (Debian's etcd-server) did not start; its log is in " << etcd.dir.path;
     cl = std::make_unique<Cluster>(/*durable=*/true, etcd.url());
     client = cl->connected();
-    return client != nullptr;
+    if (!client) return ::testing::AssertionFailure() << "a daemon did not start or was not seen";
+    return ::testing::AssertionSuccess();
   }
 };
 
@@ -451,8 +454,7 @@ Twins twins(Client& c, const std::string& name) {
 // handle and subscription go on. Daemon 1, restarted, stands down.
 TEST(Cluster, AKilledOwnersWorldIsTakenOverByItsStandbyWithEveryAcknowledgedEdit) {
   Coordinated co;
-  ASSERT_TRUE(co.start()) << "etcd (Debian's etcd-server) or a daemon did not start; etcd's log "
-                          << "in " << co.etcd.dir.path;
+  ASSERT_TRUE(co.start());
   Cluster& cl = *co.cl;
   Client& c = *co.client;
   CallOptions on1;
@@ -532,8 +534,7 @@ TEST(Cluster, AKilledOwnersWorldIsTakenOverByItsStandbyWithEveryAcknowledgedEdit
 // the new owner's.
 TEST(Cluster, AStoppedOwnerAcknowledgesAndPublishesNothingForTheWorldItLost) {
   Coordinated co;
-  ASSERT_TRUE(co.start()) << "etcd (Debian's etcd-server) or a daemon did not start; etcd's log "
-                          << "in " << co.etcd.dir.path;
+  ASSERT_TRUE(co.start());
   Cluster& cl = *co.cl;
   Client& c = *co.client;
   CallOptions on1;
@@ -583,8 +584,7 @@ TEST(Cluster, AStoppedOwnerAcknowledgesAndPublishesNothingForTheWorldItLost) {
 // answered by its owner.
 TEST(Cluster, ARestartedCoordinatorChangesNoOwner) {
   Coordinated co;
-  ASSERT_TRUE(co.start()) << "etcd (Debian's etcd-server) or a daemon did not start; etcd's log "
-                          << "in " << co.etcd.dir.path;
+  ASSERT_TRUE(co.start());
   Cluster& cl = *co.cl;
   Client& c = *co.client;
   Coordinator& etcd = co.etcd;

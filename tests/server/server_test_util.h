@@ -7,6 +7,7 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -34,6 +35,18 @@ inline CoreConfig testConfig() {
 
 using phys::test::boxBody;
 using phys::test::groundBody;
+
+/// A core started as physd starts one: presets loaded, its kept worlds restored (notes: what
+/// restoring said).
+inline std::unique_ptr<ServerCore> startedCore(const CoreConfig& cfg,
+                                               std::vector<std::string>* notes = nullptr) {
+  auto core = std::make_unique<ServerCore>(cfg);
+  EXPECT_TRUE(core->init().ok());
+  std::vector<std::string> local;
+  Status s = core->restoreWorlds(notes ? notes : &local);
+  EXPECT_TRUE(s.ok()) << s.message;
+  return core;
+}
 
 /// A decoded reply that owns its bytes.
 using Reply = protocol::Decoded<wire::Reply>;
@@ -76,6 +89,23 @@ inline Incoming queuedCommand(uint64_t client, uint64_t seq, protocol::CommandBu
   EXPECT_TRUE(in.command.ok()) << in.command.status.message;
   return in;
 }
+
+/// A client of one core: commands applied directly (applyBytes, as the tick thread applies
+/// them) or queued as the reader thread queues them (submit).
+struct CoreClient {
+  ServerCore* core;
+  uint64_t id = kClient;
+  uint64_t seq = 0;
+  Reply send(protocol::CommandBuilder& b, uint32_t world) {
+    ++seq;
+    return decode(core->applyBytes(b.finish({id, seq, world}), id, seq));
+  }
+  Reply send(protocol::CommandBuilder&& b, uint32_t world) { return send(b, world); }
+  void submit(protocol::CommandBuilder& b, uint32_t world) {
+    core->submit(queuedCommand(id, ++seq, b, world));
+  }
+  void submit(protocol::CommandBuilder&& b, uint32_t world) { submit(b, world); }
+};
 
 /// The replies the core has pushed so far, decoded, in order (other queued items dropped).
 inline std::vector<Reply> takeReplies(ServerCore& core) {

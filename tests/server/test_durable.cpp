@@ -34,25 +34,10 @@ CoreConfig durableConfig(const fs::path& data) {
   return c;
 }
 
-/// A client of one core: commands applied directly (applyBytes) or through the queue.
-struct Client {
-  ServerCore* core;
-  uint64_t seq = 0;
-  Reply send(CommandBuilder& b, uint32_t world) {
-    ++seq;
-    return decode(core->applyBytes(b.finish({kClient, seq, world}), kClient, seq));
-  }
-  void submit(CommandBuilder& b, uint32_t world) {
-    core->submit(queuedCommand(kClient, ++seq, b, world));
-  }
-};
+using Client = CoreClient;
 
 std::unique_ptr<ServerCore> restart(const fs::path& data, std::vector<std::string>* notes) {
-  auto core = std::make_unique<ServerCore>(durableConfig(data));
-  EXPECT_TRUE(core->init().ok());
-  Status s = core->restoreWorlds(notes);
-  EXPECT_TRUE(s.ok()) << s.message;
-  return core;
+  return startedCore(durableConfig(data), notes);
 }
 
 /// Stepping a restored world on to the original's tick gives the original's state.
@@ -192,7 +177,7 @@ TEST(Durable, EveryAcknowledgedEditSurvivesARestart) {
   ASSERT_TRUE(a.stepWorld(id, 40).ok());
   expectSameFuture(a, id, *b);
   // New ids continue where the original's do.
-  Client cb{b.get(), 100};
+  Client cb{b.get(), kClient, 100};
   Reply ra = c.send(CommandBuilder().spawnBodies(tower(1, 6)), id);
   Reply rb = cb.send(CommandBuilder().spawnBodies(tower(1, 6)), id);
   EXPECT_EQ(bodyIds(ra), bodyIds(rb));
@@ -279,7 +264,7 @@ TEST(Durable, ReplacedWorldsEphemeralWorldsAndDestroyedWorlds) {
   EXPECT_EQ(b->world(restored)->world->bodyCount(), 3);
   EXPECT_EQ(b->world(restored)->world->stateHash(), restoredHash);
   // Ids of destroyed and ephemeral worlds are not given again.
-  Client cb{b.get(), 50};
+  Client cb{b.get(), kClient, 50};
   EXPECT_GT(cb.send(CommandBuilder().createWorld({"new", "", std::nullopt, 0}), 0)->world(), restored);
   fs::remove_all(data);
 }
@@ -313,7 +298,7 @@ TEST(Durable, ATornJournalTailIsDroppedAndSaidSo) {
   for (const std::string& n : notes) said |= n.find("torn or corrupt") != std::string::npos;
   EXPECT_TRUE(said);
   // A flipped byte inside a record is corruption, found by its checksum, the same way.
-  Client cb{b.get(), 10};
+  Client cb{b.get(), kClient, 10};
   ASSERT_EQ(cb.send(CommandBuilder().spawnBodies(tower(1, 8)), id)->status(), Code::Ok);
   ASSERT_EQ(cb.send(CommandBuilder().spawnBodies(tower(1, 9)), id)->status(), Code::Ok);
   b.reset();
@@ -441,7 +426,7 @@ TEST(Durable, AProofOwnedWorldStaysProofOwnedAfterARestart) {
   ASSERT_TRUE(b->world(id));
   EXPECT_TRUE(b->world(id)->ownerProven);
   EXPECT_EQ(b->world(id)->owner, kClient);
-  Client plain{b.get(), 10};  // the owner's id, unproven
+  Client plain{b.get(), kClient, 10};  // the owner's id, unproven
   EXPECT_EQ(plain.send(CommandBuilder().step(1), id)->status(), Code::PermissionDenied);
   fs::remove_all(data);
 }
@@ -637,7 +622,7 @@ TEST(Durable, ADeletedJournalKeepsTheWorldFromBeingRestored) {
   const std::string damage = damageOf(*b, id);
   EXPECT_NE(damage.find("missing"), std::string::npos) << damage;
   EXPECT_TRUE(drain(*b).has("world_damaged"));
-  Client cb{b.get(), 10};
+  Client cb{b.get(), kClient, 10};
   Reply r = cb.send(CommandBuilder().spawnBodies(tower(1)), id);
   EXPECT_EQ(r->status(), Code::IncorrectState) << message(r);
   EXPECT_NE(message(r).find("accept-loss"), std::string::npos) << message(r);
@@ -663,7 +648,7 @@ TEST(Durable, ADeletedJournalKeepsTheWorldFromBeingRestored) {
   const fs::path aside = data / "damaged" / ("world-" + std::to_string(id) + "-1");
   EXPECT_EQ(bytesOf(aside / "checkpoint"), checkpoint);
   EXPECT_TRUE(fs::exists(aside / "DAMAGE.txt"));
-  Client ca{&accepted, 20};
+  Client ca{&accepted, kClient, 20};
   ASSERT_EQ(ca.send(CommandBuilder().spawnBodies(tower(1)), id)->status(), Code::Ok);
   const uint64_t hash = accepted.world(id)->world->stateHash();
   notes.clear();
@@ -826,7 +811,7 @@ TEST(Durable, AFullDiskAtStartUpServesTheWorldsReadOnly) {
   for (const std::string& n : notes) said |= n.find("read-only") != std::string::npos;
   EXPECT_TRUE(said);
   EXPECT_EQ(b->world(id)->world->stateHash(), hash);
-  Client c{b.get(), 10};
+  Client c{b.get(), kClient, 10};
   // Reads are served.
   Reply list = c.send(CommandBuilder().listWorlds(), 0);
   ASSERT_EQ(list->status(), Code::Ok);

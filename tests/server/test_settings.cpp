@@ -24,17 +24,7 @@ using protocol::WorldOverrides;
 
 constexpr uint64_t kOther = 0x0B;
 
-/// A client of one core: commands applied directly, as the tick thread does.
-struct Client {
-  ServerCore* core;
-  uint64_t id = kClient;
-  uint64_t seq = 0;
-  Reply send(CommandBuilder& b, uint32_t world) {
-    ++seq;
-    return decode(core->applyBytes(b.finish({id, seq, world}), id, seq));
-  }
-  Reply send(CommandBuilder&& b, uint32_t world) { return send(b, world); }
-};
+using Client = CoreClient;
 
 uint32_t createWorld(Client& c, const std::string& name) {
   Reply r = c.send(CommandBuilder().createWorld({name, "", std::nullopt, 0}), 0);

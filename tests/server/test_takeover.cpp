@@ -35,27 +35,6 @@ CoreConfig coordinated(const fs::path& data, uint64_t id, uint64_t standby) {
   return c;
 }
 
-std::unique_ptr<ServerCore> start(const CoreConfig& cfg) {
-  auto core = std::make_unique<ServerCore>(cfg);
-  EXPECT_TRUE(core->init().ok());
-  std::vector<std::string> notes;
-  Status s = core->restoreWorlds(&notes);
-  EXPECT_TRUE(s.ok()) << s.message;
-  return core;
-}
-
-struct Sender {
-  ServerCore* core;
-  uint64_t seq = 0;
-  Reply send(CommandBuilder& b, uint32_t world) {
-    ++seq;
-    return decode(core->applyBytes(b.finish({kClient, seq, world}), kClient, seq));
-  }
-  void submit(CommandBuilder& b, uint32_t world) {
-    core->submit(queuedCommand(kClient, ++seq, b, world));
-  }
-};
-
 Note note(Note::Kind kind, uint32_t world, uint64_t revision, uint64_t daemon,
           std::string dir = {}) {
   Note n;
@@ -107,13 +86,13 @@ TEST(Takeover, ConfigNeedsAClusterKeptWorldsAndTimesInOrder) {
 // owner, told that another daemon holds the world, lets it go and answers Moved.
 TEST(Takeover, AStandbyTakesAWorldAtItsOwnersTickWithItsOwnersState) {
   const fs::path dataA = scratch("a"), dataB = scratch("b");
-  auto a = start(coordinated(dataA, 1, 2));
-  auto b = start(coordinated(dataB, 2, 1));
+  auto a = startedCore(coordinated(dataA, 1, 2));
+  auto b = startedCore(coordinated(dataB, 2, 1));
   a->holdUntil(Clock::now() + std::chrono::hours(1));
   b->holdUntil(Clock::now() + std::chrono::hours(1));
   uint32_t id = 0;
   ASSERT_TRUE(a->createWorld("w", "", "", &id).ok());
-  Sender ca{a.get()};
+  CoreClient ca{a.get()};
   std::vector<phys::BodyDef> bodies{phys::test::groundBody()};
   for (int i = 0; i < 5; ++i) bodies.push_back(phys::test::boxBody({0.2f * float(i % 2), 0, 0.6f + 1.1f * float(i)}));
   const std::vector<uint64_t> ids = bodyIds(ca.send(CommandBuilder().spawnBodies(bodies), id));
@@ -180,8 +159,8 @@ TEST(Takeover, ARegisteredWorldIsServedOnlyWhileTheHoldIsRenewed) {
   const fs::path data = scratch("hold");
   uint32_t id = 0, fresh = 0;
   {
-    auto a = start(coordinated(data, 1, 2));
-    Sender c{a.get()};
+    auto a = startedCore(coordinated(data, 1, 2));
+    CoreClient c{a.get()};
     ASSERT_TRUE(a->createWorld("held", "", "", &id).ok());
     ASSERT_TRUE(a->createWorld("fresh", "", "", &fresh).ok());
     a->submitOwnership(note(Note::Kind::Registered, id, 5, 1));
@@ -200,9 +179,9 @@ TEST(Takeover, ARegisteredWorldIsServedOnlyWhileTheHoldIsRenewed) {
     EXPECT_EQ(replies[0]->status(), Code::Ok) << message(replies[0]);
     EXPECT_EQ(a->world(id)->tick, 3u);
   }
-  auto a = start(coordinated(data, 1, 2));
+  auto a = startedCore(coordinated(data, 1, 2));
   a->holdUntil(Clock::now() + std::chrono::hours(1));
-  Sender c{a.get()};
+  CoreClient c{a.get()};
   ASSERT_NE(a->world(id), nullptr);
   EXPECT_TRUE(a->world(id)->unconfirmed);
   c.submit(CommandBuilder().step(2), id);
