@@ -245,7 +245,9 @@ int main(int argc, char** argv) {
   });
   if (int rc = startWorlds(core, cfg)) return rc;
 
-  DdsEndpoint endpoint(&core, {cfg.domain, cycloneXml, cfg.core.identities});
+  EndpointConfig endpointConfig{cfg.domain, cycloneXml, cfg.core.identities};
+  endpointConfig.liveliness = std::chrono::milliseconds(int64_t(cfg.livelinessS * 1000));
+  DdsEndpoint endpoint(&core, endpointConfig);
   s = endpoint.start();
   if (!s.ok()) {
     spdlog::critical("dds: {}", s.message);

@@ -493,6 +493,14 @@ struct Client::Impl {
     uint32_t world = 0;
     uint32_t retries = 0;    ///< times refused at the door so far
     uint32_t redirects = 0;  ///< times sent on to a world's new owner (Moved)
+    /// The daemon that should answer it: the one addressed, or the world's range daemon;
+    /// 0 with a lone daemon (or for Hello, which every daemon answers). When that daemon is
+    /// gone (DDS liveliness: daemonGone) before answering, the request fails at once.
+    uint64_t daemon = 0;
+    /// Not sent yet: its world's daemon is gone, and the request waits (from sendAt) for a
+    /// live daemon to list the world (its standby taking it over) to go there; see
+    /// sendParked.
+    bool parked = false;
     /// In the backlog (see `held`): not (or no longer) at the daemon, sent by the SDK thread
     /// at `sendAt` at the earliest.
     bool held = false;
@@ -508,6 +516,7 @@ struct Client::Impl {
   /// pace without being refused again, and a client refused for sending ahead cannot keep
   /// flooding by retrying.
   size_t held = 0;           ///< entries of `pending` held
+  size_t parked = 0;         ///< entries of `pending` parked (their daemon gone)
   uint64_t backlogSeq = 0;   ///< the backlog's request at the daemon now (0: none)
   bool backlogged() const { return held > 0 || backlogSeq != 0; }  // pendMutex held
 
@@ -521,6 +530,10 @@ struct Client::Impl {
   struct DaemonView {
     ServerStatus status;
     Clock::time_point seen;
+    /// DDS said its status has no live writer any more (its liveliness lease passed without
+    /// a sign: killed, frozen, or stopped), at goneAt; a later sample makes it live again.
+    bool gone = false;
+    Clock::time_point goneAt{};
     std::map<uint32_t, Clock::time_point> placed;
     uint32_t worlds() const { return uint32_t(status.worlds.size() + placed.size()); }
   };
@@ -629,7 +642,8 @@ struct Client::Impl {
     if (world != 0 && daemon == 0 && clusterSeen.load()) {
       daemon = ownerOf(world);  // held by another daemon than its range's
     }
-    if (world != 0 && daemon == 0 && clusterSeen.load()) {
+    const bool park = world != 0 && clusterSeen.load() && !hello && heldByGone(world, daemon);
+    if (world != 0 && daemon == 0 && clusterSeen.load() && !park) {
       if (std::optional<std::string> why = unreachable(world)) {
         // In a domain of daemons nobody would answer: said now, not after the timeout.
         Error e(ErrorCode::NotFound, *why);
@@ -649,7 +663,16 @@ struct Client::Impl {
       p.done = done;
       p.bytes = bytes;
       p.world = world;
-      if (options.retryBusy && backlogged()) {
+      p.daemon = daemon != 0 ? daemon
+                             : (clusterSeen.load() && world != 0 ? protocol::daemonOfWorld(world)
+                                                                 : 0);
+      if (park) {
+        // Its world's daemon is gone: sent when a live daemon lists the world (sendParked).
+        p.parked = later = true;
+        p.sendAt = Clock::now();
+        p.sentWithServer = true;
+        ++parked;
+      } else if (options.retryBusy && backlogged()) {
         // Behind the requests the daemon refused: the SDK thread sends it in its turn.
         p.held = later = true;
         p.sentWithServer = true;  // not lost to a missing daemon: sent later
@@ -708,6 +731,7 @@ struct Client::Impl {
     std::vector<std::pair<uint64_t, const DaemonView*>> out;
     const auto now = Clock::now();
     for (const auto& [id, v] : daemonViews) {
+      if (v.gone) continue;
       const double period = v.status.statusPeriodS > 0 ? v.status.statusPeriodS : 1.0;
       if (now - v.seen <= std::chrono::duration<double>(std::max(3 * period, 2.0)))
         out.emplace_back(id, &v);
@@ -754,6 +778,127 @@ struct Client::Impl {
     return "command.world " + std::to_string(world) +
            " does not exist: no daemon of the domain holds it (its id is of daemon " +
            std::to_string(range) + "'s range, which is not running)";
+  }
+
+  /// Whether a command for `world` (addressed to `daemon`, 0: its range's) would go to a
+  /// daemon that is gone while its last status listed the world: the command then waits for
+  /// a live daemon to list it (a standby taking it over) instead of being sent into the void.
+  bool heldByGone(uint32_t world, uint64_t daemon) const {
+    std::lock_guard<std::mutex> lk(infoMutex);
+    auto it = daemonViews.find(daemon != 0 ? daemon : protocol::daemonOfWorld(world));
+    if (it == daemonViews.end() || !it->second.gone) return false;
+    const auto& listed = it->second.status.worlds;
+    return std::any_of(listed.begin(), listed.end(),
+                       [&](const WorldSummary& w) { return w.world == world; });
+  }
+
+  /// Where a command for `world` goes now that its daemon is gone: the live daemon that
+  /// lists it (0: its range's daemon, unaddressed); nullopt while none does. infoMutex held.
+  std::optional<uint64_t> liveHolder(uint32_t world) const {
+    for (const auto& [id, v] : liveDaemons())
+      for (const WorldSummary& w : v->status.worlds)
+        if (w.world == world) return id == protocol::daemonOfWorld(world) ? 0 : id;
+    return std::nullopt;
+  }
+
+  /// How long a command waits for its gone daemon's world to be taken over (from the moment
+  /// the SDK saw the daemon gone; a standby takes over about half a second after the
+  /// daemon's last heartbeat, before its liveliness lease even passes).
+  static constexpr std::chrono::seconds kTakeoverWait{3};
+
+  /// Sends the parked commands whose world a live daemon now lists; fails those whose
+  /// daemon has been gone for kTakeoverWait with none listing it (SDK thread).
+  void sendParked() {
+    struct Go {
+      uint64_t seq;
+      std::shared_ptr<const protocol::Bytes> bytes;
+    };
+    std::vector<Go> go;
+    std::vector<std::pair<Pending, uint64_t>> orphans;  // and the gone daemon
+    {
+      std::lock_guard<std::mutex> lk(pendMutex);
+      if (parked == 0) return;
+      std::lock_guard<std::mutex> lk2(infoMutex);
+      const auto now = Clock::now();
+      for (auto it = pending.begin(); it != pending.end();) {
+        Pending& p = it->second;
+        if (!p.parked) {
+          ++it;
+          continue;
+        }
+        if (std::optional<uint64_t> to = liveHolder(p.world)) {
+          auto patched = std::make_shared<protocol::Bytes>(*p.bytes);
+          if (protocol::setCommandDaemon(*patched, *to)) p.bytes = patched;
+          p.daemon = *to != 0 ? *to : protocol::daemonOfWorld(p.world);
+          p.parked = false;
+          p.sentWithServer = serversMatched.load() > 0;
+          --parked;
+          go.push_back({it->first, p.bytes});
+          ++it;
+          continue;
+        }
+        auto v = daemonViews.find(p.daemon);
+        const bool stillGone = v != daemonViews.end() && v->second.gone;
+        if (stillGone && now - v->second.goneAt < kTakeoverWait) {
+          ++it;
+          continue;
+        }
+        if (!stillGone) {  // its daemon is back (it was frozen): to it again
+          p.parked = false;
+          --parked;
+          go.push_back({it->first, p.bytes});
+          ++it;
+          continue;
+        }
+        --parked;
+        const uint64_t gone = p.daemon;
+        orphans.emplace_back(std::move(p), gone);
+        it = pending.erase(it);
+      }
+    }
+    for (const Go& g : go) {
+      std::lock_guard<std::mutex> lk(writeMutex);
+      proveToNewDaemons(false);
+      cmdWriter.write(clientId, *g.bytes, g.seq);
+    }
+    for (auto& [p, daemon] : orphans) {
+      Error e(ErrorCode::Disconnected,
+              "daemon " + std::to_string(daemon) + ", which held world " + std::to_string(p.world) +
+                  ", is gone (no DDS liveliness) and no daemon took the world over within " +
+                  std::to_string(kTakeoverWait.count()) + " s; the command was not sent");
+      p.done(nullptr, &e);
+    }
+  }
+
+  /// A daemon is gone (its status lost its liveliness): the requests it has not answered
+  /// fail now, their outcome unknown (it may have applied one and died before answering; a
+  /// standby that took its world over has then applied it too). SDK thread.
+  void failGone(uint64_t daemon) {
+    bool anyLive = false;
+    {
+      std::lock_guard<std::mutex> lk(infoMutex);
+      anyLive = !liveDaemons().empty();
+    }
+    std::vector<Pending> failed;
+    {
+      std::lock_guard<std::mutex> lk(pendMutex);
+      for (auto it = pending.begin(); it != pending.end();) {
+        const Pending& p = it->second;
+        const bool its = p.daemon == daemon || (p.daemon == 0 && !anyLive);
+        if (p.held || p.parked || !its) {
+          ++it;
+          continue;
+        }
+        if (it->first == backlogSeq) backlogSeq = 0;
+        failed.push_back(std::move(it->second));
+        it = pending.erase(it);
+      }
+    }
+    Error e(ErrorCode::Disconnected,
+            "daemon " + std::to_string(daemon) +
+                " is gone (its DDS liveliness lapsed: killed, frozen or stopped) with the request "
+                "unanswered; whether it was applied is unknown (read the world to see)");
+    for (auto& p : failed) p.done(nullptr, &e);
   }
 
   /// The live daemons of a domain (none with a lone daemon: one request reaches it).
@@ -834,6 +979,7 @@ struct Client::Impl {
           continue;
         }
         if (it->second.held) --held;
+        if (it->second.parked) --parked;
         failed.push_back(std::move(it->second));
         it = pending.erase(it);
       }
@@ -865,13 +1011,15 @@ struct Client::Impl {
         if (it == pending.end() && r.ok() && answered.count(r->seq()) &&
             !r->result_as_HelloResult())
           ++duplicates;  // a second daemon took the command
-        if (it == pending.end() || it->second.held) return;  // not this send's answer
+        if (it == pending.end() || it->second.held || it->second.parked)
+          return;  // not this send's answer
         if (it->first == backlogSeq) backlogSeq = 0;  // the next of the backlog may go
         if (r.ok() && r->status() == wire::StatusCode::Moved && r->owner() != 0 &&
             it->second.redirects < kMaxRedirects) {
           // The world moved, nothing was done: the same command (same seq) to its new owner.
           Pending& q = it->second;
           ++q.redirects;
+          q.daemon = r->owner();
           auto patched = std::make_shared<protocol::Bytes>(*q.bytes);
           if (protocol::setCommandDaemon(*patched, r->owner())) {
             q.bytes = patched;
@@ -945,7 +1093,8 @@ struct Client::Impl {
   }
 
   void takeStatus() {
-    statusReader.take([&](const phys_wire_Envelope& env) {
+    std::vector<uint64_t> gone;
+    statusReader.take([&](const phys_wire_Envelope& env, dds_instance_handle_t) {
       if (!protocol::checkEnvelope(env, protocol::PayloadKind::ServerStatus).ok()) return;
       auto s = protocol::decodeServerStatus(protocol::envelopeBytes(env));
       if (!s.ok()) return;
@@ -979,8 +1128,19 @@ struct Client::Impl {
       std::erase_if(view.placed, [&](const auto& p) { return now - p.second > kPlacedKept; });
       view.status = st;
       view.seen = now;
+      view.gone = false;
       status = std::move(st);
+    }, [&](uint64_t daemon) {
+      std::lock_guard<std::mutex> lk(infoMutex);
+      auto it = daemonViews.find(daemon);
+      if (it == daemonViews.end() || it->second.gone) return;
+      it->second.gone = true;
+      it->second.goneAt = Clock::now();
+      gone.push_back(daemon);
     });
+    if (gone.empty()) return;
+    takeReplies();  // what it answered before it went
+    for (uint64_t d : gone) failGone(d);
   }
 
   void takeEvents() {
@@ -1177,6 +1337,7 @@ struct Client::Impl {
       for (auto it = pending.begin(); it != pending.end();) {
         if (it->second.deadline <= now) {
           if (it->second.held) --held;
+          if (it->second.parked) --parked;
           expired.push_back(std::move(it->second));
           it = pending.erase(it);
         } else {
@@ -1190,7 +1351,10 @@ struct Client::Impl {
     Error behind(ErrorCode::Timeout,
                  "still waiting behind requests physd refused at the door (its rate and queue "
                  "budgets: docs/CLIENT.md \"Rate limits\") at the request's timeout");
-    for (auto& p : expired) p.done(nullptr, p.held ? &behind : &e);
+    Error orphan(ErrorCode::Disconnected,
+                 "the daemon that held its world is gone (DDS liveliness) and no daemon took the "
+                 "world over before the request's timeout; nothing was sent");
+    for (auto& p : expired) p.done(nullptr, p.held ? &behind : p.parked ? &orphan : &e);
   }
 
   void loop() {
@@ -1209,6 +1373,7 @@ struct Client::Impl {
       takeStates();
       checkServers();
       expire();
+      sendParked();
       resendAt = sendBacklog();
     }
   }

@@ -107,6 +107,10 @@ dds_return_t Writer::write(uint64_t key, std::span<const uint8_t> bytes, uint64_
   return dds_write(e_, &env);
 }
 
+dds_return_t Writer::assertLiveliness() {
+  return dds_assert_liveliness(e_);
+}
+
 dds_return_t Writer::dispose(uint64_t key) {
   phys_wire_Envelope env{};
   protocol::wrapEnvelope(&env, key, 0, kind_, {});
@@ -135,7 +139,9 @@ bool Reader::create(const Participant& p, const Topic& t, const protocol::QosPre
                     std::string* err, const std::vector<std::string>& partitions) {
   const dds_entity_t parent = partitioned(p, partitions, false, &subscriber_, err);
   if (!parent) return false;
-  protocol::QosPtr q = protocol::makeQos(qos);
+  protocol::QosPreset requested = qos;
+  requested.livelinessLeaseMs = 0;  // automatic, infinite: any writer's lease matches
+  protocol::QosPtr q = protocol::makeQos(requested);
   dds_entity_t r = dds_create_reader(parent, t.get(), q.get(), nullptr);
   if (!check(r, "dds_create_reader " + t.name(), err)) return false;
   e_ = r;
@@ -201,6 +207,12 @@ bool Reader::publicationOf(dds_instance_handle_t writer, std::array<uint8_t, 16>
 
 int Reader::take(
     const std::function<void(const phys_wire_Envelope&, dds_instance_handle_t writer)>& fn) {
+  return take(fn, {});
+}
+
+int Reader::take(
+    const std::function<void(const phys_wire_Envelope&, dds_instance_handle_t writer)>& fn,
+    const std::function<void(uint64_t key)>& gone) {
   // Serialized samples (dds_takecdr), viewed in place: dds_take would copy every payload
   // out of Cyclone's sample into a buffer of its own first, 64 KB per state chunk and
   // subscriber (docs/BENCHMARKS.md, fan-out).
@@ -221,16 +233,24 @@ int Reader::take(
         if (held && ref.iov_len == size &&
             viewSerializedEnvelope(static_cast<const uint8_t*>(ref.iov_base), size, &env)) {
           fn(env, infos[i].publication_handle);
+          if (gone) instanceKeys_[infos[i].instance_handle] = env.key;
           ++total;
         } else {
           env = phys_wire_Envelope{};
           if (ddsi_serdata_to_sample(sd, &env, nullptr, nullptr)) {
             fn(env, infos[i].publication_handle);
+            if (gone) instanceKeys_[infos[i].instance_handle] = env.key;
             ++total;
           }
           dds_sample_free(&env, &phys_wire_Envelope_desc, DDS_FREE_CONTENTS);
         }
         if (held) ddsi_serdata_to_ser_unref(held, &ref);
+      } else if (gone && infos[i].instance_state != DDS_IST_ALIVE) {
+        // No data: the instance lost its writers (liveliness lapsed, writer deleted) or was
+        // disposed. Its key, from the samples it had (an invalid sample's serdata is
+        // Cyclone's untyped key form, which this API cannot decode without the sertype).
+        auto k = instanceKeys_.find(infos[i].instance_handle);
+        if (k != instanceKeys_.end()) gone(k->second);
       }
       ddsi_serdata_unref(sd);
     }

@@ -15,6 +15,8 @@ QosPtr makeQos(const QosPreset& p) {
   dds_qset_history(qos.get(),
                    p.history == History::KeepAll ? DDS_HISTORY_KEEP_ALL : DDS_HISTORY_KEEP_LAST,
                    p.depth);
+  if (p.livelinessLeaseMs > 0)
+    dds_qset_liveliness(qos.get(), DDS_LIVELINESS_MANUAL_BY_TOPIC, DDS_MSECS(p.livelinessLeaseMs));
   return qos;
 }
 

@@ -123,6 +123,9 @@ Status checkDaemonConfig(DaemonConfig* config) {
                              std::to_string(c.core.serverId));
   if (c.statusPeriodS <= 0)
     return Status::Error(Code::InvalidArgument, "server.status_period_s must be > 0");
+  if (!(c.livelinessS == 0 || (c.livelinessS >= 0.05 && c.livelinessS <= 3600)))
+    return Status::Error(Code::InvalidArgument,
+                         "dds.liveliness_s must be 0 (no lease) or 0.05..3600 s");
   if (!c.core.coordinator.empty()) {
     // Standby and takeover (docs/SERVER.md "Standby and takeover").
     if (!c.core.cluster)
@@ -290,9 +293,10 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
     PHYS_GET(*t, "lease_period_s", "cluster", &c.core.standbyLeasePeriodS);
   }
   if (auto* t = root["dds"].as_table()) {
-    s = checkKeys(*t, {"domain", "config"}, "dds");
+    s = checkKeys(*t, {"domain", "config", "liveliness_s"}, "dds");
     if (!s.ok()) return s;
     PHYS_GET(*t, "domain", "dds", &c.domain);
+    PHYS_GET(*t, "liveliness_s", "dds", &c.livelinessS);
     PHYS_GET(*t, "config", "dds", &c.cycloneConfig);
     c.cycloneConfig = resolve(baseDir, c.cycloneConfig);
   }

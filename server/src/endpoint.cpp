@@ -63,6 +63,8 @@ Status DdsEndpoint::start() {
     return fail();
   // Commands come in the default partition and, from clients with a DDS Security identity,
   // in that identity's partition (protocol/security.h).
+  protocol::QosPreset statusQos = protocol::kStatusQos;
+  statusQos.livelinessLeaseMs = int32_t(config_.liveliness.count());
   const std::vector<std::string> cmdPartitions = {
       "", std::string(protocol::kIdentityPartitionPrefix) + "*"};
   if (!cmdReader_.create(participant_, cmdTopic_, protocol::kCommandQos, &err, cmdPartitions) ||
@@ -70,8 +72,8 @@ Status DdsEndpoint::start() {
                            &err) ||
       !infoWriter_.create(participant_, infoTopic_, protocol::kWorldInfoQos, PayloadKind::WorldInfo,
                           &err) ||
-      !statusWriter_.create(participant_, statusTopic_, protocol::kStatusQos,
-                            PayloadKind::ServerStatus, &err) ||
+      !statusWriter_.create(participant_, statusTopic_, statusQos, PayloadKind::ServerStatus,
+                            &err) ||
       !eventsWriter_.create(participant_, eventsTopic_, protocol::kEventsQos, PayloadKind::Event,
                             &err))
     return fail();
@@ -110,9 +112,21 @@ void DdsEndpoint::readLoop() {
       sweep();
   };
   uint64_t taken = 0;
+  // Liveliness: asserted here, where commands come in, so a daemon counts as alive exactly
+  // while it can take them (a long tick does not make it look gone).
+  const auto livelinessEvery = config_.liveliness / 4;
+  auto assertedAt = ClientKeys::Clock::now();
+  const dds_duration_t waitFor =
+      livelinessEvery.count() > 0
+          ? DDS_MSECS(std::min<int64_t>(200, std::max<int64_t>(10, livelinessEvery.count())))
+          : DDS_MSECS(200);
   while (!stop_) {
-    waitset_.wait(DDS_MSECS(200));
+    waitset_.wait(waitFor);
     if (stop_) break;
+    if (livelinessEvery.count() > 0 && ClientKeys::Clock::now() - assertedAt >= livelinessEvery) {
+      statusWriter_.assertLiveliness();
+      assertedAt = ClientKeys::Clock::now();
+    }
     // Every command costs O(1) before it is dropped or queued: whatever one participant sends,
     // the others' commands keep flowing (docs/SERVER.md "Budgets").
     cmdReader_.take([&](const phys_wire_Envelope& env, dds_instance_handle_t writer) {

@@ -85,7 +85,8 @@ struct PhysdConfig {
   uint32_t domain = 0;
 
   PhysdConfig(const std::filesystem::path& dir, const std::string& name, uint32_t domainId,
-              const std::string& worldsToml, const std::string& serverToml = "") {
+              const std::string& worldsToml, const std::string& serverToml = "",
+              const std::string& ddsToml = "") {
     const std::string src = PHYS_SOURCE_DIR;
     domain = domainId;
     xml = (dir / "cyclone.xml").string();
@@ -96,7 +97,8 @@ struct PhysdConfig {
     toml = (dir / "physd.toml").string();
     std::ofstream f(toml);
     f << "[server]\nname = \"" << name << "\"\nlog_level = \"warn\"\nstatus_period_s = 0.2\n"
-      << serverToml << "[dds]\ndomain = " << domain << "\nconfig = \"" << xml << "\"\n[paths]\npresets = \""
+      << serverToml << "[dds]\ndomain = " << domain << "\nconfig = \"" << xml << "\"\n"
+      << ddsToml << "[paths]\npresets = \""
       << src << "/configs/presets.json\"\nscenes = \"" << src << "/configs/scenes\"\n"
       << worldsToml;
   }

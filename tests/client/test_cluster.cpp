@@ -73,7 +73,9 @@ struct Cluster {
 
   /// durable: each daemon keeps its worlds in <dir>/d<i>/data. coordinator: etcd's URL, and
   /// daemon i stands by for daemon i-1's worlds (1 for 3's).
-  explicit Cluster(bool durable = false, const std::string& coordinator = "") {
+  /// dds: more of each daemon's [dds] section (e.g. its liveliness lease).
+  explicit Cluster(bool durable = false, const std::string& coordinator = "",
+                   const std::string& dds = "") {
     for (int i = 1; i <= kDaemons; ++i) {
       const auto d = dir.path / ("d" + std::to_string(i));
       std::filesystem::create_directories(d);
@@ -87,7 +89,8 @@ struct Cluster {
                                     "\nfence_after_s = 0.6\ntakeover_after_s = 1.0\n";
       configs.push_back(std::make_unique<testing::PhysdConfig>(
           d, "cluster-" + std::to_string(i), domain,
-          data + "[cluster]\nenabled = true\n" + standby, "id = " + std::to_string(i) + "\n"));
+          data + "[cluster]\nenabled = true\n" + standby, "id = " + std::to_string(i) + "\n",
+          dds));
       start(i);
     }
   }
@@ -414,12 +417,13 @@ struct Coordinated {
   Coordinator etcd;
   std::unique_ptr<Cluster> cl;
   std::unique_ptr<Client> client;
-  /// Fails when etcd or a daemon did not start, or the client does not see them.
-  ::testing::AssertionResult start() {
+  /// Fails when etcd or a daemon did not start, or the client does not see them. dds: more
+  /// of the daemons' [dds] section.
+  ::testing::AssertionResult start(const std::string& dds = "") {
     if (!etcd.start())
       return ::testing::AssertionFailure()
              << "etcd (Debian's etcd-server) did not start; its log is in " << etcd.dir.path;
-    cl = std::make_unique<Cluster>(/*durable=*/true, etcd.url());
+    cl = std::make_unique<Cluster>(/*durable=*/true, etcd.url(), dds);
     client = cl->connected();
     if (!client) return ::testing::AssertionFailure() << "a daemon did not start or was not seen";
     return ::testing::AssertionSuccess();
@@ -531,10 +535,12 @@ TEST(Cluster, AKilledOwnersWorldIsTakenOverByItsStandbyWithEveryAcknowledgedEdit
 // acknowledges nothing for the world and publishes no frame of it, stands down, and answers
 // the edit Moved, so the edit is applied once, by daemon 2 (the state of a twin world that
 // got it once, bit for bit). The subscriber never received a frame of the old owner's after
-// the new owner's.
+// the new owner's. The daemons' status has no liveliness lease here (liveliness_s 0): with
+// one, the SDK would fail the edit as soon as daemon 1's lease lapsed (the next test), and a
+// stale acknowledgement from the woken daemon 1 would find no request to answer.
 TEST(Cluster, AStoppedOwnerAcknowledgesAndPublishesNothingForTheWorldItLost) {
   Coordinated co;
-  ASSERT_TRUE(co.start());
+  ASSERT_TRUE(co.start("liveliness_s = 0\n"));
   Cluster& cl = *co.cl;
   Client& c = *co.client;
   CallOptions on1;
@@ -575,6 +581,60 @@ TEST(Cluster, AStoppedOwnerAcknowledgesAndPublishesNothingForTheWorldItLost) {
   EXPECT_EQ(sub.staleChunks(), staleBefore);
   EXPECT_EQ(c.listWorlds(on1).get().size(), 0u);
   EXPECT_EQ(c.duplicateReplies(), 0u);
+  for (int i = 1; i <= Cluster::kDaemons; ++i) EXPECT_TRUE(cl.stop(i)) << "daemon " << i;
+}
+
+// A client carries on through a takeover by itself (docs/CLIENT.md "When a daemon dies").
+// Daemon 1 is frozen (SIGSTOP) with an edit on its way to it: the SDK fails that edit as
+// Disconnected once daemon 1's liveliness lease (1 s) lapses, long before the request's
+// timeout. The next edit, made while no live daemon lists the world yet or just after
+// daemon 2 does, waits in the SDK for the world's new owner and is applied there. Woken,
+// daemon 1 applies nothing (the first edit reached no world: the state is that of a twin
+// that got only the second), and nothing is answered twice.
+TEST(Cluster, AClientCarriesOnThroughATakeover) {
+  Coordinated co;
+  ASSERT_TRUE(co.start());
+  Cluster& cl = *co.cl;
+  Client& c = *co.client;
+  const Twins t = twins(c, "carry");
+  WorldHandle world = t.world, twin = t.twin;
+  const std::vector<uint64_t>& ids = t.ids;
+  for (int i = 0; i < 10; ++i) {
+    world.step(1).get();
+    twin.step(1).get();
+  }
+
+  ASSERT_EQ(kill(cl.pids[0], SIGSTOP), 0);
+  const auto stopped = std::chrono::steady_clock::now();
+  std::future<Ack> lost = world.applyImpulse(ids[5], {0, 0.7f, 0});  // to daemon 1, frozen
+  try {
+    lost.get();
+    ADD_FAILURE() << "a frozen daemon answered";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.code(), ErrorCode::Disconnected) << e.what();
+  }
+  const double failedAfterS =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - stopped).count();
+  // The lease is 1 s; the request's timeout is 20 s (x kTimeFactor under a sanitizer).
+  EXPECT_LT(failedAfterS, 5.0 * phys::test::kTimeFactor);
+  std::printf("the edit to the frozen daemon failed %.0f ms after SIGSTOP\n", failedAfterS * 1e3);
+
+  // Made now, without looking for the new owner: it goes to daemon 2 by itself.
+  EXPECT_EQ(world.setVelocity(ids[3], {1.5f, 0, 0}).get().tick, 10u);
+  twin.setVelocity(ids[3], {1.5f, 0, 0}).get();
+  EXPECT_EQ(holderOf(c, world.id()), 2u);
+  ASSERT_EQ(kill(cl.pids[0], SIGCONT), 0);
+  for (int i = 0; i < 5; ++i) {
+    EXPECT_EQ(world.step(1).get().tick, uint64_t(11 + i));
+    twin.step(1).get();
+  }
+  std::this_thread::sleep_for(500ms);  // daemon 1 woke and stood down
+  expectSameState(world.queryState().get(), twin.queryState().get());
+  EXPECT_EQ(c.duplicateReplies(), 0u);
+  // Daemon 1 is live again (its status came back) and holds nothing.
+  CallOptions on1;
+  on1.daemon = 1;
+  EXPECT_EQ(c.listWorlds(on1).get().size(), 0u);
   for (int i = 1; i <= Cluster::kDaemons; ++i) EXPECT_TRUE(cl.stop(i)) << "daemon " << i;
 }
 

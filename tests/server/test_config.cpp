@@ -96,6 +96,23 @@ TEST(ServerConfig, TwoWordKeys) {
       << s.message;
 }
 
+TEST(ServerConfig, LivelinessLease) {
+  // dds.liveliness_s: 1 s without the key, 0 turns it off, anything else out of range fails.
+  DaemonConfig c;
+  ASSERT_TRUE(parseDaemonConfig("", "/tmp", &c).ok());
+  EXPECT_EQ(c.livelinessS, 1.0);
+  for (const char* ok : {"0", "0.05", "2.5"}) {
+    Status s = parseDaemonConfig(std::string("[dds]\nliveliness_s = ") + ok + "\n", "/tmp", &c);
+    EXPECT_TRUE(s.ok()) << ok << ": " << s.message;
+    EXPECT_EQ(c.livelinessS, std::stod(ok));
+  }
+  for (const char* bad : {"-1", "0.01", "1e9", "nan"}) {
+    Status s = parseDaemonConfig(std::string("[dds]\nliveliness_s = ") + bad + "\n", "/tmp", &c);
+    EXPECT_EQ(s.code, Code::InvalidArgument) << bad;
+    EXPECT_NE(s.message.find("dds.liveliness_s"), std::string::npos) << s.message;
+  }
+}
+
 TEST(ServerConfig, Backend) {
   DaemonConfig c;
   Status s = parseDaemonConfig("", "/tmp", &c);

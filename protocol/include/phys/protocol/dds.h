@@ -10,6 +10,7 @@
 #include <functional>
 #include <span>
 #include <string>
+#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -98,6 +99,9 @@ class Writer : public Entity {
               const std::vector<std::string>& partitions = {});
   /// Writes one envelope (Cyclone serializes it before returning).
   dds_return_t write(uint64_t key, std::span<const uint8_t> bytes, uint64_t seq = 0);
+  /// Asserts the liveliness of a writer whose QoS has a lease (QosPreset::livelinessLeaseMs):
+  /// its readers keep its instances alive for another lease without a sample.
+  dds_return_t assertLiveliness();
   /// Disposes the instance of key (transient-local readers forget it).
   dds_return_t dispose(uint64_t key);
   /// Matched readers now.
@@ -138,6 +142,12 @@ class Reader : public Entity {
   /// The same, with the instance handle of the writer each sample came from (what DDS vouches
   /// for about its sender: see participantOf).
   int take(const std::function<void(const phys_wire_Envelope&, dds_instance_handle_t writer)>& fn);
+  /// The same, and gone(key) for each instance that DDS says has no live writer any more
+  /// (its writer's liveliness lapsed, or the writer was deleted) or was disposed: only for
+  /// instances this reader took a sample of through this overload (one entry per instance
+  /// kept: for topics of few instances, like phys/status).
+  int take(const std::function<void(const phys_wire_Envelope&, dds_instance_handle_t writer)>& fn,
+           const std::function<void(uint64_t key)>& gone);
   /// The participant (its GUID, 16 bytes) of a writer matched with this reader; false when
   /// the writer is not (or no longer) matched.
   bool participantOf(dds_instance_handle_t writer, std::array<uint8_t, 16>* guid) const;
@@ -152,6 +162,7 @@ class Reader : public Entity {
 
  private:
   Entity subscriber_;
+  std::unordered_map<dds_instance_handle_t, uint64_t> instanceKeys_;  ///< see take(fn, gone)
 };
 
 /// A waitset with a data-available condition per attached reader and a guard to wake it.

@@ -50,6 +50,11 @@ struct QosPreset {
   History history = History::KeepLast;
   int32_t depth = 1;            ///< KeepLast depth
   int32_t maxBlockingMs = 100;  ///< reliable writers: how long a full history may block
+  /// Writers only: > 0 makes the writer's liveliness MANUAL_BY_TOPIC with this lease (its
+  /// writes and Writer::assertLiveliness keep it alive; a reader sees its instances
+  /// NOT_ALIVE_NO_WRITERS once a lease passes without either: a killed or frozen process).
+  /// Readers never request a lease (Reader::create ignores it), so they match any writer.
+  int32_t livelinessLeaseMs = 0;
 };
 
 /// Commands: reliable, never dropped while a client keeps <= 256 outstanding; keep-last (not

@@ -26,6 +26,10 @@ struct StartupWorld {
 struct DaemonConfig {
   uint32_t domain = 0;            ///< DDS domain id
   std::string cycloneConfig;      ///< CYCLONEDDS_URI file (absolute); empty: Cyclone's own
+  /// [dds] liveliness_s: the lease of phys/status's DDS liveliness. Clients count the daemon
+  /// gone (and fail the requests it has not answered) once a lease passes with no sign of it:
+  /// a killed or frozen process. 0: no lease (gone only when its status stops coming).
+  double livelinessS = 1.0;
   std::string logLevel = "info";  ///< spdlog level name
   double statusPeriodS = 1.0;     ///< phys/status period
   /// 1..99: run the daemon's threads (tick, publisher, Cyclone's) under SCHED_FIFO at this

@@ -30,6 +30,10 @@ struct EndpointConfig {
   /// How often the reader thread looks for participants that left (their client ids and
   /// interests are freed); sooner, down to a tenth of it, when the id table is full.
   std::chrono::milliseconds sweepPeriod{1000};
+  /// The lease of phys/status's liveliness (DaemonConfig::livelinessS); 0: none. The reader
+  /// thread asserts it four times a lease, so clients see a killed or frozen daemon go within
+  /// one lease, and a busy tick thread does not make it look gone.
+  std::chrono::milliseconds liveliness{1000};
 };
 
 struct EndpointCounters {
