@@ -11,7 +11,11 @@ edited alike with its twin on daemon 4: the state check).
 Each SIGKILL round: edits acknowledged on both worlds, then the victim is killed; the takeover
 time is from the kill to the subscriber's first frame of the new owner (a newer epoch); the
 stepped world must then equal its twin bit for bit (every acknowledged edit present); the
-killed daemon is started again and must stand down. Each SIGSTOP round: the victim is stopped,
+killed daemon is started again and must stand down. Right after the kill an edit is sent to
+the world (in flight to a dead daemon: the SDK fails it, Disconnected, once the daemon's
+liveliness lease lapses; its time is printed) and, at once after that failure, another (the
+SDK holds it until a live daemon lists the world: it must be answered, and is counted as an
+acknowledged edit). Each SIGSTOP round: the victim is stopped,
 an edit is sent to it, the standby takes over, the victim is woken (SIGCONT): the edit must be
 applied once (by the new owner: the twin check), and no frame of the old owner may reach the
 subscriber after the new owner's (Subscription.stale_chunks).
@@ -188,6 +192,10 @@ def main():
         kills, stops, mismatches, stale, doubles = [], [], 0, 0, 0
         unanswered, unanswered_applied = 0, 0
         acked = 0
+        # SIGKILL rounds: an edit sent right after the kill (in flight to a dead daemon: the
+        # SDK fails it once the daemon's liveliness lease lapses), then one made right after
+        # that failure (the SDK holds it until a live daemon lists the world).
+        failed_after, carried_after, dead_edit_outcomes = [], [], []
         for k in range(args.kills + args.stops):
             kill = k < args.kills
             edit_both(k)
@@ -205,7 +213,25 @@ def main():
                 victim.send_signal(signal.SIGSTOP)
             pending, answer = None, []
             target = ids[2 + k % 5]
-            if not kill:
+            if kill:
+                def send_to_dead():
+                    t1 = time.monotonic()
+                    try:
+                        stepped.set_velocity(target, (0.0, 0.0, 0.2))
+                        answer.append("answered")
+                    except pc.Error as e:
+                        answer.append(type(e).__name__)
+                    failed_after.append((time.monotonic() - t1) * 1e3)
+                    t2 = time.monotonic()
+                    try:
+                        stepped.set_velocity(target, (0.0, 0.0, 0.4))
+                        carried_after.append((time.monotonic() - t2) * 1e3)
+                        answer.append("carried")
+                    except pc.Error as e:
+                        answer.append(type(e).__name__)
+                pending = threading.Thread(target=send_to_dead)
+                pending.start()
+            else:
                 # An edit on its way to the stopped owner (the SDK sends it there).
                 def send():
                     try:
@@ -227,6 +253,13 @@ def main():
             while not listed_on(c, stepped.id, standby) and time.monotonic() < end:
                 time.sleep(0.01)
             if kill:
+                pending.join()
+                dead_edit_outcomes.append(tuple(answer))
+                if answer[-1] == "carried":
+                    acked += 1
+                    twin.set_velocity(target, (0.0, 0.0, 0.4))
+                else:
+                    print(f"round {k + 1}: the edits after the kill got {answer}", flush=True)
                 cl.start(owner)
             else:
                 victim.send_signal(signal.SIGCONT)
@@ -274,6 +307,12 @@ def main():
         line("SIGSTOP -> the new owner's first frame", stops)
         print(f"edits sent to a stopped owner and not answered (outcome unknown to the client) "
               f"{unanswered}, of them applied {unanswered_applied}")
+        line("SIGKILL -> an edit on its way to the dead owner fails", failed_after)
+        line("then an edit made at once -> answered by the new owner", carried_after)
+        outcomes = {}
+        for o in dead_edit_outcomes:
+            outcomes[o] = outcomes.get(o, 0) + 1
+        print(f"edits after a kill: {outcomes}")
         print(f"acknowledged edits {acked}; state mismatches with the twin {mismatches} "
               f"(an acknowledged edit lost or applied twice shows as one); stale chunks after "
               f"the new owner's {stale}; old owners still listing a world {doubles}; duplicate "

@@ -105,6 +105,10 @@ struct Subscription::State {
   /// a new daemon (after a restart): written by the SDK thread under Impl::subsMutex.
   uint32_t interest = 0;
   Interest spec;  ///< what the interest asked for (subscribed again after a restart)
+  /// In a domain of daemons, the daemon that holds the interest (the world's owner when it
+  /// was subscribed): when the world's owner changes (a takeover, a move), the SDK
+  /// subscribes it again there (Impl::followInterests). SDK thread once subscribed.
+  uint64_t daemon = 0;
   dds::Topic topic;
   dds::Reader reader;
   std::function<void(const StateFrame&)> fn;
@@ -1236,42 +1240,80 @@ struct Client::Impl {
     }
     for (auto& s : copy) {
       s->restart();
-      if (s->interest == 0) continue;
-      CommandBuilder b;
-      if (s->spec.region)
-        b.subscribeRegion(s->spec.region->first, s->spec.region->second);
-      else
-        b.subscribeBodies(s->spec.bodies);
-      std::weak_ptr<Subscription::State> weak = s;
-      send(b, s->world, options.requestTimeout, [this, weak](const wire::Reply* r, const Error* e) {
-        auto s = weak.lock();
-        const wire::InterestResult* i =
-            !e && r->status() == wire::StatusCode::Ok ? r->result_as_InterestResult() : nullptr;
-        if (!s || !i || i->interest() == 0) return;  // gone, or the world with it
-        const uint32_t id = i->interest();
-        std::string err;
-        dds::Topic topic;
-        dds::Reader reader;
-        bool live = false;
-        {
-          std::lock_guard<std::mutex> lk(subsMutex);
-          live = std::find(subs.begin(), subs.end(), s) != subs.end();
-          if (live && topic.create(participant, protocol::stateTopic(s->world, id), &err) &&
-              reader.create(participant, topic, protocol::kStateReaderQos, &err)) {
-            waitset.detach(s->reader);
-            s->reader = std::move(reader);
-            s->topic = std::move(topic);
-            s->interest = id;
-            if (!waitset.attach(s->reader, &err)) live = false;
-          }
-        }
-        if (!live) {  // unsubscribed meanwhile: the new interest is not wanted either
-          CommandBuilder u;
-          u.unsubscribe(id);
-          send(u, s->world, options.requestTimeout, [](const wire::Reply*, const Error*) {});
-        }
-      });
+      if (s->interest != 0) subscribeAgain(s);
     }
+  }
+
+  /// The daemon a command for `world` goes to now (0 with a lone daemon). infoMutex free.
+  uint64_t currentOwner(uint32_t world) const {
+    if (!clusterSeen.load()) return 0;
+    const uint64_t o = ownerOf(world);
+    return o != 0 ? o : protocol::daemonOfWorld(world);
+  }
+
+  /// In a domain of daemons, an interest whose world changed owner (taken over, moved) is
+  /// subscribed again on the new owner, once that daemon is live and lists the world: its
+  /// old daemon is gone or let the world go, and with it the interest. SDK thread.
+  void followInterests() {
+    if (!clusterSeen.load()) return;
+    std::vector<std::shared_ptr<Subscription::State>> copy;
+    {
+      std::lock_guard<std::mutex> lk(subsMutex);
+      for (auto& s : subs)
+        if (s->interest != 0) copy.push_back(s);
+    }
+    for (auto& s : copy) {
+      const uint64_t owner = currentOwner(s->world);
+      if (owner == s->daemon) continue;
+      {
+        std::lock_guard<std::mutex> lk(infoMutex);
+        const std::optional<uint64_t> holder = liveHolder(s->world);
+        if (!holder || (*holder != 0 ? *holder : protocol::daemonOfWorld(s->world)) != owner)
+          continue;  // not served there yet
+      }
+      s->daemon = owner;
+      s->restart();
+      subscribeAgain(s);
+    }
+  }
+
+  /// Subscribes interest subscription s again (a new interest id, topic and reader once
+  /// answered). SDK thread.
+  void subscribeAgain(const std::shared_ptr<Subscription::State>& s) {
+    CommandBuilder b;
+    if (s->spec.region)
+      b.subscribeRegion(s->spec.region->first, s->spec.region->second);
+    else
+      b.subscribeBodies(s->spec.bodies);
+    std::weak_ptr<Subscription::State> weak = s;
+    send(b, s->world, options.requestTimeout, [this, weak](const wire::Reply* r, const Error* e) {
+      auto s = weak.lock();
+      const wire::InterestResult* i =
+          !e && r->status() == wire::StatusCode::Ok ? r->result_as_InterestResult() : nullptr;
+      if (!s || !i || i->interest() == 0) return;  // gone, or the world with it
+      const uint32_t id = i->interest();
+      std::string err;
+      dds::Topic topic;
+      dds::Reader reader;
+      bool live = false;
+      {
+        std::lock_guard<std::mutex> lk(subsMutex);
+        live = std::find(subs.begin(), subs.end(), s) != subs.end();
+        if (live && topic.create(participant, protocol::stateTopic(s->world, id), &err) &&
+            reader.create(participant, topic, protocol::kStateReaderQos, &err)) {
+          waitset.detach(s->reader);
+          s->reader = std::move(reader);
+          s->topic = std::move(topic);
+          s->interest = id;
+          if (!waitset.attach(s->reader, &err)) live = false;
+        }
+      }
+      if (!live) {  // unsubscribed meanwhile: the new interest is not wanted either
+        CommandBuilder u;
+        u.unsubscribe(id);
+        send(u, s->world, options.requestTimeout, [](const wire::Reply*, const Error*) {});
+      }
+    });
   }
 
   /// How long to wait before sending a refused command again: what the daemon says, and at
@@ -1374,6 +1416,7 @@ struct Client::Impl {
       checkServers();
       expire();
       sendParked();
+      followInterests();
       resendAt = sendBacklog();
     }
   }
@@ -1386,6 +1429,7 @@ struct Client::Impl {
     s->spec = std::move(spec);
     s->fn = std::move(fn);
     s->owner = this;
+    if (interest != 0) s->daemon = currentOwner(world);
     std::string err;
     if (!s->topic.create(participant, protocol::stateTopic(world, interest), &err) ||
         !s->reader.create(participant, s->topic, protocol::kStateReaderQos, &err))

@@ -169,6 +169,26 @@ Status checkDaemonConfig(DaemonConfig* config) {
 
 }  // namespace
 
+namespace {
+/// [cluster] (docs/SERVER.md "Several daemons", "Standby and takeover").
+Status parseCluster(const toml::table& t, CoreConfig* core) {
+  Status s = checkKeys(t,
+                       {"enabled", "coordinator", "coordinator_prefix", "standby", "renew_period_s",
+                        "fence_after_s", "takeover_after_s", "lease_period_s"},
+                       "cluster");
+  if (!s.ok()) return s;
+  PHYS_GET(t, "enabled", "cluster", &core->cluster);
+  PHYS_GET(t, "coordinator", "cluster", &core->coordinator);
+  PHYS_GET(t, "coordinator_prefix", "cluster", &core->coordinatorPrefix);
+  PHYS_GET(t, "standby", "cluster", &core->standby);
+  PHYS_GET(t, "renew_period_s", "cluster", &core->renewPeriodS);
+  PHYS_GET(t, "fence_after_s", "cluster", &core->fenceAfterS);
+  PHYS_GET(t, "takeover_after_s", "cluster", &core->takeoverAfterS);
+  PHYS_GET(t, "lease_period_s", "cluster", &core->standbyLeasePeriodS);
+  return Status::Ok();
+}
+}  // namespace
+
 Status parseDaemonConfig(const std::string& text, const std::string& baseDir, DaemonConfig* out) {
   toml::table root;
   try {
@@ -278,19 +298,8 @@ Status parseDaemonConfig(const std::string& text, const std::string& baseDir, Da
       return Status::Error(Code::InvalidArgument, "server.max_concurrent_loads must be >= 1");
   }
   if (auto* t = root["cluster"].as_table()) {
-    s = checkKeys(*t,
-                  {"enabled", "coordinator", "coordinator_prefix", "standby", "renew_period_s",
-                   "fence_after_s", "takeover_after_s", "lease_period_s"},
-                  "cluster");
+    s = parseCluster(*t, &c.core);
     if (!s.ok()) return s;
-    PHYS_GET(*t, "enabled", "cluster", &c.core.cluster);
-    PHYS_GET(*t, "coordinator", "cluster", &c.core.coordinator);
-    PHYS_GET(*t, "coordinator_prefix", "cluster", &c.core.coordinatorPrefix);
-    PHYS_GET(*t, "standby", "cluster", &c.core.standby);
-    PHYS_GET(*t, "renew_period_s", "cluster", &c.core.renewPeriodS);
-    PHYS_GET(*t, "fence_after_s", "cluster", &c.core.fenceAfterS);
-    PHYS_GET(*t, "takeover_after_s", "cluster", &c.core.takeoverAfterS);
-    PHYS_GET(*t, "lease_period_s", "cluster", &c.core.standbyLeasePeriodS);
   }
   if (auto* t = root["dds"].as_table()) {
     s = checkKeys(*t, {"domain", "config", "liveliness_s"}, "dds");

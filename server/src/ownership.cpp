@@ -2,6 +2,8 @@
 #include "phys/server/ownership.h"
 
 #include <nlohmann/json.hpp>
+
+#include <algorithm>
 #include <random>
 
 namespace phys::server {
@@ -181,6 +183,30 @@ void Ownership::look() {
   const std::map<uint32_t, WorldRecord> keys = worldRecords(kvs, prefix, &bad);
   for (const std::string& k : bad)
     core_->log(true, "coordinator: " + k + " is not a world's record; left alone");
+  // Takeovers the tick thread could not carry out: the key goes back to the owner as it was
+  // (this daemon its standby), so that the owner, restarted, restores the world instead of
+  // setting it aside as taken, and this daemon tries again after a wait.
+  if (std::vector<ServerCore::FailedTakeover> failed = core_->takeFailedTakeovers();
+      !failed.empty()) {
+    for (const ServerCore::FailedTakeover& f : failed) {
+      takingOver_.erase(f.world);
+      Retry& r = retries_[f.world];
+      r.wait = std::clamp(2 * r.wait, std::chrono::milliseconds(1000),
+                          std::chrono::milliseconds(30000));
+      r.at = now + r.wait;
+      const std::string wk = key("worlds", f.world);
+      const std::string back =
+          nlohmann::json{{"owner", f.owner}, {"standby", config_.serverId}, {"dir", f.dir}}.dump();
+      bool ok = false;
+      etcd_.txn({{wk, int64_t(f.revision)}}, {{wk, back}}, {}, &ok, nullptr);
+      core_->log(!ok, "coordinator: world " + std::to_string(f.world) +
+                          (ok ? " given back to daemon " : " could not be given back to daemon ") +
+                          std::to_string(f.owner) + "; taking it over again in " +
+                          std::to_string(r.wait.count()) + " ms");
+    }
+    return;  // the keys read are stale now: the next round reads them again
+  }
+  std::erase_if(retries_, [&](const auto& r) { return !keys.count(r.first); });
   // Every owner's heartbeat as read now (0: it has none), and since when it is the same.
   for (const auto& [id, k] : keys) beats.try_emplace(k.owner, 0);
   for (const auto& [d, revision] : beats) {
@@ -214,6 +240,7 @@ void Ownership::look() {
   for (const ServerCore::OwnedWorld& o : owned) {
     mine.insert(o.id);
     takingOver_.erase(o.id);
+    retries_.erase(o.id);
     auto it = keys.find(o.id);
     const bool ours = it != keys.end() && it->second.owner == me;
     // A world that came here by MoveWorld (never registered here, not restored): its key
@@ -227,7 +254,11 @@ void Ownership::look() {
              it->second.owner);
       continue;
     }
-    if (o.ownership != 0 && !o.unconfirmed && ours) continue;  // registered, still ours
+    // Registered, still ours. (A key of ours at another revision than the one registered:
+    // a standby that failed to take the world over gave it back while this daemon was
+    // paused; registered again, so that its renewals hold.)
+    if (o.ownership != 0 && !o.unconfirmed && ours && int64_t(o.ownership) == it->second.revision)
+      continue;
     if (noted_.count(o.id) && it != keys.end() && noted_[o.id] == it->second.revision) continue;
     // Not registered (new), restored and not yet confirmed, or a key gone: (re)registered.
     // A new revision, so its epoch is above any this world had before.
@@ -264,7 +295,11 @@ void Ownership::look() {
     // A world this daemon stands by for, whose owner has not renewed for takeoverAfterS.
     if (k.standby != me || mine.count(id) || takingOver_.count(id)) continue;
     const Seen& seen = heartbeats_[k.owner];
-    if (now - seen.since < ms(config_.takeoverAfterS)) continue;
+    if (now - seen.since < ms(config_.takeoverAfterS)) {
+      retries_.erase(id);  // its owner renews (again): a later failure waits from 1 s
+      continue;
+    }
+    if (auto r = retries_.find(id); r != retries_.end() && now < r->second.at) continue;
     const std::string wk = key("worlds", id);
     // (dataDir is absolute with a coordinator: ServerCore's constructor.)
     const std::string dir = config_.dataDir + "/worlds/" + std::to_string(id);

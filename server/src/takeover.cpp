@@ -37,6 +37,11 @@ bool ServerCore::holding() const {
   return until != 0 && Clock::now().time_since_epoch().count() < until;
 }
 
+std::vector<ServerCore::FailedTakeover> ServerCore::takeFailedTakeovers() {
+  std::lock_guard<std::mutex> lock(ownedMutex_);
+  return std::exchange(failedTakeovers_, {});
+}
+
 std::vector<ServerCore::OwnedWorld> ServerCore::ownedWorlds(bool* fresh) const {
   std::lock_guard<std::mutex> lock(ownedMutex_);
   if (fresh) *fresh = ownedFresh_;
@@ -210,7 +215,11 @@ void ServerCore::takeOver(OwnershipNote& n) {
   const uint32_t id = n.world;
   auto fail = [&](const std::string& why) {
     log(true, "world " + std::to_string(id) + ": taking over from daemon " +
-                  std::to_string(n.daemon) + " failed: " + why);
+                  std::to_string(n.daemon) + " failed: " + why +
+                  " (its key goes back to daemon " + std::to_string(n.daemon) +
+                  "; tried again later)");
+    std::lock_guard<std::mutex> lock(ownedMutex_);
+    failedTakeovers_.push_back({id, n.revision, n.daemon, n.dir});
   };
   if (world(id)) return fail("this daemon holds a world " + std::to_string(id) + " already");
   if (!durable()) return fail("this daemon keeps no worlds ([paths] data)");

@@ -590,7 +590,8 @@ TEST(Cluster, AStoppedOwnerAcknowledgesAndPublishesNothingForTheWorldItLost) {
 // timeout. The next edit, made while no live daemon lists the world yet or just after
 // daemon 2 does, waits in the SDK for the world's new owner and is applied there. Woken,
 // daemon 1 applies nothing (the first edit reached no world: the state is that of a twin
-// that got only the second), and nothing is answered twice.
+// that got only the second), and nothing is answered twice. An interest (a stream of some
+// bodies) goes on too: the SDK subscribes it again on the new owner.
 TEST(Cluster, AClientCarriesOnThroughATakeover) {
   Coordinated co;
   ASSERT_TRUE(co.start());
@@ -599,10 +600,14 @@ TEST(Cluster, AClientCarriesOnThroughATakeover) {
   const Twins t = twins(c, "carry");
   WorldHandle world = t.world, twin = t.twin;
   const std::vector<uint64_t>& ids = t.ids;
+  Interest two;
+  two.bodies = {ids[3], ids[5]};
+  Subscription some = world.subscribe(two);
   for (int i = 0; i < 10; ++i) {
     world.step(1).get();
     twin.step(1).get();
   }
+  ASSERT_TRUE(some.waitForFrame(9, 10s));
 
   ASSERT_EQ(kill(cl.pids[0], SIGSTOP), 0);
   const auto stopped = std::chrono::steady_clock::now();
@@ -630,12 +635,68 @@ TEST(Cluster, AClientCarriesOnThroughATakeover) {
   }
   std::this_thread::sleep_for(500ms);  // daemon 1 woke and stood down
   expectSameState(world.queryState().get(), twin.queryState().get());
+  // The interest's frames come from daemon 2: its two bodies at the last tick.
+  ASSERT_TRUE(some.waitForFrame(14, 10s)) << "the interest did not follow the world";
+  const std::optional<StateFrame> f = some.latest();
+  ASSERT_TRUE(f);
+  EXPECT_EQ(f->tick, 15u);
+  EXPECT_EQ(f->bodies.size(), 2u);
   EXPECT_EQ(c.duplicateReplies(), 0u);
   // Daemon 1 is live again (its status came back) and holds nothing.
   CallOptions on1;
   on1.daemon = 1;
   EXPECT_EQ(c.listWorlds(on1).get().size(), 0u);
   for (int i = 1; i <= Cluster::kDaemons; ++i) EXPECT_TRUE(cl.stop(i)) << "daemon " << i;
+}
+
+// A takeover that cannot be carried out (here: daemon 2, the standby, holds a world of the
+// same name) gives the world's key back to its owner and is tried again after a wait
+// (docs/SERVER.md "Standby and takeover"). Daemon 1 killed: nobody serves the world, and
+// daemon 1 restarted restores it (the key names it again) instead of setting it aside as
+// taken. Killed again, and the clash removed: daemon 2 takes the world over by itself, with
+// every acknowledged step (a twin's state).
+TEST(Cluster, AFailedTakeoverGivesTheWorldBackAndIsTriedAgain) {
+  Coordinated co;
+  ASSERT_TRUE(co.start());
+  Cluster& cl = *co.cl;
+  Client& c = *co.client;
+  const Twins t = twins(c, "back");
+  WorldHandle world = t.world, twin = t.twin;
+  CallOptions on2;
+  on2.daemon = 2;
+  WorldHandle clash = c.createWorld({"back", "", std::nullopt, 0}, on2).get();
+  auto stepBoth = [&](uint64_t tick) {
+    EXPECT_EQ(world.step(1).get().tick, tick);
+    twin.step(1).get();
+  };
+  for (uint64_t i = 1; i <= 5; ++i) stepBoth(i);
+  auto holderWithin = [&](uint64_t daemon, std::chrono::seconds s) {
+    const auto end = std::chrono::steady_clock::now() + s * int64_t(phys::test::kTimeFactor);
+    uint64_t h = 0;
+    while ((h = holderOf(c, world.id())) != daemon && std::chrono::steady_clock::now() < end)
+      std::this_thread::sleep_for(50ms);
+    return h;
+  };
+
+  testing::stopProcess(cl.pids[0], SIGKILL);
+  cl.pids[0] = 0;
+  std::this_thread::sleep_for(3s);  // past the takeover time (1 s here) and a retry
+  EXPECT_EQ(holderOf(c, world.id()), 0u) << "the world was taken over despite the clash";
+  cl.start(1);
+  ASSERT_TRUE(Cluster::awaitDaemons(c));
+  EXPECT_EQ(holderWithin(1, 20s), 1u) << "daemon 1 did not restore its world";
+  stepBoth(6);
+
+  testing::stopProcess(cl.pids[0], SIGKILL);
+  cl.pids[0] = 0;
+  std::this_thread::sleep_for(2s);
+  EXPECT_EQ(holderOf(c, world.id()), 0u);
+  clash.destroy().get();
+  EXPECT_EQ(holderWithin(2, 20s), 2u) << "daemon 2 did not take the world over again";
+  expectSameState(world.queryState().get(), twin.queryState().get());
+  stepBoth(7);
+  EXPECT_EQ(c.duplicateReplies(), 0u);
+  for (int i = 2; i <= Cluster::kDaemons; ++i) EXPECT_TRUE(cl.stop(i)) << "daemon " << i;
 }
 
 // The coordinator restarted (SIGKILL, then started on its data again): meanwhile owners

@@ -510,6 +510,17 @@ class ServerCore {
     uint64_t owner = 0;
   };
   void standBy(std::map<uint32_t, Followed> worlds);
+  /// A TakeOver the tick thread could not carry out (the owner's files unreadable, a world of
+  /// that id or name here already): the coordinator thread gives the world's key back to
+  /// its owner (so the owner, restarted, restores the world) and tries again later.
+  struct FailedTakeover {
+    uint32_t world = 0;
+    uint64_t revision = 0;  ///< the key's revision that named this daemon
+    uint64_t owner = 0;     ///< who held it
+    std::string dir;        ///< its directory in the owner's data
+  };
+  /// Thread-safe (coordinator thread): the takeovers that failed since the last call.
+  std::vector<FailedTakeover> takeFailedTakeovers();
   /// Thread-safe: a status sample is wanted before the period ends (a world taken over).
   bool takeStatusWanted() { return statusWanted_.exchange(false); }
   bool coordinated() const { return !config_.coordinator.empty(); }
@@ -838,6 +849,7 @@ class ServerCore {
   mutable std::mutex ownedMutex_;
   std::vector<OwnedWorld> owned_;  ///< under ownedMutex_
   std::map<uint32_t, Followed> standbyFor_;  ///< under ownedMutex_
+  std::vector<FailedTakeover> failedTakeovers_;  ///< under ownedMutex_
   bool ownedFresh_ = false;        ///< under ownedMutex_
   std::atomic<bool> statusWanted_{false};
   /// Replies of registered worlds that were ready while the hold had lapsed: sent once it is

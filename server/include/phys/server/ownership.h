@@ -85,6 +85,13 @@ class Ownership {
   std::map<uint64_t, Seen> heartbeats_;
   /// Worlds being taken over (submitted, not yet in ownedWorlds()); their keys are ours.
   std::set<uint32_t> takingOver_;
+  /// Worlds whose takeover failed (ServerCore::FailedTakeover): not tried again before `at`;
+  /// the wait doubles from 1 s to 30 s while it keeps failing.
+  struct Retry {
+    Clock::time_point at;
+    std::chrono::milliseconds wait{0};
+  };
+  std::map<uint32_t, Retry> retries_;
   /// Worlds whose StandDown or Registered note is on its way: not sent twice.
   std::map<uint32_t, int64_t> noted_;
   /// The owner last told to the tick thread of each world held elsewhere (Elsewhere notes).
