@@ -119,6 +119,10 @@ struct Cluster {
     pids[size_t(i - 1)] = 0;
     return WIFEXITED(st) && WEXITSTATUS(st) == 0;
   }
+  /// Every daemon still running from `from` on stopped (SIGTERM), each expected to exit cleanly.
+  void stopAll(int from = 1) {
+    for (int i = from; i <= kDaemons; ++i) EXPECT_TRUE(stop(i)) << "daemon " << i;
+  }
   ~Cluster() {
     for (pid_t& p : pids)
       if (p > 0) testing::stopProcess(p, SIGKILL);
@@ -386,7 +390,7 @@ TEST(Cluster, AMovedWorldIsKeptByItsNewDaemonAcrossRestarts) {
   std::this_thread::sleep_for(500ms);  // the restarted daemon greeted
   EXPECT_EQ(c.listWorlds(on1).get().size(), 0u);
   EXPECT_EQ(w.step(1).get().tick, 16u);
-  for (int i = 1; i <= Cluster::kDaemons; ++i) EXPECT_TRUE(cl.stop(i)) << "daemon " << i;
+  cl.stopAll();
 }
 
 /// The daemon whose list has `world` (0: none lists it, or the lists could not be had).
@@ -527,7 +531,7 @@ TEST(Cluster, AKilledOwnersWorldIsTakenOverByItsStandbyWithEveryAcknowledgedEdit
   EXPECT_EQ(taken.step(1).get().tick, 41u);
   std::this_thread::sleep_for(300ms);
   EXPECT_EQ(c.duplicateReplies(), 0u);
-  for (int i = 1; i <= Cluster::kDaemons; ++i) EXPECT_TRUE(cl.stop(i)) << "daemon " << i;
+  cl.stopAll();
 }
 
 // Fencing: daemon 1 is stopped (SIGSTOP) past its hold with an edit on its way to it; daemon
@@ -581,7 +585,7 @@ TEST(Cluster, AStoppedOwnerAcknowledgesAndPublishesNothingForTheWorldItLost) {
   EXPECT_EQ(sub.staleChunks(), staleBefore);
   EXPECT_EQ(c.listWorlds(on1).get().size(), 0u);
   EXPECT_EQ(c.duplicateReplies(), 0u);
-  for (int i = 1; i <= Cluster::kDaemons; ++i) EXPECT_TRUE(cl.stop(i)) << "daemon " << i;
+  cl.stopAll();
 }
 
 // A client carries on through a takeover by itself (docs/CLIENT.md "When a daemon dies").
@@ -646,7 +650,7 @@ TEST(Cluster, AClientCarriesOnThroughATakeover) {
   CallOptions on1;
   on1.daemon = 1;
   EXPECT_EQ(c.listWorlds(on1).get().size(), 0u);
-  for (int i = 1; i <= Cluster::kDaemons; ++i) EXPECT_TRUE(cl.stop(i)) << "daemon " << i;
+  cl.stopAll();
 }
 
 // A takeover that cannot be carried out (here: daemon 2, the standby, holds a world of the
@@ -696,7 +700,7 @@ TEST(Cluster, AFailedTakeoverGivesTheWorldBackAndIsTriedAgain) {
   expectSameState(world.queryState().get(), twin.queryState().get());
   stepBoth(7);
   EXPECT_EQ(c.duplicateReplies(), 0u);
-  for (int i = 2; i <= Cluster::kDaemons; ++i) EXPECT_TRUE(cl.stop(i)) << "daemon " << i;
+  cl.stopAll(2);
 }
 
 // The coordinator restarted (SIGKILL, then started on its data again): meanwhile owners
@@ -729,7 +733,7 @@ TEST(Cluster, ARestartedCoordinatorChangesNoOwner) {
     EXPECT_EQ(worlds[size_t(d - 1)].step(1).get().tick, d == 1 ? 4u : 1u);
   }
   EXPECT_EQ(c.duplicateReplies(), 0u);
-  for (int i = 1; i <= Cluster::kDaemons; ++i) EXPECT_TRUE(cl.stop(i)) << "daemon " << i;
+  cl.stopAll();
 }
 
 }  // namespace
