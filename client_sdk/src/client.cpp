@@ -499,11 +499,11 @@ struct Client::Impl {
     uint32_t redirects = 0;  ///< times sent on to a world's new owner (Moved)
     /// The daemon that should answer it: the one addressed, or the world's range daemon;
     /// 0 with a lone daemon (or for Hello, which every daemon answers). When that daemon is
-    /// gone (DDS liveliness: daemonGone) before answering, the request fails at once.
+    /// gone (its status's DDS liveliness lapsed) before answering, the request fails at once
+    /// (failGone).
     uint64_t daemon = 0;
-    /// Not sent yet: its world's daemon is gone, and the request waits (from sendAt) for a
-    /// live daemon to list the world (its standby taking it over) to go there; see
-    /// sendParked.
+    /// Not sent yet: its world's daemon is gone, and the request waits for a live daemon to
+    /// list the world (its standby taking it over) to go there; see sendParked.
     bool parked = false;
     /// In the backlog (see `held`): not (or no longer) at the daemon, sent by the SDK thread
     /// at `sendAt` at the earliest.
@@ -673,7 +673,6 @@ struct Client::Impl {
       if (park) {
         // Its world's daemon is gone: sent when a live daemon lists the world (sendParked).
         p.parked = later = true;
-        p.sendAt = Clock::now();
         p.sentWithServer = true;
         ++parked;
       } else if (options.retryBusy && backlogged()) {
@@ -1265,6 +1264,10 @@ struct Client::Impl {
     for (auto& s : copy) {
       const uint64_t owner = currentOwner(s->world);
       if (owner == s->daemon) continue;
+      if (s->daemon == 0) {  // subscribed before the SDK knew of a domain: where it is now
+        s->daemon = owner;
+        continue;
+      }
       {
         std::lock_guard<std::mutex> lk(infoMutex);
         const std::optional<uint64_t> holder = liveHolder(s->world);
