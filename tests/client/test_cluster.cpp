@@ -403,6 +403,21 @@ uint64_t holderOf(Client& c, uint32_t world) {
   return 0;
 }
 
+/// Whether process pid is stopped (state T in /proc/<pid>/stat) within `within`: kill(SIGSTOP)
+/// returns before the signal lands, and a daemon may take a command meanwhile.
+bool stoppedWithin(pid_t pid, std::chrono::milliseconds within) {
+  const auto end = std::chrono::steady_clock::now() + within;
+  do {
+    std::ifstream in("/proc/" + std::to_string(pid) + "/stat");
+    std::string stat((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const size_t paren = stat.rfind(')');  // the name may hold spaces and parentheses
+    if (paren != std::string::npos && paren + 2 < stat.size() && stat[paren + 2] == 'T')
+      return true;
+    std::this_thread::sleep_for(1ms);
+  } while (std::chrono::steady_clock::now() < end);
+  return false;
+}
+
 /// Both worlds' bodies are the same, bit for bit.
 void expectSameState(const StateFrame& a, const StateFrame& b) {
   EXPECT_EQ(a.tick, b.tick);
@@ -561,6 +576,7 @@ TEST(Cluster, AStoppedOwnerAcknowledgesAndPublishesNothingForTheWorldItLost) {
   ASSERT_TRUE(sub.waitForFrame(19, 10s));
 
   ASSERT_EQ(kill(cl.pids[0], SIGSTOP), 0);
+  ASSERT_TRUE(stoppedWithin(cl.pids[0], 2000ms));  // so the edit cannot reach it before
   std::future<Ack> edit = lost.applyImpulse(ids[5], {0, 0.7f, 0});  // to daemon 1, stopped
   const auto end = std::chrono::steady_clock::now() + 20s * int64_t(phys::test::kTimeFactor);
   uint64_t holder = 0;
@@ -615,6 +631,7 @@ TEST(Cluster, AClientCarriesOnThroughATakeover) {
 
   ASSERT_EQ(kill(cl.pids[0], SIGSTOP), 0);
   const auto stopped = std::chrono::steady_clock::now();
+  ASSERT_TRUE(stoppedWithin(cl.pids[0], 2000ms));  // so the edit cannot reach it before
   std::future<Ack> lost = world.applyImpulse(ids[5], {0, 0.7f, 0});  // to daemon 1, frozen
   try {
     lost.get();
