@@ -1016,7 +1016,6 @@ struct Client::Impl {
           ++duplicates;  // a second daemon took the command
         if (it == pending.end() || it->second.held || it->second.parked)
           return;  // not this send's answer
-        if (it->first == backlogSeq) backlogSeq = 0;  // the next of the backlog may go
         if (r.ok() && r->status() == wire::StatusCode::Moved && r->owner() != 0 &&
             it->second.redirects < kMaxRedirects) {
           // The world moved, nothing was done: the same command (same seq) to its new owner.
@@ -1027,9 +1026,10 @@ struct Client::Impl {
           if (protocol::setCommandDaemon(*patched, r->owner())) {
             q.bytes = patched;
             resend.push_back({it->first, patched, q.world, r->owner()});  // after the take
-            return;
+            return;  // still the backlog's request at a daemon, if it was
           }
         }
+        if (it->first == backlogSeq) backlogSeq = 0;  // the next of the backlog may go
         if (r.ok() && options.retryBusy &&
             r->status() == wire::StatusCode::ResourceExhausted && r->retry_after_ms() > 0) {
           // Refused at the door, nothing done: into the backlog, to go again after the wait
