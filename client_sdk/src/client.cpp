@@ -152,6 +152,11 @@ struct Subscription::State {
 
   std::mutex ownerMutex;
   Client::Impl* owner = nullptr;
+  /// Under m: the last delivered frame's callback has returned (or there is none), so a
+  /// waitForFrame that returns it finds what the callback recorded; the thread delivering
+  /// (the SDK's), which may wait inside its own callback.
+  bool settled = true;
+  std::thread::id delivering;
 
   uint64_t skipped = 0;
   uint64_t stale = 0;  ///< chunks of an older epoch, dropped
@@ -300,23 +305,29 @@ struct Subscription::State {
       delivered = header;
       deliveredBodies = &full;
       ++frames;
+      settled = !fn;
+      delivering = std::this_thread::get_id();
     }
-    cv.notify_all();
-    if (!fn) return;
-    // The callback's frame borrows the full state and gives it back.
-    StateFrame view = std::move(header);
-    {
+    if (fn) {
+      // The callback's frame borrows the full state and gives it back.
+      StateFrame view = std::move(header);
+      {
+        std::lock_guard<std::mutex> lk(m);
+        view.bodies = std::move(full);
+        deliveredBodies = &view.bodies;
+      }
+      {
+        std::lock_guard<std::recursive_mutex> calling(fnMutex);
+        if (!fnStopped) fn(view);
+      }
       std::lock_guard<std::mutex> lk(m);
-      view.bodies = std::move(full);
-      deliveredBodies = &view.bodies;
+      full = std::move(view.bodies);
+      deliveredBodies = &full;
+      settled = true;
     }
-    {
-      std::lock_guard<std::recursive_mutex> calling(fnMutex);
-      if (!fnStopped) fn(view);
-    }
-    std::lock_guard<std::mutex> lk(m);
-    full = std::move(view.bodies);
-    deliveredBodies = &full;
+    // After the callback: a waitForFrame that returns this frame finds the callback done
+    // with it (what the callback recorded is there to read).
+    cv.notify_all();
   }
 
   /// A complete tick onto the full state (under m); false when the state is not the
@@ -1517,8 +1528,9 @@ std::optional<StateFrame> Subscription::waitForFrame(uint64_t afterTick,
   // reset is at tick 0).
   const bool first = afterTick == 0 && epoch == 0 && !state_->handedOut;
   if (epoch == 0) epoch = state_->handedEpoch;
+  const bool inCallback = std::this_thread::get_id() == state_->delivering;
   auto ready = [&] {
-    return state_->deliveredBodies &&
+    return state_->deliveredBodies && (state_->settled || inCallback) &&
            (first || state_->delivered.tick > afterTick ||
             (epoch != 0 && state_->delivered.epoch != epoch));
   };

@@ -254,7 +254,8 @@ class Subscription {
   /// waitForFrame() returned; before they returned any, afterTick 0 takes the first frame
   /// whatever its tick (a world just created or reset is at tick 0). A paused world's edits
   /// come as frames of the tick already delivered (StateFrame::edit): latest() and the
-  /// callback see them.
+  /// callback see them. It returns a frame once the callback (if any) has returned from it,
+  /// so what the callback recorded of that frame is there to read.
   std::optional<StateFrame> waitForFrame(uint64_t afterTick, std::chrono::milliseconds timeout,
                                          uint64_t epoch = 0);
   uint64_t framesReceived() const;  ///< complete frames
