@@ -1229,9 +1229,16 @@ protocol::ServerStatusInfo ServerCore::status() const {
 void ServerCore::notePeerStatus(uint64_t daemon, double periodS) {
   if (daemon == 0 || daemon == config_.serverId) return;
   std::lock_guard<std::mutex> lk(peersMutex_);
+  const auto now = std::chrono::steady_clock::now();
+  auto it = peersSeen_.find(daemon);
+  // A peer not named now: this daemon's status names it at once, not a period later (a
+  // client connecting while the domain starts waits for the status of every daemon named,
+  // and would otherwise miss one that only this daemon has seen yet).
+  if (it == peersSeen_.end() ||
+      now - it->second.first > std::chrono::duration<double>(it->second.second))
+    statusWanted_ = true;
   // (A period past a minute is not believed: a peer is named for three minutes at most.)
-  peersSeen_[daemon] = {std::chrono::steady_clock::now(),
-                        std::clamp(3 * periodS, 2.0, 180.0)};
+  peersSeen_[daemon] = {now, std::clamp(3 * periodS, 2.0, 180.0)};
 }
 
 std::vector<uint64_t> ServerCore::livePeers() const {

@@ -96,7 +96,8 @@ struct PhysdConfig {
     }
     toml = (dir / "physd.toml").string();
     std::ofstream f(toml);
-    f << "[server]\nname = \"" << name << "\"\nlog_level = \"warn\"\nstatus_period_s = 0.2\n"
+    f << "[server]\nname = \"" << name << "\"\nlog_level = \"warn\"\n"
+      << (serverToml.find("status_period_s") == std::string::npos ? "status_period_s = 0.2\n" : "")
       << serverToml << "[dds]\ndomain = " << domain << "\nconfig = \"" << xml << "\"\n"
       << ddsToml << "[paths]\npresets = \""
       << src << "/configs/presets.json\"\nscenes = \"" << src << "/configs/scenes\"\n"

@@ -7,6 +7,7 @@
 #include <netinet/in.h>
 #include <sys/socket.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstring>
 #include <fstream>
@@ -73,9 +74,9 @@ struct Cluster {
 
   /// durable: each daemon keeps its worlds in <dir>/d<i>/data. coordinator: etcd's URL, and
   /// daemon i stands by for daemon i-1's worlds (1 for 3's).
-  /// dds: more of each daemon's [dds] section (e.g. its liveliness lease).
+  /// dds, server: more of each daemon's [dds] and [server] sections.
   explicit Cluster(bool durable = false, const std::string& coordinator = "",
-                   const std::string& dds = "") {
+                   const std::string& dds = "", const std::string& server = "") {
     for (int i = 1; i <= kDaemons; ++i) {
       const auto d = dir.path / ("d" + std::to_string(i));
       std::filesystem::create_directories(d);
@@ -89,8 +90,8 @@ struct Cluster {
                                     "\nfence_after_s = 0.6\ntakeover_after_s = 1.0\n";
       configs.push_back(std::make_unique<testing::PhysdConfig>(
           d, "cluster-" + std::to_string(i), domain,
-          data + "[cluster]\nenabled = true\n" + standby, "id = " + std::to_string(i) + "\n",
-          dds));
+          data + "[cluster]\nenabled = true\n" + standby,
+          "id = " + std::to_string(i) + "\n" + server, dds));
       start(i);
     }
   }
@@ -245,6 +246,28 @@ std::vector<phys::BodyDef> pile() {
   for (int i = 0; i < 6; ++i)
     bodies.push_back(phys::test::boxBody({0.3f * float(i % 2), 0.1f * float(i), 1.0f + 1.1f * float(i)}));
   return bodies;
+}
+
+// A daemon's status names a peer as soon as it has seen one, not a status period later: a
+// client that connects while the domain starts waits for the status of every daemon named
+// (Client::connect), so one only another daemon has seen yet is not missed. Here the period
+// is 30 s, so only that makes every daemon name both others within seconds.
+TEST(Cluster, DaemonsNameANewPeerAtOnce) {
+  Cluster cl(false, "", "", "status_period_s = 30\n");
+  std::unique_ptr<Client> c = cl.connected();
+  ASSERT_TRUE(c);
+  const auto end = std::chrono::steady_clock::now() + 10s * int64_t(phys::test::kTimeFactor);
+  auto allNamed = [&] {
+    const std::vector<DaemonInfo> ds = c->daemons();
+    return ds.size() == size_t(Cluster::kDaemons) &&
+           std::all_of(ds.begin(), ds.end(), [](const DaemonInfo& d) {
+             return d.peers.size() == size_t(Cluster::kDaemons - 1);
+           });
+  };
+  while (!allNamed() && std::chrono::steady_clock::now() < end)
+    std::this_thread::sleep_for(20ms);
+  EXPECT_TRUE(allNamed()) << "a daemon's status did not name both others";
+  cl.stopAll();
 }
 
 TEST(Cluster, AMovedWorldGoesOnWithItsTicksHandleAndState) {
