@@ -627,7 +627,7 @@ TEST(Cluster, AStoppedOwnerAcknowledgesAndPublishesNothingForTheWorldItLost) {
   cl.stopAll();
 }
 
-// A client carries on through a takeover by itself (docs/CLIENT.md "When a daemon dies").
+// A client carries on through a takeover by itself (docs/SERVER.md "When a daemon is gone").
 // Daemon 1 is frozen (SIGSTOP) with an edit on its way to it: the SDK fails that edit as
 // Disconnected once daemon 1's liveliness lease (1 s) lapses, long before the request's
 // timeout. The next edit, made while no live daemon lists the world yet or just after
