@@ -1241,6 +1241,11 @@ void ServerCore::notePeerStatus(uint64_t daemon, double periodS) {
   peersSeen_[daemon] = {now, std::clamp(3 * periodS, 2.0, 180.0)};
 }
 
+void ServerCore::notePeerGone(uint64_t daemon) {
+  std::lock_guard<std::mutex> lk(peersMutex_);
+  if (peersSeen_.erase(daemon) > 0) statusWanted_ = true;
+}
+
 std::vector<uint64_t> ServerCore::livePeers() const {
   const auto now = std::chrono::steady_clock::now();
   std::vector<uint64_t> out;

@@ -244,15 +244,18 @@ void DdsEndpoint::readLoop() {
 
 void DdsEndpoint::takePeerStatuses() {
   const protocol::Limits& limits = core_->config().limits;
-  statusReader_.take([&](const phys_wire_Envelope& env) {
-    if (env.key == core_->config().serverId) return;  // its own
-    if (!protocol::checkEnvelope(env, PayloadKind::ServerStatus, limits).ok()) return;
-    auto st = protocol::decodeServerStatus(protocol::envelopeBytes(env), limits);
-    if (!st.ok() || !st->cluster()) return;
-    const float period = st->status_period_s();
-    core_->notePeerStatus(st->daemon() ? st->daemon() : env.key,
-                          std::isfinite(period) && period > 0 ? double(period) : 1.0);
-  });
+  statusReader_.take(
+      [&](const phys_wire_Envelope& env, dds_instance_handle_t) {
+        if (env.key == core_->config().serverId) return;  // its own
+        if (!protocol::checkEnvelope(env, PayloadKind::ServerStatus, limits).ok()) return;
+        auto st = protocol::decodeServerStatus(protocol::envelopeBytes(env), limits);
+        if (!st.ok() || !st->cluster()) return;
+        const float period = st->status_period_s();
+        core_->notePeerStatus(st->daemon() ? st->daemon() : env.key,
+                              std::isfinite(period) && period > 0 ? double(period) : 1.0);
+      },
+      // Its liveliness lapsed (killed, frozen) or it stopped: named no more, at once.
+      [&](uint64_t daemon) { core_->notePeerGone(daemon); });
 }
 
 void DdsEndpoint::takeHandoffs() {

@@ -120,9 +120,10 @@ struct Cluster {
     pids[size_t(i - 1)] = 0;
     return WIFEXITED(st) && WEXITSTATUS(st) == 0;
   }
-  /// Every daemon still running from `from` on stopped (SIGTERM), each expected to exit cleanly.
-  void stopAll(int from = 1) {
-    for (int i = from; i <= kDaemons; ++i) EXPECT_TRUE(stop(i)) << "daemon " << i;
+  /// Every daemon still running stopped (SIGTERM), each expected to exit cleanly.
+  void stopAll() {
+    for (int i = 1; i <= kDaemons; ++i)
+      if (pids[size_t(i - 1)] > 0) EXPECT_TRUE(stop(i)) << "daemon " << i;
   }
   ~Cluster() {
     for (pid_t& p : pids)
@@ -251,8 +252,10 @@ std::vector<phys::BodyDef> pile() {
 // A daemon's status names a peer as soon as it has seen one, not a status period later: a
 // client that connects while the domain starts waits for the status of every daemon named
 // (Client::connect), so one only another daemon has seen yet is not missed. Here the period
-// is 30 s, so only that makes every daemon name both others within seconds.
-TEST(Cluster, DaemonsNameANewPeerAtOnce) {
+// is 30 s, so only that makes every daemon name both others within seconds. And a peer killed
+// is named no more once its liveliness lease (1 s) lapses, not three periods later: a client
+// connecting then does not wait for its status.
+TEST(Cluster, DaemonsNameANewPeerAtOnceAndDropAGoneOne) {
   Cluster cl(false, "", "", "status_period_s = 30\n");
   std::unique_ptr<Client> c = cl.connected();
   ASSERT_TRUE(c);
@@ -267,6 +270,22 @@ TEST(Cluster, DaemonsNameANewPeerAtOnce) {
   while (!allNamed() && std::chrono::steady_clock::now() < end)
     std::this_thread::sleep_for(20ms);
   EXPECT_TRUE(allNamed()) << "a daemon's status did not name both others";
+
+  testing::stopProcess(cl.pids[2], SIGKILL);
+  cl.pids[2] = 0;
+  const auto killed = std::chrono::steady_clock::now();
+  auto thirdDropped = [&] {
+    const std::vector<DaemonInfo> ds = c->daemons();
+    return ds.size() == 2 && std::all_of(ds.begin(), ds.end(), [](const DaemonInfo& d) {
+             return d.peers.size() == 1 && d.peers[0] != 3;
+           });
+  };
+  while (!thirdDropped() && std::chrono::steady_clock::now() < killed + 10s * int64_t(phys::test::kTimeFactor))
+    std::this_thread::sleep_for(20ms);
+  EXPECT_TRUE(thirdDropped()) << "the killed daemon is still named";
+  std::printf("the killed daemon named no more after %.0f ms\n",
+              std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - killed)
+                  .count());
   cl.stopAll();
 }
 
@@ -740,7 +759,7 @@ TEST(Cluster, AFailedTakeoverGivesTheWorldBackAndIsTriedAgain) {
   expectSameState(world.queryState().get(), twin.queryState().get());
   stepBoth(7);
   EXPECT_EQ(c.duplicateReplies(), 0u);
-  cl.stopAll(2);
+  cl.stopAll();
 }
 
 // The coordinator restarted (SIGKILL, then started on its data again): meanwhile owners

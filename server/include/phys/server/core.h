@@ -563,6 +563,9 @@ class ServerCore {
   /// Another daemon's status sample arrived (any thread): it is live for 3 of its periods
   /// (at least 2 s), and named in this daemon's status as a peer meanwhile.
   void notePeerStatus(uint64_t daemon, double periodS);
+  /// Thread-safe: a peer's status lost its DDS liveliness (or its writer): not named from
+  /// the next status on, which goes at once.
+  void notePeerGone(uint64_t daemon);
   /// The other daemons seen live, by id.
   std::vector<uint64_t> livePeers() const;
 
