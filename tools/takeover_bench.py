@@ -25,6 +25,7 @@ subscriber after the new owner's (Subscription.stale_chunks).
 Needs build/ (physd and the Python module) and etcd.
 """
 import argparse
+import collections
 import os
 import shutil
 import signal
@@ -309,10 +310,7 @@ def main():
               f"{unanswered}, of them applied {unanswered_applied}")
         line("SIGKILL -> an edit on its way to the dead owner fails", failed_after)
         line("then an edit made at once -> answered by the new owner", carried_after)
-        outcomes = {}
-        for o in dead_edit_outcomes:
-            outcomes[o] = outcomes.get(o, 0) + 1
-        print(f"edits after a kill: {outcomes}")
+        print(f"edits after a kill: {dict(collections.Counter(dead_edit_outcomes))}")
         print(f"acknowledged edits {acked}; state mismatches with the twin {mismatches} "
               f"(an acknowledged edit lost or applied twice shows as one); stale chunks after "
               f"the new owner's {stale}; old owners still listing a world {doubles}; duplicate "
